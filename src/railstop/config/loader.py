@@ -1,0 +1,104 @@
+"""Loading TOML data files into validated models, with one-line errors."""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from railstop.config.schema import Line, Vehicle, VehicleFile
+from railstop.errors import ConfigError
+
+M = TypeVar("M", bound=BaseModel)
+
+DEFAULT_LINE = "line.toml"
+DEFAULT_VEHICLE = "vehicle.toml"
+
+
+def format_loc(loc: tuple[int | str, ...]) -> str:
+    """``('stations', 1, 'tasc', 'x')`` -> ``stations[1].tasc.x``."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _lookup(data: Any, loc: tuple[int | str, ...]) -> Any:
+    cur = data
+    for part in loc:
+        try:
+            cur = cur[part]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return cur
+
+
+def validate(model: type[M], data: dict[str, Any], source: str) -> M:
+    """Validate ``data`` against ``model``; the first problem becomes a ConfigError."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        loc = tuple(p for p in err["loc"] if not str(p).startswith("function-after"))
+        if err["type"] == "extra_forbidden":
+            raise ConfigError(source, format_loc(loc), "unknown key") from None
+        value = err.get("input") if err["type"] != "missing" else None
+        if isinstance(value, dict):
+            # A model-level check: report the field it talks about where we can.
+            value = None
+        if value is None and err["type"] != "missing":
+            value = _lookup(data, loc) if not isinstance(_lookup(data, loc), dict) else None
+        msg = str(err["msg"]).removeprefix("Value error, ")
+        raise ConfigError(source, format_loc(loc), msg, value) from None
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(str(path), "(file)", "no such file") from None
+    except OSError as exc:
+        raise ConfigError(str(path), "(file)", f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(str(path), "(file)", "not UTF-8 text") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(path), "(toml syntax)", str(exc)) from None
+
+
+def _data_text(name: str) -> tuple[str, dict[str, Any]]:
+    ref = resources.files("railstop.data").joinpath(name)
+    return f"railstop/data/{name}", tomllib.loads(ref.read_text(encoding="utf-8"))
+
+
+def load_line(path: str | Path | None = None) -> Line:
+    """Load a line file; ``None`` gives the embedded default line."""
+    if path is None:
+        source, data = _data_text(DEFAULT_LINE)
+    else:
+        source, data = str(path), read_toml(Path(path))
+    return validate(Line, data, source)
+
+
+def load_vehicle(path: str | Path | None = None) -> Vehicle:
+    """Load a vehicle file; ``None`` gives the embedded default vehicle."""
+    if path is None:
+        source, data = _data_text(DEFAULT_VEHICLE)
+    else:
+        source, data = str(path), read_toml(Path(path))
+    return validate(VehicleFile, data, source).vehicle
+
+
+def default_line() -> Line:
+    return load_line(None)
+
+
+def default_vehicle() -> Vehicle:
+    return load_vehicle(None)

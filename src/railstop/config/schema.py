@@ -1,0 +1,212 @@
+"""Pydantic schemas of the data a railway engineer edits (DESIGN rule 3).
+
+Units are SI except where a field name says km/h or permille (config edge,
+DESIGN rule 5). Unknown keys are rejected (DESIGN rule 6).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Fraction = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, str_strip_whitespace=True)
+
+
+class GradientSegment(_Model):
+    """A constant gradient between two chainages; + is uphill in the R direction."""
+
+    start_m: FiniteFloat
+    end_m: FiniteFloat
+    permille: Annotated[float, Field(ge=-60.0, le=60.0, allow_inf_nan=False)]
+
+    @model_validator(mode="after")
+    def _ordered(self) -> GradientSegment:
+        if self.end_m <= self.start_m:
+            raise ValueError(f"end_m must be greater than start_m ({self.start_m})")
+        return self
+
+
+class DopplerRadar(_Model):
+    """SPEC §1 speed detection unit: a Doppler sensor at the platform end."""
+
+    beyond_stop_m: NonNegFloat = 10.0
+    sample_period_s: Annotated[float, Field(gt=0.0, le=0.1)] = 0.01
+    range_m: PositiveFloat = 400.0
+    fit_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 1.5
+
+
+class TascZone(_Model):
+    """SPEC §1 train detection unit and wayside controller settings for one station.
+
+    Detector positions are distances before the stopping point (metres), first
+    (farthest) first; the embodiment of the patent uses five wheel sensors.
+    """
+
+    entry_speed_kmh: Annotated[float, Field(gt=0.0, le=120.0)] = 60.0
+    detectors_before_stop_m: list[PositiveFloat]
+    detector_kind: Literal["wheel-sensor", "ultrasonic", "optical", "magnetic", "proximity"] = (
+        "wheel-sensor"
+    )
+    doppler: DopplerRadar | None = None
+    update: Literal["detectors", "continuous"] = "detectors"
+    continuous_period_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
+    signal_form: Annotated[int, Field(ge=1, le=8)] = 6
+    assumed_link_latency_s: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+
+    @field_validator("detectors_before_stop_m")
+    @classmethod
+    def _detectors(cls, v: list[float]) -> list[float]:
+        # SPEC §1: at least two detectors at set intervals approaching the platform.
+        if len(v) < 2:
+            raise ValueError("at least 2 detectors are needed (SPEC §1)")
+        if any(b >= a for a, b in zip(v, v[1:], strict=False)):
+            raise ValueError("detectors must be listed farthest first, strictly decreasing")
+        return v
+
+    @model_validator(mode="after")
+    def _variant(self) -> TascZone:
+        # SPEC §1 variant 2: without a Doppler sensor, >= 3 detectors give speed
+        # and deceleration from passage times.
+        if self.doppler is None and len(self.detectors_before_stop_m) < 3:
+            raise ValueError(
+                "without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2)"
+            )
+        if self.update == "continuous" and self.doppler is None:
+            raise ValueError("update = 'continuous' needs a doppler radar")
+        return self
+
+
+class Station(_Model):
+    name: Annotated[str, Field(min_length=1, max_length=64)]
+    stop_point_m: FiniteFloat
+    platform_length_m: PositiveFloat
+    platform_side: Literal["L", "R"]
+    platform_end_m: FiniteFloat | None = None
+    gradient: list[GradientSegment] = Field(default_factory=list)
+    tasc: TascZone
+
+    @model_validator(mode="after")
+    def _geometry(self) -> Station:
+        end = self.platform_end
+        if end < self.stop_point_m:
+            raise ValueError(f"platform_end_m must not be before stop_point_m ({self.stop_point_m})")
+        segs = sorted(self.gradient, key=lambda s: s.start_m)
+        for a, b in zip(segs, segs[1:], strict=False):
+            if b.start_m < a.end_m:
+                raise ValueError(f"gradient segments overlap at {b.start_m} m")
+        return self
+
+    @property
+    def platform_end(self) -> float:
+        return self.stop_point_m + 5.0 if self.platform_end_m is None else self.platform_end_m
+
+    @property
+    def platform_start(self) -> float:
+        return self.platform_end - self.platform_length_m
+
+    def detector_positions_m(self) -> list[float]:
+        return [self.stop_point_m - d for d in self.tasc.detectors_before_stop_m]
+
+
+class LineInfo(_Model):
+    name: Annotated[str, Field(min_length=1)]
+    speed_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0)] = 80.0
+
+
+class Line(_Model):
+    line: LineInfo
+    stations: list[Station] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _unique(self) -> Line:
+        names = [s.name for s in self.stations]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"station names must be unique, repeated: {sorted(dup)}")
+        stops = [s.stop_point_m for s in self.stations]
+        if stops != sorted(stops):
+            raise ValueError("stations must be listed in increasing stop_point_m")
+        return self
+
+    def station(self, name: str | None) -> Station:
+        if name is None:
+            return self.stations[0]
+        for s in self.stations:
+            if s.name.lower() == name.lower():
+                return s
+        from railstop.errors import SimulationError
+
+        raise SimulationError(
+            f"unknown station {name!r}; this line has: {', '.join(s.name for s in self.stations)}"
+        )
+
+
+class BrakeModel(_Model):
+    """SPEC §1 brake chain: notch table, emergency, PWM map, ECU + actuator dynamics."""
+
+    notch_decel_mps2: list[PositiveFloat]
+    emergency_decel_mps2: PositiveFloat
+    pwm_duty: list[Fraction]
+    pwm_decel_mps2: list[NonNegFloat]
+    pwm_carrier_hz: Annotated[float, Field(gt=0.0, le=2000.0)] = 50.0
+    dead_time_s: Annotated[float, Field(ge=0.0, le=2.0)]
+    time_constant_s: Annotated[float, Field(gt=0.0, le=3.0)]
+    jerk_limit_mps3: PositiveFloat
+    controller_cycle_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
+    controller_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.5
+    tasc_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.2
+
+    @field_validator("notch_decel_mps2")
+    @classmethod
+    def _notches(cls, v: list[float]) -> list[float]:
+        # SPEC §1 fig. 3: 3 service wires a, b, c carry exactly 7 steps B1..B7.
+        if len(v) != 7:
+            raise ValueError(f"exactly 7 notches B1..B7 are needed, got {len(v)}")
+        if any(b <= a for a, b in zip(v, v[1:], strict=False)):
+            raise ValueError("notch decelerations must increase from B1 to B7")
+        return v
+
+    @model_validator(mode="after")
+    def _pwm(self) -> BrakeModel:
+        if len(self.pwm_duty) != len(self.pwm_decel_mps2) or len(self.pwm_duty) < 2:
+            raise ValueError("pwm_duty and pwm_decel_mps2 need the same length, at least 2")
+        if any(b <= a for a, b in zip(self.pwm_duty, self.pwm_duty[1:], strict=False)):
+            raise ValueError("pwm_duty must increase strictly")
+        dec = self.pwm_decel_mps2
+        if any(b < a for a, b in zip(dec, dec[1:], strict=False)):
+            raise ValueError("pwm_decel_mps2 must not decrease (larger duty = more braking)")
+        if self.emergency_decel_mps2 < self.notch_decel_mps2[-1]:
+            raise ValueError("emergency_decel_mps2 must be at least the B7 deceleration")
+        return self
+
+    @property
+    def full_service_mps2(self) -> float:
+        return self.notch_decel_mps2[-1]
+
+
+class Vehicle(_Model):
+    name: Annotated[str, Field(min_length=1)]
+    cars: Annotated[int, Field(ge=1, le=20)]
+    length_m: PositiveFloat
+    tare_mass_kg: PositiveFloat
+    crush_payload_kg: NonNegFloat
+    rotating_mass_factor: Annotated[float, Field(ge=0.0, le=0.5)]
+    davis_a_n: NonNegFloat
+    davis_b_n_per_mps: NonNegFloat
+    davis_c_n_per_mps2: NonNegFloat
+    wheel_diameter_m: Annotated[float, Field(gt=0.5, lt=1.2)]
+    adhesion_mu: Annotated[float, Field(gt=0.0, le=0.5)]
+    slide_slip_ratio: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.15
+    brake: BrakeModel
+
+
+class VehicleFile(_Model):
+    vehicle: Vehicle

@@ -1,0 +1,1 @@
+"""Array-first control laws: ground TASC, notch modulation."""

@@ -1,0 +1,334 @@
+"""The ground TASC control law of SPEC §1, over arrays of runs.
+
+The wayside controller computes "the braking deceleration required to stop at
+the stopping point" from the distance to go, allowing for the time until a new
+command acts (radio latency, brake dead time, build-up lag, jerk-limited
+ramp), and closes the loop by comparing the deceleration it measures with the
+deceleration it commanded (SPEC §1, claims 2 and 19). The comparison gives a
+loop gain g = measured / expected; the next command is required / g. This
+cancels whatever makes the brakes act differently from nominal: load, brake
+effectiveness, a wrong load-weighing signal. Gradient and running resistance
+are not brake errors: the wayside's database holds the track gradient and
+the vehicle's Davis coefficients, so they are modelled as an external
+deceleration along the remaining path and kept out of the gain.
+**[interpretation]** The patent says only that measured and required
+deceleration are compared; the multiplicative gain, the equivalent-dead-time
+model of the brake response and the piecewise command history below are
+railstop's reading of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.config.schema import Vehicle
+from railstop.physics.train import G_MPS2, GradientProfile
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+GAIN_MIN = 0.5
+GAIN_MAX = 2.0
+HISTORY = 4
+
+
+def propagate(
+    distance_m: FloatArray, speed_mps: FloatArray, decel_mps2: FloatArray, dt_s: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Distance to go and speed after ``dt_s`` at constant deceleration (stops at zero speed)."""
+    dt = np.maximum(dt_s, 0.0)
+    v_end = speed_mps - decel_mps2 * dt
+    stops = (decel_mps2 > 0.0) & (v_end <= 0.0)
+    safe = np.where(stops, decel_mps2, 1.0)
+    travelled = np.where(
+        stops, speed_mps * speed_mps / (2.0 * safe), speed_mps * dt - 0.5 * decel_mps2 * dt * dt
+    )
+    return distance_m - travelled, np.where(stops, 0.0, v_end)
+
+
+def required_decel(distance_m: FloatArray, speed_mps: FloatArray) -> FloatArray:
+    """SPEC §1: deceleration that stops from ``speed`` in exactly ``distance``: v² / 2s.
+
+    A train already at or past the stopping point gets +inf (brake as hard as
+    allowed); a stopped train needs nothing.
+    """
+    s = np.asarray(distance_m, dtype=np.float64)
+    v = np.asarray(speed_mps, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(s > 0.0, v * v / (2.0 * np.where(s > 0.0, s, 1.0)), np.inf)
+    return np.where(v <= 0.0, 0.0, a)
+
+
+IntArray = NDArray[np.int64]
+SAMPLES = 24  # points per window for model-weighted means
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ExternalModel:
+    """Deceleration from gradient and running resistance, as the database knows it.
+
+    SPEC §1 database unit: stopping point, detector positions, braking data.
+    The wayside (and the onboard unit for forms 1-5) predicts with the track
+    gradient under the train and nominal Davis resistance at half load.
+    """
+
+    gradient: GradientProfile
+    stop_point_m: float
+    length_m: float
+    mass_ratio: float  # static / effective mass at nominal load
+    davis_a_mps2: float
+    davis_b_per_s: float
+    davis_c_per_m: float
+
+    @classmethod
+    def create(
+        cls, vehicle: Vehicle, gradient: GradientProfile, stop_point_m: float
+    ) -> ExternalModel:
+        static = vehicle.tare_mass_kg + 0.5 * vehicle.crush_payload_kg
+        eff = static + vehicle.tare_mass_kg * vehicle.rotating_mass_factor
+        return cls(
+            gradient=gradient,
+            stop_point_m=stop_point_m,
+            length_m=vehicle.length_m,
+            mass_ratio=static / eff,
+            davis_a_mps2=vehicle.davis_a_n / eff,
+            davis_b_per_s=vehicle.davis_b_n_per_mps / eff,
+            davis_c_per_m=vehicle.davis_c_n_per_mps2 / eff,
+        )
+
+    def decel_at(self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray) -> FloatArray:
+        """External deceleration now (+ = helps braking: uphill, resistance)."""
+        x = self.stop_point_m - distance_m
+        grade = G_MPS2 * self.mass_ratio * self.gradient.mean_gradient(x, self.length_m, rows)
+        v = np.maximum(speed_mps, 0.0)
+        return grade + self.davis_a_mps2 + self.davis_b_per_s * v + self.davis_c_per_m * v * v
+
+    def path_integral(self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray) -> FloatArray:
+        """Integral of the external deceleration over the remaining ``distance`` (m²/s²).
+
+        Gradient: trapezoid over SAMPLES points of the path. Resistance: for a
+        uniform stop from v over s, v² falls linearly with distance, so the
+        mean of v over distance is 2v/3 and of v² is v²/2.
+        """
+        s = np.maximum(distance_m, 0.0)
+        frac = np.linspace(0.0, 1.0, SAMPLES)
+        x = self.stop_point_m - s[:, None] * (1.0 - frac[None, :])
+        grade = self.gradient.mean_gradient(x, self.length_m, rows)
+        mean_grade = np.trapezoid(grade, frac, axis=1)
+        v = np.maximum(speed_mps, 0.0)
+        resist = self.davis_a_mps2 + self.davis_b_per_s * 2.0 * v / 3.0 + self.davis_c_per_m * v * v / 2.0
+        return s * (G_MPS2 * self.mass_ratio * mean_grade + resist)
+
+
+@dataclass(slots=True, kw_only=True)
+class CommandHistory:
+    """The last few commands of each run and when each takes effect on the train.
+
+    The modelled brake deceleration at time t is ``gain × value`` of the newest
+    command whose effect time is <= t (0 before the first one).
+    """
+
+    value_mps2: FloatArray  # (n, H), oldest first
+    effect_s: FloatArray  # (n, H); +inf where empty
+
+    @classmethod
+    def create(cls, n: int) -> CommandHistory:
+        return cls(value_mps2=np.zeros((n, HISTORY)), effect_s=np.full((n, HISTORY), np.inf))
+
+    def subset(self, rows: BoolArray | IntArray) -> CommandHistory:
+        return CommandHistory(value_mps2=self.value_mps2[rows], effect_s=self.effect_s[rows])
+
+    def push(self, mask: BoolArray, value_mps2: FloatArray, effect_s: FloatArray) -> None:
+        """Append one command for the runs in ``mask`` (values are full-length arrays)."""
+        if not mask.any():
+            return
+        v = self.value_mps2[mask]
+        e = self.effect_s[mask]
+        count = np.isfinite(e).sum(axis=1)
+        full = count >= HISTORY
+        v[full] = np.roll(v[full], -1, axis=1)
+        e[full] = np.roll(e[full], -1, axis=1)
+        slot = np.minimum(count, HISTORY - 1)
+        rows = np.arange(v.shape[0])
+        v[rows, slot] = value_mps2[mask]
+        e[rows, slot] = effect_s[mask]
+        self.value_mps2[mask] = v
+        self.effect_s[mask] = e
+
+    def value_at(self, t_s: FloatArray) -> FloatArray:
+        """Commanded value in effect at ``t_s``: shape (m,) or (m, k) for m runs."""
+        t = np.asarray(t_s, dtype=np.float64)
+        active = self.effect_s.reshape(self.effect_s.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)) <= t[..., None]
+        count = active.sum(axis=-1)  # effect times increase, so the active ones are a prefix
+        idx = np.maximum(count - 1, 0)
+        vals = np.take_along_axis(
+            np.broadcast_to(
+                self.value_mps2.reshape(self.value_mps2.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)),
+                t.shape + (HISTORY,),
+            ),
+            idx[..., None],
+            axis=-1,
+        )[..., 0]
+        return np.where(count > 0, vals, 0.0)
+
+    def _segments(self, t0: FloatArray, t1: FloatArray) -> list[tuple[FloatArray, FloatArray]]:
+        """Piecewise-constant (duration, value) pieces of the command profile on [t0, t1]."""
+        edges = np.concatenate([t0[:, None], np.clip(self.effect_s, t0[:, None], t1[:, None])], 1)
+        edges = np.concatenate([edges, t1[:, None]], axis=1)
+        values = np.concatenate([np.zeros((t0.size, 1)), self.value_mps2], axis=1)
+        durations = np.maximum(np.diff(edges, axis=1), 0.0)
+        return [(durations[:, j], values[:, j]) for j in range(values.shape[1])]
+
+    def predict(
+        self,
+        distance_m: FloatArray,
+        speed_mps: FloatArray,
+        now_s: FloatArray,
+        until_s: FloatArray,
+        gain: FloatArray,
+        external_mps2: FloatArray,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Distance to go and speed at ``until_s`` if the train follows the commands sent."""
+        s, v = distance_m, speed_mps
+        for dur, val in self._segments(now_s, until_s):
+            s, v = propagate(s, v, gain * val + external_mps2, dur)
+        return s, v
+
+
+def regression_weights(t0: FloatArray, t1: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Sample times (m, SAMPLES) and weights of a least-squares slope over [t0, t1].
+
+    The slope of a least-squares line through speed samples is the mean of
+    the deceleration weighted by (τ - t0)(t1 - τ): comparing it with the same
+    weighted mean of the modelled deceleration makes the gain unbiased while
+    the deceleration changes inside the window.
+    """
+    frac = (np.arange(SAMPLES) + 0.5) / SAMPLES
+    taus = t0[:, None] + (t1 - t0)[:, None] * frac[None, :]
+    w = frac * (1.0 - frac)
+    return taus, np.broadcast_to(w / w.sum(), taus.shape)
+
+
+def hat_weights(t0: FloatArray, t1: FloatArray, t2: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Sample times and weights of the hat function on [t0, t2] peaking at t1 (variant 2)."""
+    frac = (np.arange(SAMPLES) + 0.5) / SAMPLES
+    taus = t0[:, None] + (t2 - t0)[:, None] * frac[None, :]
+    rise = (taus - t0[:, None]) / np.maximum(t1 - t0, 1e-9)[:, None]
+    fall = (t2[:, None] - taus) / np.maximum(t2 - t1, 1e-9)[:, None]
+    w = np.where(taus <= t1[:, None], rise, fall)
+    return taus, w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+
+
+def modelled_means(
+    history: CommandHistory, taus: FloatArray, weights: FloatArray, braking_from_s: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Weighted means over a window of (commanded decel, fraction of time not in speed hold)."""
+    cmd = (history.value_at(taus) * weights).sum(axis=1)
+    after = ((taus >= braking_from_s[:, None]) * weights).sum(axis=1)
+    return cmd, after
+
+
+def plan_command(
+    *,
+    distance_m: FloatArray,
+    speed_mps: FloatArray,
+    now_s: FloatArray,
+    history: CommandHistory,
+    gain: FloatArray,
+    base_delay_s: float,
+    jerk_limit_mps3: float,
+    max_decel_mps2: float,
+    external: ExternalModel,
+    rows: IntArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The command to send now: (commanded decel, required brake decel, effect time).
+
+    The new command acts after ``base_delay_s`` (latency + dead time + lag
+    time constant, the equivalent dead time of a first-order lag) plus half
+    the jerk-limited ramp from the current level; until then the train
+    follows the commands already sent. From that predicted state the brake
+    must supply v²/2s (SPEC §1) less what gradient and resistance give over
+    the remaining path; dividing by the loop gain turns it into the command.
+    If the train is predicted to stop before a new command could act, the
+    brake is held (never released to roll on: DESIGN rule 7).
+    """
+    current = history.value_at(now_s)
+    ext_now = external.decel_at(distance_m, speed_mps, rows)
+    delay = np.full_like(now_s, base_delay_s)
+    need = np.zeros_like(now_s)
+    s_t = distance_m
+    v_t = speed_mps
+    for _ in range(2):  # the ramp depends on the answer: one fixed-point refinement
+        s_t, v_t = history.predict(distance_m, speed_mps, now_s, now_s + delay, gain, ext_now)
+        helped = external.path_integral(s_t, v_t, rows) / np.where(s_t > 0.0, s_t, 1.0)
+        need = required_decel(s_t, v_t) - np.where(s_t > 0.0, helped, 0.0)
+        ramp = np.abs(np.clip(need / gain, 0.0, max_decel_mps2) - current) / (2.0 * jerk_limit_mps3)
+        delay = base_delay_s + ramp
+    command = np.clip(need / gain, 0.0, max_decel_mps2)
+    command = np.where(v_t <= 0.0, current, command)
+    return command, need, now_s + delay
+
+
+def update_gain(
+    gain: FloatArray,
+    measured_decel_mps2: FloatArray,
+    expected_brake_mps2: FloatArray,
+    external_mps2: FloatArray,
+    min_expected_mps2: float = 0.15,
+) -> FloatArray:
+    """SPEC §1 loop closure: g = (measured - external) / commanded, where commanded is large enough."""
+    ok = (expected_brake_mps2 >= min_expected_mps2) & np.isfinite(measured_decel_mps2)
+    ratio = (measured_decel_mps2 - external_mps2) / np.where(ok, expected_brake_mps2, 1.0)
+    return np.where(ok, np.clip(ratio, GAIN_MIN, GAIN_MAX), gain)
+
+
+def fit_doppler(
+    samples_mps: FloatArray, dt_s: float, count: NDArray[np.int64]
+) -> tuple[FloatArray, FloatArray]:
+    """Least-squares line through the last ``count`` samples of each row (oldest first).
+
+    ``samples`` is (n, W) with the newest sample in the last column. Returns
+    (speed at the newest sample, deceleration = -slope). Rows with fewer than
+    2 samples give their newest sample and NaN.
+    """
+    n, w = samples_mps.shape
+    j = np.arange(w)[None, :]
+    use = j >= (w - count[:, None])
+    m = np.maximum(count, 1).astype(np.float64)
+    t = (j - (w - 1)) * dt_s  # 0 at the newest sample, negative before
+    tw = np.where(use, t, 0.0)
+    vw = np.where(use, samples_mps, 0.0)
+    t_mean = tw.sum(axis=1) / m
+    v_mean = vw.sum(axis=1) / m
+    dtv = np.where(use, t - t_mean[:, None], 0.0)
+    sxx = (dtv * dtv).sum(axis=1)
+    sxy = (dtv * (vw - v_mean[:, None])).sum(axis=1)
+    ok = count >= 2
+    slope = np.where(ok, sxy / np.where(ok, sxx, 1.0), np.nan)
+    v_now = np.where(ok, v_mean - slope * t_mean, samples_mps[:, -1])
+    return v_now, -slope
+
+
+def fit_passages(t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]) -> tuple[
+    FloatArray, FloatArray
+]:
+    """SPEC §1 variant 2: speed at the newest passage and deceleration from passage times.
+
+    ``t`` and ``x`` are (n, 3), newest last. With 3 passages a parabola
+    through them is exact for constant deceleration; with 2 the mean speed
+    over the interval is taken and the deceleration is unknown (NaN).
+    """
+    t0, t1, t2 = t_s[:, 0], t_s[:, 1], t_s[:, 2]
+    x0, x1, x2 = x_m[:, 0], x_m[:, 1], x_m[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v12 = (x2 - x1) / (t2 - t1)
+        v01 = (x1 - x0) / (t1 - t0)
+        accel = 2.0 * (v12 - v01) / (t2 - t0)
+    three = count >= 3
+    speed = np.where(three, v12 + accel * (t2 - t1) / 2.0, v12)
+    decel = np.where(three, -accel, np.nan)
+    speed = np.where(count >= 2, speed, np.nan)
+    return speed, decel

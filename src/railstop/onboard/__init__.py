@@ -1,0 +1,1 @@
+"""Pure units on the train: the onboard TASC receiver (SPEC §1)."""

@@ -1,0 +1,175 @@
+"""Longitudinal train dynamics over arrays of runs (DESIGN rule 1).
+
+m_eff · dv/dt = -(F_brake + R(v) + m · g · i)
+
+with m_eff = tare · (1 + rotating_mass_factor) + payload, R(v) = A + B v + C v²
+(Davis), i the mean gradient under the train (+ uphill) and the braking force
+limited by adhesion (a slide when the demand exceeds it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.config.schema import Vehicle
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+G_MPS2 = 9.80665
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrainMass:
+    """Masses of n runs: actual static mass, actual effective mass, ECU-believed effective mass."""
+
+    static_kg: FloatArray
+    effective_kg: FloatArray
+    believed_effective_kg: FloatArray
+
+    @classmethod
+    def create(
+        cls, vehicle: Vehicle, load_factor: FloatArray, weighing_error: FloatArray
+    ) -> TrainMass:
+        """``load_factor`` 0 = empty (AW0) .. 1 = crush (AW3); ``weighing_error`` fraction."""
+        lf = np.asarray(load_factor, dtype=np.float64)
+        static = vehicle.tare_mass_kg + lf * vehicle.crush_payload_kg
+        rotating = vehicle.tare_mass_kg * vehicle.rotating_mass_factor
+        believed_static = static * (1.0 + np.asarray(weighing_error, dtype=np.float64))
+        return cls(
+            static_kg=static,
+            effective_kg=static + rotating,
+            believed_effective_kg=believed_static + rotating,
+        )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GradientProfile:
+    """Piecewise-constant gradient, common breakpoints, per-run values (permille, + uphill).
+
+    ``values`` has shape (n, len(breakpoints) + 1): column j holds the gradient
+    between breakpoint j-1 and j (column 0 before the first breakpoint).
+    """
+
+    breakpoints_m: FloatArray
+    values_permille: FloatArray
+    _elev_at_bp: FloatArray  # (n, B) elevation (m) at each breakpoint, 0 at the first
+
+    @classmethod
+    def create(cls, breakpoints_m: FloatArray, values_permille: FloatArray) -> GradientProfile:
+        bp = np.asarray(breakpoints_m, dtype=np.float64)
+        vals = np.atleast_2d(np.asarray(values_permille, dtype=np.float64))
+        if vals.shape[1] != bp.size + 1:
+            raise ValueError("gradient values need one column more than breakpoints")
+        if bp.size and np.any(np.diff(bp) <= 0):
+            raise ValueError("gradient breakpoints must increase")
+        rise = vals[:, 1:-1] * 1e-3 * np.diff(bp)[None, :]
+        elev = np.concatenate([np.zeros((vals.shape[0], 1)), np.cumsum(rise, axis=1)], axis=1)
+        return cls(breakpoints_m=bp, values_permille=vals, _elev_at_bp=elev)
+
+    def elevation_m(self, x_m: FloatArray, rows: NDArray[np.int64] | None = None) -> FloatArray:
+        """Elevation (m) at chainage ``x_m`` for each run (or the runs ``rows``)."""
+        vals = self.values_permille if rows is None else self.values_permille[rows]
+        elev = self._elev_at_bp if rows is None else self._elev_at_bp[rows]
+        x = np.asarray(x_m, dtype=np.float64)
+        r = np.arange(vals.shape[0]).reshape((-1,) + (1,) * (x.ndim - 1))
+        bp = self.breakpoints_m
+        if bp.size == 0:
+            return vals[r, 0] * 1e-3 * x
+        idx = np.searchsorted(bp, x)  # 0..B
+        base_i = np.maximum(idx - 1, 0)
+        grad = vals[r, idx] * 1e-3
+        return elev[r, base_i] + grad * (x - bp[base_i])
+
+    def mean_gradient(
+        self, front_m: FloatArray, length_m: float, rows: NDArray[np.int64] | None = None
+    ) -> FloatArray:
+        """Mean gradient (fraction, + uphill) under a train of ``length_m`` whose front is at x.
+
+        Averaging over the train's length is exact for the gradient force on a
+        uniformly loaded train and keeps the force continuous at a gradient change.
+        """
+        return (
+            self.elevation_m(front_m, rows) - self.elevation_m(front_m - length_m, rows)
+        ) / length_m
+
+
+@dataclass(slots=True, kw_only=True)
+class MotionState:
+    """True motion of n runs."""
+
+    position_m: FloatArray  # train front chainage
+    speed_mps: FloatArray
+    accel_mps2: FloatArray  # last step's acceleration (negative when braking)
+    stopped: BoolArray
+    stop_time_s: FloatArray
+    sliding: BoolArray
+
+
+def davis_resistance_n(vehicle: Vehicle, speed_mps: FloatArray) -> FloatArray:
+    v = np.abs(speed_mps)
+    return vehicle.davis_a_n + vehicle.davis_b_n_per_mps * v + vehicle.davis_c_n_per_mps2 * v * v
+
+
+def adhesion_limit_mps2(mu: FloatArray, mass: TrainMass) -> FloatArray:
+    """Largest braking deceleration adhesion allows: mu · g · m / m_eff (all axles braked)."""
+    return mu * G_MPS2 * mass.static_kg / mass.effective_kg
+
+
+def motion_step(
+    state: MotionState,
+    *,
+    vehicle: Vehicle,
+    mass: TrainMass,
+    brake_decel_mps2: FloatArray,
+    mean_gradient: FloatArray,
+    adhesion_mu: FloatArray,
+    speed_hold: BoolArray,
+    t_s: float,
+    dt_s: float,
+) -> None:
+    """Advance the true motion by one step of ``dt_s`` (in place).
+
+    Constant acceleration within the step (exact for v²/2a checks). A run whose
+    speed would cross zero stops exactly within the step; a stopped train is
+    held by its brake. Runs in ``speed_hold`` keep their speed (traction holds
+    the approach speed until the TASC first brakes).
+    """
+    limit = adhesion_limit_mps2(adhesion_mu, mass)
+    state.sliding = brake_decel_mps2 > limit
+    brake = np.minimum(brake_decel_mps2, limit)
+    resist = davis_resistance_n(vehicle, state.speed_mps) / mass.effective_kg
+    grade = G_MPS2 * mean_gradient * mass.static_kg / mass.effective_kg
+    decel = brake + resist + grade
+    decel = np.where(speed_hold, 0.0, decel)
+    moving = ~state.stopped
+    v = state.speed_mps
+    v_new = v - decel * dt_s
+    stops = moving & (decel > 0.0) & (v_new <= 0.0)
+    safe_decel = np.where(stops, decel, 1.0)
+    x_step = np.where(stops, v * v / (2.0 * safe_decel), v * dt_s - 0.5 * decel * dt_s * dt_s)
+    state.position_m = np.where(moving, state.position_m + x_step, state.position_m)
+    state.speed_mps = np.where(moving & ~stops, v_new, np.where(moving, 0.0, v))
+    state.stop_time_s = np.where(stops, t_s + v / safe_decel, state.stop_time_s)
+    state.accel_mps2 = np.where(moving, -decel, 0.0)
+    state.stopped = state.stopped | stops
+
+
+def odometer_increment_m(
+    distance_m: FloatArray,
+    sliding: BoolArray,
+    *,
+    actual_diameter_m: FloatArray,
+    assumed_diameter_m: FloatArray,
+    slide_slip_ratio: float,
+) -> FloatArray:
+    """Tachometer: wheel revolutions x pi x assumed diameter (SPEC §2).
+
+    The wheel turns distance / (pi D_actual) times, less while sliding; the
+    odometer multiplies the revolutions by pi D_assumed.
+    """
+    revs = distance_m * np.where(sliding, 1.0 - slide_slip_ratio, 1.0) / (np.pi * actual_diameter_m)
+    return revs * np.pi * assumed_diameter_m

@@ -1,0 +1,1 @@
+"""Array-first measurement models: wheel sensors, Doppler radar (SPEC §1)."""

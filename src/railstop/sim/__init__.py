@@ -1,0 +1,1 @@
+"""Drivers: the single detailed stop and the batch engine under it."""

@@ -1,0 +1,301 @@
+"""The batch engine: one model, many drivers (DESIGN rule 1).
+
+``run_batch`` simulates n stops in lockstep, every 10 ms (the Doppler sample
+period of SPEC §1), through the same physics, sensors, wayside unit, link and
+onboard receiver for every driver: the single detailed stop is n = 1 with
+recording on, a campaign chunk is n = 10^4 with recording off.
+
+One step at time t:
+    sensors (Doppler sample at t; passages found during the last step)
+    -> wayside TASC unit -> radio link (latency, loss) -> onboard receiver
+    -> brake signal -> ECU (load compensation) -> actuator (dead time, jerk
+    limit, lag) -> train dynamics t -> t + dt -> wheel sensors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.config.schema import Station, Vehicle
+from railstop.errors import SimulationError
+from railstop.onboard.tasc_receiver import OnboardConfig, TascReceiver
+from railstop.physics.brake import (
+    ActuatorState,
+    actuator_step,
+    braking_decel_mps2,
+    decode_step,
+    ecu_demand_mps2,
+)
+from railstop.physics.train import MotionState, TrainMass, motion_step
+from railstop.sensors.wayside import WheelSensors, doppler_sample
+from railstop.sim.scenario import Scenario
+from railstop.streams import RunStreams, Stream
+from railstop.wayside.tasc_unit import GroundTascUnit, SignalForm, TascTelegrams
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+CONTROLLERS: tuple[str, ...] = tuple(c.value for c in OnboardConfig)
+DT_S = 0.01
+MAX_TIME_S = 150.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Trace:
+    """Time series of every run, shape (steps, n)."""
+
+    t_s: FloatArray
+    position_m: FloatArray
+    speed_mps: FloatArray
+    target_decel_mps2: FloatArray  # what the onboard receiver aims at
+    demand_decel_mps2: FloatArray  # what the ECU is asked for (notch or duty)
+    brake_decel_mps2: FloatArray  # what the brakes give
+    accel_mps2: FloatArray  # the train's total acceleration
+    notch: IntArray  # step-coded trains (-1 for PWM trains)
+    duty: FloatArray  # PWM trains (NaN for step trains)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BatchResult:
+    stop_error_m: FloatArray  # front at rest minus stopping point (+ = overrun)
+    stop_time_s: FloatArray  # from the first detector to standstill
+    max_jerk_mps3: FloatArray
+    notch_changes: IntArray
+    commands_sent: IntArray
+    commands_received: IntArray
+    stopped: BoolArray
+    slid: BoolArray
+    detector_passages_s: FloatArray  # (n, D) true passage times (NaN if never)
+    trace: Trace | None = None
+    commands: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass(slots=True)
+class _Link:
+    """Radio link model (latency, loss) with one pending telegram per run.
+
+    A newer telegram replaces one still in flight: it carries newer
+    measurements, and the receiver would act on it next anyway.
+    """
+
+    pending: TascTelegrams | None
+    due_s: FloatArray
+    count: IntArray
+
+    def send(
+        self, tele: TascTelegrams, now_s: float, latency_s: FloatArray, loss: FloatArray,
+        streams: RunStreams,
+    ) -> None:
+        lost = streams.uniform(Stream.RADIO_LOSS, self.count) < loss
+        self.count += tele.mask
+        go = tele.mask & ~lost
+        if self.pending is None:
+            self.pending = tele
+        else:
+            for name in TascTelegrams.__dataclass_fields__:
+                if name == "form":
+                    continue
+                old = getattr(self.pending, name)
+                if name == "mask":
+                    setattr(self.pending, name, old | go)
+                else:
+                    setattr(self.pending, name, np.where(go, getattr(tele, name), old))
+        self.due_s = np.where(go, now_s + latency_s, self.due_s)
+
+    def deliver(self, now_s: float) -> BoolArray:
+        due = self.due_s <= now_s + 1e-9
+        self.due_s = np.where(due, np.inf, self.due_s)
+        return due
+
+
+def run_batch(
+    *,
+    station: Station,
+    vehicle: Vehicle,
+    scenario: Scenario,
+    controller: str,
+    streams: RunStreams,
+    form: SignalForm | None = None,
+    record: bool = False,
+    dt_s: float = DT_S,
+    max_time_s: float = MAX_TIME_S,
+) -> BatchResult:
+    """Simulate ``scenario.n`` TASC stops at ``station``; see the module docstring."""
+    if controller not in CONTROLLERS:
+        raise SimulationError(
+            f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLERS)}"
+        )
+    n = scenario.n
+    if streams.n != n:
+        raise SimulationError(f"{streams.n} random streams for {n} runs")
+    config = OnboardConfig(controller)
+    form = SignalForm(station.tasc.signal_form if form is None else form)
+    if station.tasc.doppler is not None and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12:
+        raise SimulationError(
+            f"station {station.name}: tasc.doppler.sample_period_s = "
+            f"{station.tasc.doppler.sample_period_s} must equal the simulation step {dt_s} s"
+        )
+    brake = vehicle.brake
+    mass = TrainMass.create(vehicle, scenario.load_factor, scenario.load_weighing_error)
+    det_pos = np.asarray(station.detector_positions_m(), dtype=np.float64)
+    start_m = det_pos[0] - np.maximum(20.0, scenario.entry_speed_mps * 1.5)
+    motion = MotionState(
+        position_m=start_m.copy(),
+        speed_mps=scenario.entry_speed_mps.copy(),
+        accel_mps2=np.zeros(n),
+        stopped=np.zeros(n, dtype=bool),
+        stop_time_s=np.full(n, np.nan),
+        sliding=np.zeros(n, dtype=bool),
+    )
+    sensors = WheelSensors.create(det_pos, scenario.sensor_jitter_s, scenario.sensor_miss_probability)
+    truth_next = np.zeros(n, dtype=np.int64)  # true passages, for stop time and plots
+    passages = np.full((n, det_pos.size), np.nan)
+    unit = GroundTascUnit(
+        station=station, vehicle=vehicle, gradient=scenario.gradient, n=n, dt_s=dt_s, form=form,
+        record=record,
+    )
+    receiver = TascReceiver(
+        config=config, station=station, vehicle=vehicle, gradient=scenario.gradient, n=n,
+        dt_s=dt_s, form=form,
+    )
+    actuator = ActuatorState.create(
+        n=n,
+        dt_s=dt_s,
+        dead_time_s=scenario.dead_time_s,
+        time_constant_s=scenario.time_constant_s,
+        jerk_limit_mps3=brake.jerk_limit_mps3,
+        emergency_mps2=brake.emergency_decel_mps2,
+    )
+    link = _Link(pending=None, due_s=np.full(n, np.inf), count=np.zeros(n, dtype=np.int64))
+    assumed_diam = vehicle.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
+    tach_scale = assumed_diam / scenario.wheel_diameter_m
+    doppler_on = station.tasc.doppler is not None
+    noisy_doppler = bool(np.any(scenario.doppler_noise_frac > 0))
+    doppler_reach = station.stop_point_m + (station.tasc.doppler.beyond_stop_m if doppler_on else 0.0)
+    doppler_range = station.tasc.doppler.range_m if doppler_on else 0.0
+
+    max_jerk = np.zeros(n)
+    slid = np.zeros(n, dtype=bool)
+    prev_accel = np.zeros(n)
+    prev_counted = np.zeros(n, dtype=bool)
+    notch_changes = np.zeros(n, dtype=np.int64)
+    prev_notch = np.zeros(n, dtype=np.int64)
+    rec: dict[str, list[FloatArray]] = {k: [] for k in Trace.__dataclass_fields__}
+
+    steps = int(round(max_time_s / dt_s))
+    k = 0
+    for k in range(steps):
+        t = k * dt_s
+        # Sensors: a Doppler sample now (the radar sees trains within its range).
+        dop = None
+        if doppler_on:
+            in_range = (doppler_reach - motion.position_m) <= doppler_range
+            v_meas = (
+                doppler_sample(motion.speed_mps, scenario.doppler_noise_frac, streams, k)
+                if noisy_doppler
+                else motion.speed_mps
+            )
+            dop = np.where(in_range, v_meas, 0.0)
+        # Wayside unit.
+        if k == 0:
+            passed = np.zeros(n, dtype=bool)
+            det_idx = np.zeros(n, dtype=np.int64)
+            pass_t = np.zeros(n)
+        tele = unit.step(t, passed=passed, detector=det_idx, passage_s=pass_t, doppler_mps=dop)
+        if tele is not None:
+            link.send(tele, t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
+        delivered = link.deliver(t)
+        if link.pending is not None and delivered.any():
+            receiver.receive(link.pending, delivered, t)
+        if form <= SignalForm.DECELERATION:
+            wheel_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0)
+            receiver.observe_tachometer(wheel_v * tach_scale)
+        # Onboard -> ECU -> actuator -> brakes.
+        signal = receiver.output()
+        demand = ecu_demand_mps2(line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake)
+        if signal.line is not None:
+            notch = decode_step(signal.line)
+            notch_changes += (notch != prev_notch) & ~motion.stopped
+            prev_notch = notch
+        out = actuator_step(actuator, demand)
+        brake_decel = braking_decel_mps2(
+            out,
+            brake_gain=scenario.brake_gain,
+            believed_effective_kg=mass.believed_effective_kg,
+            effective_kg=mass.effective_kg,
+        )
+        in_patch = (motion.position_m >= scenario.low_mu_start_m) & (motion.position_m < scenario.low_mu_end_m)
+        mu = np.where(in_patch, scenario.low_mu, scenario.adhesion_mu)
+        x0 = motion.position_m
+        v0 = motion.speed_mps
+        hold = ~receiver.active
+        motion_step(
+            motion,
+            vehicle=vehicle,
+            mass=mass,
+            brake_decel_mps2=brake_decel,
+            mean_gradient=scenario.gradient.mean_gradient(motion.position_m, vehicle.length_m),
+            adhesion_mu=mu,
+            speed_hold=hold,
+            t_s=t,
+            dt_s=dt_s,
+        )
+        slid |= motion.sliding & ~motion.stopped
+        # Jerk while moving under TASC braking (not across the traction cut-off
+        # or the standstill step).
+        counted = ~hold & ~motion.stopped
+        jerk = np.abs(motion.accel_mps2 - prev_accel) / dt_s
+        max_jerk = np.where(counted & prev_counted, np.maximum(max_jerk, jerk), max_jerk)
+        prev_accel = motion.accel_mps2
+        prev_counted = counted
+        # True passages (for the record) and the detectors' reports (for the wayside).
+        acc = motion.accel_mps2
+        has = truth_next < det_pos.size
+        tgt = det_pos[np.minimum(truth_next, det_pos.size - 1)]
+        crossed = has & (x0 < tgt) & (motion.position_m >= tgt)
+        if crossed.any():
+            from railstop.sensors.wayside import crossing_time_s
+
+            tc = t + crossing_time_s(x0, v0, acc, tgt)
+            rows = np.flatnonzero(crossed)
+            passages[rows, truth_next[rows]] = tc[rows]
+            truth_next = truth_next + crossed
+        passed, det_idx, pass_t = sensors.detect(
+            x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
+        )
+        if record:
+            rec["t_s"].append(np.full(n, t + dt_s))
+            rec["position_m"].append(motion.position_m.copy())
+            rec["speed_mps"].append(motion.speed_mps.copy())
+            rec["target_decel_mps2"].append(np.where(receiver.active, receiver.target_mps2, np.nan))
+            rec["demand_decel_mps2"].append(demand)
+            rec["brake_decel_mps2"].append(np.where(motion.stopped, 0.0, brake_decel))
+            rec["accel_mps2"].append(motion.accel_mps2.copy())
+            rec["notch"].append(decode_step(signal.line) if signal.line is not None else np.full(n, -1))
+            rec["duty"].append(signal.duty if signal.duty is not None else np.full(n, np.nan))
+        if motion.stopped.all():
+            break
+    stop_error = motion.position_m - station.stop_point_m
+    first = passages[:, 0]
+    stop_time = np.where(motion.stopped, motion.stop_time_s - first, np.nan)
+    trace = None
+    if record:
+        trace = Trace(**{key: np.asarray(v) for key, v in rec.items()})  # type: ignore[arg-type]
+    return BatchResult(
+        stop_error_m=stop_error,
+        stop_time_s=stop_time,
+        max_jerk_mps3=max_jerk,
+        notch_changes=notch_changes,
+        commands_sent=unit.sent.copy(),
+        commands_received=receiver.received.copy(),
+        stopped=motion.stopped.copy(),
+        slid=slid,
+        detector_passages_s=passages,
+        trace=trace,
+        commands=unit.records,
+    )

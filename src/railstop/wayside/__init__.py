@@ -1,0 +1,1 @@
+"""Pure units on the ground: the ground TASC unit (SPEC §1)."""
