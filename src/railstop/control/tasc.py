@@ -106,7 +106,9 @@ class ExternalModel:
         v = np.maximum(speed_mps, 0.0)
         return grade + self.davis_a_mps2 + self.davis_b_per_s * v + self.davis_c_per_m * v * v
 
-    def path_integral(self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray) -> FloatArray:
+    def path_integral(
+        self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray
+    ) -> FloatArray:
         """Integral of the external deceleration over the remaining ``distance`` (m²/s²).
 
         Gradient: trapezoid over SAMPLES points of the path. Resistance: for a
@@ -119,7 +121,11 @@ class ExternalModel:
         grade = self.gradient.mean_gradient(x, self.length_m, rows)
         mean_grade = np.trapezoid(grade, frac, axis=1)
         v = np.maximum(speed_mps, 0.0)
-        resist = self.davis_a_mps2 + self.davis_b_per_s * 2.0 * v / 3.0 + self.davis_c_per_m * v * v / 2.0
+        resist = (
+            self.davis_a_mps2
+            + self.davis_b_per_s * 2.0 * v / 3.0
+            + self.davis_c_per_m * v * v / 2.0
+        )
         return s * (G_MPS2 * self.mass_ratio * mean_grade + resist)
 
 
@@ -161,13 +167,18 @@ class CommandHistory:
     def value_at(self, t_s: FloatArray) -> FloatArray:
         """Commanded value in effect at ``t_s``: shape (m,) or (m, k) for m runs."""
         t = np.asarray(t_s, dtype=np.float64)
-        active = self.effect_s.reshape(self.effect_s.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)) <= t[..., None]
+        active = (
+            self.effect_s.reshape(self.effect_s.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,))
+            <= t[..., None]
+        )
         count = active.sum(axis=-1)  # effect times increase, so the active ones are a prefix
         idx = np.maximum(count - 1, 0)
         vals = np.take_along_axis(
             np.broadcast_to(
-                self.value_mps2.reshape(self.value_mps2.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)),
-                t.shape + (HISTORY,),
+                self.value_mps2.reshape(
+                    self.value_mps2.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)
+                ),
+                (*t.shape, HISTORY),
             ),
             idx[..., None],
             axis=-1,
@@ -294,7 +305,7 @@ def fit_doppler(
     (speed at the newest sample, deceleration = -slope). Rows with fewer than
     2 samples give their newest sample and NaN.
     """
-    n, w = samples_mps.shape
+    w = samples_mps.shape[1]
     j = np.arange(w)[None, :]
     use = j >= (w - count[:, None])
     m = np.maximum(count, 1).astype(np.float64)
@@ -312,9 +323,9 @@ def fit_doppler(
     return v_now, -slope
 
 
-def fit_passages(t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]) -> tuple[
-    FloatArray, FloatArray
-]:
+def fit_passages(
+    t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]
+) -> tuple[FloatArray, FloatArray]:
     """SPEC §1 variant 2: speed at the newest passage and deceleration from passage times.
 
     ``t`` and ``x`` are (n, 3), newest last. With 3 passages a parabola

@@ -85,7 +85,11 @@ class TascReceiver:
         self.fixed_notch = np.full(n, -1, dtype=np.int64)  # form 7 (step trains)
         self.fixed_duty = np.full(n, np.nan)  # form 7 (PWM trains)
         self.received = np.zeros(n, dtype=np.int64)
-        hold = brake.controller_min_hold_s if config == OnboardConfig.BRAKE_CONTROLLER else brake.tasc_min_hold_s
+        hold = (
+            brake.controller_min_hold_s
+            if config == OnboardConfig.BRAKE_CONTROLLER
+            else brake.tasc_min_hold_s
+        )
         self.modulator = NotchModulator.create(
             n, brake.notch_decel_mps2, hold, brake.dead_time_s + brake.time_constant_s
         )
@@ -138,11 +142,15 @@ class TascReceiver:
             self.fixed_notch = np.where(delivered, tele.notch, self.fixed_notch)
             self.fixed_duty = np.where(delivered, tele.duty, self.fixed_duty)
             table = np.concatenate(([0.0], self.vehicle.brake.notch_decel_mps2))
-            self.target_mps2 = np.where(delivered, table[np.maximum(tele.notch, 0)], self.target_mps2)
+            self.target_mps2 = np.where(
+                delivered, table[np.maximum(tele.notch, 0)], self.target_mps2
+            )
         elif form == SignalForm.INCREASE_DECREASE:
             # SPEC §1 config 1: increase / decrease passed as such: one notch per telegram.
             step = self.vehicle.brake.notch_decel_mps2[0]
-            new = np.clip(self.target_mps2 + tele.delta * step, 0.0, self.vehicle.brake.full_service_mps2)
+            new = np.clip(
+                self.target_mps2 + tele.delta * step, 0.0, self.vehicle.brake.full_service_mps2
+            )
             self.target_mps2 = np.where(delivered, new, self.target_mps2)
         else:
             self._plan_onboard(tele, delivered, now_s)
@@ -212,7 +220,9 @@ class TascReceiver:
         emergency = np.zeros(self.n, dtype=bool)
         brake = self.vehicle.brake
         if self.config == OnboardConfig.PWM:
-            onboard = np.where(np.isfinite(self.fixed_duty), self.fixed_duty, decel_to_pwm(self.target_mps2, brake))
+            onboard = np.where(
+                np.isfinite(self.fixed_duty), self.fixed_duty, decel_to_pwm(self.target_mps2, brake)
+            )
             onboard = np.where(self.active, onboard, 0.0)
             if k % self.pwm_steps == 0:
                 # Zero crossing of the existing PWM: both pulses start together,

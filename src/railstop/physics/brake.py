@@ -77,12 +77,17 @@ def decel_to_pwm(decel_mps2: FloatArray, brake: BrakeModel) -> FloatArray:
     """Inverse of :func:`pwm_to_decel` on the map's rising part (smallest duty giving decel)."""
     duty = np.asarray(brake.pwm_duty, dtype=np.float64)
     dec = np.asarray(brake.pwm_decel_mps2, dtype=np.float64)
-    # The rising part starts at the last point of minimum deceleration; within
-    # it keep only strictly rising points so that np.interp sees increasing x.
-    start = int(np.flatnonzero(dec == dec.min())[-1])
-    d_part, x_part = dec[start:], duty[start:]
-    rising = np.concatenate(([True], np.diff(d_part) > 0))
-    return np.interp(decel_mps2, d_part[rising], x_part[rising])
+    d = np.clip(np.asarray(decel_mps2, dtype=np.float64), dec.min(), dec.max())
+    # The map may have flat stretches; invert each rising segment on its own,
+    # the first (lowest-duty) segment containing the value wins.
+    out = np.full(d.shape, np.nan)
+    for i in range(dec.size - 1):
+        if dec[i + 1] > dec[i]:
+            m = np.isnan(out) & (d >= dec[i]) & (d <= dec[i + 1])
+            out[m] = duty[i] + (d[m] - dec[i]) * (duty[i + 1] - duty[i]) / (dec[i + 1] - dec[i])
+    # Values on the lowest plateau: the last duty that still gives it.
+    low_end = duty[int(np.flatnonzero(dec == dec.min())[-1])]
+    return np.where(np.isnan(out), low_end, out)
 
 
 def superimpose_pwm(existing_duty: FloatArray, onboard_duty: FloatArray) -> FloatArray:

@@ -88,7 +88,11 @@ class _Link:
     count: IntArray
 
     def send(
-        self, tele: TascTelegrams, now_s: float, latency_s: FloatArray, loss: FloatArray,
+        self,
+        tele: TascTelegrams,
+        now_s: float,
+        latency_s: FloatArray,
+        loss: FloatArray,
         streams: RunStreams,
     ) -> None:
         lost = streams.uniform(Stream.RADIO_LOSS, self.count) < loss
@@ -135,7 +139,10 @@ def run_batch(
         raise SimulationError(f"{streams.n} random streams for {n} runs")
     config = OnboardConfig(controller)
     form = SignalForm(station.tasc.signal_form if form is None else form)
-    if station.tasc.doppler is not None and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12:
+    if (
+        station.tasc.doppler is not None
+        and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12
+    ):
         raise SimulationError(
             f"station {station.name}: tasc.doppler.sample_period_s = "
             f"{station.tasc.doppler.sample_period_s} must equal the simulation step {dt_s} s"
@@ -152,16 +159,28 @@ def run_batch(
         stop_time_s=np.full(n, np.nan),
         sliding=np.zeros(n, dtype=bool),
     )
-    sensors = WheelSensors.create(det_pos, scenario.sensor_jitter_s, scenario.sensor_miss_probability)
+    sensors = WheelSensors.create(
+        det_pos, scenario.sensor_jitter_s, scenario.sensor_miss_probability
+    )
     truth_next = np.zeros(n, dtype=np.int64)  # true passages, for stop time and plots
     passages = np.full((n, det_pos.size), np.nan)
     unit = GroundTascUnit(
-        station=station, vehicle=vehicle, gradient=scenario.gradient, n=n, dt_s=dt_s, form=form,
+        station=station,
+        vehicle=vehicle,
+        gradient=scenario.gradient,
+        n=n,
+        dt_s=dt_s,
+        form=form,
         record=record,
     )
     receiver = TascReceiver(
-        config=config, station=station, vehicle=vehicle, gradient=scenario.gradient, n=n,
-        dt_s=dt_s, form=form,
+        config=config,
+        station=station,
+        vehicle=vehicle,
+        gradient=scenario.gradient,
+        n=n,
+        dt_s=dt_s,
+        form=form,
     )
     actuator = ActuatorState.create(
         n=n,
@@ -176,7 +195,9 @@ def run_batch(
     tach_scale = assumed_diam / scenario.wheel_diameter_m
     doppler_on = station.tasc.doppler is not None
     noisy_doppler = bool(np.any(scenario.doppler_noise_frac > 0))
-    doppler_reach = station.stop_point_m + (station.tasc.doppler.beyond_stop_m if doppler_on else 0.0)
+    doppler_reach = station.stop_point_m + (
+        station.tasc.doppler.beyond_stop_m if doppler_on else 0.0
+    )
     doppler_range = station.tasc.doppler.range_m if doppler_on else 0.0
 
     max_jerk = np.zeros(n)
@@ -187,7 +208,7 @@ def run_batch(
     prev_notch = np.zeros(n, dtype=np.int64)
     rec: dict[str, list[FloatArray]] = {k: [] for k in Trace.__dataclass_fields__}
 
-    steps = int(round(max_time_s / dt_s))
+    steps = round(max_time_s / dt_s)
     k = 0
     for k in range(steps):
         t = k * dt_s
@@ -213,11 +234,15 @@ def run_batch(
         if link.pending is not None and delivered.any():
             receiver.receive(link.pending, delivered, t)
         if form <= SignalForm.DECELERATION:
-            wheel_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0)
+            wheel_v = motion.speed_mps * np.where(
+                motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0
+            )
             receiver.observe_tachometer(wheel_v * tach_scale)
         # Onboard -> ECU -> actuator -> brakes.
         signal = receiver.output()
-        demand = ecu_demand_mps2(line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake)
+        demand = ecu_demand_mps2(
+            line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake
+        )
         if signal.line is not None:
             notch = decode_step(signal.line)
             notch_changes += (notch != prev_notch) & ~motion.stopped
@@ -229,7 +254,9 @@ def run_batch(
             believed_effective_kg=mass.believed_effective_kg,
             effective_kg=mass.effective_kg,
         )
-        in_patch = (motion.position_m >= scenario.low_mu_start_m) & (motion.position_m < scenario.low_mu_end_m)
+        in_patch = (motion.position_m >= scenario.low_mu_start_m) & (
+            motion.position_m < scenario.low_mu_end_m
+        )
         mu = np.where(in_patch, scenario.low_mu, scenario.adhesion_mu)
         x0 = motion.position_m
         v0 = motion.speed_mps
@@ -276,7 +303,9 @@ def run_batch(
             rec["demand_decel_mps2"].append(demand)
             rec["brake_decel_mps2"].append(np.where(motion.stopped, 0.0, brake_decel))
             rec["accel_mps2"].append(motion.accel_mps2.copy())
-            rec["notch"].append(decode_step(signal.line) if signal.line is not None else np.full(n, -1))
+            rec["notch"].append(
+                decode_step(signal.line) if signal.line is not None else np.full(n, -1)
+            )
             rec["duty"].append(signal.duty if signal.duty is not None else np.full(n, np.nan))
         if motion.stopped.all():
             break

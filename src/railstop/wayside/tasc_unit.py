@@ -185,7 +185,9 @@ class GroundTascUnit:
         a_now = gain * hist.value_at(now) + ext * (now >= self.first_sent_s[rows])
         since = now_s - t[:, 2]
         speed = v_p - a_now * since
-        distance = self.det_to_stop_m[self.last_detector[rows]] - (v_p * since - 0.5 * a_now * since**2)
+        distance = self.det_to_stop_m[self.last_detector[rows]] - (
+            v_p * since - 0.5 * a_now * since**2
+        )
         return speed, decel, distance, cmd_mean, after, interval
 
     # -- the unit -----------------------------------------------------------
@@ -254,7 +256,9 @@ class GroundTascUnit:
             # SPEC §1 form 8: one notch up or down per telegram.
             step = self.notch_table[0]
             believed = self.believed_mps2[due]
-            delta = np.where(command > believed + step / 2, 1, np.where(command < believed - step / 2, -1, 0))
+            delta = np.where(
+                command > believed + step / 2, 1, np.where(command < believed - step / 2, -1, 0)
+            )
             executed = np.clip(believed + delta * step, 0.0, self.max_mps2)
             self.believed_mps2[due] = executed
         if form >= SignalForm.REQUIRED_DECELERATION:
@@ -329,6 +333,13 @@ def _blank_unsent_fields(t: TascTelegrams) -> None:
     }.get(t.form)
     if keep is None:
         return
-    for name in ("position_m", "distance_m", "interval_s", "speed_mps", "decel_mps2", "required_mps2"):
+    for name in (
+        "position_m",
+        "distance_m",
+        "interval_s",
+        "speed_mps",
+        "decel_mps2",
+        "required_mps2",
+    ):
         if name not in keep:
             setattr(t, name, np.full(t.mask.shape, np.nan))

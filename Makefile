@@ -1,0 +1,28 @@
+# The two set-up commands of the README: `make run` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: run test install install-test clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+
+install: $(BIN)/python
+	$(BIN)/python -m pip install -q -e .
+
+install-test: $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[test]'
+
+# The main job on the embedded default data.
+run: install
+	$(BIN)/railstop demo
+
+# Lint and the whole test suite.
+test: install-test
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/pytest -q -n 2
+
+clean:
+	rm -rf $(VENV) railstop-demo railstop.db .pytest_cache .ruff_cache .hypothesis

@@ -1,0 +1,91 @@
+"""The single detailed stop: ``run_batch`` with n = 1 and recording on (DESIGN rule 1)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from railstop.config.schema import Line, Station, Vehicle
+from railstop.sim.engine import BatchResult, run_batch
+from railstop.sim.scenario import Scenario
+from railstop.streams import RunStreams
+from railstop.wayside.tasc_unit import SignalForm
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopResult:
+    controller: str
+    station: str
+    line: str
+    seed: int
+    form: int
+    load_factor: float
+    brake_gain: float
+    stop_error_m: float
+    stop_time_s: float | None
+    max_jerk_mps3: float
+    notch_changes: int
+    commands: int  # received by the train
+    commands_sent: int
+    stopped: bool
+    slid: bool
+    command_log: list[dict[str, Any]] = field(default_factory=list, repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON object of ``railstop stop --json`` (without the command log)."""
+        out = asdict(self)
+        out.pop("command_log")
+        return out
+
+    @property
+    def run_key(self) -> str:
+        return (
+            f"stop|{self.line}|{self.station}|{self.controller}|seed={self.seed}|form={self.form}"
+            f"|load={self.load_factor:g}|gain={self.brake_gain:g}"
+        )
+
+
+def run_stop(
+    *,
+    line: Line,
+    station: Station,
+    vehicle: Vehicle,
+    controller: str,
+    seed: int,
+    load_factor: float = 0.0,
+    brake_gain: float = 1.0,
+    form: SignalForm | None = None,
+) -> tuple[StopResult, BatchResult]:
+    """One nominal stop (exact sensors, ideal link) with the two disturbances given."""
+    scenario = Scenario.nominal(station, vehicle, load_factor=load_factor, brake_gain=brake_gain)
+    batch = run_batch(
+        station=station,
+        vehicle=vehicle,
+        scenario=scenario,
+        controller=controller,
+        streams=RunStreams.for_runs(seed, 0, 1),
+        form=form,
+        record=True,
+    )
+    stop_time = float(batch.stop_time_s[0])
+    result = StopResult(
+        controller=controller,
+        station=station.name,
+        line=line.line.name,
+        seed=seed,
+        form=int(station.tasc.signal_form if form is None else form),
+        load_factor=load_factor,
+        brake_gain=brake_gain,
+        stop_error_m=round(float(batch.stop_error_m[0]), 6),
+        stop_time_s=round(stop_time, 3) if np.isfinite(stop_time) else None,
+        max_jerk_mps3=round(float(batch.max_jerk_mps3[0]), 4),
+        notch_changes=int(batch.notch_changes[0]),
+        commands=int(batch.commands_received[0]),
+        commands_sent=int(batch.commands_sent[0]),
+        stopped=bool(batch.stopped[0]),
+        slid=bool(batch.slid[0]),
+        command_log=batch.commands,
+    )
+    return result, batch

@@ -1,0 +1,516 @@
+"""The event database (SPEC §1 claims 8 and 20), SQLAlchemy 2.0, SQLite by default.
+
+Claim 8: the database unit keeps the stopping point, the detector positions
+and the braking data. Claim 20: it keeps the history of every computed
+command. Here one stop is three kinds of rows:
+
+* ``runs``: what was simulated (station, controller, seed, line and every
+  parameter that decides the stop, e.g. stopping point, detector positions,
+  load and brake gain, as JSON), identified by a natural key ``run_key``;
+* ``commands``: every command the wayside unit computed for that stop, one
+  column per field of ``GroundTascUnit.records`` (claim 20);
+* ``stop_results``: how the stop ended (claim 8's braking data).
+
+Saving the same ``run_key`` again never duplicates a stop: identical data is
+left untouched, different data replaces the old rows in the same
+transaction, so a re-run campaign converges on one row set per stop.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from sqlalchemy import (
+    BigInteger,
+    Boolean,
+    Float,
+    ForeignKey,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+    create_engine,
+    delete,
+    event,
+    select,
+)
+from sqlalchemy.engine import URL, Engine, make_url
+from sqlalchemy.exc import ArgumentError, IntegrityError, SQLAlchemyError
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
+
+from railstop.errors import RailstopError
+
+# The keys of one ``GroundTascUnit.records`` row, in column order, with their
+# type and whether the value may be missing (claim 20: the command history).
+# Only the two decelerations may legitimately be unknown: the measured one
+# before three passages / a full Doppler window, the required one when the
+# planner has none; a NaN anywhere else is a bug upstream and is refused.
+_COMMAND_SPEC: dict[str, tuple[type, bool]] = {
+    "run": (int, False),
+    "t_s": (float, False),
+    "form": (int, False),
+    "detector": (int, False),
+    "passage_s": (float, False),
+    "distance_m": (float, False),
+    "speed_mps": (float, False),
+    "measured_decel_mps2": (float, True),
+    "gain": (float, False),
+    "required_decel_mps2": (float, True),
+    "command_decel_mps2": (float, False),
+    "notch": (int, False),
+    "delta": (int, False),
+    "effect_s": (float, False),
+}
+COMMAND_FIELDS: tuple[str, ...] = tuple(_COMMAND_SPEC)
+
+# The result of one stop (claim 8: braking data); ``stop_time_s`` is None
+# when the train never came to rest.
+_RESULT_SPEC: dict[str, tuple[type, bool]] = {
+    "stop_error_m": (float, False),
+    "stop_time_s": (float, True),
+    "max_jerk_mps3": (float, False),
+    "notch_changes": (int, False),
+    "commands_received": (int, False),
+    "commands_sent": (int, False),
+    "stopped": (bool, False),
+}
+RESULT_FIELDS: tuple[str, ...] = tuple(_RESULT_SPEC)
+
+_RUN_FIELDS: tuple[str, ...] = (
+    "run_key",
+    "station",
+    "controller",
+    "seed",
+    "line",
+    "parameters_json",
+    "created_utc",
+)
+
+
+def _utc_now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopRecord:
+    """One stop as it goes into the database (claims 8, 20).
+
+    ``parameters`` holds what decides the stop (stopping point, detector
+    positions, load, brake gain, ...); non-finite floats are kept (Python's
+    JSON writes them as ``NaN``/``Infinity``) because ``inf`` is meaningful,
+    e.g. "no low-adhesion patch". ``commands`` are the dict rows of
+    ``GroundTascUnit.records``; keys beyond ``COMMAND_FIELDS`` are ignored.
+    """
+
+    run_key: str
+    station: str
+    controller: str
+    seed: int
+    line: str
+    parameters: dict[str, float | str | None]
+    commands: list[dict[str, Any]]
+    stop_error_m: float
+    stop_time_s: float | None
+    max_jerk_mps3: float
+    notch_changes: int
+    commands_received: int
+    commands_sent: int
+    stopped: bool
+    created_utc: str = field(default_factory=_utc_now)
+
+
+# -- schema -------------------------------------------------------------------
+
+
+class _Base(DeclarativeBase):
+    pass
+
+
+class RunRow(_Base):
+    """One simulated stop and what decided it (claim 8: stopping point, detectors)."""
+
+    __tablename__ = "runs"
+    __table_args__ = (UniqueConstraint("run_key", name="uq_runs_run_key"),)
+
+    # Integer (not BigInteger): on SQLite only INTEGER PRIMARY KEY is the rowid.
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_key: Mapped[str] = mapped_column(String)
+    station: Mapped[str] = mapped_column(String)
+    controller: Mapped[str] = mapped_column(String)
+    seed: Mapped[int] = mapped_column(BigInteger)
+    line: Mapped[str] = mapped_column(String)
+    parameters_json: Mapped[str] = mapped_column(Text)
+    created_utc: Mapped[str] = mapped_column(String(40))
+
+
+class CommandRow(_Base):
+    """One computed command and its inputs (claim 20: the command history)."""
+
+    __tablename__ = "commands"
+    __table_args__ = (UniqueConstraint("run_id", "seq", name="uq_commands_run_seq"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    seq: Mapped[int] = mapped_column(Integer)  # order within the stop
+    run: Mapped[int] = mapped_column(Integer)  # column of the batch it came from
+    t_s: Mapped[float] = mapped_column(Float)
+    form: Mapped[int] = mapped_column(Integer)
+    detector: Mapped[int] = mapped_column(Integer)
+    passage_s: Mapped[float] = mapped_column(Float)
+    distance_m: Mapped[float] = mapped_column(Float)
+    speed_mps: Mapped[float] = mapped_column(Float)
+    measured_decel_mps2: Mapped[float | None] = mapped_column(Float, nullable=True)
+    gain: Mapped[float] = mapped_column(Float)
+    required_decel_mps2: Mapped[float | None] = mapped_column(Float, nullable=True)
+    command_decel_mps2: Mapped[float] = mapped_column(Float)
+    notch: Mapped[int] = mapped_column(Integer)
+    delta: Mapped[int] = mapped_column(Integer)
+    effect_s: Mapped[float] = mapped_column(Float)
+
+
+class ResultRow(_Base):
+    """How one stop ended (claim 8: braking data)."""
+
+    __tablename__ = "stop_results"
+
+    run_id: Mapped[int] = mapped_column(
+        ForeignKey("runs.id", ondelete="CASCADE"), primary_key=True
+    )
+    stop_error_m: Mapped[float] = mapped_column(Float)
+    stop_time_s: Mapped[float | None] = mapped_column(Float, nullable=True)
+    max_jerk_mps3: Mapped[float] = mapped_column(Float)
+    notch_changes: Mapped[int] = mapped_column(Integer)
+    commands_received: Mapped[int] = mapped_column(Integer)
+    commands_sent: Mapped[int] = mapped_column(Integer)
+    stopped: Mapped[bool] = mapped_column(Boolean)
+
+
+# -- the store ----------------------------------------------------------------
+
+
+class Store:
+    """An open event database; use ``open_store`` to get one."""
+
+    def __init__(self, engine: Engine, label: str) -> None:
+        self._engine: Engine | None = engine
+        self._label = label
+        self._sessions = sessionmaker(engine, expire_on_commit=False)
+
+    def __repr__(self) -> str:
+        state = "closed" if self._engine is None else "open"
+        return f"Store({self._label!r}, {state})"
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the connections; closing twice is harmless."""
+        if self._engine is not None:
+            self._engine.dispose()
+            self._engine = None
+
+    def _session(self) -> Session:
+        if self._engine is None:
+            raise RailstopError(f"{self._label}: the event database is closed")
+        return self._sessions()
+
+    # -- writing ------------------------------------------------------------
+    def save_stop(self, run: StopRecord) -> int:
+        """Write ``run`` (run row, commands, result) in one transaction; return its id.
+
+        A ``run_key`` already stored keeps its id: identical data is left as
+        it is, otherwise the run row is updated and its commands and result
+        replaced by the new ones.
+        """
+        values, commands, result = _normalise(run)
+        # Two writers may both find the key missing and both insert it; the
+        # unique constraint stops the second, which then retries as an update.
+        for attempt in range(2):
+            try:
+                with self._session() as session, session.begin():
+                    return _upsert(session, values, commands, result)
+            except IntegrityError as exc:
+                if attempt == 1:
+                    raise RailstopError(
+                        f"{self._label}: cannot save run {run.run_key!r}: {_one_line(exc)}"
+                    ) from None
+            except SQLAlchemyError as exc:
+                raise RailstopError(
+                    f"{self._label}: cannot save run {run.run_key!r}: {_one_line(exc)}"
+                ) from None
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    # -- reading ------------------------------------------------------------
+    def runs(self) -> list[dict[str, Any]]:
+        """Every stored run, oldest first; ``parameters`` decoded from JSON."""
+        cols = [RunRow.id, *(getattr(RunRow, f) for f in _RUN_FIELDS)]
+        with self._reading() as session:
+            rows = session.execute(select(*cols).order_by(RunRow.id)).all()
+        out = []
+        for row in rows:
+            d = dict(zip(("id", *_RUN_FIELDS), row, strict=True))
+            d["parameters"] = json.loads(d.pop("parameters_json"))
+            out.append(d)
+        return out
+
+    def commands(self, run_id: int) -> list[dict[str, Any]]:
+        """The command history of one run in the order computed (keys ``COMMAND_FIELDS``)."""
+        with self._reading() as session:
+            return _command_dicts(session, run_id)
+
+    def result(self, run_id: int) -> dict[str, Any] | None:
+        """The result of one run (keys ``RESULT_FIELDS``), or None if there is none."""
+        with self._reading() as session:
+            return _result_dict(session, run_id)
+
+    def _reading(self) -> _ReadSession:
+        return _ReadSession(self)
+
+
+class _ReadSession:
+    """A session whose database errors come out as one-line ``RailstopError``s."""
+
+    def __init__(self, store: Store) -> None:
+        self._store = store
+        self._session: Session | None = None
+
+    def __enter__(self) -> Session:
+        self._session = self._store._session()
+        return self._session
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        assert self._session is not None
+        self._session.close()
+        if isinstance(exc, SQLAlchemyError):
+            raise RailstopError(f"{self._store._label}: cannot read: {_one_line(exc)}") from None
+
+
+def open_store(path: str | Path) -> Store:
+    """Open (creating if needed) the event database at ``path``.
+
+    ``path`` is a SQLite file, or a full SQLAlchemy URL when it is a string
+    starting with ``sqlite:`` or ``postgresql``. Problems (missing or
+    read-only directory, not a database, no driver) raise ``RailstopError``
+    with a one-line message naming the path.
+    """
+    if isinstance(path, str) and path.startswith(("sqlite:", "postgresql")):
+        try:
+            url = make_url(path)
+        except ArgumentError:
+            raise RailstopError(f"{path}: not a valid database URL") from None
+        # Never echo a password into logs or terminals.
+        label = url.render_as_string(hide_password=True)
+        db = url.database
+        if url.get_backend_name() == "sqlite" and db and db != ":memory:" and not db.startswith("file:"):
+            _check_sqlite_file(Path(db).expanduser(), label)
+    else:
+        label = str(path)
+        file = Path(path).expanduser()
+        _check_sqlite_file(file, label)
+        # URL.create, not string formatting: a '?' or '#' in a file name stays a file name.
+        url = URL.create("sqlite", database=str(file))
+    try:
+        engine = create_engine(url)
+    except (SQLAlchemyError, ImportError) as exc:
+        raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
+    if engine.dialect.name == "sqlite":
+        # SQLite ignores foreign keys unless asked, per connection.
+        event.listen(engine, "connect", _sqlite_foreign_keys)
+    try:
+        _Base.metadata.create_all(engine)
+    except (SQLAlchemyError, ImportError) as exc:
+        engine.dispose()
+        raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
+    return Store(engine, label)
+
+
+# -- helpers ------------------------------------------------------------------
+
+
+def _sqlite_foreign_keys(dbapi_connection: Any, _record: Any) -> None:
+    cursor = dbapi_connection.cursor()
+    cursor.execute("PRAGMA foreign_keys=ON")
+    cursor.close()
+
+
+def _check_sqlite_file(file: Path, label: str) -> None:
+    """Refuse up front what SQLite would report only as 'unable to open database file'."""
+    if file.is_dir():
+        raise RailstopError(f"{label}: is a directory, not a database file")
+    parent = file.parent
+    if not parent.is_dir():
+        raise RailstopError(f"{label}: directory {str(parent)!r} does not exist")
+    # SQLite writes its journal next to the file, so the directory must be writable too.
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise RailstopError(f"{label}: directory {str(parent)!r} is not writable")
+    if file.exists() and not os.access(file, os.R_OK | os.W_OK):
+        raise RailstopError(f"{label}: file is not readable and writable")
+
+
+def _one_line(exc: BaseException) -> str:
+    """The driver's own message (not SQLAlchemy's multi-line wrapper), first line only."""
+    inner = getattr(exc, "orig", None) or exc
+    text = str(inner).strip()
+    return text.splitlines()[0] if text else type(inner).__name__
+
+
+def _upsert(
+    session: Session,
+    values: dict[str, Any],
+    commands: list[dict[str, Any]],
+    result: dict[str, Any],
+) -> int:
+    row = session.scalars(select(RunRow).where(RunRow.run_key == values["run_key"])).one_or_none()
+    if row is None:
+        row = RunRow(**values)
+        session.add(row)
+        session.flush()  # assigns row.id
+    else:
+        same = (
+            all(getattr(row, k) == v for k, v in values.items() if k != "created_utc")
+            and _command_dicts(session, row.id) == commands
+            and _result_dict(session, row.id) == result
+        )
+        if same:
+            return row.id
+        for k, v in values.items():
+            setattr(row, k, v)
+        # Delete with explicit statements before inserting: the ORM flushes
+        # inserts before deletes, which would trip the (run_id, seq) constraint.
+        session.execute(delete(CommandRow).where(CommandRow.run_id == row.id))
+        session.execute(delete(ResultRow).where(ResultRow.run_id == row.id))
+    run_id = row.id
+    session.add_all(CommandRow(run_id=run_id, seq=i, **c) for i, c in enumerate(commands))
+    session.add(ResultRow(run_id=run_id, **result))
+    return run_id
+
+
+def _command_dicts(session: Session, run_id: int) -> list[dict[str, Any]]:
+    cols = [getattr(CommandRow, f) for f in COMMAND_FIELDS]
+    rows = session.execute(
+        select(*cols).where(CommandRow.run_id == run_id).order_by(CommandRow.seq)
+    ).all()
+    return [dict(zip(COMMAND_FIELDS, r, strict=True)) for r in rows]
+
+
+def _result_dict(session: Session, run_id: int) -> dict[str, Any] | None:
+    cols = [getattr(ResultRow, f) for f in RESULT_FIELDS]
+    row = session.execute(select(*cols).where(ResultRow.run_id == run_id)).one_or_none()
+    return None if row is None else dict(zip(RESULT_FIELDS, row, strict=True))
+
+
+def _normalise(
+    run: StopRecord,
+) -> tuple[dict[str, Any], list[dict[str, Any]], dict[str, Any]]:
+    """Plain Python values for every column, or a ``RailstopError`` naming the field.
+
+    numpy scalars become int/float/bool; NaN becomes None where None is
+    allowed (the engine marks "unknown" with NaN) and is refused elsewhere.
+    """
+    key = run.run_key
+    if not isinstance(key, str) or not key:
+        raise RailstopError(f"run_key: must be a non-empty string (got {key!r})")
+    src = f"run {key!r}"
+    values = {
+        "run_key": key,
+        "station": _value(src, "station", run.station, str, False),
+        "controller": _value(src, "controller", run.controller, str, False),
+        "seed": _value(src, "seed", run.seed, int, False),
+        "line": _value(src, "line", run.line, str, False),
+        "parameters_json": _parameters_json(src, run.parameters),
+        "created_utc": _value(src, "created_utc", run.created_utc, str, False),
+    }
+    if isinstance(run.commands, Mapping | str) or not isinstance(run.commands, Sequence):
+        raise RailstopError(f"{src}: commands: must be a list of dicts (got {type(run.commands)})")
+    commands = []
+    for i, cmd in enumerate(run.commands):
+        if not isinstance(cmd, Mapping):
+            raise RailstopError(f"{src}: commands[{i}]: must be a dict (got {cmd!r})")
+        row = {}
+        for name, (kind, nullable) in _COMMAND_SPEC.items():
+            if name not in cmd:
+                raise RailstopError(f"{src}: commands[{i}].{name}: missing")
+            row[name] = _value(src, f"commands[{i}].{name}", cmd[name], kind, nullable)
+        commands.append(row)
+    result = {
+        name: _value(src, name, getattr(run, name), kind, nullable)
+        for name, (kind, nullable) in _RESULT_SPEC.items()
+    }
+    return values, commands, result
+
+
+def _value(src: str, name: str, v: Any, kind: type, nullable: bool) -> Any:
+    def bad(message: str) -> RailstopError:
+        return RailstopError(f"{src}: {name}: {message} (got {v!r})")
+
+    if v is None:
+        if nullable:
+            return None
+        raise bad("a value is required")
+    if kind is str:
+        if not isinstance(v, str):
+            raise bad("expected a string")
+        return v
+    if kind is bool:
+        if not isinstance(v, bool | np.bool_):
+            raise bad("expected true or false")
+        return bool(v)
+    if kind is int:
+        # bool is an int subclass, but True as a notch or a seed is a bug.
+        if isinstance(v, bool | np.bool_) or not isinstance(v, numbers.Integral):
+            raise bad("expected an integer")
+        return int(v)
+    if isinstance(v, bool | np.bool_) or not isinstance(v, numbers.Real):
+        raise bad("expected a number")
+    f = float(v)
+    if math.isnan(f):
+        if nullable:
+            return None
+        raise bad("not a number")
+    return f
+
+
+def _parameters_json(src: str, params: Any) -> str:
+    if not isinstance(params, Mapping):
+        raise RailstopError(f"{src}: parameters: must be a dict (got {type(params)})")
+    clean: dict[str, Any] = {}
+    for k, v in params.items():
+        if not isinstance(k, str):
+            raise RailstopError(f"{src}: parameters: keys must be strings (got {k!r})")
+        if v is None or isinstance(v, str | bool):
+            clean[k] = v
+        elif isinstance(v, np.bool_):
+            clean[k] = bool(v)
+        elif isinstance(v, numbers.Integral):
+            clean[k] = int(v)
+        elif isinstance(v, numbers.Real):
+            clean[k] = float(v)
+        else:
+            raise RailstopError(
+                f"{src}: parameters.{k}: expected a number, string or None (got {v!r})"
+            )
+    # Sorted keys: the same parameters give the same text, so a re-save compares equal.
+    return json.dumps(clean, sort_keys=True)

@@ -1,0 +1,125 @@
+"""The ``railstop`` command end to end, through a real subprocess."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+EXE = [sys.executable, "-m", "railstop.cli"]
+
+
+def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False
+    )
+
+
+def test_check_default_line(tmp_path: Path) -> None:
+    p = run("check", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "4 stations" in p.stdout
+
+
+def test_check_bad_file_one_line_exit_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[line]\nname = "x"\n[[stations]]\nname = "A"\nstop_point_m = 100.0\n'
+        'platform_length_m = 130.0\nplatform_side = "R"\n[stations.tasc]\n'
+        "detectors_before_stop_m = [50.0, 80.0, 5.0]\n"
+        "doppler = { beyond_stop_m = 10.0 }\n"
+    )
+    p = run("check", "--line", str(bad), cwd=tmp_path)
+    assert p.returncode == 2
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, p.stderr
+    assert str(bad) in p.stderr.replace("\n", "")
+    assert "stations[0].tasc.detectors_before_stop_m" in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_check_unknown_key(tmp_path: Path) -> None:
+    bad = tmp_path / "typo.toml"
+    bad.write_text('[line]\nname = "x"\nspeed_limt_kmh = 80\n')
+    p = run("check", "--line", str(bad), cwd=tmp_path)
+    assert p.returncode == 2
+    assert "line.speed_limt_kmh" in p.stderr and "unknown key" in p.stderr
+
+
+def test_stop_json_plot_and_db(tmp_path: Path) -> None:
+    db = tmp_path / "runs.db"
+    png = tmp_path / "stop.png"
+    args = (
+        "stop",
+        "--controller",
+        "tasc-step",
+        "--seed",
+        "3",
+        "--json",
+        "--db",
+        str(db),
+        "--plot",
+        str(png),
+    )
+    p = run(*args, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    for key in (
+        "controller",
+        "station",
+        "seed",
+        "stop_error_m",
+        "stop_time_s",
+        "max_jerk_mps3",
+        "notch_changes",
+        "commands",
+    ):
+        assert key in data
+    assert data["station"] == "Riverside" and data["controller"] == "tasc-step"
+    assert abs(data["stop_error_m"]) <= 0.10
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Same run again: identical JSON, and the database does not duplicate it.
+    p2 = run(*args, cwd=tmp_path)
+    assert json.loads(p2.stdout) == data
+    with sqlite3.connect(db) as con:
+        assert con.execute("select count(*) from runs").fetchone()[0] == 1
+        n_cmd = con.execute("select count(*) from commands").fetchone()[0]
+    assert n_cmd == data["commands"]
+
+
+def test_stop_disturbed(tmp_path: Path) -> None:
+    p = run(
+        "stop",
+        "--station",
+        "Museum",
+        "--controller",
+        "tasc-pwm",
+        "--load-factor",
+        "1",
+        "--brake-gain",
+        "0.85",
+        "--json",
+        "--db",
+        str(tmp_path / "x.db"),
+        cwd=tmp_path,
+    )
+    assert p.returncode == 0, p.stderr
+    assert abs(json.loads(p.stdout)["stop_error_m"]) <= 0.35
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("--station", "Nowhere"), "unknown station 'Nowhere'"),
+        (("--controller", "magic"), "unknown controller 'magic'"),
+    ],
+)
+def test_stop_bad_arguments(tmp_path: Path, args: tuple[str, ...], needle: str) -> None:
+    p = run("stop", *args, "--db", str(tmp_path / "x.db"), cwd=tmp_path)
+    assert p.returncode == 2
+    assert needle in p.stderr.replace("\n", "")
+    assert "Traceback" not in p.stderr

@@ -1,0 +1,205 @@
+"""End-to-end accuracy of the ground TASC stop (issue: the spine) and the control law."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from railstop.config import default_line, default_vehicle
+from railstop.control.tasc import fit_doppler, fit_passages, propagate, required_decel
+from railstop.sim.engine import CONTROLLERS, run_batch
+from railstop.sim.scenario import Scenario
+from railstop.sim.single import run_stop
+from railstop.streams import RunStreams
+
+LINE = default_line()
+VEHICLE = default_vehicle()
+STATIONS = [s.name for s in LINE.stations]
+
+
+def _stop(station: str, controller: str, load: float = 0.0, gain: float = 1.0) -> float:
+    result, _ = run_stop(
+        line=LINE,
+        station=LINE.station(station),
+        vehicle=VEHICLE,
+        controller=controller,
+        seed=1,
+        load_factor=load,
+        brake_gain=gain,
+    )
+    assert result.stopped
+    return result.stop_error_m
+
+
+@pytest.mark.parametrize("station", STATIONS)
+@pytest.mark.parametrize("controller", ["tasc-step", "tasc-pwm"])
+def test_nominal_stop_within_10_cm(station: str, controller: str) -> None:
+    assert abs(_stop(station, controller)) <= 0.10
+
+
+@pytest.mark.parametrize("station", STATIONS)
+@pytest.mark.xfail(
+    strict=False,
+    reason="known miss: the train's own brake controller holds a notch >= 0.5 s, which "
+    "limits the notch alternation after the last detector to about ±0.3 m",
+)
+def test_nominal_brake_controller_within_10_cm(station: str) -> None:
+    assert abs(_stop(station, "tasc-brake-controller")) <= 0.10
+
+
+@pytest.mark.parametrize("station", STATIONS)
+@pytest.mark.parametrize("controller", CONTROLLERS)
+def test_nominal_stop_within_psd_tolerance(station: str, controller: str) -> None:
+    # SPEC §1: the PSD tolerance of the Korean metro is ±35 cm.
+    assert abs(_stop(station, controller)) <= 0.35
+
+
+@pytest.mark.parametrize("station", STATIONS)
+@pytest.mark.parametrize("controller", CONTROLLERS)
+def test_crush_load_weak_brakes_within_35_cm(station: str, controller: str) -> None:
+    # The loop closure must cancel a 15 % brake deficit at crush load.
+    assert abs(_stop(station, controller, load=1.0, gain=0.85)) <= 0.35
+
+
+def test_open_loop_would_miss_with_weak_brakes() -> None:
+    """Without the repeated closed-loop commands a 15 % brake deficit overruns by metres.
+
+    This is what the loop closure removes: only the first detector's command
+    is delivered (radio loss 1 after it), so the train brakes open loop.
+    """
+    st = LINE.station("Riverside")
+    sc = Scenario.nominal(st, VEHICLE, brake_gain=0.85)
+    closed = run_batch(
+        station=st,
+        vehicle=VEHICLE,
+        scenario=sc,
+        controller="tasc-pwm",
+        streams=RunStreams.for_runs(1, 0, 1),
+    )
+    assert abs(closed.stop_error_m[0]) < 0.1
+    # Drop every telegram after the first by sending them into a link with loss 1:
+    # emulate with a detectors list of one command, i.e. a station with only
+    # the first two detectors far out.
+    short = st.model_copy(
+        update={"tasc": st.tasc.model_copy(update={"detectors_before_stop_m": [220.0, 219.0]})}
+    )
+    open_loop = run_batch(
+        station=short,
+        vehicle=VEHICLE,
+        scenario=sc,
+        controller="tasc-pwm",
+        streams=RunStreams.for_runs(1, 0, 1),
+    )
+    assert open_loop.stop_error_m[0] > 1.0
+
+
+@pytest.mark.parametrize("controller", CONTROLLERS)
+def test_detectors_only_variant_within_psd_tolerance(controller: str) -> None:
+    """SPEC §1 variant 2: no Doppler, speed and deceleration from passage times."""
+    st = LINE.station("Harbour")
+    variant = st.model_copy(update={"tasc": st.tasc.model_copy(update={"doppler": None})})
+    for load, gain in ((0.0, 1.0), (1.0, 0.85)):
+        sc = Scenario.nominal(variant, VEHICLE, load_factor=load, brake_gain=gain)
+        r = run_batch(
+            station=variant,
+            vehicle=VEHICLE,
+            scenario=sc,
+            controller=controller,
+            streams=RunStreams.for_runs(1, 0, 1),
+        )
+        # Four commands: the first needs two passages.
+        assert r.commands_received[0] == 4
+        assert abs(r.stop_error_m[0]) <= 0.35
+
+
+def test_same_seed_same_json() -> None:
+    a, _ = run_stop(
+        line=LINE, station=LINE.stations[0], vehicle=VEHICLE, controller="tasc-step", seed=7
+    )
+    b, _ = run_stop(
+        line=LINE, station=LINE.stations[0], vehicle=VEHICLE, controller="tasc-step", seed=7
+    )
+    assert json.dumps(a.summary()) == json.dumps(b.summary())
+
+
+def test_noisy_runs_are_deterministic_and_batch_equals_single() -> None:
+    """n = 1 equals the same run inside a batch (DESIGN rule 1 and 4)."""
+    st = LINE.stations[0]
+    n = 6
+    sc = Scenario.nominal(st, VEHICLE, n=n).with_values(
+        sensor_jitter_s=np.full(n, 0.001),
+        doppler_noise_frac=np.full(n, 0.005),
+        radio_latency_s=np.full(n, 0.05),
+        brake_gain=np.linspace(0.85, 1.15, n),
+    )
+    batch = run_batch(
+        station=st,
+        vehicle=VEHICLE,
+        scenario=sc,
+        controller="tasc-pwm",
+        streams=RunStreams.for_runs(3, 0, n),
+    )
+    for i in (0, 4):
+        one = Scenario.nominal(st, VEHICLE).with_values(
+            sensor_jitter_s=np.full(1, 0.001),
+            doppler_noise_frac=np.full(1, 0.005),
+            radio_latency_s=np.full(1, 0.05),
+            brake_gain=np.array([np.linspace(0.85, 1.15, n)[i]]),
+        )
+        single = run_batch(
+            station=st,
+            vehicle=VEHICLE,
+            scenario=one,
+            controller="tasc-pwm",
+            streams=RunStreams.for_runs(3, i, 1),
+        )
+        assert single.stop_error_m[0] == batch.stop_error_m[i]
+
+
+def test_every_command_is_logged_with_inputs() -> None:
+    result, batch = run_stop(
+        line=LINE, station=LINE.stations[0], vehicle=VEHICLE, controller="tasc-pwm", seed=1
+    )
+    # SPEC §1 claims 2, 19: control repeated at every detector (5 here).
+    assert result.commands == len(LINE.stations[0].tasc.detectors_before_stop_m)
+    assert len(batch.commands) == result.commands_sent
+    for rec in batch.commands:
+        assert {"distance_m", "speed_mps", "gain", "command_decel_mps2"} <= rec.keys()
+
+
+# -- the control law on noiseless input ----------------------------------------
+
+
+def test_required_decel_is_v2_over_2s() -> None:
+    assert required_decel(np.array([100.0]), np.array([10.0]))[0] == pytest.approx(0.5)
+    assert np.isinf(required_decel(np.array([-1.0]), np.array([3.0]))[0])
+    assert required_decel(np.array([5.0]), np.array([0.0]))[0] == 0.0
+
+
+def test_propagate_constant_decel_closed_form() -> None:
+    s, v = propagate(np.array([100.0]), np.array([10.0]), np.array([0.5]), np.array([4.0]))
+    assert v[0] == pytest.approx(8.0)
+    assert s[0] == pytest.approx(100.0 - (10 * 4 - 0.5 * 0.5 * 16))
+    s, v = propagate(np.array([100.0]), np.array([10.0]), np.array([0.5]), np.array([100.0]))
+    assert v[0] == 0.0 and s[0] == pytest.approx(0.0)
+
+
+def test_doppler_fit_exact_on_noiseless_ramp() -> None:
+    dt = 0.01
+    t = np.arange(150) * dt
+    v = 15.0 - 0.7 * t
+    speed, decel = fit_doppler(v[None, :], dt, np.array([150]))
+    assert speed[0] == pytest.approx(v[-1], abs=1e-9)
+    assert decel[0] == pytest.approx(0.7, abs=1e-9)
+
+
+def test_passage_fit_exact_for_constant_decel() -> None:
+    # SPEC §1 variant 2: three passages at constant deceleration.
+    a, v0 = 0.6, 16.0
+    x = np.array([0.0, 60.0, 110.0])
+    t = (v0 - np.sqrt(v0 * v0 - 2 * a * x)) / a
+    speed, decel = fit_passages(t[None, :], x[None, :], np.array([3]))
+    assert decel[0] == pytest.approx(a, rel=1e-9)
+    assert speed[0] == pytest.approx(v0 - a * t[2], rel=1e-9)
