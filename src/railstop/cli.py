@@ -24,7 +24,8 @@ app = typer.Typer(
     no_args_is_help=True,
     help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
 )
-out = Console()
+# Wide enough for the demo table when the output is a file or a pipe.
+out = Console(width=None if sys.stdout.isatty() else 140)
 err = Console(stderr=True)
 
 LineOpt = Annotated[
@@ -207,9 +208,9 @@ def demo(
         "commands",
     ):
         table.add_column(
-            col, justify="left" if col in ("station", "controller", "case") else "right"
+            col, no_wrap=True, justify="left" if col in ("station", "controller", "case") else "right"
         )
-    cases = (("nominal", 0.0, 1.0), ("crush, brakes 85 %", 1.0, 0.85))
+    cases = (("nominal", 0.0, 1.0), ("crush, brake 0.85", 1.0, 0.85))
     try:
         for st in ln.stations:
             for ctrl in CONTROLLERS:
