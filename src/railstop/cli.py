@@ -28,9 +28,7 @@ app = typer.Typer(
 out = Console(width=None if sys.stdout.isatty() else 140)
 err = Console(stderr=True)
 
-LineOpt = Annotated[
-    Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")
-]
+LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
 ]
@@ -65,12 +63,8 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None) -> None:
 
 @app.command()
 def stop(
-    station: Annotated[
-        str | None, typer.Option(help="Station name (default: the line's first).")
-    ] = None,
-    controller: Annotated[
-        str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")
-    ] = "tasc-pwm",
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     load_factor: Annotated[
         float, typer.Option(min=0.0, max=1.0, help="0 = empty (AW0) .. 1 = crush (AW3).")
@@ -194,9 +188,7 @@ def demo(
     except OSError as exc:
         fail(f"cannot create {out_dir}: {exc.strerror}")
     db = out_dir / "railstop.db"
-    table = Table(
-        title=f"Ground TASC stops on {ln.line.name} (error + = overrun; PSD tolerance ±0.35 m)"
-    )
+    table = Table(title=f"Ground TASC stops on {ln.line.name} (error + = overrun; PSD tolerance ±0.35 m)")
     for col in (
         "station",
         "controller",
@@ -228,11 +220,7 @@ def demo(
                     if label == "nominal":
                         _plot(out_dir / f"{st.name}-{ctrl}.png".lower(), result, batch, st)
                     err_m = result.stop_error_m
-                    colour = (
-                        "green"
-                        if abs(err_m) <= 0.10
-                        else ("yellow" if abs(err_m) <= 0.35 else "red")
-                    )
+                    colour = "green" if abs(err_m) <= 0.10 else ("yellow" if abs(err_m) <= 0.35 else "red")
                     table.add_row(
                         st.name,
                         ctrl,

@@ -52,9 +52,7 @@ class TascZone(_Model):
 
     entry_speed_kmh: Annotated[float, Field(gt=0.0, le=120.0)] = 60.0
     detectors_before_stop_m: list[PositiveFloat]
-    detector_kind: Literal["wheel-sensor", "ultrasonic", "optical", "magnetic", "proximity"] = (
-        "wheel-sensor"
-    )
+    detector_kind: Literal["wheel-sensor", "ultrasonic", "optical", "magnetic", "proximity"] = "wheel-sensor"
     doppler: DopplerRadar | None = None
     update: Literal["detectors", "continuous"] = "detectors"
     continuous_period_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
@@ -76,9 +74,7 @@ class TascZone(_Model):
         # SPEC §1 variant 2: without a Doppler sensor, >= 3 detectors give speed
         # and deceleration from passage times.
         if self.doppler is None and len(self.detectors_before_stop_m) < 3:
-            raise ValueError(
-                "without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2)"
-            )
+            raise ValueError("without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2)")
         if self.update == "continuous" and self.doppler is None:
             raise ValueError("update = 'continuous' needs a doppler radar")
         return self

@@ -84,9 +84,7 @@ class ExternalModel:
     davis_c_per_m: float
 
     @classmethod
-    def create(
-        cls, vehicle: Vehicle, gradient: GradientProfile, stop_point_m: float
-    ) -> ExternalModel:
+    def create(cls, vehicle: Vehicle, gradient: GradientProfile, stop_point_m: float) -> ExternalModel:
         static = vehicle.tare_mass_kg + 0.5 * vehicle.crush_payload_kg
         eff = static + vehicle.tare_mass_kg * vehicle.rotating_mass_factor
         return cls(
@@ -106,9 +104,7 @@ class ExternalModel:
         v = np.maximum(speed_mps, 0.0)
         return grade + self.davis_a_mps2 + self.davis_b_per_s * v + self.davis_c_per_m * v * v
 
-    def path_integral(
-        self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray
-    ) -> FloatArray:
+    def path_integral(self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray) -> FloatArray:
         """Integral of the external deceleration over the remaining ``distance`` (m²/s²).
 
         Gradient: trapezoid over SAMPLES points of the path. Resistance: for a
@@ -121,11 +117,7 @@ class ExternalModel:
         grade = self.gradient.mean_gradient(x, self.length_m, rows)
         mean_grade = np.trapezoid(grade, frac, axis=1)
         v = np.maximum(speed_mps, 0.0)
-        resist = (
-            self.davis_a_mps2
-            + self.davis_b_per_s * 2.0 * v / 3.0
-            + self.davis_c_per_m * v * v / 2.0
-        )
+        resist = self.davis_a_mps2 + self.davis_b_per_s * 2.0 * v / 3.0 + self.davis_c_per_m * v * v / 2.0
         return s * (G_MPS2 * self.mass_ratio * mean_grade + resist)
 
 
@@ -168,16 +160,13 @@ class CommandHistory:
         """Commanded value in effect at ``t_s``: shape (m,) or (m, k) for m runs."""
         t = np.asarray(t_s, dtype=np.float64)
         active = (
-            self.effect_s.reshape(self.effect_s.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,))
-            <= t[..., None]
+            self.effect_s.reshape(self.effect_s.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)) <= t[..., None]
         )
         count = active.sum(axis=-1)  # effect times increase, so the active ones are a prefix
         idx = np.maximum(count - 1, 0)
         vals = np.take_along_axis(
             np.broadcast_to(
-                self.value_mps2.reshape(
-                    self.value_mps2.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)
-                ),
+                self.value_mps2.reshape(self.value_mps2.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)),
                 (*t.shape, HISTORY),
             ),
             idx[..., None],
@@ -296,6 +285,48 @@ def update_gain(
     return np.where(ok, np.clip(ratio, GAIN_MIN, GAIN_MAX), gain)
 
 
+def closed_loop_command(
+    *,
+    distance_m: FloatArray,
+    speed_mps: FloatArray,
+    now_s: FloatArray,
+    history: CommandHistory,
+    gain: FloatArray,
+    measured_decel_mps2: FloatArray,
+    commanded_mean_mps2: FloatArray,
+    braking_fraction: FloatArray,
+    base_delay_s: float,
+    jerk_limit_mps3: float,
+    max_decel_mps2: float,
+    external: ExternalModel,
+    rows: IntArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """One turn of the SPEC §1 law: close the loop, then plan the next command.
+
+    The measured deceleration, less the modelled gradient and resistance over
+    the part of the window the train was braking (``braking_fraction``), is
+    compared with the modelled command (``commanded_mean``) to update the gain
+    (claims 2, 19); the command is then planned with that gain. Returns (gain,
+    command, required brake deceleration, effect time). The wayside unit and
+    the onboard planner of forms 1-5 both use this one law.
+    """
+    ext = external.decel_at(distance_m, speed_mps, rows)
+    gain = update_gain(gain, measured_decel_mps2, commanded_mean_mps2, ext * braking_fraction)
+    command, need, effect = plan_command(
+        distance_m=distance_m,
+        speed_mps=speed_mps,
+        now_s=now_s,
+        history=history,
+        gain=gain,
+        base_delay_s=base_delay_s,
+        jerk_limit_mps3=jerk_limit_mps3,
+        max_decel_mps2=max_decel_mps2,
+        external=external,
+        rows=rows,
+    )
+    return gain, command, need, effect
+
+
 def fit_doppler(
     samples_mps: FloatArray, dt_s: float, count: NDArray[np.int64]
 ) -> tuple[FloatArray, FloatArray]:
@@ -323,9 +354,7 @@ def fit_doppler(
     return v_now, -slope
 
 
-def fit_passages(
-    t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]
-) -> tuple[FloatArray, FloatArray]:
+def fit_passages(t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
     """SPEC §1 variant 2: speed at the newest passage and deceleration from passage times.
 
     ``t`` and ``x`` are (n, 3), newest last. With 3 passages a parabola

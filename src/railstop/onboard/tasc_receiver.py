@@ -29,11 +29,10 @@ from railstop.control.notch import NotchModulator
 from railstop.control.tasc import (
     CommandHistory,
     ExternalModel,
+    closed_loop_command,
     fit_doppler,
     modelled_means,
-    plan_command,
     regression_weights,
-    update_gain,
 )
 from railstop.physics.brake import BrakeLine, decel_to_pwm, encode_step, superimpose_pwm
 from railstop.physics.train import GradientProfile
@@ -86,17 +85,13 @@ class TascReceiver:
         self.fixed_duty = np.full(n, np.nan)  # form 7 (PWM trains)
         self.received = np.zeros(n, dtype=np.int64)
         hold = (
-            brake.controller_min_hold_s
-            if config == OnboardConfig.BRAKE_CONTROLLER
-            else brake.tasc_min_hold_s
+            brake.controller_min_hold_s if config == OnboardConfig.BRAKE_CONTROLLER else brake.tasc_min_hold_s
         )
         self.modulator = NotchModulator.create(
             n, brake.notch_decel_mps2, hold, brake.dead_time_s + brake.time_constant_s
         )
         self.cycle_steps = (
-            max(1, round(brake.controller_cycle_s / dt_s))
-            if config == OnboardConfig.BRAKE_CONTROLLER
-            else 1
+            max(1, round(brake.controller_cycle_s / dt_s)) if config == OnboardConfig.BRAKE_CONTROLLER else 1
         )
         self.pwm_steps = max(1, round(1.0 / (brake.pwm_carrier_hz * dt_s)))
         self.existing_duty = np.zeros(n)  # the train's own PWM brake signal (released)
@@ -142,15 +137,11 @@ class TascReceiver:
             self.fixed_notch = np.where(delivered, tele.notch, self.fixed_notch)
             self.fixed_duty = np.where(delivered, tele.duty, self.fixed_duty)
             table = np.concatenate(([0.0], self.vehicle.brake.notch_decel_mps2))
-            self.target_mps2 = np.where(
-                delivered, table[np.maximum(tele.notch, 0)], self.target_mps2
-            )
+            self.target_mps2 = np.where(delivered, table[np.maximum(tele.notch, 0)], self.target_mps2)
         elif form == SignalForm.INCREASE_DECREASE:
             # SPEC §1 config 1: increase / decrease passed as such: one notch per telegram.
             step = self.vehicle.brake.notch_decel_mps2[0]
-            new = np.clip(
-                self.target_mps2 + tele.delta * step, 0.0, self.vehicle.brake.full_service_mps2
-            )
+            new = np.clip(self.target_mps2 + tele.delta * step, 0.0, self.vehicle.brake.full_service_mps2)
             self.target_mps2 = np.where(delivered, new, self.target_mps2)
         else:
             self._plan_onboard(tele, delivered, now_s)
@@ -191,21 +182,22 @@ class TascReceiver:
         count = self.tach_count[rows]
         taus, w = regression_weights(now - (count - 1) * self.dt_s, now)
         cmd_mean, after = modelled_means(hist, taus, w, self.first_rx_s[idx])
-        ext = self.external.decel_at(distance, speed, idx)
-        gain = update_gain(self.gain[rows], a_est, cmd_mean, ext * after)
-        self.gain[rows] = gain
-        command, _, effect = plan_command(
+        gain, command, _, effect = closed_loop_command(
             distance_m=distance,
             speed_mps=speed,
             now_s=now,
             history=hist,
-            gain=gain,
+            gain=self.gain[rows],
+            measured_decel_mps2=a_est,
+            commanded_mean_mps2=cmd_mean,
+            braking_fraction=after,
             base_delay_s=self.base_delay_s,
             jerk_limit_mps3=self.vehicle.brake.jerk_limit_mps3,
             max_decel_mps2=self.vehicle.brake.full_service_mps2,
             external=self.external,
             rows=idx,
         )
+        self.gain[rows] = gain
         full_cmd = np.zeros(self.n)
         full_cmd[rows] = command
         full_eff = np.zeros(self.n)

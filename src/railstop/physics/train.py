@@ -31,9 +31,7 @@ class TrainMass:
     believed_effective_kg: FloatArray
 
     @classmethod
-    def create(
-        cls, vehicle: Vehicle, load_factor: FloatArray, weighing_error: FloatArray
-    ) -> TrainMass:
+    def create(cls, vehicle: Vehicle, load_factor: FloatArray, weighing_error: FloatArray) -> TrainMass:
         """``load_factor`` 0 = empty (AW0) .. 1 = crush (AW3); ``weighing_error`` fraction."""
         lf = np.asarray(load_factor, dtype=np.float64)
         static = vehicle.tare_mass_kg + lf * vehicle.crush_payload_kg
@@ -92,9 +90,7 @@ class GradientProfile:
         Averaging over the train's length is exact for the gradient force on a
         uniformly loaded train and keeps the force continuous at a gradient change.
         """
-        return (
-            self.elevation_m(front_m, rows) - self.elevation_m(front_m - length_m, rows)
-        ) / length_m
+        return (self.elevation_m(front_m, rows) - self.elevation_m(front_m - length_m, rows)) / length_m
 
 
 @dataclass(slots=True, kw_only=True)

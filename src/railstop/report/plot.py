@@ -109,7 +109,10 @@ def _speed_panel(
 
     ax.plot(x, v_kmh, color="tab:blue", lw=1.8, label="speed")
     band = ax.axvspan(
-        -PSD_TOLERANCE_M, PSD_TOLERANCE_M, color="tab:green", alpha=0.25,
+        -PSD_TOLERANCE_M,
+        PSD_TOLERANCE_M,
+        color="tab:green",
+        alpha=0.25,
         label=f"PSD tolerance ±{PSD_TOLERANCE_M:g} m",
     )
     band.set_zorder(0)
@@ -126,11 +129,22 @@ def _speed_panel(
         following = [d for d in (*det_x, 0.0) if d > dx]
         crowded = bool(following) and min(following) - dx < 0.05 * span
         ax.text(
-            dx, 0.98, f"D{i + 1} " if crowded else f" D{i + 1}", transform=top_label, va="top",
-            ha="right" if crowded else "left", fontsize=9,
+            dx,
+            0.98,
+            f"D{i + 1} " if crowded else f" D{i + 1}",
+            transform=top_label,
+            va="top",
+            ha="right" if crowded else "left",
+            fontsize=9,
         )
     ax.plot(
-        [final_x], [v_kmh[-1]], marker="o", ms=7, color="tab:red", ls="none", zorder=5,
+        [final_x],
+        [v_kmh[-1]],
+        marker="o",
+        ms=7,
+        color="tab:red",
+        ls="none",
+        zorder=5,
         label="train at rest" if at_rest else "end of trace",
     )
     ax.annotate(
@@ -188,7 +202,13 @@ def _decel_panel(
 
     # The target is drawn wide and underneath: the demand often equals it exactly.
     ax.step(
-        t, target, where="post", color="tab:orange", lw=3.5, alpha=0.7, zorder=1,
+        t,
+        target,
+        where="post",
+        color="tab:orange",
+        lw=3.5,
+        alpha=0.7,
+        zorder=1,
         label="commanded (target)",
     )
     ax.plot(t, demand, color="tab:purple", lw=1.2, ls="--", zorder=3, label="ECU demand")
@@ -207,7 +227,14 @@ def _decel_panel(
         ct = [float(c["t_s"]) for c in commands]
         cy = [float(c["command_decel_mps2"]) for c in commands]
         ax.plot(
-            ct, cy, marker="D", ms=6, color="black", mfc="gold", ls="none", zorder=5,
+            ct,
+            cy,
+            marker="D",
+            ms=6,
+            color="black",
+            mfc="gold",
+            ls="none",
+            zorder=5,
             label="command sent",
         )
         for c, xx, yy in zip(commands, ct, cy, strict=True):
@@ -215,7 +242,10 @@ def _decel_panel(
             if det is None or int(det) < 0:
                 continue
             ax.annotate(
-                f"D{int(det) + 1}", xy=(xx, yy), xytext=(4, -13), textcoords="offset points",
+                f"D{int(det) + 1}",
+                xy=(xx, yy),
+                xytext=(4, -13),
+                textcoords="offset points",
                 fontsize=8,
                 # A light box keeps the name readable where it crosses the curves.
                 bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75},

@@ -131,18 +131,13 @@ def run_batch(
 ) -> BatchResult:
     """Simulate ``scenario.n`` TASC stops at ``station``; see the module docstring."""
     if controller not in CONTROLLERS:
-        raise SimulationError(
-            f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLERS)}"
-        )
+        raise SimulationError(f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLERS)}")
     n = scenario.n
     if streams.n != n:
         raise SimulationError(f"{streams.n} random streams for {n} runs")
     config = OnboardConfig(controller)
     form = SignalForm(station.tasc.signal_form if form is None else form)
-    if (
-        station.tasc.doppler is not None
-        and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12
-    ):
+    if station.tasc.doppler is not None and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12:
         raise SimulationError(
             f"station {station.name}: tasc.doppler.sample_period_s = "
             f"{station.tasc.doppler.sample_period_s} must equal the simulation step {dt_s} s"
@@ -159,10 +154,10 @@ def run_batch(
         stop_time_s=np.full(n, np.nan),
         sliding=np.zeros(n, dtype=bool),
     )
-    sensors = WheelSensors.create(
-        det_pos, scenario.sensor_jitter_s, scenario.sensor_miss_probability
-    )
-    truth_next = np.zeros(n, dtype=np.int64)  # true passages, for stop time and plots
+    sensors = WheelSensors.create(det_pos, scenario.sensor_jitter_s, scenario.sensor_miss_probability)
+    # Exact, never-missing detectors at the same places: the true passages,
+    # for the stop time and the plots.
+    truth = WheelSensors.create(det_pos, np.zeros(n), np.zeros(n))
     passages = np.full((n, det_pos.size), np.nan)
     unit = GroundTascUnit(
         station=station,
@@ -195,9 +190,7 @@ def run_batch(
     tach_scale = assumed_diam / scenario.wheel_diameter_m
     doppler_on = station.tasc.doppler is not None
     noisy_doppler = bool(np.any(scenario.doppler_noise_frac > 0))
-    doppler_reach = station.stop_point_m + (
-        station.tasc.doppler.beyond_stop_m if doppler_on else 0.0
-    )
+    doppler_reach = station.stop_point_m + (station.tasc.doppler.beyond_stop_m if doppler_on else 0.0)
     doppler_range = station.tasc.doppler.range_m if doppler_on else 0.0
 
     max_jerk = np.zeros(n)
@@ -209,6 +202,9 @@ def run_batch(
     rec: dict[str, list[FloatArray]] = {k: [] for k in Trace.__dataclass_fields__}
 
     steps = round(max_time_s / dt_s)
+    passed = np.zeros(n, dtype=bool)  # detector reports found during the last step
+    det_idx = np.zeros(n, dtype=np.int64)
+    pass_t = np.zeros(n)
     k = 0
     for k in range(steps):
         t = k * dt_s
@@ -223,10 +219,6 @@ def run_batch(
             )
             dop = np.where(in_range, v_meas, 0.0)
         # Wayside unit.
-        if k == 0:
-            passed = np.zeros(n, dtype=bool)
-            det_idx = np.zeros(n, dtype=np.int64)
-            pass_t = np.zeros(n)
         tele = unit.step(t, passed=passed, detector=det_idx, passage_s=pass_t, doppler_mps=dop)
         if tele is not None:
             link.send(tele, t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
@@ -234,15 +226,11 @@ def run_batch(
         if link.pending is not None and delivered.any():
             receiver.receive(link.pending, delivered, t)
         if form <= SignalForm.DECELERATION:
-            wheel_v = motion.speed_mps * np.where(
-                motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0
-            )
+            wheel_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0)
             receiver.observe_tachometer(wheel_v * tach_scale)
         # Onboard -> ECU -> actuator -> brakes.
         signal = receiver.output()
-        demand = ecu_demand_mps2(
-            line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake
-        )
+        demand = ecu_demand_mps2(line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake)
         if signal.line is not None:
             notch = decode_step(signal.line)
             notch_changes += (notch != prev_notch) & ~motion.stopped
@@ -282,16 +270,10 @@ def run_batch(
         prev_counted = counted
         # True passages (for the record) and the detectors' reports (for the wayside).
         acc = motion.accel_mps2
-        has = truth_next < det_pos.size
-        tgt = det_pos[np.minimum(truth_next, det_pos.size - 1)]
-        crossed = has & (x0 < tgt) & (motion.position_m >= tgt)
-        if crossed.any():
-            from railstop.sensors.wayside import crossing_time_s
-
-            tc = t + crossing_time_s(x0, v0, acc, tgt)
-            rows = np.flatnonzero(crossed)
-            passages[rows, truth_next[rows]] = tc[rows]
-            truth_next = truth_next + crossed
+        crossed, idx, tc = truth.detect(
+            x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
+        )
+        passages[crossed, idx[crossed]] = tc[crossed]
         passed, det_idx, pass_t = sensors.detect(
             x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
         )
@@ -303,9 +285,7 @@ def run_batch(
             rec["demand_decel_mps2"].append(demand)
             rec["brake_decel_mps2"].append(np.where(motion.stopped, 0.0, brake_decel))
             rec["accel_mps2"].append(motion.accel_mps2.copy())
-            rec["notch"].append(
-                decode_step(signal.line) if signal.line is not None else np.full(n, -1)
-            )
+            rec["notch"].append(decode_step(signal.line) if signal.line is not None else np.full(n, -1))
             rec["duty"].append(signal.duty if signal.duty is not None else np.full(n, np.nan))
         if motion.stopped.all():
             break

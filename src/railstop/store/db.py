@@ -183,9 +183,7 @@ class ResultRow(_Base):
 
     __tablename__ = "stop_results"
 
-    run_id: Mapped[int] = mapped_column(
-        ForeignKey("runs.id", ondelete="CASCADE"), primary_key=True
-    )
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), primary_key=True)
     stop_error_m: Mapped[float] = mapped_column(Float)
     stop_time_s: Mapped[float | None] = mapped_column(Float, nullable=True)
     max_jerk_mps3: Mapped[float] = mapped_column(Float)
@@ -410,9 +408,7 @@ def _upsert(
 
 def _command_dicts(session: Session, run_id: int) -> list[dict[str, Any]]:
     cols = [getattr(CommandRow, f) for f in COMMAND_FIELDS]
-    rows = session.execute(
-        select(*cols).where(CommandRow.run_id == run_id).order_by(CommandRow.seq)
-    ).all()
+    rows = session.execute(select(*cols).where(CommandRow.run_id == run_id).order_by(CommandRow.seq)).all()
     return [dict(zip(COMMAND_FIELDS, r, strict=True)) for r in rows]
 
 
@@ -509,8 +505,6 @@ def _parameters_json(src: str, params: Any) -> str:
         elif isinstance(v, numbers.Real):
             clean[k] = float(v)
         else:
-            raise RailstopError(
-                f"{src}: parameters.{k}: expected a number, string or None (got {v!r})"
-            )
+            raise RailstopError(f"{src}: parameters.{k}: expected a number, string or None (got {v!r})")
     # Sorted keys: the same parameters give the same text, so a re-save compares equal.
     return json.dumps(clean, sort_keys=True)

@@ -23,12 +23,12 @@ from railstop.control.notch import nearest_notch
 from railstop.control.tasc import (
     CommandHistory,
     ExternalModel,
+    closed_loop_command,
     fit_doppler,
+    fit_passages,
     hat_weights,
     modelled_means,
-    plan_command,
     regression_weights,
-    update_gain,
 )
 from railstop.physics.brake import decel_to_pwm
 from railstop.physics.train import GradientProfile
@@ -169,25 +169,20 @@ class GroundTascUnit:
         frac = (np.arange(16) + 0.5) / 16
         taus = t[:, 1, None] + (t[:, 2] - t[:, 1])[:, None] * frac[None, :]
         ext = self.external.decel_at(self.det_to_stop_m[self.last_detector[rows]], v_mean, rows)
-        a_model = gain[:, None] * hist.value_at(taus) + ext[:, None] * (
-            taus >= self.first_sent_s[rows, None]
-        )
+        a_model = gain[:, None] * hist.value_at(taus) + ext[:, None] * (taus >= self.first_sent_s[rows, None])
         v_p = v_mean - (t[:, 2] - t[:, 1]) * (a_model * frac[None, :]).mean(axis=1)
         decel = np.full(rows.size, np.nan)
         cmd_mean = np.zeros(rows.size)
         after = np.zeros(rows.size)
         three = count >= 3
         if three.any():
-            v01 = (x[:, 1] - x[:, 0]) / (t[:, 1] - t[:, 0])
-            decel = np.where(three, 2.0 * (v01 - v_mean) / (t[:, 2] - t[:, 0]), np.nan)
+            _, decel = fit_passages(t, x, count)
             taus3, w3 = hat_weights(t[:, 0], t[:, 1], t[:, 2])
             cmd_mean, after = modelled_means(hist, taus3, w3, self.first_sent_s[rows])
         a_now = gain * hist.value_at(now) + ext * (now >= self.first_sent_s[rows])
         since = now_s - t[:, 2]
         speed = v_p - a_now * since
-        distance = self.det_to_stop_m[self.last_detector[rows]] - (
-            v_p * since - 0.5 * a_now * since**2
-        )
+        distance = self.det_to_stop_m[self.last_detector[rows]] - (v_p * since - 0.5 * a_now * since**2)
         return speed, decel, distance, cmd_mean, after, interval
 
     # -- the unit -----------------------------------------------------------
@@ -227,25 +222,24 @@ class GroundTascUnit:
     def _command(self, now_s: float, due: BoolArray, passed: BoolArray) -> TascTelegrams:
         rows = np.flatnonzero(due)
         speed, decel, distance, cmd_mean, after, interval = self._measure(now_s, rows, passed)
-        now = np.full(rows.size, now_s)
-        hist = self.history.subset(rows)
-        # Loop closure (SPEC §1 claims 2, 19): the measured deceleration less
-        # the modelled gradient and resistance, against the modelled command.
-        ext = self.external.decel_at(distance, speed, rows)
-        gain = update_gain(self.gain[rows], decel, cmd_mean, ext * after)
-        self.gain[rows] = gain
-        command, a_true, effect = plan_command(
+        # Loop closure (SPEC §1 claims 2, 19) and the next command.
+        gain, command, a_true, effect = closed_loop_command(
             distance_m=distance,
             speed_mps=speed,
-            now_s=now,
-            history=hist,
-            gain=gain,
+            now_s=np.full(rows.size, now_s),
+            history=self.history.subset(rows),
+            gain=self.gain[rows],
+            measured_decel_mps2=decel,
+            commanded_mean_mps2=cmd_mean,
+            braking_fraction=after,
             base_delay_s=self.base_delay_s,
             jerk_limit_mps3=self.vehicle.brake.jerk_limit_mps3,
             max_decel_mps2=self.max_mps2,
             external=self.external,
             rows=rows,
         )
+        self.gain[rows] = gain
+        now = np.full(rows.size, now_s)
         form = self.form
         notch = nearest_notch(command, self.notch_table)
         delta = np.zeros(speed.shape, dtype=np.int64)
@@ -256,9 +250,7 @@ class GroundTascUnit:
             # SPEC §1 form 8: one notch up or down per telegram.
             step = self.notch_table[0]
             believed = self.believed_mps2[due]
-            delta = np.where(
-                command > believed + step / 2, 1, np.where(command < believed - step / 2, -1, 0)
-            )
+            delta = np.where(command > believed + step / 2, 1, np.where(command < believed - step / 2, -1, 0))
             executed = np.clip(believed + delta * step, 0.0, self.max_mps2)
             self.believed_mps2[due] = executed
         if form >= SignalForm.REQUIRED_DECELERATION:
