@@ -331,9 +331,7 @@ def test_emergency_bypasses_jerk_limiter(dead_steps: int) -> None:
 
 def test_ecu_step_demand_uses_notch_table() -> None:
     notches = np.arange(8)
-    demand = ecu_demand_mps2(
-        line=encode_step(notches), duty=None, emergency=np.zeros(8, bool), brake=BRAKE
-    )
+    demand = ecu_demand_mps2(line=encode_step(notches), duty=None, emergency=np.zeros(8, bool), brake=BRAKE)
     expected = [0.0, *BRAKE.notch_decel_mps2]
     np.testing.assert_allclose(demand, expected)
 
@@ -345,9 +343,7 @@ def test_ecu_wire_e_gives_emergency() -> None:
     demand = ecu_demand_mps2(line=line, duty=None, emergency=np.zeros(8, bool), brake=BRAKE)
     np.testing.assert_allclose(demand, BRAKE.emergency_decel_mps2)
     # The separate emergency input does the same for a line without wire e.
-    demand = ecu_demand_mps2(
-        line=encode_step(notches), duty=None, emergency=np.ones(8, bool), brake=BRAKE
-    )
+    demand = ecu_demand_mps2(line=encode_step(notches), duty=None, emergency=np.ones(8, bool), brake=BRAKE)
     np.testing.assert_allclose(demand, BRAKE.emergency_decel_mps2)
 
 
@@ -372,9 +368,7 @@ pos = st.floats(1e3, 1e6)
 
 @given(st.floats(0.0, 1.5), st.floats(0.5, 1.5), pos, pos)
 @FAST
-def test_braking_decel_load_compensation(
-    demand: float, gain: float, believed: float, actual: float
-) -> None:
+def test_braking_decel_load_compensation(demand: float, gain: float, believed: float, actual: float) -> None:
     # The ECU sets force F = demand x believed mass x gain; the train decelerates at F / m.
     got = braking_decel_mps2(
         np.array([demand]),

@@ -14,9 +14,7 @@ EXE = [sys.executable, "-m", "railstop.cli"]
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False
-    )
+    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
 
 
 def test_check_default_line(tmp_path: Path) -> None:

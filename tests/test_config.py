@@ -280,9 +280,7 @@ LINE_CASES = [
 
 
 @pytest.mark.parametrize(("old", "new", "field", "value", "words"), LINE_CASES)
-def test_bad_line_file(
-    tmp_path: Path, old: str, new: str, field: str, value: str | None, words: str
-) -> None:
+def test_bad_line_file(tmp_path: Path, old: str, new: str, field: str, value: str | None, words: str) -> None:
     path = _write(tmp_path, _edit(BASE_LINE, old, new))
     with pytest.raises(ConfigError) as info:
         load_line(path)
@@ -301,15 +299,10 @@ def test_detectors_only_station_with_two_detectors(tmp_path: Path) -> None:
     path = _write(tmp_path, _edit(BASE_LINE, "[250.0, 190.0, 120.0, 55.0, 6.0]", "[250.0, 190.0]"))
     with pytest.raises(ConfigError) as info:
         load_line(path)
-    text = _assert_one_line(info.value, path, "stations[1].tasc")
+    text = _assert_one_line(info.value, path, "stations[1].tasc.detectors_before_stop_m")
     assert "3 detectors" in text
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: model-level validators report the parent path (stations[1].tasc) "
-    "and no value instead of the field detectors_before_stop_m and its value",
-)
 def test_detectors_only_station_names_field_and_value(tmp_path: Path) -> None:
     # DESIGN rule 6: the message names the field and the bad value.
     path = _write(tmp_path, _edit(BASE_LINE, "[250.0, 190.0, 120.0, 55.0, 6.0]", "[250.0, 190.0]"))

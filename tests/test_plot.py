@@ -79,9 +79,7 @@ def test_plot_handles_a_detector_never_passed(stop: BatchResult, tmp_path: Path)
     assert out.read_bytes()[:8] == PNG_MAGIC
 
 
-def test_plot_into_missing_directory_is_a_railstop_error(
-    stop: BatchResult, tmp_path: Path
-) -> None:
+def test_plot_into_missing_directory_is_a_railstop_error(stop: BatchResult, tmp_path: Path) -> None:
     bad = tmp_path / "missing" / "stop.png"
     with pytest.raises(RailstopError) as info:
         _plot(stop, bad)

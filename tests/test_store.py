@@ -205,9 +205,7 @@ def test_missing_directory_is_a_one_line_railstop_error(tmp_path: Path) -> None:
     assert not bad.parent.exists()
 
 
-@pytest.mark.skipif(
-    not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root may write anywhere"
-)
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root may write anywhere")
 def test_read_only_directory_is_a_railstop_error(tmp_path: Path) -> None:
     ro = tmp_path / "ro"
     ro.mkdir()

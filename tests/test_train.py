@@ -34,9 +34,7 @@ VEHICLE = default_vehicle()
 
 def _no_resistance() -> Vehicle:
     # Davis terms 0 so that the brake (or the gradient) is the only force.
-    return VEHICLE.model_copy(
-        update={"davis_a_n": 0.0, "davis_b_n_per_mps": 0.0, "davis_c_n_per_mps2": 0.0}
-    )
+    return VEHICLE.model_copy(update={"davis_a_n": 0.0, "davis_b_n_per_mps": 0.0, "davis_c_n_per_mps2": 0.0})
 
 
 def _state(speed: np.ndarray, position: float = 0.0) -> MotionState:
@@ -185,9 +183,7 @@ def _analytic_mean(bps: list[float], vals: list[float], front: float, length: fl
     st.floats(20.0, 200.0),
 )
 @FAST
-def test_mean_gradient_straddling_one_change(
-    frac: float, g0: float, g1: float, length: float
-) -> None:
+def test_mean_gradient_straddling_one_change(frac: float, g0: float, g1: float, length: float) -> None:
     # A train of length L whose front is s metres past a gradient change
     # feels (g0 (L - s) + g1 s) / L: the force changes continuously as it
     # runs over the change.

@@ -9,7 +9,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from railstop.config.schema import Line, Vehicle, VehicleFile
+from railstop.config.schema import FieldProblem, Line, Vehicle, VehicleFile
 from railstop.errors import ConfigError
 
 M = TypeVar("M", bound=BaseModel)
@@ -48,6 +48,10 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
         loc = tuple(p for p in err["loc"] if not str(p).startswith("function-after"))
         if err["type"] == "extra_forbidden":
             raise ConfigError(source, format_loc(loc), "unknown key") from None
+        problem = (err.get("ctx") or {}).get("error")
+        if isinstance(problem, FieldProblem):
+            # A whole-model check about one field: name that field and its value.
+            loc = (*loc, problem.field)
         value = err.get("input") if err["type"] != "missing" else None
         if isinstance(value, dict):
             # A model-level check: report the field it talks about where we can.

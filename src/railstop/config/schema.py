@@ -20,6 +20,14 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, str_strip_whitespace=True)
 
 
+class FieldProblem(ValueError):
+    """A whole-model check that is about one field: the loader reports that field and its value."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
 class GradientSegment(_Model):
     """A constant gradient between two chainages; + is uphill in the R direction."""
 
@@ -30,7 +38,7 @@ class GradientSegment(_Model):
     @model_validator(mode="after")
     def _ordered(self) -> GradientSegment:
         if self.end_m <= self.start_m:
-            raise ValueError(f"end_m must be greater than start_m ({self.start_m})")
+            raise FieldProblem("end_m", f"end_m must be greater than start_m ({self.start_m})")
         return self
 
 
@@ -40,7 +48,9 @@ class DopplerRadar(_Model):
     beyond_stop_m: NonNegFloat = 10.0
     sample_period_s: Annotated[float, Field(gt=0.0, le=0.1)] = 0.01
     range_m: PositiveFloat = 400.0
-    fit_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 1.5
+    fit_window_s: Annotated[float, Field(gt=0.0, le=10.0)] = 4.0
+    # The speed "now" is fitted over a shorter window than the deceleration.
+    speed_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 0.3
 
 
 class TascZone(_Model):
@@ -74,9 +84,12 @@ class TascZone(_Model):
         # SPEC §1 variant 2: without a Doppler sensor, >= 3 detectors give speed
         # and deceleration from passage times.
         if self.doppler is None and len(self.detectors_before_stop_m) < 3:
-            raise ValueError("without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2)")
+            raise FieldProblem(
+                "detectors_before_stop_m",
+                "without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2)",
+            )
         if self.update == "continuous" and self.doppler is None:
-            raise ValueError("update = 'continuous' needs a doppler radar")
+            raise FieldProblem("update", "update = 'continuous' needs a doppler radar")
         return self
 
 
@@ -93,11 +106,13 @@ class Station(_Model):
     def _geometry(self) -> Station:
         end = self.platform_end
         if end < self.stop_point_m:
-            raise ValueError(f"platform_end_m must not be before stop_point_m ({self.stop_point_m})")
+            raise FieldProblem(
+                "platform_end_m", f"platform_end_m must not be before stop_point_m ({self.stop_point_m})"
+            )
         segs = sorted(self.gradient, key=lambda s: s.start_m)
         for a, b in zip(segs, segs[1:], strict=False):
             if b.start_m < a.end_m:
-                raise ValueError(f"gradient segments overlap at {b.start_m} m")
+                raise FieldProblem("gradient", f"gradient segments overlap at {b.start_m} m")
         return self
 
     @property
@@ -126,7 +141,7 @@ class Line(_Model):
         names = [s.name for s in self.stations]
         dup = {n for n in names if names.count(n) > 1}
         if dup:
-            raise ValueError(f"station names must be unique, repeated: {sorted(dup)}")
+            raise FieldProblem("stations", f"station names must be unique, repeated: {sorted(dup)}")
         stops = [s.stop_point_m for s in self.stations]
         if stops != sorted(stops):
             raise ValueError("stations must be listed in increasing stop_point_m")
@@ -173,14 +188,20 @@ class BrakeModel(_Model):
     @model_validator(mode="after")
     def _pwm(self) -> BrakeModel:
         if len(self.pwm_duty) != len(self.pwm_decel_mps2) or len(self.pwm_duty) < 2:
-            raise ValueError("pwm_duty and pwm_decel_mps2 need the same length, at least 2")
+            raise FieldProblem(
+                "pwm_decel_mps2", "pwm_duty and pwm_decel_mps2 need the same length, at least 2"
+            )
         if any(b <= a for a, b in zip(self.pwm_duty, self.pwm_duty[1:], strict=False)):
-            raise ValueError("pwm_duty must increase strictly")
+            raise FieldProblem("pwm_duty", "pwm_duty must increase strictly")
         dec = self.pwm_decel_mps2
         if any(b < a for a, b in zip(dec, dec[1:], strict=False)):
-            raise ValueError("pwm_decel_mps2 must not decrease (larger duty = more braking)")
+            raise FieldProblem(
+                "pwm_decel_mps2", "pwm_decel_mps2 must not decrease (larger duty = more braking)"
+            )
         if self.emergency_decel_mps2 < self.notch_decel_mps2[-1]:
-            raise ValueError("emergency_decel_mps2 must be at least the B7 deceleration")
+            raise FieldProblem(
+                "emergency_decel_mps2", "emergency_decel_mps2 must be at least the B7 deceleration"
+            )
         return self
 
     @property

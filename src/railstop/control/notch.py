@@ -2,9 +2,19 @@
 
 A step-controlled brake has only B1..B7. A brake controller that must follow
 a continuous target alternates between the two notches either side of it,
-with the time shares that make the mean equal the target: a first-order
-sigma-delta modulator, with a minimum hold time so the brake line is not
-chattered. The actuator's lag smooths the alternation.
+with the time shares that make the mean equal the target: a sigma-delta
+modulator, with a minimum hold time so the brake line is not chattered. The
+actuator's lag smooths the alternation.
+
+Near standstill the alternation no longer averages out: a notch held through
+the last second or two moves the stopping point by (notch step) × t² / 2,
+tenths of a metre. In that end phase the modulator knows the train's speed
+(every brake controller has it from the tachometer) and picks, among the two
+notches, the one whose predicted stop lies nearest to where the target would
+stop the train (a two-move look-ahead: this notch for the minimum hold, then
+either notch until standstill).
+**[interpretation]** SPEC §1 leaves the brake controller's own logic open;
+this is railstop's model of a competent one.
 """
 
 from __future__ import annotations
@@ -16,6 +26,35 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+
+def _motion_under_lag(
+    v0_mps: FloatArray, a0_mps2: FloatArray, c_mps2: FloatArray, tau_s: float, t_s: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Speed, distance and deceleration after ``t`` with deceleration a(t) = c + (a0 - c)e^(-t/τ)."""
+    decay = np.exp(-t_s / tau_s)
+    gap = a0_mps2 - c_mps2
+    v = v0_mps - c_mps2 * t_s - gap * tau_s * (1.0 - decay)
+    x = v0_mps * t_s - 0.5 * c_mps2 * t_s * t_s - gap * tau_s * (t_s - tau_s * (1.0 - decay))
+    return v, x, c_mps2 + gap * decay
+
+
+def stopping_distance_under_lag(
+    v0_mps: FloatArray, a0_mps2: FloatArray, c_mps2: FloatArray, tau_s: float
+) -> FloatArray:
+    """Distance to standstill when the deceleration relaxes from a0 to c (> 0) with time constant τ.
+
+    The stop time solves v(t) = 0 by Newton's method (v decreases
+    monotonically while the deceleration stays positive).
+    """
+    c = np.maximum(c_mps2, 1e-3)
+    a0 = np.maximum(a0_mps2, 0.0)
+    v0 = np.maximum(v0_mps, 0.0)
+    t = v0 / np.maximum(0.5 * (a0 + c), 1e-3)
+    for _ in range(8):
+        v, _, a = _motion_under_lag(v0, a0, c, tau_s, t)
+        t = np.maximum(t + v / np.maximum(a, 1e-3), 0.0)
+    return _motion_under_lag(v0, a0, c, tau_s, t)[1]
 
 
 def nearest_notch(decel_mps2: FloatArray, notch_decel_mps2: FloatArray) -> IntArray:
@@ -71,8 +110,19 @@ class NotchModulator:
         self.e1_mps = np.where(mask, 0.0, self.e1_mps)
         self.e2_m = np.where(mask, 0.0, self.e2_m)
 
-    def update(self, target_mps2: FloatArray, active: NDArray[np.bool_], dt_s: float) -> IntArray:
-        """Advance by ``dt_s`` (the controller's cycle) and return the notch to apply."""
+    def update(
+        self,
+        target_mps2: FloatArray,
+        active: NDArray[np.bool_],
+        dt_s: float,
+        speed_mps: FloatArray | None = None,
+    ) -> IntArray:
+        """Advance by ``dt_s`` (the controller's cycle) and return the notch to apply.
+
+        With ``speed_mps`` (the train's measured speed) the end phase is
+        planned against the predicted stopping point; without it the
+        modulator runs on the target alone.
+        """
         table = self.table_mps2
         target = np.clip(target_mps2, 0.0, table[-1])
         alpha = 1.0 - np.exp(-dt_s / self.response_s)
@@ -86,8 +136,12 @@ class NotchModulator:
         # (train ahead of the plan: e2 > 0) would otherwise still grow.
         horizon = self.response_s + self.min_hold_s
         want = np.where(self.e2_m + self.e1_mps * horizon > 0.0, hi, lo)
-        want = np.where(table[lo] == target, lo, want)
         can_change = self.held_s + 1e-9 >= self.min_hold_s
+        if speed_mps is not None:
+            end = np.flatnonzero(self._end_phase(speed_mps, target) & can_change & active)
+            if end.size:
+                want[end] = self._end_choice(end, speed_mps[end], target[end], lo[end], hi[end])
+        want = np.where(table[lo] == target, lo, want)
         outside = (self.notch < lo) | (self.notch > hi)
         new = np.where(outside | can_change, want, self.notch)
         new = np.where(active, new, 0)
@@ -96,3 +150,40 @@ class NotchModulator:
         self.held_s = np.where(changed, dt_s, self.held_s + dt_s)
         self.notch = new
         return new
+
+    def _end_phase(self, speed_mps: FloatArray, target: FloatArray) -> NDArray[np.bool_]:
+        """Runs within two look-ahead horizons of standstill."""
+        remaining_s = speed_mps / np.maximum(target, 0.05)
+        return (target > 0.0) & (remaining_s <= 2.0 * (self.min_hold_s + self.response_s))
+
+    def _end_choice(
+        self, rows: IntArray, speed_mps: FloatArray, target: FloatArray, lo: IntArray, hi: IntArray
+    ) -> IntArray:
+        """For ``rows``: the first move of the best two-move plan, judged by the predicted stop."""
+        table = self.table_mps2
+        tau = self.response_s
+        applied = self.applied_mps2[rows]
+        # Where the target trajectory stops, relative to the train now: the
+        # train is e2 ahead of it and e1 faster (see the integrators).
+        goal = (
+            stopping_distance_under_lag(speed_mps - self.e1_mps[rows], self.target_mps2[rows], target, tau)
+            - self.e2_m[rows]
+        )
+        hold = np.full(speed_mps.shape, self.min_hold_s)
+        best = np.full(speed_mps.shape, np.inf)
+        choice = lo.copy()
+        for first in (lo, hi):
+            v1, x1, a1 = _motion_under_lag(speed_mps, applied, table[first], tau, hold)
+            for second in (lo, hi):
+                tail = stopping_distance_under_lag(np.maximum(v1, 0.0), a1, table[second], tau)
+                # A plan that stops inside the first hold stops where the first notch alone stops it.
+                whole = np.where(
+                    v1 > 0.0,
+                    x1 + tail,
+                    stopping_distance_under_lag(speed_mps, applied, table[first], tau),
+                )
+                miss = np.abs(whole - goal)
+                better = miss < best - 1e-12
+                best = np.where(better, miss, best)
+                choice = np.where(better, first, choice)
+        return choice

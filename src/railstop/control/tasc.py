@@ -14,7 +14,11 @@ deceleration along the remaining path and kept out of the gain.
 **[interpretation]** The patent says only that measured and required
 deceleration are compared; the multiplicative gain, the equivalent-dead-time
 model of the brake response and the piecewise command history below are
-railstop's reading of it.
+railstop's reading of it. The errors the loop cancels are constant over one
+stop, so the gain is their least-squares estimate over every measurement
+window of the stop, not the last window alone: a brake controller that
+alternates two notches makes one window's deceleration ripple by several
+per cent, which a single-window gain would pass straight into the command.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ BoolArray = NDArray[np.bool_]
 
 GAIN_MIN = 0.5
 GAIN_MAX = 2.0
-HISTORY = 4
+HISTORY = 8
 
 
 def propagate(
@@ -174,6 +178,21 @@ class CommandHistory:
         )[..., 0]
         return np.where(count > 0, vals, 0.0)
 
+    def response_at(self, t_s: FloatArray, lag_s: float) -> FloatArray:
+        """Modelled brake response at ``t_s`` (shape (m, k)): each change of command relaxes
+        with the first-order lag ``lag_s``, started ``lag_s`` before its effect time (so its
+        mean delay is the equivalent dead time the planner uses). Without it a measurement
+        window holding a command change compares the measured deceleration with a step the
+        brakes never made.
+        """
+        t = np.asarray(t_s, dtype=np.float64)[..., None]  # (m, k, 1)
+        values = self.value_mps2[:, None, :]
+        effect = self.effect_s[:, None, :]
+        prev = np.concatenate([np.zeros_like(values[..., :1]), values[..., :-1]], axis=-1)
+        since = np.where(np.isfinite(effect), t - (effect - lag_s), -1.0)
+        done = 1.0 - np.exp(-np.maximum(since, 0.0) / max(lag_s, 1e-6))
+        return ((values - prev) * done).sum(axis=-1)
+
     def _segments(self, t0: FloatArray, t1: FloatArray) -> list[tuple[FloatArray, FloatArray]]:
         """Piecewise-constant (duration, value) pieces of the command profile on [t0, t1]."""
         edges = np.concatenate([t0[:, None], np.clip(self.effect_s, t0[:, None], t1[:, None])], 1)
@@ -223,12 +242,35 @@ def hat_weights(t0: FloatArray, t1: FloatArray, t2: FloatArray) -> tuple[FloatAr
 
 
 def modelled_means(
-    history: CommandHistory, taus: FloatArray, weights: FloatArray, braking_from_s: FloatArray
+    history: CommandHistory,
+    taus: FloatArray,
+    weights: FloatArray,
+    braking_from_s: FloatArray,
+    *,
+    lag_s: float,
+    external: ExternalModel,
+    distance_m: FloatArray,
+    speed_mps: FloatArray,
+    decel_mps2: FloatArray,
+    now_s: FloatArray,
+    rows: IntArray,
 ) -> tuple[FloatArray, FloatArray]:
-    """Weighted means over a window of (commanded decel, fraction of time not in speed hold)."""
-    cmd = (history.value_at(taus) * weights).sum(axis=1)
-    after = ((taus >= braking_from_s[:, None]) * weights).sum(axis=1)
-    return cmd, after
+    """Weighted means over a measurement window of (commanded brake decel, external decel).
+
+    The external part (gradient, resistance) counts only while the train
+    was braking (before that it held its speed with traction). It is taken
+    where the train was at each sample time, traced back from now with the
+    measured deceleration: over a 1.5 s window the train moves 20 m, and the
+    mean gradient under it can change by a few per mille meanwhile.
+    """
+    cmd = (history.response_at(taus, lag_s) * weights).sum(axis=1)
+    back = now_s[:, None] - taus
+    a = np.where(np.isfinite(decel_mps2), decel_mps2, 0.0)[:, None]
+    v_then = speed_mps[:, None] + a * back
+    s_then = distance_m[:, None] + speed_mps[:, None] * back + 0.5 * a * back * back
+    ext = external.decel_at(s_then, v_then, rows)
+    braking = taus >= braking_from_s[:, None]
+    return cmd, (ext * braking * weights).sum(axis=1)
 
 
 def plan_command(
@@ -272,17 +314,41 @@ def plan_command(
     return command, need, now_s + delay
 
 
-def update_gain(
-    gain: FloatArray,
-    measured_decel_mps2: FloatArray,
-    expected_brake_mps2: FloatArray,
-    external_mps2: FloatArray,
-    min_expected_mps2: float = 0.15,
-) -> FloatArray:
-    """SPEC §1 loop closure: g = (measured - external) / commanded, where commanded is large enough."""
-    ok = (expected_brake_mps2 >= min_expected_mps2) & np.isfinite(measured_decel_mps2)
-    ratio = (measured_decel_mps2 - external_mps2) / np.where(ok, expected_brake_mps2, 1.0)
-    return np.where(ok, np.clip(ratio, GAIN_MIN, GAIN_MAX), gain)
+@dataclass(slots=True)
+class GainEstimate:
+    """Least-squares loop gain per run, accumulated over the stop's measurement windows.
+
+    Each window gives one equation ``measured - external = g × commanded``;
+    the estimate is Σ c·(m - e) / Σ c² (1.0 before any usable window).
+    """
+
+    num: FloatArray
+    den: FloatArray
+
+    @classmethod
+    def create(cls, n: int) -> GainEstimate:
+        return cls(num=np.zeros(n), den=np.zeros(n))
+
+    def value(self, rows: IntArray) -> FloatArray:
+        den = self.den[rows]
+        ok = den > 0.0
+        return np.where(ok, np.clip(self.num[rows] / np.where(ok, den, 1.0), GAIN_MIN, GAIN_MAX), 1.0)
+
+    def update(
+        self,
+        rows: IntArray,
+        measured_decel_mps2: FloatArray,
+        expected_brake_mps2: FloatArray,
+        external_mps2: FloatArray,
+        min_expected_mps2: float = 0.15,
+    ) -> FloatArray:
+        """SPEC §1 loop closure (claims 2, 19): add one window per row, return the new gains."""
+        ok = (expected_brake_mps2 >= min_expected_mps2) & np.isfinite(measured_decel_mps2)
+        c = np.where(ok, expected_brake_mps2, 0.0)
+        m = np.where(ok, measured_decel_mps2 - external_mps2, 0.0)
+        self.num[rows] += c * m
+        self.den[rows] += c * c
+        return self.value(rows)
 
 
 def closed_loop_command(
@@ -291,10 +357,10 @@ def closed_loop_command(
     speed_mps: FloatArray,
     now_s: FloatArray,
     history: CommandHistory,
-    gain: FloatArray,
+    gain: GainEstimate,
     measured_decel_mps2: FloatArray,
     commanded_mean_mps2: FloatArray,
-    braking_fraction: FloatArray,
+    external_mean_mps2: FloatArray,
     base_delay_s: float,
     jerk_limit_mps3: float,
     max_decel_mps2: float,
@@ -304,38 +370,33 @@ def closed_loop_command(
     """One turn of the SPEC §1 law: close the loop, then plan the next command.
 
     The measured deceleration, less the modelled gradient and resistance over
-    the part of the window the train was braking (``braking_fraction``), is
+    the same window (``external_mean``, see ``modelled_means``), is
     compared with the modelled command (``commanded_mean``) to update the gain
-    (claims 2, 19); the command is then planned with that gain. Returns (gain,
+    estimate of ``rows`` in place (claims 2, 19); the command is then planned
+    with that gain. Returns (gain,
     command, required brake deceleration, effect time). The wayside unit and
     the onboard planner of forms 1-5 both use this one law.
     """
-    ext = external.decel_at(distance_m, speed_mps, rows)
-    gain = update_gain(gain, measured_decel_mps2, commanded_mean_mps2, ext * braking_fraction)
+    g = gain.update(rows, measured_decel_mps2, commanded_mean_mps2, external_mean_mps2)
     command, need, effect = plan_command(
         distance_m=distance_m,
         speed_mps=speed_mps,
         now_s=now_s,
         history=history,
-        gain=gain,
+        gain=g,
         base_delay_s=base_delay_s,
         jerk_limit_mps3=jerk_limit_mps3,
         max_decel_mps2=max_decel_mps2,
         external=external,
         rows=rows,
     )
-    return gain, command, need, effect
+    return g, command, need, effect
 
 
-def fit_doppler(
+def _line_fit(
     samples_mps: FloatArray, dt_s: float, count: NDArray[np.int64]
 ) -> tuple[FloatArray, FloatArray]:
-    """Least-squares line through the last ``count`` samples of each row (oldest first).
-
-    ``samples`` is (n, W) with the newest sample in the last column. Returns
-    (speed at the newest sample, deceleration = -slope). Rows with fewer than
-    2 samples give their newest sample and NaN.
-    """
+    """Least-squares line through the last ``count`` samples: (value at the newest, slope)."""
     w = samples_mps.shape[1]
     j = np.arange(w)[None, :]
     use = j >= (w - count[:, None])
@@ -351,6 +412,30 @@ def fit_doppler(
     ok = count >= 2
     slope = np.where(ok, sxy / np.where(ok, sxx, 1.0), np.nan)
     v_now = np.where(ok, v_mean - slope * t_mean, samples_mps[:, -1])
+    return v_now, slope
+
+
+def fit_doppler(
+    samples_mps: FloatArray,
+    dt_s: float,
+    count: NDArray[np.int64],
+    speed_samples: int | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Speed now and deceleration from the last ``count`` speed samples of each row (oldest first).
+
+    ``samples`` is (n, W) with the newest sample in the last column. The
+    deceleration is minus the slope of a least-squares line through all of
+    them. The speed now comes from a line through the newest
+    ``speed_samples`` only: the end of a long line misses the last part of a
+    deceleration that ripples (a brake alternating two notches) by a few
+    cm/s, which near the stop is several per cent of the speed. Rows with
+    fewer than 2 samples give their newest sample and NaN.
+    """
+    v_now, slope = _line_fit(samples_mps, dt_s, count)
+    if speed_samples is not None and speed_samples < samples_mps.shape[1]:
+        k = max(int(speed_samples), 2)
+        v_short, _ = _line_fit(samples_mps[:, -k:], dt_s, np.minimum(count, k))
+        v_now = np.where(count >= 2, v_short, v_now)
     return v_now, -slope
 
 

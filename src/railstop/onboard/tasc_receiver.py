@@ -29,6 +29,7 @@ from railstop.control.notch import NotchModulator
 from railstop.control.tasc import (
     CommandHistory,
     ExternalModel,
+    GainEstimate,
     closed_loop_command,
     fit_doppler,
     modelled_means,
@@ -101,8 +102,9 @@ class TascReceiver:
         # Forms 1-5: the onboard planner (same law as the wayside).
         self.det_to_stop_m = np.asarray(station.tasc.detectors_before_stop_m, dtype=np.float64)
         self.history = CommandHistory.create(n)
-        self.gain = np.ones(n)
+        self.gain = GainEstimate.create(n)
         self.window = max(2, round(1.0 / dt_s))
+        self.speed_samples = max(2, round(0.3 / dt_s))  # as the wayside's Doppler speed window
         self.tach_buf = np.zeros((n, self.window))
         self.tach_count = np.zeros(n, dtype=np.int64)
         self.tach_col = -1
@@ -150,7 +152,7 @@ class TascReceiver:
         """Forms 1-5: complete the measurement and compute the required deceleration onboard."""
         order = (self.tach_col + 1 + np.arange(self.window)) % self.window
         samples = self.tach_buf[np.ix_(np.flatnonzero(rows), order)]
-        tach_v, tach_a = fit_doppler(samples, self.dt_s, self.tach_count[rows])
+        tach_v, tach_a = fit_doppler(samples, self.dt_s, self.tach_count[rows], self.speed_samples)
         form = tele.form
         det = tele.detector[rows]
         since = now_s - tele.passage_s[rows]
@@ -181,23 +183,34 @@ class TascReceiver:
         hist = self.history.subset(idx)
         count = self.tach_count[rows]
         taus, w = regression_weights(now - (count - 1) * self.dt_s, now)
-        cmd_mean, after = modelled_means(hist, taus, w, self.first_rx_s[idx])
-        gain, command, _, effect = closed_loop_command(
+        cmd_mean, ext_mean = modelled_means(
+            hist,
+            taus,
+            w,
+            self.first_rx_s[idx],
+            lag_s=self.vehicle.brake.time_constant_s,
+            external=self.external,
+            distance_m=distance,
+            speed_mps=speed,
+            decel_mps2=a_est,
+            now_s=now,
+            rows=idx,
+        )
+        _, command, _, effect = closed_loop_command(
             distance_m=distance,
             speed_mps=speed,
             now_s=now,
             history=hist,
-            gain=self.gain[rows],
+            gain=self.gain,
             measured_decel_mps2=a_est,
             commanded_mean_mps2=cmd_mean,
-            braking_fraction=after,
+            external_mean_mps2=ext_mean,
             base_delay_s=self.base_delay_s,
             jerk_limit_mps3=self.vehicle.brake.jerk_limit_mps3,
             max_decel_mps2=self.vehicle.brake.full_service_mps2,
             external=self.external,
             rows=idx,
         )
-        self.gain[rows] = gain
         full_cmd = np.zeros(self.n)
         full_cmd[rows] = command
         full_eff = np.zeros(self.n)
@@ -205,8 +218,8 @@ class TascReceiver:
         self.history.push(rows, full_cmd, full_eff)
         self.target_mps2 = np.where(rows, full_cmd, self.target_mps2)
 
-    def output(self) -> BrakeSignal:
-        """The brake signal of this step, for the ECU."""
+    def output(self, speed_mps: FloatArray) -> BrakeSignal:
+        """The brake signal of this step, for the ECU (``speed_mps``: the tachometer's speed)."""
         k = self.step_index
         self.step_index += 1
         emergency = np.zeros(self.n, dtype=bool)
@@ -223,7 +236,7 @@ class TascReceiver:
             return BrakeSignal(line=None, duty=self.latched_duty, emergency=emergency)
         if k % self.cycle_steps == 0:
             dt = self.cycle_steps * self.dt_s
-            notch = self.modulator.update(self.target_mps2, self.active, dt)
+            notch = self.modulator.update(self.target_mps2, self.active, dt, speed_mps)
             self.notch = np.where(self.fixed_notch >= 0, self.fixed_notch, notch)
         # Config 1: brake controller -> encoder; config 2: the switching unit
         # forces a, b, c; wire e always passes through from the train.

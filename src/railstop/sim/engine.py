@@ -225,11 +225,11 @@ def run_batch(
         delivered = link.deliver(t)
         if link.pending is not None and delivered.any():
             receiver.receive(link.pending, delivered, t)
-        if form <= SignalForm.DECELERATION:
-            wheel_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0)
-            receiver.observe_tachometer(wheel_v * tach_scale)
+        # The tachometer's speed: wheel speed (slower when sliding) with the assumed diameter.
+        tach_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0) * tach_scale
+        receiver.observe_tachometer(tach_v)
         # Onboard -> ECU -> actuator -> brakes.
-        signal = receiver.output()
+        signal = receiver.output(tach_v)
         demand = ecu_demand_mps2(line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake)
         if signal.line is not None:
             notch = decode_step(signal.line)

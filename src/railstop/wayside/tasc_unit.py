@@ -23,6 +23,7 @@ from railstop.control.notch import nearest_notch
 from railstop.control.tasc import (
     CommandHistory,
     ExternalModel,
+    GainEstimate,
     closed_loop_command,
     fit_doppler,
     fit_passages,
@@ -106,6 +107,7 @@ class GroundTascUnit:
         self.has_doppler = tasc.doppler is not None
         w = round(tasc.doppler.fit_window_s / self.dt_s) if tasc.doppler else 1
         self.window = max(int(w), 2)
+        self.speed_samples = max(round(tasc.doppler.speed_window_s / self.dt_s), 2) if tasc.doppler else 2
         self.doppler_buf = np.zeros((n, self.window))
         self.doppler_count = np.zeros(n, dtype=np.int64)
         self.doppler_col = -1
@@ -116,7 +118,7 @@ class GroundTascUnit:
         self.last_passage_s = np.full(n, np.nan)
         self.travel_m = np.zeros(n)  # Doppler-integrated travel since the last passage
         self.history = CommandHistory.create(n)
-        self.gain = np.ones(n)
+        self.gain = GainEstimate.create(n)
         self.believed_mps2 = np.zeros(n)  # form 8: what the train is believed to apply
         self.sent = np.zeros(n, dtype=np.int64)
         self.first_sent_s = np.full(n, np.inf)  # the train holds its speed until then
@@ -134,7 +136,7 @@ class GroundTascUnit:
         self, now_s: float, rows: IntArray, new_passage: BoolArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         """For ``rows``: speed now, measured decel, distance to go, and the window's
-        modelled means (commanded brake decel, fraction after the first command)
+        modelled means (commanded brake decel, external decel while braking)
         that the measured deceleration is to be compared with; plus interval time.
         """
         hist = self.history.subset(rows)
@@ -144,7 +146,7 @@ class GroundTascUnit:
             order = (self.doppler_col + 1 + np.arange(self.window)) % self.window
             samples = self.doppler_buf[np.ix_(rows, order)]  # oldest first
             count = self.doppler_count[rows]
-            speed, decel = fit_doppler(samples, self.dt_s, count)
+            speed, decel = fit_doppler(samples, self.dt_s, count, self.speed_samples)
             since = now_s - self.last_passage_s[rows]
             # At a passage, the travel since it is reconstructed from the fit.
             travel = np.where(
@@ -155,15 +157,27 @@ class GroundTascUnit:
             self.travel_m[rows] = travel
             distance = self.det_to_stop_m[self.last_detector[rows]] - travel
             taus, w = regression_weights(now - (count - 1) * self.dt_s, now)
-            cmd_mean, after = modelled_means(hist, taus, w, self.first_sent_s[rows])
-            return speed, decel, distance, cmd_mean, after, interval
+            cmd_mean, ext_mean = modelled_means(
+                hist,
+                taus,
+                w,
+                self.first_sent_s[rows],
+                lag_s=self.vehicle.brake.time_constant_s,
+                external=self.external,
+                distance_m=distance,
+                speed_mps=speed,
+                decel_mps2=decel,
+                now_s=now,
+                rows=rows,
+            )
+            return speed, decel, distance, cmd_mean, ext_mean, interval
         # SPEC §1 variant 2: passage times only. The mean speed over the last
         # interval is corrected to the newest passage with the modelled
         # deceleration; three passages measure the (hat-weighted) deceleration.
         t = self.pass_t[rows]
         x = self.pass_x[rows]
         count = self.pass_count[rows]
-        gain = self.gain[rows]
+        gain = self.gain.value(rows)
         v_mean = (x[:, 2] - x[:, 1]) / (t[:, 2] - t[:, 1])
         # v(t2) = mean speed - (1/Δ) ∫_{t1}^{t2} (τ - t1) a(τ) dτ
         frac = (np.arange(16) + 0.5) / 16
@@ -171,19 +185,30 @@ class GroundTascUnit:
         ext = self.external.decel_at(self.det_to_stop_m[self.last_detector[rows]], v_mean, rows)
         a_model = gain[:, None] * hist.value_at(taus) + ext[:, None] * (taus >= self.first_sent_s[rows, None])
         v_p = v_mean - (t[:, 2] - t[:, 1]) * (a_model * frac[None, :]).mean(axis=1)
-        decel = np.full(rows.size, np.nan)
-        cmd_mean = np.zeros(rows.size)
-        after = np.zeros(rows.size)
-        three = count >= 3
-        if three.any():
-            _, decel = fit_passages(t, x, count)
-            taus3, w3 = hat_weights(t[:, 0], t[:, 1], t[:, 2])
-            cmd_mean, after = modelled_means(hist, taus3, w3, self.first_sent_s[rows])
         a_now = gain * hist.value_at(now) + ext * (now >= self.first_sent_s[rows])
         since = now_s - t[:, 2]
         speed = v_p - a_now * since
         distance = self.det_to_stop_m[self.last_detector[rows]] - (v_p * since - 0.5 * a_now * since**2)
-        return speed, decel, distance, cmd_mean, after, interval
+        decel = np.full(rows.size, np.nan)
+        cmd_mean = np.zeros(rows.size)
+        ext_mean = np.zeros(rows.size)
+        if (count >= 3).any():
+            _, decel = fit_passages(t, x, count)
+            taus3, w3 = hat_weights(t[:, 0], t[:, 1], t[:, 2])
+            cmd_mean, ext_mean = modelled_means(
+                hist,
+                taus3,
+                w3,
+                self.first_sent_s[rows],
+                lag_s=self.vehicle.brake.time_constant_s,
+                external=self.external,
+                distance_m=distance,
+                speed_mps=speed,
+                decel_mps2=decel,
+                now_s=now,
+                rows=rows,
+            )
+        return speed, decel, distance, cmd_mean, ext_mean, interval
 
     # -- the unit -----------------------------------------------------------
     def step(
@@ -221,24 +246,23 @@ class GroundTascUnit:
 
     def _command(self, now_s: float, due: BoolArray, passed: BoolArray) -> TascTelegrams:
         rows = np.flatnonzero(due)
-        speed, decel, distance, cmd_mean, after, interval = self._measure(now_s, rows, passed)
+        speed, decel, distance, cmd_mean, ext_mean, interval = self._measure(now_s, rows, passed)
         # Loop closure (SPEC §1 claims 2, 19) and the next command.
         gain, command, a_true, effect = closed_loop_command(
             distance_m=distance,
             speed_mps=speed,
             now_s=np.full(rows.size, now_s),
             history=self.history.subset(rows),
-            gain=self.gain[rows],
+            gain=self.gain,
             measured_decel_mps2=decel,
             commanded_mean_mps2=cmd_mean,
-            braking_fraction=after,
+            external_mean_mps2=ext_mean,
             base_delay_s=self.base_delay_s,
             jerk_limit_mps3=self.vehicle.brake.jerk_limit_mps3,
             max_decel_mps2=self.max_mps2,
             external=self.external,
             rows=rows,
         )
-        self.gain[rows] = gain
         now = np.full(rows.size, now_s)
         form = self.form
         notch = nearest_notch(command, self.notch_table)
