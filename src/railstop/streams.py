@@ -7,14 +7,15 @@ worker. That is what "same seed -> same numbers whatever the chunk size"
 needs, and it stays fully vectorised: drawing from per-run
 ``numpy.random.Generator`` objects would cost tens of microseconds per run.
 
-The mixing function is the SplitMix64 finaliser applied twice to a key built
-from the four integers; uniforms take the top 53 bits, normals use
-Box–Muller on two independent uniforms.
+The mixing function is the SplitMix64 finaliser applied to a per-run stream
+key (seed, stream, run; cached) and then to that key plus the counter;
+uniforms take the top 53 bits, normals use Box–Muller on the two 32-bit
+halves of one draw.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
@@ -53,6 +54,7 @@ class RunStreams:
 
     seed: int
     run_index: NDArray[np.int64]
+    _keys: dict[int, NDArray[np.uint64]] = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def for_runs(cls, seed: int, first_run: int, n: int) -> RunStreams:
@@ -62,13 +64,23 @@ class RunStreams:
     def n(self) -> int:
         return int(self.run_index.size)
 
-    def subset(self, mask: NDArray[np.bool_]) -> RunStreams:
-        return RunStreams(seed=self.seed, run_index=self.run_index[mask])
+    def subset(self, rows: NDArray[np.bool_] | NDArray[np.int64]) -> RunStreams:
+        """The streams of some runs (a mask or row indices); their numbers do not change."""
+        return RunStreams(seed=self.seed, run_index=self.run_index[rows])
+
+    def _key(self, stream: int) -> NDArray[np.uint64]:
+        """The per-run key of one stream (a pure function of seed, stream and run index)."""
+        z = self._keys.get(stream)
+        if z is None:
+            with np.errstate(over="ignore"):
+                key = _mix(np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * _GOLDEN + np.uint64(stream))
+                z = _mix(key ^ (self.run_index.astype(np.uint64) * _GOLDEN))
+            self._keys[stream] = z
+        return z
 
     def _bits(self, stream: int, counter: int | NDArray[np.int64]) -> NDArray[np.uint64]:
+        z = self._key(stream)
         with np.errstate(over="ignore"):
-            key = _mix(np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * _GOLDEN + np.uint64(stream))
-            z = _mix(key ^ (self.run_index.astype(np.uint64) * _GOLDEN))
             c = np.asarray(counter, dtype=np.int64).astype(np.uint64)
             return _mix(z + (c + np.uint64(1)) * _GOLDEN)
 
@@ -78,9 +90,11 @@ class RunStreams:
         return (bits >> _S11).astype(np.float64) * (1.0 / 9007199254740992.0)
 
     def normal(self, stream: int, counter: int | NDArray[np.int64]) -> NDArray[np.float64]:
-        """Standard normal, one per run (Box–Muller on counters 2c and 2c+1)."""
-        c = np.asarray(counter, dtype=np.int64)
-        u1 = self.uniform(stream, 2 * c)
-        u2 = self.uniform(stream, 2 * c + 1)
-        r = np.sqrt(-2.0 * np.log1p(-u1))  # 1 - u1 in (0, 1]
-        return r * np.cos(2.0 * np.pi * u2)
+        """Standard normal, one per run: Box–Muller on the two 32-bit halves of draw ``counter``.
+
+        Normals and uniforms of one stream share counters: a stream uses one kind.
+        """
+        bits = self._bits(stream, counter)
+        u1 = ((bits >> np.uint64(32)).astype(np.float64) + 0.5) * (1.0 / 4294967296.0)  # (0, 1)
+        u2 = (bits & np.uint64(0xFFFFFFFF)).astype(np.float64) * (1.0 / 4294967296.0)
+        return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)

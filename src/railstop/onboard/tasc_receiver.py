@@ -105,7 +105,7 @@ class TascReceiver:
         self.gain = GainEstimate.create(n)
         self.window = max(2, round(1.0 / dt_s))
         self.speed_samples = max(2, round(0.3 / dt_s))  # as the wayside's Doppler speed window
-        self.tach_buf = np.zeros((n, self.window))
+        self.tach_buf = np.zeros((self.window, n))  # (sample slot, run)
         self.tach_count = np.zeros(n, dtype=np.int64)
         self.tach_col = -1
         self.base_delay_s = brake.dead_time_s + brake.time_constant_s
@@ -121,7 +121,7 @@ class TascReceiver:
         if self.form > SignalForm.DECELERATION:
             return
         self.tach_col = (self.tach_col + 1) % self.window
-        self.tach_buf[:, self.tach_col] = speed_mps
+        self.tach_buf[self.tach_col] = speed_mps
         self.tach_count = np.minimum(self.tach_count + 1, self.window)
 
     def receive(self, tele: TascTelegrams, delivered: BoolArray, now_s: float) -> None:
@@ -151,7 +151,7 @@ class TascReceiver:
     def _plan_onboard(self, tele: TascTelegrams, rows: BoolArray, now_s: float) -> None:
         """Forms 1-5: complete the measurement and compute the required deceleration onboard."""
         order = (self.tach_col + 1 + np.arange(self.window)) % self.window
-        samples = self.tach_buf[np.ix_(np.flatnonzero(rows), order)]
+        samples = self.tach_buf[np.ix_(order, np.flatnonzero(rows))].T
         tach_v, tach_a = fit_doppler(samples, self.dt_s, self.tach_count[rows], self.speed_samples)
         form = tele.form
         det = tele.detector[rows]

@@ -78,11 +78,20 @@ class WheelSensors:
         crossed = has_next & (x0_m < target) & (x1_m >= target)
         if not crossed.any():
             return crossed, idx, np.zeros_like(x0_m)
-        t_cross = t0_s + crossing_time_s(x0_m, v0_mps, accel_mps2, target)
-        jitter = self.jitter_s * streams.normal(Stream.SENSOR_JITTER, idx)
-        missed = streams.uniform(Stream.SENSOR_MISS, idx) < self.miss_probability
-        self.next_index = np.where(crossed, self.next_index + 1, self.next_index)
-        return crossed & ~missed, idx, t_cross + jitter
+        # Only the crossing runs draw (the draws are per run and counter, so
+        # this changes no run's numbers).
+        rows = np.flatnonzero(crossed)
+        sub = streams.subset(rows)
+        t_report = np.zeros_like(x0_m)
+        t_report[rows] = (
+            t0_s
+            + crossing_time_s(x0_m[rows], v0_mps[rows], accel_mps2[rows], target[rows])
+            + self.jitter_s[rows] * sub.normal(Stream.SENSOR_JITTER, idx[rows])
+        )
+        reported = crossed.copy()
+        reported[rows] = sub.uniform(Stream.SENSOR_MISS, idx[rows]) >= self.miss_probability[rows]
+        self.next_index[rows] += 1
+        return reported, idx, t_report
 
 
 def doppler_sample(

@@ -108,7 +108,7 @@ class GroundTascUnit:
         w = round(tasc.doppler.fit_window_s / self.dt_s) if tasc.doppler else 1
         self.window = max(int(w), 2)
         self.speed_samples = max(round(tasc.doppler.speed_window_s / self.dt_s), 2) if tasc.doppler else 2
-        self.doppler_buf = np.zeros((n, self.window))
+        self.doppler_buf = np.zeros((self.window, n))  # (sample slot, run): one contiguous write per step
         self.doppler_count = np.zeros(n, dtype=np.int64)
         self.doppler_col = -1
         self.pass_t = np.full((n, 3), np.nan)
@@ -144,7 +144,7 @@ class GroundTascUnit:
         now = np.full(rows.size, now_s)
         if self.has_doppler:
             order = (self.doppler_col + 1 + np.arange(self.window)) % self.window
-            samples = self.doppler_buf[np.ix_(rows, order)]  # oldest first
+            samples = self.doppler_buf[np.ix_(order, rows)].T  # (runs, samples), oldest first
             count = self.doppler_count[rows]
             speed, decel = fit_doppler(samples, self.dt_s, count, self.speed_samples)
             since = now_s - self.last_passage_s[rows]
@@ -224,7 +224,7 @@ class GroundTascUnit:
         if self.has_doppler and doppler_mps is not None:
             # Ring buffer with one write column for all runs (no copying per step).
             self.doppler_col = (self.doppler_col + 1) % self.window
-            self.doppler_buf[:, self.doppler_col] = doppler_mps
+            self.doppler_buf[self.doppler_col] = doppler_mps
             self.doppler_count = np.minimum(self.doppler_count + 1, self.window)
             self.travel_m += doppler_mps * self.dt_s
         if passed.any():
