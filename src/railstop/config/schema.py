@@ -101,6 +101,11 @@ class Station(_Model):
     platform_end_m: FiniteFloat | None = None
     gradient: list[GradientSegment] = Field(default_factory=list)
     tasc: TascZone
+    # Position references of the conventional onboard ATO (the baseline TASC
+    # replaces): transponders that reset its odometry, metres before the
+    # stopping point, farthest first. Default: one at the first TASC detector
+    # and a precise-stop transponder 25 m before the stop.
+    ato_transponders_before_stop_m: list[PositiveFloat] | None = None
 
     @model_validator(mode="after")
     def _geometry(self) -> Station:
@@ -122,6 +127,13 @@ class Station(_Model):
     @property
     def platform_start(self) -> float:
         return self.platform_end - self.platform_length_m
+
+    def ato_transponders_m(self) -> list[float]:
+        """Chainages of the ATO transponders, farthest first."""
+        before = self.ato_transponders_before_stop_m
+        if before is None:
+            before = [self.tasc.detectors_before_stop_m[0], 25.0]
+        return [self.stop_point_m - d for d in sorted(before, reverse=True)]
 
     def detector_positions_m(self) -> list[float]:
         return [self.stop_point_m - d for d in self.tasc.detectors_before_stop_m]

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Vehicle
 from railstop.errors import SimulationError
+from railstop.onboard.ato import ATO, AtoController
 from railstop.onboard.tasc_receiver import OnboardConfig, TascReceiver
 from railstop.physics.brake import (
     ActuatorState,
@@ -30,7 +31,7 @@ from railstop.physics.brake import (
     decode_step,
     ecu_demand_mps2,
 )
-from railstop.physics.train import MotionState, TrainMass, motion_step
+from railstop.physics.train import MotionState, TrainMass, motion_step, odometer_increment_m
 from railstop.sensors.wayside import WheelSensors, doppler_sample
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams, Stream
@@ -40,7 +41,9 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-CONTROLLERS: tuple[str, ...] = tuple(c.value for c in OnboardConfig)
+TASC_CONTROLLERS: tuple[str, ...] = tuple(c.value for c in OnboardConfig)
+# The three TASC configurations and the conventional onboard ATO baseline.
+CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, ATO)
 DT_S = 0.01
 MAX_TIME_S = 150.0
 
@@ -135,7 +138,7 @@ def run_batch(
     n = scenario.n
     if streams.n != n:
         raise SimulationError(f"{streams.n} random streams for {n} runs")
-    config = OnboardConfig(controller)
+    is_ato = controller == ATO
     form = SignalForm(station.tasc.signal_form if form is None else form)
     if station.tasc.doppler is not None and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12:
         raise SimulationError(
@@ -168,15 +171,20 @@ def run_batch(
         form=form,
         record=record,
     )
-    receiver = TascReceiver(
-        config=config,
-        station=station,
-        vehicle=vehicle,
-        gradient=scenario.gradient,
-        n=n,
-        dt_s=dt_s,
-        form=form,
-    )
+    receiver: TascReceiver | AtoController
+    if is_ato:
+        receiver = AtoController(station=station, vehicle=vehicle, gradient=scenario.gradient, n=n, dt_s=dt_s)
+        transponders = WheelSensors.create(receiver.transponders_m, np.zeros(n), np.zeros(n))
+    else:
+        receiver = TascReceiver(
+            config=OnboardConfig(controller),
+            station=station,
+            vehicle=vehicle,
+            gradient=scenario.gradient,
+            n=n,
+            dt_s=dt_s,
+            form=form,
+        )
     actuator = ActuatorState.create(
         n=n,
         dt_s=dt_s,
@@ -210,7 +218,7 @@ def run_batch(
         t = k * dt_s
         # Sensors: a Doppler sample now (the radar sees trains within its range).
         dop = None
-        if doppler_on:
+        if doppler_on and not is_ato:
             in_range = (doppler_reach - motion.position_m) <= doppler_range
             v_meas = (
                 doppler_sample(motion.speed_mps, scenario.doppler_noise_frac, streams, k)
@@ -218,18 +226,21 @@ def run_batch(
                 else motion.speed_mps
             )
             dop = np.where(in_range, v_meas, 0.0)
-        # Wayside unit.
-        tele = unit.step(t, passed=passed, detector=det_idx, passage_s=pass_t, doppler_mps=dop)
-        if tele is not None:
-            link.send(tele, t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
-        delivered = link.deliver(t)
-        if link.pending is not None and delivered.any():
-            receiver.receive(link.pending, delivered, t)
         # The tachometer's speed: wheel speed (slower when sliding) with the assumed diameter.
         tach_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0) * tach_scale
-        receiver.observe_tachometer(tach_v)
+        if isinstance(receiver, AtoController):
+            signal = receiver.output(t, tach_v)
+        else:
+            # Wayside unit -> radio link -> onboard receiver.
+            tele = unit.step(t, passed=passed, detector=det_idx, passage_s=pass_t, doppler_mps=dop)
+            if tele is not None:
+                link.send(tele, t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
+            delivered = link.deliver(t)
+            if link.pending is not None and delivered.any():
+                receiver.receive(link.pending, delivered, t)
+            receiver.observe_tachometer(tach_v)
+            signal = receiver.output(tach_v)
         # Onboard -> ECU -> actuator -> brakes.
-        signal = receiver.output(tach_v)
         demand = ecu_demand_mps2(line=signal.line, duty=signal.duty, emergency=signal.emergency, brake=brake)
         if signal.line is not None:
             notch = decode_step(signal.line)
@@ -274,9 +285,24 @@ def run_batch(
             x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
         )
         passages[crossed, idx[crossed]] = tc[crossed]
-        passed, det_idx, pass_t = sensors.detect(
-            x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
-        )
+        if isinstance(receiver, AtoController):
+            receiver.odometer(
+                odometer_increment_m(
+                    motion.position_m - x0,
+                    motion.sliding,
+                    actual_diameter_m=scenario.wheel_diameter_m,
+                    assumed_diameter_m=assumed_diam,
+                    slide_slip_ratio=vehicle.slide_slip_ratio,
+                )
+            )
+            read, t_idx, _ = transponders.detect(
+                x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
+            )
+            receiver.transponder(read, t_idx)
+        else:
+            passed, det_idx, pass_t = sensors.detect(
+                x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
+            )
         if record:
             rec["t_s"].append(np.full(n, t + dt_s))
             rec["position_m"].append(motion.position_m.copy())
@@ -300,8 +326,9 @@ def run_batch(
         stop_time_s=stop_time,
         max_jerk_mps3=max_jerk,
         notch_changes=notch_changes,
-        commands_sent=unit.sent.copy(),
-        commands_received=receiver.received.copy(),
+        commands_sent=np.zeros(n, dtype=np.int64) if is_ato else unit.sent.copy(),
+        # The ATO receives no telegrams.
+        commands_received=np.zeros(n, dtype=np.int64) if is_ato else receiver.received.copy(),
         stopped=motion.stopped.copy(),
         slid=slid,
         detector_passages_s=passages,
