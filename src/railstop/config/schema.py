@@ -68,6 +68,10 @@ class TascZone(_Model):
     continuous_period_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
     signal_form: Annotated[int, Field(ge=1, le=8)] = 6
     assumed_link_latency_s: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    # Cyclic transmission: the latest telegram is repeated at this period
+    # (the train discards repeats it already has), so one lost copy costs a
+    # period, not the command.
+    repeat_period_s: Annotated[float, Field(gt=0.0, le=2.0)] = 0.1
 
     @field_validator("detectors_before_stop_m")
     @classmethod
@@ -184,7 +188,7 @@ class BrakeModel(_Model):
     time_constant_s: Annotated[float, Field(gt=0.0, le=3.0)]
     jerk_limit_mps3: PositiveFloat
     controller_cycle_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
-    controller_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.5
+    controller_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.3
     tasc_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.2
 
     @field_validator("notch_decel_mps2")

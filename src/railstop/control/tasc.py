@@ -340,7 +340,7 @@ class GainEstimate:
         measured_decel_mps2: FloatArray,
         expected_brake_mps2: FloatArray,
         external_mps2: FloatArray,
-        min_expected_mps2: float = 0.15,
+        min_expected_mps2: float = 0.05,
     ) -> FloatArray:
         """SPEC §1 loop closure (claims 2, 19): add one window per row, return the new gains."""
         ok = (expected_brake_mps2 >= min_expected_mps2) & np.isfinite(measured_decel_mps2)

@@ -78,6 +78,7 @@ class AtoController:
         self.step_index = 0
         self.notch = np.zeros(n, dtype=np.int64)
         self.plans = np.zeros(n, dtype=np.int64)
+        self.braking = np.zeros(n, dtype=bool)  # until then the train holds its speed
         self.curve_mps2 = np.full(n, np.nan)  # the brake curve's deceleration, set at the first fix
         self.fixes = np.zeros(n, dtype=np.int64)
 
@@ -128,4 +129,5 @@ class AtoController:
         # At or past its stopping point with speed left: full service.
         command = np.where(self.distance_m[rows] <= 0.0, self.vehicle.brake.full_service_mps2, command)
         self.target_mps2[rows] = np.clip(command, 0.0, self.vehicle.brake.full_service_mps2)
+        self.braking[rows] |= self.target_mps2[rows] > 0.0
         self.plans[rows] += 1

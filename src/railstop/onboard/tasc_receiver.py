@@ -129,7 +129,7 @@ class TascReceiver:
         if not delivered.any():
             return
         self.active |= delivered
-        self.first_rx_s = np.where(delivered, np.minimum(self.first_rx_s, now_s), self.first_rx_s)
+        # (set after the target below: the train holds its speed until told to brake)
         self.received += delivered
         self.modulator.restart(delivered)
         form = tele.form
@@ -147,6 +147,13 @@ class TascReceiver:
             self.target_mps2 = np.where(delivered, new, self.target_mps2)
         else:
             self._plan_onboard(tele, delivered, now_s)
+        brake_now = delivered & (self.target_mps2 > 0.0)
+        self.first_rx_s = np.where(brake_now, np.minimum(self.first_rx_s, now_s), self.first_rx_s)
+
+    @property
+    def braking(self) -> BoolArray:
+        """Runs told to brake: until then the train holds its speed with its own traction control."""
+        return np.isfinite(self.first_rx_s)
 
     def _plan_onboard(self, tele: TascTelegrams, rows: BoolArray, now_s: float) -> None:
         """Forms 1-5: complete the measurement and compute the required deceleration onboard."""

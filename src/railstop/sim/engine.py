@@ -80,27 +80,35 @@ class BatchResult:
 
 @dataclass(slots=True)
 class _Link:
-    """Radio link model (latency, loss) with one pending telegram per run.
+    """Radio link model (latency, loss, cyclic repetition) with one pending telegram per run.
 
-    A newer telegram replaces one still in flight: it carries newer
-    measurements, and the receiver would act on it next anyway.
+    The wayside repeats its latest telegram every ``repeat_s`` (cyclic
+    transmission, as train radio links do); the receiver discards repeats of
+    a telegram it already has, so a repeat only matters when every earlier
+    copy was lost. Each attempt is lost independently with the run's loss
+    probability. A newer telegram replaces the one not yet delivered: it
+    carries newer measurements.
     """
 
     pending: TascTelegrams | None
-    due_s: FloatArray
-    count: IntArray
+    due_s: FloatArray  # delivery time of the pending telegram (inf: none in flight)
+    next_try_s: FloatArray  # next transmission attempt of an undelivered telegram
+    count: IntArray  # attempts so far (the loss stream's counter)
+    repeat_s: float
 
-    def send(
-        self,
-        tele: TascTelegrams,
-        now_s: float,
-        latency_s: FloatArray,
-        loss: FloatArray,
-        streams: RunStreams,
-    ) -> None:
-        lost = streams.uniform(Stream.RADIO_LOSS, self.count) < loss
-        self.count += tele.mask
-        go = tele.mask & ~lost
+    @classmethod
+    def create(cls, n: int, repeat_s: float) -> _Link:
+        return cls(
+            pending=None,
+            due_s=np.full(n, np.inf),
+            next_try_s=np.full(n, np.inf),
+            count=np.zeros(n, dtype=np.int64),
+            repeat_s=repeat_s,
+        )
+
+    def send(self, tele: TascTelegrams) -> None:
+        """A new telegram for the runs of ``tele.mask``: it goes on the air at the next attempt."""
+        go = tele.mask
         if self.pending is None:
             self.pending = tele
         else:
@@ -112,7 +120,20 @@ class _Link:
                     setattr(self.pending, name, old | go)
                 else:
                     setattr(self.pending, name, np.where(go, getattr(tele, name), old))
-        self.due_s = np.where(go, now_s + latency_s, self.due_s)
+        self.due_s = np.where(go, np.inf, self.due_s)
+        self.next_try_s = np.where(go, -np.inf, self.next_try_s)
+
+    def transmit(self, now_s: float, latency_s: FloatArray, loss: FloatArray, streams: RunStreams) -> None:
+        """Transmission attempts due now; a copy that gets through arrives after the latency."""
+        rows = np.flatnonzero(self.next_try_s <= now_s + 1e-9)
+        if rows.size == 0:
+            return
+        lost = streams.subset(rows).uniform(Stream.RADIO_LOSS, self.count[rows]) < loss[rows]
+        self.count[rows] += 1
+        ok = rows[~lost]
+        self.due_s[ok] = now_s + latency_s[ok]
+        self.next_try_s[ok] = np.inf
+        self.next_try_s[rows[lost]] = now_s + self.repeat_s
 
     def deliver(self, now_s: float) -> BoolArray:
         due = self.due_s <= now_s + 1e-9
@@ -193,7 +214,7 @@ def run_batch(
         jerk_limit_mps3=brake.jerk_limit_mps3,
         emergency_mps2=brake.emergency_decel_mps2,
     )
-    link = _Link(pending=None, due_s=np.full(n, np.inf), count=np.zeros(n, dtype=np.int64))
+    link = _Link.create(n, station.tasc.repeat_period_s)
     assumed_diam = vehicle.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
     tach_scale = assumed_diam / scenario.wheel_diameter_m
     doppler_on = station.tasc.doppler is not None
@@ -234,7 +255,8 @@ def run_batch(
             # Wayside unit -> radio link -> onboard receiver.
             tele = unit.step(t, passed=passed, detector=det_idx, passage_s=pass_t, doppler_mps=dop)
             if tele is not None:
-                link.send(tele, t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
+                link.send(tele)
+            link.transmit(t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
             delivered = link.deliver(t)
             if link.pending is not None and delivered.any():
                 receiver.receive(link.pending, delivered, t)
@@ -259,7 +281,7 @@ def run_batch(
         mu = np.where(in_patch, scenario.low_mu, scenario.adhesion_mu)
         x0 = motion.position_m
         v0 = motion.speed_mps
-        hold = ~receiver.active
+        hold = ~receiver.braking
         motion_step(
             motion,
             vehicle=vehicle,

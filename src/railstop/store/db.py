@@ -193,6 +193,25 @@ class ResultRow(_Base):
     stopped: Mapped[bool] = mapped_column(Boolean)
 
 
+class CampaignRow(_Base):
+    """The summary of one Monte Carlo campaign (its per-run rows are in its Parquet file)."""
+
+    __tablename__ = "campaigns"
+    __table_args__ = (UniqueConstraint("campaign_key", name="uq_campaigns_key"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    campaign_key: Mapped[str] = mapped_column(String)
+    station: Mapped[str] = mapped_column(String)
+    controller: Mapped[str] = mapped_column(String)
+    seed: Mapped[int] = mapped_column(BigInteger)
+    runs: Mapped[int] = mapped_column(Integer)
+    disturbances: Mapped[str] = mapped_column(String)
+    runs_file: Mapped[str] = mapped_column(Text)
+    manifest_json: Mapped[str] = mapped_column(Text)
+    summary_json: Mapped[str] = mapped_column(Text)
+    created_utc: Mapped[str] = mapped_column(String(40))
+
+
 # -- the store ----------------------------------------------------------------
 
 
@@ -255,6 +274,57 @@ class Store:
                     f"{self._label}: cannot save run {run.run_key!r}: {_one_line(exc)}"
                 ) from None
         raise AssertionError("unreachable")  # pragma: no cover
+
+    def save_campaign(
+        self, *, key: str, manifest: Mapping[str, Any], summary: Mapping[str, Any], runs_file: str
+    ) -> int:
+        """Write (or replace) the summary of the campaign ``key``; return its id."""
+        values = {
+            "campaign_key": key,
+            "station": str(manifest["station"]),
+            "controller": str(manifest["controller"]),
+            "seed": int(manifest["seed"]),
+            "runs": int(manifest["runs"]),
+            "disturbances": str(manifest["disturbances"]["name"]),
+            "runs_file": runs_file,
+            "manifest_json": json.dumps(manifest, sort_keys=True),
+            "summary_json": json.dumps(summary, sort_keys=True),
+            "created_utc": _utc_now(),
+        }
+        try:
+            with self._session() as session, session.begin():
+                row = session.scalars(select(CampaignRow).where(CampaignRow.campaign_key == key)).first()
+                if row is None:
+                    row = CampaignRow(**values)
+                    session.add(row)
+                else:
+                    for name, value in values.items():
+                        setattr(row, name, value)
+                session.flush()
+                return int(row.id)
+        except SQLAlchemyError as exc:
+            raise RailstopError(f"{self._label}: cannot save campaign {key!r}: {_one_line(exc)}") from None
+
+    def campaigns(self) -> list[dict[str, Any]]:
+        """Every stored campaign summary, oldest first."""
+        with self._reading() as session:
+            rows = session.scalars(select(CampaignRow).order_by(CampaignRow.id)).all()
+            return [
+                {
+                    "id": r.id,
+                    "campaign_key": r.campaign_key,
+                    "station": r.station,
+                    "controller": r.controller,
+                    "seed": r.seed,
+                    "runs": r.runs,
+                    "disturbances": r.disturbances,
+                    "runs_file": r.runs_file,
+                    "manifest": json.loads(r.manifest_json),
+                    "summary": json.loads(r.summary_json),
+                    "created_utc": r.created_utc,
+                }
+                for r in rows
+            ]
 
     # -- reading ------------------------------------------------------------
     def runs(self) -> list[dict[str, Any]]:

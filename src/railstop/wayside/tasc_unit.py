@@ -111,6 +111,14 @@ class GroundTascUnit:
         self.doppler_buf = np.zeros((self.window, n))  # (sample slot, run): one contiguous write per step
         self.doppler_count = np.zeros(n, dtype=np.int64)
         self.doppler_col = -1
+        # Running sums of a least-squares line through the Doppler samples since
+        # the last command took effect (time relative to that start): the
+        # deceleration over the whole interval between commands. A brake
+        # controller alternating two notches matches the target only on
+        # average over its alternation; a window of the interval sees that
+        # average, a short one can see mostly one notch.
+        self.win_start_s = np.zeros(n)
+        self.win_sums = np.zeros((5, n))  # count, Σt, Σt², Σv, Σtv
         self.pass_t = np.full((n, 3), np.nan)
         self.pass_x = np.full((n, 3), np.nan)
         self.pass_count = np.zeros(n, dtype=np.int64)
@@ -147,6 +155,15 @@ class GroundTascUnit:
             samples = self.doppler_buf[np.ix_(order, rows)].T  # (runs, samples), oldest first
             count = self.doppler_count[rows]
             speed, decel = fit_doppler(samples, self.dt_s, count, self.speed_samples)
+            # Prefer the interval since the last command took effect when it is longer.
+            c, st, stt, sv, stv = self.win_sums[:, rows]
+            longer = c > count
+            sxx = stt - st * st / np.maximum(c, 1.0)
+            slope = np.where(
+                longer & (sxx > 0), (stv - st * sv / np.maximum(c, 1.0)) / np.where(sxx > 0, sxx, 1.0), 0.0
+            )
+            decel = np.where(longer, -slope, decel)
+            count = np.where(longer, c.astype(np.int64), count)
             since = now_s - self.last_passage_s[rows]
             # At a passage, the travel since it is reconstructed from the fit.
             travel = np.where(
@@ -225,6 +242,16 @@ class GroundTascUnit:
             # Ring buffer with one write column for all runs (no copying per step).
             self.doppler_col = (self.doppler_col + 1) % self.window
             self.doppler_buf[self.doppler_col] = doppler_mps
+            t_rel = np.maximum(now_s - self.win_start_s, -1.0)
+            use = t_rel >= 0.0
+            sums = self.win_sums
+            sums[0] += use
+            tu = np.where(use, t_rel, 0.0)
+            vu = np.where(use, doppler_mps, 0.0)
+            sums[1] += tu
+            sums[2] += tu * tu
+            sums[3] += vu
+            sums[4] += tu * vu
             self.doppler_count = np.minimum(self.doppler_count + 1, self.window)
             self.travel_m += doppler_mps * self.dt_s
         if passed.any():
@@ -280,7 +307,13 @@ class GroundTascUnit:
         if form >= SignalForm.REQUIRED_DECELERATION:
             self.history.push(due, _scatter(due, executed), _scatter(due, effect))
         self.sent[due] += 1
-        self.first_sent_s[due] = np.minimum(self.first_sent_s[due], now_s)
+        # The train holds its speed (its own traction control) until it is told to brake.
+        self.first_sent_s[due] = np.where(
+            executed > 0.0, np.minimum(self.first_sent_s[due], now_s), self.first_sent_s[due]
+        )
+        # The next measurement interval starts when this command takes effect.
+        self.win_start_s[due] = effect
+        self.win_sums[:, due] = 0.0
         if self.station.tasc.update == "continuous":
             self.next_update_s[due] = now_s + self.station.tasc.continuous_period_s
         det = self.last_detector[due]

@@ -1,0 +1,549 @@
+"""Disturbance sets: TOML data -> per-run :class:`~railstop.sim.scenario.Scenario` (DESIGN rules 3, 4, 6).
+
+A disturbance file maps parameter names to distributions::
+
+    description = "what this set is for"          # optional
+    entry_speed_kmh = {uniform = [45.0, 65.0]}
+    brake_gain = {normal = [1.0, 0.07], clip = [0.8, 1.2]}
+    wheel_diameter_mm = {choice = [780.0, 820.0, 860.0]}
+    sensor_jitter_ms = {fixed = 1.0}
+    radio_loss_probability = 0.02                 # *_probability: a plain number in [0, 1]
+
+The parameters, their units, physical ranges and nominal values follow SPEC §1
+(the disturbances a ground-based TASC stop must tolerate) and the issue's
+parameter table; see :data:`PARAMETERS` and ``_SPECS`` below. A parameter the
+file does not name takes its nominal value, the one
+``Scenario.nominal(station, vehicle)`` uses, so a file with no parameter at
+all (``nominal``) gives exactly the nominal scenario.
+
+Distributions
+-------------
+``fixed``   every run gets x.
+``uniform`` lo + (hi - lo) * u with u uniform in [0, 1).
+``normal``  mean + sd * z, z standard normal; with ``clip = [lo, hi]`` the value is
+            *clipped* to [lo, hi] (not resampled), so a little probability mass
+            sits exactly on the bounds (e.g. 0.4 % for brake_gain 1.0 ± 0.07 clipped
+            to 0.8..1.2). Every supported parameter has a physical range, so a
+            normal without ``clip`` is rejected: it could produce any value.
+``choice``  one of the listed values, each with the same probability.
+
+Validation checks the structure, lo <= hi, sd >= 0, a non-empty choice and that
+*every value the distribution can produce* lies within the parameter's physical
+range (uniform bounds, clip bounds, the fixed value, each choice).
+
+Randomness (DESIGN rule 4)
+--------------------------
+Every draw is a pure function of (seed, run index, parameter): parameter p
+uses only ``Stream.DISTURBANCE`` with uniform counters in its own block
+``[16 * b, 16 * b + 16)``, b = ``COUNTER_BLOCKS[p]``. A uniform or a choice uses
+counter ``16 b``; a normal uses ``streams.normal(DISTURBANCE, 16 b + 1)`` (one
+64-bit draw at that counter, split in two halves for Box–Muller). The block numbers are fixed
+here, not derived from the order of :data:`PARAMETERS`, so adding a parameter
+(with a new block) never changes the draws of the others, and run i gets the
+same values whatever the chunk it is drawn in.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
+
+from railstop.config.loader import format_loc, read_toml, validate
+from railstop.config.schema import FieldProblem, Station, Vehicle
+from railstop.errors import ConfigError
+from railstop.physics.train import GradientProfile
+from railstop.sim.scenario import KMH, Scenario, station_gradient
+from railstop.streams import RunStreams, Stream
+
+FloatArray = NDArray[np.float64]
+
+BUILTIN_PACKAGE = "railstop.data.disturbances"
+
+# Length of the approach zone before the first TASC detector that the
+# approach gradient covers: a 120 m train entering at the first detector
+# has its tail this far out (plus a margin for the run-in before it).
+APPROACH_BEFORE_FIRST_DETECTOR_M = 150.0
+# The low-adhesion patch starts between the first detector and this far
+# before the stopping point.
+PATCH_LAST_START_BEFORE_STOP_M = 10.0
+
+
+# --------------------------------------------------------------------------
+# Parameter table (SPEC §1 disturbances, issue table). Ranges are physical
+# limits (what the simulator can meaningfully run), not typical values.
+
+
+@dataclass(frozen=True, slots=True)
+class _Range:
+    lo: float
+    hi: float
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def contains(self, x: float) -> bool:
+        above = x > self.lo if self.lo_open else x >= self.lo
+        below = x < self.hi if self.hi_open else x <= self.hi
+        return above and below and math.isfinite(x)
+
+    def text(self, name: str) -> str:
+        lo = f"{_num(self.lo)} {'<' if self.lo_open else '<='} "
+        hi = f" {'<' if self.hi_open else '<='} {_num(self.hi)}"
+        return f"{lo}{name}{hi}"
+
+
+def _num(x: float) -> str:
+    return f"{x:g}"
+
+
+@dataclass(frozen=True, slots=True)
+class _Spec:
+    unit: str
+    range: _Range
+    block: int  # counter block, see the module docstring; never reuse or renumber
+
+
+_PROB = _Range(0.0, 1.0)
+
+_SPECS: dict[str, _Spec] = {
+    "entry_speed_kmh": _Spec("km/h", _Range(0.0, 120.0, lo_open=True), 0),
+    "load_factor": _Spec("0 empty .. 1 crush", _Range(0.0, 1.0), 1),
+    "load_weighing_error_pct": _Spec("%", _Range(-50.0, 50.0), 2),
+    "brake_gain": _Spec("actual / nominal", _Range(0.0, 3.0, lo_open=True), 3),
+    "brake_dead_time_s": _Spec("s", _Range(0.0, 2.0), 4),
+    "brake_time_constant_s": _Spec("s", _Range(0.0, 3.0, lo_open=True), 5),
+    "platform_gradient_permille": _Spec("permille, + uphill", _Range(-60.0, 60.0), 6),
+    "approach_gradient_permille": _Spec("permille, + uphill", _Range(-60.0, 60.0), 7),
+    "wheel_diameter_mm": _Spec("mm", _Range(500.0, 1200.0, lo_open=True, hi_open=True), 8),
+    "odometer_diameter_error_pct": _Spec("%", _Range(-20.0, 20.0), 9),
+    "low_adhesion_probability": _Spec("per run", _PROB, 10),
+    "low_adhesion_mu": _Spec("adhesion coefficient", _Range(0.0, 0.5, lo_open=True), 11),
+    "low_adhesion_length_m": _Spec("m", _Range(0.0, 1000.0, lo_open=True), 12),
+    "radio_latency_ms": _Spec("ms", _Range(0.0, 2000.0), 14),
+    "radio_loss_probability": _Spec("per telegram", _PROB, 15),
+    "sensor_jitter_ms": _Spec("ms, standard deviation", _Range(0.0, 100.0), 16),
+    "sensor_miss_probability": _Spec("per detector passage", _PROB, 17),
+    "doppler_noise_pct": _Spec("%, standard deviation", _Range(0.0, 50.0), 18),
+}
+
+#: Every supported parameter name, in a fixed order (the Parquet column order).
+PARAMETERS: tuple[str, ...] = tuple(_SPECS)
+
+#: Extra columns of the drawn values: does the run meet a patch, and where it starts (inf = none).
+LOW_ADHESION = "low_adhesion"
+LOW_ADHESION_START = "low_adhesion_start_m"
+
+COUNTER_STRIDE = 16
+#: Counter block per random quantity; block b owns uniform counters [16 b, 16 b + 16).
+COUNTER_BLOCKS: Mapping[str, int] = {
+    **{name: spec.block for name, spec in _SPECS.items()},
+    LOW_ADHESION_START: 13,  # where the patch starts (not a file parameter)
+}
+
+
+def counter_base(name: str) -> int:
+    """First uniform counter of ``name``'s block on ``Stream.DISTURBANCE``."""
+    return COUNTER_BLOCKS[name] * COUNTER_STRIDE
+
+
+def _is_probability(name: str) -> bool:
+    return name.endswith("_probability")
+
+
+# --------------------------------------------------------------------------
+# Schema (pydantic, extra="forbid" like config/schema.py)
+
+KINDS = ("fixed", "uniform", "normal", "choice")
+
+Finite = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+
+
+def _pair(what: str) -> Any:
+    def check(v: Any) -> Any:
+        if not isinstance(v, list | tuple) or len(v) != 2:
+            raise ValueError(f"needs two numbers {what}")
+        return v
+
+    return BeforeValidator(check)
+
+
+def _probability_number(v: Any) -> Any:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ValueError("a probability is a plain number between 0 and 1, e.g. 0.02")
+    return v
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Distribution(_Model):
+    """One parameter's distribution: exactly one of fixed, uniform, normal (+ clip), choice."""
+
+    fixed: Finite | None = None
+    uniform: Annotated[tuple[Finite, Finite], _pair("[lo, hi]")] | None = None
+    normal: Annotated[tuple[Finite, Finite], _pair("[mean, sd]")] | None = None
+    clip: Annotated[tuple[Finite, Finite], _pair("[lo, hi]")] | None = None
+    choice: list[Finite] | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _table(cls, data: Any) -> Any:
+        if isinstance(data, Distribution):
+            return data
+        if not isinstance(data, dict):
+            raise ValueError(
+                "a distribution is a table: {fixed = x}, {uniform = [lo, hi]}, "
+                "{normal = [mean, sd], clip = [lo, hi]} or {choice = [a, b, ...]}"
+            )
+        return data
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Distribution:
+        given = [k for k in KINDS if getattr(self, k) is not None]
+        if not given:
+            raise ValueError("a distribution needs exactly one of fixed, uniform, normal, choice")
+        if len(given) > 1:
+            raise FieldProblem(given[1], f"give only one of fixed, uniform, normal, choice (also {given[0]})")
+        if self.uniform is not None and self.uniform[0] > self.uniform[1]:
+            raise FieldProblem("uniform", "lo must not be greater than hi in [lo, hi]")
+        if self.normal is not None and self.normal[1] < 0.0:
+            raise FieldProblem("normal", "the standard deviation sd in [mean, sd] must be >= 0")
+        if self.clip is not None:
+            if self.normal is None:
+                raise FieldProblem("clip", "clip only goes with normal")
+            if self.clip[0] > self.clip[1]:
+                raise FieldProblem("clip", "lo must not be greater than hi in clip = [lo, hi]")
+        if self.choice is not None and not self.choice:
+            raise FieldProblem("choice", "choice needs at least one value")
+        return self
+
+    @property
+    def kind(self) -> str:
+        return next(k for k in KINDS if getattr(self, k) is not None)
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key in (*KINDS, "clip"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = list(value) if isinstance(value, tuple | list) else value
+        return out
+
+    def produced_bounds(self) -> list[tuple[str, list[float]]]:
+        """The values whose range decides the range of every draw, per field; empty = unbounded."""
+        if self.fixed is not None:
+            return [("fixed", [self.fixed])]
+        if self.uniform is not None:
+            return [("uniform", list(self.uniform))]
+        if self.choice is not None:
+            return [("choice", list(self.choice))]
+        if self.clip is not None:
+            return [("clip", list(self.clip))]
+        return []
+
+
+Probability = Annotated[
+    float, BeforeValidator(_probability_number), Field(ge=0.0, le=1.0, allow_inf_nan=False)
+]
+
+
+def _file_model() -> type[BaseModel]:
+    fields: dict[str, Any] = {"description": (str | None, None)}
+    for name in PARAMETERS:
+        fields[name] = (Probability | None, None) if _is_probability(name) else (Distribution | None, None)
+    return create_model("DisturbanceFile", __base__=_Model, **fields)
+
+
+DisturbanceFile = _file_model()
+
+
+# --------------------------------------------------------------------------
+# The set
+
+
+@dataclass(frozen=True)
+class DisturbanceSet:
+    """A validated disturbance file. Probabilities are kept as ``Distribution(fixed=p)``."""
+
+    name: str  # "standard", "nominal" or the file path as given
+    source: str  # file shown in errors
+    params: dict[str, Distribution]
+    description: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able, in the file's own shape: ``from_dict(to_dict())`` gives the same set."""
+        out: dict[str, Any] = {}
+        if self.description:
+            out["description"] = self.description
+        for name in PARAMETERS:
+            if name in self.params:
+                dist = self.params[name]
+                out[name] = dist.fixed if _is_probability(name) else dist.to_dict()
+        return out
+
+    @classmethod
+    def from_dict(
+        cls, data: Mapping[str, Any], *, name: str = "(dict)", source: str = "(dict)"
+    ) -> DisturbanceSet:
+        """Validate ``data`` (the TOML meaning, or ``to_dict()``) like a file."""
+        return _parse(dict(data), name=name, source=source)
+
+
+def _parse(data: dict[str, Any], *, name: str, source: str) -> DisturbanceSet:
+    for key in data:
+        if key != "description" and key not in _SPECS:
+            close = difflib.get_close_matches(key, PARAMETERS, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ConfigError(
+                source, format_loc((key,)), f"unknown parameter; {hint}supported: {', '.join(PARAMETERS)}"
+            )
+    model = validate(DisturbanceFile, data, source)
+    params: dict[str, Distribution] = {}
+    for pname in PARAMETERS:
+        value = getattr(model, pname)
+        if value is None:
+            continue
+        if _is_probability(pname):
+            params[pname] = Distribution(fixed=float(value))
+            continue
+        _check_range(pname, value, data, source)
+        params[pname] = value
+    return DisturbanceSet(
+        name=name, source=source, params=params, description=getattr(model, "description", None) or ""
+    )
+
+
+def _check_range(name: str, dist: Distribution, data: dict[str, Any], source: str) -> None:
+    rng = _SPECS[name].range
+    bounds = dist.produced_bounds()
+    if not bounds:  # a normal without clip
+        raise ConfigError(
+            source,
+            format_loc((name, "normal")),
+            f"a normal can produce any value but {rng.text(name)}: add clip = [lo, hi]",
+            data[name]["normal"],
+        )
+    for key, values in bounds:
+        bad = [v for v in values if not rng.contains(v)]
+        if bad:
+            raise ConfigError(
+                source,
+                format_loc((name, key)),
+                f"{_num(bad[0])} is out of range: every value the distribution can produce "
+                f"must satisfy {rng.text(name)}",
+                data[name][key],
+            )
+
+
+def builtin_sets() -> list[str]:
+    """Names of the embedded disturbance sets."""
+    files = resources.files(BUILTIN_PACKAGE)
+    return sorted(p.name.removesuffix(".toml") for p in files.iterdir() if p.name.endswith(".toml"))
+
+
+def load_disturbances(spec: str | Path) -> DisturbanceSet:
+    """``"standard"``, ``"nominal"`` (embedded sets) or the path of a TOML file."""
+    if isinstance(spec, str) and spec in builtin_sets():
+        ref = resources.files(BUILTIN_PACKAGE).joinpath(f"{spec}.toml")
+        source = f"railstop/data/disturbances/{spec}.toml"
+        try:
+            data = tomllib.loads(ref.read_text(encoding="utf-8"))
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(source, "(toml syntax)", str(exc)) from None
+        return _parse(data, name=spec, source=source)
+    path = Path(spec)
+    if not path.exists():
+        raise ConfigError(
+            str(spec), "(file)", f"no such file; the embedded sets are: {', '.join(builtin_sets())}"
+        )
+    return _parse(read_toml(path), name=str(spec), source=str(spec))
+
+
+# --------------------------------------------------------------------------
+# Drawing
+
+# Absent low_adhesion_length_m: patch lengths uniform in this range (metres).
+DEFAULT_LOW_ADHESION_LENGTH_M = Distribution(uniform=(30.0, 80.0))
+
+
+def _draw(dist: Distribution, streams: RunStreams, name: str) -> FloatArray:
+    base = counter_base(name)
+    n = streams.n
+    if dist.fixed is not None:
+        return np.full(n, float(dist.fixed))
+    if dist.uniform is not None:
+        lo, hi = dist.uniform
+        return lo + (hi - lo) * streams.uniform(Stream.DISTURBANCE, base)
+    if dist.choice is not None:
+        values = np.asarray(dist.choice, dtype=np.float64)
+        u = streams.uniform(Stream.DISTURBANCE, base)
+        idx = np.minimum((u * values.size).astype(np.int64), values.size - 1)
+        return values[idx]
+    assert dist.normal is not None
+    mean, sd = dist.normal
+    # normal(c) reads uniform counters 2c and 2c + 1: base and base + 1 (base is even).
+    x = mean + sd * streams.normal(Stream.DISTURBANCE, base + 1)
+    if dist.clip is not None:
+        x = np.clip(x, dist.clip[0], dist.clip[1])  # clipped, not resampled
+    return x
+
+
+def _zone_mean_permille(station: Station, start_m: float, end_m: float) -> float:
+    """The station's own mean gradient (permille) over [start, end]."""
+    if end_m <= start_m:
+        return 0.0
+    prof = station_gradient(station, 1)
+    elev = prof.elevation_m(np.array([[start_m, end_m]]))[0]
+    return float((elev[1] - elev[0]) / (end_m - start_m) * 1e3)
+
+
+def _zones(station: Station) -> tuple[float, float, float]:
+    """(approach start, platform start, platform end) chainages."""
+    first = station.detector_positions_m()[0]
+    return first - APPROACH_BEFORE_FIRST_DETECTOR_M, station.platform_start, station.platform_end
+
+
+def nominal_values(station: Station, vehicle: Vehicle, n: int) -> dict[str, FloatArray]:
+    """Every parameter's nominal value in the file's units (what ``Scenario.nominal`` uses)."""
+    a0, p0, p1 = _zones(station)
+    nominal = {
+        "entry_speed_kmh": station.tasc.entry_speed_kmh,
+        "load_factor": 0.0,
+        "load_weighing_error_pct": 0.0,
+        "brake_gain": 1.0,
+        "brake_dead_time_s": vehicle.brake.dead_time_s,
+        "brake_time_constant_s": vehicle.brake.time_constant_s,
+        "platform_gradient_permille": _zone_mean_permille(station, p0, p1),
+        "approach_gradient_permille": _zone_mean_permille(station, a0, p0),
+        "wheel_diameter_mm": vehicle.wheel_diameter_m * 1e3,
+        "odometer_diameter_error_pct": 0.0,
+        "low_adhesion_probability": 0.0,
+        "low_adhesion_mu": vehicle.adhesion_mu,
+        "radio_latency_ms": 0.0,
+        "radio_loss_probability": 0.0,
+        "sensor_jitter_ms": 0.0,
+        "sensor_miss_probability": 0.0,
+        "doppler_noise_pct": 0.0,
+    }
+    return {k: np.full(n, float(v)) for k, v in nominal.items()}
+
+
+def _gradient(
+    station: Station, n: int, approach_permille: FloatArray, platform_permille: FloatArray
+) -> GradientProfile:
+    """Approach zone [first detector - 150 m, platform start] and platform [start, end]; level elsewhere."""
+    a0, p0, p1 = _zones(station)
+    zero = np.zeros(n)
+    if a0 < p0:
+        bps = np.array([a0, p0, p1])
+        values = np.column_stack([zero, approach_permille, platform_permille, zero])
+    else:  # the TASC zone lies within the platform: no approach zone
+        bps = np.array([p0, p1])
+        values = np.column_stack([zero, platform_permille, zero])
+    return GradientProfile.create(bps, values)
+
+
+# Parameter -> (Scenario field, factor from the file unit to SI). Absent parameters keep
+# the nominal field; gradients and low adhesion are built separately.
+_TO_SCENARIO: dict[str, tuple[str, float]] = {
+    "entry_speed_kmh": ("entry_speed_mps", KMH),
+    "load_factor": ("load_factor", 1.0),
+    "load_weighing_error_pct": ("load_weighing_error", 1e-2),
+    "brake_gain": ("brake_gain", 1.0),
+    "brake_dead_time_s": ("dead_time_s", 1.0),
+    "brake_time_constant_s": ("time_constant_s", 1.0),
+    "wheel_diameter_mm": ("wheel_diameter_m", 1e-3),
+    "odometer_diameter_error_pct": ("odometer_diameter_error", 1e-2),
+    "radio_latency_ms": ("radio_latency_s", 1e-3),
+    "radio_loss_probability": ("radio_loss_probability", 1.0),
+    "sensor_jitter_ms": ("sensor_jitter_s", 1e-3),
+    "sensor_miss_probability": ("sensor_miss_probability", 1.0),
+    "doppler_noise_pct": ("doppler_noise_frac", 1e-2),
+}
+
+
+def draw_scenario(
+    dist: DisturbanceSet, station: Station, vehicle: Vehicle, streams: RunStreams
+) -> tuple[Scenario, dict[str, np.ndarray]]:
+    """The scenario of ``streams.n`` runs and the drawn values per parameter (file units).
+
+    The values dict has one array of shape (n,) per name of :data:`PARAMETERS`
+    (nominal values for parameters the set does not name), plus ``low_adhesion``
+    (bool: the run meets a patch) and ``low_adhesion_start_m`` (inf = no patch).
+    ``low_adhesion_mu`` and ``low_adhesion_length_m`` hold the drawn values of
+    every run, whether or not it meets a patch.
+    """
+    n = streams.n
+    p = dist.params
+    values: dict[str, Any] = nominal_values(station, vehicle, n)
+    for name in PARAMETERS:
+        if name in p and name != "low_adhesion_probability":
+            values[name] = _draw(p[name], streams, name)
+    values["low_adhesion_length_m"] = _draw(
+        p.get("low_adhesion_length_m", DEFAULT_LOW_ADHESION_LENGTH_M), streams, "low_adhesion_length_m"
+    )
+    scen = Scenario.nominal(station, vehicle, n=n)
+    changes: dict[str, Any] = {}
+    for name, (target, factor) in _TO_SCENARIO.items():
+        if name in p:
+            changes[target] = values[name] * factor
+
+    # Gradients: a per-run profile when the set names either; the absent one keeps
+    # the station's own mean gradient over its zone (nominal_values).
+    if "approach_gradient_permille" in p or "platform_gradient_permille" in p:
+        changes["gradient"] = _gradient(
+            station, n, values["approach_gradient_permille"], values["platform_gradient_permille"]
+        )
+
+    # Low adhesion: with probability p a run meets a patch of drawn mu and length
+    # starting uniformly between the first detector and 10 m before the stop.
+    if "low_adhesion_probability" in p:
+        prob = float(p["low_adhesion_probability"].fixed or 0.0)
+        values["low_adhesion_probability"] = np.full(n, prob)
+        hit = streams.uniform(Stream.DISTURBANCE, counter_base("low_adhesion_probability")) < prob
+    else:
+        hit = np.zeros(n, dtype=bool)
+    first = station.detector_positions_m()[0]
+    last = station.stop_point_m - PATCH_LAST_START_BEFORE_STOP_M
+    lo, hi = min(first, last), max(first, last)
+    start = lo + (hi - lo) * streams.uniform(Stream.DISTURBANCE, counter_base(LOW_ADHESION_START))
+    start = np.where(hit, start, np.inf)
+    values[LOW_ADHESION] = hit
+    values[LOW_ADHESION_START] = start
+    if "low_adhesion_probability" in p:
+        changes["low_mu"] = np.where(hit, values["low_adhesion_mu"], vehicle.adhesion_mu)
+        changes["low_mu_start_m"] = start
+        changes["low_mu_end_m"] = np.where(hit, start + values["low_adhesion_length_m"], np.inf)
+
+    if changes:
+        scen = scen.with_values(**changes)
+    ordered = {name: values[name] for name in PARAMETERS}
+    ordered[LOW_ADHESION] = values[LOW_ADHESION]
+    ordered[LOW_ADHESION_START] = values[LOW_ADHESION_START]
+    return scen, ordered
+
+
+__all__ = [
+    "COUNTER_BLOCKS",
+    "COUNTER_STRIDE",
+    "LOW_ADHESION",
+    "LOW_ADHESION_START",
+    "PARAMETERS",
+    "Distribution",
+    "DisturbanceSet",
+    "builtin_sets",
+    "counter_base",
+    "draw_scenario",
+    "load_disturbances",
+    "nominal_values",
+]

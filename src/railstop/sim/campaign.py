@@ -1,0 +1,311 @@
+"""The Monte Carlo campaign driver: many stops of one controller at one station (DESIGN rule 1).
+
+A campaign is cut into chunks of runs; each chunk draws its scenario from the
+disturbance set with the counter-based streams of its runs and goes through
+``run_batch`` (the same code as the single stop). A chunk's per-run rows are
+written to ``DIR/chunks/chunk-NNNNNN.parquet`` atomically (temporary file,
+then rename) as soon as it is done, so an interrupted campaign (Ctrl-C, a
+kill) loses no finished chunk and ``resume`` runs only the missing ones.
+Because every random number is a function of (seed, run, stream, counter),
+the results do not depend on the chunk size or on the number of workers.
+
+Layout of ``DIR``:
+    campaign.json     the manifest (what was asked; checked on resume)
+    chunks/           one Parquet file per finished chunk
+    runs.parquet      every run, in run order (written when all chunks are done)
+    summary.json      the summary statistics
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from railstop.config.disturbances import DisturbanceSet, draw_scenario
+from railstop.config.schema import Line, Station, Vehicle
+from railstop.errors import RailstopError
+from railstop.report.campaign_report import summary_stats
+from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
+from railstop.streams import RunStreams
+from railstop.wayside.tasc_unit import SignalForm
+
+MANIFEST = "campaign.json"
+RUNS_FILE = "runs.parquet"
+SUMMARY_FILE = "summary.json"
+CHUNK_DIR = "chunks"
+DEFAULT_CHUNK = 10_000
+MANIFEST_VERSION = 1
+
+RESULT_COLUMNS = (
+    "run",
+    "stop_error_m",
+    "stop_time_s",
+    "max_jerk_mps3",
+    "notch_changes",
+    "commands_sent",
+    "commands_received",
+    "stopped",
+    "slid",
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CampaignSpec:
+    """What a campaign is: everything that decides its numbers."""
+
+    line: Line
+    vehicle: Vehicle
+    station: str
+    controller: str
+    runs: int
+    seed: int
+    disturbances: DisturbanceSet
+    chunk_size: int = DEFAULT_CHUNK
+    form: int | None = None
+
+    def manifest(self) -> dict[str, Any]:
+        st = self.line.station(self.station)
+        return {
+            "kind": "railstop-campaign",
+            "version": MANIFEST_VERSION,
+            "station": st.name,
+            "controller": self.controller,
+            "seed": self.seed,
+            "runs": self.runs,
+            "chunk_size": self.chunk_size,
+            "form": int(st.tasc.signal_form if self.form is None else self.form),
+            "disturbances": {"name": self.disturbances.name, "set": self.disturbances.to_dict()},
+            "line": self.line.line.name,
+            "vehicle": self.vehicle.name,
+            # The data the numbers come from: a resume must use the same.
+            "data_sha256": _data_hash(self.line, self.vehicle),
+        }
+
+    @property
+    def chunks(self) -> int:
+        return -(-self.runs // self.chunk_size)
+
+    def chunk_range(self, k: int) -> tuple[int, int]:
+        first = k * self.chunk_size
+        return first, min(first + self.chunk_size, self.runs)
+
+
+def _data_hash(line: Line, vehicle: Vehicle) -> str:
+    text = json.dumps([line.model_dump(mode="json"), vehicle.model_dump(mode="json")], sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def simulate_runs(
+    *,
+    station: Station,
+    vehicle: Vehicle,
+    controller: str,
+    disturbances: DisturbanceSet,
+    seed: int,
+    first_run: int,
+    n: int,
+    form: int | None = None,
+    record: bool = False,
+) -> tuple[BatchResult, dict[str, np.ndarray]]:
+    """Runs ``first_run .. first_run + n - 1`` of a campaign: the drawn values and the batch result."""
+    streams = RunStreams.for_runs(seed, first_run, n)
+    scenario, drawn = draw_scenario(disturbances, station, vehicle, streams)
+    result = run_batch(
+        station=station,
+        vehicle=vehicle,
+        scenario=scenario,
+        controller=controller,
+        streams=streams,
+        form=None if form is None else SignalForm(form),
+        record=record,
+    )
+    return result, drawn
+
+
+def _chunk_table(first_run: int, result: BatchResult, drawn: dict[str, np.ndarray]) -> pa.Table:
+    n = result.stop_error_m.size
+    cols: dict[str, Any] = {
+        "run": np.arange(first_run, first_run + n, dtype=np.int64),
+        "stop_error_m": result.stop_error_m,
+        "stop_time_s": result.stop_time_s,
+        "max_jerk_mps3": result.max_jerk_mps3,
+        "notch_changes": result.notch_changes.astype(np.int64),
+        "commands_sent": result.commands_sent.astype(np.int64),
+        "commands_received": result.commands_received.astype(np.int64),
+        "stopped": result.stopped,
+        "slid": result.slid,
+    }
+    for name, values in drawn.items():
+        cols[name] = np.asarray(values)
+    return pa.table(cols)
+
+
+def _chunk_path(out: Path, k: int) -> Path:
+    return out / CHUNK_DIR / f"chunk-{k:06d}.parquet"
+
+
+def _run_chunk(spec: CampaignSpec, out: Path, k: int) -> int:
+    """Simulate chunk k and write its file atomically; return the number of runs."""
+    first, end = spec.chunk_range(k)
+    result, drawn = simulate_runs(
+        station=spec.line.station(spec.station),
+        vehicle=spec.vehicle,
+        controller=spec.controller,
+        disturbances=spec.disturbances,
+        seed=spec.seed,
+        first_run=first,
+        n=end - first,
+        form=spec.form,
+    )
+    path = _chunk_path(out, k)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pq.write_table(_chunk_table(first, result, drawn), tmp)
+    os.replace(tmp, path)
+    return end - first
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CampaignOutcome:
+    out: Path
+    manifest: dict[str, Any]
+    summary: dict[str, Any]
+    runs_simulated: int  # by this call (a resume skips finished chunks)
+    elapsed_s: float
+
+
+Progress = Callable[[int, int], None]  # (runs done so far, runs in total)
+
+
+def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> list[int]:
+    """Check or write the manifest; return the chunks still to run."""
+    if spec.controller not in CONTROLLERS:
+        raise RailstopError(
+            f"--controller: unknown controller {spec.controller!r}; choose one of: {', '.join(CONTROLLERS)}"
+        )
+    if spec.runs < 1 or spec.chunk_size < 1:
+        raise RailstopError(
+            f"--runs and the chunk size must be at least 1 (got {spec.runs}, {spec.chunk_size})"
+        )
+    manifest = spec.manifest()
+    path = out / MANIFEST
+    if path.exists():
+        if not resume:
+            raise RailstopError(
+                f"{out}: a campaign is already there; use --resume to continue it or choose another --out"
+            )
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise RailstopError(f"{path}: cannot read the campaign manifest: {exc}") from None
+        diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
+        if diff:
+            raise RailstopError(
+                f"{path}: --resume asks for a different campaign (differs in: {', '.join(diff)})"
+            )
+    elif resume and out.exists() and any(out.iterdir()):
+        raise RailstopError(f"{out}: --resume but no {MANIFEST} there")
+    (out / CHUNK_DIR).mkdir(parents=True, exist_ok=True)
+    if not path.exists():
+        tmp = path.with_name(f".{MANIFEST}.tmp")
+        tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True), encoding="utf-8")
+        os.replace(tmp, path)
+    for stale in (out / CHUNK_DIR).glob(".*.tmp"):  # a chunk killed while writing
+        stale.unlink(missing_ok=True)
+    return [k for k in range(spec.chunks) if not _chunk_path(out, k).exists()]
+
+
+def _executed(spec: CampaignSpec, out: Path, todo: list[int], workers: int) -> Iterator[int]:
+    """Run the chunks in ``todo``; yield the run count of each as it finishes."""
+    if workers <= 1 or len(todo) <= 1:
+        for k in todo:
+            yield _run_chunk(spec, out, k)
+        return
+    pool = ProcessPoolExecutor(max_workers=workers)
+    pending: set[Future[int]] = set()
+    queue = list(todo)
+    try:
+        while queue or pending:
+            while queue and len(pending) < workers:
+                pending.add(pool.submit(_run_chunk, spec, out, queue.pop(0)))
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                yield fut.result()
+    finally:
+        # Interrupted: the chunks being simulated are abandoned (their files
+        # are written atomically, so none is half there); finished ones stay.
+        for fut in pending:
+            fut.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out: Path,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    progress: Progress | None = None,
+) -> CampaignOutcome:
+    """Run (or continue) the campaign into ``out``; see the module docstring."""
+    out = Path(out)
+    todo = _prepare(spec, out, resume)
+    done_runs = spec.runs - sum(spec.chunk_range(k)[1] - spec.chunk_range(k)[0] for k in todo)
+    if progress:
+        progress(done_runs, spec.runs)
+    t0 = time.perf_counter()
+    simulated = 0
+    for n in _executed(spec, out, todo, workers):
+        simulated += n
+        if progress:
+            progress(done_runs + simulated, spec.runs)
+    elapsed = time.perf_counter() - t0
+    table = merge_chunks(spec, out)
+    summary = summarise(table)
+    summary["runs_per_s"] = round(simulated / elapsed, 1) if simulated and elapsed > 0 else None
+    tmp = out / f".{SUMMARY_FILE}.tmp"
+    tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
+    os.replace(tmp, out / SUMMARY_FILE)
+    return CampaignOutcome(
+        out=out, manifest=spec.manifest(), summary=summary, runs_simulated=simulated, elapsed_s=elapsed
+    )
+
+
+def merge_chunks(spec: CampaignSpec, out: Path) -> pa.Table:
+    """Concatenate the chunk files in run order into ``runs.parquet``."""
+    tables = []
+    for k in range(spec.chunks):
+        path = _chunk_path(out, k)
+        try:
+            tables.append(pq.read_table(path))
+        except (OSError, pa.ArrowInvalid) as exc:
+            raise RailstopError(
+                f"{path}: cannot read a finished chunk ({exc}); delete it and --resume"
+            ) from None
+    table = pa.concat_tables(tables)
+    tmp = out / f".{RUNS_FILE}.tmp"
+    pq.write_table(table, tmp)
+    os.replace(tmp, out / RUNS_FILE)
+    return table
+
+
+def summarise(table: pa.Table) -> dict[str, Any]:
+    """The campaign's summary statistics (see ``summary_stats``), JSON-ready."""
+
+    def col(name: str) -> np.ndarray:
+        return table.column(name).to_numpy()
+
+    stats = summary_stats(
+        col("stop_error_m"), col("max_jerk_mps3"), col("stop_time_s"), col("stopped"), col("slid")
+    )
+    return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}
