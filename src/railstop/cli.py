@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -13,8 +14,10 @@ from rich.console import Console
 from rich.table import Table
 
 from railstop.config import load_line, load_vehicle
-from railstop.config.schema import Station
+from railstop.config.disturbances import load_disturbances
+from railstop.config.schema import Line, Station, Vehicle
 from railstop.errors import RailstopError
+from railstop.onboard.ato import ATO
 from railstop.sim.engine import CONTROLLERS, BatchResult
 from railstop.sim.single import StopResult, run_stop
 from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
@@ -25,7 +28,7 @@ app = typer.Typer(
     help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
 )
 # Wide enough for the demo table when the output is a file or a pipe.
-out = Console(width=None if sys.stdout.isatty() else 140)
+out = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True)
 
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
@@ -76,17 +79,25 @@ def stop(
         int | None,
         typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),
     ] = None,
+    disturbances: Annotated[
+        str | None,
+        typer.Option(help="Replay a campaign run drawn from this set: standard, nominal or a TOML file."),
+    ] = None,
+    run: Annotated[int, typer.Option(min=0, help="The campaign run to replay (with --disturbances).")] = 0,
     plot: Annotated[Path | None, typer.Option(help="Write a PNG plot of the stop here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file.")] = Path("railstop.db"),
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
-    """Run one detailed ground-TASC stop (nominal unless --load-factor/--brake-gain)."""
+    """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
+    if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
+        fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
         st = ln.station(station)
+        dist = None if disturbances is None else load_disturbances(disturbances)
         result, batch = run_stop(
             line=ln,
             station=st,
@@ -96,6 +107,8 @@ def stop(
             load_factor=load_factor,
             brake_gain=brake_gain,
             form=None if form is None else SignalForm(form),
+            disturbances=dist,
+            run=run,
         )
         _save(db, result)
         if plot is not None:
@@ -105,13 +118,25 @@ def stop(
     if as_json:
         print(json.dumps(result.summary()))
         return
+    what = (
+        "onboard ATO, no telegrams"
+        if result.controller == ATO
+        else f"{result.commands} commands received (form {result.form}: "
+        f"{FORM_NAMES[SignalForm(result.form)]})"
+    )
+    drawn = (
+        ""
+        if result.disturbances is None
+        else f"run {result.run} of {result.disturbances!r} seed {result.seed} "
+        f"(load {result.load_factor:.2f}, brake gain {result.brake_gain:.3f}): "
+    )
     out.print(
-        f"{result.controller} at {result.station}: stop error {result.stop_error_m:+.3f} m "
+        f"{result.controller} at {result.station}: {drawn}stop error {result.stop_error_m:+.3f} m "
         f"({'overrun' if result.stop_error_m > 0 else 'short'}), "
         f"{result.stop_time_s} s from the first detector, max jerk {result.max_jerk_mps3:.2f} m/s³, "
-        f"{result.notch_changes} notch changes, {result.commands} commands received "
-        f"(form {result.form}: {FORM_NAMES[SignalForm(result.form)]})",
+        f"{result.notch_changes} notch changes, {what}",
         highlight=False,
+        soft_wrap=True,
     )
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)
@@ -131,6 +156,8 @@ def _save(db: Path, result: StopResult) -> None:
             "load_factor": result.load_factor,
             "brake_gain": result.brake_gain,
             "form": result.form,
+            "disturbances": result.disturbances,
+            "run": result.run,
         },
         commands=result.command_log,
         stop_error_m=result.stop_error_m,
@@ -235,6 +262,330 @@ def demo(
         fail(str(exc))
     out.print(table)
     out.print(f"plots and database written to {out_dir}/ (database: {db})", highlight=False)
+
+
+SUMMARY_KEYS = (
+    "runs",
+    "within_0_30",
+    "within_0_35",
+    "within_0_50",
+    "mean_m",
+    "std_m",
+    "p99_abs_m",
+    "max_abs_m",
+    "overruns_0_35",
+    "overrun_0_35_ci95_upper",
+    "p99_max_jerk_mps3",
+    "mean_stop_time_s",
+    "runs_per_s",
+)
+
+DisturbancesOpt = Annotated[str, typer.Option(help="Disturbance set: standard, nominal or a TOML file.")]
+WorkersOpt = Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")]
+ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
+
+
+def _progress_bar(enabled: bool, label: str):  # type: ignore[no-untyped-def]
+    """A rich progress bar on a terminal; a no-op callback otherwise."""
+    from contextlib import nullcontext
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    if not enabled:
+        return nullcontext(None)
+    return Progress(
+        TextColumn(label),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+    )
+
+
+def _run_one_campaign(
+    *,
+    ln: Line,
+    veh: Vehicle,
+    station: str,
+    controller: str,
+    runs: int,
+    seed: int,
+    disturbances: str,
+    workers: int | None,
+    out_dir: Path,
+    resume: bool,
+    chunk_size: int,
+    db: Path,
+    show_progress: bool,
+) -> dict[str, object]:
+    from railstop.sim.campaign import RUNS_FILE, CampaignSpec, run_campaign
+    from railstop.store import open_store
+
+    spec = CampaignSpec(
+        line=ln,
+        vehicle=veh,
+        station=ln.station(station).name,
+        controller=_controller(controller),
+        runs=runs,
+        seed=seed,
+        disturbances=load_disturbances(disturbances),
+        chunk_size=chunk_size,
+    )
+    n_workers = workers or os.cpu_count() or 1
+    with _progress_bar(show_progress, f"{controller} at {spec.station}") as bar:
+        task = None if bar is None else bar.add_task("runs", total=runs)
+
+        def progress(done: int, total: int) -> None:
+            if bar is not None and task is not None:
+                bar.update(task, completed=done, total=total)
+
+        outcome = run_campaign(spec, out_dir, workers=n_workers, resume=resume, progress=progress)
+    summary = dict(outcome.summary)
+    with open_store(db) as store:
+        store.save_campaign(
+            key=str(out_dir.resolve()),
+            manifest=outcome.manifest,
+            summary=summary,
+            runs_file=str((out_dir / RUNS_FILE).resolve()),
+        )
+    return {
+        "station": spec.station,
+        "controller": controller,
+        "seed": seed,
+        "disturbances": spec.disturbances.name,
+        "out": str(out_dir),
+        **summary,
+        "runs_simulated": outcome.runs_simulated,
+        "elapsed_s": round(outcome.elapsed_s, 3),
+    }
+
+
+def _fmt(key: str, value: object) -> str:
+    if value is None:
+        return "-"
+    if key.startswith("within"):
+        return f"{100.0 * float(value):.2f}%"  # type: ignore[arg-type]
+    if key == "overrun_0_35_ci95_upper":
+        return f"{float(value):.2e}"  # type: ignore[arg-type]
+    if isinstance(value, float):
+        if key == "runs_per_s":
+            return f"{value:,.0f}"
+        return (
+            f"{value:.1f}"
+            if key == "mean_stop_time_s"
+            else f"{value:+.3f}"
+            if key == "mean_m"
+            else f"{value:.3f}"
+        )
+    return str(value)
+
+
+def _summary_table(title: str, rows: list[dict[str, object]]) -> Table:
+    cols = (
+        ("controller", "controller"),
+        ("runs", "runs"),
+        ("within_0_30", "±0.30"),
+        ("within_0_35", "±0.35"),
+        ("within_0_50", "±0.50"),
+        ("mean_m", "mean"),
+        ("std_m", "std"),
+        ("p99_abs_m", "p99|e|"),
+        ("max_abs_m", "max|e|"),
+        ("overruns_0_35", ">+0.35"),
+        ("overrun_0_35_ci95_upper", "P>+0.35 ≤"),
+        ("p99_max_jerk_mps3", "jerk99"),
+        ("mean_stop_time_s", "time"),
+        ("runs_per_s", "runs/s"),
+    )
+    table = Table(
+        title=title,
+        caption="within bands: share of runs; errors in m (+ = overrun); P>+0.35 ≤: 95 % Clopper-Pearson "
+        "upper bound on the overrun probability; jerk99: p99 of max jerk m/s³; time: mean stop time s",
+    )
+    for key, label in cols:
+        table.add_column(label, justify="left" if key == "controller" else "right", no_wrap=True)
+    for row in rows:
+        table.add_row(*(_fmt(k, row.get(k)) for k, _ in cols))
+    return table
+
+
+@app.command()
+def campaign(
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    runs: Annotated[int, typer.Option(min=1, help="Number of stops.")] = 10_000,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    disturbances: DisturbancesOpt = "standard",
+    workers: WorkersOpt = None,
+    out_dir: Annotated[
+        Path | None,
+        typer.Option("--out", help="Campaign folder (default: campaign-STATION-CONTROLLER-sSEED)."),
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
+    chunk_size: ChunkOpt = 10_000,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """Monte Carlo campaign: many stops of one controller under a disturbance set."""
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+        st = ln.station(station)
+        target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())
+        row = _run_one_campaign(
+            ln=ln,
+            veh=veh,
+            station=st.name,
+            controller=controller,
+            runs=runs,
+            seed=seed,
+            disturbances=disturbances,
+            workers=workers,
+            out_dir=target,
+            resume=resume,
+            chunk_size=chunk_size,
+            db=db,
+            show_progress=not as_json and err.is_terminal,
+        )
+    except RailstopError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename or ''}: {exc.strerror}")
+    if as_json:
+        print(json.dumps(row))
+        return
+    out.print(
+        _summary_table(f"{row['runs']} stops at {row['station']} ({row['disturbances']}, seed {seed})", [row])
+    )
+    out.print(f"per-run rows: {target}/runs.parquet; summary also in {db}", highlight=False)
+
+
+def _compare(
+    *,
+    ln: Line,
+    veh: Vehicle,
+    station: str,
+    runs: int,
+    seed: int,
+    disturbances: str,
+    workers: int | None,
+    out_dir: Path,
+    resume: bool,
+    chunk_size: int,
+    db: Path,
+    show_progress: bool,
+) -> list[dict[str, object]]:
+    """Every controller on identical draws (same seed, same disturbance set)."""
+    return [
+        _run_one_campaign(
+            ln=ln,
+            veh=veh,
+            station=station,
+            controller=ctrl,
+            runs=runs,
+            seed=seed,
+            disturbances=disturbances,
+            workers=workers,
+            out_dir=out_dir / ctrl,
+            resume=resume,
+            chunk_size=chunk_size,
+            db=db,
+            show_progress=show_progress,
+        )
+        for ctrl in CONTROLLERS
+    ]
+
+
+@app.command()
+def compare(
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    runs: Annotated[int, typer.Option(min=1, help="Stops per controller.")] = 10_000,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    disturbances: DisturbancesOpt = "standard",
+    workers: WorkersOpt = None,
+    out_dir: Annotated[
+        Path | None, typer.Option("--out", help="Folder (default: compare-STATION-sSEED); one campaign each.")
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="Continue an interrupted comparison in --out.")] = False,
+    chunk_size: ChunkOpt = 10_000,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    db: Annotated[Path, typer.Option(help="SQLite database file (gets the summaries).")] = Path(
+        "railstop.db"
+    ),
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """Run every controller on identical disturbance draws and print one table."""
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+        st = ln.station(station)
+        target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())
+        rows = _compare(
+            ln=ln,
+            veh=veh,
+            station=st.name,
+            runs=runs,
+            seed=seed,
+            disturbances=disturbances,
+            workers=workers,
+            out_dir=target,
+            resume=resume,
+            chunk_size=chunk_size,
+            db=db,
+            show_progress=not as_json and err.is_terminal,
+        )
+    except RailstopError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename or ''}: {exc.strerror}")
+    if as_json:
+        print(
+            json.dumps(
+                {
+                    "station": st.name,
+                    "seed": seed,
+                    "disturbances": rows[0]["disturbances"],
+                    "controllers": rows,
+                }
+            )
+        )
+        return
+    out.print(
+        _summary_table(
+            f"{runs} stops per controller at {st.name} ({rows[0]['disturbances']}, seed {seed})", rows
+        )
+    )
+    out.print(f"campaigns in {target}/; `railstop report {target}` writes the HTML report", highlight=False)
+
+
+@app.command()
+def report(
+    directory: Annotated[Path, typer.Argument(help="A campaign folder, or a folder of them (from compare).")],
+    worst: Annotated[int, typer.Option(min=0, help="Speed profiles of the N worst runs per controller.")] = 5,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
+    from railstop.report.campaign_report import write_report
+    from railstop.sim.campaign import replay_profile
+
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+
+        def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
+            return replay_profile(campaign_dir, run, ln, veh)
+
+        path = write_report(directory, replay=replay, worst=worst)  # type: ignore[arg-type]
+    except RailstopError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename or directory}: {exc.strerror}")
+    out.print(f"report: {path}", highlight=False)
 
 
 def main() -> None:

@@ -11,7 +11,7 @@ competent version of that scheme, not a straw man:
   and a precise-stop transponder 25 m before the stop);
 - speed: the tachometer (so it carries the same diameter error);
 - control: a constant-deceleration brake curve to its odometric stopping
-  point, fixed at the first transponder; every controller cycle it demands
+  point, drawn anew at every transponder fix; every controller cycle it demands
   the curve's deceleration less the gradient and resistance of its line data
   (brakes assumed nominal), plus a speed feedback ``ATO_SPEED_GAIN_PER_S`` ×
   (tachometer speed - curve speed), the curve read a little ahead of the
@@ -94,6 +94,8 @@ class AtoController:
         self.distance_m[rows] = self.station.stop_point_m - self.transponders_m[index[rows]]
         self.active[rows] = True
         self.fixes[rows] += 1
+        # A new position fix: a new brake curve through the corrected state.
+        self.curve_mps2[rows] = np.nan
 
     def odometer(self, increment_m: FloatArray) -> None:
         """Distance the odometer counted during the last step."""
@@ -119,7 +121,7 @@ class AtoController:
         ahead = np.maximum(self.distance_m[rows] - speed_mps * lead_s, 0.0)
         new = np.isnan(self.curve_mps2[rows])
         if new.any():
-            # The brake curve (train deceleration) through the state at the first fix.
+            # The brake curve (train deceleration) through the state at the latest fix.
             need = speed_mps[new] ** 2 / (2.0 * np.maximum(ahead[new], 1.0))
             self.curve_mps2[rows[new]] = np.clip(need, 0.05, self.vehicle.brake.full_service_mps2)
         curve = self.curve_mps2[rows]

@@ -309,3 +309,54 @@ def summarise(table: pa.Table) -> dict[str, Any]:
         col("stop_error_m"), col("max_jerk_mps3"), col("stop_time_s"), col("stopped"), col("slid")
     )
     return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}
+
+
+def read_manifest(out: Path) -> dict[str, Any]:
+    path = Path(out) / MANIFEST
+    try:
+        return dict(json.loads(path.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise RailstopError(f"{out}: not a campaign directory (no {MANIFEST})") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RailstopError(f"{path}: cannot read the campaign manifest: {exc}") from None
+
+
+def spec_from_manifest(manifest: dict[str, Any], line: Line, vehicle: Vehicle, source: str) -> CampaignSpec:
+    """The campaign a manifest describes, with the line and vehicle data it was run on."""
+    if manifest.get("data_sha256") != _data_hash(line, vehicle):
+        raise RailstopError(
+            f"{source}: the campaign was run on other line or vehicle data than given "
+            "(pass the same --line / --vehicle files)"
+        )
+    dist = manifest["disturbances"]
+    return CampaignSpec(
+        line=line,
+        vehicle=vehicle,
+        station=str(manifest["station"]),
+        controller=str(manifest["controller"]),
+        runs=int(manifest["runs"]),
+        seed=int(manifest["seed"]),
+        disturbances=DisturbanceSet.from_dict(dist["set"], name=str(dist["name"]), source=source),
+        chunk_size=int(manifest["chunk_size"]),
+        form=int(manifest["form"]),
+    )
+
+
+def replay_profile(out: Path, run: int, line: Line, vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray]:
+    """Run ``run`` of the campaign in ``out`` again with recording: (distance to the stop m, speed km/h)."""
+    spec = spec_from_manifest(read_manifest(out), line, vehicle, str(Path(out) / MANIFEST))
+    station = line.station(spec.station)
+    result, _ = simulate_runs(
+        station=station,
+        vehicle=vehicle,
+        controller=spec.controller,
+        disturbances=spec.disturbances,
+        seed=spec.seed,
+        first_run=run,
+        n=1,
+        form=spec.form,
+        record=True,
+    )
+    if result.trace is None:
+        raise RailstopError("replay recorded no trace")
+    return result.trace.position_m[:, 0] - station.stop_point_m, result.trace.speed_mps[:, 0] * 3.6

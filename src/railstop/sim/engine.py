@@ -215,7 +215,8 @@ def run_batch(
         emergency_mps2=brake.emergency_decel_mps2,
     )
     link = _Link.create(n, station.tasc.repeat_period_s)
-    assumed_diam = vehicle.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
+    # The odometer assumes the actual diameter with its error (Scenario: assumed = actual × (1 + error)).
+    assumed_diam = scenario.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
     tach_scale = assumed_diam / scenario.wheel_diameter_m
     doppler_on = station.tasc.doppler is not None
     noisy_doppler = bool(np.any(scenario.doppler_noise_frac > 0))

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from railstop.config.disturbances import DisturbanceSet
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.scenario import Scenario
@@ -31,6 +32,8 @@ class StopResult:
     commands_sent: int
     stopped: bool
     slid: bool
+    disturbances: str | None = None  # the set a campaign run was drawn from
+    run: int = 0  # the run index within that campaign
     command_log: list[dict[str, Any]] = field(default_factory=list, repr=False)
 
     def summary(self) -> dict[str, Any]:
@@ -41,10 +44,10 @@ class StopResult:
 
     @property
     def run_key(self) -> str:
-        return (
-            f"stop|{self.line}|{self.station}|{self.controller}|seed={self.seed}|form={self.form}"
-            f"|load={self.load_factor:g}|gain={self.brake_gain:g}"
-        )
+        key = f"stop|{self.line}|{self.station}|{self.controller}|seed={self.seed}|form={self.form}"
+        if self.disturbances is not None:
+            return f"{key}|disturbances={self.disturbances}|run={self.run}"
+        return f"{key}|load={self.load_factor:g}|gain={self.brake_gain:g}"
 
 
 def run_stop(
@@ -57,18 +60,42 @@ def run_stop(
     load_factor: float = 0.0,
     brake_gain: float = 1.0,
     form: SignalForm | None = None,
+    disturbances: DisturbanceSet | None = None,
+    run: int = 0,
 ) -> tuple[StopResult, BatchResult]:
-    """One nominal stop (exact sensors, ideal link) with the two disturbances given."""
-    scenario = Scenario.nominal(station, vehicle, load_factor=load_factor, brake_gain=brake_gain)
-    batch = run_batch(
-        station=station,
-        vehicle=vehicle,
-        scenario=scenario,
-        controller=controller,
-        streams=RunStreams.for_runs(seed, 0, 1),
-        form=form,
-        record=True,
-    )
+    """One detailed stop.
+
+    Without ``disturbances``: nominal (exact sensors, ideal link) with the load
+    and brake gain given. With them: run ``run`` of the campaign of that seed,
+    drawn and simulated by the very code the campaign uses.
+    """
+    if disturbances is None:
+        scenario = Scenario.nominal(station, vehicle, load_factor=load_factor, brake_gain=brake_gain)
+        batch = run_batch(
+            station=station,
+            vehicle=vehicle,
+            scenario=scenario,
+            controller=controller,
+            streams=RunStreams.for_runs(seed, run, 1),
+            form=form,
+            record=True,
+        )
+    else:
+        from railstop.sim.campaign import simulate_runs
+
+        batch, drawn = simulate_runs(
+            station=station,
+            vehicle=vehicle,
+            controller=controller,
+            disturbances=disturbances,
+            seed=seed,
+            first_run=run,
+            n=1,
+            form=None if form is None else int(form),
+            record=True,
+        )
+        load_factor = float(drawn["load_factor"][0])
+        brake_gain = float(drawn["brake_gain"][0])
     stop_time = float(batch.stop_time_s[0])
     result = StopResult(
         controller=controller,
@@ -76,8 +103,8 @@ def run_stop(
         line=line.line.name,
         seed=seed,
         form=int(station.tasc.signal_form if form is None else form),
-        load_factor=load_factor,
-        brake_gain=brake_gain,
+        load_factor=round(load_factor, 6),
+        brake_gain=round(brake_gain, 6),
         stop_error_m=round(float(batch.stop_error_m[0]), 6),
         stop_time_s=round(stop_time, 3) if np.isfinite(stop_time) else None,
         max_jerk_mps3=round(float(batch.max_jerk_mps3[0]), 4),
@@ -86,6 +113,8 @@ def run_stop(
         commands_sent=int(batch.commands_sent[0]),
         stopped=bool(batch.stopped[0]),
         slid=bool(batch.slid[0]),
+        disturbances=None if disturbances is None else disturbances.name,
+        run=run,
         command_log=batch.commands,
     )
     return result, batch
