@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -202,10 +203,13 @@ def demo(
     out_dir: Annotated[Path, typer.Option("--out", help="Folder for plots and database.")] = Path(
         "railstop-demo"
     ),
+    demo_runs: Annotated[
+        int, typer.Option("--runs", min=1, help="Campaign stops per controller for the closing comparison.")
+    ] = 1000,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
-    """Stop at every station of the line with every controller; print a table."""
+    """Stop at every station with every controller, then compare the controllers on the standard set."""
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -261,7 +265,36 @@ def demo(
     except RailstopError as exc:
         fail(str(exc))
     out.print(table)
-    out.print(f"plots and database written to {out_dir}/ (database: {db})", highlight=False)
+    # The campaign view: every controller on identical draws of the standard set.
+    compare_dir = out_dir / "compare"
+    shutil.rmtree(compare_dir, ignore_errors=True)  # the demo's own output: always fresh
+    try:
+        rows = _compare(
+            ln=ln,
+            veh=veh,
+            station=ln.stations[0].name,
+            runs=demo_runs,
+            seed=1,
+            disturbances="standard",
+            workers=None,
+            out_dir=compare_dir,
+            resume=False,
+            chunk_size=-(-demo_runs // (os.cpu_count() or 1)),
+            db=db,
+            show_progress=err.is_terminal,
+        )
+    except RailstopError as exc:
+        fail(str(exc))
+    out.print(
+        _summary_table(
+            f"{demo_runs} stops per controller at {ln.stations[0].name} (standard disturbances, seed 1)", rows
+        )
+    )
+    out.print(
+        f"plots, campaigns and database written to {out_dir}/ (database: {db}); "
+        f"`railstop report {compare_dir}` writes the HTML report",
+        highlight=False,
+    )
 
 
 SUMMARY_KEYS = (
