@@ -480,17 +480,20 @@ def test_bad_disturbance_file_one_line_exit_2(tmp_path: Path) -> None:
     assert not out.exists()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: cli.fail() prints the message as rich markup, so '[lo, hi]' in the message is eaten",
-)
-def test_bad_disturbance_file_message_keeps_brackets(tmp_path: Path) -> None:
+def test_error_message_keeps_bracketed_text(tmp_path: Path) -> None:
     bad = tmp_path / "bad-set.toml"
     bad.write_text("brake_gain = {uniform = [1.2, 0.8]}\n", encoding="utf-8")
     p = run("campaign", "--disturbances", str(bad), "--runs", "2", "--out", "o", "--db", "x.db", cwd=tmp_path)
     assert p.returncode == 2
     # The ConfigError text is "...: lo must not be greater than hi in [lo, hi] (got [1.2, 0.8])".
     assert "lo must not be greater than hi in [lo, hi]" in p.stderr
+
+
+def test_error_message_with_closing_tag_is_one_line_exit_2(tmp_path: Path) -> None:
+    p = run("campaign", "--station", "[/b]", "--runs", "2", "--out", "o", "--db", "x.db", cwd=tmp_path)
+    assert p.returncode == 2, p.stderr[-300:]
+    assert len(error_lines(p)) == 1, p.stderr[-300:]
+    assert "unknown station '[/b]'" in p.stderr
 
 
 def test_unknown_controller_exit_2(tmp_path: Path) -> None:
