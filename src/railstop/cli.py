@@ -8,13 +8,12 @@ import shutil
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
 
+from railstop.cli_common import err, fail, out
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.config.schema import Line, Station, Vehicle
@@ -29,19 +28,11 @@ app = typer.Typer(
     no_args_is_help=True,
     help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
 )
-# Wide enough for the demo table when the output is a file or a pipe.
-out = Console(width=None if sys.stdout.isatty() else 160)
-err = Console(stderr=True)
 
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
 ]
-
-
-def fail(message: str) -> NoReturn:
-    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(2)
 
 
 def _controller(name: str) -> str:
