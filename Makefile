@@ -19,9 +19,10 @@ install-test: $(BIN)/python
 run: install
 	$(BIN)/railstop demo
 
-# Lint and the whole test suite.
+# Lint, type check and the whole test suite.
 test: install-test
 	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/mypy src
 	$(BIN)/pytest -q -n 2
 
 clean:

@@ -310,7 +310,7 @@ WorkersOpt = Annotated[int | None, typer.Option(min=1, help="Worker processes (d
 ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
 
 
-def _progress_bar(enabled: bool, label: str):  # type: ignore[no-untyped-def]
+def _progress_bar(enabled: bool, label: str):
     """A rich progress bar on a terminal; a no-op callback otherwise."""
     from contextlib import nullcontext
 

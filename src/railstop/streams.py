@@ -73,7 +73,7 @@ class RunStreams:
         z = self._keys.get(stream)
         if z is None:
             with np.errstate(over="ignore"):
-                key = _mix(np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * _GOLDEN + np.uint64(stream))
+                key = _mix(np.asarray(np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * _GOLDEN + np.uint64(stream)))
                 z = _mix(key ^ (self.run_index.astype(np.uint64) * _GOLDEN))
             self._keys[stream] = z
         return z

@@ -430,7 +430,7 @@ def _error_histogram(campaigns: list[_Campaign]) -> Figure:
         below, above = int(np.count_nonzero(e < lo)), int(np.count_nonzero(e > hi))
         ax.hist(
             np.clip(e, lo, hi),
-            bins=edges,
+            bins=edges.tolist(),
             histtype="step",
             lw=1.6,
             color=c.color,
@@ -940,7 +940,7 @@ def _html(
         out.append('<div class="wide"><table class="worst">')
         out.append("<tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>")
         for row in rows:
-            cells = [
+            row_cells = [
                 str(int(c.columns["run"][row])),
                 _num(float(c.error[row]), "+.3f"),
                 _num(float(c.columns["stop_time_s"][row]), ".1f"),
@@ -948,7 +948,7 @@ def _html(
                 "yes" if bool(c.columns["slid"][row]) else "no",
                 *(_param_cell(c.columns[p], int(row)) for p in shown),
             ]
-            out.append("<tr>" + "".join(f'<td class="num">{_e(v)}</td>' for v in cells) + "</tr>")
+            out.append("<tr>" + "".join(f'<td class="num">{_e(v)}</td>' for v in row_cells) + "</tr>")
         out.append("</table></div>")
         if c.name in profile_pngs:
             out.append(

@@ -218,10 +218,11 @@ def run_batch(
     # The odometer assumes the actual diameter with its error (Scenario: assumed = actual × (1 + error)).
     assumed_diam = scenario.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
     tach_scale = assumed_diam / scenario.wheel_diameter_m
-    doppler_on = station.tasc.doppler is not None
+    radar = station.tasc.doppler
+    doppler_on = radar is not None
     noisy_doppler = bool(np.any(scenario.doppler_noise_frac > 0))
-    doppler_reach = station.stop_point_m + (station.tasc.doppler.beyond_stop_m if doppler_on else 0.0)
-    doppler_range = station.tasc.doppler.range_m if doppler_on else 0.0
+    doppler_reach = station.stop_point_m + (radar.beyond_stop_m if radar is not None else 0.0)
+    doppler_range = radar.range_m if radar is not None else 0.0
 
     max_jerk = np.zeros(n)
     slid = np.zeros(n, dtype=bool)
@@ -229,7 +230,7 @@ def run_batch(
     prev_counted = np.zeros(n, dtype=bool)
     notch_changes = np.zeros(n, dtype=np.int64)
     prev_notch = np.zeros(n, dtype=np.int64)
-    rec: dict[str, list[FloatArray]] = {k: [] for k in Trace.__dataclass_fields__}
+    rec: dict[str, list[NDArray[Any]]] = {k: [] for k in Trace.__dataclass_fields__}
 
     steps = round(max_time_s / dt_s)
     passed = np.zeros(n, dtype=bool)  # detector reports found during the last step
@@ -343,7 +344,7 @@ def run_batch(
     stop_time = np.where(motion.stopped, motion.stop_time_s - first, np.nan)
     trace = None
     if record:
-        trace = Trace(**{key: np.asarray(v) for key, v in rec.items()})  # type: ignore[arg-type]
+        trace = Trace(**{key: np.asarray(v) for key, v in rec.items()})
     return BatchResult(
         stop_error_m=stop_error,
         stop_time_s=stop_time,
@@ -351,7 +352,9 @@ def run_batch(
         notch_changes=notch_changes,
         commands_sent=np.zeros(n, dtype=np.int64) if is_ato else unit.sent.copy(),
         # The ATO receives no telegrams.
-        commands_received=np.zeros(n, dtype=np.int64) if is_ato else receiver.received.copy(),
+        commands_received=(
+            receiver.received.copy() if isinstance(receiver, TascReceiver) else np.zeros(n, dtype=np.int64)
+        ),
         stopped=motion.stopped.copy(),
         slid=slid,
         detector_passages_s=passages,
