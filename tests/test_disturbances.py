@@ -123,6 +123,9 @@ def test_standard_matches_the_issue_table(standard: DisturbanceSet) -> None:
         "sensor_jitter_ms": {"fixed": 1.0},
         "sensor_miss_probability": 0.001,
         "doppler_noise_pct": {"fixed": 0.5},
+        # Added with the link layer: none in the standard set.
+        "radio_jitter_ms": {"fixed": 0.0},
+        "radio_bit_error_rate": {"fixed": 0.0},
     }
     d = standard.to_dict()
     assert d.pop("description") == standard.description

@@ -133,6 +133,10 @@ _SPECS: dict[str, _Spec] = {
     "sensor_jitter_ms": _Spec("ms, standard deviation", _Range(0.0, 100.0), 16),
     "sensor_miss_probability": _Spec("per detector passage", _PROB, 17),
     "doppler_noise_pct": _Spec("%, standard deviation", _Range(0.0, 50.0), 18),
+    # The link's per-frame randomness (the medium's structure, bit rate and
+    # cycle, is station data: tasc.medium).
+    "radio_jitter_ms": _Spec("ms, standard deviation per frame", _Range(0.0, 1000.0), 19),
+    "radio_bit_error_rate": _Spec("per bit", _Range(0.0, 0.01), 20),
 }
 
 #: Every supported parameter name, in a fixed order (the Parquet column order).
@@ -434,6 +438,8 @@ def nominal_values(station: Station, vehicle: Vehicle, n: int) -> dict[str, Floa
         "sensor_jitter_ms": 0.0,
         "sensor_miss_probability": 0.0,
         "doppler_noise_pct": 0.0,
+        "radio_jitter_ms": 0.0,
+        "radio_bit_error_rate": 0.0,
     }
     return {k: np.full(n, float(v)) for k, v in nominal.items()}
 
@@ -469,6 +475,8 @@ _TO_SCENARIO: dict[str, tuple[str, float]] = {
     "sensor_jitter_ms": ("sensor_jitter_s", 1e-3),
     "sensor_miss_probability": ("sensor_miss_probability", 1.0),
     "doppler_noise_pct": ("doppler_noise_frac", 1e-2),
+    "radio_jitter_ms": ("radio_jitter_s", 1e-3),
+    "radio_bit_error_rate": ("radio_bit_error_rate", 1.0),
 }
 
 

@@ -34,6 +34,8 @@ class Scenario:
     low_mu_end_m: FloatArray
     radio_latency_s: FloatArray
     radio_loss_probability: FloatArray
+    radio_jitter_s: FloatArray  # per-frame delay spread (standard deviation)
+    radio_bit_error_rate: FloatArray
     sensor_jitter_s: FloatArray
     sensor_miss_probability: FloatArray
     doppler_noise_frac: FloatArray
@@ -73,6 +75,8 @@ class Scenario:
             low_mu_end_m=full(np.inf),
             radio_latency_s=full(0.0),
             radio_loss_probability=full(0.0),
+            radio_jitter_s=full(0.0),
+            radio_bit_error_rate=full(0.0),
             sensor_jitter_s=full(0.0),
             sensor_miss_probability=full(0.0),
             doppler_noise_frac=full(0.0),
