@@ -212,6 +212,26 @@ class CampaignRow(_Base):
     created_utc: Mapped[str] = mapped_column(String(40))
 
 
+class DwellEventRow(_Base):
+    """One signal change of a station dwell (SPEC §5): the timeline of ``railstop dwell``.
+
+    ``dwell_key`` names the dwell (station, mode, stop error, door data...);
+    saving the same key again replaces its rows, never duplicates them.
+    ``value`` is the JSON text of the value (0/1, a number or a state name).
+    """
+
+    __tablename__ = "dwell_events"
+    __table_args__ = (UniqueConstraint("dwell_key", "seq", name="uq_dwell_events_key_seq"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    dwell_key: Mapped[str] = mapped_column(String, index=True)
+    station: Mapped[str] = mapped_column(String)
+    seq: Mapped[int] = mapped_column(Integer)  # order within the dwell
+    t_s: Mapped[float] = mapped_column(Float)
+    signal: Mapped[str] = mapped_column(String)
+    value: Mapped[str] = mapped_column(Text)
+
+
 # -- the store ----------------------------------------------------------------
 
 
@@ -325,6 +345,49 @@ class Store:
                 }
                 for r in rows
             ]
+
+    def save_dwell(self, *, key: str, station: str, events: Sequence[Any]) -> int:
+        """Write one dwell timeline (objects with ``t_s``, ``signal``, ``value``); return its row count.
+
+        The same ``key`` again: identical rows are left untouched, different
+        rows replace the old ones in one transaction (never duplicated).
+        """
+        if not isinstance(key, str) or not key:
+            raise RailstopError(f"dwell key: must be a non-empty string (got {key!r})")
+        station = _value(f"dwell {key!r}", "station", station, str, False)
+        rows = [_dwell_row(key, station, i, e) for i, e in enumerate(events)]
+        fields = ("station", "t_s", "signal", "value")
+        new = [{f: r[f] for f in fields} for r in rows]
+        for attempt in range(2):
+            try:
+                with self._session() as session, session.begin():
+                    if _dwell_dicts(session, key) == new:
+                        return len(new)
+                    # Explicit delete first: the ORM would flush the inserts before the delete.
+                    session.execute(delete(DwellEventRow).where(DwellEventRow.dwell_key == key))
+                    session.add_all(DwellEventRow(**r) for r in rows)
+                    return len(rows)
+            except IntegrityError as exc:
+                if attempt == 1:
+                    raise RailstopError(
+                        f"{self._label}: cannot save dwell {key!r}: {_one_line(exc)}"
+                    ) from None
+            except SQLAlchemyError as exc:
+                raise RailstopError(f"{self._label}: cannot save dwell {key!r}: {_one_line(exc)}") from None
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def dwell_events(self, key: str) -> list[dict[str, Any]]:
+        """The timeline of one dwell in order (``value`` decoded from JSON); empty if unknown."""
+        with self._reading() as session:
+            return [{**d, "value": json.loads(d["value"])} for d in _dwell_dicts(session, key)]
+
+    def dwell_keys(self) -> list[str]:
+        """Every stored dwell, in the order first saved."""
+        with self._reading() as session:
+            rows = session.execute(
+                select(DwellEventRow.dwell_key).where(DwellEventRow.seq == 0).order_by(DwellEventRow.id)
+            ).all()
+            return [r[0] for r in rows]
 
     # -- reading ------------------------------------------------------------
     def runs(self) -> list[dict[str, Any]]:
@@ -486,6 +549,34 @@ def _result_dict(session: Session, run_id: int) -> dict[str, Any] | None:
     cols = [getattr(ResultRow, f) for f in RESULT_FIELDS]
     row = session.execute(select(*cols).where(ResultRow.run_id == run_id)).one_or_none()
     return None if row is None else dict(zip(RESULT_FIELDS, row, strict=True))
+
+
+def _dwell_row(key: str, station: str, seq: int, event: Any) -> dict[str, Any]:
+    src = f"dwell {key!r}: event {seq}"
+    try:
+        t_s, signal, value = event.t_s, event.signal, event.value
+    except AttributeError:
+        raise RailstopError(f"{src}: needs t_s, signal and value (got {event!r})") from None
+    if isinstance(value, bool | np.bool_):
+        value = int(value)
+    if not isinstance(value, str | numbers.Real) or (isinstance(value, float) and not math.isfinite(value)):
+        raise RailstopError(f"{src}: value: expected a finite number or a string (got {value!r})")
+    return {
+        "dwell_key": key,
+        "station": station,
+        "seq": seq,
+        "t_s": _value(src, "t_s", t_s, float, False),
+        "signal": _value(src, "signal", signal, str, False),
+        "value": json.dumps(value.item() if isinstance(value, np.generic) else value),
+    }
+
+
+def _dwell_dicts(session: Session, key: str) -> list[dict[str, Any]]:
+    cols = [DwellEventRow.station, DwellEventRow.t_s, DwellEventRow.signal, DwellEventRow.value]
+    rows = session.execute(
+        select(*cols).where(DwellEventRow.dwell_key == key).order_by(DwellEventRow.seq)
+    ).all()
+    return [dict(zip(("station", "t_s", "signal", "value"), r, strict=True)) for r in rows]
 
 
 def _normalise(

@@ -1,0 +1,159 @@
+"""Schema and loader of the door data (``railstop/data/doors.toml``, SPEC §3 and §5).
+
+The schema checks structure (16 distinct rows, valid cells, positive times,
+PSD faster than train doors); it deliberately does not check the safety of
+the action table: ``railstop doors verify --doors FILE`` proves or refutes an
+edited table by exhaustive search.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from railstop.config.loader import _data_text, read_toml, validate
+from railstop.config.schema import FieldProblem, _Model
+from railstop.control.doors import Action, ActionRow, ActionTable
+
+DEFAULT_DOORS = "doors.toml"
+KMH_PER_MPS = 3.6
+
+Bit = Literal[0, 1]
+Seconds = Annotated[float, Field(gt=0.0, le=600.0, allow_inf_nan=False)]
+
+
+class ActionRowModel(_Model):
+    doa: Bit
+    dmc: Bit
+    doc: Bit
+    dcc: Bit
+    closed: Literal["keep-closed", "open"]
+    open: Literal["keep-open", "close"]
+    open_manual: Literal["keep-open", "close"] | None = None
+
+
+class DoorTiming(_Model):
+    train_door_open_s: Seconds
+    train_door_close_s: Seconds
+    train_door_lock_s: Seconds
+    psd_open_s: Seconds
+    psd_close_s: Seconds
+    psd_lock_s: Seconds
+    zero_speed_confirm_s: Seconds
+    psc_reply_s: Seconds
+    psc_timeout_s: Seconds
+    dwell_s: Seconds
+    driver_action_s: Seconds
+    obstruction_at_s: Seconds
+    obstruction_clear_s: Seconds
+    psd_jam_at_s: Seconds
+    staff_isolation_s: Seconds
+
+    @model_validator(mode="after")
+    def _order(self) -> DoorTiming:
+        # SPEC §3: PSD doors open and close faster than train doors.
+        if self.psd_open_s >= self.train_door_open_s:
+            raise FieldProblem(
+                "psd_open_s", f"the PSD must open faster than the train doors ({self.train_door_open_s} s)"
+            )
+        if self.psd_close_s >= self.train_door_close_s:
+            raise FieldProblem(
+                "psd_close_s", f"the PSD must close faster than the train doors ({self.train_door_close_s} s)"
+            )
+        if self.psc_reply_s >= self.psc_timeout_s:
+            raise FieldProblem("psc_reply_s", f"must be shorter than psc_timeout_s ({self.psc_timeout_s} s)")
+        if self.obstruction_at_s >= self.train_door_close_s:
+            raise FieldProblem(
+                "obstruction_at_s", f"must fall inside the closing ({self.train_door_close_s} s)"
+            )
+        if self.psd_jam_at_s >= self.psd_close_s:
+            raise FieldProblem("psd_jam_at_s", f"must fall inside the PSD closing ({self.psd_close_s} s)")
+        return self
+
+
+class StopConfirmModel(_Model):
+    max_psc_attempts: Annotated[int, Field(ge=1, le=10)] = 3
+    tolerance: Literal["psd", "manual-line"] = "psd"
+    psd_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.35
+    manual_line_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.50
+    creep_speed_kmh: Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)]
+    creep_max_m: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)]
+    creep_settle_s: Seconds
+
+    @property
+    def tolerance_m(self) -> float:
+        return self.psd_tolerance_m if self.tolerance == "psd" else self.manual_line_tolerance_m
+
+    @property
+    def creep_speed_mps(self) -> float:
+        return self.creep_speed_kmh / KMH_PER_MPS
+
+
+class DoorLayout(_Model):
+    doors_per_side: Annotated[int, Field(ge=1, le=64)]
+
+
+class DoorsFile(_Model):
+    action_table: list[ActionRowModel]
+    timing: DoorTiming
+    stop_confirm: StopConfirmModel
+    train: DoorLayout
+
+    @field_validator("action_table")
+    @classmethod
+    def _sixteen(cls, rows: list[ActionRowModel]) -> list[ActionRowModel]:
+        seen: dict[tuple[int, int, int, int], int] = {}
+        for i, r in enumerate(rows):
+            key = (r.doa, r.dmc, r.doc, r.dcc)
+            if key in seen:
+                raise ValueError(
+                    f"row {i} repeats (DOA, DMC, DOC, DCC) = {key} of row {seen[key]}; "
+                    "each of the 16 combinations must appear once"
+                )
+            seen[key] = i
+        if len(rows) != 16:
+            raise ValueError(f"need the 16 combinations of (DOA, DMC, DOC, DCC), got {len(rows)} rows")
+        return rows
+
+
+class DoorsConfig:
+    """The validated door data plus the action table object the units read."""
+
+    def __init__(self, file: DoorsFile, source: str) -> None:
+        self.file = file
+        self.source = source
+        self.timing = file.timing
+        self.stop_confirm = file.stop_confirm
+        self.doors_per_side = file.train.doors_per_side
+        self.actions = ActionTable(
+            tuple(
+                ActionRow(
+                    doa=r.doa,
+                    dmc=r.dmc,
+                    doc=r.doc,
+                    dcc=r.dcc,
+                    closed=Action(r.closed),
+                    open=Action(r.open),
+                    open_manual=None if r.open_manual is None else Action(r.open_manual),
+                )
+                for r in file.action_table
+            )
+        )
+
+    def fingerprint(self) -> str:
+        """A short stable digest of the data (part of a dwell's database key)."""
+        import hashlib
+
+        text = self.file.model_dump_json()
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def load_doors(path: str | Path | None = None) -> DoorsConfig:
+    """Load a door data file; ``None`` gives the embedded default."""
+    if path is None:
+        source, data = _data_text(DEFAULT_DOORS)
+    else:
+        source, data = str(path), read_toml(Path(path))
+    return DoorsConfig(validate(DoorsFile, data, source), source)

@@ -1,0 +1,272 @@
+"""What the onboard CPCS and the wayside WPCS share: the door action table and the door unit.
+
+SPEC §5 Table 1 (the door action table) is data (``railstop/data/doors.toml``,
+DESIGN rule 3): for the four signals of one side (DOA, DMC, DOC, DCC) it says
+what a door that is now closed does and what a door that is now open does.
+``ActionTable`` uses those rows as they are; it never "corrects" them, so that
+``railstop doors verify`` can prove (or refute) an edited table.
+
+A door unit (one train door leaf pair, or one PSD door unit) is a small state
+machine with its transitions in ``DOOR_TRANSITIONS`` (DESIGN rule 2). The same
+table serves train doors and PSD units (SPEC §5: "PSD behaves like the train
+door"); only the durations differ, and they are data too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+from types import MappingProxyType
+from typing import NamedTuple
+
+from railstop.errors import ConfigError, InterlockError
+
+
+class Side(StrEnum):
+    """A side of the train / of the track, in the running direction (SPEC §5 DOA-L/R, DMC-L/R)."""
+
+    L = "L"
+    R = "R"
+
+
+class DoorState(StrEnum):
+    CLOSED_LOCKED = "closed_locked"
+    OPENING = "opening"
+    OPEN = "open"
+    CLOSING = "closing"
+    CLOSED = "closed"  # closed, lock not yet made
+    OBSTRUCTED = "obstructed"  # closing stopped by an obstacle: the door reopens and holds
+    JAMMED = "jammed"  # the unit failed to close
+    ISOLATED = "isolated"  # staff closed and locked it by hand and took it out of service
+
+
+class DoorInput(StrEnum):
+    OPEN = "open"  # command from the controller
+    CLOSE = "close"  # command from the controller
+    DONE = "done"  # the running motion (opening, closing, locking) finished
+    OBSTRUCT = "obstruct"  # the door edge detects an obstacle
+    CLEAR = "clear"  # the obstacle is gone
+    JAM = "jam"  # the unit fails to close
+    ISOLATE = "isolate"  # staff isolation of a failed unit
+
+
+DS = DoorState
+DI = DoorInput
+
+# A door unit's transitions (DESIGN rule 2). Pairs that are missing are inputs
+# the unit cannot take (a "done" for a door that is not moving, an isolation of
+# a healthy door, an open command to an isolated door...): they raise.
+DOOR_TRANSITIONS: Mapping[tuple[DoorState, DoorInput], DoorState] = MappingProxyType(
+    {
+        (DS.CLOSED_LOCKED, DI.OPEN): DS.OPENING,  # unlock and open
+        (DS.CLOSED_LOCKED, DI.CLOSE): DS.CLOSED_LOCKED,
+        (DS.OPENING, DI.DONE): DS.OPEN,
+        (DS.OPENING, DI.CLOSE): DS.CLOSING,  # reverse at once (e.g. DMC raised while opening)
+        (DS.OPEN, DI.CLOSE): DS.CLOSING,
+        (DS.CLOSING, DI.CLOSE): DS.CLOSING,
+        (DS.CLOSING, DI.DONE): DS.CLOSED,
+        (DS.CLOSING, DI.OBSTRUCT): DS.OBSTRUCTED,
+        (DS.CLOSING, DI.JAM): DS.JAMMED,
+        (DS.CLOSED, DI.DONE): DS.CLOSED_LOCKED,  # the lock is made
+        (DS.CLOSED, DI.CLOSE): DS.CLOSED,
+        (DS.CLOSED, DI.OPEN): DS.OPENING,
+        # Once the obstacle is gone the door stands open and waits for the controller's
+        # next close command: every closing passes the controller's closing order.
+        # (Resuming the closing by itself let a PSD unit close while a train door of
+        # its side was opening: the 2-door verification found it.)
+        (DS.OBSTRUCTED, DI.CLEAR): DS.OPEN,
+        (DS.OBSTRUCTED, DI.CLOSE): DS.OBSTRUCTED,
+        (DS.OBSTRUCTED, DI.ISOLATE): DS.ISOLATED,
+        (DS.JAMMED, DI.CLOSE): DS.JAMMED,
+        (DS.JAMMED, DI.ISOLATE): DS.ISOLATED,
+        (DS.ISOLATED, DI.CLOSE): DS.ISOLATED,
+    }
+)
+
+# The inputs that come from the world (time, obstacles, failures, staff), not
+# from the controller; the verifier offers each of them wherever the table has it.
+PHYSICAL_INPUTS: tuple[DoorInput, ...] = (DI.DONE, DI.OBSTRUCT, DI.CLEAR, DI.JAM, DI.ISOLATE)
+
+# A door in one of these states is closed (it may still be locking); any other
+# door counts as open, fail safe (DESIGN rule 7).
+CLOSED_STATES: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.CLOSED, DS.ISOLATED})
+# Closed and locked: what start enable needs (SPEC §5 fig. 7). An isolated unit
+# was closed and locked by hand before staff took it out of the door loop.
+LOCKED_STATES: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.ISOLATED})
+# Which column of the action table a door reads: "closed" for these, "open" otherwise.
+# An isolated unit reads neither: the controller gives it no command.
+_TABLE_CLOSED: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.CLOSED})
+
+
+def door_next(
+    state: DoorState,
+    inp: DoorInput,
+    table: Mapping[tuple[DoorState, DoorInput], DoorState] = DOOR_TRANSITIONS,
+    *,
+    name: str = "door",
+) -> DoorState:
+    """The next state of one door unit, or ``InterlockError`` for an input the table does not allow."""
+    try:
+        return table[(state, inp)]
+    except KeyError:
+        raise InterlockError(f"{name}: input {inp.value!r} is not allowed in state {state.value!r}") from None
+
+
+class Action(StrEnum):
+    """The cells of SPEC §5 Table 1."""
+
+    KEEP_CLOSED = "keep-closed"
+    OPEN = "open"
+    KEEP_OPEN = "keep-open"
+    CLOSE = "close"
+
+
+Signals4 = tuple[int, int, int, int]  # (DOA, DMC, DOC, DCC) of one side, 0 or 1
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ActionRow:
+    """One row of SPEC §5 Table 1: what a closed door and an open door do for these signals."""
+
+    doa: int
+    dmc: int
+    doc: int
+    dcc: int
+    closed: Action  # keep-closed | open
+    open: Action  # keep-open | close
+    open_manual: Action | None = None  # manual driving, where it differs from ``open``
+
+    @property
+    def key(self) -> Signals4:
+        return (self.doa, self.dmc, self.doc, self.dcc)
+
+
+@dataclass(frozen=True, slots=True)
+class ActionTable:
+    """SPEC §5 Table 1 as data: all 16 combinations of (DOA, DMC, DOC, DCC), used as they are.
+
+    ``decide`` is the only reading of the table: a door in the "closed"
+    column gets ``open`` or nothing, a door in the "open" column gets
+    ``close`` or nothing ("keep" = no command: a moving door finishes its move).
+    """
+
+    rows: tuple[ActionRow, ...]
+    _lookup: Mapping[tuple[int, int, int, int, bool, bool], Action] = field(
+        init=False, repr=False, compare=False
+    )
+
+    def __post_init__(self) -> None:
+        keys = [r.key for r in self.rows]
+        expected = {(a, b, c, d) for a in (0, 1) for b in (0, 1) for c in (0, 1) for d in (0, 1)}
+        if len(keys) != 16 or set(keys) != expected:
+            raise ConfigError(
+                "door action table", "rows", "need the 16 combinations of (DOA, DMC, DOC, DCC) once each"
+            )
+        lookup: dict[tuple[int, int, int, int, bool, bool], Action] = {}
+        for r in self.rows:
+            if r.closed not in (Action.KEEP_CLOSED, Action.OPEN):
+                raise ConfigError(
+                    "door action table", f"{r.key}.closed", "must be open or keep-closed", r.closed
+                )
+            for manual in (False, True):
+                when_open = r.open_manual if (manual and r.open_manual is not None) else r.open
+                if when_open not in (Action.KEEP_OPEN, Action.CLOSE):
+                    raise ConfigError(
+                        "door action table", f"{r.key}.open", "must be close or keep-open", when_open
+                    )
+                lookup[(*r.key, True, manual)] = r.closed
+                lookup[(*r.key, False, manual)] = when_open
+        object.__setattr__(self, "_lookup", MappingProxyType(lookup))
+
+    def decide(self, doa: bool, dmc: bool, doc: bool, dcc: bool, *, closed: bool, manual: bool) -> Action:
+        """What a door does for these signals (``closed``: the door is now closed)."""
+        return self._lookup[(int(doa), int(dmc), int(doc), int(dcc), closed, manual)]
+
+    def row(self, doa: int, dmc: int, doc: int, dcc: int) -> ActionRow:
+        for r in self.rows:
+            if r.key == (doa, dmc, doc, dcc):
+                return r
+        raise KeyError((doa, dmc, doc, dcc))  # pragma: no cover - __post_init__ guarantees all 16
+
+    def replace_row(self, new: ActionRow) -> ActionTable:
+        """A copy with the row of ``new.key`` replaced (what-if tables, broken tables in tests)."""
+        return ActionTable(tuple(new if r.key == new.key else r for r in self.rows))
+
+
+def table_column(state: DoorState) -> bool | None:
+    """True: the door reads the "closed" column; False: the "open" column; None: no command (isolated)."""
+    if state == DS.ISOLATED:
+        return None
+    return state in _TABLE_CLOSED
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Interlocks:
+    """The ordering and start-enable rules of SPEC §3 and §5, as data the verifier can vary.
+
+    The defaults are the design; the tests swap in broken sets to show that
+    each invariant of ``railstop doors verify`` catches its fault.
+    """
+
+    # SPEC §5 order: opening the PSD first, then the train doors. A train door
+    # opens only when the PSD unit opposite it is fully open.
+    train_opens_when_psd: frozenset[DoorState] = frozenset({DS.OPEN})
+    # SPEC §5 order: closing the train doors first, then the PSD. A PSD unit
+    # closes only when every train door of its side is closed and locked.
+    psd_closes_when_train: frozenset[DoorState] = LOCKED_STATES
+    # SPEC §5 fig. 7: what counts as "closed and locked" for start enable.
+    locked: frozenset[DoorState] = LOCKED_STATES
+    # SPEC §5: the N.C. contact of the zero velocity relay is wired with DMC,
+    # so the doors are held closed while the train moves.
+    zvr: bool = True
+
+
+def door_name(kind: str, side: Side, unit: int) -> str:
+    """``train door R3`` / ``PSD R3`` (units count from 1 at the front of the train)."""
+    return f"{kind} {side.value}{unit + 1}"
+
+
+def summarise(states: Iterable[DoorState], prefix: str = "") -> str:
+    """One word for a group of door units: their common state, or the majority plus the others."""
+    seq = list(states)
+    if not seq:
+        return "none"
+    counts: dict[DoorState, int] = {}
+    for s in seq:
+        counts[s] = counts.get(s, 0) + 1
+    if len(counts) == 1:
+        return seq[0].value
+    major = max(counts, key=lambda s: counts[s])
+    others = ", ".join(f"{prefix}{i + 1} {s.value}" for i, s in enumerate(seq) if s != major)
+    return f"{major.value} except {others}"
+
+
+class DoorSignals(NamedTuple):
+    """The door signals of SPEC §5, as the ATC (automatic) or the manual controls give them.
+
+    Manual driving: door-side selector <-> DOA, door-open button <-> DOC,
+    door-close button <-> DCC; DMC stays an ATC output (vital) in both modes.
+    """
+
+    doa_l: bool = False
+    doa_r: bool = False
+    dmc_l: bool = True
+    dmc_r: bool = True
+    doc: bool = False
+    dcc: bool = False
+
+    def doa(self, side: Side) -> bool:
+        return self.doa_l if side == Side.L else self.doa_r
+
+    def dmc(self, side: Side) -> bool:
+        return self.dmc_l if side == Side.L else self.dmc_r
+
+    def with_side(self, side: Side, *, doa: bool | None = None, dmc: bool | None = None) -> DoorSignals:
+        """A copy with DOA and/or DMC of ``side`` changed."""
+        s = self
+        if doa is not None:
+            s = s._replace(doa_l=doa) if side == Side.L else s._replace(doa_r=doa)
+        if dmc is not None:
+            s = s._replace(dmc_l=dmc) if side == Side.L else s._replace(dmc_r=dmc)
+        return s

@@ -1,0 +1,470 @@
+"""A station dwell in event time: arrival -> PSC -> open -> dwell -> close -> start enable.
+
+The driver wires the pure door units (through ``sim/door_system.step``, the
+same wiring the verifier proves) to a clock and to the people who act on
+them: the ATC's door sequence in automatic mode, the driver's door-side
+selector and buttons in manual mode (SPEC §5), the doors' own motion times,
+an obstacle, a PSD unit that fails to close and the staff who isolate it.
+Every duration comes from ``railstop/data/doors.toml``.
+
+Nothing here reads a clock: time is a number the driver advances from one
+scheduled event to the next, and the result is a timeline of
+``(t_s, signal, value)`` events.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from railstop.config.doors import DoorsConfig
+from railstop.control.doors import DoorInput, DoorSignals, DoorState, Side, summarise
+from railstop.errors import SimulationError
+from railstop.onboard.stop_confirm import StopPhase
+from railstop.sim.door_system import (
+    Controls,
+    DoorModel,
+    Event,
+    EventKind,
+    World,
+    emergency_brake,
+    psc,
+    start_blockers,
+    start_enabled,
+    step,
+)
+from railstop.wayside.wpcs import answers_psc
+
+MODES = ("auto", "manual")
+_MAX_CYCLES = 100_000
+_MAX_T_S = 3600.0
+
+# The signals of the timeline, in the order they are logged at one instant.
+SIGNALS: tuple[str, ...] = (
+    "speed_mps",
+    "ZVR",
+    "stop_error_m",
+    "lamp",
+    "PSC_request",
+    "PSC",
+    "creep",
+    "DMC-L",
+    "DMC-R",
+    "DOA-L",
+    "DOA-R",
+    "DOC",
+    "DCC",
+    "PSD",
+    "train_doors-L",
+    "train_doors-R",
+    "start_blocked",
+    "start_enable",
+    "fault",
+    "emergency_brake",
+    "interlock_error",
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DwellEvent:
+    t_s: float
+    signal: str
+    value: int | float | str
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DwellResult:
+    station: str
+    platform_side: str
+    mode: str
+    stop_error_m: float  # where the train first stopped (+ = overrun)
+    final_stop_error_m: float  # after the corrections
+    tolerance_m: float
+    in_tolerance: bool  # the first stop
+    psc_attempts: int
+    corrections: int
+    fault: bool
+    emergency_brake: bool
+    start_enable_s: float | None
+    dwell_total_s: float  # arrival to start enable (or to the fault / the last event)
+    outcome: str  # "start-enable" | "fault" | "stalled"
+    timeline: tuple[DwellEvent, ...]
+    obstruct_door: int | None = None
+    psd_fail: int | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "station": self.station,
+            "platform_side": self.platform_side,
+            "mode": self.mode,
+            "stop_error_m": self.stop_error_m,
+            "final_stop_error_m": self.final_stop_error_m,
+            "tolerance_m": self.tolerance_m,
+            "in_tolerance": self.in_tolerance,
+            "psc_attempts": self.psc_attempts,
+            "corrections": self.corrections,
+            "fault": self.fault,
+            "emergency_brake": self.emergency_brake,
+            "start_enable_s": self.start_enable_s,
+            "dwell_total_s": self.dwell_total_s,
+            "outcome": self.outcome,
+            "obstruct_door": self.obstruct_door,
+            "psd_fail": self.psd_fail,
+            "timeline": [{"t_s": e.t_s, "signal": e.signal, "value": e.value} for e in self.timeline],
+        }
+
+
+def model_for(doors: DoorsConfig) -> DoorModel:
+    return DoorModel(actions=doors.actions, max_psc_attempts=doors.stop_confirm.max_psc_attempts)
+
+
+def run_dwell(
+    *,
+    doors: DoorsConfig,
+    station: str,
+    platform_side: Side | str,
+    stop_error_m: float,
+    mode: str = "auto",
+    obstruct_door: int | None = None,
+    psd_fail: int | None = None,
+    model: DoorModel | None = None,
+) -> DwellResult:
+    """Simulate one dwell from a train that has just stopped ``stop_error_m`` from its stopping point.
+
+    ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
+    the platform side that is obstructed while closing (cleared later) / fails
+    to close (isolated by staff later).
+    """
+    if mode not in MODES:
+        raise SimulationError(f"mode: must be one of {', '.join(MODES)} (got {mode!r})")
+    if not math.isfinite(stop_error_m):
+        raise SimulationError(f"stop_error_m: must be a finite number (got {stop_error_m!r})")
+    side = Side(platform_side)
+    n = doors.doors_per_side
+    for name, unit in (("obstruct_door", obstruct_door), ("psd_fail", psd_fail)):
+        if unit is not None and not 1 <= unit <= n:
+            raise SimulationError(f"{name}: door units are numbered 1..{n} (got {unit})")
+    run = _Dwell(
+        doors=doors,
+        model=model or model_for(doors),
+        side=side,
+        stop_error_m=stop_error_m,
+        manual=mode == "manual",
+        obstruct=None if obstruct_door is None else obstruct_door - 1,
+        psd_fail=None if psd_fail is None else psd_fail - 1,
+    )
+    run.run()
+    w = run.world
+    if run.start_enable_s is not None:
+        outcome = "start-enable"
+    elif w.stop.phase == StopPhase.FAULT:
+        outcome = "fault"
+    else:
+        outcome = "stalled"
+    return DwellResult(
+        station=station,
+        platform_side=side.value,
+        mode=mode,
+        stop_error_m=stop_error_m,
+        final_stop_error_m=round(run.error_m, 6),
+        tolerance_m=doors.stop_confirm.tolerance_m,
+        in_tolerance=answers_psc(stop_error_m, doors.stop_confirm.tolerance_m),
+        psc_attempts=w.stop.attempts,
+        corrections=run.corrections,
+        fault=w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault,
+        emergency_brake=emergency_brake(w),
+        start_enable_s=run.start_enable_s,
+        dwell_total_s=_r(run.end_s),
+        outcome=outcome,
+        timeline=tuple(run.timeline),
+        obstruct_door=obstruct_door,
+        psd_fail=psd_fail,
+    )
+
+
+def _r(t_s: float) -> float:
+    return round(t_s, 3)
+
+
+@dataclass(order=True)
+class _Pending:
+    t_s: float
+    seq: int
+    action: str = field(compare=False)
+    args: tuple[Any, ...] = field(compare=False, default=())
+
+
+class _Dwell:
+    def __init__(
+        self,
+        *,
+        doors: DoorsConfig,
+        model: DoorModel,
+        side: Side,
+        stop_error_m: float,
+        manual: bool,
+        obstruct: int | None,
+        psd_fail: int | None,
+    ) -> None:
+        self.cfg = doors
+        self.timing = doors.timing
+        self.sc = doors.stop_confirm
+        self.model = model
+        self.side = side
+        self.manual = manual
+        self.obstruct = obstruct
+        self.psd_fail = psd_fail
+        self.error_m = stop_error_m
+        self.world = World.arriving(platform_side=side, doors_per_side=doors.doors_per_side)
+        self.controls = Controls(signals=DoorSignals(), manual=manual)
+        self.t_s = 0.0
+        self.end_s = 0.0
+        self.queue: list[_Pending] = []
+        self.seq = 0
+        self.timeline: list[DwellEvent] = []
+        self.last: dict[str, int | float | str] = {}
+        self.gen: dict[tuple[str, int], int] = {}
+        self.speed_mps = 0.0
+        self.creep = "-"
+        self.lamp = "-"
+        self.corrections = 0
+        self.doors_open = False
+        self.closing = False
+        self.start_enable_s: float | None = None
+        self.done = False
+        self.injected: set[str] = set()
+        self.interlock_error = "-"
+
+    # -- the loop -------------------------------------------------------------
+    def run(self) -> None:
+        self._log()
+        # The wheels have stopped at t = 0; the ZVR confirms standstill a moment later.
+        self._at(self.timing.zero_speed_confirm_s, "standstill")
+        cycles = 0
+        while self.queue and not self.done:
+            item = heapq.heappop(self.queue)
+            if item.t_s > self.t_s:
+                # Log once per instant, what the signals settled to: the reactions at the
+                # same instant (e.g. the ATC's door signals when PSC rises) are one moment.
+                self._log()
+            self.t_s = item.t_s
+            if self.t_s > _MAX_T_S or cycles > _MAX_CYCLES:
+                raise SimulationError(f"the dwell did not end within {_MAX_T_S:g} s")
+            cycles += 1
+            getattr(self, f"_on_{item.action}")(*item.args)
+            self.end_s = self.t_s
+        self._log()
+
+    def _at(self, delay_s: float, action: str, *args: Any) -> None:
+        self.seq += 1
+        heapq.heappush(self.queue, _Pending(self.t_s + delay_s, self.seq, action, args))
+
+    def _cycle(self, event: Event | None = None, signals: DoorSignals | None = None) -> None:
+        """One cycle of the wired units (the event, the WPCS, the CPCS), then the reactions."""
+        if signals is not None:
+            self.controls = self.controls._replace(signals=signals)
+        before = self.world
+        self.world, errors = step(before, self.controls, event or Event(EventKind.NONE), self.model)
+        if errors:
+            self.interlock_error = errors[0]
+        self._schedule_doors(before, self.world)
+        self._react(before)
+
+    def _side_signals(
+        self, *, doa: bool | None = None, dmc: bool | None = None, **others: bool
+    ) -> DoorSignals:
+        return self.controls.signals.with_side(self.side, doa=doa, dmc=dmc)._replace(**others)
+
+    # -- door motion ------------------------------------------------------------
+    def _schedule_doors(self, before: World, after: World) -> None:
+        t = self.timing
+        pairs = [
+            ("train-" + s.value, i, u0, u1)
+            for s in (Side.L, Side.R)
+            for i, (u0, u1) in enumerate(zip(before.cpcs.side(s), after.cpcs.side(s), strict=True))
+        ]
+        pairs += [
+            ("psd", i, u0, u1)
+            for i, (u0, u1) in enumerate(zip(before.wpcs.units, after.wpcs.units, strict=True))
+        ]
+        for group, i, u0, u1 in pairs:
+            if u0 == u1:
+                continue
+            key = (group, i)
+            gen = self.gen.get(key, 0) + 1
+            self.gen[key] = gen
+            psd = group == "psd"
+            durations = {
+                DoorState.OPENING: t.psd_open_s if psd else t.train_door_open_s,
+                DoorState.CLOSING: t.psd_close_s if psd else t.train_door_close_s,
+                DoorState.CLOSED: t.psd_lock_s if psd else t.train_door_lock_s,
+            }
+            if u1 in durations:
+                self._at(durations[u1], "door", group, i, gen, DoorInput.DONE)
+            on_platform = psd or group == "train-" + self.side.value
+            # The abnormal cases: an obstacle in a closing train door, a PSD unit that jams.
+            if not psd and on_platform and i == self.obstruct:
+                if u1 == DoorState.CLOSING and "obstruct" not in self.injected:
+                    self.injected.add("obstruct")
+                    self._at(t.obstruction_at_s, "door", group, i, gen, DoorInput.OBSTRUCT)
+                elif u1 == DoorState.OBSTRUCTED:
+                    self._at(t.obstruction_clear_s, "door", group, i, gen, DoorInput.CLEAR)
+            if psd and i == self.psd_fail:
+                if u1 == DoorState.CLOSING and "jam" not in self.injected:
+                    self.injected.add("jam")
+                    self._at(t.psd_jam_at_s, "door", group, i, gen, DoorInput.JAM)
+                elif u1 == DoorState.JAMMED:
+                    self._at(t.staff_isolation_s, "door", group, i, gen, DoorInput.ISOLATE)
+
+    def _on_door(self, group: str, unit: int, gen: int, inp: DoorInput) -> None:
+        if self.gen.get((group, unit)) != gen:
+            return  # the door has moved on since: a stale completion
+        if group == "psd":
+            event = Event(EventKind.PSD, self.world.wpcs.side, unit, inp)
+        else:
+            event = Event(EventKind.TRAIN_DOOR, Side(group.removeprefix("train-")), unit, inp)
+        self._cycle(event)
+
+    # -- precise-stop confirmation (SPEC §5) -----------------------------------------
+    def _on_standstill(self) -> None:
+        tol = self.sc.tolerance_m
+        kind = EventKind.STOP_IN if answers_psc(self.error_m, tol) else EventKind.STOP_OUT
+        self._cycle(Event(kind))
+
+    def _on_psc_reply(self) -> None:
+        self._cycle(Event(EventKind.PSC_REPLY))
+
+    def _on_psc_timeout(self) -> None:
+        self._cycle(Event(EventKind.PSC_TIMEOUT))
+
+    def _on_move(self) -> None:
+        self._cycle(Event(EventKind.MOVE))
+
+    def _on_creep_end(self, distance_m: float) -> None:
+        self.error_m -= math.copysign(distance_m, self.error_m)
+        self.speed_mps = 0.0
+        self.creep = "-"
+        self._at(self.timing.zero_speed_confirm_s, "standstill")
+
+    # -- the ATC (automatic) or the driver (manual) ----------------------------------------
+    def _on_signals(self, changes: dict[str, bool]) -> None:
+        s = self.controls.signals
+        for name, value in changes.items():
+            if name == "doa":
+                s = s.with_side(self.side, doa=value)
+            elif name == "dmc":
+                s = s.with_side(self.side, dmc=value)
+            else:
+                s = s._replace(**{name: value})
+        self._cycle(signals=s)
+
+    def _on_dwell_end(self) -> None:
+        self.closing = True
+        if self.manual:
+            # The driver: door-side selector off and the close button (manual column of the table).
+            self._on_signals({"doa": False, "dcc": True})
+        else:
+            # SPEC §5: close when DMC = 1 and DCC = 1.
+            self._on_signals({"dmc": True, "dcc": True})
+
+    def _react(self, before: World) -> None:
+        w = self.world
+        t = self.timing
+        phase, was = w.stop.phase, before.stop.phase
+        if phase != was:
+            if phase == StopPhase.PSC_WAIT:
+                # SPEC §5: standstill confirmed -> PSC request; the WPCS answers only a train in position.
+                if answers_psc(self.error_m, self.sc.tolerance_m):
+                    self._at(t.psc_reply_s, "psc_reply")
+                else:
+                    self._at(t.psc_timeout_s, "psc_timeout")
+            elif phase == StopPhase.CORRECTING:
+                # SPEC §3 lamps: F = stopped short, move forward; R = passed, reverse.
+                self.lamp = "F" if self.error_m < 0 else "R"
+                self._at(t.driver_action_s if self.manual else 0.0, "move")
+            elif phase == StopPhase.CONFIRMED:
+                self.lamp = "OK"
+                # SPEC §5: with PSC the ATC releases DMC on the platform side (vital, both modes) ...
+                if self.manual:
+                    self._at(0.0, "signals", {"dmc": False})
+                    # ... the driver turns the door-side selector (DOA), then presses open (DOC).
+                    self._at(t.driver_action_s, "signals", {"doa": True})
+                    self._at(2 * t.driver_action_s, "signals", {"doc": True})
+                else:
+                    # ... and gives DOA and DOC for that side.
+                    self._at(0.0, "signals", {"dmc": False, "doa": True, "doc": True})
+            elif phase == StopPhase.FAULT:
+                self.done = True
+        if w.moving and not before.moving and phase == StopPhase.CORRECTING:
+            distance = min(abs(self.error_m), self.sc.creep_max_m)
+            self.corrections += 1
+            self.speed_mps = self.sc.creep_speed_mps
+            self.creep = self.lamp
+            self._at(distance / self.sc.creep_speed_mps + self.sc.creep_settle_s, "creep_end", distance)
+        if not self.doors_open and self._platform_doors_open():
+            self.doors_open = True
+            # Doors open: the ATC drops DOC (the driver releases the button); the dwell runs.
+            self._at(0.0, "signals", {"doc": False})
+            self._at(t.dwell_s, "dwell_end")
+        # Start enable after the doors have closed again (it is also high on arrival,
+        # before anything opened, but the dwell is not over then).
+        if self.closing and self.start_enable_s is None and start_enabled(w, self.model):
+            self.start_enable_s = _r(self.t_s)
+            self.lamp = "S"
+            self.done = True
+            # The door commands are released; in manual the ATC raises DMC again for the run.
+            if self.manual:
+                self.controls = self.controls._replace(signals=self._side_signals(dmc=True, dcc=False))
+            else:
+                self.controls = self.controls._replace(signals=self._side_signals(doa=False, dcc=False))
+
+    def _platform_doors_open(self) -> bool:
+        units = [u for u in self.world.cpcs.side(self.side) if u != DoorState.ISOLATED]
+        return bool(units) and all(u == DoorState.OPEN for u in units)
+
+    # -- the timeline -----------------------------------------------------------------
+    def _snapshot(self) -> dict[str, int | float | str]:
+        w = self.world
+        s = self.controls.signals
+        blocked = "-"
+        if self.closing and self.start_enable_s is None:
+            bad = [
+                b
+                for b in start_blockers(w, self.model)
+                if b.endswith((DoorState.OBSTRUCTED.value, DoorState.JAMMED.value)) or "fault" in b
+            ]
+            blocked = "; ".join(bad) if bad else "-"
+        return {
+            "speed_mps": round(self.speed_mps, 3),
+            "ZVR": int(not w.moving),
+            "stop_error_m": round(self.error_m, 3),
+            "lamp": self.lamp,
+            "PSC_request": w.stop.attempts if w.stop.phase == StopPhase.PSC_WAIT else 0,
+            "PSC": int(psc(w)),
+            "creep": self.creep,
+            "DMC-L": int(s.dmc_l),
+            "DMC-R": int(s.dmc_r),
+            "DOA-L": int(s.doa_l),
+            "DOA-R": int(s.doa_r),
+            "DOC": int(s.doc),
+            "DCC": int(s.dcc),
+            "PSD": summarise(w.wpcs.units, f"{w.wpcs.side.value}"),
+            "train_doors-L": summarise(w.cpcs.left, "L"),
+            "train_doors-R": summarise(w.cpcs.right, "R"),
+            "start_blocked": blocked,
+            "start_enable": int(start_enabled(w, self.model)),
+            "fault": int(w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault),
+            "emergency_brake": int(emergency_brake(w)),
+            "interlock_error": self.interlock_error,
+        }
+
+    def _log(self) -> None:
+        snap = self._snapshot()
+        t = _r(self.t_s)
+        for name in SIGNALS:
+            value = snap[name]
+            if self.last.get(name) != value or name not in self.last:
+                self.timeline.append(DwellEvent(t_s=t, signal=name, value=value))
+                self.last[name] = value

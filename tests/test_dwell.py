@@ -1,0 +1,269 @@
+"""`railstop dwell`: a station dwell from the stop to start enable (SPEC §5), its database rows and plot."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from railstop.config.doors import load_doors
+from railstop.errors import RailstopError, SimulationError
+from railstop.sim.dwell import DwellResult, run_dwell
+from railstop.store import open_store
+
+EXE = [sys.executable, "-m", "railstop.cli"]
+CFG = load_doors()
+T = CFG.timing
+SC = CFG.stop_confirm
+
+
+def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+
+
+def dwell(stop_error_m: float, **kw: object) -> DwellResult:
+    args: dict[str, object] = {"station": "Riverside", "platform_side": "R", "mode": "auto"}
+    args.update(kw)
+    return run_dwell(doors=CFG, stop_error_m=stop_error_m, **args)  # type: ignore[arg-type]
+
+
+def first(result: DwellResult, signal: str, value: object) -> float:
+    """When ``signal`` first takes ``value`` (``inf`` if never)."""
+    for e in result.timeline:
+        if e.signal == signal and e.value == value:
+            return e.t_s
+    return float("inf")
+
+
+def values(result: DwellResult, signal: str) -> list[object]:
+    return [e.value for e in result.timeline if e.signal == signal]
+
+
+def value_at(result: DwellResult, signal: str, t_s: float) -> object:
+    v: object = None
+    for e in result.timeline:
+        if e.signal == signal and e.t_s <= t_s:
+            v = e.value
+    return v
+
+
+def test_in_tolerance_order_and_times_from_data() -> None:
+    r = dwell(0.12)
+    assert r.in_tolerance and r.psc_attempts == 1 and r.corrections == 0
+    assert not r.fault and not r.emergency_brake and r.outcome == "start-enable"
+    psc = first(r, "PSC", 1)
+    psd_opening = first(r, "PSD", "opening")
+    psd_open = first(r, "PSD", "open")
+    doors_opening = first(r, "train_doors-R", "opening")
+    doors_open = first(r, "train_doors-R", "open")
+    doors_closing = first(r, "train_doors-R", "closing")
+    doors_locked = max(
+        e.t_s for e in r.timeline if e.signal == "train_doors-R" and e.value == "closed_locked"
+    )
+    psd_closing = first(r, "PSD", "closing")
+    psd_locked = max(e.t_s for e in r.timeline if e.signal == "PSD" and e.value == "closed_locked")
+    # SPEC §5 order: PSC, then the PSD opens, then the train doors; train doors close before the PSD;
+    # start enable last.
+    assert psc <= psd_opening < psd_open <= doors_opening < doors_open
+    assert doors_open < doors_closing < doors_locked <= psd_closing < psd_locked <= r.start_enable_s
+    # The durations are the data's.
+    assert psc == pytest.approx(T.zero_speed_confirm_s + T.psc_reply_s)
+    assert psd_open - psd_opening == pytest.approx(T.psd_open_s)
+    assert doors_open - doors_opening == pytest.approx(T.train_door_open_s)
+    assert doors_closing - doors_open == pytest.approx(T.dwell_s)
+    assert doors_locked - doors_closing == pytest.approx(T.train_door_close_s + T.train_door_lock_s)
+    assert psd_locked - psd_closing == pytest.approx(T.psd_close_s + T.psd_lock_s)
+    assert r.start_enable_s == pytest.approx(psd_locked) and r.dwell_total_s == r.start_enable_s
+    # Only the platform side opens; the other side stays closed and held.
+    assert set(values(r, "train_doors-L")) == {"closed_locked"}
+    assert set(values(r, "DOA-L")) == {0} and set(values(r, "DMC-L")) == {1}
+    # Auto: the ATC closes with DMC = 1 and DCC = 1.
+    assert value_at(r, "DMC-R", doors_closing) == 1 and value_at(r, "DCC", doors_closing) == 1
+    assert values(r, "start_enable")[-1] == 1
+
+
+def test_timeline_is_sorted_and_complete() -> None:
+    r = dwell(-0.2)
+    times = [e.t_s for e in r.timeline]
+    assert times == sorted(times)
+    for signal in ("DMC-L", "DMC-R", "DOA-L", "DOA-R", "DOC", "DCC", "PSC", "PSD", "start_enable", "creep"):
+        assert signal in {e.signal for e in r.timeline if e.t_s == 0.0}
+    assert dwell(-0.2).timeline == r.timeline  # deterministic
+
+
+def test_out_of_tolerance_is_corrected_by_a_creep() -> None:
+    r = dwell(1.2)  # overrun: lamp R, reverse
+    assert not r.in_tolerance and r.corrections == 1 and r.psc_attempts == 2
+    assert r.final_stop_error_m == pytest.approx(0.0) and r.outcome == "start-enable"
+    assert "R" in values(r, "creep") and "F" not in values(r, "creep")
+    creep = first(r, "creep", "R")
+    assert first(r, "PSC_request", 1) < creep < first(r, "PSC_request", 2) < first(r, "PSC", 1)
+    # The first request timed out: the creep starts after the time-out.
+    assert creep == pytest.approx(T.zero_speed_confirm_s + T.psc_timeout_s)
+    assert first(r, "PSD", "opening") > creep
+    short = dwell(-0.8)  # stopped short: lamp F, forward
+    assert "F" in values(short, "creep") and short.corrections == 1
+
+
+def test_tolerance_edge() -> None:
+    assert dwell(SC.tolerance_m).corrections == 0
+    assert dwell(SC.tolerance_m + 0.001).corrections == 1
+
+
+def test_far_out_three_attempts_then_fault_and_emergency_brake() -> None:
+    far = -(SC.tolerance_m + 2 * SC.creep_max_m + 0.5)
+    r = dwell(far)
+    assert r.psc_attempts == SC.max_psc_attempts == 3
+    assert r.corrections == 2 and r.fault and r.emergency_brake and r.outcome == "fault"
+    assert r.start_enable_s is None
+    assert values(r, "emergency_brake")[-1] == 1
+    # Nothing ever opened.
+    assert set(values(r, "PSD")) == {"closed_locked"} and set(values(r, "train_doors-R")) == {"closed_locked"}
+    assert set(values(r, "PSC")) == {0}
+    # Two corrections were enough for a stop just inside reach.
+    near = dwell(SC.tolerance_m + 2 * SC.creep_max_m - 0.1)
+    assert near.corrections == 2 and near.psc_attempts == 3 and near.outcome == "start-enable"
+
+
+def test_manual_mode_driver_controls() -> None:
+    r = dwell(0.1, mode="manual")
+    assert r.mode == "manual" and r.outcome == "start-enable"
+    psc = first(r, "PSC", 1)
+    # The ATC releases DMC at PSC; the driver turns the selector (DOA) then presses open (DOC).
+    assert first(r, "DMC-R", 0) == psc
+    assert first(r, "DOA-R", 1) == pytest.approx(psc + T.driver_action_s)
+    assert first(r, "DOC", 1) == pytest.approx(psc + 2 * T.driver_action_s)
+    # Closing: selector off and the close button; DMC stays low: the manual column of the table closes.
+    closing = first(r, "train_doors-R", "closing")
+    assert value_at(r, "DMC-R", closing) == 0 and value_at(r, "DOA-R", closing) == 0
+    assert value_at(r, "DCC", closing) == 1
+    assert r.start_enable_s is not None and r.start_enable_s > dwell(0.1).start_enable_s  # type: ignore[operator]
+
+
+def test_other_platform_side() -> None:
+    r = dwell(0.0, station="Hillcrest", platform_side="L")
+    assert r.outcome == "start-enable"
+    assert "open" in values(r, "train_doors-L") and set(values(r, "train_doors-R")) == {"closed_locked"}
+    assert set(values(r, "DOA-R")) == {0}
+
+
+def test_obstruction_withholds_start_enable_and_names_the_door() -> None:
+    nominal = dwell(0.0)
+    r = dwell(0.0, obstruct_door=7)
+    assert "train door R7 obstructed" in values(r, "start_blocked")
+    assert r.start_enable_s is not None and nominal.start_enable_s is not None
+    # Cleared, then closed again from the start: later by the clearing time at least.
+    assert r.start_enable_s >= nominal.start_enable_s + T.obstruction_clear_s
+    # The PSD waited for the obstructed train door.
+    assert first(r, "PSD", "closing") > first(r, "start_blocked", "train door R7 obstructed")
+
+
+def test_failed_psd_unit_is_isolated_by_staff() -> None:
+    r = dwell(0.0, psd_fail=5)
+    assert "PSD R5 jammed" in values(r, "start_blocked")
+    jam = first(r, "start_blocked", "PSD R5 jammed")
+    assert r.start_enable_s == pytest.approx(jam + T.staff_isolation_s)
+    assert "isolated" in str(values(r, "PSD")[-1])
+
+
+def test_bad_arguments_raise() -> None:
+    with pytest.raises(SimulationError, match="mode"):
+        dwell(0.0, mode="fly")
+    with pytest.raises(SimulationError, match="stop_error_m"):
+        dwell(float("nan"))
+    with pytest.raises(SimulationError, match="obstruct_door"):
+        dwell(0.0, obstruct_door=0)
+
+
+# -- database ----------------------------------------------------------------------------
+
+
+def test_database_rows_not_duplicated(tmp_path: Path) -> None:
+    r = dwell(1.2)
+    db = tmp_path / "d.db"
+    with open_store(db) as store:
+        n = store.save_dwell(key="k1", station="Riverside", events=r.timeline)
+        assert n == len(r.timeline)
+        assert store.save_dwell(key="k1", station="Riverside", events=r.timeline) == n
+        back = store.dwell_events("k1")
+        assert [(e["t_s"], e["signal"], e["value"]) for e in back] == [
+            (e.t_s, e.signal, e.value) for e in r.timeline
+        ]
+        # A different timeline under the same key replaces it.
+        other = dwell(0.0)
+        store.save_dwell(key="k1", station="Riverside", events=other.timeline)
+        assert len(store.dwell_events("k1")) == len(other.timeline)
+        store.save_dwell(key="k2", station="Riverside", events=r.timeline)
+        assert store.dwell_keys() == ["k1", "k2"]
+        with pytest.raises(RailstopError, match="value"):
+            store.save_dwell(
+                key="k3", station="x", events=[type("E", (), {"t_s": 0.0, "signal": "a", "value": None})()]
+            )
+    with sqlite3.connect(db) as con:
+        (count,) = con.execute("select count(*) from dwell_events").fetchone()
+    assert count == len(other.timeline) + len(r.timeline)
+
+
+# -- the command --------------------------------------------------------------------------
+
+
+def test_cli_dwell_json_plot_and_db(tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    png = tmp_path / "dwell.png"
+    args = ("dwell", "--stop-error-m", "0.9", "--json", "--db", str(db), "--plot", str(png))
+    p = run(*args, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    for key in (
+        "station",
+        "mode",
+        "stop_error_m",
+        "in_tolerance",
+        "psc_attempts",
+        "corrections",
+        "fault",
+        "emergency_brake",
+        "start_enable_s",
+        "dwell_total_s",
+        "timeline",
+    ):
+        assert key in data
+    assert data["station"] == "Riverside" and data["mode"] == "auto" and data["stop_error_m"] == 0.9
+    assert data["in_tolerance"] is False and data["corrections"] == 1 and data["psc_attempts"] == 2
+    assert {"t_s", "signal", "value"} <= set(data["timeline"][0])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    # Running the same dwell again does not duplicate its rows.
+    again = run(*args, cwd=tmp_path)
+    assert again.returncode == 0, again.stderr
+    with sqlite3.connect(db) as con:
+        (count,) = con.execute("select count(*) from dwell_events").fetchone()
+    assert count == len(data["timeline"])
+
+
+def test_cli_dwell_text_manual_fault(tmp_path: Path) -> None:
+    p = run("dwell", "--stop-error-m", "-8", "--mode", "manual", "--station", "hillcrest", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "FAULT and emergency brake" in p.stdout and "3 PSC attempt(s)" in p.stdout
+    assert "Hillcrest" in p.stdout and (tmp_path / "railstop.db").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("--stop-error-m", "abc"), "--stop-error-m"),
+        (("--stop-error-m", "nan"), "finite"),
+        (("--stop-error-m", "0", "--mode", "fly"), "--mode"),
+        (("--stop-error-m", "0", "--station", "Atlantis"), "Atlantis"),
+        (("--stop-error-m", "400"), "platform"),
+        (("--stop-error-m", "0", "--psd-fail", "99"), "--psd-fail"),
+    ],
+)
+def test_cli_dwell_bad_input_one_line_exit_2(args: tuple[str, ...], needle: str, tmp_path: Path) -> None:
+    p = run("dwell", *args, cwd=tmp_path)
+    assert p.returncode == 2
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in p.stderr and "Traceback" not in p.stderr, p.stderr
