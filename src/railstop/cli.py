@@ -14,6 +14,9 @@ import typer
 from rich.table import Table
 
 from railstop.cli_common import err, fail, out
+from railstop.cli_doors import doors_app, dwell
+from railstop.cli_position import position_run
+from railstop.cli_telegram import telegram_app
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.config.schema import Line, Station, Vehicle
@@ -28,6 +31,10 @@ app = typer.Typer(
     no_args_is_help=True,
     help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
 )
+app.add_typer(doors_app, name="doors")
+app.command()(dwell)
+app.add_typer(telegram_app, name="telegram")
+app.command(name="position-run")(position_run)
 
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[

@@ -40,6 +40,11 @@ class Stream(IntEnum):
     RADIO_LOSS = 5
     RADIO_LATENCY = 6
     ADHESION = 7
+    TC_BOUNDARY = 8  # SPEC §2 track-circuit electrical boundary, counter = circuit index
+    TC_DELAY = 9  # SPEC §2 track-circuit detection delay, counter = circuit index
+    CLOCK = 10  # SPEC §2 GNSS clocks: counter 2k drift, 2k + 1 disciplined residual of clock k
+    RADIO_CYCLE = 11  # SPEC §5 poll-cycle phase of a telegram attempt, counter = attempt
+    RADIO_CORRUPT = 12  # bit errors of an attempt: counter 2k corrupted?, 2k + 1 which bit
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:
@@ -73,7 +78,9 @@ class RunStreams:
         z = self._keys.get(stream)
         if z is None:
             with np.errstate(over="ignore"):
-                key = _mix(np.asarray(np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * _GOLDEN + np.uint64(stream)))
+                key = _mix(
+                    np.asarray(np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * _GOLDEN + np.uint64(stream))
+                )
                 z = _mix(key ^ (self.run_index.astype(np.uint64) * _GOLDEN))
             self._keys[stream] = z
         return z

@@ -72,6 +72,14 @@ class TascZone(_Model):
     # (the train discards repeats it already has), so one lost copy costs a
     # period, not the command.
     repeat_period_s: Annotated[float, Field(gt=0.0, le=2.0)] = 0.1
+    # The medium of the braking telegrams: a preset of railstop/data/media.toml
+    # (SPEC §1 embodiment: RF; SPEC §5: loop, transponder or radio), and the
+    # EN 50159 safety layer around them: category 3 (open radio, keyed MAC)
+    # unless the medium is a closed system. A telegram older than
+    # max_telegram_age_s on arrival is refused as stale.
+    medium: str = "radio"
+    safety_category: Literal[1, 2, 3] = 3
+    max_telegram_age_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
 
     @field_validator("detectors_before_stop_m")
     @classmethod
@@ -143,14 +151,137 @@ class Station(_Model):
         return [self.stop_point_m - d for d in self.tasc.detectors_before_stop_m]
 
 
+class TrackCircuit(_Model):
+    """SPEC §2: a track circuit; the onboard track-circuit DB maps its ID to the chainage of its start.
+
+    ``kind``: "jointless" (audio-frequency, the electrical boundary is a tuned
+    zone some metres long) or "insulated" (insulated rail joints: a sharp
+    boundary). The kind decides the boundary uncertainty (``TrackCircuitDetection``).
+    """
+
+    id: Annotated[int, Field(ge=1, le=65535)]  # fits the 16 bits of an occupancy telegram
+    start_m: FiniteFloat
+    end_m: FiniteFloat
+    kind: Literal["jointless", "insulated"] = "jointless"
+
+    @model_validator(mode="after")
+    def _ordered(self) -> TrackCircuit:
+        if self.end_m <= self.start_m:
+            raise FieldProblem(
+                "end_m", f"end_m must be greater than start_m ({self.start_m}), got {self.end_m}"
+            )
+        return self
+
+
+class Tunnel(_Model):
+    """A GNSS shadow (SPEC §2); ``repeater`` = a satellite-signal repeater covers the whole section."""
+
+    name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    start_m: FiniteFloat
+    end_m: FiniteFloat
+    repeater: bool = False
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Tunnel:
+        if self.end_m <= self.start_m:
+            raise FieldProblem(
+                "end_m", f"end_m must be greater than start_m ({self.start_m}), got {self.end_m}"
+            )
+        return self
+
+
+class TrackCircuitDetection(_Model):
+    """SPEC §2 wayside track-circuit device: when and where it declares a circuit occupied.
+
+    The delay (receiver filter, relay or input scan) is drawn per passage as
+    normal(mean, spread) clipped at 0; the boundary where the first axle is
+    detected differs from the surveyed start by normal(0, sd of the kind).
+    Values and reasons: docs/position.md.
+    """
+
+    delay_mean_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.30
+    delay_spread_s: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = 0.05
+    boundary_sd_jointless_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 1.5
+    boundary_sd_insulated_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 0.2
+
+    def boundary_sd_m(self, kind: str) -> float:
+        return self.boundary_sd_insulated_m if kind == "insulated" else self.boundary_sd_jointless_m
+
+
+class GnssClocks(_Model):
+    """SPEC §2 GNSS-disciplined clocks of the wayside units and the train.
+
+    Disciplined: the clock is within ``disciplined_error_s`` (standard
+    deviation) of GNSS time. In a shadow without a repeater it free-runs: its
+    error grows at its frequency offset, drawn per clock as normal(0,
+    ``free_run_drift_ppm``). A clock with no time source at all (a wayside unit
+    in an unrepeated tunnel, or every clock when GNSS is off) was last set
+    ``holdover_s`` before the run.
+    """
+
+    disciplined_error_s: Annotated[float, Field(ge=0.0, le=1e-3, allow_inf_nan=False)] = 1e-7
+    free_run_drift_ppm: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 1.0
+    holdover_s: Annotated[float, Field(ge=0.0, le=3.2e7, allow_inf_nan=False)] = 86400.0
+
+
+class Track(_Model):
+    """SPEC §2 line data: track circuits (contiguous from 0), GNSS shadows, detection and clocks."""
+
+    circuits: list[TrackCircuit] = Field(default_factory=list)
+    tunnels: list[Tunnel] = Field(default_factory=list)
+    detection: TrackCircuitDetection = Field(default_factory=TrackCircuitDetection)
+    clocks: GnssClocks = Field(default_factory=GnssClocks)
+
+    @model_validator(mode="after")
+    def _layout(self) -> Track:
+        seen: dict[int, int] = {}
+        for i, c in enumerate(self.circuits):
+            if c.id in seen:
+                raise FieldProblem(
+                    f"circuits[{i}].id",
+                    f"track circuit IDs must be unique: {c.id} is also circuits[{seen[c.id]}]",
+                )
+            seen[c.id] = i
+        if self.circuits and self.circuits[0].start_m != 0.0:
+            raise FieldProblem(
+                "circuits[0].start_m",
+                f"the first track circuit must start at chainage 0, got {self.circuits[0].start_m}",
+            )
+        for i in range(1, len(self.circuits)):
+            prev, cur = self.circuits[i - 1], self.circuits[i]
+            if cur.start_m != prev.end_m:
+                what = "overlaps" if cur.start_m < prev.end_m else "leaves a gap after"
+                raise FieldProblem(
+                    f"circuits[{i}].start_m",
+                    f"track circuits must be listed in order and contiguous: circuit {cur.id} starts at "
+                    f"{cur.start_m} m and {what} circuit {prev.id} ending at {prev.end_m} m",
+                )
+        tunnels = sorted(enumerate(self.tunnels), key=lambda it: it[1].start_m)
+        for (_, a), (j, b) in zip(tunnels, tunnels[1:], strict=False):
+            if b.start_m < a.end_m:
+                raise FieldProblem(
+                    f"tunnels[{j}].start_m",
+                    f"tunnels overlap: {b.start_m} m is before the end of another at {a.end_m} m",
+                )
+        return self
+
+    @property
+    def end_m(self) -> float | None:
+        return self.circuits[-1].end_m if self.circuits else None
+
+
 class LineInfo(_Model):
     name: Annotated[str, Field(min_length=1)]
     speed_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0)] = 80.0
+    # Chainage of the end of the line (optional): the track circuits must end exactly there.
+    length_m: PositiveFloat | None = None
 
 
 class Line(_Model):
     line: LineInfo
     stations: list[Station] = Field(min_length=1)
+    # SPEC §2 track circuits, GNSS shadows, detection and clocks (empty: no position correction data).
+    track: Track = Field(default_factory=Track)
 
     @model_validator(mode="after")
     def _unique(self) -> Line:
@@ -162,6 +293,42 @@ class Line(_Model):
         if stops != sorted(stops):
             raise ValueError("stations must be listed in increasing stop_point_m")
         return self
+
+    @model_validator(mode="after")
+    def _track_covers_line(self) -> Line:
+        # SPEC §2: every position on the line lies in exactly one track circuit
+        # (contiguity is checked in Track); here: the circuits reach the line's
+        # end and cover every platform, and the tunnels lie on the line.
+        end = self.track.end_m
+        if end is None:
+            return self
+        if self.line.length_m is not None and end != self.line.length_m:
+            raise FieldProblem(
+                "track.circuits",
+                f"the last track circuit must end at line.length_m ({self.line.length_m} m), got {end} m",
+            )
+        for s in self.stations:
+            if s.platform_start < 0.0 or s.platform_end > end:
+                raise FieldProblem(
+                    "track.circuits",
+                    f"the track circuits (0 .. {end} m) must cover station {s.name!r} "
+                    f"({s.platform_start} .. {s.platform_end} m)",
+                )
+        for i, t in enumerate(self.track.tunnels):
+            if t.start_m < 0.0 or t.end_m > end:
+                raise FieldProblem(
+                    f"track.tunnels[{i}]",
+                    f"tunnel {t.start_m} .. {t.end_m} m is not on the line (0 .. {end} m)",
+                )
+        return self
+
+    @property
+    def track_circuits(self) -> list[TrackCircuit]:
+        return self.track.circuits
+
+    @property
+    def tunnels(self) -> list[Tunnel]:
+        return self.track.tunnels
 
     def station(self, name: str | None) -> Station:
         if name is None:
@@ -225,6 +392,47 @@ class BrakeModel(_Model):
         return self.notch_decel_mps2[-1]
 
 
+class Traction(_Model):
+    """Tractive-effort curve: constant force up to ``base_speed_kmh``, constant power above.
+
+    ``max_accel_mps2`` is the acceleration the traction control aims at
+    (load-weighed), ``motored_axle_fraction`` the share of the train's weight
+    on motored axles (4M2T: 4/6), which sets the adhesion limit in traction.
+    While traction demands more than adhesion gives, the anti-slip control
+    holds the wheels ``slip_ratio`` faster than the train.
+    """
+
+    max_force_n: PositiveFloat
+    base_speed_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
+    max_accel_mps2: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 1.0
+    motored_axle_fraction: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = 1.0
+    slip_ratio: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.10
+
+    @property
+    def max_power_w(self) -> float:
+        return self.max_force_n * self.base_speed_kmh / 3.6
+
+
+class Positioning(_Model):
+    """SPEC §2 onboard position-correction device: tachometer, odometer log and the learner.
+
+    The learner (beyond SPEC §2) estimates the odometer's scale and the
+    constant part of the detection delay from the history of corrections;
+    its prior and noise are set here (see onboard/positioning.py).
+    """
+
+    tachometer_pulses_per_rev: Annotated[int, Field(ge=1, le=10000)] = 100
+    log_window_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)] = 5.0
+    # How far past its newest log sample a telegram time may lie (clock offsets) and
+    # still be used, extrapolating with the last tachometer speed.
+    max_extrapolation_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 1.0
+    learn: bool = True
+    scale_prior_pct: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)] = 5.0
+    delay_prior_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.2
+    fix_sd_m: Annotated[float, Field(gt=0.0, le=50.0, allow_inf_nan=False)] = 1.5
+    gate_sigma: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = 4.0
+
+
 class Vehicle(_Model):
     name: Annotated[str, Field(min_length=1)]
     cars: Annotated[int, Field(ge=1, le=20)]
@@ -239,6 +447,9 @@ class Vehicle(_Model):
     adhesion_mu: Annotated[float, Field(gt=0.0, le=0.5)]
     slide_slip_ratio: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.15
     brake: BrakeModel
+    # Needed to drive between stations (position-run); a braking-only vehicle file may omit it.
+    traction: Traction | None = None
+    positioning: Positioning = Field(default_factory=Positioning)
 
 
 class VehicleFile(_Model):

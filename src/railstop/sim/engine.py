@@ -21,7 +21,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Vehicle
-from railstop.errors import SimulationError
+from railstop.errors import RailstopError, SimulationError
+from railstop.link.channel import (
+    ChannelParams,
+    corruption_probability,
+    delivery_delay_s,
+    media_preset,
+)
 from railstop.onboard.ato import ATO, AtoController
 from railstop.onboard.tasc_receiver import OnboardConfig, TascReceiver
 from railstop.physics.brake import (
@@ -34,6 +40,7 @@ from railstop.physics.brake import (
 from railstop.physics.train import MotionState, TrainMass, motion_step, odometer_increment_m
 from railstop.sensors.wayside import WheelSensors, doppler_sample
 from railstop.sim.scenario import Scenario
+from railstop.sim.tasc_link import ByteLink, frame_bytes, quantize_telegrams
 from railstop.streams import RunStreams, Stream
 from railstop.wayside.tasc_unit import GroundTascUnit, SignalForm, TascTelegrams
 
@@ -76,34 +83,69 @@ class BatchResult:
     detector_passages_s: FloatArray  # (n, D) true passage times (NaN if never)
     trace: Trace | None = None
     commands: list[dict[str, Any]] = field(default_factory=list)
+    # The detailed stop's braking-telegram frames: sent, delivered and rejected by reason.
+    link_frames: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(slots=True)
 class _Link:
-    """Radio link model (latency, loss, cyclic repetition) with one pending telegram per run.
+    """The braking-telegram link (SPEC §1 RF, SPEC §5 media) with one pending telegram per run.
 
     The wayside repeats its latest telegram every ``repeat_s`` (cyclic
     transmission, as train radio links do); the receiver discards repeats of
     a telegram it already has, so a repeat only matters when every earlier
-    copy was lost. Each attempt is lost independently with the run's loss
-    probability. A newer telegram replaces the one not yet delivered: it
-    carries newer measurements.
+    copy failed. A newer telegram replaces the one not yet delivered: it
+    carries newer measurements, and the wayside sends only its latest.
+
+    Each attempt of run r, counter c = its attempt number, is decided by the
+    run's streams (the same numbers in every driver):
+
+    * lost: uniform(RADIO_LOSS, c) < radio_loss_probability;
+    * corrupted: uniform(RADIO_CORRUPT, 2c) < 1 − (1 − BER)^(8 · frame bytes)
+      (``channel.corruption_probability``): the safety layer rejects it;
+    * delay: ``channel.delivery_delay_s`` of the station's medium (poll-cycle
+      wait from uniform(RADIO_CYCLE, c), airtime of the safety frame,
+      latency + jitter · normal(RADIO_LATENCY, c));
+    * stale: older than ``max_telegram_age_s`` when the step that receives it
+      comes (the safety layer's check, in its millisecond arithmetic).
+
+    A failed attempt (lost, corrupted or stale) is repeated ``repeat_s``
+    later. With ``bytes_link`` (the detailed stop, n = 1) every attempt that
+    is not lost is a real frame: encoded, wrapped, bit-flipped when corrupted,
+    and checked and decoded by the safety receiver on arrival.
     """
 
     pending: TascTelegrams | None
     due_s: FloatArray  # delivery time of the pending telegram (inf: none in flight)
     next_try_s: FloatArray  # next transmission attempt of an undelivered telegram
-    count: IntArray  # attempts so far (the loss stream's counter)
+    count: IntArray  # attempts so far (the streams' counter)
     repeat_s: float
+    medium: ChannelParams
+    frame_bytes: int
+    max_age_s: float
+    dt_s: float
+    bytes_link: ByteLink | None = None
 
     @classmethod
-    def create(cls, n: int, repeat_s: float) -> _Link:
+    def create(cls, n: int, station: Station, form: SignalForm, dt_s: float, *, as_bytes: bool) -> _Link:
+        tasc = station.tasc
+        try:
+            medium = media_preset(tasc.medium)
+        except RailstopError as exc:
+            raise SimulationError(f"station {station.name}: tasc.medium: {exc}") from None
         return cls(
             pending=None,
             due_s=np.full(n, np.inf),
             next_try_s=np.full(n, np.inf),
             count=np.zeros(n, dtype=np.int64),
-            repeat_s=repeat_s,
+            repeat_s=tasc.repeat_period_s,
+            medium=medium,
+            frame_bytes=frame_bytes(form, tasc.safety_category),
+            max_age_s=tasc.max_telegram_age_s,
+            dt_s=dt_s,
+            bytes_link=ByteLink(category=tasc.safety_category, max_age_s=tasc.max_telegram_age_s)
+            if as_bytes
+            else None,
         )
 
     def send(self, tele: TascTelegrams) -> None:
@@ -120,25 +162,54 @@ class _Link:
                     setattr(self.pending, name, old | go)
                 else:
                     setattr(self.pending, name, np.where(go, getattr(tele, name), old))
+        if self.bytes_link is not None and go[0]:
+            self.bytes_link.drop_genuine()
         self.due_s = np.where(go, np.inf, self.due_s)
         self.next_try_s = np.where(go, -np.inf, self.next_try_s)
 
-    def transmit(self, now_s: float, latency_s: FloatArray, loss: FloatArray, streams: RunStreams) -> None:
-        """Transmission attempts due now; a copy that gets through arrives after the latency."""
+    def transmit(self, now_s: float, scenario: Scenario, streams: RunStreams) -> None:
+        """Transmission attempts due now; a copy that gets through arrives after its delay."""
         rows = np.flatnonzero(self.next_try_s <= now_s + 1e-9)
         if rows.size == 0:
             return
-        lost = streams.subset(rows).uniform(Stream.RADIO_LOSS, self.count[rows]) < loss[rows]
+        sub = streams.subset(rows)
+        c = self.count[rows]
         self.count[rows] += 1
-        ok = rows[~lost]
-        self.due_s[ok] = now_s + latency_s[ok]
-        self.next_try_s[ok] = np.inf
-        self.next_try_s[rows[lost]] = now_s + self.repeat_s
+        lost = sub.uniform(Stream.RADIO_LOSS, c) < scenario.radio_loss_probability[rows]
+        corrupt = np.zeros(rows.size, dtype=bool)
+        ber = scenario.radio_bit_error_rate[rows]
+        if np.any(ber > 0.0):
+            p = corruption_probability(self.medium, self.frame_bytes, bit_error_rate=ber)
+            corrupt = ~lost & (sub.uniform(Stream.RADIO_CORRUPT, 2 * c) < p)
+        u = sub.uniform(Stream.RADIO_CYCLE, c) if self.medium.cycle_s > 0.0 else 0.0
+        jitter = scenario.radio_jitter_s[rows]
+        z = sub.normal(Stream.RADIO_LATENCY, c) if np.any(jitter > 0.0) else 0.0
+        delay = delivery_delay_s(
+            self.medium, self.frame_bytes, u, z, latency_s=scenario.radio_latency_s[rows], jitter_s=jitter
+        )
+        arrival = now_s + np.asarray(delay)
+        # The step that receives the frame, and the safety layer's age check there.
+        receive_s = np.ceil((arrival - 1e-9) / self.dt_s) * self.dt_s
+        age_ms = np.round(receive_s * 1000.0) - round(now_s * 1000.0)
+        stale = age_ms > self.max_age_s * 1000.0
+        ok = ~lost & ~corrupt & ~stale
+        self.due_s[rows[ok]] = arrival[ok]
+        self.next_try_s[rows[ok]] = np.inf
+        self.next_try_s[rows[~ok]] = now_s + self.repeat_s
+        if self.bytes_link is not None and self.pending is not None and not lost[0]:
+            flip = float(sub.uniform(Stream.RADIO_CORRUPT, 2 * c + 1)[0]) if corrupt[0] else None
+            self.bytes_link.transmit(self.pending, now_s, float(arrival[0]), flip)
 
-    def deliver(self, now_s: float) -> BoolArray:
+    def deliver(self, now_s: float) -> tuple[BoolArray, TascTelegrams | None]:
+        """Runs whose telegram arrives now, and what they receive."""
         due = self.due_s <= now_s + 1e-9
         self.due_s = np.where(due, np.inf, self.due_s)
-        return due
+        if self.bytes_link is None or self.pending is None:
+            return due, self.pending
+        got = self.bytes_link.arrive(now_s, self.pending.form)
+        if bool(due[0]) != (got is not None):
+            raise SimulationError(f"t = {now_s:.2f} s: the byte link and the link model disagree")
+        return due, got
 
 
 def run_batch(
@@ -214,7 +285,7 @@ def run_batch(
         jerk_limit_mps3=brake.jerk_limit_mps3,
         emergency_mps2=brake.emergency_decel_mps2,
     )
-    link = _Link.create(n, station.tasc.repeat_period_s)
+    link = _Link.create(n, station, form, dt_s, as_bytes=record and n == 1 and not is_ato)
     # The odometer assumes the actual diameter with its error (Scenario: assumed = actual × (1 + error)).
     assumed_diam = scenario.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
     tach_scale = assumed_diam / scenario.wheel_diameter_m
@@ -257,11 +328,12 @@ def run_batch(
             # Wayside unit -> radio link -> onboard receiver.
             tele = unit.step(t, passed=passed, detector=det_idx, passage_s=pass_t, doppler_mps=dop)
             if tele is not None:
-                link.send(tele)
-            link.transmit(t, scenario.radio_latency_s, scenario.radio_loss_probability, streams)
-            delivered = link.deliver(t)
-            if link.pending is not None and delivered.any():
-                receiver.receive(link.pending, delivered, t)
+                # What the train can receive: the codec's resolution (SPEC §5 telegrams).
+                link.send(quantize_telegrams(tele))
+            link.transmit(t, scenario, streams)
+            delivered, received = link.deliver(t)
+            if received is not None and delivered.any():
+                receiver.receive(received, delivered, t)
             receiver.observe_tachometer(tach_v)
             signal = receiver.output(tach_v)
         # Onboard -> ECU -> actuator -> brakes.
@@ -360,4 +432,9 @@ def run_batch(
         detector_passages_s=passages,
         trace=trace,
         commands=unit.records,
+        link_frames=(
+            {"sent": link.bytes_link.frames_sent, **link.bytes_link.receiver.counts}
+            if link.bytes_link is not None
+            else {}
+        ),
     )

@@ -34,6 +34,8 @@ class StopResult:
     slid: bool
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
+    # Braking-telegram frames on the air (safety layer): sent, delivered, rejected by reason.
+    frames: dict[str, int] = field(default_factory=dict)
     command_log: list[dict[str, Any]] = field(default_factory=list, repr=False)
 
     def summary(self) -> dict[str, Any]:
@@ -115,6 +117,7 @@ def run_stop(
         slid=bool(batch.slid[0]),
         disturbances=None if disturbances is None else disturbances.name,
         run=run,
+        frames=dict(batch.link_frames),
         command_log=batch.commands,
     )
     return result, batch

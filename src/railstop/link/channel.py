@@ -1,0 +1,516 @@
+"""A seeded simulated train↔platform medium (SPEC §5): airtime, poll cycle, latency, loss, errors.
+
+SPEC §5 compares three media: the wayside loop (FSK, 2400 bit/s, 200–250 ms
+cycle, CRC-16), the transponder (FSK, 64 kbit/s, 10–50 ms cycle, CRC-16) and
+short-range radio (1–500 Mbit/s, tens of ms latency, interference). One
+:class:`ChannelParams` describes any of them; the embedded presets live in
+``railstop/data/media.toml`` (:func:`load_media`, :func:`media_preset`).
+
+The delay model (one model, two drivers)
+----------------------------------------
+A frame of ``n`` bytes sent at time t on an idle channel arrives at::
+
+    t + wait + airtime + propagation (+ reorder_delay_s if held back)
+
+* ``wait``: 0 when ``cycle_s == 0``; otherwise the frame leaves at the next
+  slot of the poll cycle (SPEC §5: the loop and the transponder are polled
+  every 200–250 ms / 10–50 ms), so ``wait = u · cycle_s`` with ``u`` the
+  phase of t in the cycle, uniform in [0, 1) when sends are unrelated to the
+  cycle (mean ``cycle_s / 2``).
+* ``airtime = (8 n + overhead_bits) / bit_rate_bps``.
+* ``propagation = max(0, latency_s + jitter_s · z)``, z standard normal:
+  **jitter_s is the standard deviation** of a normal around ``latency_s``,
+  clipped at 0 (not resampled) so the latency is never negative. Its mean is
+  ``L Φ(L/σ) + σ φ(L/σ)`` (exactly ``latency_s`` when the clip never bites).
+
+The pure functions :func:`airtime_s`, :func:`propagation_delay_s`,
+:func:`delivery_delay_s`, :func:`mean_delivery_delay_s`,
+:func:`corruption_probability` and :func:`stationary_loss_probability` work
+on numpy arrays, for a vectorised Monte Carlo engine that draws its own
+(counter-based) uniforms and normals; ``latency_s``, ``jitter_s`` and
+``bit_error_rate`` may be given per run (keyword arrays) to override the
+medium's values, e.g. a radio latency drawn from a disturbance set. :class:`SimChannel`, the event-by-event
+driver, computes its arrival times with the same functions; on top of that it
+models queueing: one frame on the medium at a time, at most one frame per
+cycle slot, and first-in first-out delivery (a frame never overtakes an
+earlier one unless it is *reordered*: held back by ``reorder_delay_s``).
+
+Loss, duplication, corruption
+-----------------------------
+* independent loss with ``loss_probability`` per frame;
+* burst loss, Gilbert–Elliott: a two-state (good/bad) Markov chain advanced
+  once per frame sent (good→bad with ``burst_enter_probability``, bad→good
+  with ``burst_exit_probability``; the channel starts good); a frame sent in
+  the bad state is lost with ``burst_loss_probability``. Stationary
+  π_bad = p_enter / (p_enter + p_exit);
+* a delivered frame is duplicated with ``duplicate_probability``: the copy is
+  transmitted again straight after the original (one more airtime, same slot)
+  and arrives one airtime after it;
+* each delivered copy has every bit flipped independently with
+  ``bit_error_rate`` — the receiver's CRC / MAC must catch it (SPEC §5 CRC-16;
+  the EN 50159 safety layer). Errors in the ``overhead_bits`` (preamble,
+  sync) are not modelled as corruption: a receiver that loses sync drops the
+  frame, which is loss.
+
+Randomness (DESIGN rule 4)
+--------------------------
+:class:`SimChannel` takes a ``numpy.random.Generator`` and draws, for every
+``send()`` whatever its outcome: ``rng.random(5)`` = (Gilbert–Elliott
+transition, loss while bad, independent loss, duplicate, reorder) and then
+one ``rng.standard_normal()`` for the jitter. Only when ``bit_error_rate > 0``
+does it draw more: for each delivered copy ``rng.binomial(8 n, BER)`` flips
+at ``rng.choice(8 n, k, replace=False)`` bit positions. The same seed gives
+the same frames, arrival times and statistics.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import tomllib
+from contextvars import ContextVar
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field, RootModel, ValidationError, model_validator
+
+from railstop.config.loader import read_toml, validate
+from railstop.errors import ConfigError, RailstopError
+
+FloatArray = NDArray[np.float64]
+
+DATA_PACKAGE = "railstop.data"
+MEDIA_FILE = "media.toml"
+#: The name that means the embedded media file in :func:`load_media`.
+BUILTIN_MEDIA = "media"
+
+# A float time on a slot boundary (e.g. 0.5 s with a 0.25 s cycle) may come out
+# as k ± 1e-16 cycles; within this many cycles it counts as on the slot.
+_SLOT_EPS = 1e-9
+
+
+class LinkError(RailstopError):
+    """A link was used wrongly: bad frame, time going backwards, oversize datagram..."""
+
+
+# --------------------------------------------------------------------------
+# Parameters (pydantic: validated, frozen, unknown keys rejected; DESIGN rules 3, 6)
+
+# True while pydantic validates: ChannelParams.__init__ then lets ValidationError through.
+_RAW: ContextVar[bool] = ContextVar("railstop_channel_params_raw", default=False)
+
+Seconds = Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)]
+Probability = Annotated[float, Field(strict=True, ge=0.0, le=1.0, allow_inf_nan=False)]
+
+
+class ChannelParams(BaseModel):
+    """One medium of SPEC §5. Times in seconds, probabilities per frame, BER per bit.
+
+    Built directly, a bad value raises :class:`~railstop.errors.ConfigError`
+    with source ``ChannelParams``; loaded from a file, the error names the file.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    bit_rate_bps: Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)]
+    # SPEC §5 poll cycle; 0 = the frame leaves as soon as the medium is free.
+    cycle_s: Seconds = 0.0
+    latency_s: Seconds = 0.0  # propagation + processing
+    jitter_s: Seconds = 0.0  # standard deviation of the latency (clipped at 0)
+    loss_probability: Probability = 0.0  # independent, per frame
+    burst_enter_probability: Probability = 0.0  # Gilbert–Elliott good -> bad, per frame
+    burst_exit_probability: Probability = 0.0  # bad -> good, per frame
+    burst_loss_probability: Probability = 0.0  # loss of a frame sent while bad
+    duplicate_probability: Probability = 0.0
+    reorder_probability: Probability = 0.0
+    reorder_delay_s: Seconds = 0.0  # extra delay of a reordered (held back) frame
+    bit_error_rate: Probability = 0.0  # per delivered bit, independent
+    overhead_bits: Annotated[int, Field(strict=True, ge=0, le=1_000_000)] = 0  # preamble, sync, framing
+
+    def __init__(self, **data: Any) -> None:
+        # pydantic calls this __init__ for every instance it validates, nested ones
+        # included; only the outermost call turns a ValidationError into the
+        # project's one-line ConfigError (config.loader.validate), so a media file
+        # still reports its own name and the full field path.
+        if _RAW.get():
+            super().__init__(**data)
+            return
+        token = _RAW.set(True)
+        try:
+            super().__init__(**data)
+        except ValidationError:
+            validate(ChannelParams, data, "ChannelParams")
+            raise  # validate() raised already; kept for type checkers
+        finally:
+            _RAW.reset(token)
+
+    def replace(self, **changes: Any) -> ChannelParams:
+        """A validated copy with some fields changed (``model_copy`` would skip validation)."""
+        return ChannelParams(**{**self.model_dump(), **changes})
+
+    @property
+    def burst_bad_fraction(self) -> float:
+        """Stationary share of frames sent in the bad state: p_enter / (p_enter + p_exit)."""
+        return _bad_fraction(self)
+
+
+def _bad_fraction(params: ChannelParams) -> float:
+    enter, leave = params.burst_enter_probability, params.burst_exit_probability
+    if enter == 0.0:
+        return 0.0  # the chain starts good and never leaves it
+    return enter / (enter + leave)
+
+
+# --------------------------------------------------------------------------
+# Pure, vectorised model
+
+
+def _out(x: NDArray[Any]) -> float | FloatArray:
+    return float(x) if x.ndim == 0 else x.astype(np.float64, copy=False)
+
+
+def _n_bytes(n_bytes: ArrayLike) -> NDArray[Any]:
+    n = np.asarray(n_bytes)
+    if n.dtype.kind not in "iuf" or np.any(n < 0) or not np.all(np.isfinite(n)):
+        raise LinkError(f"n_bytes must be non-negative byte counts (got {n_bytes!r})")
+    return n
+
+
+def airtime_s(params: ChannelParams, n_bytes: ArrayLike) -> float | FloatArray:
+    """Time on the medium of a frame: (8 · n_bytes + overhead_bits) / bit_rate_bps."""
+    if type(n_bytes) is int and n_bytes >= 0:  # scalar fast path (SimChannel), same float64 operations
+        return (8.0 * n_bytes + params.overhead_bits) / params.bit_rate_bps
+    n = _n_bytes(n_bytes)
+    return _out((8.0 * n + params.overhead_bits) / params.bit_rate_bps)
+
+
+def _override(name: str, value: ArrayLike | None, default: float, hi: float = math.inf) -> Any:
+    """A per-run value replacing a parameter (e.g. a drawn radio latency), checked like the parameter."""
+    if value is None:
+        return default
+    v = np.asarray(value, dtype=np.float64)
+    if not np.all(np.isfinite(v)) or np.any((v < 0.0) | (v > hi)):
+        raise LinkError(f"{name} must lie in [0, {hi}] (got {value!r})")
+    return v
+
+
+def propagation_delay_s(
+    params: ChannelParams,
+    z_jitter: ArrayLike,
+    *,
+    latency_s: ArrayLike | None = None,
+    jitter_s: ArrayLike | None = None,
+) -> float | FloatArray:
+    """Propagation + processing delay for standard-normal draws z: max(0, latency + jitter · z).
+
+    ``latency_s`` / ``jitter_s``, if given (scalars or per-run arrays), replace
+    the parameters' values, e.g. a radio latency drawn per run by a campaign.
+    """
+    if type(z_jitter) is float and latency_s is None and jitter_s is None:
+        # scalar fast path (SimChannel), the same float64 operations as below
+        return max(0.0, params.latency_s + params.jitter_s * z_jitter)
+    lat = _override("latency_s", latency_s, params.latency_s)
+    sd = _override("jitter_s", jitter_s, params.jitter_s)
+    z = np.asarray(z_jitter, dtype=np.float64)
+    return _out(np.asarray(np.maximum(0.0, lat + sd * z)))
+
+
+def mean_propagation_delay_s(params: ChannelParams) -> float:
+    """E[max(0, L + σ Z)] = L Φ(L/σ) + σ φ(L/σ) (the mean of a normal clipped at 0)."""
+    lat, sd = params.latency_s, params.jitter_s
+    if sd == 0.0:
+        return lat
+    a = lat / sd
+    cdf = 0.5 * (1.0 + math.erf(a / math.sqrt(2.0)))
+    pdf = math.exp(-0.5 * a * a) / math.sqrt(2.0 * math.pi)
+    return lat * cdf + sd * pdf
+
+
+def delivery_delay_s(
+    params: ChannelParams,
+    n_bytes: ArrayLike,
+    u_cycle: ArrayLike,
+    z_jitter: ArrayLike,
+    *,
+    reordered: ArrayLike = False,
+    latency_s: ArrayLike | None = None,
+    jitter_s: ArrayLike | None = None,
+) -> float | FloatArray:
+    """Send-to-arrival delay of a frame on an idle channel, from given draws.
+
+    ``u_cycle`` in [0, 1]: the phase of the send time within the poll cycle
+    (wait = u · cycle_s; ignored when cycle_s = 0); ``z_jitter``: a standard
+    normal; ``reordered``: the frame is held back by ``reorder_delay_s``;
+    ``latency_s`` / ``jitter_s``: per-run values replacing the parameters'
+    (see :func:`propagation_delay_s`). Arguments broadcast like numpy arrays.
+    :class:`SimChannel` uses exactly this model (plus queueing behind earlier frames).
+    """
+    u = np.asarray(u_cycle, dtype=np.float64)
+    if np.any((u < 0.0) | (u > 1.0)) or not np.all(np.isfinite(u)):
+        raise LinkError(f"u_cycle must lie in [0, 1] (got {u_cycle!r})")
+    wait = u * params.cycle_s
+    held = np.where(np.asarray(reordered, dtype=bool), params.reorder_delay_s, 0.0)
+    prop = propagation_delay_s(params, z_jitter, latency_s=latency_s, jitter_s=jitter_s)
+    total = wait + np.asarray(airtime_s(params, n_bytes)) + np.asarray(prop) + held
+    return _out(np.asarray(total))
+
+
+def mean_delivery_delay_s(params: ChannelParams, n_bytes: ArrayLike) -> float | FloatArray:
+    """Mean of :func:`delivery_delay_s` over u ~ U[0, 1), z ~ N(0, 1) and reordering.
+
+    cycle_s / 2 (mean wait for a slot) + airtime + mean propagation
+    + reorder_probability · reorder_delay_s.
+    """
+    extra = 0.5 * params.cycle_s + mean_propagation_delay_s(params)
+    extra += params.reorder_probability * params.reorder_delay_s
+    return _out(np.asarray(airtime_s(params, n_bytes)) + extra)
+
+
+def corruption_probability(
+    params: ChannelParams, n_bytes: ArrayLike, *, bit_error_rate: ArrayLike | None = None
+) -> float | FloatArray:
+    """Probability that a delivered copy has at least one flipped bit: 1 − (1 − BER)^(8 n).
+
+    ``bit_error_rate``, if given (scalar or per-run array), replaces the parameter's.
+    """
+    n = _n_bytes(n_bytes)
+    ber = np.asarray(_override("bit_error_rate", bit_error_rate, params.bit_error_rate, hi=1.0))
+    # -expm1(bits · log1p(-BER)) keeps precision for tiny BER; BER = 1 gives log1p(-1) = -inf.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = -np.expm1(8.0 * n * np.log1p(-ber))
+    p = np.where(n > 0, p, 0.0)  # no bits, nothing to corrupt (also avoids 0 · -inf)
+    return _out(np.asarray(p))
+
+
+def stationary_loss_probability(params: ChannelParams) -> float:
+    """Long-run share of frames lost: 1 − (1 − p_loss)(1 − π_bad · p_loss_bad)."""
+    burst = _bad_fraction(params) * params.burst_loss_probability
+    return 1.0 - (1.0 - params.loss_probability) * (1.0 - burst)
+
+
+# --------------------------------------------------------------------------
+# The event-by-event driver
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ChannelStats:
+    """Counts of a :class:`SimChannel` so far.
+
+    ``sent``: send() calls; ``sent_in_burst``: of those, sent in the bad state;
+    ``lost``: frames that never arrive; ``duplicated``: extra copies made;
+    ``reordered``: frames held back; ``corrupted``: copies with at least one
+    flipped bit; ``delivered``: copies returned by receive().
+    """
+
+    sent: int = 0
+    sent_in_burst: int = 0
+    lost: int = 0
+    duplicated: int = 0
+    reordered: int = 0
+    corrupted: int = 0
+    delivered: int = 0
+
+
+class SimChannel:
+    """One direction of a simulated medium: ``send(frame, now_s)``, ``receive(now_s)``.
+
+    Pure unit (DESIGN rule 2): no clock, no socket; time is an argument and
+    randomness comes from the given generator (draw order: module docstring).
+    Send times must not decrease. ``slot_phase_s``: the poll-cycle slots are at
+    ``slot_phase_s + k · cycle_s``.
+    """
+
+    def __init__(self, params: ChannelParams, rng: np.random.Generator, *, slot_phase_s: float = 0.0) -> None:
+        if not isinstance(params, ChannelParams):
+            raise LinkError(f"params must be ChannelParams (got {type(params).__name__})")
+        if not isinstance(rng, np.random.Generator):
+            raise LinkError(f"rng must be a numpy.random.Generator (got {type(rng).__name__})")
+        if not math.isfinite(slot_phase_s):
+            raise LinkError(f"slot_phase_s must be finite (got {slot_phase_s!r})")
+        self.params = params
+        self._rng = rng
+        self._phase_s = float(slot_phase_s)
+        self._bad = False  # Gilbert–Elliott state; starts good
+        self._last_send_s = -math.inf
+        self._medium_free_s = -math.inf  # end of the last transmission
+        self._last_slot: int | None = None  # index of the last slot used
+        self._in_order_s = -math.inf  # arrival of the last frame not held back (FIFO floor)
+        self._queue: list[tuple[float, int, bytes]] = []  # (arrival_s, insertion no., frame)
+        self._seq = 0
+        self._counts = dict.fromkeys(ChannelStats.__dataclass_fields__, 0)
+
+    @property
+    def stats(self) -> ChannelStats:
+        return ChannelStats(**self._counts)
+
+    def _departure_s(self, now_s: float) -> float:
+        """When the frame starts on the medium: free medium, next free cycle slot (SPEC §5)."""
+        start = max(now_s, self._medium_free_s)
+        cycle = self.params.cycle_s
+        if cycle == 0.0:
+            return start
+        x = (start - self._phase_s) / cycle
+        k = math.ceil(x - _SLOT_EPS)
+        if self._last_slot is not None:
+            k = max(k, self._last_slot + 1)  # one frame per slot
+        self._last_slot = k
+        return self._phase_s + k * cycle
+
+    def _corrupt(self, frame: bytes) -> bytes:
+        ber = self.params.bit_error_rate
+        nbits = 8 * len(frame)
+        if ber == 0.0 or nbits == 0:
+            return frame
+        k = int(self._rng.binomial(nbits, ber))
+        if k == 0:
+            return frame
+        # k flips at distinct positions: the same law as every bit flipping independently.
+        pos = self._rng.choice(nbits, size=k, replace=False)
+        buf = np.frombuffer(frame, dtype=np.uint8).copy()
+        np.bitwise_xor.at(buf, pos // 8, (1 << (7 - pos % 8)).astype(np.uint8))
+        self._counts["corrupted"] += 1
+        return buf.tobytes()
+
+    def _push(self, arrival_s: float, frame: bytes) -> None:
+        heapq.heappush(self._queue, (arrival_s, self._seq, frame))
+        self._seq += 1
+
+    def send(self, frame: bytes, now_s: float) -> None:
+        """Hand a frame to the medium at ``now_s`` (seconds; not earlier than the previous send)."""
+        if not isinstance(frame, bytes | bytearray | memoryview):
+            raise LinkError(f"frame must be bytes (got {type(frame).__name__})")
+        frame = bytes(frame)
+        now_s = float(now_s)
+        if not math.isfinite(now_s):
+            raise LinkError(f"now_s must be finite (got {now_s!r})")
+        if now_s < self._last_send_s:
+            raise LinkError(f"now_s went backwards: {now_s!r} after a send at {self._last_send_s!r}")
+        self._last_send_s = now_s
+        p = self.params
+
+        # Fixed draws per send (module docstring), whatever the outcome.
+        u_state, u_burst, u_loss, u_dup, u_reorder = self._rng.random(5)
+        z = float(self._rng.standard_normal())
+
+        # Gilbert–Elliott: advance the chain once per frame, then judge this frame.
+        self._bad = (
+            (u_state >= p.burst_exit_probability) if self._bad else (u_state < p.burst_enter_probability)
+        )
+        self._counts["sent"] += 1
+        self._counts["sent_in_burst"] += int(self._bad)
+
+        depart_s = self._departure_s(now_s)
+        air_s = float(airtime_s(p, len(frame)))
+        duplicated = u_dup < p.duplicate_probability
+        # The medium is busy during the transmission (twice for a duplicate), lost or not.
+        self._medium_free_s = depart_s + air_s * (2 if duplicated else 1)
+
+        lost = (self._bad and u_burst < p.burst_loss_probability) or u_loss < p.loss_probability
+        if lost:
+            self._counts["lost"] += 1
+            return
+
+        reordered = u_reorder < p.reorder_probability
+        # Same model as delivery_delay_s(): airtime + propagation (+ hold-back).
+        arrival_s = depart_s + air_s + float(propagation_delay_s(p, z))
+        if reordered:
+            arrival_s += p.reorder_delay_s
+            self._counts["reordered"] += 1
+        else:
+            # FIFO: jitter never lets a frame overtake an earlier one.
+            arrival_s = max(arrival_s, self._in_order_s)
+            self._in_order_s = arrival_s
+        self._push(arrival_s, self._corrupt(frame))
+        if duplicated:
+            self._counts["duplicated"] += 1
+            self._push(arrival_s + air_s, self._corrupt(frame))
+            if not reordered:
+                self._in_order_s = arrival_s + air_s  # later frames do not overtake the copy
+
+    def receive(self, now_s: float) -> list[bytes]:
+        """Frames that have arrived by ``now_s``, in arrival order; each is returned once."""
+        out: list[bytes] = []
+        while self._queue and self._queue[0][0] <= now_s:
+            out.append(heapq.heappop(self._queue)[2])
+        self._counts["delivered"] += len(out)
+        return out
+
+    def next_arrival_s(self) -> float | None:
+        """Arrival time of the next frame in flight, or None."""
+        return self._queue[0][0] if self._queue else None
+
+    def in_flight(self) -> int:
+        """Copies sent but not yet received."""
+        return len(self._queue)
+
+
+# --------------------------------------------------------------------------
+# Presets as data (DESIGN rule 3): railstop/data/media.toml
+
+
+class MediaFile(RootModel[dict[str, ChannelParams]]):
+    """A media file: one TOML table per medium, ``[name]`` with ChannelParams keys."""
+
+    @model_validator(mode="after")
+    def _not_empty(self) -> MediaFile:
+        if not self.root:
+            raise ValueError("a media file needs at least one [medium] table")
+        return self
+
+
+def _builtin() -> tuple[str, dict[str, Any]]:
+    source = f"railstop/data/{MEDIA_FILE}"
+    text = resources.files(DATA_PACKAGE).joinpath(MEDIA_FILE).read_text(encoding="utf-8")
+    try:
+        return source, tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(source, "(toml syntax)", str(exc)) from None
+
+
+def load_media(name_or_path: str | Path | None = None) -> dict[str, ChannelParams]:
+    """All media of a file: ``None`` or ``"media"`` = the embedded presets, else a TOML path.
+
+    Unknown keys and bad values raise ConfigError naming the file, the field
+    (``radio.latency_s``) and the value.
+    """
+    if name_or_path is None or (isinstance(name_or_path, str) and name_or_path == BUILTIN_MEDIA):
+        source, data = _builtin()
+    else:
+        source, data = str(name_or_path), read_toml(Path(name_or_path))
+    token = _RAW.set(True)
+    try:
+        return dict(validate(MediaFile, data, source).root)
+    finally:
+        _RAW.reset(token)
+
+
+def media_preset(name: str, path: str | Path | None = None) -> ChannelParams:
+    """One medium by name (``loop``, ``transponder``, ``radio``) from the embedded presets or ``path``."""
+    media = load_media(path)
+    if name not in media:
+        source = f"railstop/data/{MEDIA_FILE}" if path is None else str(path)
+        raise ConfigError(source, "(medium)", f"unknown medium; available: {', '.join(sorted(media))}", name)
+    return media[name]
+
+
+__all__ = [
+    "BUILTIN_MEDIA",
+    "ChannelParams",
+    "ChannelStats",
+    "LinkError",
+    "MediaFile",
+    "SimChannel",
+    "airtime_s",
+    "corruption_probability",
+    "delivery_delay_s",
+    "load_media",
+    "mean_delivery_delay_s",
+    "mean_propagation_delay_s",
+    "media_preset",
+    "propagation_delay_s",
+    "stationary_loss_probability",
+]

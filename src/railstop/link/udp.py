@@ -1,0 +1,447 @@
+"""Asyncio UDP transport for link frames between processes (DESIGN: link/, live drivers).
+
+:func:`open_endpoint` gives a :class:`UdpEndpoint` that sends and receives
+frames (bytes) as UDP datagrams: the same frames :class:`~railstop.link.channel.SimChannel`
+carries in simulation, here over real sockets. It is a driver at the edge
+(DESIGN "one idea"): it opens a socket; the units it feeds (the safety layer,
+the TASC units) stay pure.
+
+* One frame = one datagram. Frames longer than ``max_frame_bytes`` (default
+  1472 = Ethernet MTU 1500 − IPv4 20 − UDP 8, so no IP fragmentation) are
+  refused on send with :class:`~railstop.link.channel.LinkError`; longer
+  datagrams received are dropped and counted.
+* The receive queue is bounded: when it is full the *oldest* frame is dropped
+  (a late TASC telegram is worth less than the newest one) and counted.
+
+Two processes (``python -m railstop.link.udp``)
+-----------------------------------------------
+``send --port P --count N ...`` encodes N TASC telegrams
+(:func:`demo_telegram`, ``railstop.link.codec``), wraps each with
+``railstop.link.safety.SafeSender`` and sends them; ``--replay K`` and
+``--corrupt K`` also inject K verbatim re-sends of earlier frames and K
+copies with one bit flipped (EN 50159 threats: repetition, corruption), so a
+test sees the receiver reject them over real sockets.
+``receive --port P --count N ...`` binds P (it says ``listening on host:port``
+on stderr once bound), accepts frames with ``SafeReceiver`` until N were
+delivered (or ``--wait-s`` ran out), lingers ``--linger-s`` for stragglers,
+decodes the delivered payloads and prints one JSON line:
+``{"counts": receiver.counts, "delivered": ..., "rejected": {reason: n}, ...}``;
+exit status 0 when N were delivered, 1 when not, 2 on a usage error.
+Category 3 (``--category 3``, open transmission: radio) needs ``--key-hex``,
+a master key; each direction uses ``safety.link_key(master, src, dst)``.
+Categories 1 and 2 use a CRC-32 and no key.
+
+Time: the safety layer stamps and checks times in seconds. Sender and
+receiver are different processes, so both count seconds since a shared epoch
+given on the command line (``--epoch``, a ``time.time()`` value): this stands
+for the GNSS-synchronised clocks of the wayside and the train (SPEC §2). Each
+process reads the wall clock once at start to place its ``time.monotonic()``
+on that epoch and then only uses the monotonic clock, at this edge only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import collections
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from railstop.errors import RailstopError, TelegramError
+from railstop.link.channel import LinkError
+from railstop.link.codec import TascRequiredDecel, decode, encode
+from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+
+Address = tuple[str, int]
+
+#: Largest frame sent by default: Ethernet MTU 1500 − IPv4 header 20 − UDP header 8.
+MAX_DATAGRAM_BYTES = 1472
+DEFAULT_QUEUE_FRAMES = 256
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EndpointStats:
+    """Counts of a :class:`UdpEndpoint`: frames sent and received, and why any were dropped."""
+
+    sent: int
+    received: int
+    dropped_queue_full: int  # oldest frames dropped because the queue was full
+    dropped_oversize: int  # received datagrams longer than max_frame_bytes
+    errors: int  # errors the socket reported (e.g. ICMP port unreachable)
+
+
+class _Protocol(asyncio.DatagramProtocol):
+    def __init__(self, endpoint: UdpEndpoint) -> None:
+        self._endpoint = endpoint
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self._endpoint._on_datagram(data, (str(addr[0]), int(addr[1])))
+
+    def error_received(self, exc: Exception) -> None:
+        self._endpoint._errors += 1
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._endpoint._wake.set()  # a waiting recv() returns
+
+
+class UdpEndpoint:
+    """A UDP socket carrying frames; made by :func:`open_endpoint`."""
+
+    def __init__(self, *, remote: Address | None, queue_frames: int, max_frame_bytes: int) -> None:
+        self._transport: asyncio.DatagramTransport | None = None
+        self._remote = remote
+        self._queue: collections.deque[tuple[bytes, Address]] = collections.deque()
+        self._queue_frames = queue_frames
+        self._max_frame_bytes = max_frame_bytes
+        self._wake = asyncio.Event()
+        self._sent = 0
+        self._received = 0
+        self._dropped_full = 0
+        self._dropped_oversize = 0
+        self._errors = 0
+
+    # -- socket callbacks ------------------------------------------------
+
+    def _on_datagram(self, data: bytes, addr: Address) -> None:
+        if len(data) > self._max_frame_bytes:
+            self._dropped_oversize += 1
+            return
+        if len(self._queue) >= self._queue_frames:
+            self._queue.popleft()  # bounded queue: the oldest frame goes
+            self._dropped_full += 1
+        self._queue.append((data, addr))
+        self._received += 1
+        self._wake.set()
+
+    # -- public ----------------------------------------------------------
+
+    @property
+    def local_address(self) -> Address:
+        """The bound (host, port); port is the real one when 0 was asked for."""
+        if self._transport is None:
+            raise LinkError("endpoint is not open")
+        host, port = self._transport.get_extra_info("sockname")[:2]
+        return str(host), int(port)
+
+    @property
+    def closed(self) -> bool:
+        return self._transport is None or self._transport.is_closing()
+
+    @property
+    def stats(self) -> EndpointStats:
+        return EndpointStats(
+            sent=self._sent,
+            received=self._received,
+            dropped_queue_full=self._dropped_full,
+            dropped_oversize=self._dropped_oversize,
+            errors=self._errors,
+        )
+
+    def send(self, frame: bytes, addr: Address | None = None) -> None:
+        """Send one frame as one datagram to ``addr`` (default: the endpoint's remote)."""
+        if not isinstance(frame, bytes | bytearray | memoryview):
+            raise LinkError(f"frame must be bytes (got {type(frame).__name__})")
+        frame = bytes(frame)
+        if len(frame) > self._max_frame_bytes:
+            raise LinkError(f"frame of {len(frame)} bytes exceeds max_frame_bytes = {self._max_frame_bytes}")
+        target = addr if addr is not None else self._remote
+        if target is None:
+            raise LinkError("no address: give addr or open the endpoint with a remote")
+        if self._transport is None or self._transport.is_closing():
+            raise LinkError("endpoint is closed")
+        self._transport.sendto(frame, target)
+        self._sent += 1
+
+    async def recv(self, timeout_s: float | None = None) -> tuple[bytes, Address] | None:
+        """The oldest queued frame and its sender; None after ``timeout_s`` (None = wait) or once closed."""
+        if timeout_s is not None and not (timeout_s >= 0.0 and math.isfinite(timeout_s)):
+            raise LinkError(f"timeout_s must be a non-negative number (got {timeout_s!r})")
+        loop = asyncio.get_running_loop()
+        deadline = None if timeout_s is None else loop.time() + timeout_s
+        while not self._queue:
+            if self.closed:
+                return None
+            self._wake.clear()
+            remaining = None if deadline is None else deadline - loop.time()
+            if remaining is not None and remaining <= 0.0:
+                return None
+            try:
+                await asyncio.wait_for(self._wake.wait(), remaining)
+            except TimeoutError:
+                return None
+        return self._queue.popleft()
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+
+    async def __aenter__(self) -> UdpEndpoint:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+
+
+async def open_endpoint(
+    local: Address,
+    remote: Address | None = None,
+    *,
+    queue_frames: int = DEFAULT_QUEUE_FRAMES,
+    max_frame_bytes: int = MAX_DATAGRAM_BYTES,
+) -> UdpEndpoint:
+    """Bind a UDP endpoint at ``local`` (port 0 = any free port); ``remote`` = default destination."""
+    if queue_frames < 1:
+        raise LinkError(f"queue_frames must be >= 1 (got {queue_frames!r})")
+    if not 1 <= max_frame_bytes <= 65507:  # largest UDP payload over IPv4
+        raise LinkError(f"max_frame_bytes must be 1..65507 (got {max_frame_bytes!r})")
+    endpoint = UdpEndpoint(remote=remote, queue_frames=queue_frames, max_frame_bytes=max_frame_bytes)
+    loop = asyncio.get_running_loop()
+    try:
+        transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(endpoint), local_addr=local)
+    except OSError as exc:
+        raise LinkError(f"cannot bind UDP {local[0]}:{local[1]}: {exc.strerror or exc}") from None
+    endpoint._transport = transport
+    return endpoint
+
+
+# --------------------------------------------------------------------------
+# Two-process demo / test driver: python -m railstop.link.udp send|receive
+
+
+class EpochClock:
+    """Seconds since a shared epoch (stands for GNSS time, SPEC §2), ticking on time.monotonic()."""
+
+    def __init__(self, epoch: float) -> None:
+        # The only wall-clock read: place the monotonic clock on the shared epoch.
+        self._offset_s = time.time() - time.monotonic() - epoch
+
+    def now_s(self) -> float:
+        return time.monotonic() + self._offset_s
+
+
+def demo_telegram(i: int) -> TascRequiredDecel:
+    """Telegram i of the demo: a TASC required deceleration (SPEC §1 claim 3 form 6), varying with i."""
+    return TascRequiredDecel(train_id=101, detector=i % 5, required_mps2=(500 + i % 9000) / 1000)
+
+
+def demo_payload(i: int) -> bytes:
+    """The codec bytes of :func:`demo_telegram` ``i`` (type, payload, CRC-16: SPEC §5)."""
+    return encode(demo_telegram(i))
+
+
+def _spread(k: int, n: int) -> list[int]:
+    """k injection points among genuine frames 0..n-2 (never after the last genuine frame)."""
+    if k <= 0 or n < 2:
+        return []
+    if k == 1:
+        return [(n - 2) // 2]
+    return [round(j * (n - 2) / (k - 1)) for j in range(k)]
+
+
+def _direction_key(args: argparse.Namespace, src_id: int, dst_id: int) -> bytes | None:
+    """Category 3: the key of this direction, derived from the shared master key; 1, 2: none (CRC-32)."""
+    if args.category != 3:
+        if args.key is not None:
+            raise LinkError(f"category {args.category} uses a CRC-32, not a key: leave out --key-hex")
+        return None
+    if args.key is None:
+        raise LinkError("category 3 needs --key-hex (the shared master key)")
+    return link_key(args.key, src_id, dst_id)
+
+
+async def run_sender(args: argparse.Namespace) -> dict[str, Any]:
+    clock = EpochClock(args.epoch)
+    key = _direction_key(args, args.src_id, args.dst_id)
+    sender = SafeSender(args.src_id, args.dst_id, key=key, category=args.category)
+    replay_after = collections.Counter(_spread(args.replay, args.count))
+    corrupt_after = collections.Counter(_spread(args.corrupt, args.count))
+    sent: list[bytes] = []
+    injected = {"replayed": 0, "corrupted": 0}
+    async with await open_endpoint((args.host, 0), (args.host, args.port)) as ep:
+        i = 0
+        nxt = sender.wrap(demo_payload(0), clock.now_s()) if args.count else b""
+        while i < args.count:
+            frame = nxt
+            ep.send(frame)
+            sent.append(frame)
+            await asyncio.sleep(args.interval_s)
+            if i + 1 < args.count:
+                nxt = sender.wrap(demo_payload(i + 1), clock.now_s())
+            # Repetition threat: an earlier frame again, verbatim.
+            for _ in range(replay_after[i]):
+                ep.send(sent[max(i - 1, 0)])
+                injected["replayed"] += 1
+                await asyncio.sleep(args.interval_s)
+            # Corruption threat: a copy of the next genuine frame with one bit flipped, sent first.
+            for _ in range(corrupt_after[i]):
+                bad = bytearray(nxt)
+                bad[len(bad) // 2] ^= 0x10
+                ep.send(bytes(bad))
+                injected["corrupted"] += 1
+                await asyncio.sleep(args.interval_s)
+            i += 1
+        stats = ep.stats
+    return {"sent": stats.sent, "genuine": len(sent), **injected}
+
+
+async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
+    clock = EpochClock(args.epoch)
+    receiver = SafeReceiver(
+        args.own_id,
+        args.peer_id,
+        key=_direction_key(args, args.peer_id, args.own_id),
+        category=args.category,
+        max_age_s=args.max_age_s,
+        timeout_s=args.timeout_s,
+        start_s=clock.now_s(),
+    )
+    delivered = 0
+    decoded = 0
+    telegram_errors: collections.Counter[str] = collections.Counter()
+    rejected: collections.Counter[str] = collections.Counter()
+    payloads: list[str] = []
+    loop = asyncio.get_running_loop()
+    async with await open_endpoint((args.host, args.port)) as ep:
+        host, port = ep.local_address
+        print(f"listening on {host}:{port}", file=sys.stderr, flush=True)
+        deadline = loop.time() + args.wait_s
+        linger_until: float | None = None
+        while True:
+            end = deadline if linger_until is None else min(deadline, linger_until)
+            got = await ep.recv(max(0.0, end - loop.time()))
+            if got is None:
+                break
+            result = receiver.accept(got[0], clock.now_s())
+            if isinstance(result, Delivered):
+                delivered += 1
+                payloads.append(result.payload.hex())
+                try:
+                    decode(result.payload)  # the codec's own checks (CRC-16) behind the safety layer
+                    decoded += 1
+                except TelegramError as exc:
+                    telegram_errors[exc.reason] += 1
+                if delivered >= args.count and linger_until is None:
+                    linger_until = loop.time() + args.linger_s
+            else:
+                rejected[str(result.reason)] += 1
+        stats = ep.stats
+    return {
+        "counts": dict(receiver.counts),
+        "delivered": delivered,
+        "decoded": decoded,
+        "telegram_errors": dict(telegram_errors),
+        "rejected": dict(rejected),
+        "complete": delivered >= args.count,
+        "datagrams": stats.received,
+        "dropped_queue_full": stats.dropped_queue_full,
+        "dropped_oversize": stats.dropped_oversize,
+        "payloads": payloads,
+    }
+
+
+def _key(text: str) -> bytes:
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not hexadecimal: {text!r}") from None
+    if not key:
+        raise argparse.ArgumentTypeError("the key must not be empty")
+    return key
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not (value > 0.0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a positive number (got {text!r})")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 (got {text!r})")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m railstop.link.udp",
+        description="Send or receive safety-layer telegrams over UDP between two processes.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--host", default="127.0.0.1", help="address (default: loopback)")
+    common.add_argument("--port", type=int, required=True, help="the receiver's UDP port")
+    common.add_argument("--count", type=_non_negative_int, required=True, help="genuine telegrams")
+    common.add_argument(
+        "--category", type=int, choices=(1, 2, 3), default=3, help="EN 50159 category of the transmission"
+    )
+    common.add_argument(
+        "--key-hex",
+        dest="key",
+        type=_key,
+        default=None,
+        help="shared master key, hexadecimal (category 3; each direction uses a key derived from it)",
+    )
+    common.add_argument(
+        "--epoch",
+        type=float,
+        required=True,
+        help="shared time origin, a time.time() value (stands for GNSS-synchronised clocks)",
+    )
+
+    snd = sub.add_parser("send", parents=[common], help="wrap and send telegrams")
+    snd.add_argument("--src-id", type=int, default=1)
+    snd.add_argument("--dst-id", type=int, default=2)
+    snd.add_argument("--interval-s", type=float, default=0.005, help="pause between datagrams")
+    snd.add_argument("--replay", type=_non_negative_int, default=0, help="inject K re-sent old frames")
+    snd.add_argument(
+        "--corrupt", type=_non_negative_int, default=0, help="inject K frames with a bit flipped"
+    )
+
+    rcv = sub.add_parser("receive", parents=[common], help="accept telegrams, print JSON counts")
+    rcv.add_argument("--own-id", type=int, default=2)
+    rcv.add_argument("--peer-id", type=int, default=1)
+    rcv.add_argument("--max-age-s", type=_positive, default=1.0, help="oldest acceptable telegram")
+    rcv.add_argument("--timeout-s", type=_positive, default=2.0, help="safety-layer supervision timeout")
+    rcv.add_argument("--wait-s", type=_positive, default=10.0, help="give up after this long")
+    rcv.add_argument("--linger-s", type=float, default=0.2, help="keep listening after the last one")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "send":
+            out = asyncio.run(run_sender(args))
+            ok = True
+        else:
+            out = asyncio.run(run_receiver(args))
+            ok = bool(out["complete"])
+    except RailstopError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(out, sort_keys=True), flush=True)
+    return 0 if ok else 1
+
+
+__all__ = [
+    "MAX_DATAGRAM_BYTES",
+    "EndpointStats",
+    "EpochClock",
+    "UdpEndpoint",
+    "build_parser",
+    "demo_payload",
+    "demo_telegram",
+    "main",
+    "open_endpoint",
+]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

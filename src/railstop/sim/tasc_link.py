@@ -1,0 +1,259 @@
+"""The wayside -> train braking telegrams as bytes (SPEC §1 claim 3 forms, SPEC §5 media).
+
+The wayside TASC unit produces its telegrams as arrays over runs
+(:class:`~railstop.wayside.tasc_unit.TascTelegrams`). On the air each one is
+a codec telegram (:mod:`railstop.link.codec`: type, fixed-point payload,
+CRC-16) inside an EN 50159 safety frame (:mod:`railstop.link.safety`:
+ids, sequence number, timestamp, MAC), carried by a medium
+(:mod:`railstop.link.channel`).
+
+Two drivers, one result (DESIGN rule 1):
+
+* every driver quantises the telegrams exactly as the codec does
+  (:func:`quantize_telegrams`), so a value that went through bytes equals
+  the value the campaign uses;
+* the detailed stop (n = 1) really encodes, wraps, corrupts (when the draw
+  says so), checks and decodes every frame (:class:`ByteLink`); the campaign
+  takes the same per-frame decisions (loss, corruption, delay, staleness)
+  from the same random streams and channel functions without building bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.link.codec import (
+    TASC_FORM_TYPES,
+    TascBrakeCommand,
+    TascDecel,
+    TascDistance,
+    TascIncreaseDecrease,
+    TascInterval,
+    TascPosition,
+    TascRequiredDecel,
+    TascSpeed,
+    Telegram,
+    decode,
+    encode,
+    layout_of,
+    quantize,
+)
+from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_size, link_key
+from railstop.wayside.tasc_unit import SignalForm, TascTelegrams
+
+FloatArray = NDArray[np.float64]
+
+WAYSIDE_ID = 0x0100  # the station's wayside TASC unit
+TRAIN_ID = 0x0001  # the train (one per run in a campaign: its own link)
+# Demonstration master key. A deployment loads its link keys from its key
+# management; a simulation only needs every run to use the same one.
+_DEMO_MASTER = hashlib.sha256(b"railstop demonstration TASC link master key").digest()
+
+# SPEC §1 claim 3: the array fields each form puts on the air (the rest is NaN).
+_CARRIED: dict[SignalForm, tuple[str, ...]] = {
+    SignalForm.POSITION: ("position_m", "measured_s"),
+    SignalForm.DISTANCE: ("distance_m", "measured_s"),
+    SignalForm.INTERVAL_TIME: ("interval_s", "passage_s"),
+    SignalForm.SPEED: ("speed_mps", "measured_s", "passage_s"),
+    SignalForm.DECELERATION: ("decel_mps2", "passage_s"),
+    SignalForm.REQUIRED_DECELERATION: ("required_mps2",),
+    SignalForm.BRAKE_COMMAND: ("notch", "duty"),
+    SignalForm.INCREASE_DECREASE: ("delta",),
+}
+_FLOAT_FIELDS = (
+    "passage_s",
+    "measured_s",
+    "position_m",
+    "distance_m",
+    "interval_s",
+    "speed_mps",
+    "decel_mps2",
+    "required_mps2",
+    "duty",
+)
+
+
+def frame_bytes(form: SignalForm, category: int) -> int:
+    """Bytes on the medium of one braking telegram of ``form`` (codec frame in a safety frame)."""
+    return frame_size(layout_of(TASC_FORM_TYPES[int(form)]).frame_size, category)
+
+
+def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
+    """What the train can receive: carried fields rounded to the codec's resolution, the rest NaN.
+
+    Equal, field by field, to :func:`from_message` of the decoded bytes (a
+    test proves it), so the campaign and the detailed stop see the same numbers.
+    """
+    form = SignalForm(tele.form)
+    kind = TASC_FORM_TYPES[int(form)]
+    carried = _CARRIED[form]
+    changes: dict[str, object] = {}
+    for name in _FLOAT_FIELDS:
+        if name not in carried:
+            changes[name] = np.full(tele.mask.shape, np.nan)
+    for name in ("notch", "delta"):
+        if name not in carried:
+            changes[name] = np.zeros(tele.mask.shape, dtype=np.int64)
+    if form == SignalForm.SPEED:
+        # Form 4 carries the passage as its age at the measurement time.
+        measured = quantize(kind, "measured_s", tele.measured_s)
+        age = quantize(kind, "passage_age_s", tele.measured_s - tele.passage_s)
+        changes["measured_s"] = measured
+        changes["speed_mps"] = quantize(kind, "speed_mps", tele.speed_mps)
+        changes["passage_s"] = measured - age
+    else:
+        for name in carried:
+            if name in _FLOAT_FIELDS:
+                changes[name] = quantize(kind, name, getattr(tele, name))
+    return replace(tele, **changes)  # type: ignore[arg-type]
+
+
+def _opt(x: float) -> float | None:
+    return None if not np.isfinite(x) else float(x)
+
+
+def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Telegram:
+    """The codec message of run ``row`` of a (quantised) telegram."""
+    form = SignalForm(tele.form)
+    det = int(tele.detector[row])
+    if form == SignalForm.POSITION:
+        return TascPosition(
+            train_id=train_id,
+            detector=det,
+            position_m=float(tele.position_m[row]),
+            measured_s=float(tele.measured_s[row]),
+        )
+    if form == SignalForm.DISTANCE:
+        return TascDistance(
+            train_id=train_id,
+            detector=det,
+            distance_m=float(tele.distance_m[row]),
+            measured_s=float(tele.measured_s[row]),
+        )
+    if form == SignalForm.INTERVAL_TIME:
+        return TascInterval(
+            train_id=train_id,
+            detector=det,
+            interval_s=_opt(tele.interval_s[row]),
+            passage_s=float(tele.passage_s[row]),
+        )
+    if form == SignalForm.SPEED:
+        measured = float(tele.measured_s[row])
+        return TascSpeed(
+            train_id=train_id,
+            detector=det,
+            speed_mps=float(tele.speed_mps[row]),
+            measured_s=measured,
+            passage_age_s=measured - float(tele.passage_s[row]),
+        )
+    if form == SignalForm.DECELERATION:
+        return TascDecel(
+            train_id=train_id,
+            detector=det,
+            decel_mps2=_opt(tele.decel_mps2[row]),
+            passage_s=float(tele.passage_s[row]),
+        )
+    if form == SignalForm.REQUIRED_DECELERATION:
+        return TascRequiredDecel(
+            train_id=train_id, detector=det, required_mps2=float(tele.required_mps2[row])
+        )
+    if form == SignalForm.BRAKE_COMMAND:
+        return TascBrakeCommand(
+            train_id=train_id, detector=det, notch=int(tele.notch[row]), duty=_opt(tele.duty[row])
+        )
+    return TascIncreaseDecrease(train_id=train_id, detector=det, delta=int(tele.delta[row]))
+
+
+def from_message(msg: Telegram, form: SignalForm) -> TascTelegrams:
+    """A one-run telegram array from a decoded message (fields the form does not carry are NaN)."""
+    nan = np.full(1, np.nan)
+
+    def val(name: str) -> FloatArray:
+        v = getattr(msg, name, None)
+        return np.full(1, np.nan if v is None else float(v))
+
+    passage = val("passage_s")
+    if form == SignalForm.SPEED:
+        passage = np.full(1, msg.passage_s)  # type: ignore[attr-defined]
+    return TascTelegrams(
+        form=form,
+        mask=np.ones(1, dtype=bool),
+        detector=np.full(1, int(msg.detector), dtype=np.int64),  # type: ignore[attr-defined]
+        passage_s=passage,
+        measured_s=val("measured_s"),
+        position_m=val("position_m"),
+        distance_m=val("distance_m"),
+        interval_s=val("interval_s"),
+        speed_mps=val("speed_mps"),
+        decel_mps2=val("decel_mps2"),
+        required_mps2=val("required_mps2"),
+        notch=np.full(1, int(getattr(msg, "notch", 0)), dtype=np.int64),  # 0 when not carried
+        duty=val("duty") if form == SignalForm.BRAKE_COMMAND else nan,
+        delta=np.full(1, int(getattr(msg, "delta", 0)), dtype=np.int64),
+    )
+
+
+@dataclass(slots=True)
+class ByteLink:
+    """The braking telegrams of one run as real frames: codec + EN 50159 safety layer.
+
+    ``transmit`` builds the frame of an attempt (flipping one bit when the
+    attempt's draw says it is corrupted); ``arrive`` hands frames that have
+    arrived to the safety receiver and returns the decoded telegram of the
+    genuine one, if any. Rejections are counted by reason (``receiver.counts``).
+    """
+
+    category: int
+    max_age_s: float
+    sender: SafeSender = field(init=False)
+    receiver: SafeReceiver = field(init=False)
+    in_flight: list[tuple[float, bytes, bool]] = field(default_factory=list)  # (arrival, frame, genuine)
+    frames_sent: int = 0
+
+    def __post_init__(self) -> None:
+        key = None
+        rx_key = None
+        if self.category == 3:
+            key = rx_key = link_key(_DEMO_MASTER, WAYSIDE_ID, TRAIN_ID)
+        self.sender = SafeSender(WAYSIDE_ID, TRAIN_ID, key=key, category=self.category)
+        self.receiver = SafeReceiver(
+            TRAIN_ID,
+            WAYSIDE_ID,
+            key=rx_key,
+            category=self.category,
+            max_age_s=self.max_age_s,
+            timeout_s=1e9,  # the TASC zone's supervision is the onboard unit's, not modelled here
+        )
+
+    def transmit(
+        self, tele: TascTelegrams, now_s: float, arrival_s: float, corrupt_bit: float | None
+    ) -> None:
+        """One attempt sent at ``now_s``; ``corrupt_bit`` in [0, 1) picks the flipped bit (None: intact)."""
+        frame = bytearray(self.sender.wrap(encode(to_message(tele, 0)), now_s))
+        self.frames_sent += 1
+        if corrupt_bit is not None:
+            bit = min(int(corrupt_bit * 8 * len(frame)), 8 * len(frame) - 1)
+            frame[bit // 8] ^= 1 << (bit % 8)
+        self.in_flight.append((arrival_s, bytes(frame), corrupt_bit is None))
+
+    def drop_genuine(self) -> None:
+        """A newer telegram supersedes the one in flight: the wayside sends only its latest."""
+        self.in_flight = [f for f in self.in_flight if not f[2]]
+
+    def arrive(self, now_s: float, form: SignalForm) -> TascTelegrams | None:
+        """Frames arrived by ``now_s`` go through the safety receiver; the genuine one is decoded."""
+        got: TascTelegrams | None = None
+        keep: list[tuple[float, bytes, bool]] = []
+        for arrival, frame, genuine in self.in_flight:
+            if arrival > now_s + 1e-9:
+                keep.append((arrival, frame, genuine))
+                continue
+            verdict = self.receiver.accept(frame, now_s)
+            if isinstance(verdict, Delivered):
+                got = from_message(decode(verdict.payload), form)
+        self.in_flight = keep
+        return got
