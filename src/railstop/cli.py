@@ -21,8 +21,7 @@ from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.errors import RailstopError
-from railstop.onboard.ato import ATO
-from railstop.sim.engine import CONTROLLERS, BatchResult
+from railstop.sim.engine import ATO_CONTROLLERS, CONTROLLERS, BatchResult
 from railstop.sim.single import StopResult, run_stop
 from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
 
@@ -119,8 +118,8 @@ def stop(
         print(json.dumps(result.summary()))
         return
     what = (
-        "onboard ATO, no telegrams"
-        if result.controller == ATO
+        "onboard ATO, no TASC telegrams"
+        if result.controller in ATO_CONTROLLERS
         else f"{result.commands} commands received (form {result.form}: "
         f"{FORM_NAMES[SignalForm(result.form)]})"
     )

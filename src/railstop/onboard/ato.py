@@ -44,6 +44,9 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 ATO = "ato"
+# The same ATO whose position comes from SPEC §2 track-circuit corrections
+# (railstop.onboard.positioning, the document's method) instead of transponders.
+ATO_CORRECTED = "ato-corrected"
 ATO_SPEED_GAIN_PER_S = 1.2  # speed-error feedback (1/s)
 ATO_LEAD_FRACTION = 0.15  # of the brake's equivalent dead time: how far ahead the curve is read
 
@@ -91,7 +94,11 @@ class AtoController:
         if not passed.any():
             return
         rows = np.flatnonzero(passed)
-        self.distance_m[rows] = self.station.stop_point_m - self.transponders_m[index[rows]]
+        self.fix(rows, self.station.stop_point_m - self.transponders_m[index[rows]])
+
+    def fix(self, rows: IntArray, distance_m: FloatArray) -> None:
+        """A position fix of runs ``rows``: their distance to the stopping point is now ``distance_m``."""
+        self.distance_m[rows] = distance_m
         self.active[rows] = True
         self.fixes[rows] += 1
         # A new position fix: a new brake curve through the corrected state.

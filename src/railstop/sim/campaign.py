@@ -33,7 +33,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from railstop.config.disturbances import DisturbanceSet, draw_scenario
-from railstop.config.schema import Line, Station, Vehicle
+from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
 from railstop.report.campaign_report import summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
@@ -117,8 +117,12 @@ def simulate_runs(
     n: int,
     form: int | None = None,
     record: bool = False,
+    track: Track | None = None,
 ) -> tuple[BatchResult, dict[str, np.ndarray]]:
-    """Runs ``first_run .. first_run + n - 1`` of a campaign: the drawn values and the batch result."""
+    """Runs ``first_run .. first_run + n - 1`` of a campaign: the drawn values and the batch result.
+
+    ``track``: the line's track circuits (needed by ``ato-corrected``).
+    """
     streams = RunStreams.for_runs(seed, first_run, n)
     scenario, drawn = draw_scenario(disturbances, station, vehicle, streams)
     result = run_batch(
@@ -129,6 +133,7 @@ def simulate_runs(
         streams=streams,
         form=None if form is None else SignalForm(form),
         record=record,
+        track=track,
     )
     return result, drawn
 
@@ -167,6 +172,7 @@ def _run_chunk(spec: CampaignSpec, out: Path, k: int) -> int:
         first_run=first,
         n=end - first,
         form=spec.form,
+        track=spec.line.track,
     )
     path = _chunk_path(out, k)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -356,6 +362,7 @@ def replay_profile(out: Path, run: int, line: Line, vehicle: Vehicle) -> tuple[n
         n=1,
         form=spec.form,
         record=True,
+        track=line.track,
     )
     if result.trace is None:
         raise RailstopError("replay recorded no trace")

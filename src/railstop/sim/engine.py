@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from railstop.config.schema import Station, Vehicle
+from railstop.config.schema import Station, Track, Vehicle
 from railstop.errors import RailstopError, SimulationError
 from railstop.link.channel import (
     ChannelParams,
@@ -28,7 +28,7 @@ from railstop.link.channel import (
     delivery_delay_s,
     media_preset,
 )
-from railstop.onboard.ato import ATO, AtoController
+from railstop.onboard.ato import ATO, ATO_CORRECTED, AtoController
 from railstop.onboard.tasc_receiver import OnboardConfig, TascReceiver
 from railstop.physics.brake import (
     ActuatorState,
@@ -39,6 +39,7 @@ from railstop.physics.brake import (
 )
 from railstop.physics.train import MotionState, TrainMass, motion_step, odometer_increment_m
 from railstop.sensors.wayside import WheelSensors, doppler_sample
+from railstop.sim.corrected_position import TrackCircuitFixes
 from railstop.sim.scenario import Scenario
 from railstop.sim.tasc_link import ByteLink, frame_bytes, quantize_telegrams
 from railstop.streams import RunStreams, Stream
@@ -49,8 +50,10 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 TASC_CONTROLLERS: tuple[str, ...] = tuple(c.value for c in OnboardConfig)
-# The three TASC configurations and the conventional onboard ATO baseline.
-CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, ATO)
+# The three TASC configurations and the conventional onboard ATO baselines
+# (position reset at station transponders / corrected from track circuits, SPEC §2).
+ATO_CONTROLLERS: tuple[str, ...] = (ATO, ATO_CORRECTED)
+CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS)
 DT_S = 0.01
 MAX_TIME_S = 150.0
 
@@ -223,6 +226,7 @@ def run_batch(
     record: bool = False,
     dt_s: float = DT_S,
     max_time_s: float = MAX_TIME_S,
+    track: Track | None = None,
 ) -> BatchResult:
     """Simulate ``scenario.n`` TASC stops at ``station``; see the module docstring."""
     if controller not in CONTROLLERS:
@@ -230,7 +234,7 @@ def run_batch(
     n = scenario.n
     if streams.n != n:
         raise SimulationError(f"{streams.n} random streams for {n} runs")
-    is_ato = controller == ATO
+    is_ato = controller in ATO_CONTROLLERS
     form = SignalForm(station.tasc.signal_form if form is None else form)
     if station.tasc.doppler is not None and abs(station.tasc.doppler.sample_period_s - dt_s) > 1e-12:
         raise SimulationError(
@@ -264,9 +268,22 @@ def run_batch(
         record=record,
     )
     receiver: TascReceiver | AtoController
+    fixes: TrackCircuitFixes | None = None
     if is_ato:
         receiver = AtoController(station=station, vehicle=vehicle, gradient=scenario.gradient, n=n, dt_s=dt_s)
         transponders = WheelSensors.create(receiver.transponders_m, np.zeros(n), np.zeros(n))
+        if controller == ATO_CORRECTED:
+            # No transponders: the position comes from SPEC §2 track-circuit corrections.
+            fixes = TrackCircuitFixes.create(
+                track=track,
+                vehicle=vehicle,
+                streams=streams,
+                start_m=start_m,
+                speed_mps=scenario.entry_speed_mps,
+                tach_scale=(1.0 + scenario.odometer_diameter_error),
+                dt_s=dt_s,
+            )
+            receiver.fix(np.arange(n), station.stop_point_m - fixes.start_position_m)
     else:
         receiver = TascReceiver(
             config=OnboardConfig(controller),
@@ -382,19 +399,35 @@ def run_batch(
         )
         passages[crossed, idx[crossed]] = tc[crossed]
         if isinstance(receiver, AtoController):
-            receiver.odometer(
-                odometer_increment_m(
-                    motion.position_m - x0,
-                    motion.sliding,
-                    actual_diameter_m=scenario.wheel_diameter_m,
-                    assumed_diameter_m=assumed_diam,
-                    slide_slip_ratio=vehicle.slide_slip_ratio,
+            odo = odometer_increment_m(
+                motion.position_m - x0,
+                motion.sliding,
+                actual_diameter_m=scenario.wheel_diameter_m,
+                assumed_diameter_m=assumed_diam,
+                slide_slip_ratio=vehicle.slide_slip_ratio,
+            )
+            receiver.odometer(odo)
+            if fixes is None:
+                read, t_idx, _ = transponders.detect(
+                    x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
                 )
-            )
-            read, t_idx, _ = transponders.detect(
-                x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams
-            )
-            receiver.transponder(read, t_idx)
+                receiver.transponder(read, t_idx)
+            else:
+                rows, corrected = fixes.step(
+                    t0_s=t,
+                    dt_s=dt_s,
+                    x0_m=x0,
+                    v0_mps=v0,
+                    accel_mps2=acc,
+                    x1_m=motion.position_m,
+                    odometer_increment_m=odo,
+                    tach_speed_mps=motion.speed_mps
+                    * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0)
+                    * tach_scale,
+                    sliding=motion.sliding,
+                    latency_s=scenario.radio_latency_s,
+                )
+                receiver.fix(rows, station.stop_point_m - corrected)
         else:
             passed, det_idx, pass_t = sensors.detect(
                 x0_m=x0, v0_mps=v0, accel_mps2=acc, x1_m=motion.position_m, t0_s=t, streams=streams

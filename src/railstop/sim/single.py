@@ -81,6 +81,7 @@ def run_stop(
             streams=RunStreams.for_runs(seed, run, 1),
             form=form,
             record=True,
+            track=line.track,
         )
     else:
         from railstop.sim.campaign import simulate_runs
@@ -95,6 +96,7 @@ def run_stop(
             n=1,
             form=None if form is None else int(form),
             record=True,
+            track=line.track,
         )
         load_factor = float(drawn["load_factor"][0])
         brake_gain = float(drawn["brake_gain"][0])
