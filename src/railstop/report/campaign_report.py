@@ -39,6 +39,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from railstop.errors import RailstopError
+from railstop.report.figures import write_figure
 
 __all__ = [
     "BANDS_M",
@@ -382,11 +383,7 @@ def write_report(directory: Path, *, replay: Replay | None = None, worst: int = 
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    try:
-        fig.savefig(path, dpi=_DPI)
-    except OSError as exc:
-        raise RailstopError(f"{path}: cannot write the plot: {exc.strerror or exc}") from None
-    return path
+    return write_figure(fig, path, _DPI)
 
 
 # --------------------------------------------------------------------------- plots

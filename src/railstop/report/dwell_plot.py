@@ -20,6 +20,7 @@ from matplotlib.axes import Axes
 from matplotlib.patches import Patch
 
 from railstop.errors import RailstopError
+from railstop.report.figures import write_figure
 from railstop.sim.dwell import DwellResult
 
 _DPI = 120
@@ -119,10 +120,7 @@ def plot_dwell(result: DwellResult, path: str | Path) -> Path:
             fontsize=11,
             fontweight="bold",
         )
-        try:
-            fig.savefig(out, dpi=_DPI)
-        except OSError as exc:
-            raise RailstopError(f"{out}: cannot write the plot: {exc.strerror or exc}") from None
+        write_figure(fig, out, _DPI)
     finally:
         plt.close(fig)
     return out

@@ -25,6 +25,7 @@ from matplotlib.axes import Axes
 from matplotlib.transforms import blended_transform_factory
 
 from railstop.errors import RailstopError
+from railstop.report.figures import write_figure
 from railstop.sim.engine import Trace
 
 # Platform screen doors: the stop must be within ±0.35 m of the stopping point.
@@ -81,10 +82,7 @@ def plot_stop(
         )
         _decel_panel(bottom, trace, run=run, passage_times_s=passage_times_s, commands=mine)
         fig.suptitle(title, fontsize=13, fontweight="bold")
-        try:
-            fig.savefig(out, dpi=_DPI)
-        except OSError as exc:
-            raise RailstopError(f"{out}: cannot write the plot: {exc.strerror or exc}") from None
+        write_figure(fig, out, _DPI)
     finally:
         # pyplot keeps every figure alive until closed; a campaign plots many.
         plt.close(fig)

@@ -25,6 +25,7 @@ from matplotlib.axes import Axes
 from matplotlib.patches import Patch
 
 from railstop.errors import RailstopError
+from railstop.report.figures import write_figure
 from railstop.sim.position_run import PositionRunResult
 
 KMH_PER_MPS = 3.6
@@ -108,10 +109,7 @@ def plot_position_run(result: PositionRunResult, path: str | Path, *, run: int =
             fontsize=12,
             fontweight="bold",
         )
-        try:
-            fig.savefig(out, dpi=_DPI)
-        except OSError as exc:
-            raise RailstopError(f"{out}: cannot write the plot: {exc.strerror or exc}") from None
+        write_figure(fig, out, _DPI)
     finally:
         plt.close(fig)
     return out

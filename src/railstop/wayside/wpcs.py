@@ -24,7 +24,6 @@ raises ``InterlockError``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import NamedTuple
 
 from railstop.control.doors import (
@@ -40,9 +39,7 @@ from railstop.control.doors import (
     table_column,
 )
 from railstop.errors import InterlockError
-from railstop.onboard.cpcs import PsdReport
-
-DoorTable = Mapping[tuple[DoorState, DoorInput], DoorState]
+from railstop.onboard.cpcs import DoorTable, PsdReport
 
 
 class WpcsState(NamedTuple):

@@ -1,0 +1,18 @@
+"""What every plot of railstop shares: writing a figure file with a clear error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from matplotlib.figure import Figure
+
+from railstop.errors import RailstopError
+
+
+def write_figure(fig: Figure, path: Path, dpi: int) -> Path:
+    """Save ``fig`` to ``path``; an unwritable path is a RailstopError naming it."""
+    try:
+        fig.savefig(path, dpi=dpi)
+    except OSError as exc:
+        raise RailstopError(f"{path}: cannot write the plot: {exc.strerror or exc}") from None
+    return path
