@@ -64,7 +64,6 @@ from railstop.errors import TelegramError
 
 __all__ = [
     "LAYOUTS",
-    "MEDIA_BIT_RATES_BPS",
     "SPEC_PAYLOAD_BYTES",
     "TASC_FORM_TYPES",
     "TYPES",
@@ -84,7 +83,6 @@ __all__ = [
     "TascSpeed",
     "Telegram",
     "TrackCircuitOccupancy",
-    "airtime_ms",
     "crc16",
     "decode",
     "describe",
@@ -100,8 +98,9 @@ __all__ = [
 CRC_BYTES = 2
 FRAME_OVERHEAD_BYTES = 1 + CRC_BYTES  # type byte + CRC-16
 
-# SPEC §5: the two ~10-byte media and their bit rates (the radio has room to spare).
-MEDIA_BIT_RATES_BPS: Mapping[str, float] = {"loop": 2400.0, "transponder": 64000.0}
+# SPEC §5: the two ~10-byte media (the radio has room to spare); their bit rates are
+# the presets of railstop/data/media.toml.
+SMALL_MEDIA: tuple[str, ...] = ("loop", "transponder")
 SPEC_PAYLOAD_BYTES = 10  # SPEC §5: "~10 bytes" of data on the loop and the transponder
 
 Kind = Literal["int", "fixed", "enum", "flags"]
@@ -1067,14 +1066,11 @@ def from_fields(type_name: str, values: Mapping[str, str]) -> Telegram:
 # Documentation from the table
 
 
-def airtime_ms(n_bytes: int, bit_rate_bps: float) -> float:
-    """Time on the medium of ``n_bytes`` frame bytes (no preamble / sync: see railstop.link.channel)."""
-    return 8 * n_bytes / bit_rate_bps * 1000.0
-
-
 def layout_markdown() -> str:
     """The byte layout of every telegram and its sizes / airtimes, as Markdown (docs/telegrams.md)."""
-    from railstop.link.safety import frame_size  # lazy: the safety layer does not depend on the codec
+    # lazy: neither the safety layer nor the media depend on the codec
+    from railstop.link.channel import airtime_s, media_preset
+    from railstop.link.safety import frame_size
 
     lines: list[str] = []
     lines.append("| type | code | payload B | frame B | cat 1/2 frame B | cat 3 frame B | medium |")
@@ -1088,13 +1084,14 @@ def layout_markdown() -> str:
     lines.append("Airtime of the bytes alone (ms; preamble and sync words come on top, see")
     lines.append("`railstop.link.channel`). Codec frame / inside a safety frame of category 1-2 / 3:")
     lines.append("")
-    rates = list(MEDIA_BIT_RATES_BPS.items())
-    head = " | ".join(f"{m} {r / 1000:g} kbit/s" for m, r in rates)
+    # The bytes alone: the medium without its preamble / sync overhead.
+    media = [(m, media_preset(m).replace(overhead_bits=0)) for m in SMALL_MEDIA]
+    head = " | ".join(f"{m} {p.bit_rate_bps / 1000:g} kbit/s" for m, p in media)
     lines.append(f"| type | {head} |")
-    lines.append("|---|" + "---|" * len(rates))
+    lines.append("|---|" + "---|" * len(media))
     for layout in LAYOUTS.values():
         sizes = (layout.frame_size, frame_size(layout.frame_size, 1), frame_size(layout.frame_size, 3))
-        cells = " | ".join(" / ".join(f"{airtime_ms(n, r):.2f}" for n in sizes) for _, r in rates)
+        cells = " | ".join(" / ".join(f"{1000.0 * airtime_s(p, n):.2f}" for n in sizes) for _, p in media)
         lines.append(f"| `{layout.name}` | {cells} |")
     for layout in LAYOUTS.values():
         lines.append("")

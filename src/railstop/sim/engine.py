@@ -37,7 +37,13 @@ from railstop.physics.brake import (
     decode_step,
     ecu_demand_mps2,
 )
-from railstop.physics.train import MotionState, TrainMass, motion_step, odometer_increment_m
+from railstop.physics.train import (
+    MotionState,
+    TrainMass,
+    motion_step,
+    odometer_increment_m,
+    tachometer_speed_mps,
+)
 from railstop.sensors.wayside import WheelSensors, doppler_sample
 from railstop.sim.corrected_position import TrackCircuitFixes
 from railstop.sim.scenario import Scenario
@@ -267,6 +273,9 @@ def run_batch(
         form=form,
         record=record,
     )
+    # The odometer assumes the actual diameter with its error (Scenario: assumed = actual × (1 + error)).
+    assumed_diam = scenario.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
+    tach_scale = assumed_diam / scenario.wheel_diameter_m
     receiver: TascReceiver | AtoController
     fixes: TrackCircuitFixes | None = None
     if is_ato:
@@ -280,7 +289,7 @@ def run_batch(
                 streams=streams,
                 start_m=start_m,
                 speed_mps=scenario.entry_speed_mps,
-                tach_scale=(1.0 + scenario.odometer_diameter_error),
+                tach_scale=tach_scale,
                 dt_s=dt_s,
             )
             receiver.fix(np.arange(n), station.stop_point_m - fixes.start_position_m)
@@ -303,9 +312,6 @@ def run_batch(
         emergency_mps2=brake.emergency_decel_mps2,
     )
     link = _Link.create(n, station, form, dt_s, as_bytes=record and n == 1 and not is_ato)
-    # The odometer assumes the actual diameter with its error (Scenario: assumed = actual × (1 + error)).
-    assumed_diam = scenario.wheel_diameter_m * (1.0 + scenario.odometer_diameter_error)
-    tach_scale = assumed_diam / scenario.wheel_diameter_m
     radar = station.tasc.doppler
     doppler_on = radar is not None
     noisy_doppler = bool(np.any(scenario.doppler_noise_frac > 0))
@@ -338,7 +344,9 @@ def run_batch(
             )
             dop = np.where(in_range, v_meas, 0.0)
         # The tachometer's speed: wheel speed (slower when sliding) with the assumed diameter.
-        tach_v = motion.speed_mps * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0) * tach_scale
+        tach_v = tachometer_speed_mps(
+            motion.speed_mps, motion.sliding, scale=tach_scale, slide_slip_ratio=vehicle.slide_slip_ratio
+        )
         if isinstance(receiver, AtoController):
             signal = receiver.output(t, tach_v)
         else:
@@ -421,9 +429,12 @@ def run_batch(
                     accel_mps2=acc,
                     x1_m=motion.position_m,
                     odometer_increment_m=odo,
-                    tach_speed_mps=motion.speed_mps
-                    * np.where(motion.sliding, 1.0 - vehicle.slide_slip_ratio, 1.0)
-                    * tach_scale,
+                    tach_speed_mps=tachometer_speed_mps(
+                        motion.speed_mps,
+                        motion.sliding,
+                        scale=tach_scale,
+                        slide_slip_ratio=vehicle.slide_slip_ratio,
+                    ),
                     sliding=motion.sliding,
                     latency_s=scenario.radio_latency_s,
                 )

@@ -215,15 +215,13 @@ class ByteLink:
     frames_sent: int = 0
 
     def __post_init__(self) -> None:
-        key = None
-        rx_key = None
-        if self.category == 3:
-            key = rx_key = link_key(_DEMO_MASTER, WAYSIDE_ID, TRAIN_ID)
+        # Category 3: the key of the wayside -> train direction, known to both ends.
+        key = link_key(_DEMO_MASTER, WAYSIDE_ID, TRAIN_ID) if self.category == 3 else None
         self.sender = SafeSender(WAYSIDE_ID, TRAIN_ID, key=key, category=self.category)
         self.receiver = SafeReceiver(
             TRAIN_ID,
             WAYSIDE_ID,
-            key=rx_key,
+            key=key,
             category=self.category,
             max_age_s=self.max_age_s,
             timeout_s=1e9,  # the TASC zone's supervision is the onboard unit's, not modelled here
