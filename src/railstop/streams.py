@@ -11,6 +11,10 @@ The mixing function is the SplitMix64 finaliser applied to a per-run stream
 key (seed, stream, run; cached) and then to that key plus the counter;
 uniforms take the top 53 bits, normals use Box–Muller on the two 32-bit
 halves of one draw.
+
+The compiled model draws the same numbers one at a time with the scalar
+functions at the end of this module (:func:`stream_key`, :func:`key_uniform`,
+:func:`key_normal`): bit-identical to the array methods (a test proves it).
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
+
+from railstop.jit import njit_inline
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -105,3 +111,58 @@ class RunStreams:
         u1 = ((bits >> np.uint64(32)).astype(np.float64) + 0.5) * (1.0 / 4294967296.0)  # (0, 1)
         u2 = (bits & np.uint64(0xFFFFFFFF)).astype(np.float64) * (1.0 / 4294967296.0)
         return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+
+
+# --------------------------------------------------------------------------
+# The same numbers, one at a time, for the compiled model (railstop.jit).
+
+_U_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_U_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_U_M2 = np.uint64(0x94D049BB133111EB)
+_U_MASK = np.uint64(0xFFFFFFFFFFFFFFFF)
+_U_LOW32 = np.uint64(0xFFFFFFFF)
+
+
+@njit_inline
+def mix64(z: np.uint64) -> np.uint64:
+    """The SplitMix64 finaliser (:func:`_mix` on one number)."""
+    z = (z ^ (z >> np.uint64(30))) * _U_M1
+    z = (z ^ (z >> np.uint64(27))) * _U_M2
+    return z ^ (z >> np.uint64(31))
+
+
+@njit_inline
+def seed_key(seed: np.uint64, stream: int | np.integer) -> np.uint64:
+    """The key of (seed, stream), common to every run; ``seed`` already reduced to 64 bits."""
+    return mix64(seed * _U_GOLDEN + np.uint64(stream))
+
+
+@njit_inline
+def stream_key(seed_stream_key: np.uint64, run: int | np.integer) -> np.uint64:
+    """Run ``run``'s key of a stream (``RunStreams._key``)."""
+    return mix64(seed_stream_key ^ (np.uint64(run) * _U_GOLDEN))
+
+
+@njit_inline
+def key_bits(key: np.uint64, counter: int | np.integer) -> np.uint64:
+    return mix64(key + (np.uint64(counter) + np.uint64(1)) * _U_GOLDEN)
+
+
+@njit_inline
+def key_uniform(key: np.uint64, counter: int | np.integer) -> float:
+    """Uniform in [0, 1): ``RunStreams.uniform`` of one run."""
+    return float(key_bits(key, counter) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit_inline
+def key_normal(key: np.uint64, counter: int | np.integer) -> float:
+    """Standard normal: ``RunStreams.normal`` of one run (Box–Muller on the two halves)."""
+    bits = key_bits(key, counter)
+    u1 = (float(bits >> np.uint64(32)) + 0.5) * (1.0 / 4294967296.0)
+    u2 = float(bits & _U_LOW32) * (1.0 / 4294967296.0)
+    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+
+
+def seed_u64(seed: int) -> np.uint64:
+    """The seed as the 64-bit number the streams use."""
+    return np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF)

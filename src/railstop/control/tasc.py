@@ -29,7 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
-from railstop.physics.train import G_MPS2, GradientProfile
+from railstop.jit import njit_step
+from railstop.physics.train import G_MPS2, GradientProfile, mean_gradient_1
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -457,3 +458,346 @@ def fit_passages(t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]) -> 
     decel = np.where(three, -accel, np.nan)
     speed = np.where(count >= 2, speed, np.nan)
     return speed, decel
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar cores (railstop.jit): the one implementation of the law.
+#
+# One run at a time. The external model is a small parameter vector (EXT_*)
+# plus the run's gradient ``grad`` = (breakpoints, values permille, elevation
+# at breakpoints); the command history is two arrays of HISTORY entries,
+# values and effect times (+inf where empty, entries in time order).
+
+EXT_STOP = 0  # stopping point chainage (m)
+EXT_LENGTH = 1  # train length (m)
+EXT_MASS_RATIO = 2  # static / effective mass at nominal load
+EXT_DAVIS_A = 3  # m/s²
+EXT_DAVIS_B = 4  # 1/s
+EXT_DAVIS_C = 5  # 1/m
+EXT_SIZE = 6
+
+_FRAC_TRAPZ = np.linspace(0.0, 1.0, SAMPLES)  # path samples of the gradient integral
+_FRAC_MID = (np.arange(SAMPLES) + 0.5) / SAMPLES  # window samples of the model-weighted means
+REG_WEIGHTS = _FRAC_MID * (1.0 - _FRAC_MID)
+REG_WEIGHTS = REG_WEIGHTS / REG_WEIGHTS.sum()
+
+
+def external_params(vehicle: Vehicle, stop_point_m: float) -> FloatArray:
+    """The EXT_* vector of :class:`ExternalModel` (nominal Davis resistance at half load)."""
+    static = vehicle.tare_mass_kg + 0.5 * vehicle.crush_payload_kg
+    eff = static + vehicle.tare_mass_kg * vehicle.rotating_mass_factor
+    out = np.zeros(EXT_SIZE)
+    out[EXT_STOP] = stop_point_m
+    out[EXT_LENGTH] = vehicle.length_m
+    out[EXT_MASS_RATIO] = static / eff
+    out[EXT_DAVIS_A] = vehicle.davis_a_n / eff
+    out[EXT_DAVIS_B] = vehicle.davis_b_n_per_mps / eff
+    out[EXT_DAVIS_C] = vehicle.davis_c_n_per_mps2 / eff
+    return out
+
+
+@njit_step
+def clip_1(x: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one number (NaN stays NaN)."""
+    if x != x:
+        return x
+    return min(max(x, lo), hi)
+
+
+@njit_step
+def propagate_1(distance_m: float, speed_mps: float, decel_mps2: float, dt_s: float) -> tuple[float, float]:
+    """:func:`propagate` of one run: distance to go and speed after dt at constant deceleration."""
+    dt = max(dt_s, 0.0)
+    v_end = speed_mps - decel_mps2 * dt
+    if decel_mps2 > 0.0 and v_end <= 0.0:
+        return distance_m - speed_mps * speed_mps / (2.0 * decel_mps2), 0.0
+    return distance_m - (speed_mps * dt - 0.5 * decel_mps2 * dt * dt), v_end
+
+
+@njit_step
+def required_decel_1(distance_m: float, speed_mps: float) -> float:
+    """SPEC §1: v² / 2s; +inf at or past the stopping point; 0 for a stopped train."""
+    if speed_mps <= 0.0:
+        return 0.0
+    if distance_m > 0.0:
+        return speed_mps * speed_mps / (2.0 * distance_m)
+    return np.inf
+
+
+@njit_step
+def external_decel_1(
+    ext: FloatArray, grad: tuple[FloatArray, FloatArray, FloatArray], distance_m: float, speed_mps: float
+) -> float:
+    """External deceleration now (+ = helps braking: uphill, resistance), as the database knows it."""
+    x = ext[EXT_STOP] - distance_m
+    grade = G_MPS2 * ext[EXT_MASS_RATIO] * mean_gradient_1(x, ext[EXT_LENGTH], grad[0], grad[1], grad[2])
+    v = max(speed_mps, 0.0)
+    return grade + ext[EXT_DAVIS_A] + ext[EXT_DAVIS_B] * v + ext[EXT_DAVIS_C] * v * v
+
+
+@njit_step
+def external_path_integral_1(
+    ext: FloatArray, grad: tuple[FloatArray, FloatArray, FloatArray], distance_m: float, speed_mps: float
+) -> float:
+    """Integral of the external deceleration over the remaining distance (m²/s²).
+
+    Gradient: trapezoid over SAMPLES points of the path. Resistance: for a
+    uniform stop from v over s, v² falls linearly with distance, so the mean
+    of v over distance is 2v/3 and of v² is v²/2.
+    """
+    s = max(distance_m, 0.0)
+    stop = ext[EXT_STOP]
+    length = ext[EXT_LENGTH]
+    prev = mean_gradient_1(stop - s * (1.0 - _FRAC_TRAPZ[0]), length, grad[0], grad[1], grad[2])
+    total = 0.0
+    for j in range(1, SAMPLES):
+        g = mean_gradient_1(stop - s * (1.0 - _FRAC_TRAPZ[j]), length, grad[0], grad[1], grad[2])
+        total += (_FRAC_TRAPZ[j] - _FRAC_TRAPZ[j - 1]) * (g + prev) / 2.0
+        prev = g
+    v = max(speed_mps, 0.0)
+    resist = ext[EXT_DAVIS_A] + ext[EXT_DAVIS_B] * 2.0 * v / 3.0 + ext[EXT_DAVIS_C] * v * v / 2.0
+    return s * (G_MPS2 * ext[EXT_MASS_RATIO] * total + resist)
+
+
+@njit_step
+def history_push_1(values: FloatArray, effects: FloatArray, value_mps2: float, effect_s: float) -> None:
+    """Append one command (the oldest drops out when the history is full)."""
+    count = 0
+    for j in range(HISTORY):
+        if np.isfinite(effects[j]):
+            count += 1
+    if count >= HISTORY:
+        for j in range(HISTORY - 1):
+            values[j] = values[j + 1]
+            effects[j] = effects[j + 1]
+    slot = min(count, HISTORY - 1)
+    values[slot] = value_mps2
+    effects[slot] = effect_s
+
+
+@njit_step
+def history_value_at_1(values: FloatArray, effects: FloatArray, t_s: float) -> float:
+    """Commanded value in effect at ``t_s`` (0 before the first command takes effect)."""
+    count = 0
+    for j in range(HISTORY):
+        if effects[j] <= t_s:
+            count += 1
+    return values[count - 1] if count > 0 else 0.0
+
+
+@njit_step
+def history_response_at_1(values: FloatArray, effects: FloatArray, t_s: float, lag_s: float) -> float:
+    """Modelled brake response at ``t_s``: each change of command relaxes with the first-order
+    lag, started ``lag_s`` before its effect time (its mean delay is then the equivalent dead time
+    the planner uses)."""
+    total = 0.0
+    prev = 0.0
+    tau = max(lag_s, 1e-6)
+    for j in range(HISTORY):
+        if not np.isfinite(effects[j]):
+            break
+        since = t_s - (effects[j] - lag_s)
+        total += (values[j] - prev) * (1.0 - np.exp(-max(since, 0.0) / tau))
+        prev = values[j]
+    return total
+
+
+@njit_step
+def history_predict_1(
+    values: FloatArray,
+    effects: FloatArray,
+    distance_m: float,
+    speed_mps: float,
+    now_s: float,
+    until_s: float,
+    gain: float,
+    external_mps2: float,
+) -> tuple[float, float]:
+    """Distance to go and speed at ``until_s`` if the train follows the commands sent."""
+    s = distance_m
+    v = speed_mps
+    start = now_s
+    value = 0.0
+    for j in range(HISTORY):
+        edge = min(max(effects[j], now_s), until_s)
+        s, v = propagate_1(s, v, gain * value + external_mps2, max(edge - start, 0.0))
+        start = edge
+        value = values[j]
+    s, v = propagate_1(s, v, gain * value + external_mps2, max(until_s - start, 0.0))
+    return s, v
+
+
+@njit_step
+def regression_taus_1(t0_s: float, t1_s: float, taus: FloatArray) -> None:
+    """Sample times of a least-squares slope over [t0, t1]; its weights are ``REG_WEIGHTS``.
+
+    The slope of a least-squares line through speed samples is the mean of
+    the deceleration weighted by (τ - t0)(t1 - τ).
+    """
+    for i in range(SAMPLES):
+        taus[i] = t0_s + (t1_s - t0_s) * _FRAC_MID[i]
+
+
+@njit_step
+def hat_weights_1(t0_s: float, t1_s: float, t2_s: float, taus: FloatArray, weights: FloatArray) -> None:
+    """Sample times and weights of the hat function on [t0, t2] peaking at t1 (variant 2)."""
+    rise_den = max(t1_s - t0_s, 1e-9)
+    fall_den = max(t2_s - t1_s, 1e-9)
+    total = 0.0
+    for i in range(SAMPLES):
+        tau = t0_s + (t2_s - t0_s) * _FRAC_MID[i]
+        taus[i] = tau
+        w = (tau - t0_s) / rise_den if tau <= t1_s else (t2_s - tau) / fall_den
+        weights[i] = w
+        total += w
+    total = max(total, 1e-12)
+    for i in range(SAMPLES):
+        weights[i] = weights[i] / total
+
+
+@njit_step
+def modelled_means_1(
+    values: FloatArray,
+    effects: FloatArray,
+    taus: FloatArray,
+    weights: FloatArray,
+    braking_from_s: float,
+    lag_s: float,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    distance_m: float,
+    speed_mps: float,
+    decel_mps2: float,
+    now_s: float,
+) -> tuple[float, float]:
+    """Weighted means over a measurement window of (commanded brake decel, external decel).
+
+    The external part counts only while the train was braking (before that it
+    held its speed with traction), taken where the train was at each sample
+    time, traced back from now with the measured deceleration.
+    """
+    a = decel_mps2 if np.isfinite(decel_mps2) else 0.0
+    cmd = 0.0
+    ext_mean = 0.0
+    for i in range(SAMPLES):
+        tau = taus[i]
+        cmd += history_response_at_1(values, effects, tau, lag_s) * weights[i]
+        if tau >= braking_from_s:
+            back = now_s - tau
+            v_then = speed_mps + a * back
+            s_then = distance_m + speed_mps * back + 0.5 * a * back * back
+            ext_mean += external_decel_1(ext, grad, s_then, v_then) * weights[i]
+    return cmd, ext_mean
+
+
+@njit_step
+def plan_command_1(
+    distance_m: float,
+    speed_mps: float,
+    now_s: float,
+    values: FloatArray,
+    effects: FloatArray,
+    gain: float,
+    base_delay_s: float,
+    jerk_limit_mps3: float,
+    max_decel_mps2: float,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+) -> tuple[float, float, float]:
+    """The command to send now: (commanded decel, required brake decel, effect time); see
+    :func:`plan_command`."""
+    current = history_value_at_1(values, effects, now_s)
+    ext_now = external_decel_1(ext, grad, distance_m, speed_mps)
+    delay = base_delay_s
+    need = 0.0
+    v_t = speed_mps
+    for _ in range(2):  # the ramp depends on the answer: one fixed-point refinement
+        s_t, v_t = history_predict_1(
+            values, effects, distance_m, speed_mps, now_s, now_s + delay, gain, ext_now
+        )
+        need = required_decel_1(s_t, v_t)
+        if s_t > 0.0:
+            need -= external_path_integral_1(ext, grad, s_t, v_t) / s_t
+        ramp = abs(clip_1(need / gain, 0.0, max_decel_mps2) - current) / (2.0 * jerk_limit_mps3)
+        delay = base_delay_s + ramp
+    command = current if v_t <= 0.0 else clip_1(need / gain, 0.0, max_decel_mps2)
+    return command, need, now_s + delay
+
+
+@njit_step
+def gain_value_1(num: float, den: float) -> float:
+    """Least-squares loop gain Σ c(m - e) / Σ c² (1.0 before any usable window)."""
+    return clip_1(num / den, GAIN_MIN, GAIN_MAX) if den > 0.0 else 1.0
+
+
+@njit_step
+def gain_update_1(
+    num: float, den: float, measured_decel_mps2: float, expected_brake_mps2: float, external_mps2: float
+) -> tuple[float, float]:
+    """SPEC §1 loop closure (claims 2, 19): add one measurement window to the gain's sums."""
+    if expected_brake_mps2 >= 0.05 and np.isfinite(measured_decel_mps2):
+        num += expected_brake_mps2 * (measured_decel_mps2 - external_mps2)
+        den += expected_brake_mps2 * expected_brake_mps2
+    return num, den
+
+
+@njit_step
+def line_fit_1(ring: FloatArray, newest: int, count: int, dt_s: float) -> tuple[float, float]:
+    """Least-squares line through the newest ``count`` samples of a ring buffer: (value now, slope).
+
+    ``ring[newest]`` is the newest sample, older ones precede it cyclically;
+    sample of age a is at time -a·dt. Fewer than 2 samples: (newest, NaN).
+    """
+    if count < 2:
+        return ring[newest], np.nan
+    size = ring.size
+    m = float(count)
+    st = 0.0
+    sv = 0.0
+    for a in range(count):
+        st += -a * dt_s
+        sv += ring[(newest - a) % size]
+    t_mean = st / m
+    v_mean = sv / m
+    sxx = 0.0
+    sxy = 0.0
+    for a in range(count):
+        d = -a * dt_s - t_mean
+        sxx += d * d
+        sxy += d * (ring[(newest - a) % size] - v_mean)
+    slope = sxy / sxx
+    return v_mean - slope * t_mean, slope
+
+
+@njit_step
+def fit_ring_1(
+    ring: FloatArray, newest: int, count: int, dt_s: float, speed_samples: int
+) -> tuple[float, float]:
+    """:func:`fit_doppler` of one ring buffer: (speed now, deceleration).
+
+    The deceleration is minus the slope of a line through all ``count``
+    samples; the speed now comes from a line through the newest
+    ``speed_samples`` only (the end of a long line misses the last part of a
+    rippling deceleration).
+    """
+    v_now, slope = line_fit_1(ring, newest, count, dt_s)
+    if speed_samples < ring.size and count >= 2:
+        v_now, _ = line_fit_1(ring, newest, min(count, max(speed_samples, 2)), dt_s)
+    return v_now, -slope
+
+
+@njit_step
+def fit_passages_1(t_s: FloatArray, x_m: FloatArray, count: int) -> tuple[float, float]:
+    """SPEC §1 variant 2: speed at the newest passage and deceleration from passage times.
+
+    With 3 passages a parabola through them is exact for constant
+    deceleration; with 2 the mean speed over the interval (deceleration NaN).
+    """
+    if count < 2:
+        return np.nan, np.nan
+    v12 = (x_m[2] - x_m[1]) / (t_s[2] - t_s[1])
+    if count < 3:
+        return v12, np.nan
+    v01 = (x_m[1] - x_m[0]) / (t_s[1] - t_s[0])
+    accel = 2.0 * (v12 - v01) / (t_s[2] - t_s[0])
+    return v12 + accel * (t_s[2] - t_s[1]) / 2.0, -accel

@@ -33,8 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Vehicle
-from railstop.control.notch import NotchModulator
-from railstop.control.tasc import ExternalModel
+from railstop.control.notch import NotchModulator, modulator_init_1, modulator_update_1
+from railstop.control.tasc import ExternalModel, clip_1, external_decel_1
+from railstop.jit import njit_inline, njit_step
 from railstop.onboard.tasc_receiver import BrakeSignal
 from railstop.physics.brake import encode_step
 from railstop.physics.train import GradientProfile
@@ -140,3 +141,110 @@ class AtoController:
         self.target_mps2[rows] = np.clip(command, 0.0, self.vehicle.brake.full_service_mps2)
         self.braking[rows] |= self.target_mps2[rows] > 0.0
         self.plans[rows] += 1
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar core (railstop.jit): the onboard ATO of one run.
+
+AP_CYCLE_STEPS = 0
+AP_MIN_HOLD = 1
+AP_RESPONSE = 2  # dead time + lag (the modulator's brake model and the curve's lead)
+AP_DT = 3
+AP_MAX_DECEL = 4
+AP_STOP = 5
+AP_SIZE = 6
+
+AT_ACTIVE = 0
+AT_DISTANCE = 1  # odometric distance to the stopping point
+AT_TARGET = 2
+AT_NOTCH = 3
+AT_BRAKING = 4  # until then the train holds its speed
+AT_CURVE = 5  # the brake curve's deceleration (NaN: draw a new one at the next plan)
+AT_FIXES = 6
+AT_PLANS = 7
+AT_SIZE = 8
+
+
+def ato_params(vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray:
+    brake = vehicle.brake
+    ap = np.zeros(AP_SIZE)
+    ap[AP_CYCLE_STEPS] = max(1, round(brake.controller_cycle_s / dt_s))
+    ap[AP_MIN_HOLD] = brake.controller_min_hold_s
+    ap[AP_RESPONSE] = brake.dead_time_s + brake.time_constant_s
+    ap[AP_DT] = dt_s
+    ap[AP_MAX_DECEL] = brake.full_service_mps2
+    ap[AP_STOP] = stop_point_m
+    return ap
+
+
+@njit_step
+def ato_init_1(at: FloatArray, mod: FloatArray) -> None:
+    at[:] = 0.0
+    at[AT_DISTANCE] = np.inf
+    at[AT_CURVE] = np.nan
+    modulator_init_1(mod)
+
+
+@njit_inline
+def ato_fix_1(at: FloatArray, distance_m: float) -> None:
+    """A position fix: the distance to the stopping point is now ``distance_m``; a new brake curve."""
+    at[AT_DISTANCE] = distance_m
+    at[AT_ACTIVE] = 1.0
+    at[AT_FIXES] += 1.0
+    at[AT_CURVE] = np.nan
+
+
+@njit_inline
+def ato_odometer_1(at: FloatArray, increment_m: float) -> None:
+    """Distance the odometer counted during the last step."""
+    if at[AT_ACTIVE] > 0.0:
+        at[AT_DISTANCE] -= increment_m
+
+
+@njit_step
+def ato_output_1(
+    at: FloatArray,
+    ap: FloatArray,
+    mod: FloatArray,
+    table: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    k: int,
+    speed_mps: float,
+) -> int:
+    """The notch of step ``k`` (``speed_mps``: the tachometer's speed); see the module docstring."""
+    cycle = int(ap[AP_CYCLE_STEPS])
+    active = at[AT_ACTIVE] > 0.0
+    if k % cycle == 0:
+        if active:
+            full = ap[AP_MAX_DECEL]
+            # The curve is compared a little ahead of the train: a lead that keeps
+            # the loop from lagging the curve by the brake's delay.
+            lead_s = ATO_LEAD_FRACTION * ap[AP_RESPONSE]
+            distance = at[AT_DISTANCE]
+            ahead = max(distance - speed_mps * lead_s, 0.0)
+            if np.isnan(at[AT_CURVE]):
+                # The brake curve (train deceleration) through the state at the latest fix.
+                at[AT_CURVE] = clip_1(speed_mps**2 / (2.0 * max(ahead, 1.0)), 0.05, full)
+            curve = at[AT_CURVE]
+            v_ref = np.sqrt(2.0 * curve * ahead)
+            ext_now = external_decel_1(ext, grad, distance, speed_mps)
+            command = curve - ext_now + ATO_SPEED_GAIN_PER_S * (speed_mps - v_ref)
+            if distance <= 0.0:  # at or past its stopping point with speed left: full service
+                command = full
+            at[AT_TARGET] = clip_1(command, 0.0, full)
+            if at[AT_TARGET] > 0.0:
+                at[AT_BRAKING] = 1.0
+            at[AT_PLANS] += 1.0
+        at[AT_NOTCH] = modulator_update_1(
+            mod,
+            table,
+            ap[AP_MIN_HOLD],
+            ap[AP_RESPONSE],
+            at[AT_TARGET],
+            active,
+            cycle * ap[AP_DT],
+            speed_mps,
+            True,
+        )
+    return int(at[AT_NOTCH])

@@ -25,19 +25,49 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Vehicle
-from railstop.control.notch import NotchModulator
+from railstop.control.notch import (
+    NotchModulator,
+    modulator_init_1,
+    modulator_restart_1,
+    modulator_update_1,
+)
 from railstop.control.tasc import (
+    REG_WEIGHTS,
     CommandHistory,
     ExternalModel,
     GainEstimate,
+    clip_1,
     closed_loop_command,
     fit_doppler,
+    fit_ring_1,
+    gain_update_1,
+    gain_value_1,
+    history_push_1,
     modelled_means,
+    modelled_means_1,
+    plan_command_1,
+    regression_taus_1,
     regression_weights,
 )
-from railstop.physics.brake import BrakeLine, decel_to_pwm, encode_step, superimpose_pwm
+from railstop.jit import njit_inline, njit_step
+from railstop.physics.brake import BrakeLine, decel_to_pwm, decel_to_pwm_1, encode_step, superimpose_pwm
 from railstop.physics.train import GradientProfile
-from railstop.wayside.tasc_unit import SignalForm, TascTelegrams
+from railstop.wayside.tasc_unit import (
+    TEL_DECEL,
+    TEL_DELTA,
+    TEL_DETECTOR,
+    TEL_DISTANCE,
+    TEL_DUTY,
+    TEL_INTERVAL,
+    TEL_MEASURED,
+    TEL_NOTCH,
+    TEL_PASSAGE,
+    TEL_POSITION,
+    TEL_REQUIRED,
+    TEL_SPEED,
+    SignalForm,
+    TascTelegrams,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -248,3 +278,248 @@ class TascReceiver:
         # Config 1: brake controller -> encoder; config 2: the switching unit
         # forces a, b, c; wire e always passes through from the train.
         return BrakeSignal(line=encode_step(self.notch, emergency), duty=None, emergency=emergency)
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar core (railstop.jit): the onboard receiver of one run.
+
+CONFIG_CODES: dict[str, int] = {
+    OnboardConfig.BRAKE_CONTROLLER.value: 1,
+    OnboardConfig.STEP.value: 2,
+    OnboardConfig.PWM.value: 3,
+}
+
+RP_CONFIG = 0  # 1 brake controller, 2 step (switching unit), 3 PWM superposition
+RP_FORM = 1
+RP_CYCLE_STEPS = 2  # the brake controller's cycle (config 1), else 1
+RP_PWM_STEPS = 3  # steps per PWM carrier period (config 3)
+RP_MIN_HOLD = 4
+RP_RESPONSE = 5  # dead time + lag: the modulator's model of the brake response
+RP_DT = 6
+RP_MAX_DECEL = 7
+RP_LAG = 8
+RP_BASE_DELAY = 9  # dead time + lag (forms 1-5 onboard planner)
+RP_JERK = 10
+RP_STOP = 11
+RP_SPEED_SAMPLES = 12
+RP_SIZE = 13
+
+RX_ACTIVE = 0
+RX_TARGET = 1
+RX_FIXED_NOTCH = 2  # form 7, step trains (-1: none)
+RX_FIXED_DUTY = 3  # form 7, PWM trains (NaN: none)
+RX_RECEIVED = 4
+RX_LATCHED = 5  # the duty the ECU sees, latched at each zero crossing
+RX_NOTCH = 6
+RX_TCOL = 7  # newest tachometer slot
+RX_TCOUNT = 8
+RX_GAIN_NUM = 9
+RX_GAIN_DEN = 10
+RX_FIRST_RX = 11  # the train holds its speed until told to brake
+RX_EXISTING = 12  # the train's own PWM brake signal (released: 0)
+RX_ONBOARD_DUTY = 13  # config 3: the onboard PWM duty of the current target
+RX_SIZE = 14
+
+
+def receiver_params(config: str, form: int, vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray:
+    """The RP_* vector of a receiver (see :class:`TascReceiver` for the meaning)."""
+    brake = vehicle.brake
+    rp = np.zeros(RP_SIZE)
+    rp[RP_CONFIG] = CONFIG_CODES[config]
+    rp[RP_FORM] = form
+    cfg1 = config == OnboardConfig.BRAKE_CONTROLLER
+    rp[RP_CYCLE_STEPS] = max(1, round(brake.controller_cycle_s / dt_s)) if cfg1 else 1
+    rp[RP_PWM_STEPS] = max(1, round(1.0 / (brake.pwm_carrier_hz * dt_s)))
+    rp[RP_MIN_HOLD] = brake.controller_min_hold_s if cfg1 else brake.tasc_min_hold_s
+    rp[RP_RESPONSE] = brake.dead_time_s + brake.time_constant_s
+    rp[RP_DT] = dt_s
+    rp[RP_MAX_DECEL] = brake.full_service_mps2
+    rp[RP_LAG] = brake.time_constant_s
+    rp[RP_BASE_DELAY] = brake.dead_time_s + brake.time_constant_s
+    rp[RP_JERK] = brake.jerk_limit_mps3
+    rp[RP_STOP] = stop_point_m
+    rp[RP_SPEED_SAMPLES] = max(2, round(0.3 / dt_s))  # as the wayside's Doppler speed window
+    return rp
+
+
+def receiver_window(dt_s: float) -> int:
+    """Tachometer samples the forms 1-5 planner fits its deceleration over (1 s)."""
+    return max(2, round(1.0 / dt_s))
+
+
+@njit_step
+def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e: FloatArray) -> None:
+    rx[:] = 0.0
+    rx[RX_FIXED_NOTCH] = -1.0
+    rx[RX_FIXED_DUTY] = np.nan
+    rx[RX_TCOL] = -1.0
+    rx[RX_FIRST_RX] = np.inf
+    modulator_init_1(mod)
+    hist_v[:] = 0.0
+    hist_e[:] = np.inf
+
+
+@njit_inline
+def receiver_observe_1(rx: FloatArray, rp: FloatArray, tach: FloatArray, speed_mps: float) -> None:
+    """Onboard speed from the tachometer (only the forms 1-5 planner uses it)."""
+    if rp[RP_FORM] > 5:
+        return
+    col = (int(rx[RX_TCOL]) + 1) % tach.size
+    rx[RX_TCOL] = col
+    tach[col] = speed_mps
+    rx[RX_TCOUNT] = min(rx[RX_TCOUNT] + 1.0, float(tach.size))
+
+
+@njit_step
+def receiver_receive_1(
+    rx: FloatArray,
+    rp: FloatArray,
+    mod: FloatArray,
+    tach: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    taus: FloatArray,
+    table: FloatArray,
+    pwm_duty: FloatArray,
+    pwm_decel: FloatArray,
+    det_to_stop: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    tele: FloatArray,
+    now_s: float,
+) -> None:
+    """Take the telegram delivered now (SPEC §1: forms 6-8 as such; forms 1-5 planned onboard)."""
+    rx[RX_ACTIVE] = 1.0
+    rx[RX_RECEIVED] += 1.0
+    modulator_restart_1(mod)
+    form = int(rp[RP_FORM])
+    if form == 6:
+        rx[RX_TARGET] = tele[TEL_REQUIRED]
+    elif form == 7:
+        rx[RX_FIXED_NOTCH] = tele[TEL_NOTCH]
+        rx[RX_FIXED_DUTY] = tele[TEL_DUTY]
+        rx[RX_TARGET] = table[max(int(tele[TEL_NOTCH]), 0)]
+    elif form == 8:
+        # SPEC §1 config 1: increase / decrease passed as such: one notch per telegram.
+        rx[RX_TARGET] = clip_1(rx[RX_TARGET] + tele[TEL_DELTA] * table[1], 0.0, rp[RP_MAX_DECEL])
+    else:
+        _receiver_plan_1(rx, rp, tach, hist_v, hist_e, taus, det_to_stop, ext, grad, tele, now_s)
+    if rx[RX_TARGET] > 0.0:
+        rx[RX_FIRST_RX] = min(rx[RX_FIRST_RX], now_s)
+    if int(rp[RP_CONFIG]) == 3:
+        duty = rx[RX_FIXED_DUTY]
+        rx[RX_ONBOARD_DUTY] = (
+            duty if np.isfinite(duty) else decel_to_pwm_1(rx[RX_TARGET], pwm_duty, pwm_decel)
+        )
+
+
+@njit_step
+def _receiver_plan_1(
+    rx: FloatArray,
+    rp: FloatArray,
+    tach: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    taus: FloatArray,
+    det_to_stop: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    tele: FloatArray,
+    now_s: float,
+) -> None:
+    """Forms 1-5: complete the measurement and compute the required deceleration onboard,
+    with the same law as the wayside."""
+    dt = rp[RP_DT]
+    count = int(rx[RX_TCOUNT])
+    tach_v, tach_a = fit_ring_1(tach, int(rx[RX_TCOL]), count, dt, int(rp[RP_SPEED_SAMPLES]))
+    form = int(rp[RP_FORM])
+    det = int(tele[TEL_DETECTOR])
+    since = now_s - tele[TEL_PASSAGE]
+    a_est = tach_a if np.isfinite(tach_a) else 0.0
+    if form == 5 and np.isfinite(tele[TEL_DECEL]):
+        a_est = tele[TEL_DECEL]
+    speed = tach_v
+    if form == 4:
+        speed = tele[TEL_SPEED] - a_est * (now_s - tele[TEL_MEASURED])
+    elif form == 3:
+        # Mean speed over the last interval belongs to its midpoint in time.
+        interval = tele[TEL_INTERVAL]
+        if np.isfinite(interval) and interval > 0 and det > 0:
+            spacing = det_to_stop[max(det - 1, 0)] - det_to_stop[det]
+            speed = spacing / interval - a_est * (since + interval / 2.0)
+    if form == 1:
+        distance = rp[RP_STOP] - tele[TEL_POSITION]
+    elif form == 2:
+        distance = tele[TEL_DISTANCE]
+    else:
+        distance = det_to_stop[det] - (speed * since + 0.5 * a_est * since * since)
+    if form <= 2:
+        lag = now_s - tele[TEL_MEASURED]
+        distance = distance - (speed * lag + 0.5 * a_est * lag * lag)
+    regression_taus_1(now_s - (count - 1) * dt, now_s, taus)
+    cmd_mean, ext_mean = modelled_means_1(
+        hist_v,
+        hist_e,
+        taus,
+        REG_WEIGHTS,
+        rx[RX_FIRST_RX],
+        rp[RP_LAG],
+        ext,
+        grad,
+        distance,
+        speed,
+        a_est,
+        now_s,
+    )
+    num, den = gain_update_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN], a_est, cmd_mean, ext_mean)
+    rx[RX_GAIN_NUM] = num
+    rx[RX_GAIN_DEN] = den
+    command, _, effect = plan_command_1(
+        distance,
+        speed,
+        now_s,
+        hist_v,
+        hist_e,
+        gain_value_1(num, den),
+        rp[RP_BASE_DELAY],
+        rp[RP_JERK],
+        rp[RP_MAX_DECEL],
+        ext,
+        grad,
+    )
+    history_push_1(hist_v, hist_e, command, effect)
+    rx[RX_TARGET] = command
+
+
+@njit_step
+def receiver_output_1(
+    rx: FloatArray, rp: FloatArray, mod: FloatArray, table: FloatArray, k: int, speed_mps: float
+) -> tuple[int, float]:
+    """The brake signal of step ``k`` for the ECU: (notch, -1 for PWM trains; duty, NaN for step trains).
+
+    Config 3: a PWM duty synchronised to the zero crossing of the existing PWM
+    brake signal and superimposed on it: both pulses start together, the ECU
+    sees their OR, the larger duty, latched once per carrier period. Configs
+    1, 2: the brake controller (every controller cycle) or the switching unit
+    (every step) sets the notch; wire e passes through from the train.
+    """
+    active = rx[RX_ACTIVE] > 0.0
+    if int(rp[RP_CONFIG]) == 3:
+        if k % int(rp[RP_PWM_STEPS]) == 0:
+            rx[RX_LATCHED] = max(rx[RX_EXISTING], rx[RX_ONBOARD_DUTY] if active else 0.0)
+        return -1, rx[RX_LATCHED]
+    cycle = int(rp[RP_CYCLE_STEPS])
+    if k % cycle == 0:
+        notch = modulator_update_1(
+            mod,
+            table,
+            rp[RP_MIN_HOLD],
+            rp[RP_RESPONSE],
+            rx[RX_TARGET],
+            active,
+            cycle * rp[RP_DT],
+            speed_mps,
+            True,
+        )
+        rx[RX_NOTCH] = rx[RX_FIXED_NOTCH] if rx[RX_FIXED_NOTCH] >= 0.0 else notch
+    return int(rx[RX_NOTCH]), np.nan

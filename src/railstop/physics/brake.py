@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import BrakeModel
+from railstop.jit import njit_inline, njit_step
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -208,3 +209,111 @@ def braking_decel_mps2(
     effectiveness (``brake_gain`` = actual / nominal) decide what that force does.
     """
     return actuator_out_mps2 * brake_gain * believed_effective_kg / effective_kg
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar cores (railstop.jit): the one implementation the stop kernel runs.
+
+_STEP_A = np.array([STEP_CODE[k][0] for k in range(8)], dtype=np.int64)
+_STEP_B = np.array([STEP_CODE[k][1] for k in range(8)], dtype=np.int64)
+_STEP_C = np.array([STEP_CODE[k][2] for k in range(8)], dtype=np.int64)
+_STEP_DECODE = _DECODE_TABLE.astype(np.int64)
+
+
+@njit_inline
+def line_notch(notch: int) -> int:
+    """SPEC §1 fig. 3: notch -> wires a, b, c (the encoder) -> notch (the ECU's decoder)."""
+    wires = (_STEP_A[notch] << 2) | (_STEP_B[notch] << 1) | _STEP_C[notch]
+    return int(_STEP_DECODE[wires])
+
+
+@njit_inline
+def interp_1(x: float, xp: FloatArray, fp: FloatArray) -> float:
+    """``np.interp`` of one number, by numpy's own algorithm (the same result to the bit).
+
+    Below the first point fp[0], above the last fp[-1]; on a point its value
+    exactly; otherwise slope · (x - xp[j]) + fp[j]. (numba's np.interp on a
+    scalar allocates and costs ~300 ns per call; this costs a few.)
+    """
+    if x != x:
+        return x
+    n = xp.size
+    j = 0
+    while j < n and x >= xp[j]:
+        j += 1
+    j -= 1
+    if j == -1:
+        return fp[0]
+    if j == n - 1:
+        return fp[n - 1]
+    if xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if y != y:
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if y != y and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
+
+
+@njit_inline
+def pwm_to_decel_1(duty: float, pwm_duty: FloatArray, pwm_decel: FloatArray) -> float:
+    """Brake ECU PWM input: duty -> deceleration by the vehicle's map (linear interpolation)."""
+    return interp_1(duty, pwm_duty, pwm_decel)
+
+
+@njit_step
+def decel_to_pwm_1(decel_mps2: float, pwm_duty: FloatArray, pwm_decel: FloatArray) -> float:
+    """Inverse of the PWM map on its rising part: the smallest duty giving ``decel_mps2``.
+
+    The map may have flat stretches; each rising segment is inverted on its
+    own and the first (lowest-duty) one containing the value wins; a value on
+    the lowest plateau gets the last duty that still gives it.
+    """
+    lo = pwm_decel[0]
+    hi = pwm_decel[0]
+    for value in pwm_decel:
+        lo = min(lo, value)
+        hi = max(hi, value)
+    d = decel_mps2 if decel_mps2 != decel_mps2 else min(max(decel_mps2, lo), hi)
+    for i in range(pwm_decel.size - 1):
+        if pwm_decel[i + 1] > pwm_decel[i] and d >= pwm_decel[i] and d <= pwm_decel[i + 1]:
+            return float(
+                pwm_duty[i]
+                + (d - pwm_decel[i]) * (pwm_duty[i + 1] - pwm_duty[i]) / (pwm_decel[i + 1] - pwm_decel[i])
+            )
+    last = 0
+    for i in range(pwm_decel.size):
+        if pwm_decel[i] == lo:
+            last = i
+    return float(pwm_duty[last])
+
+
+@njit_inline
+def actuator_step_1(
+    ring: FloatArray,
+    k: int,
+    delay_steps: int,
+    demand_mps2: float,
+    limited_mps2: float,
+    output_mps2: float,
+    lag_alpha: float,
+    jerk_step_mps2: float,
+    emergency_mps2: float,
+) -> tuple[float, float]:
+    """One step of the actuator chain; returns (limited, output): the brakes' deceleration is ``output``.
+
+    Dead time (pure delay of ``delay_steps``, ring of at least delay + 1
+    slots), the ECU jerk limiter (rate limit, bypassed by the emergency
+    brake), then the build-up first-order lag y += (u - y)(1 - e^(-dt/tau)),
+    exact for a piecewise-constant input.
+    """
+    length = ring.size
+    slot = k % length
+    ring[slot] = demand_mps2
+    past = slot - delay_steps  # (k - delay) mod length, without a second division
+    delayed = ring[past + length if past < 0 else past]
+    step = min(max(delayed - limited_mps2, -jerk_step_mps2), jerk_step_mps2)
+    limited = delayed if delayed >= emergency_mps2 - 1e-9 else limited_mps2 + step
+    return limited, output_mps2 + (limited - output_mps2) * lag_alpha

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
+from railstop.jit import njit_inline
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -179,3 +180,91 @@ def odometer_increment_m(
     """
     revs = distance_m * np.where(sliding, 1.0 - slide_slip_ratio, 1.0) / (np.pi * actual_diameter_m)
     return revs * np.pi * assumed_diameter_m
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar cores (railstop.jit): the one implementation the stop kernel runs.
+
+
+@njit_inline
+def elevation_1(
+    x_m: float, breakpoints_m: FloatArray, values_permille: FloatArray, elev_at_bp: FloatArray
+) -> float:
+    """Elevation (m) at chainage x of one run's piecewise-constant gradient (GradientProfile)."""
+    n = breakpoints_m.size
+    if n == 0:
+        return values_permille[0] * 1e-3 * x_m
+    idx = 0  # np.searchsorted(breakpoints, x): breakpoints below x (a profile has a handful)
+    while idx < n and breakpoints_m[idx] < x_m:
+        idx += 1
+    base = max(idx - 1, 0)
+    return elev_at_bp[base] + values_permille[idx] * 1e-3 * (x_m - breakpoints_m[base])
+
+
+@njit_inline
+def mean_gradient_1(
+    front_m: float,
+    length_m: float,
+    breakpoints_m: FloatArray,
+    values_permille: FloatArray,
+    elev_at_bp: FloatArray,
+) -> float:
+    """Mean gradient (fraction, + uphill) under a train of ``length_m`` whose front is at x."""
+    return (
+        elevation_1(front_m, breakpoints_m, values_permille, elev_at_bp)
+        - elevation_1(front_m - length_m, breakpoints_m, values_permille, elev_at_bp)
+    ) / length_m
+
+
+@njit_inline
+def motion_step_1(
+    position_m: float,
+    speed_mps: float,
+    stopped: bool,
+    brake_decel_mps2: float,
+    mean_gradient: float,
+    adhesion_mu: float,
+    speed_hold: bool,
+    static_kg: float,
+    effective_kg: float,
+    davis_a_n: float,
+    davis_b_n_per_mps: float,
+    davis_c_n_per_mps2: float,
+    t_s: float,
+    dt_s: float,
+) -> tuple[float, float, float, bool, float, bool]:
+    """One step of the true motion: (position, speed, accel, stopped, stop time or NaN, sliding).
+
+    m_eff dv/dt = -(F_brake + R(v) + m g i): constant acceleration within the
+    step (exact for v²/2a checks); a run whose speed would cross zero stops
+    exactly within the step; a stopped train is held by its brake. With
+    ``speed_hold`` the train keeps its speed (traction holds the approach
+    speed until the TASC first brakes). The braking deceleration is limited
+    by adhesion, mu g m / m_eff (all axles braked): above it the wheels slide.
+    """
+    limit = adhesion_mu * G_MPS2 * static_kg / effective_kg
+    sliding = brake_decel_mps2 > limit
+    brake = min(brake_decel_mps2, limit)
+    v_abs = abs(speed_mps)
+    resist = (davis_a_n + davis_b_n_per_mps * v_abs + davis_c_n_per_mps2 * v_abs * v_abs) / effective_kg
+    grade = G_MPS2 * mean_gradient * static_kg / effective_kg
+    decel = 0.0 if speed_hold else brake + resist + grade
+    if stopped:
+        return position_m, speed_mps, 0.0, True, np.nan, sliding
+    v_new = speed_mps - decel * dt_s
+    if decel > 0.0 and v_new <= 0.0:
+        return (
+            position_m + speed_mps * speed_mps / (2.0 * decel),
+            0.0,
+            -decel,
+            True,
+            t_s + speed_mps / decel,
+            sliding,
+        )
+    return position_m + (speed_mps * dt_s - 0.5 * decel * dt_s * dt_s), v_new, -decel, False, np.nan, sliding
+
+
+@njit_inline
+def creep_1(sliding: bool, slide_slip_ratio: float) -> float:
+    """Wheel speed / train speed under braking: short while sliding (SPEC §2 slip/slide)."""
+    return 1.0 - slide_slip_ratio if sliding else 1.0

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.jit import njit_inline
 from railstop.streams import RunStreams, Stream
 
 FloatArray = NDArray[np.float64]
@@ -100,3 +101,24 @@ def doppler_sample(
     """SPEC §1 speed detection unit: one Doppler speed sample with relative noise."""
     noise = streams.normal(Stream.DOPPLER, sample_index)
     return speed_mps * (1.0 + noise_frac * noise)
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar cores (railstop.jit): the one implementation the stop kernel runs.
+
+
+@njit_inline
+def crossing_time_1(x0_m: float, v0_mps: float, accel_mps2: float, target_m: float) -> float:
+    """:func:`crossing_time_s` of one run: when x0 + v0 t + a t²/2 reaches ``target_m``."""
+    d = target_m - x0_m
+    disc = max(v0_mps * v0_mps + 2.0 * accel_mps2 * d, 0.0)
+    denom = v0_mps + np.sqrt(disc)
+    return 2.0 * d / denom if denom > 0.0 else 0.0
+
+
+@njit_inline
+def passage_1(positions_m: FloatArray, next_index: int, x0_m: float, x1_m: float) -> bool:
+    """Does the step from x0 to x1 cross the next detector (at most one per step)?"""
+    return (
+        next_index < positions_m.size and x0_m < positions_m[next_index] and x1_m >= positions_m[next_index]
+    )

@@ -54,7 +54,7 @@ TRAIN_ID = 0x0001  # the train (one per run in a campaign: its own link)
 _DEMO_MASTER = hashlib.sha256(b"railstop demonstration TASC link master key").digest()
 
 # SPEC §1 claim 3: the array fields each form puts on the air (the rest is NaN).
-_CARRIED: dict[SignalForm, tuple[str, ...]] = {
+CARRIED: dict[SignalForm, tuple[str, ...]] = {
     SignalForm.POSITION: ("position_m", "measured_s"),
     SignalForm.DISTANCE: ("distance_m", "measured_s"),
     SignalForm.INTERVAL_TIME: ("interval_s", "passage_s"),
@@ -90,7 +90,7 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     """
     form = SignalForm(tele.form)
     kind = TASC_FORM_TYPES[int(form)]
-    carried = _CARRIED[form]
+    carried = CARRIED[form]
     changes: dict[str, object] = {}
     for name in _FLOAT_FIELDS:
         if name not in carried:

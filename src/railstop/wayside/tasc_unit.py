@@ -19,19 +19,33 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Vehicle
-from railstop.control.notch import nearest_notch
+from railstop.control.notch import nearest_notch, nearest_notch_1
 from railstop.control.tasc import (
+    REG_WEIGHTS,
     CommandHistory,
     ExternalModel,
     GainEstimate,
+    clip_1,
     closed_loop_command,
+    external_decel_1,
     fit_doppler,
     fit_passages,
+    fit_passages_1,
+    fit_ring_1,
+    gain_update_1,
+    gain_value_1,
     hat_weights,
+    hat_weights_1,
+    history_push_1,
+    history_value_at_1,
     modelled_means,
+    modelled_means_1,
+    plan_command_1,
+    regression_taus_1,
     regression_weights,
 )
-from railstop.physics.brake import decel_to_pwm
+from railstop.jit import njit_inline, njit_step
+from railstop.physics.brake import decel_to_pwm, decel_to_pwm_1
 from railstop.physics.train import GradientProfile
 
 FloatArray = NDArray[np.float64]
@@ -392,3 +406,360 @@ def _blank_unsent_fields(t: TascTelegrams) -> None:
     ):
         if name not in keep:
             setattr(t, name, np.full(t.mask.shape, np.nan))
+
+
+# --------------------------------------------------------------------------
+# Compiled scalar core (railstop.jit): the wayside unit of one run.
+#
+# A braking telegram is a float vector (TEL_*; NaN = not carried). The
+# unit's parameters are a float vector (WP_*), its state another (WS_*) plus
+# a few arrays: the Doppler ring buffer, the last three passages, the
+# command history, two scratch arrays of SAMPLES for the window means.
+
+TEL_DETECTOR = 0
+TEL_PASSAGE = 1
+TEL_MEASURED = 2
+TEL_POSITION = 3
+TEL_DISTANCE = 4
+TEL_INTERVAL = 5
+TEL_SPEED = 6
+TEL_DECEL = 7
+TEL_REQUIRED = 8
+TEL_NOTCH = 9
+TEL_DUTY = 10
+TEL_DELTA = 11
+TEL_SIZE = 12
+#: Telegram vector index -> TascTelegrams field (the array form of the same telegram).
+TEL_FIELDS: tuple[str, ...] = (
+    "detector",
+    "passage_s",
+    "measured_s",
+    "position_m",
+    "distance_m",
+    "interval_s",
+    "speed_mps",
+    "decel_mps2",
+    "required_mps2",
+    "notch",
+    "duty",
+    "delta",
+)
+
+WP_FORM = 0
+WP_HAS_DOPPLER = 1
+WP_CONTINUOUS = 2  # update = "continuous"
+WP_CONTINUOUS_PERIOD = 3
+WP_DT = 4
+WP_SPEED_SAMPLES = 5
+WP_BASE_DELAY = 6  # assumed link latency + brake dead time + lag time constant
+WP_JERK = 7
+WP_MAX_DECEL = 8  # full service
+WP_LAG = 9  # brake build-up time constant
+WP_STOP = 10
+WP_SIZE = 11
+
+WS_COL = 0  # newest Doppler slot
+WS_DCOUNT = 1  # Doppler samples held (<= window)
+WS_WIN_START = 2  # start of the measurement interval (the last command's effect time)
+WS_SUMS = 3  # 5 running sums of the interval's line fit: count, Σt, Σt², Σv, Σtv
+WS_PASS_COUNT = 8
+WS_LAST_DET = 9
+WS_LAST_PASS = 10
+WS_TRAVEL = 11  # Doppler-integrated travel since the last passage
+WS_GAIN_NUM = 12
+WS_GAIN_DEN = 13
+WS_BELIEVED = 14  # form 8: what the train is believed to apply
+WS_SENT = 15
+WS_FIRST_SENT = 16  # the train holds its speed until told to brake
+WS_NEXT_UPDATE = 17
+WS_SIZE = 18
+
+# Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
+CR_T = 0
+CR_DETECTOR = 1
+CR_PASSAGE = 2
+CR_DISTANCE = 3
+CR_SPEED = 4
+CR_DECEL = 5
+CR_GAIN = 6
+CR_REQUIRED = 7
+CR_COMMAND = 8
+CR_NOTCH = 9
+CR_DELTA = 10
+CR_EFFECT = 11
+CR_SIZE = 12
+
+# The fields forms 1-5 put on the air besides the detector and times (SPEC §1 claim 3).
+_MEASUREMENT_OF_FORM = np.array([-1, TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL])
+_PASSAGE_FRAC = (np.arange(16) + 0.5) / 16
+
+
+@njit_step
+def wayside_init_1(
+    ws: FloatArray, hist_v: FloatArray, hist_e: FloatArray, pass_t: FloatArray, pass_x: FloatArray
+) -> None:
+    ws[:] = 0.0
+    ws[WS_COL] = -1.0
+    ws[WS_LAST_DET] = -1.0
+    ws[WS_LAST_PASS] = np.nan
+    ws[WS_FIRST_SENT] = np.inf
+    ws[WS_NEXT_UPDATE] = np.inf
+    hist_v[:] = 0.0
+    hist_e[:] = np.inf
+    pass_t[:] = np.nan
+    pass_x[:] = np.nan
+
+
+@njit_inline
+def wayside_observe_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    dbuf: FloatArray,
+    pass_t: FloatArray,
+    pass_x: FloatArray,
+    det_pos: FloatArray,
+    now_s: float,
+    passed: bool,
+    detector: int,
+    passage_s: float,
+    doppler_mps: float,
+) -> bool:
+    """One step of the wayside unit's measurements; True when a command is due now.
+
+    ``doppler_mps`` is NaN when there is no sample this step. When due, the
+    caller calls :func:`wayside_command_1` in the same step.
+    """
+    if wp[WP_HAS_DOPPLER] > 0.0 and np.isfinite(doppler_mps):
+        window = dbuf.size
+        col = int(ws[WS_COL]) + 1
+        if col == window:
+            col = 0
+        ws[WS_COL] = col
+        dbuf[col] = doppler_mps
+        t_rel = max(now_s - ws[WS_WIN_START], -1.0)
+        if t_rel >= 0.0:
+            ws[WS_SUMS] += 1.0
+            ws[WS_SUMS + 1] += t_rel
+            ws[WS_SUMS + 2] += t_rel * t_rel
+            ws[WS_SUMS + 3] += doppler_mps
+            ws[WS_SUMS + 4] += t_rel * doppler_mps
+        ws[WS_DCOUNT] = min(ws[WS_DCOUNT] + 1.0, float(window))
+        ws[WS_TRAVEL] += doppler_mps * wp[WP_DT]
+    if passed:
+        for j in range(2):
+            pass_t[j] = pass_t[j + 1]
+            pass_x[j] = pass_x[j + 1]
+        pass_t[2] = passage_s
+        pass_x[2] = det_pos[detector]
+        ws[WS_PASS_COUNT] += 1.0
+        ws[WS_LAST_DET] = detector
+        ws[WS_LAST_PASS] = passage_s
+    # SPEC §1: control at every detector (variant 2 needs two passages for a speed).
+    need = ws[WS_PASS_COUNT] >= (1.0 if wp[WP_HAS_DOPPLER] > 0.0 else 2.0)
+    if passed and need:
+        return True
+    return wp[WP_CONTINUOUS] > 0.0 and need and now_s >= ws[WS_NEXT_UPDATE]
+
+
+@njit_step
+def _wayside_measure_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    dbuf: FloatArray,
+    pass_t: FloatArray,
+    pass_x: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    taus: FloatArray,
+    weights: FloatArray,
+    det_to_stop: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    now_s: float,
+    new_passage: bool,
+) -> tuple[float, float, float, float, float]:
+    """Speed now, measured decel, distance to go, and the window's modelled means (commanded
+    brake decel, external decel while braking) the measured deceleration is compared with."""
+    dt = wp[WP_DT]
+    last_det = int(ws[WS_LAST_DET])
+    if wp[WP_HAS_DOPPLER] > 0.0:
+        count = int(ws[WS_DCOUNT])
+        speed, decel = fit_ring_1(dbuf, int(ws[WS_COL]), count, dt, int(wp[WP_SPEED_SAMPLES]))
+        # Prefer the interval since the last command took effect when it is longer: the
+        # deceleration over the whole interval between commands (a brake controller
+        # alternating two notches matches the target only on average over its alternation).
+        c = ws[WS_SUMS]
+        if c > count:
+            st = ws[WS_SUMS + 1]
+            sxx = ws[WS_SUMS + 2] - st * st / max(c, 1.0)
+            slope = (ws[WS_SUMS + 4] - st * ws[WS_SUMS + 3] / max(c, 1.0)) / sxx if sxx > 0.0 else 0.0
+            decel = -slope
+            count = int(c)
+        if new_passage:  # at a passage, the travel since it is reconstructed from the fit
+            since = now_s - ws[WS_LAST_PASS]
+            ws[WS_TRAVEL] = speed * since + 0.5 * decel * since * since
+        distance = det_to_stop[last_det] - ws[WS_TRAVEL]
+        regression_taus_1(now_s - (count - 1) * dt, now_s, taus)
+        cmd_mean, ext_mean = modelled_means_1(
+            hist_v,
+            hist_e,
+            taus,
+            REG_WEIGHTS,
+            ws[WS_FIRST_SENT],
+            wp[WP_LAG],
+            ext,
+            grad,
+            distance,
+            speed,
+            decel,
+            now_s,
+        )
+        return speed, decel, distance, cmd_mean, ext_mean
+    # SPEC §1 variant 2: passage times only. The mean speed over the last
+    # interval is corrected to the newest passage with the modelled
+    # deceleration; three passages measure the (hat-weighted) deceleration.
+    gain = gain_value_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN])
+    t1 = pass_t[1]
+    t2 = pass_t[2]
+    first = ws[WS_FIRST_SENT]
+    v_mean = (pass_x[2] - pass_x[1]) / (t2 - t1)
+    ext_v = external_decel_1(ext, grad, det_to_stop[last_det], v_mean)
+    # v(t2) = mean speed - (1/Δ) ∫_{t1}^{t2} (τ - t1) a(τ) dτ
+    acc = 0.0
+    for j in range(16):
+        tau = t1 + (t2 - t1) * _PASSAGE_FRAC[j]
+        a_model = gain * history_value_at_1(hist_v, hist_e, tau) + (ext_v if tau >= first else 0.0)
+        acc += a_model * _PASSAGE_FRAC[j]
+    v_p = v_mean - (t2 - t1) * (acc / 16.0)
+    a_now = gain * history_value_at_1(hist_v, hist_e, now_s) + (ext_v if now_s >= first else 0.0)
+    since = now_s - t2
+    speed = v_p - a_now * since
+    distance = det_to_stop[last_det] - (v_p * since - 0.5 * a_now * since**2)
+    decel = np.nan
+    cmd_mean = 0.0
+    ext_mean = 0.0
+    count = int(ws[WS_PASS_COUNT])
+    if count >= 3:
+        _, decel = fit_passages_1(pass_t, pass_x, count)
+        hat_weights_1(pass_t[0], t1, t2, taus, weights)
+        cmd_mean, ext_mean = modelled_means_1(
+            hist_v, hist_e, taus, weights, first, wp[WP_LAG], ext, grad, distance, speed, decel, now_s
+        )
+    return speed, decel, distance, cmd_mean, ext_mean
+
+
+@njit_step
+def wayside_command_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    dbuf: FloatArray,
+    pass_t: FloatArray,
+    pass_x: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    taus: FloatArray,
+    weights: FloatArray,
+    det_to_stop: FloatArray,
+    table: FloatArray,
+    pwm_duty: FloatArray,
+    pwm_decel: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    now_s: float,
+    new_passage: bool,
+    tele: FloatArray,
+    record: FloatArray,
+) -> None:
+    """The command due now: measure, close the loop, plan; the telegram into ``tele``, its
+    record (CR_*: SPEC §1 claims 8, 20) into ``record``."""
+    speed, decel, distance, cmd_mean, ext_mean = _wayside_measure_1(
+        ws,
+        wp,
+        dbuf,
+        pass_t,
+        pass_x,
+        hist_v,
+        hist_e,
+        taus,
+        weights,
+        det_to_stop,
+        ext,
+        grad,
+        now_s,
+        new_passage,
+    )
+    interval = pass_t[2] - pass_t[1]
+    # Loop closure (SPEC §1 claims 2, 19) and the next command.
+    num, den = gain_update_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN], decel, cmd_mean, ext_mean)
+    ws[WS_GAIN_NUM] = num
+    ws[WS_GAIN_DEN] = den
+    gain = gain_value_1(num, den)
+    command, a_true, effect = plan_command_1(
+        distance,
+        speed,
+        now_s,
+        hist_v,
+        hist_e,
+        gain,
+        wp[WP_BASE_DELAY],
+        wp[WP_JERK],
+        wp[WP_MAX_DECEL],
+        ext,
+        grad,
+    )
+    form = int(wp[WP_FORM])
+    notch = nearest_notch_1(command, table)
+    delta = 0
+    executed = command
+    if form == 7:  # BRAKE_COMMAND
+        executed = table[notch]
+    elif form == 8:  # INCREASE_DECREASE: one notch up or down per telegram
+        step = table[1]
+        believed = ws[WS_BELIEVED]
+        if command > believed + step / 2:
+            delta = 1
+        elif command < believed - step / 2:
+            delta = -1
+        executed = clip_1(believed + delta * step, 0.0, wp[WP_MAX_DECEL])
+        ws[WS_BELIEVED] = executed
+    if form >= 6:
+        history_push_1(hist_v, hist_e, executed, effect)
+    ws[WS_SENT] += 1.0
+    if executed > 0.0:  # the train holds its speed (its own traction control) until told to brake
+        ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], now_s)
+    # The next measurement interval starts when this command takes effect.
+    ws[WS_WIN_START] = effect
+    for j in range(5):
+        ws[WS_SUMS + j] = 0.0
+    if wp[WP_CONTINUOUS] > 0.0:
+        ws[WS_NEXT_UPDATE] = now_s + wp[WP_CONTINUOUS_PERIOD]
+    last_det = ws[WS_LAST_DET]
+    tele[TEL_DETECTOR] = last_det
+    tele[TEL_PASSAGE] = ws[WS_LAST_PASS]
+    tele[TEL_MEASURED] = now_s
+    tele[TEL_POSITION] = wp[WP_STOP] - distance
+    tele[TEL_DISTANCE] = distance
+    tele[TEL_INTERVAL] = interval
+    tele[TEL_SPEED] = speed
+    tele[TEL_DECEL] = decel
+    tele[TEL_REQUIRED] = command
+    tele[TEL_NOTCH] = notch
+    tele[TEL_DUTY] = decel_to_pwm_1(command, pwm_duty, pwm_decel)
+    tele[TEL_DELTA] = delta
+    if form <= 5:  # forms 1-5 carry only their measurement (SPEC §1)
+        keep = _MEASUREMENT_OF_FORM[form]
+        for j in (TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL, TEL_REQUIRED):
+            if j != keep:
+                tele[j] = np.nan
+    record[CR_T] = now_s
+    record[CR_DETECTOR] = last_det
+    record[CR_PASSAGE] = ws[WS_LAST_PASS]
+    record[CR_DISTANCE] = distance
+    record[CR_SPEED] = speed
+    record[CR_DECEL] = decel
+    record[CR_GAIN] = gain
+    record[CR_REQUIRED] = a_true
+    record[CR_COMMAND] = command
+    record[CR_NOTCH] = notch
+    record[CR_DELTA] = delta
+    record[CR_EFFECT] = effect
