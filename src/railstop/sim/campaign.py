@@ -18,12 +18,13 @@ Layout of ``DIR``:
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import hashlib
 import json
 import os
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,7 @@ from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
 from railstop.report.campaign_report import summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
+from railstop.sim.executor import execute
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import SignalForm
 
@@ -46,6 +48,11 @@ SUMMARY_FILE = "summary.json"
 CHUNK_DIR = "chunks"
 DEFAULT_CHUNK = 10_000
 MANIFEST_VERSION = 1
+# The stop model's version: a campaign is resumed (and a run replayed) only by the model that
+# made it. 2: the compiled kernel, each run ending at its own stop (the lockstep array engine,
+# version 1, went on stepping stopped runs, so in continuous update its command counts
+# depended on the other runs of the chunk).
+MODEL_VERSION = 2
 
 RESULT_COLUMNS = (
     "run",
@@ -79,6 +86,7 @@ class CampaignSpec:
         return {
             "kind": "railstop-campaign",
             "version": MANIFEST_VERSION,
+            "model_version": MODEL_VERSION,
             "station": st.name,
             "controller": self.controller,
             "seed": self.seed,
@@ -160,8 +168,8 @@ def _chunk_path(out: Path, k: int) -> Path:
     return out / CHUNK_DIR / f"chunk-{k:06d}.parquet"
 
 
-def _run_chunk(spec: CampaignSpec, out: Path, k: int) -> int:
-    """Simulate chunk k and write its file atomically; return the number of runs."""
+def simulate_chunk(spec: CampaignSpec, k: int) -> pa.Table:
+    """Chunk k's per-run rows (a pure function of the spec and k: any thread, process or machine)."""
     first, end = spec.chunk_range(k)
     result, drawn = simulate_runs(
         station=spec.line.station(spec.station),
@@ -174,11 +182,15 @@ def _run_chunk(spec: CampaignSpec, out: Path, k: int) -> int:
         form=spec.form,
         track=spec.line.track,
     )
+    return _chunk_table(first, result, drawn)
+
+
+def _write_chunk(out: Path, k: int, table: pa.Table) -> None:
+    """Write chunk k atomically (temporary file, then rename): a chunk file is whole or absent."""
     path = _chunk_path(out, k)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    pq.write_table(_chunk_table(first, result, drawn), tmp)
+    pq.write_table(table, tmp)
     os.replace(tmp, path)
-    return end - first
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -231,28 +243,21 @@ def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> list[int]:
     return [k for k in range(spec.chunks) if not _chunk_path(out, k).exists()]
 
 
-def _executed(spec: CampaignSpec, out: Path, todo: list[int], workers: int) -> Iterator[int]:
-    """Run the chunks in ``todo``; yield the run count of each as it finishes."""
-    if workers <= 1 or len(todo) <= 1:
-        for k in todo:
-            yield _run_chunk(spec, out, k)
-        return
-    pool = ProcessPoolExecutor(max_workers=workers)
-    pending: set[Future[int]] = set()
-    queue = list(todo)
-    try:
-        while queue or pending:
-            while queue and len(pending) < workers:
-                pending.add(pool.submit(_run_chunk, spec, out, queue.pop(0)))
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                yield fut.result()
-    finally:
-        # Interrupted: the chunks being simulated are abandoned (their files
-        # are written atomically, so none is half there); finished ones stay.
-        for fut in pending:
-            fut.cancel()
-        pool.shutdown(wait=True, cancel_futures=True)
+def _executed(
+    spec: CampaignSpec, out: Path, todo: list[int], workers: int, scheduler: str | None
+) -> Iterator[int]:
+    """Run the chunks in ``todo`` where the executor says; write each as it arrives, yield its run count.
+
+    Interrupted (Ctrl-C, a kill, a failed chunk): the chunks not yet written
+    are abandoned (their files are written atomically, so none is half
+    there); every finished one stays.
+    """
+    with contextlib.closing(
+        execute(functools.partial(simulate_chunk, spec), todo, workers=workers, scheduler=scheduler)
+    ) as results:
+        for k, table in results:
+            _write_chunk(out, k, table)
+            yield table.num_rows
 
 
 def run_campaign(
@@ -262,8 +267,13 @@ def run_campaign(
     workers: int = 1,
     resume: bool = False,
     progress: Progress | None = None,
+    scheduler: str | None = None,
 ) -> CampaignOutcome:
-    """Run (or continue) the campaign into ``out``; see the module docstring."""
+    """Run (or continue) the campaign into ``out``; see the module docstring.
+
+    ``workers``: threads in this process (the kernel holds no GIL);
+    ``scheduler``: the address of a Dask scheduler to run the chunks on instead.
+    """
     out = Path(out)
     todo = _prepare(spec, out, resume)
     done_runs = spec.runs - sum(spec.chunk_range(k)[1] - spec.chunk_range(k)[0] for k in todo)
@@ -271,7 +281,7 @@ def run_campaign(
         progress(done_runs, spec.runs)
     t0 = time.perf_counter()
     simulated = 0
-    for n in _executed(spec, out, todo, workers):
+    for n in _executed(spec, out, todo, workers, scheduler):
         simulated += n
         if progress:
             progress(done_runs + simulated, spec.runs)
@@ -329,6 +339,11 @@ def read_manifest(out: Path) -> dict[str, Any]:
 
 def spec_from_manifest(manifest: dict[str, Any], line: Line, vehicle: Vehicle, source: str) -> CampaignSpec:
     """The campaign a manifest describes, with the line and vehicle data it was run on."""
+    if manifest.get("model_version") != MODEL_VERSION:
+        raise RailstopError(
+            f"{source}: the campaign was made by stop model version {manifest.get('model_version', 1)}; "
+            f"this railstop has version {MODEL_VERSION} (run the campaign again)"
+        )
     if manifest.get("data_sha256") != _data_hash(line, vehicle):
         raise RailstopError(
             f"{source}: the campaign was run on other line or vehicle data than given "
