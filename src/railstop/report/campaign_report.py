@@ -22,24 +22,21 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import matplotlib
-
-# Agg before any drawing: reports are written on servers and in CI with no display.
-matplotlib.use("Agg")
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
-from matplotlib.axes import Axes
-from matplotlib.colors import to_hex
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
 
 from railstop.errors import RailstopError
+from railstop.report.bounds import clopper_pearson_upper
 from railstop.report.figures import write_figure
+
+if TYPE_CHECKING:
+    # matplotlib is imported where a figure is drawn: the campaign code imports summary_stats.
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 __all__ = [
     "BANDS_M",
@@ -109,16 +106,6 @@ _PROFILE_COLORS = (*_CONTROLLER_COLORS, "tab:olive", "tab:gray", "black")
 # --------------------------------------------------------------------------- statistics
 
 
-def _clopper_pearson_upper(k: int, n: int, confidence: float = CONFIDENCE) -> float:
-    """One-sided Clopper–Pearson upper bound on a probability seen k times in n trials."""
-    if k >= n:
-        return 1.0
-    # Imported here: scipy.stats takes half a second to import; the campaign code imports this module.
-    from scipy.stats import beta
-
-    return float(beta.ppf(confidence, k + 1, n - k))
-
-
 def summary_stats(
     stop_error_m: Sequence[float] | np.ndarray,
     max_jerk_mps3: Sequence[float] | np.ndarray,
@@ -178,7 +165,7 @@ def summary_stats(
         "p99_abs_m": float(np.percentile(good_abs, 99.0)) if good.size else math.nan,
         "max_abs_m": float(np.max(good_abs)) if good.size else math.nan,
         "overruns_0_35": k,
-        "overrun_0_35_ci95_upper": _clopper_pearson_upper(k, n),
+        "overrun_0_35_ci95_upper": clopper_pearson_upper(k, n, CONFIDENCE),
         "p99_max_jerk_mps3": float(np.percentile(jerk_ok, 99.0)) if jerk_ok.size else math.nan,
         "mean_stop_time_s": float(np.mean(t_ok)) if t_ok.size else math.nan,
         "not_stopped": int(np.count_nonzero(~is_stopped)),
@@ -386,6 +373,16 @@ def _save(fig: Figure, path: Path) -> Path:
     return write_figure(fig, path, _DPI)
 
 
+def _figure(figsize: tuple[float, float]) -> Figure:
+    import matplotlib
+
+    # Agg before any drawing: reports are written on servers and in CI with no display.
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, dpi=_DPI, layout="constrained")
+
+
 # --------------------------------------------------------------------------- plots
 
 
@@ -403,7 +400,7 @@ def _psd_band(ax: Axes, *, vertical: bool = True) -> None:
 
 def _error_histogram(campaigns: list[_Campaign]) -> Figure:
     """Overlaid step histograms; the far tails are gathered in the outermost bins and counted."""
-    fig = Figure(figsize=(10.0, 4.8), dpi=_DPI, layout="constrained")
+    fig = _figure((10.0, 4.8))
     ax = fig.add_subplot()
     finite = [c.error[np.isfinite(c.error)] for c in campaigns]
     pooled = np.concatenate(finite) if finite else np.zeros(0)
@@ -477,7 +474,7 @@ def _ecdf_points(abs_error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _abs_error_cdf(campaigns: list[_Campaign]) -> Figure:
     """Left the CDF of |error| over the bulk of the runs; right its complement on a log scale, to the
     largest miss."""
-    fig = Figure(figsize=(10.0, 4.4), dpi=_DPI, layout="constrained")
+    fig = _figure((10.0, 4.4))
     cdf_ax, tail_ax = fig.subplots(1, 2)
     bulk_max = 0.6  # the CDF panel: up to the 99.5th percentile, where the bands are read
     tail_max = 0.6
@@ -573,6 +570,8 @@ def _distinct_values(arrays: list[np.ndarray]) -> np.ndarray:
 
 def _driver_figures(campaigns: list[_Campaign], parameters: list[str]) -> list[Figure]:
     """Stop error against each varying parameter, one panel each, one or two figures."""
+    from matplotlib.lines import Line2D
+
     if not parameters:
         return []
     parts = 1 if len(parameters) <= _PANELS_PER_FIGURE else 2
@@ -584,7 +583,7 @@ def _driver_figures(campaigns: list[_Campaign], parameters: list[str]) -> list[F
     for number, names in enumerate(groups, start=1):
         cols = min(_PANEL_COLUMNS, len(names))
         rows = math.ceil(len(names) / cols)
-        fig = Figure(figsize=(3.4 * cols, 2.7 * rows + 0.9), dpi=_DPI, layout="constrained")
+        fig = _figure((3.4 * cols, 2.7 * rows + 0.9))
         axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
         for ax, name in zip(axes, names, strict=False):
             _driver_panel(ax, campaigns, name, rng)
@@ -681,7 +680,7 @@ def _profile(replay: Replay, c: _Campaign, run: int) -> tuple[np.ndarray, np.nda
 
 
 def _worst_profiles(c: _Campaign, rows: np.ndarray, replay: Replay) -> Figure:
-    fig = Figure(figsize=(10.0, 4.6), dpi=_DPI, layout="constrained")
+    fig = _figure((10.0, 4.6))
     grid = fig.add_gridspec(1, 2, width_ratios=(4.0, 1.0))
     ax = fig.add_subplot(grid[0, 0])
     zoom = fig.add_subplot(grid[0, 1])
@@ -961,4 +960,6 @@ def _html(
 
 
 def _hex(color: str) -> str:
+    from matplotlib.colors import to_hex
+
     return str(to_hex(color))

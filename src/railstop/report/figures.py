@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-
-from matplotlib.figure import Figure
+from typing import TYPE_CHECKING
 
 from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def write_figure(fig: Figure, path: Path, dpi: int) -> Path:
