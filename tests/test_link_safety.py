@@ -554,3 +554,12 @@ TestAdversaryCategory1 = AdversaryCategory1.TestCase
 TestAdversaryCategory1.settings = _STATEFUL
 TestAdversaryCategory3 = AdversaryCategory3.TestCase
 TestAdversaryCategory3.settings = _STATEFUL
+
+
+def test_time_out_is_decided_in_whole_milliseconds() -> None:
+    """Found by the stateful adversary: a delivery at 0.951 s and a check at 1.951 s is exactly the
+    1 s time-out, not past it (in seconds, 1.951 - 0.951 > 1.0 in floating point)."""
+    sender, receiver = make_pair(3)
+    assert isinstance(receiver.accept(sender.wrap(b"a", 0.951), 0.951), Delivered)
+    assert not receiver.timed_out(1.951)
+    assert receiver.timed_out(1.952)

@@ -355,5 +355,11 @@ class SafeReceiver:
         return Delivered(payload=body[HEADER_BYTES:], seq=seq, sent_s=(now_ms - age_ms) / 1000.0, gap=gap)
 
     def timed_out(self, now_s: float) -> bool:
-        """No frame delivered for longer than ``timeout_s`` (counting from ``start_s`` before the first)."""
-        return _check_time("now_s", now_s) - self.last_valid_s > self.timeout_s
+        """No frame delivered for longer than ``timeout_s`` (counting from ``start_s`` before the first).
+
+        In whole milliseconds, like the frames' timestamps and the age check: in
+        seconds, 1.951 - 0.951 > 1.0 in floating point, and a link exactly at its
+        time-out would count as timed out.
+        """
+        elapsed_ms = round(_check_time("now_s", now_s) * 1000.0) - round(self.last_valid_s * 1000.0)
+        return elapsed_ms > round(self.timeout_s * 1000.0)
