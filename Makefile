@@ -9,11 +9,15 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 
+# `railstop compile` fills the on-disk cache of the compiled stop model once
+# (tens of seconds on a fresh install; a moment when it is already there).
 install: $(BIN)/python
 	$(BIN)/python -m pip install -q -e .
+	$(BIN)/railstop compile
 
 install-test: $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/railstop compile
 
 # The main job on the embedded default data.
 run: install

@@ -1,4 +1,12 @@
-"""The ``railstop`` command."""
+"""The ``railstop`` command.
+
+Start-up is kept short: this module imports only what builds the command line
+(typer, the consoles, the controller names its help quotes); every command
+imports what it runs when it runs. ``stop --json --no-db`` thus loads the
+simulation engine but not SQLAlchemy, matplotlib or pyarrow, and
+``position-run`` (whose help quotes the whole-line simulation's defaults) is
+built only when it is used.
+"""
 
 from __future__ import annotations
 
@@ -6,26 +14,62 @@ import json
 import os
 import shutil
 import sys
-from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.table import Table
+from typer.core import TyperCommand, TyperGroup
 
 from railstop.cli_common import err, fail, out
 from railstop.cli_doors import doors_app, dwell
-from railstop.cli_position import position_run
 from railstop.cli_telegram import telegram_app
-from railstop.config import load_line, load_vehicle
-from railstop.config.disturbances import load_disturbances
-from railstop.config.schema import Line, Station, Vehicle
+
+# The --controller help lists the engine's controllers; running a stop needs the engine anyway.
+from railstop.controllers import CONTROLLERS
 from railstop.errors import RailstopError
-from railstop.sim.engine import ATO_CONTROLLERS, CONTROLLERS, BatchResult
-from railstop.sim.single import StopResult, run_stop
-from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
+
+if TYPE_CHECKING:
+    from rich.table import Table
+    from typer._click import Command, Context
+
+    from railstop.config.schema import Line, Station, Vehicle
+    from railstop.sim.engine import BatchResult
+    from railstop.sim.single import StopResult
+
+_POSITION_RUN = "position-run"
+_UNBUILT: Command = TyperCommand(name=_POSITION_RUN, hidden=True)
+
+
+def _position_run_command() -> Command:
+    """``position-run`` as a click command: imports ``railstop.sim.position_run`` for its help."""
+    from railstop.cli_position import position_run
+
+    sub = typer.Typer(add_completion=False)
+    sub.command(name=_POSITION_RUN)(position_run)
+    return typer.main.get_command(sub)
+
+
+class _Group(TyperGroup):
+    """The ``railstop`` group, with ``position-run`` built on first use (help, run or completion)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        # A placeholder keeps the listing order (after `dwell`) and the "did you mean" suggestions.
+        commands = dict(self.commands)
+        self.commands = {}
+        for name, command in commands.items():
+            self.commands[name] = command
+            if name == "dwell":
+                self.commands[_POSITION_RUN] = _UNBUILT
+
+    def get_command(self, ctx: Context, cmd_name: str) -> Command | None:
+        if self.commands.get(cmd_name) is _UNBUILT:
+            self.commands[cmd_name] = _position_run_command()
+        return super().get_command(ctx, cmd_name)
+
 
 app = typer.Typer(
+    cls=_Group,
     add_completion=False,
     no_args_is_help=True,
     help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
@@ -33,7 +77,6 @@ app = typer.Typer(
 app.add_typer(doors_app, name="doors")
 app.command()(dwell)
 app.add_typer(telegram_app, name="telegram")
-app.command(name="position-run")(position_run)
 
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[
@@ -50,6 +93,8 @@ def _controller(name: str) -> str:
 @app.command()
 def check(line: LineOpt = None, vehicle: VehicleOpt = None) -> None:
     """Validate a line file (and optionally a vehicle file)."""
+    from railstop.config import load_line, load_vehicle
+
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -65,6 +110,7 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None) -> None:
 
 @app.command()
 def stop(
+    ctx: typer.Context,
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
     controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
@@ -86,12 +132,24 @@ def stop(
     plot: Annotated[Path | None, typer.Option(help="Write a PNG plot of the stop here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file.")] = Path("railstop.db"),
+    no_db: Annotated[
+        bool, typer.Option("--no-db", help="Write no database (the result is only printed).")
+    ] = False,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
+    from railstop.config import load_line, load_vehicle
+    from railstop.config.disturbances import load_disturbances
+    from railstop.controllers import ATO_CONTROLLERS
+    from railstop.sim.single import run_stop
+    from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
+
     if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
         fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
+    source = ctx.get_parameter_source("db")
+    if no_db and source is not None and source.name == "COMMANDLINE":
+        fail("--db and --no-db exclude each other")
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -109,7 +167,8 @@ def stop(
             disturbances=dist,
             run=run,
         )
-        _save(db, result)
+        if not no_db:
+            _save(db, result)
         if plot is not None:
             _plot(plot, result, batch, st)
     except RailstopError as exc:
@@ -143,6 +202,8 @@ def stop(
 
 def _save(db: Path, result: StopResult) -> None:
     """SPEC §1 claims 8, 20: every computed command and its inputs go to the database."""
+    from datetime import UTC, datetime
+
     from railstop.store import StopRecord, open_store
 
     record = StopRecord(
@@ -196,6 +257,25 @@ def _plot(path: Path, result: StopResult, batch: BatchResult, station: Station) 
         raise RailstopError(f"cannot write plot {path}: {exc.strerror}") from None
 
 
+@app.command(name="compile")
+def compile_model(
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Compile the stop model once into the on-disk cache, so that later commands start at once."""
+    import time
+
+    from railstop.sim.kernel import warm_up
+
+    t0 = time.perf_counter()
+    info = warm_up()
+    info["seconds"] = round(time.perf_counter() - t0, 2)
+    if as_json:
+        print(json.dumps(info))
+        return
+    what = "compiled the stop model" if info["compiled"] else "the stop model was already compiled; loaded it"
+    out.print(f"{what} in {info['seconds']} s; cache: {info['cache_dir']}", highlight=False)
+
+
 @app.command()
 def demo(
     out_dir: Annotated[Path, typer.Option("--out", help="Folder for plots and database.")] = Path(
@@ -208,6 +288,11 @@ def demo(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Stop at every station with every controller, then compare the controllers on the standard set."""
+    from rich.table import Table
+
+    from railstop.config import load_line, load_vehicle
+    from railstop.sim.single import run_stop
+
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -312,7 +397,13 @@ SUMMARY_KEYS = (
 )
 
 DisturbancesOpt = Annotated[str, typer.Option(help="Disturbance set: standard, nominal or a TOML file.")]
-WorkersOpt = Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")]
+WorkersOpt = Annotated[
+    int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
+]
+SchedulerOpt = Annotated[
+    str | None,
+    typer.Option(help="Run the chunks on the Dask scheduler at this address (tcp://HOST:PORT)."),
+]
 ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
 
 
@@ -349,7 +440,9 @@ def _run_one_campaign(
     chunk_size: int,
     db: Path,
     show_progress: bool,
+    scheduler: str | None = None,
 ) -> dict[str, object]:
+    from railstop.config.disturbances import load_disturbances
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, run_campaign
     from railstop.store import open_store
 
@@ -371,7 +464,9 @@ def _run_one_campaign(
             if bar is not None and task is not None:
                 bar.update(task, completed=done, total=total)
 
-        outcome = run_campaign(spec, out_dir, workers=n_workers, resume=resume, progress=progress)
+        outcome = run_campaign(
+            spec, out_dir, workers=n_workers, resume=resume, progress=progress, scheduler=scheduler
+        )
     summary = dict(outcome.summary)
     with open_store(db) as store:
         store.save_campaign(
@@ -413,6 +508,8 @@ def _fmt(key: str, value: object) -> str:
 
 
 def _summary_table(title: str, rows: list[dict[str, object]]) -> Table:
+    from rich.table import Table
+
     cols = (
         ("controller", "controller"),
         ("runs", "runs"),
@@ -449,6 +546,7 @@ def campaign(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     disturbances: DisturbancesOpt = "standard",
     workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
     out_dir: Annotated[
         Path | None,
         typer.Option("--out", help="Campaign folder (default: campaign-STATION-CONTROLLER-sSEED)."),
@@ -461,6 +559,8 @@ def campaign(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Monte Carlo campaign: many stops of one controller under a disturbance set."""
+    from railstop.config import load_line, load_vehicle
+
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -480,6 +580,7 @@ def campaign(
             chunk_size=chunk_size,
             db=db,
             show_progress=not as_json and err.is_terminal,
+            scheduler=scheduler,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -503,6 +604,7 @@ def _compare(
     seed: int,
     disturbances: str,
     workers: int | None,
+    scheduler: str | None = None,
     out_dir: Path,
     resume: bool,
     chunk_size: int,
@@ -520,6 +622,7 @@ def _compare(
             seed=seed,
             disturbances=disturbances,
             workers=workers,
+            scheduler=scheduler,
             out_dir=out_dir / ctrl,
             resume=resume,
             chunk_size=chunk_size,
@@ -537,6 +640,7 @@ def compare(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     disturbances: DisturbancesOpt = "standard",
     workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
     out_dir: Annotated[
         Path | None, typer.Option("--out", help="Folder (default: compare-STATION-sSEED); one campaign each.")
     ] = None,
@@ -550,6 +654,8 @@ def compare(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Run every controller on identical disturbance draws and print one table."""
+    from railstop.config import load_line, load_vehicle
+
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -563,6 +669,7 @@ def compare(
             seed=seed,
             disturbances=disturbances,
             workers=workers,
+            scheduler=scheduler,
             out_dir=target,
             resume=resume,
             chunk_size=chunk_size,
@@ -601,6 +708,7 @@ def report(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
+    from railstop.config import load_line, load_vehicle
     from railstop.report.campaign_report import write_report
     from railstop.sim.campaign import replay_profile
 

@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from railstop.cli_common import fail, out
 from railstop.errors import RailstopError
@@ -30,6 +29,8 @@ def table_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print the rows as JSON.")] = False,
 ) -> None:
     """Print the door action table (SPEC §5 Table 1) as the code uses it."""
+    from rich.table import Table
+
     from railstop.config.doors import load_doors
 
     try:
@@ -94,6 +95,8 @@ def verify_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Explore every reachable state of CPCS + WPCS + PSC under every input; exit 1 on a violation."""
+    from rich.table import Table
+
     from railstop.config.doors import load_doors
     from railstop.sim.doors_verify import INVARIANTS, verify
     from railstop.sim.dwell import model_for
@@ -165,6 +168,8 @@ def dwell(
     doors: DoorsOpt = None,
 ) -> None:
     """Run a station dwell: arrival -> PSC -> open -> dwell -> close -> start enable (SPEC §5)."""
+    from rich.table import Table
+
     from railstop.config import load_line, load_vehicle
     from railstop.config.doors import load_doors
     from railstop.sim.dwell import MODES, run_dwell
@@ -188,7 +193,7 @@ def dwell(
                 fail(f"{option}: door units are numbered 1..{cfg.doors_per_side} (got {unit})")
         source = "given"
         if error_m is None:
-            from railstop.sim.engine import CONTROLLERS
+            from railstop.controllers import CONTROLLERS
             from railstop.sim.single import run_stop
 
             if controller not in CONTROLLERS:

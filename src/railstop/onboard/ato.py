@@ -44,10 +44,6 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-ATO = "ato"
-# The same ATO whose position comes from SPEC §2 track-circuit corrections
-# (railstop.onboard.positioning, the document's method) instead of transponders.
-ATO_CORRECTED = "ato-corrected"
 ATO_SPEED_GAIN_PER_S = 1.2  # speed-error feedback (1/s)
 ATO_LEAD_FRACTION = 0.15  # of the brake's equivalent dead time: how far ahead the curve is read
 

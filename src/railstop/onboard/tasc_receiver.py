@@ -49,6 +49,7 @@ from railstop.control.tasc import (
     regression_taus_1,
     regression_weights,
 )
+from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP
 from railstop.jit import njit_inline, njit_step
 from railstop.physics.brake import BrakeLine, decel_to_pwm, decel_to_pwm_1, encode_step, superimpose_pwm
 from railstop.physics.train import GradientProfile
@@ -75,9 +76,9 @@ BoolArray = NDArray[np.bool_]
 
 
 class OnboardConfig(StrEnum):
-    BRAKE_CONTROLLER = "tasc-brake-controller"
-    STEP = "tasc-step"
-    PWM = "tasc-pwm"
+    BRAKE_CONTROLLER = TASC_BRAKE_CONTROLLER
+    STEP = TASC_STEP
+    PWM = TASC_PWM
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -20,9 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Track, Vehicle
+from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, TASC_CONTROLLERS
 from railstop.errors import SimulationError
-from railstop.onboard.ato import ATO, ATO_CORRECTED
-from railstop.onboard.tasc_receiver import OnboardConfig
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import TEL_FIELDS, SignalForm, TascTelegrams
@@ -31,11 +30,8 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-TASC_CONTROLLERS: tuple[str, ...] = tuple(c.value for c in OnboardConfig)
-# The three TASC configurations and the conventional onboard ATO baselines
-# (position reset at station transponders / corrected from track circuits, SPEC §2).
-ATO_CONTROLLERS: tuple[str, ...] = (ATO, ATO_CORRECTED)
-CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS)
+__all__ = ["ATO_CONTROLLERS", "CONTROLLERS", "TASC_CONTROLLERS", "BatchResult", "Trace", "run_batch"]
+
 DT_S = 0.01
 MAX_TIME_S = 150.0
 

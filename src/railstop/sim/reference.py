@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Track, Vehicle
+from railstop.controllers import ATO_CORRECTED
 from railstop.errors import RailstopError, SimulationError
 from railstop.link.channel import (
     ChannelParams,
@@ -32,7 +33,7 @@ from railstop.link.channel import (
     delivery_delay_s,
     media_preset,
 )
-from railstop.onboard.ato import ATO_CORRECTED, AtoController
+from railstop.onboard.ato import AtoController
 from railstop.onboard.tasc_receiver import OnboardConfig, TascReceiver
 from railstop.physics.brake import (
     ActuatorState,

@@ -1,0 +1,22 @@
+"""The names of the stop controllers (a foundation module: no imports, so the CLI can list them
+without loading the compiled model).
+
+- SPEC §1 ground TASC, in its three onboard configurations: config 1 through
+  the train's brake controller, config 2 the step code through the switching
+  unit, config 3 PWM superimposed at the zero crossing;
+- the conventional onboard ATO the ground TASC replaces (SPEC §1 "Problem"),
+  positioned at station transponders, and the same ATO positioned by SPEC §2
+  track-circuit corrections.
+"""
+
+from __future__ import annotations
+
+TASC_BRAKE_CONTROLLER = "tasc-brake-controller"
+TASC_STEP = "tasc-step"
+TASC_PWM = "tasc-pwm"
+ATO = "ato"
+ATO_CORRECTED = "ato-corrected"
+
+TASC_CONTROLLERS: tuple[str, ...] = (TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_PWM)
+ATO_CONTROLLERS: tuple[str, ...] = (ATO, ATO_CORRECTED)
+CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS)
