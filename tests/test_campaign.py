@@ -209,6 +209,22 @@ def test_same_seed_same_runs_whatever_chunks_and_workers(
         assert json.loads((out / SUMMARY_FILE).read_text(encoding="utf-8")) == outcome.summary
 
 
+def test_one_chunk_is_shared_by_the_threads_and_written_whole(
+    tmp_path: Path, line: Line, vehicle: Vehicle, standard: DisturbanceSet
+) -> None:
+    """Fewer chunks than workers: each chunk is cut into blocks for the threads, then written as
+    one file, equal to the chunk one thread computes."""
+    common: dict[str, Any] = {"controller": "tasc-step", "runs": 45, "seed": 4, "disturbances": standard}
+    one = campaign(line, vehicle, tmp_path / "one", chunk_size=45, workers=1, **common)
+    three = campaign(line, vehicle, tmp_path / "three", chunk_size=45, workers=3, **common)
+    assert one.runs_simulated == three.runs_simulated == 45
+    assert len(chunk_files(tmp_path / "three")) == 1
+    assert pq.read_table(chunk_files(tmp_path / "one")[0]).equals(
+        pq.read_table(chunk_files(tmp_path / "three")[0])
+    )
+    assert read_runs(tmp_path / "three").column("run").to_pylist() == list(range(45))
+
+
 # --------------------------------------------------------------------------
 # 2. A single stop replays any run of a campaign
 

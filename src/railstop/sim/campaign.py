@@ -168,9 +168,10 @@ def _chunk_path(out: Path, k: int) -> Path:
     return out / CHUNK_DIR / f"chunk-{k:06d}.parquet"
 
 
-def simulate_chunk(spec: CampaignSpec, k: int) -> pa.Table:
-    """Chunk k's per-run rows (a pure function of the spec and k: any thread, process or machine)."""
-    first, end = spec.chunk_range(k)
+def simulate_block(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
+    """The per-run rows of runs ``first .. end - 1`` of a chunk (``block`` = (chunk, first, end)): a
+    pure function of the spec and the block, so any thread, process or machine may compute it."""
+    _, first, end = block
     result, drawn = simulate_runs(
         station=spec.line.station(spec.station),
         vehicle=spec.vehicle,
@@ -252,12 +253,31 @@ def _executed(
     are abandoned (their files are written atomically, so none is half
     there); every finished one stays.
     """
+    blocks = _blocks(spec, todo, 1 if scheduler else workers)
+    parts: dict[int, dict[int, pa.Table]] = {k: {} for k in todo}
+    expected = {k: sum(1 for b in blocks if b[0] == k) for k in todo}
     with contextlib.closing(
-        execute(functools.partial(simulate_chunk, spec), todo, workers=workers, scheduler=scheduler)
+        execute(functools.partial(simulate_block, spec), blocks, workers=workers, scheduler=scheduler)
     ) as results:
-        for k, table in results:
-            _write_chunk(out, k, table)
+        for (k, first, _), table in results:
+            parts[k][first] = table
+            if len(parts[k]) == expected[k]:
+                _write_chunk(out, k, pa.concat_tables([parts[k][a] for a in sorted(parts[k])]))
+                del parts[k]
             yield table.num_rows
+
+
+def _blocks(spec: CampaignSpec, todo: list[int], workers: int) -> list[tuple[int, int, int]]:
+    """The blocks (chunk, first run, end) to simulate: whole chunks, or when there are fewer
+    chunks than workers each chunk cut into as many blocks as keep every worker busy (a run's
+    result does not depend on its block, so the chunk files are the same)."""
+    split = max(1, -(-workers // max(len(todo), 1)))
+    blocks: list[tuple[int, int, int]] = []
+    for k in todo:
+        first, end = spec.chunk_range(k)
+        size = -(-(end - first) // split)
+        blocks.extend((k, a, min(a + size, end)) for a in range(first, end, size))
+    return blocks
 
 
 def run_campaign(
