@@ -492,23 +492,22 @@ def _receiver_plan_1(
     rx[RX_TARGET] = command
 
 
-@njit_step
-def receiver_output_1(
-    rx: FloatArray, rp: FloatArray, mod: FloatArray, table: FloatArray, k: int, speed_mps: float
-) -> tuple[int, float]:
-    """The brake signal of step ``k`` for the ECU: (notch, -1 for PWM trains; duty, NaN for step trains).
+@njit_inline
+def receiver_pwm_output_1(rx: FloatArray, rp: FloatArray, k: int) -> float:
+    """Config 3's brake signal of step ``k``: a PWM duty synchronised to the zero crossing of the
+    existing PWM brake signal and superimposed on it. Both pulses start together, so the ECU sees
+    their OR, the larger duty, latched once per carrier period (SPEC §1 claims 15, 25)."""
+    if k % int(rp[RP_PWM_STEPS]) == 0:
+        rx[RX_LATCHED] = max(rx[RX_EXISTING], rx[RX_ONBOARD_DUTY] if rx[RX_ACTIVE] > 0.0 else 0.0)
+    return rx[RX_LATCHED]
 
-    Config 3: a PWM duty synchronised to the zero crossing of the existing PWM
-    brake signal and superimposed on it: both pulses start together, the ECU
-    sees their OR, the larger duty, latched once per carrier period. Configs
-    1, 2: the brake controller (every controller cycle) or the switching unit
-    (every step) sets the notch; wire e passes through from the train.
-    """
-    active = rx[RX_ACTIVE] > 0.0
-    if int(rp[RP_CONFIG]) == 3:
-        if k % int(rp[RP_PWM_STEPS]) == 0:
-            rx[RX_LATCHED] = max(rx[RX_EXISTING], rx[RX_ONBOARD_DUTY] if active else 0.0)
-        return -1, rx[RX_LATCHED]
+
+@njit_step
+def receiver_step_output_1(
+    rx: FloatArray, rp: FloatArray, mod: FloatArray, table: FloatArray, k: int, speed_mps: float
+) -> int:
+    """Configs 1, 2: the notch of step ``k``. The brake controller (every controller cycle) or the
+    switching unit (every step) sets it; form 7 fixes it; wire e passes through from the train."""
     cycle = int(rp[RP_CYCLE_STEPS])
     if k % cycle == 0:
         notch = modulator_update_1(
@@ -517,10 +516,10 @@ def receiver_output_1(
             rp[RP_MIN_HOLD],
             rp[RP_RESPONSE],
             rx[RX_TARGET],
-            active,
+            rx[RX_ACTIVE] > 0.0,
             cycle * rp[RP_DT],
             speed_mps,
             True,
         )
         rx[RX_NOTCH] = rx[RX_FIXED_NOTCH] if rx[RX_FIXED_NOTCH] >= 0.0 else notch
-    return int(rx[RX_NOTCH]), np.nan
+    return int(rx[RX_NOTCH])

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES, external_params
+from railstop.controllers import TASC_PWM
 from railstop.errors import RailstopError, SimulationError
 from railstop.jit import njit, njit_step
 from railstop.link.channel import airtime_s, media_preset
@@ -56,9 +57,10 @@ from railstop.onboard.tasc_receiver import (
     RX_TARGET,
     receiver_init_1,
     receiver_observe_1,
-    receiver_output_1,
     receiver_params,
+    receiver_pwm_output_1,
     receiver_receive_1,
+    receiver_step_output_1,
     receiver_window,
 )
 from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
@@ -108,6 +110,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 # Controller codes of the kernel.
+CTRL_PWM = CONFIG_CODES[TASC_PWM]  # (a plain int: compiled code reads it as a constant)
 CTRL_ATO = 4
 CTRL_ATO_CORRECTED = 5
 
@@ -382,6 +385,7 @@ def _simulate_run(
     receiver_init_1(rx, mod, rh_v, rh_e)
     ato_init_1(at, mod)
     corrected_positioning = controller == CTRL_ATO_CORRECTED
+    pwm_train = controller == CTRL_PWM
     if corrected_positioning:
         # SPEC §2: no transponders; the position comes from track-circuit corrections. Before the
         # simulated approach the train was corrected at the last circuit boundary behind it.
@@ -541,7 +545,12 @@ def _simulate_run(
                     deliveries[n_del] = k
                     n_del += 1
             receiver_observe_1(rx, rp, tach, tach_v)
-            notch, duty = receiver_output_1(rx, rp, mod, table, k, tach_v)
+            if pwm_train:
+                notch = -1
+                duty = receiver_pwm_output_1(rx, rp, k)
+            else:
+                notch = receiver_step_output_1(rx, rp, mod, table, k, tach_v)
+                duty = np.nan
             braking = np.isfinite(rx[RX_FIRST_RX])
         # Onboard -> ECU (step code through the brake line, or PWM) -> actuator -> brakes.
         if notch >= 0:
