@@ -65,6 +65,7 @@ the same frames, arrival times and statistics.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 import tomllib
@@ -478,9 +479,17 @@ def load_media(name_or_path: str | Path | None = None) -> dict[str, ChannelParam
     (``radio.latency_s``) and the value.
     """
     if name_or_path is None or (isinstance(name_or_path, str) and name_or_path == BUILTIN_MEDIA):
-        source, data = _builtin()
-    else:
-        source, data = str(name_or_path), read_toml(Path(name_or_path))
+        return dict(_builtin_media())
+    return _validated(str(name_or_path), read_toml(Path(name_or_path)))
+
+
+@functools.cache
+def _builtin_media() -> dict[str, ChannelParams]:
+    """The embedded presets, read and validated once per process (every detailed stop asks)."""
+    return _validated(*_builtin())
+
+
+def _validated(source: str, data: dict[str, Any]) -> dict[str, ChannelParams]:
     token = _RAW.set(True)
     try:
         return dict(validate(MediaFile, data, source).root)
