@@ -24,7 +24,7 @@ from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, TASC_CONTROLLERS
 from railstop.errors import SimulationError
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
-from railstop.wayside.tasc_unit import TEL_FIELDS, SignalForm, TascTelegrams
+from railstop.wayside.tasc_unit import TEL_FIELDS, SignalForm, TascTelegrams, finite_or_none
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -171,10 +171,6 @@ def _trace(tr: FloatArray) -> Trace:
     )
 
 
-def _opt(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
 def _commands(rows: FloatArray, form: SignalForm) -> list[dict[str, Any]]:
     """The command records of the detailed stop (SPEC §1 claims 8, 20), as the database stores them."""
     from railstop.wayside.tasc_unit import (
@@ -201,9 +197,9 @@ def _commands(rows: FloatArray, form: SignalForm) -> list[dict[str, Any]]:
             "passage_s": float(r[CR_PASSAGE]),
             "distance_m": float(r[CR_DISTANCE]),
             "speed_mps": float(r[CR_SPEED]),
-            "measured_decel_mps2": _opt(r[CR_DECEL]),
+            "measured_decel_mps2": finite_or_none(r[CR_DECEL]),
             "gain": float(r[CR_GAIN]),
-            "required_decel_mps2": _opt(r[CR_REQUIRED]),
+            "required_decel_mps2": finite_or_none(r[CR_REQUIRED]),
             "command_decel_mps2": float(r[CR_COMMAND]),
             "notch": int(r[CR_NOTCH]),
             "delta": int(r[CR_DELTA]),

@@ -381,9 +381,13 @@ def _simulate_run(
     lag_alpha = 1.0 - np.exp(-dt / sc[SC_TAU])
     jerk_step = kp[KP_JERK] * dt
 
-    wayside_init_1(ws, wh_v, wh_e, pass_t, pass_x)
-    receiver_init_1(rx, mod, rh_v, rh_e)
-    ato_init_1(at, mod)
+    # The units of this controller (the ATO, or the wayside unit and the receiver; both own the
+    # one modulator state).
+    if is_ato:
+        ato_init_1(at, mod)
+    else:
+        wayside_init_1(ws, wh_v, wh_e, pass_t, pass_x)
+        receiver_init_1(rx, mod, rh_v, rh_e)
     corrected_positioning = controller == CTRL_ATO_CORRECTED
     pwm_train = controller == CTRL_PWM
     if corrected_positioning:
@@ -1102,7 +1106,8 @@ def run_kernel(
 
 
 def warm_up() -> dict[str, object]:
-    """Compile the kernel (or load it from the on-disk cache): one short stop of each kind.
+    """Compile the kernel (or load it from the on-disk cache) by running one short stop without and
+    with recording: one compiled signature serves every controller, form and station.
 
     Returns what happened: whether anything was compiled, and the cache folder.
     """
@@ -1114,10 +1119,10 @@ def warm_up() -> dict[str, object]:
     scenario = Scenario.nominal(station, vehicle)
     stats: Any = simulate_block.stats  # type: ignore[attr-defined]
     misses_before = sum(stats.cache_misses.values())
+    model = KernelModel.create(
+        station=station, vehicle=vehicle, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
     for record in (False, True):
-        model = KernelModel.create(
-            station=station, vehicle=vehicle, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
-        )
         run_kernel(model, scenario, seed=0, first_run=0, record=record)
     compiled = sum(stats.cache_misses.values()) > misses_before
     return {"compiled": compiled, "cache_dir": str(cache_dir())}

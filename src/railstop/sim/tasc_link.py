@@ -43,7 +43,7 @@ from railstop.link.codec import (
     quantize,
 )
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_size, link_key
-from railstop.wayside.tasc_unit import SignalForm, TascTelegrams
+from railstop.wayside.tasc_unit import SignalForm, TascTelegrams, finite_or_none
 
 FloatArray = NDArray[np.float64]
 
@@ -112,10 +112,6 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     return replace(tele, **changes)  # type: ignore[arg-type]
 
 
-def _opt(x: float) -> float | None:
-    return None if not np.isfinite(x) else float(x)
-
-
 def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Telegram:
     """The codec message of run ``row`` of a (quantised) telegram."""
     form = SignalForm(tele.form)
@@ -138,7 +134,7 @@ def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Teleg
         return TascInterval(
             train_id=train_id,
             detector=det,
-            interval_s=_opt(tele.interval_s[row]),
+            interval_s=finite_or_none(tele.interval_s[row]),
             passage_s=float(tele.passage_s[row]),
         )
     if form == SignalForm.SPEED:
@@ -154,7 +150,7 @@ def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Teleg
         return TascDecel(
             train_id=train_id,
             detector=det,
-            decel_mps2=_opt(tele.decel_mps2[row]),
+            decel_mps2=finite_or_none(tele.decel_mps2[row]),
             passage_s=float(tele.passage_s[row]),
         )
     if form == SignalForm.REQUIRED_DECELERATION:
@@ -163,7 +159,7 @@ def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Teleg
         )
     if form == SignalForm.BRAKE_COMMAND:
         return TascBrakeCommand(
-            train_id=train_id, detector=det, notch=int(tele.notch[row]), duty=_opt(tele.duty[row])
+            train_id=train_id, detector=det, notch=int(tele.notch[row]), duty=finite_or_none(tele.duty[row])
         )
     return TascIncreaseDecrease(train_id=train_id, detector=det, delta=int(tele.delta[row]))
 

@@ -360,9 +360,9 @@ class GroundTascUnit:
                         "passage_s": float(self.last_passage_s[r]),
                         "distance_m": float(distance[i]),
                         "speed_mps": float(speed[i]),
-                        "measured_decel_mps2": _f(decel[i]),
+                        "measured_decel_mps2": finite_or_none(decel[i]),
                         "gain": float(gain[i]),
-                        "required_decel_mps2": _f(a_true[i]),
+                        "required_decel_mps2": finite_or_none(a_true[i]),
                         "command_decel_mps2": float(command[i]),
                         "notch": int(notch[i]),
                         "delta": int(delta[i]),
@@ -372,7 +372,8 @@ class GroundTascUnit:
         return tele
 
 
-def _f(x: float) -> float | None:
+def finite_or_none(x: float) -> float | None:
+    """A number for a record or a message, None where it is absent (NaN) or infinite."""
     return float(x) if np.isfinite(x) else None
 
 
