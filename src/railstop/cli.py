@@ -701,6 +701,120 @@ def compare(
 
 
 @app.command()
+def certify(
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    threshold_m: Annotated[
+        float, typer.Option("--threshold-m", help="A hit is a stop error above this (m, + = overrun).")
+    ] = 0.35,
+    target: Annotated[
+        float, typer.Option(help="Probability to certify (the bound must be at most this).")
+    ] = 1e-6,
+    runs: Annotated[int, typer.Option(min=1, help="Estimation runs.")] = 1_000_000,
+    method: Annotated[
+        str, typer.Option(help="is: importance sampling (tuned proposal); mc: plain Monte Carlo.")
+    ] = "is",
+    tuning_runs: Annotated[int, typer.Option(min=100, help="Tuning runs per cross-entropy level.")] = 4_000,
+    defensive: Annotated[
+        float,
+        typer.Option(help="Share of runs drawn from the set itself, in (0, 1] (weights <= 1/this)."),
+    ] = 0.5,
+    confidence: Annotated[float, typer.Option(help="Confidence of the bound and the interval.")] = 0.95,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    disturbances: DisturbancesOpt = "standard",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """Bound P(stop error > threshold) by importance sampling: estimate, interval, bound."""
+    from railstop.config import load_line, load_vehicle
+    from railstop.config.disturbances import load_disturbances
+    from railstop.sim.certify import CertifyError, CertifySpec
+    from railstop.sim.certify import certify as run_certify
+
+    if method not in ("is", "mc"):
+        fail(f"--method: must be is or mc (got {method!r})")
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+        spec = CertifySpec(
+            line=ln,
+            vehicle=veh,
+            station=ln.station(station).name,
+            controller=_controller(controller),
+            disturbances=load_disturbances(disturbances),
+            threshold_m=threshold_m,
+            seed=seed,
+        )
+        with _progress_bar(not as_json and err.is_terminal, f"{controller} at {spec.station}") as bar:
+            tasks: dict[str, Any] = {}
+
+            def progress(stage: str, done: int, total: int) -> None:
+                if bar is None:
+                    return
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=total)
+                bar.update(tasks[stage], completed=done, total=total)
+
+            result = run_certify(
+                spec,
+                runs=runs,
+                target=target,
+                confidence=confidence,
+                method=method,
+                defensive=defensive,
+                tuning_runs=tuning_runs,
+                workers=workers or os.cpu_count() or 1,
+                scheduler=scheduler,
+                progress=progress,
+            )
+    except CertifyError as exc:
+        fail(f"--{exc.setting.replace('_', '-')}: {exc.detail}")
+    except RailstopError as exc:
+        fail(str(exc))
+    row = result.to_dict()
+    if as_json:
+        print(json.dumps(row))
+        return
+    _print_certificate(row)
+
+
+def _print_certificate(row: dict[str, Any]) -> None:
+    from rich.table import Table
+
+    conf = f"{100 * row['confidence']:g} %"
+    table = Table(
+        title=f"P(stop error > {row['threshold_m']:g} m): {row['controller']} at {row['station']} "
+        f"({row['disturbances']}, seed {row['seed']})"
+    )
+    table.add_column("", style="bold")
+    table.add_column("value", justify="right")
+    lo, hi = row["interval"]
+    method = "importance sampling" if row["method"] == "is" else "plain Monte Carlo"
+    for key, value in (
+        ("method", method),
+        ("estimation runs", f"{row['runs']:,}"),
+        ("tuning runs", f"{row['tuning_runs']:,}"),
+        ("hits", f"{row['hits']:,}"),
+        ("effective sample size (hits)", f"{row['ess_hits']:.1f}"),
+        ("largest weight's share", f"{row['max_weight_share']:.3f}"),
+        ("weight bound", f"{row['weight_bound']:g}"),
+        ("mean weight (should be 1)", f"{row['mean_weight']:.4f}"),
+        ("estimate", f"{row['estimate']:.3e}"),
+        (f"{conf} interval", f"{lo:.3e} .. {hi:.3e}"),
+        (f"{conf} upper bound", f"{row['upper_bound']:.3e}"),
+        ("target", f"{row['target']:.1e}"),
+        ("wall time", f"{row['elapsed_s']:.1f} s ({row['runs_per_s']:,.0f} runs/s)"),
+    ):
+        table.add_row(key, value)
+    out.print(table)
+    verdict, sign = ("[green]certified[/]", "<=") if row["certified"] else ("[red]not certified[/]", ">")
+    out.print(f"{verdict}: upper bound {row['upper_bound']:.2e} {sign} target {row['target']:.1e}")
+
+
+@app.command()
 def report(
     directory: Annotated[Path, typer.Argument(help="A campaign folder, or a folder of them (from compare).")],
     worst: Annotated[int, typer.Option(min=0, help="Speed profiles of the N worst runs per controller.")] = 5,

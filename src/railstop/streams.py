@@ -51,6 +51,7 @@ class Stream(IntEnum):
     CLOCK = 10  # SPEC §2 GNSS clocks: counter 2k drift, 2k + 1 disciplined residual of clock k
     RADIO_CYCLE = 11  # SPEC §5 poll-cycle phase of a telegram attempt, counter = attempt
     RADIO_CORRUPT = 12  # bit errors of an attempt: counter 2k corrupted?, 2k + 1 which bit
+    CERTIFY = 13  # rare-event certification: counter 0 mixture component, 1 + j cube coordinate j
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:

@@ -500,19 +500,6 @@ def draw_scenario(
     values["low_adhesion_length_m"] = _draw(
         p.get("low_adhesion_length_m", DEFAULT_LOW_ADHESION_LENGTH_M), streams, "low_adhesion_length_m"
     )
-    scen = Scenario.nominal(station, vehicle, n=n)
-    changes: dict[str, Any] = {}
-    for name, (target, factor) in _TO_SCENARIO.items():
-        if name in p:
-            changes[target] = values[name] * factor
-
-    # Gradients: a per-run profile when the set names either; the absent one keeps
-    # the station's own mean gradient over its zone (nominal_values).
-    if "approach_gradient_permille" in p or "platform_gradient_permille" in p:
-        changes["gradient"] = _gradient(
-            station, n, values["approach_gradient_permille"], values["platform_gradient_permille"]
-        )
-
     # Low adhesion: with probability p a run meets a patch of drawn mu and length
     # starting uniformly between the first detector and 10 m before the stop.
     if "low_adhesion_probability" in p:
@@ -521,24 +508,56 @@ def draw_scenario(
         hit = streams.uniform(Stream.DISTURBANCE, counter_base("low_adhesion_probability")) < prob
     else:
         hit = np.zeros(n, dtype=bool)
+    lo, hi = patch_start_range(station)
+    start = lo + (hi - lo) * streams.uniform(Stream.DISTURBANCE, counter_base(LOW_ADHESION_START))
+    values[LOW_ADHESION] = hit
+    values[LOW_ADHESION_START] = np.where(hit, start, np.inf)
+    return scenario_from_values(dist, station, vehicle, values), _ordered(values)
+
+
+def patch_start_range(station: Station) -> tuple[float, float]:
+    """Where a low-adhesion patch may start: [first detector, stopping point - 10 m] (ordered)."""
     first = station.detector_positions_m()[0]
     last = station.stop_point_m - PATCH_LAST_START_BEFORE_STOP_M
-    lo, hi = min(first, last), max(first, last)
-    start = lo + (hi - lo) * streams.uniform(Stream.DISTURBANCE, counter_base(LOW_ADHESION_START))
-    start = np.where(hit, start, np.inf)
-    values[LOW_ADHESION] = hit
-    values[LOW_ADHESION_START] = start
-    if "low_adhesion_probability" in p:
-        changes["low_mu"] = np.where(hit, values["low_adhesion_mu"], vehicle.adhesion_mu)
-        changes["low_mu_start_m"] = start
-        changes["low_mu_end_m"] = np.where(hit, start + values["low_adhesion_length_m"], np.inf)
+    return min(first, last), max(first, last)
 
-    if changes:
-        scen = scen.with_values(**changes)
+
+def _ordered(values: dict[str, Any]) -> dict[str, np.ndarray]:
     ordered = {name: values[name] for name in PARAMETERS}
     ordered[LOW_ADHESION] = values[LOW_ADHESION]
     ordered[LOW_ADHESION_START] = values[LOW_ADHESION_START]
-    return scen, ordered
+    return ordered
+
+
+def scenario_from_values(
+    dist: DisturbanceSet, station: Station, vehicle: Vehicle, values: Mapping[str, np.ndarray]
+) -> Scenario:
+    """The scenario of drawn ``values`` (the dict :func:`draw_scenario` returns; however drawn).
+
+    Parameters the set does not name keep the nominal scenario's field, whatever
+    ``values`` holds for them.
+    """
+    p = dist.params
+    n = int(np.asarray(values[LOW_ADHESION]).size)
+    scen = Scenario.nominal(station, vehicle, n=n)
+    changes: dict[str, Any] = {}
+    for name, (target, factor) in _TO_SCENARIO.items():
+        if name in p:
+            changes[target] = np.asarray(values[name], dtype=np.float64) * factor
+
+    # Gradients: a per-run profile when the set names either; the absent one keeps
+    # the station's own mean gradient over its zone (nominal_values).
+    if "approach_gradient_permille" in p or "platform_gradient_permille" in p:
+        changes["gradient"] = _gradient(
+            station, n, values["approach_gradient_permille"], values["platform_gradient_permille"]
+        )
+    if "low_adhesion_probability" in p:
+        hit = np.asarray(values[LOW_ADHESION], dtype=bool)
+        start = np.asarray(values[LOW_ADHESION_START], dtype=np.float64)
+        changes["low_mu"] = np.where(hit, values["low_adhesion_mu"], vehicle.adhesion_mu)
+        changes["low_mu_start_m"] = np.where(hit, start, np.inf)
+        changes["low_mu_end_m"] = np.where(hit, start + values["low_adhesion_length_m"], np.inf)
+    return scen.with_values(**changes) if changes else scen
 
 
 __all__ = [
@@ -554,4 +573,6 @@ __all__ = [
     "draw_scenario",
     "load_disturbances",
     "nominal_values",
+    "patch_start_range",
+    "scenario_from_values",
 ]

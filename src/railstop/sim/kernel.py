@@ -192,7 +192,13 @@ RES_SENT = 4
 RES_RECEIVED = 5
 RES_STOPPED = 6
 RES_SLID = 7
-RES_SIZE = 8
+# The run's Bernoulli draws (what importance sampling needs for exact likelihood ratios):
+# detector passages drawn for a miss and the misses; transmission attempts and the losses.
+RES_MISS_TRIALS = 8
+RES_MISSES = 9
+RES_LOSS_TRIALS = 10
+RES_LOSSES = 11
+RES_SIZE = 12
 
 # Trace columns (recording).
 TR_T = 0
@@ -419,6 +425,9 @@ def _simulate_run(
     due_s = np.inf
     next_try_s = np.inf
     attempt = 0
+    losses = 0
+    miss_trials = 0
+    misses = 0
     loss_p = sc[SC_LOSS]
     ber = sc[SC_BER]
     corrupt_p = -np.expm1(kp[KP_FRAME_BITS] * np.log1p(-ber)) if ber > 0.0 else 0.0
@@ -504,6 +513,7 @@ def _simulate_run(
                 c = attempt
                 attempt += 1
                 lost = key_uniform(k_loss, c) < loss_p
+                losses += lost
                 corrupt = False
                 if ber > 0.0 and not lost:
                     corrupt = key_uniform(k_corrupt, 2 * c) < corrupt_p
@@ -656,6 +666,8 @@ def _simulate_run(
                     + sc[SC_SENSOR_JITTER] * key_normal(k_jitter, det_idx)
                 )
                 passed = key_uniform(k_miss, det_idx) >= sc[SC_MISS]
+                miss_trials += 1
+                misses += not passed
                 sensor_next += 1
         if record:
             trace[k, TR_T] = t + dt
@@ -680,6 +692,10 @@ def _simulate_run(
     res[RES_RECEIVED] = 0.0 if is_ato else rx[RX_RECEIVED]
     res[RES_STOPPED] = stopped
     res[RES_SLID] = slid
+    res[RES_MISS_TRIALS] = miss_trials
+    res[RES_MISSES] = misses
+    res[RES_LOSS_TRIALS] = attempt
+    res[RES_LOSSES] = losses
     if record:
         counters[RC_STEPS] = k + 1
         counters[RC_COMMANDS] = n_cmd
