@@ -1,14 +1,18 @@
 """Campaign throughput of the compiled kernel, per controller, against the numpy engine it replaced.
 
     python benchmarks/campaign_throughput.py [--runs 20000] [--workers K] [--reference-runs 2000]
-                                             [--controllers tasc-pwm,ato,...]
+                                             [--numpy-engine-commit SHA] [--controllers tasc-pwm,ato,...]
 
 For each controller: a real campaign (standard disturbance set, default
 station, chunks of ``--chunk-size``, ``--workers`` threads) into a temporary
 folder, timed end to end (draws, kernel, Parquet chunks, summary); and the
-numpy array engine of the previous commit (``railstop.sim.reference``) on
+numpy array engine the kernel replaced (``railstop.sim.reference``, deleted
+from the tree once the kernel reproduced it: it is taken from git at
+``--numpy-engine-commit``, the last commit that has it, exported to a
+temporary folder and run from there in worker processes) on
 ``--reference-runs`` runs of the same draws, split over the same number of
-worker processes as its campaign driver used. Then the detailed stop: the
+worker processes as its campaign driver used (each warmed up on a few runs
+first). Then the detailed stop: the
 simulation of ``run_stop`` (recording and byte-level link check on), and the
 wall time of ``railstop stop --json --no-db`` as a user runs it (a warm
 install: the compiled model in its cache). Every number is measured here.
@@ -24,47 +28,75 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from railstop.config import default_line, default_vehicle
-from railstop.config.disturbances import draw_scenario, load_disturbances
+from railstop.config.disturbances import load_disturbances
 from railstop.sim.campaign import CampaignSpec, run_campaign
 from railstop.sim.engine import CONTROLLERS
 from railstop.sim.kernel import warm_up
 from railstop.sim.single import run_stop
-from railstop.streams import RunStreams
 
 TARGETS = {"tasc-pwm": 20_000}
 DEFAULT_TARGET = 10_000
+# The last commit with the numpy engine (railstop/sim/reference.py).
+NUMPY_ENGINE_COMMIT = "230f863"
 
-
-def _reference_chunk(args: tuple[str, int, int]) -> int:
-    """Runs first .. first + n - 1 through the numpy engine (in a worker process)."""
-    from railstop.sim.reference import run_batch_reference
-
-    controller, first, n = args
-    line, vehicle = default_line(), default_vehicle()
-    station = line.stations[0]
+# Run in a fresh interpreter whose railstop is the exported old tree: argv = controller, first, n.
+_OLD_ENGINE = """
+import sys, time
+from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import load_disturbances
+from railstop.sim.reference import run_batch_reference
+controller, first, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+line, vehicle = default_line(), default_vehicle()
+station, dist = line.stations[0], load_disturbances("standard")
+def batch(first, n):
     streams = RunStreams.for_runs(1, first, n)
-    scenario, _ = draw_scenario(load_disturbances("standard"), station, vehicle, streams)
-    run_batch_reference(
-        station=station,
-        vehicle=vehicle,
-        scenario=scenario,
-        controller=controller,
-        streams=streams,
-        track=line.track,
-    )
-    return n
+    scenario, _ = draw_scenario(dist, station, vehicle, streams)
+    run_batch_reference(station=station, vehicle=vehicle, scenario=scenario, controller=controller,
+                        streams=streams, track=line.track)
+batch(10**9, 20)  # compile and import outside the timing
+sys.stdout.write("ready\\n"); sys.stdout.flush()
+sys.stdin.readline()
+t0 = time.perf_counter(); batch(first, n); print(time.perf_counter() - t0)
+"""
 
 
-def reference_rate(controller: str, runs: int, workers: int) -> float:
-    parts = [(controller, k * (runs // workers), runs // workers) for k in range(workers)]
+def export_numpy_engine(commit: str, where: Path) -> Path:
+    """The source tree of ``commit`` (git archive), for importing its railstop; returns its src."""
+    repo = Path(__file__).resolve().parent.parent
+    archive = subprocess.run(
+        ["git", "-C", str(repo), "archive", commit, "src"], check=True, capture_output=True
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", str(where)], input=archive, check=True)
+    return where / "src"
+
+
+def reference_rate(controller: str, runs: int, workers: int, src: Path) -> float:
+    """Runs/s of the numpy engine: ``workers`` processes on equal parts, started together once warm."""
+    env = {**os.environ, "PYTHONPATH": str(src), "RAILSTOP_CACHE_DIR": str(src.parent / "cache")}
+    per = runs // workers
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _OLD_ENGINE, controller, str(k * per), str(per)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        for k in range(workers)
+    ]
+    for p in procs:
+        assert p.stdout is not None and p.stdout.readline().strip() == "ready"
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        done = sum(pool.map(_reference_chunk, parts))
-    return done / (time.perf_counter() - t0)
+    for p in procs:
+        assert p.stdin is not None
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    for p in procs:
+        p.communicate()
+    return per * workers / (time.perf_counter() - t0)
 
 
 def main() -> None:
@@ -76,6 +108,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument(
         "--reference-runs", type=int, default=2_000, help="runs of the numpy engine (0: skip)"
+    )
+    parser.add_argument(
+        "--numpy-engine-commit", default=NUMPY_ENGINE_COMMIT, help="git commit holding the numpy engine"
     )
     parser.add_argument("--controllers", default=",".join(CONTROLLERS))
     parser.add_argument("--single", type=int, default=20, help="detailed stops to time")
@@ -90,6 +125,9 @@ def main() -> None:
         f"compiled model: {'compiled now' if info['compiled'] else 'loaded from the cache'} "
         f"({info['cache_dir']})"
     )
+    old_tree = Path(tempfile.mkdtemp())
+    src = export_numpy_engine(args.numpy_engine_commit, old_tree) if args.reference_runs else old_tree
+    print(f"numpy engine: railstop/sim/reference.py at commit {args.numpy_engine_commit}")
     print(f"{'controller':<22} {'runs':>7} {'runs/s':>9} {'target':>8} {'numpy runs/s':>13} {'speed-up':>9}")
     for controller in args.controllers.split(","):
         spec = CampaignSpec(
@@ -110,13 +148,14 @@ def main() -> None:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         ref = (
-            reference_rate(controller, args.reference_runs, args.workers)
+            reference_rate(controller, args.reference_runs, args.workers, src)
             if args.reference_runs
             else float("nan")
         )
         target = TARGETS.get(controller, DEFAULT_TARGET)
         print(f"{controller:<22} {args.runs:>7} {rate:>9,.0f} {target:>8,} {ref:>13,.0f} {rate / ref:>8.1f}x")
 
+    shutil.rmtree(old_tree, ignore_errors=True)
     sims = []
     for run in range(args.single):
         t0 = time.perf_counter()

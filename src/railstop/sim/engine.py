@@ -227,7 +227,8 @@ def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -
     frame, bit-flipped when the kernel corrupted it, and handed to the
     safety receiver at its arrival step; the receiver must deliver exactly at
     the steps the kernel delivered, and the decoded telegram must equal the
-    one the kernel's receiver used, field by field.
+    one the kernel's receiver used, field by field. The run ends at its stop:
+    a frame still in the air then is never received (nor checked).
     """
     from railstop.sim.kernel import LA_ARRIVAL, LA_CORRUPT, LA_FLIP, LA_LOST, LA_STEP
     from railstop.sim.tasc_link import ByteLink
@@ -238,6 +239,8 @@ def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -
     attempts: dict[int, FloatArray] = {int(a[LA_STEP]): a for a in rec.attempts}
     delivered = {int(k) for k in rec.deliveries}
     arrivals = {int(np.ceil((a[LA_ARRIVAL] - 1e-9) / dt_s)) for a in rec.attempts if not a[LA_LOST]}
+    last = rec.trace.shape[0] - 1  # the step in which the train came to a stand
+    arrivals = {k for k in arrivals if k <= last}
     pending: FloatArray | None = None
     for k in sorted(set(sends) | set(attempts) | delivered | arrivals):
         now = k * dt_s
