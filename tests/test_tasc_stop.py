@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
-from railstop.control.tasc import fit_doppler, fit_passages, propagate, required_decel
+from railstop.control.tasc import fit_passages_1, fit_ring_1, propagate_1, required_decel_1
 from railstop.sim.engine import TASC_CONTROLLERS, run_batch
 from railstop.sim.scenario import Scenario
 from railstop.sim.single import run_stop
@@ -160,30 +160,34 @@ def test_every_command_is_logged_with_inputs() -> None:
         assert {"distance_m", "speed_mps", "gain", "command_decel_mps2"} <= rec.keys()
 
 
-# -- the control law on noiseless input ----------------------------------------
+# -- the control law on noiseless input (the compiled scalar cores the kernel runs) ---------
 
 
 def test_required_decel_is_v2_over_2s() -> None:
-    assert required_decel(np.array([100.0]), np.array([10.0]))[0] == pytest.approx(0.5)
-    assert np.isinf(required_decel(np.array([-1.0]), np.array([3.0]))[0])
-    assert required_decel(np.array([5.0]), np.array([0.0]))[0] == 0.0
+    # SPEC §1: the deceleration that stops from v in exactly s is v² / 2s.
+    assert required_decel_1(100.0, 10.0) == pytest.approx(0.5)
+    assert np.isinf(required_decel_1(-1.0, 3.0))
+    assert required_decel_1(5.0, 0.0) == 0.0
 
 
 def test_propagate_constant_decel_closed_form() -> None:
-    s, v = propagate(np.array([100.0]), np.array([10.0]), np.array([0.5]), np.array([4.0]))
-    assert v[0] == pytest.approx(8.0)
-    assert s[0] == pytest.approx(100.0 - (10 * 4 - 0.5 * 0.5 * 16))
-    s, v = propagate(np.array([100.0]), np.array([10.0]), np.array([0.5]), np.array([100.0]))
-    assert v[0] == 0.0 and s[0] == pytest.approx(0.0)
+    s, v = propagate_1(100.0, 10.0, 0.5, 4.0)
+    assert v == pytest.approx(8.0)
+    assert s == pytest.approx(100.0 - (10 * 4 - 0.5 * 0.5 * 16))
+    s, v = propagate_1(100.0, 10.0, 0.5, 100.0)
+    assert v == 0.0 and s == pytest.approx(0.0)
 
 
 def test_doppler_fit_exact_on_noiseless_ramp() -> None:
     dt = 0.01
     t = np.arange(150) * dt
     v = 15.0 - 0.7 * t
-    speed, decel = fit_doppler(v[None, :], dt, np.array([150]))
-    assert speed[0] == pytest.approx(v[-1], abs=1e-9)
-    assert decel[0] == pytest.approx(0.7, abs=1e-9)
+    # A ring buffer of the 150 samples, newest last; the speed from the whole line and from
+    # the newest 30 samples (the short speed window) alike.
+    for speed_samples in (150, 30):
+        speed, decel = fit_ring_1(v, 149, 150, dt, speed_samples)
+        assert speed == pytest.approx(v[-1], abs=1e-9)
+        assert decel == pytest.approx(0.7, abs=1e-9)
 
 
 def test_passage_fit_exact_for_constant_decel() -> None:
@@ -191,9 +195,9 @@ def test_passage_fit_exact_for_constant_decel() -> None:
     a, v0 = 0.6, 16.0
     x = np.array([0.0, 60.0, 110.0])
     t = (v0 - np.sqrt(v0 * v0 - 2 * a * x)) / a
-    speed, decel = fit_passages(t[None, :], x[None, :], np.array([3]))
-    assert decel[0] == pytest.approx(a, rel=1e-9)
-    assert speed[0] == pytest.approx(v0 - a * t[2], rel=1e-9)
+    speed, decel = fit_passages_1(t, x, 3)
+    assert decel == pytest.approx(a, rel=1e-9)
+    assert speed == pytest.approx(v0 - a * t[2], rel=1e-9)
 
 
 def test_ato_baseline_suffers_from_odometry_where_tasc_does_not() -> None:

@@ -1,1 +1,1 @@
-"""Array-first control laws: ground TASC, notch modulation."""
+"""Control laws: ground TASC and notch modulation (compiled scalar cores), run profile, doors."""

@@ -1,4 +1,4 @@
-"""The ground TASC control law of SPEC §1, over arrays of runs.
+"""The ground TASC control law of SPEC §1, compiled, one run at a time.
 
 The wayside controller computes "the braking deceleration required to stop at
 the stopping point" from the distance to go, allowing for the time until a new
@@ -23,442 +23,19 @@ per cent, which a single-window gain would pass straight into the command.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
 from railstop.jit import njit_step
-from railstop.physics.train import G_MPS2, GradientProfile, mean_gradient_1
+from railstop.physics.train import G_MPS2, mean_gradient_1
 
 FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 GAIN_MIN = 0.5
 GAIN_MAX = 2.0
 HISTORY = 8
-
-
-def propagate(
-    distance_m: FloatArray, speed_mps: FloatArray, decel_mps2: FloatArray, dt_s: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Distance to go and speed after ``dt_s`` at constant deceleration (stops at zero speed)."""
-    dt = np.maximum(dt_s, 0.0)
-    v_end = speed_mps - decel_mps2 * dt
-    stops = (decel_mps2 > 0.0) & (v_end <= 0.0)
-    safe = np.where(stops, decel_mps2, 1.0)
-    travelled = np.where(
-        stops, speed_mps * speed_mps / (2.0 * safe), speed_mps * dt - 0.5 * decel_mps2 * dt * dt
-    )
-    return distance_m - travelled, np.where(stops, 0.0, v_end)
-
-
-def required_decel(distance_m: FloatArray, speed_mps: FloatArray) -> FloatArray:
-    """SPEC §1: deceleration that stops from ``speed`` in exactly ``distance``: v² / 2s.
-
-    A train already at or past the stopping point gets +inf (brake as hard as
-    allowed); a stopped train needs nothing.
-    """
-    s = np.asarray(distance_m, dtype=np.float64)
-    v = np.asarray(speed_mps, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = np.where(s > 0.0, v * v / (2.0 * np.where(s > 0.0, s, 1.0)), np.inf)
-    return np.where(v <= 0.0, 0.0, a)
-
-
-IntArray = NDArray[np.int64]
 SAMPLES = 24  # points per window for model-weighted means
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ExternalModel:
-    """Deceleration from gradient and running resistance, as the database knows it.
-
-    SPEC §1 database unit: stopping point, detector positions, braking data.
-    The wayside (and the onboard unit for forms 1-5) predicts with the track
-    gradient under the train and nominal Davis resistance at half load.
-    """
-
-    gradient: GradientProfile
-    stop_point_m: float
-    length_m: float
-    mass_ratio: float  # static / effective mass at nominal load
-    davis_a_mps2: float
-    davis_b_per_s: float
-    davis_c_per_m: float
-
-    @classmethod
-    def create(cls, vehicle: Vehicle, gradient: GradientProfile, stop_point_m: float) -> ExternalModel:
-        static = vehicle.tare_mass_kg + 0.5 * vehicle.crush_payload_kg
-        eff = static + vehicle.tare_mass_kg * vehicle.rotating_mass_factor
-        return cls(
-            gradient=gradient,
-            stop_point_m=stop_point_m,
-            length_m=vehicle.length_m,
-            mass_ratio=static / eff,
-            davis_a_mps2=vehicle.davis_a_n / eff,
-            davis_b_per_s=vehicle.davis_b_n_per_mps / eff,
-            davis_c_per_m=vehicle.davis_c_n_per_mps2 / eff,
-        )
-
-    def decel_at(self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray) -> FloatArray:
-        """External deceleration now (+ = helps braking: uphill, resistance)."""
-        x = self.stop_point_m - distance_m
-        grade = G_MPS2 * self.mass_ratio * self.gradient.mean_gradient(x, self.length_m, rows)
-        v = np.maximum(speed_mps, 0.0)
-        return grade + self.davis_a_mps2 + self.davis_b_per_s * v + self.davis_c_per_m * v * v
-
-    def path_integral(self, distance_m: FloatArray, speed_mps: FloatArray, rows: IntArray) -> FloatArray:
-        """Integral of the external deceleration over the remaining ``distance`` (m²/s²).
-
-        Gradient: trapezoid over SAMPLES points of the path. Resistance: for a
-        uniform stop from v over s, v² falls linearly with distance, so the
-        mean of v over distance is 2v/3 and of v² is v²/2.
-        """
-        s = np.maximum(distance_m, 0.0)
-        frac = np.linspace(0.0, 1.0, SAMPLES)
-        x = self.stop_point_m - s[:, None] * (1.0 - frac[None, :])
-        grade = self.gradient.mean_gradient(x, self.length_m, rows)
-        mean_grade = np.trapezoid(grade, frac, axis=1)
-        v = np.maximum(speed_mps, 0.0)
-        resist = self.davis_a_mps2 + self.davis_b_per_s * 2.0 * v / 3.0 + self.davis_c_per_m * v * v / 2.0
-        return s * (G_MPS2 * self.mass_ratio * mean_grade + resist)
-
-
-@dataclass(slots=True, kw_only=True)
-class CommandHistory:
-    """The last few commands of each run and when each takes effect on the train.
-
-    The modelled brake deceleration at time t is ``gain × value`` of the newest
-    command whose effect time is <= t (0 before the first one).
-    """
-
-    value_mps2: FloatArray  # (n, H), oldest first
-    effect_s: FloatArray  # (n, H); +inf where empty
-
-    @classmethod
-    def create(cls, n: int) -> CommandHistory:
-        return cls(value_mps2=np.zeros((n, HISTORY)), effect_s=np.full((n, HISTORY), np.inf))
-
-    def subset(self, rows: BoolArray | IntArray) -> CommandHistory:
-        return CommandHistory(value_mps2=self.value_mps2[rows], effect_s=self.effect_s[rows])
-
-    def push(self, mask: BoolArray, value_mps2: FloatArray, effect_s: FloatArray) -> None:
-        """Append one command for the runs in ``mask`` (values are full-length arrays)."""
-        if not mask.any():
-            return
-        v = self.value_mps2[mask]
-        e = self.effect_s[mask]
-        count = np.isfinite(e).sum(axis=1)
-        full = count >= HISTORY
-        v[full] = np.roll(v[full], -1, axis=1)
-        e[full] = np.roll(e[full], -1, axis=1)
-        slot = np.minimum(count, HISTORY - 1)
-        rows = np.arange(v.shape[0])
-        v[rows, slot] = value_mps2[mask]
-        e[rows, slot] = effect_s[mask]
-        self.value_mps2[mask] = v
-        self.effect_s[mask] = e
-
-    def value_at(self, t_s: FloatArray) -> FloatArray:
-        """Commanded value in effect at ``t_s``: shape (m,) or (m, k) for m runs."""
-        t = np.asarray(t_s, dtype=np.float64)
-        active = (
-            self.effect_s.reshape(self.effect_s.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)) <= t[..., None]
-        )
-        count = active.sum(axis=-1)  # effect times increase, so the active ones are a prefix
-        idx = np.maximum(count - 1, 0)
-        vals = np.take_along_axis(
-            np.broadcast_to(
-                self.value_mps2.reshape(self.value_mps2.shape[:1] + (1,) * (t.ndim - 1) + (HISTORY,)),
-                (*t.shape, HISTORY),
-            ),
-            idx[..., None],
-            axis=-1,
-        )[..., 0]
-        return np.where(count > 0, vals, 0.0)
-
-    def response_at(self, t_s: FloatArray, lag_s: float) -> FloatArray:
-        """Modelled brake response at ``t_s`` (shape (m, k)): each change of command relaxes
-        with the first-order lag ``lag_s``, started ``lag_s`` before its effect time (so its
-        mean delay is the equivalent dead time the planner uses). Without it a measurement
-        window holding a command change compares the measured deceleration with a step the
-        brakes never made.
-        """
-        t = np.asarray(t_s, dtype=np.float64)[..., None]  # (m, k, 1)
-        values = self.value_mps2[:, None, :]
-        effect = self.effect_s[:, None, :]
-        prev = np.concatenate([np.zeros_like(values[..., :1]), values[..., :-1]], axis=-1)
-        since = np.where(np.isfinite(effect), t - (effect - lag_s), -1.0)
-        done = 1.0 - np.exp(-np.maximum(since, 0.0) / max(lag_s, 1e-6))
-        return ((values - prev) * done).sum(axis=-1)
-
-    def _segments(self, t0: FloatArray, t1: FloatArray) -> list[tuple[FloatArray, FloatArray]]:
-        """Piecewise-constant (duration, value) pieces of the command profile on [t0, t1]."""
-        edges = np.concatenate([t0[:, None], np.clip(self.effect_s, t0[:, None], t1[:, None])], 1)
-        edges = np.concatenate([edges, t1[:, None]], axis=1)
-        values = np.concatenate([np.zeros((t0.size, 1)), self.value_mps2], axis=1)
-        durations = np.maximum(np.diff(edges, axis=1), 0.0)
-        return [(durations[:, j], values[:, j]) for j in range(values.shape[1])]
-
-    def predict(
-        self,
-        distance_m: FloatArray,
-        speed_mps: FloatArray,
-        now_s: FloatArray,
-        until_s: FloatArray,
-        gain: FloatArray,
-        external_mps2: FloatArray,
-    ) -> tuple[FloatArray, FloatArray]:
-        """Distance to go and speed at ``until_s`` if the train follows the commands sent."""
-        s, v = distance_m, speed_mps
-        for dur, val in self._segments(now_s, until_s):
-            s, v = propagate(s, v, gain * val + external_mps2, dur)
-        return s, v
-
-
-def regression_weights(t0: FloatArray, t1: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Sample times (m, SAMPLES) and weights of a least-squares slope over [t0, t1].
-
-    The slope of a least-squares line through speed samples is the mean of
-    the deceleration weighted by (τ - t0)(t1 - τ): comparing it with the same
-    weighted mean of the modelled deceleration makes the gain unbiased while
-    the deceleration changes inside the window.
-    """
-    frac = (np.arange(SAMPLES) + 0.5) / SAMPLES
-    taus = t0[:, None] + (t1 - t0)[:, None] * frac[None, :]
-    w = frac * (1.0 - frac)
-    return taus, np.broadcast_to(w / w.sum(), taus.shape)
-
-
-def hat_weights(t0: FloatArray, t1: FloatArray, t2: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Sample times and weights of the hat function on [t0, t2] peaking at t1 (variant 2)."""
-    frac = (np.arange(SAMPLES) + 0.5) / SAMPLES
-    taus = t0[:, None] + (t2 - t0)[:, None] * frac[None, :]
-    rise = (taus - t0[:, None]) / np.maximum(t1 - t0, 1e-9)[:, None]
-    fall = (t2[:, None] - taus) / np.maximum(t2 - t1, 1e-9)[:, None]
-    w = np.where(taus <= t1[:, None], rise, fall)
-    return taus, w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
-
-
-def modelled_means(
-    history: CommandHistory,
-    taus: FloatArray,
-    weights: FloatArray,
-    braking_from_s: FloatArray,
-    *,
-    lag_s: float,
-    external: ExternalModel,
-    distance_m: FloatArray,
-    speed_mps: FloatArray,
-    decel_mps2: FloatArray,
-    now_s: FloatArray,
-    rows: IntArray,
-) -> tuple[FloatArray, FloatArray]:
-    """Weighted means over a measurement window of (commanded brake decel, external decel).
-
-    The external part (gradient, resistance) counts only while the train
-    was braking (before that it held its speed with traction). It is taken
-    where the train was at each sample time, traced back from now with the
-    measured deceleration: over a 1.5 s window the train moves 20 m, and the
-    mean gradient under it can change by a few per mille meanwhile.
-    """
-    cmd = (history.response_at(taus, lag_s) * weights).sum(axis=1)
-    back = now_s[:, None] - taus
-    a = np.where(np.isfinite(decel_mps2), decel_mps2, 0.0)[:, None]
-    v_then = speed_mps[:, None] + a * back
-    s_then = distance_m[:, None] + speed_mps[:, None] * back + 0.5 * a * back * back
-    ext = external.decel_at(s_then, v_then, rows)
-    braking = taus >= braking_from_s[:, None]
-    return cmd, (ext * braking * weights).sum(axis=1)
-
-
-def plan_command(
-    *,
-    distance_m: FloatArray,
-    speed_mps: FloatArray,
-    now_s: FloatArray,
-    history: CommandHistory,
-    gain: FloatArray,
-    base_delay_s: float,
-    jerk_limit_mps3: float,
-    max_decel_mps2: float,
-    external: ExternalModel,
-    rows: IntArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The command to send now: (commanded decel, required brake decel, effect time).
-
-    The new command acts after ``base_delay_s`` (latency + dead time + lag
-    time constant, the equivalent dead time of a first-order lag) plus half
-    the jerk-limited ramp from the current level; until then the train
-    follows the commands already sent. From that predicted state the brake
-    must supply v²/2s (SPEC §1) less what gradient and resistance give over
-    the remaining path; dividing by the loop gain turns it into the command.
-    If the train is predicted to stop before a new command could act, the
-    brake is held (never released to roll on: DESIGN rule 7).
-    """
-    current = history.value_at(now_s)
-    ext_now = external.decel_at(distance_m, speed_mps, rows)
-    delay = np.full_like(now_s, base_delay_s)
-    need = np.zeros_like(now_s)
-    s_t = distance_m
-    v_t = speed_mps
-    for _ in range(2):  # the ramp depends on the answer: one fixed-point refinement
-        s_t, v_t = history.predict(distance_m, speed_mps, now_s, now_s + delay, gain, ext_now)
-        helped = external.path_integral(s_t, v_t, rows) / np.where(s_t > 0.0, s_t, 1.0)
-        need = required_decel(s_t, v_t) - np.where(s_t > 0.0, helped, 0.0)
-        ramp = np.abs(np.clip(need / gain, 0.0, max_decel_mps2) - current) / (2.0 * jerk_limit_mps3)
-        delay = base_delay_s + ramp
-    command = np.clip(need / gain, 0.0, max_decel_mps2)
-    command = np.where(v_t <= 0.0, current, command)
-    return command, need, now_s + delay
-
-
-@dataclass(slots=True)
-class GainEstimate:
-    """Least-squares loop gain per run, accumulated over the stop's measurement windows.
-
-    Each window gives one equation ``measured - external = g × commanded``;
-    the estimate is Σ c·(m - e) / Σ c² (1.0 before any usable window).
-    """
-
-    num: FloatArray
-    den: FloatArray
-
-    @classmethod
-    def create(cls, n: int) -> GainEstimate:
-        return cls(num=np.zeros(n), den=np.zeros(n))
-
-    def value(self, rows: IntArray) -> FloatArray:
-        den = self.den[rows]
-        ok = den > 0.0
-        return np.where(ok, np.clip(self.num[rows] / np.where(ok, den, 1.0), GAIN_MIN, GAIN_MAX), 1.0)
-
-    def update(
-        self,
-        rows: IntArray,
-        measured_decel_mps2: FloatArray,
-        expected_brake_mps2: FloatArray,
-        external_mps2: FloatArray,
-        min_expected_mps2: float = 0.05,
-    ) -> FloatArray:
-        """SPEC §1 loop closure (claims 2, 19): add one window per row, return the new gains."""
-        ok = (expected_brake_mps2 >= min_expected_mps2) & np.isfinite(measured_decel_mps2)
-        c = np.where(ok, expected_brake_mps2, 0.0)
-        m = np.where(ok, measured_decel_mps2 - external_mps2, 0.0)
-        self.num[rows] += c * m
-        self.den[rows] += c * c
-        return self.value(rows)
-
-
-def closed_loop_command(
-    *,
-    distance_m: FloatArray,
-    speed_mps: FloatArray,
-    now_s: FloatArray,
-    history: CommandHistory,
-    gain: GainEstimate,
-    measured_decel_mps2: FloatArray,
-    commanded_mean_mps2: FloatArray,
-    external_mean_mps2: FloatArray,
-    base_delay_s: float,
-    jerk_limit_mps3: float,
-    max_decel_mps2: float,
-    external: ExternalModel,
-    rows: IntArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """One turn of the SPEC §1 law: close the loop, then plan the next command.
-
-    The measured deceleration, less the modelled gradient and resistance over
-    the same window (``external_mean``, see ``modelled_means``), is
-    compared with the modelled command (``commanded_mean``) to update the gain
-    estimate of ``rows`` in place (claims 2, 19); the command is then planned
-    with that gain. Returns (gain,
-    command, required brake deceleration, effect time). The wayside unit and
-    the onboard planner of forms 1-5 both use this one law.
-    """
-    g = gain.update(rows, measured_decel_mps2, commanded_mean_mps2, external_mean_mps2)
-    command, need, effect = plan_command(
-        distance_m=distance_m,
-        speed_mps=speed_mps,
-        now_s=now_s,
-        history=history,
-        gain=g,
-        base_delay_s=base_delay_s,
-        jerk_limit_mps3=jerk_limit_mps3,
-        max_decel_mps2=max_decel_mps2,
-        external=external,
-        rows=rows,
-    )
-    return g, command, need, effect
-
-
-def _line_fit(
-    samples_mps: FloatArray, dt_s: float, count: NDArray[np.int64]
-) -> tuple[FloatArray, FloatArray]:
-    """Least-squares line through the last ``count`` samples: (value at the newest, slope)."""
-    w = samples_mps.shape[1]
-    j = np.arange(w)[None, :]
-    use = j >= (w - count[:, None])
-    m = np.maximum(count, 1).astype(np.float64)
-    t = (j - (w - 1)) * dt_s  # 0 at the newest sample, negative before
-    tw = np.where(use, t, 0.0)
-    vw = np.where(use, samples_mps, 0.0)
-    t_mean = tw.sum(axis=1) / m
-    v_mean = vw.sum(axis=1) / m
-    dtv = np.where(use, t - t_mean[:, None], 0.0)
-    sxx = (dtv * dtv).sum(axis=1)
-    sxy = (dtv * (vw - v_mean[:, None])).sum(axis=1)
-    ok = count >= 2
-    slope = np.where(ok, sxy / np.where(ok, sxx, 1.0), np.nan)
-    v_now = np.where(ok, v_mean - slope * t_mean, samples_mps[:, -1])
-    return v_now, slope
-
-
-def fit_doppler(
-    samples_mps: FloatArray,
-    dt_s: float,
-    count: NDArray[np.int64],
-    speed_samples: int | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """Speed now and deceleration from the last ``count`` speed samples of each row (oldest first).
-
-    ``samples`` is (n, W) with the newest sample in the last column. The
-    deceleration is minus the slope of a least-squares line through all of
-    them. The speed now comes from a line through the newest
-    ``speed_samples`` only: the end of a long line misses the last part of a
-    deceleration that ripples (a brake alternating two notches) by a few
-    cm/s, which near the stop is several per cent of the speed. Rows with
-    fewer than 2 samples give their newest sample and NaN.
-    """
-    v_now, slope = _line_fit(samples_mps, dt_s, count)
-    if speed_samples is not None and speed_samples < samples_mps.shape[1]:
-        k = max(int(speed_samples), 2)
-        v_short, _ = _line_fit(samples_mps[:, -k:], dt_s, np.minimum(count, k))
-        v_now = np.where(count >= 2, v_short, v_now)
-    return v_now, -slope
-
-
-def fit_passages(t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
-    """SPEC §1 variant 2: speed at the newest passage and deceleration from passage times.
-
-    ``t`` and ``x`` are (n, 3), newest last. With 3 passages a parabola
-    through them is exact for constant deceleration; with 2 the mean speed
-    over the interval is taken and the deceleration is unknown (NaN).
-    """
-    t0, t1, t2 = t_s[:, 0], t_s[:, 1], t_s[:, 2]
-    x0, x1, x2 = x_m[:, 0], x_m[:, 1], x_m[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v12 = (x2 - x1) / (t2 - t1)
-        v01 = (x1 - x0) / (t1 - t0)
-        accel = 2.0 * (v12 - v01) / (t2 - t0)
-    three = count >= 3
-    speed = np.where(three, v12 + accel * (t2 - t1) / 2.0, v12)
-    decel = np.where(three, -accel, np.nan)
-    speed = np.where(count >= 2, speed, np.nan)
-    return speed, decel
-
 
 # --------------------------------------------------------------------------
 # Compiled scalar cores (railstop.jit): the one implementation of the law.
@@ -466,7 +43,9 @@ def fit_passages(t_s: FloatArray, x_m: FloatArray, count: NDArray[np.int64]) -> 
 # One run at a time. The external model is a small parameter vector (EXT_*)
 # plus the run's gradient ``grad`` = (breakpoints, values permille, elevation
 # at breakpoints); the command history is two arrays of HISTORY entries,
-# values and effect times (+inf where empty, entries in time order).
+# values and effect times (+inf where empty, entries in time order). The
+# modelled brake deceleration at time t is ``gain × value`` of the newest
+# command whose effect time is <= t (0 before the first one).
 
 EXT_STOP = 0  # stopping point chainage (m)
 EXT_LENGTH = 1  # train length (m)
@@ -483,7 +62,13 @@ REG_WEIGHTS = REG_WEIGHTS / REG_WEIGHTS.sum()
 
 
 def external_params(vehicle: Vehicle, stop_point_m: float) -> FloatArray:
-    """The EXT_* vector of :class:`ExternalModel` (nominal Davis resistance at half load)."""
+    """The EXT_* vector of the external model: deceleration from gradient and running
+    resistance, as the database knows it.
+
+    SPEC §1 database unit: stopping point, detector positions, braking data.
+    The wayside (and the onboard unit for forms 1-5) predicts with the track
+    gradient under the train and nominal Davis resistance at half load.
+    """
     static = vehicle.tare_mass_kg + 0.5 * vehicle.crush_payload_kg
     eff = static + vehicle.tare_mass_kg * vehicle.rotating_mass_factor
     out = np.zeros(EXT_SIZE)
@@ -506,7 +91,7 @@ def clip_1(x: float, lo: float, hi: float) -> float:
 
 @njit_step
 def propagate_1(distance_m: float, speed_mps: float, decel_mps2: float, dt_s: float) -> tuple[float, float]:
-    """:func:`propagate` of one run: distance to go and speed after dt at constant deceleration."""
+    """Distance to go and speed after ``dt_s`` at constant deceleration (stops at zero speed)."""
     dt = max(dt_s, 0.0)
     v_end = speed_mps - decel_mps2 * dt
     if decel_mps2 > 0.0 and v_end <= 0.0:
@@ -516,7 +101,11 @@ def propagate_1(distance_m: float, speed_mps: float, decel_mps2: float, dt_s: fl
 
 @njit_step
 def required_decel_1(distance_m: float, speed_mps: float) -> float:
-    """SPEC §1: v² / 2s; +inf at or past the stopping point; 0 for a stopped train."""
+    """SPEC §1: deceleration that stops from ``speed`` in exactly ``distance``: v² / 2s.
+
+    A train already at or past the stopping point gets +inf (brake as hard as
+    allowed); a stopped train needs nothing.
+    """
     if speed_mps <= 0.0:
         return 0.0
     if distance_m > 0.0:
@@ -589,7 +178,8 @@ def history_value_at_1(values: FloatArray, effects: FloatArray, t_s: float) -> f
 def history_response_at_1(values: FloatArray, effects: FloatArray, t_s: float, lag_s: float) -> float:
     """Modelled brake response at ``t_s``: each change of command relaxes with the first-order
     lag, started ``lag_s`` before its effect time (its mean delay is then the equivalent dead time
-    the planner uses)."""
+    the planner uses). Without it a measurement window holding a command change compares the
+    measured deceleration with a step the brakes never made."""
     total = 0.0
     prev = 0.0
     tau = max(lag_s, 1e-6)
@@ -632,7 +222,9 @@ def regression_taus_1(t0_s: float, t1_s: float, taus: FloatArray) -> None:
     """Sample times of a least-squares slope over [t0, t1]; its weights are ``REG_WEIGHTS``.
 
     The slope of a least-squares line through speed samples is the mean of
-    the deceleration weighted by (τ - t0)(t1 - τ).
+    the deceleration weighted by (τ - t0)(t1 - τ): comparing it with the same
+    weighted mean of the modelled deceleration makes the gain unbiased while
+    the deceleration changes inside the window.
     """
     for i in range(SAMPLES):
         taus[i] = t0_s + (t1_s - t0_s) * _FRAC_MID[i]
@@ -674,7 +266,9 @@ def modelled_means_1(
 
     The external part counts only while the train was braking (before that it
     held its speed with traction), taken where the train was at each sample
-    time, traced back from now with the measured deceleration.
+    time, traced back from now with the measured deceleration: over a 1.5 s
+    window the train moves 20 m, and the mean gradient under it can change by
+    a few per mille meanwhile.
     """
     a = decel_mps2 if np.isfinite(decel_mps2) else 0.0
     cmd = 0.0
@@ -704,8 +298,17 @@ def plan_command_1(
     ext: FloatArray,
     grad: tuple[FloatArray, FloatArray, FloatArray],
 ) -> tuple[float, float, float]:
-    """The command to send now: (commanded decel, required brake decel, effect time); see
-    :func:`plan_command`."""
+    """The command to send now: (commanded decel, required brake decel, effect time).
+
+    The new command acts after ``base_delay_s`` (latency + dead time + lag
+    time constant, the equivalent dead time of a first-order lag) plus half
+    the jerk-limited ramp from the current level; until then the train
+    follows the commands already sent. From that predicted state the brake
+    must supply v²/2s (SPEC §1) less what gradient and resistance give over
+    the remaining path; dividing by the loop gain turns it into the command.
+    If the train is predicted to stop before a new command could act, the
+    brake is held (never released to roll on: DESIGN rule 7).
+    """
     current = history_value_at_1(values, effects, now_s)
     ext_now = external_decel_1(ext, grad, distance_m, speed_mps)
     delay = base_delay_s
@@ -734,7 +337,16 @@ def gain_value_1(num: float, den: float) -> float:
 def gain_update_1(
     num: float, den: float, measured_decel_mps2: float, expected_brake_mps2: float, external_mps2: float
 ) -> tuple[float, float]:
-    """SPEC §1 loop closure (claims 2, 19): add one measurement window to the gain's sums."""
+    """SPEC §1 loop closure (claims 2, 19): add one measurement window to the gain's sums.
+
+    The measured deceleration less the modelled gradient and resistance over the
+    same window (``external_mps2``, see :func:`modelled_means_1`) is compared with
+    the modelled command (``expected_brake_mps2``): each window gives one equation
+    ``measured - external = g × commanded``. A window with too small a command
+    (before braking) or no measurement does not count. The wayside unit and the
+    onboard planner of forms 1-5 both close the loop with this, then plan with
+    :func:`plan_command_1`.
+    """
     if expected_brake_mps2 >= 0.05 and np.isfinite(measured_decel_mps2):
         num += expected_brake_mps2 * (measured_decel_mps2 - external_mps2)
         den += expected_brake_mps2 * expected_brake_mps2
@@ -773,12 +385,13 @@ def line_fit_1(ring: FloatArray, newest: int, count: int, dt_s: float) -> tuple[
 def fit_ring_1(
     ring: FloatArray, newest: int, count: int, dt_s: float, speed_samples: int
 ) -> tuple[float, float]:
-    """:func:`fit_doppler` of one ring buffer: (speed now, deceleration).
+    """Speed now and deceleration from the newest ``count`` speed samples of a ring buffer.
 
     The deceleration is minus the slope of a line through all ``count``
     samples; the speed now comes from a line through the newest
-    ``speed_samples`` only (the end of a long line misses the last part of a
-    rippling deceleration).
+    ``speed_samples`` only: the end of a long line misses the last part of a
+    deceleration that ripples (a brake alternating two notches) by a few
+    cm/s, which near the stop is several per cent of the speed.
     """
     v_now, slope = line_fit_1(ring, newest, count, dt_s)
     if speed_samples < ring.size and count >= 2:

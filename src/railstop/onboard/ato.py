@@ -32,111 +32,15 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from railstop.config.schema import Station, Vehicle
-from railstop.control.notch import NotchModulator, modulator_init_1, modulator_update_1
-from railstop.control.tasc import ExternalModel, clip_1, external_decel_1
+from railstop.config.schema import Vehicle
+from railstop.control.notch import modulator_init_1, modulator_update_1
+from railstop.control.tasc import clip_1, external_decel_1
 from railstop.jit import njit_inline, njit_step
-from railstop.onboard.tasc_receiver import BrakeSignal
-from railstop.physics.brake import encode_step
-from railstop.physics.train import GradientProfile
 
 FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 ATO_SPEED_GAIN_PER_S = 1.2  # speed-error feedback (1/s)
 ATO_LEAD_FRACTION = 0.15  # of the brake's equivalent dead time: how far ahead the curve is read
-
-
-class AtoController:
-    """Onboard ATO station stop for n runs."""
-
-    def __init__(
-        self,
-        *,
-        station: Station,
-        vehicle: Vehicle,
-        gradient: GradientProfile,
-        n: int,
-        dt_s: float,
-    ) -> None:
-        brake = vehicle.brake
-        self.station = station
-        self.vehicle = vehicle
-        self.n = n
-        self.dt_s = dt_s
-        self.transponders_m = np.asarray(station.ato_transponders_m(), dtype=np.float64)
-        self.active = np.zeros(n, dtype=bool)
-        self.distance_m = np.full(n, np.inf)  # odometric distance to the stopping point
-        self.target_mps2 = np.zeros(n)
-        self.external = ExternalModel.create(vehicle, gradient, station.stop_point_m)
-        self.modulator = NotchModulator.create(
-            n, brake.notch_decel_mps2, brake.controller_min_hold_s, brake.dead_time_s + brake.time_constant_s
-        )
-        self.cycle_steps = max(1, round(brake.controller_cycle_s / dt_s))
-        self.base_delay_s = brake.dead_time_s + brake.time_constant_s
-        self.step_index = 0
-        self.notch = np.zeros(n, dtype=np.int64)
-        self.plans = np.zeros(n, dtype=np.int64)
-        self.braking = np.zeros(n, dtype=bool)  # until then the train holds its speed
-        self.curve_mps2 = np.full(n, np.nan)  # the brake curve's deceleration, set at the first fix
-        self.fixes = np.zeros(n, dtype=np.int64)
-
-    @property
-    def notch_changes(self) -> IntArray:
-        return self.modulator.changes
-
-    def transponder(self, passed: BoolArray, index: IntArray) -> None:
-        """A transponder read: the odometry is reset to its surveyed distance."""
-        if not passed.any():
-            return
-        rows = np.flatnonzero(passed)
-        self.fix(rows, self.station.stop_point_m - self.transponders_m[index[rows]])
-
-    def fix(self, rows: IntArray, distance_m: FloatArray) -> None:
-        """A position fix of runs ``rows``: their distance to the stopping point is now ``distance_m``."""
-        self.distance_m[rows] = distance_m
-        self.active[rows] = True
-        self.fixes[rows] += 1
-        # A new position fix: a new brake curve through the corrected state.
-        self.curve_mps2[rows] = np.nan
-
-    def odometer(self, increment_m: FloatArray) -> None:
-        """Distance the odometer counted during the last step."""
-        self.distance_m = np.where(self.active, self.distance_m - increment_m, self.distance_m)
-
-    def output(self, now_s: float, speed_mps: FloatArray) -> BrakeSignal:
-        """The brake signal of this step (``speed_mps``: the tachometer's speed)."""
-        k = self.step_index
-        self.step_index += 1
-        if k % self.cycle_steps == 0:
-            rows = np.flatnonzero(self.active)
-            if rows.size:
-                self._plan(now_s, rows, speed_mps[rows])
-            dt = self.cycle_steps * self.dt_s
-            self.notch = self.modulator.update(self.target_mps2, self.active, dt, speed_mps)
-        emergency = np.zeros(self.n, dtype=bool)
-        return BrakeSignal(line=encode_step(self.notch, emergency), duty=None, emergency=emergency)
-
-    def _plan(self, now_s: float, rows: IntArray, speed_mps: FloatArray) -> None:
-        # The curve is compared a little ahead of the train: a lead that keeps
-        # the loop from lagging the curve by the brake's delay.
-        lead_s = ATO_LEAD_FRACTION * self.base_delay_s
-        ahead = np.maximum(self.distance_m[rows] - speed_mps * lead_s, 0.0)
-        new = np.isnan(self.curve_mps2[rows])
-        if new.any():
-            # The brake curve (train deceleration) through the state at the latest fix.
-            need = speed_mps[new] ** 2 / (2.0 * np.maximum(ahead[new], 1.0))
-            self.curve_mps2[rows[new]] = np.clip(need, 0.05, self.vehicle.brake.full_service_mps2)
-        curve = self.curve_mps2[rows]
-        v_ref = np.sqrt(2.0 * curve * ahead)
-        ext = self.external.decel_at(self.distance_m[rows], speed_mps, rows)
-        command = curve - ext + ATO_SPEED_GAIN_PER_S * (speed_mps - v_ref)
-        # At or past its stopping point with speed left: full service.
-        command = np.where(self.distance_m[rows] <= 0.0, self.vehicle.brake.full_service_mps2, command)
-        self.target_mps2[rows] = np.clip(command, 0.0, self.vehicle.brake.full_service_mps2)
-        self.braking[rows] |= self.target_mps2[rows] > 0.0
-        self.plans[rows] += 1
 
 
 # --------------------------------------------------------------------------

@@ -1,1 +1,1 @@
-"""Array-first plant (DESIGN rule 1): train dynamics, brake chain, wheel and tachometer."""
+"""The plant (DESIGN rule 1): train dynamics, brake chain, traction."""

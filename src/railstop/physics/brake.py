@@ -1,7 +1,8 @@
 """The brake chain of SPEC §1: brake line codes, PWM, brake ECU and actuator.
 
-Everything works on numpy arrays of shape ``(n,)``: one detailed stop is
-``n = 1``, a campaign chunk is ``n = 10^4`` (DESIGN rule 1).
+The stop kernel (``railstop.sim.kernel``) runs the compiled scalar cores at
+the end of this module, one run at a time (DESIGN rule 1); the kernel itself
+applies the ECU's load compensation.
 """
 
 from __future__ import annotations
@@ -11,12 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from railstop.config.schema import BrakeModel
 from railstop.jit import njit_inline, njit_step
 
 FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 # SPEC §1 fig. 3: the 3-wire step code (a, b, c) of the brake line.
 # Notch 0 (000) is "no service brake"; wire e carries the emergency brake.
@@ -30,11 +28,6 @@ STEP_CODE: dict[int, tuple[int, int, int]] = {
     6: (1, 1, 0),
     7: (1, 1, 1),
 }
-_CODE_A = np.array([STEP_CODE[k][0] for k in range(8)], dtype=np.int8)
-_CODE_B = np.array([STEP_CODE[k][1] for k in range(8)], dtype=np.int8)
-_CODE_C = np.array([STEP_CODE[k][2] for k in range(8)], dtype=np.int8)
-_DECODE = {v: k for k, v in STEP_CODE.items()}
-_DECODE_TABLE = np.array([_DECODE[((i >> 2) & 1, (i >> 1) & 1, i & 1)] for i in range(8)])
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -47,64 +40,11 @@ class BrakeLine:
     e: NDArray[np.int8]
 
 
-def encode_step(notch: IntArray, emergency: BoolArray | None = None) -> BrakeLine:
-    """Brake signal distributor (encoder): notch 0..7 -> wires a, b, c (SPEC §1 fig. 3)."""
-    notch = np.asarray(notch)
-    if np.any((notch < 0) | (notch > 7)):
-        bad = notch[(notch < 0) | (notch > 7)][0]
-        raise ValueError(f"notch must be 0..7, got {bad}")
-    e = np.zeros(notch.shape, np.int8) if emergency is None else emergency.astype(np.int8)
-    return BrakeLine(a=_CODE_A[notch], b=_CODE_B[notch], c=_CODE_C[notch], e=e)
-
-
-def decode_step(line: BrakeLine) -> IntArray:
-    """Brake ECU input: wires a, b, c -> notch 0..7, by the table of SPEC §1 fig. 3."""
-    idx = (line.a.astype(np.int64) << 2) | (line.b.astype(np.int64) << 1) | line.c.astype(np.int64)
-    return _DECODE_TABLE[idx]
-
-
-def notch_decel(notch: IntArray, brake: BrakeModel) -> FloatArray:
-    """Deceleration demanded by a service notch (0 = released)."""
-    table = np.concatenate(([0.0], np.asarray(brake.notch_decel_mps2, dtype=np.float64)))
-    return table[np.asarray(notch)]
-
-
-def pwm_to_decel(duty: FloatArray, brake: BrakeModel) -> FloatArray:
-    """Brake ECU PWM input: duty ratio -> deceleration by the vehicle's map."""
-    return np.interp(duty, brake.pwm_duty, brake.pwm_decel_mps2)
-
-
-def decel_to_pwm(decel_mps2: FloatArray, brake: BrakeModel) -> FloatArray:
-    """Inverse of :func:`pwm_to_decel` on the map's rising part (smallest duty giving decel)."""
-    duty = np.asarray(brake.pwm_duty, dtype=np.float64)
-    dec = np.asarray(brake.pwm_decel_mps2, dtype=np.float64)
-    d = np.clip(np.asarray(decel_mps2, dtype=np.float64), dec.min(), dec.max())
-    # The map may have flat stretches; invert each rising segment on its own,
-    # the first (lowest-duty) segment containing the value wins.
-    out = np.full(d.shape, np.nan)
-    for i in range(dec.size - 1):
-        if dec[i + 1] > dec[i]:
-            m = np.isnan(out) & (d >= dec[i]) & (d <= dec[i + 1])
-            out[m] = duty[i] + (d[m] - dec[i]) * (duty[i + 1] - duty[i]) / (dec[i + 1] - dec[i])
-    # Values on the lowest plateau: the last duty that still gives it.
-    low_end = duty[int(np.flatnonzero(dec == dec.min())[-1])]
-    return np.where(np.isnan(out), low_end, out)
-
-
-def superimpose_pwm(existing_duty: FloatArray, onboard_duty: FloatArray) -> FloatArray:
-    """SPEC §1 config 3: OR of two PWM pulse trains synchronised at the zero crossing.
-
-    Both pulses start at the same zero crossing, so their OR is high for the
-    longer of the two: the ECU sees the larger duty (existing 50 % + onboard
-    70 % -> 70 %).
-    """
-    return np.maximum(existing_duty, onboard_duty)
-
-
 def or_pulse_duty(duty_1: FloatArray, duty_2: FloatArray, phase: FloatArray) -> FloatArray:
     """Duty of the OR of two pulses of one period when pulse 2 starts ``phase`` periods later.
 
-    ``phase = 0`` is the synchronised case of :func:`superimpose_pwm`; any other
+    ``phase = 0`` is the synchronised case of SPEC §1 config 3 (the ECU sees the larger
+    duty: ``railstop.onboard.tasc_receiver.receiver_pwm_output_1``); any other
     phase makes the union longer than either pulse, which is why SPEC §1
     config 3 synchronises to the zero crossing.
     """
@@ -120,111 +60,32 @@ def or_pulse_duty(duty_1: FloatArray, duty_2: FloatArray, phase: FloatArray) -> 
     return np.minimum(first + extra, 1.0)
 
 
-@dataclass(slots=True, kw_only=True)
-class ActuatorState:
-    """Brake actuator chain state for n runs: dead time, jerk limiter, first-order lag."""
-
-    ring: FloatArray  # (n, L) delayed demands, written at column k % L
-    delay_steps: IntArray  # (n,)
-    limited_mps2: FloatArray  # after the jerk limiter
-    output_mps2: FloatArray  # after the first-order lag
-    lag_alpha: FloatArray  # 1 - exp(-dt / tau)
-    jerk_step_mps2: float
-    emergency_mps2: float
-    k: int = 0
-
-    @classmethod
-    def create(
-        cls,
-        *,
-        n: int,
-        dt_s: float,
-        dead_time_s: FloatArray,
-        time_constant_s: FloatArray,
-        jerk_limit_mps3: float,
-        emergency_mps2: float,
-    ) -> ActuatorState:
-        delay = np.rint(np.asarray(dead_time_s) / dt_s).astype(np.int64)
-        length = int(delay.max()) + 1 if delay.size else 1
-        return cls(
-            ring=np.zeros((n, length)),
-            delay_steps=delay,
-            limited_mps2=np.zeros(n),
-            output_mps2=np.zeros(n),
-            lag_alpha=1.0 - np.exp(-dt_s / np.asarray(time_constant_s, dtype=np.float64)),
-            jerk_step_mps2=jerk_limit_mps3 * dt_s,
-            emergency_mps2=emergency_mps2,
-        )
-
-
-def actuator_step(state: ActuatorState, demand_mps2: FloatArray) -> FloatArray:
-    """Advance the actuator one step; returns the deceleration the brakes now give.
-
-    SPEC §1 / issue: dead time (pure delay, rounded to the step), then the ECU
-    jerk limiter (rate limit, bypassed by the emergency brake), then the
-    build-up first-order lag: y += (u - y)(1 - e^(-dt/tau)), exact for a
-    piecewise-constant input.
-    """
-    length = state.ring.shape[1]
-    col = state.k % length
-    state.ring[:, col] = demand_mps2
-    rows = np.arange(state.ring.shape[0])
-    delayed = state.ring[rows, (state.k - state.delay_steps) % length]
-    step = np.clip(delayed - state.limited_mps2, -state.jerk_step_mps2, state.jerk_step_mps2)
-    emergency = delayed >= state.emergency_mps2 - 1e-9
-    state.limited_mps2 = np.where(emergency, delayed, state.limited_mps2 + step)
-    state.output_mps2 = state.output_mps2 + (state.limited_mps2 - state.output_mps2) * state.lag_alpha
-    state.k += 1
-    return state.output_mps2
-
-
-def ecu_demand_mps2(
-    *, line: BrakeLine | None, duty: FloatArray | None, emergency: BoolArray, brake: BrakeModel
-) -> FloatArray:
-    """Brake ECU: the deceleration it is asked for, from the step code or the PWM duty.
-
-    Wire e (emergency) overrides the service command (SPEC §1 fig. 2).
-    """
-    if line is not None:
-        demand = notch_decel(decode_step(line), brake)
-        emergency = emergency | (line.e > 0)
-    elif duty is not None:
-        demand = pwm_to_decel(duty, brake)
-    else:
-        raise ValueError("the ECU needs a step-coded brake line or a PWM duty")
-    return np.where(emergency, brake.emergency_decel_mps2, demand)
-
-
-def braking_decel_mps2(
-    actuator_out_mps2: FloatArray,
-    *,
-    brake_gain: FloatArray,
-    believed_effective_kg: FloatArray,
-    effective_kg: FloatArray,
-) -> FloatArray:
-    """Deceleration the brakes give the real train.
-
-    Load compensation: the ECU sets the brake force to demand x the mass it
-    believes (load weighing); the train's real mass and the brake's real
-    effectiveness (``brake_gain`` = actual / nominal) decide what that force does.
-    """
-    return actuator_out_mps2 * brake_gain * believed_effective_kg / effective_kg
-
-
 # --------------------------------------------------------------------------
 # Compiled scalar cores (railstop.jit): the one implementation the stop kernel runs.
 
-_STEP_A = np.array([STEP_CODE[k][0] for k in range(8)], dtype=np.int64)
-_STEP_B = np.array([STEP_CODE[k][1] for k in range(8)], dtype=np.int64)
-_STEP_C = np.array([STEP_CODE[k][2] for k in range(8)], dtype=np.int64)
-_STEP_DECODE = _DECODE_TABLE.astype(np.int64)
+# The wires a, b, c of a brake line as the bits of one number: a = 4, b = 2, c = 1.
+_STEP_WIRES = np.array([4 * a + 2 * b + c for a, b, c in (STEP_CODE[k] for k in range(8))], dtype=np.int64)
+_STEP_DECODE = np.zeros(8, dtype=np.int64)
+_STEP_DECODE[_STEP_WIRES] = np.arange(8)
+
+
+@njit_inline
+def encode_step_1(notch: int) -> int:
+    """Brake signal distributor (encoder), SPEC §1 fig. 3: notch 0..7 -> wires a, b, c as the
+    bits of one number (a = 4, b = 2, c = 1)."""
+    return int(_STEP_WIRES[notch])
+
+
+@njit_inline
+def decode_step_1(wires: int) -> int:
+    """Brake ECU input, SPEC §1 fig. 3: wires a, b, c (bits a = 4, b = 2, c = 1) -> notch 0..7."""
+    return int(_STEP_DECODE[wires])
 
 
 @njit_inline
 def line_notch(notch: int) -> int:
     """SPEC §1 fig. 3: notch -> wires a, b, c (the encoder) -> notch (the ECU's decoder)."""
-    wires = (_STEP_A[notch] << 2) | (_STEP_B[notch] << 1) | _STEP_C[notch]
-    return int(_STEP_DECODE[wires])
+    return decode_step_1(encode_step_1(notch))
 
 
 @njit_inline

@@ -155,16 +155,6 @@ def motion_step(
     state.stopped = state.stopped | stops
 
 
-def tachometer_speed_mps(
-    speed_mps: FloatArray, sliding: BoolArray, *, scale: FloatArray, slide_slip_ratio: float
-) -> FloatArray:
-    """The tachometer's speed: the wheel's (slower when sliding) with the assumed diameter.
-
-    ``scale`` = assumed / actual wheel diameter.
-    """
-    return speed_mps * np.where(sliding, 1.0 - slide_slip_ratio, 1.0) * scale
-
-
 def odometer_increment_m(
     distance_m: FloatArray,
     sliding: BoolArray,

@@ -52,8 +52,9 @@ def plot_stop(
     """Write the two-panel PNG of run ``run`` of ``trace`` to ``path``; return the path.
 
     ``passage_times_s[i]`` is when detector i was passed (NaN if never).
-    ``commands`` are ``GroundTascUnit.records`` rows; rows of other runs of
-    the batch (their ``"run"`` differs) are left out.
+    ``commands`` are command records (``BatchResult.commands``: the wayside
+    unit's ``CR_*`` columns as dicts); rows of other runs of the batch (their
+    ``"run"`` differs) are left out.
     """
     out = Path(path)
     n_runs = trace.t_s.shape[1] if trace.t_s.ndim == 2 else 0

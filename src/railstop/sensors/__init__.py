@@ -1,1 +1,1 @@
-"""Array-first measurement models: wheel sensors, Doppler radar (SPEC §1)."""
+"""Measurement models: wheel sensors (SPEC §1); tachometer, odometer, track circuits, GNSS clock (SPEC §2)."""

@@ -8,7 +8,9 @@ command. Here one stop is three kinds of rows:
   parameter that decides the stop, e.g. stopping point, detector positions,
   load and brake gain, as JSON), identified by a natural key ``run_key``;
 * ``commands``: every command the wayside unit computed for that stop, one
-  column per field of ``GroundTascUnit.records`` (claim 20);
+  column per field of a command record (claim 20): the ``CR_*`` columns of
+  ``railstop.wayside.tasc_unit`` as the detailed stop turns them into dicts
+  (``railstop.sim.engine._commands``);
 * ``stop_results``: how the stop ended (claim 8's braking data).
 
 Saving the same ``run_key`` again never duplicates a stop: identical data is
@@ -50,7 +52,8 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sess
 
 from railstop.errors import RailstopError
 
-# The keys of one ``GroundTascUnit.records`` row, in column order, with their
+# The keys of one command record (``railstop.sim.engine._commands``: the wayside unit's
+# ``CR_*`` columns, absent values None by ``finite_or_none``), in column order, with their
 # type and whether the value may be missing (claim 20: the command history).
 # Only the two decelerations may legitimately be unknown: the measured one
 # before three passages / a full Doppler window, the required one when the
@@ -108,8 +111,9 @@ class StopRecord:
     ``parameters`` holds what decides the stop (stopping point, detector
     positions, load, brake gain, ...); non-finite floats are kept (Python's
     JSON writes them as ``NaN``/``Infinity``) because ``inf`` is meaningful,
-    e.g. "no low-adhesion patch". ``commands`` are the dict rows of
-    ``GroundTascUnit.records``; keys beyond ``COMMAND_FIELDS`` are ignored.
+    e.g. "no low-adhesion patch". ``commands`` are the command records of
+    the detailed stop (``BatchResult.commands``, built from the wayside
+    unit's ``CR_*`` columns); keys beyond ``COMMAND_FIELDS`` are ignored.
     """
 
     run_key: str
