@@ -46,8 +46,9 @@ NUMPY_ENGINE_COMMIT = "230f863"
 _OLD_ENGINE = """
 import sys, time
 from railstop.config import default_line, default_vehicle
-from railstop.config.disturbances import load_disturbances
+from railstop.config.disturbances import draw_scenario, load_disturbances
 from railstop.sim.reference import run_batch_reference
+from railstop.streams import RunStreams
 controller, first, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 line, vehicle = default_line(), default_vehicle()
 station, dist = line.stations[0], load_disturbances("standard")
@@ -88,7 +89,9 @@ def reference_rate(controller: str, runs: int, workers: int, src: Path) -> float
         for k in range(workers)
     ]
     for p in procs:
-        assert p.stdout is not None and p.stdout.readline().strip() == "ready"
+        assert p.stdout is not None
+        if p.stdout.readline().strip() != "ready":
+            raise SystemExit(f"the numpy engine of the old tree failed to start ({src})")
     t0 = time.perf_counter()
     for p in procs:
         assert p.stdin is not None

@@ -18,7 +18,6 @@ measurement completed by its own tachometer and station data.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
@@ -43,7 +42,7 @@ from railstop.control.tasc import (
 )
 from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP
 from railstop.jit import njit_inline, njit_step
-from railstop.physics.brake import BrakeLine, decel_to_pwm_1
+from railstop.physics.brake import decel_to_pwm_1
 from railstop.wayside.tasc_unit import (
     TEL_DECEL,
     TEL_DELTA,
@@ -67,15 +66,6 @@ class OnboardConfig(StrEnum):
     BRAKE_CONTROLLER = TASC_BRAKE_CONTROLLER
     STEP = TASC_STEP
     PWM = TASC_PWM
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BrakeSignal:
-    """What reaches the brake ECU: a step-coded brake line or a PWM duty."""
-
-    line: BrakeLine | None  # step-controlled trains
-    duty: FloatArray | None  # PWM-controlled trains
-    emergency: BoolArray
 
 
 # --------------------------------------------------------------------------

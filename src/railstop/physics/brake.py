@@ -7,8 +7,6 @@ applies the ECU's load compensation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -28,16 +26,6 @@ STEP_CODE: dict[int, tuple[int, int, int]] = {
     6: (1, 1, 0),
     7: (1, 1, 1),
 }
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BrakeLine:
-    """The wires of the brake line (SPEC §1): service wires a, b, c and emergency wire e."""
-
-    a: NDArray[np.int8]
-    b: NDArray[np.int8]
-    c: NDArray[np.int8]
-    e: NDArray[np.int8]
 
 
 def or_pulse_duty(duty_1: FloatArray, duty_2: FloatArray, phase: FloatArray) -> FloatArray:

@@ -51,8 +51,9 @@ MANIFEST_VERSION = 1
 # The stop model's version: a campaign is resumed (and a run replayed) only by the model that
 # made it. 2: the compiled kernel, each run ending at its own stop (the lockstep array engine,
 # version 1, went on stepping stopped runs, so in continuous update its command counts
-# depended on the other runs of the chunk).
-MODEL_VERSION = 2
+# depended on the other runs of the chunk). 3: the Doppler noise drawn by the ziggurat
+# (streams.key_normal_zig) instead of Box–Muller: same distribution, other numbers.
+MODEL_VERSION = 3
 
 RESULT_COLUMNS = (
     "run",

@@ -75,7 +75,7 @@ from railstop.sim.corrected_position import (
 )
 from railstop.sim.scenario import Scenario
 from railstop.sim.tasc_link import CARRIED, frame_bytes
-from railstop.streams import Stream, key_normal, key_uniform, seed_key, seed_u64, stream_key
+from railstop.streams import Stream, key_normal, key_normal_zig, key_uniform, seed_key, seed_u64, stream_key
 from railstop.wayside.tasc_unit import (
     CR_SIZE,
     TEL_DELTA,
@@ -464,8 +464,11 @@ def _simulate_run(
         # Sensors: a Doppler sample now (the radar sees trains within its range).
         doppler = np.nan
         if has_doppler:
-            v_meas = v * (1.0 + noise * key_normal(k_doppler, k)) if noise > 0.0 else v
-            doppler = v_meas if (reach - x) <= radar_range else 0.0
+            # Keyed by the step, so a sample outside the radar's range need not be drawn.
+            in_range = (reach - x) <= radar_range
+            doppler = 0.0
+            if in_range:
+                doppler = v * (1.0 + noise * key_normal_zig(k_doppler, k)) if noise > 0.0 else v
         # The tachometer's speed: wheel speed (slower when sliding) with the assumed diameter.
         tach_v = v * creep_1(sliding, ssr) * tach_scale
         if is_ato:
