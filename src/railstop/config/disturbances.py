@@ -402,13 +402,16 @@ def _draw(dist: Distribution, streams: RunStreams, name: str) -> FloatArray:
     return x
 
 
-def _zone_mean_permille(station: Station, start_m: float, end_m: float) -> float:
-    """The station's own mean gradient (permille) over [start, end]."""
-    if end_m <= start_m:
-        return 0.0
-    prof = station_gradient(station, 1)
-    elev = prof.elevation_m(np.array([[start_m, end_m]]))[0]
-    return float((elev[1] - elev[0]) / (end_m - start_m) * 1e3)
+def _zone_means_permille(station: Station) -> tuple[float, float]:
+    """The station's own mean gradient (permille) over the approach and the platform zones."""
+    a0, p0, p1 = _zones(station)
+    elev = station_gradient(station, 1).elevation_m(np.array([[a0, p0, p1]]))[0]
+
+    def mean(i: int) -> float:
+        length = (a0, p0, p1)[i + 1] - (a0, p0, p1)[i]
+        return float((elev[i + 1] - elev[i]) / length * 1e3) if length > 0.0 else 0.0
+
+    return mean(0), mean(1)
 
 
 def _zones(station: Station) -> tuple[float, float, float]:
@@ -419,7 +422,7 @@ def _zones(station: Station) -> tuple[float, float, float]:
 
 def nominal_values(station: Station, vehicle: Vehicle, n: int) -> dict[str, FloatArray]:
     """Every parameter's nominal value in the file's units (what ``Scenario.nominal`` uses)."""
-    a0, p0, p1 = _zones(station)
+    approach, platform = _zone_means_permille(station)
     nominal = {
         "entry_speed_kmh": station.tasc.entry_speed_kmh,
         "load_factor": 0.0,
@@ -427,8 +430,8 @@ def nominal_values(station: Station, vehicle: Vehicle, n: int) -> dict[str, Floa
         "brake_gain": 1.0,
         "brake_dead_time_s": vehicle.brake.dead_time_s,
         "brake_time_constant_s": vehicle.brake.time_constant_s,
-        "platform_gradient_permille": _zone_mean_permille(station, p0, p1),
-        "approach_gradient_permille": _zone_mean_permille(station, a0, p0),
+        "platform_gradient_permille": platform,
+        "approach_gradient_permille": approach,
         "wheel_diameter_mm": vehicle.wheel_diameter_m * 1e3,
         "odometer_diameter_error_pct": 0.0,
         "low_adhesion_probability": 0.0,
