@@ -121,3 +121,34 @@ def test_stop_bad_arguments(tmp_path: Path, args: tuple[str, ...], needle: str) 
     assert p.returncode == 2
     assert needle in p.stderr.replace("\n", "")
     assert "Traceback" not in p.stderr
+
+
+def _one_line_error(p: subprocess.CompletedProcess[str], *needles: str) -> None:
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), p.stderr
+    assert "Traceback" not in p.stderr
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def test_run_beyond_64_bits_is_one_line(tmp_path: Path) -> None:
+    p = run("stop", "--disturbances", "standard", "--run", str(2**63), "--no-db", cwd=tmp_path)
+    _one_line_error(p, "--run", str(2**63))
+
+
+def test_plot_with_no_image_extension_is_one_line(tmp_path: Path) -> None:
+    p = run("stop", "--plot", "x.txt", "--no-db", cwd=tmp_path)
+    _one_line_error(p, "x.txt", "'txt' is not supported")
+    assert not (tmp_path / "x.txt").exists()
+
+
+@pytest.mark.parametrize("content", [b"\xff\xfe garbage", b"[1, 2]", b"{not json"])
+def test_unreadable_campaign_manifest_is_one_line(tmp_path: Path, content: bytes) -> None:
+    folder = tmp_path / "c"
+    folder.mkdir()
+    (folder / "campaign.json").write_bytes(content)
+    db = tmp_path / "x.db"
+    p = run("campaign", "--out", str(folder), "--resume", "--runs", "10", "--db", str(db), cwd=tmp_path)
+    _one_line_error(p, "campaign.json", "manifest")
+    assert (folder / "campaign.json").read_bytes() == content  # nothing overwritten

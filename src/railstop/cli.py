@@ -147,6 +147,8 @@ def stop(
 
     if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
         fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
+    if run >= RUN_LIMIT:
+        fail(f"--run: a campaign run number is below 2^63 (got {run})")
     source = ctx.get_parameter_source("db")
     if no_db and source is not None and source.name == "COMMANDLINE":
         fail("--db and --no-db exclude each other")
@@ -395,6 +397,9 @@ SUMMARY_KEYS = (
     "mean_stop_time_s",
     "runs_per_s",
 )
+
+# Run numbers are 64-bit signed integers in the random streams and the Parquet rows.
+RUN_LIMIT = 2**63
 
 DisturbancesOpt = Annotated[str, typer.Option(help="Disturbance set: standard, nominal or a TOML file.")]
 WorkersOpt = Annotated[

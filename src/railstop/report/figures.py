@@ -17,4 +17,6 @@ def write_figure(fig: Figure, path: Path, dpi: int) -> Path:
         fig.savefig(path, dpi=dpi)
     except OSError as exc:
         raise RailstopError(f"{path}: cannot write the plot: {exc.strerror or exc}") from None
+    except ValueError as exc:  # matplotlib: a file name whose extension is no image format
+        raise RailstopError(f"{path}: cannot write the plot: {exc}".splitlines()[0].rstrip(",")) from None
     return path

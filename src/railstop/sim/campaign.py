@@ -224,10 +224,7 @@ def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> list[int]:
             raise RailstopError(
                 f"{out}: a campaign is already there; use --resume to continue it or choose another --out"
             )
-        try:
-            old = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise RailstopError(f"{path}: cannot read the campaign manifest: {exc}") from None
+        old = read_manifest(out)
         diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
         if diff:
             raise RailstopError(
@@ -351,11 +348,14 @@ def summarise(table: pa.Table) -> dict[str, Any]:
 def read_manifest(out: Path) -> dict[str, Any]:
     path = Path(out) / MANIFEST
     try:
-        return dict(json.loads(path.read_text(encoding="utf-8")))
+        data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise RailstopError(f"{out}: not a campaign directory (no {MANIFEST})") from None
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or not UTF-8 at all
         raise RailstopError(f"{path}: cannot read the campaign manifest: {exc}") from None
+    if not isinstance(data, dict):
+        raise RailstopError(f"{path}: the campaign manifest is not a JSON object")
+    return data
 
 
 def spec_from_manifest(manifest: dict[str, Any], line: Line, vehicle: Vehicle, source: str) -> CampaignSpec:
