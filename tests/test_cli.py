@@ -152,3 +152,21 @@ def test_unreadable_campaign_manifest_is_one_line(tmp_path: Path, content: bytes
     p = run("campaign", "--out", str(folder), "--resume", "--runs", "10", "--db", str(db), cwd=tmp_path)
     _one_line_error(p, "campaign.json", "manifest")
     assert (folder / "campaign.json").read_bytes() == content  # nothing overwritten
+
+
+def test_names_with_brackets_are_printed_literally(tmp_path: Path) -> None:
+    """User data is never rich markup: a station named "River[side]" or "[/]x" keeps its brackets."""
+    from importlib import resources
+
+    text = resources.files("railstop.data").joinpath("line.toml").read_text(encoding="utf-8")
+    for name in ("River[side]", "[/]x"):
+        line = tmp_path / "line.toml"
+        line.write_text(text.replace('name = "Riverside"', f'name = "{name}"', 1), encoding="utf-8")
+        p = run("check", "--line", str(line), cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        assert name in p.stdout
+        p = run("stop", "--line", str(line), "--station", name, "--no-db", cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        assert p.stdout.startswith(f"tasc-pwm at {name}: "), p.stdout
+        p = run("stop", "--line", str(line), "--station", name + "?", "--no-db", cwd=tmp_path)
+        _one_line_error(p, f"'{name}?'", name)

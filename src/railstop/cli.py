@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from railstop.cli_common import err, fail, out
+from railstop.cli_common import err, fail, out, styled
 from railstop.cli_doors import doors_app, dwell
 from railstop.cli_telegram import telegram_app
 
@@ -341,7 +341,7 @@ def demo(
                         st.name,
                         ctrl,
                         label,
-                        f"[{colour}]{err_m:+.3f}[/]",
+                        styled(f"{err_m:+.3f}", colour),
                         f"{result.stop_time_s}",
                         f"{result.max_jerk_mps3:.2f}",
                         str(result.notch_changes),
@@ -420,8 +420,9 @@ def _progress_bar(enabled: bool, label: str):
 
     if not enabled:
         return nullcontext(None)
+    literal = label.replace("{", "{{").replace("}", "}}")  # a format string, not markup
     return Progress(
-        TextColumn(label),
+        TextColumn(literal, markup=False),
         BarColumn(),
         MofNCompleteColumn(),
         TimeRemainingColumn(),
@@ -788,6 +789,7 @@ def certify(
 
 def _print_certificate(row: dict[str, Any]) -> None:
     from rich.table import Table
+    from rich.text import Text
 
     conf = f"{100 * row['confidence']:g} %"
     table = Table(
@@ -815,8 +817,12 @@ def _print_certificate(row: dict[str, Any]) -> None:
     ):
         table.add_row(key, value)
     out.print(table)
-    verdict, sign = ("[green]certified[/]", "<=") if row["certified"] else ("[red]not certified[/]", ">")
-    out.print(f"{verdict}: upper bound {row['upper_bound']:.2e} {sign} target {row['target']:.1e}")
+    verdict, sign = (
+        (styled("certified", "green"), "<=") if row["certified"] else (styled("not certified", "red"), ">")
+    )
+    out.print(
+        Text.assemble(verdict, f": upper bound {row['upper_bound']:.2e} {sign} target {row['target']:.1e}")
+    )
 
 
 @app.command()

@@ -7,14 +7,21 @@ from typing import NoReturn
 
 import typer
 from rich.console import Console
-from rich.markup import escape
+from rich.text import Text
 
+# Markup is off: names, traces and messages come from user data and are printed literally
+# (a station "[A]" stays "[A]"); styled output is built from rich Text objects (styled()).
 # Wide enough for the demo table when the output is a file or a pipe.
-out = Console(width=None if sys.stdout.isatty() else 160)
-err = Console(stderr=True)
+out = Console(width=None if sys.stdout.isatty() else 160, markup=False)
+err = Console(stderr=True, markup=False)
+
+
+def styled(text: str, style: str) -> Text:
+    """``text`` in ``style`` (e.g. "bold red"), never parsed as markup."""
+    return Text(text, style=style)
 
 
 def fail(message: str) -> NoReturn:
     """Print ``error: message`` (literally: brackets are not markup) and exit with code 2."""
-    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    err.print(Text.assemble(styled("error:", "bold red"), " ", message), highlight=False, soft_wrap=True)
     raise typer.Exit(2)

@@ -8,8 +8,9 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.text import Text
 
-from railstop.cli_common import fail, out
+from railstop.cli_common import fail, out, styled
 from railstop.errors import RailstopError
 
 doors_app = typer.Typer(
@@ -65,7 +66,7 @@ def table_cmd(
         when_open = r.open.value
         if r.open_manual is not None and r.open_manual != r.open:
             when_open += f" ({r.open_manual.value} in manual mode)"
-        closed = f"[bold green]{r.closed.value}[/]" if r.closed.value == "open" else r.closed.value
+        closed = styled(r.closed.value, "bold green") if r.closed.value == "open" else r.closed.value
         table.add_row(str(r.doa), str(r.dmc), str(r.doc), str(r.dcc), closed, when_open)
     out.print(table)
     out.print(
@@ -122,10 +123,12 @@ def verify_cmd(
         table.add_column("violations", justify="right")
         for inv in INVARIANTS:
             n = result.counts[inv.name]
-            table.add_row(inv.name, inv.text, f"[bold red]{n}[/]" if n else "0")
+            table.add_row(inv.name, inv.text, styled(str(n), "bold red") if n else "0")
         out.print(table)
         for v in result.examples:
-            out.print(f"[bold red]{v.invariant}[/]: {v.message}; trace:", highlight=False)
+            out.print(
+                Text.assemble(styled(v.invariant, "bold red"), f": {v.message}; trace:"), highlight=False
+            )
             for line in v.trace:
                 out.print(f"  {line}", highlight=False, soft_wrap=True)
         out.print(
