@@ -188,7 +188,13 @@ def test_two_processes_deliver_genuine_and_reject_threats(category: int, corrupt
     assert rx.returncode == 0, err
 
     sent = json.loads(tx.stdout.strip().splitlines()[-1])
-    assert sent == {"sent": n + replay + corrupt, "genuine": n, "replayed": replay, "corrupted": corrupt}
+    assert sent == {
+        "sent": n + replay + corrupt,
+        "genuine": n,
+        "replayed": replay,
+        "corrupted": corrupt,
+        "send_errors": 0,
+    }
     got = json.loads(out.strip().splitlines()[-1])
     assert got["complete"] is True
     assert got["datagrams"] == n + replay + corrupt
@@ -216,6 +222,18 @@ def test_cli_usage_errors() -> None:
         udp_cli("send", *base, "--key-hex", "not-hex"), capture_output=True, text=True, timeout=10
     )
     assert res.returncode == 2 and "hexadecimal" in res.stderr
+
+
+@pytest.mark.parametrize("command", ["send", "receive"])
+@pytest.mark.parametrize("port", ["0", "70000", "-1"])
+def test_a_port_outside_1_65535_is_one_line(command: str, port: str) -> None:
+    """Not a traceback and an exit code 0 with {"sent": 1}: one line naming the option, code 2."""
+    args = ["--port", port, "--count", "1", "--epoch", "0", "--key-hex", KEY_HEX]
+    res = subprocess.run(udp_cli(command, *args), capture_output=True, text=True, timeout=10)
+    assert res.returncode == 2
+    want = f"error: argument --port: a UDP port is 1..65535 (got '{port}')"
+    assert res.stderr.strip().splitlines() == [want]
+    assert res.stdout == ""
 
 
 def test_receiver_without_sender_gives_up_incomplete() -> None:

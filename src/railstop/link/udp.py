@@ -50,7 +50,7 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 from railstop.errors import RailstopError, TelegramError
 from railstop.link.channel import LinkError
@@ -285,8 +285,9 @@ async def run_sender(args: argparse.Namespace) -> dict[str, Any]:
                 injected["corrupted"] += 1
                 await asyncio.sleep(args.interval_s)
             i += 1
+        await asyncio.sleep(args.interval_s)  # let the socket report a refused last datagram
         stats = ep.stats
-    return {"sent": stats.sent, "genuine": len(sent), **injected}
+    return {"sent": stats.sent, "genuine": len(sent), **injected, "send_errors": stats.errors}
 
 
 async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
@@ -361,6 +362,21 @@ def _positive(text: str) -> float:
     return value
 
 
+def _port(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a UDP port is 1..65535 (got {text!r})")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with railstop's error form: one line ``error: ...``, exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def _non_negative_int(text: str) -> int:
     value = int(text)
     if value < 0:
@@ -369,14 +385,14 @@ def _non_negative_int(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="python -m railstop.link.udp",
         description="Send or receive safety-layer telegrams over UDP between two processes.",
     )
-    sub = parser.add_subparsers(dest="command", required=True)
-    common = argparse.ArgumentParser(add_help=False)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    common = _Parser(add_help=False)
     common.add_argument("--host", default="127.0.0.1", help="address (default: loopback)")
-    common.add_argument("--port", type=int, required=True, help="the receiver's UDP port")
+    common.add_argument("--port", type=_port, required=True, help="the receiver's UDP port (1..65535)")
     common.add_argument("--count", type=_non_negative_int, required=True, help="genuine telegrams")
     common.add_argument(
         "--category", type=int, choices=(1, 2, 3), default=3, help="EN 50159 category of the transmission"
@@ -419,7 +435,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "send":
             out = asyncio.run(run_sender(args))
-            ok = True
+            ok = out["send_errors"] == 0  # e.g. the receiver's port refused (ICMP unreachable)
         else:
             out = asyncio.run(run_receiver(args))
             ok = bool(out["complete"])
