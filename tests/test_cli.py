@@ -170,3 +170,47 @@ def test_names_with_brackets_are_printed_literally(tmp_path: Path) -> None:
         assert p.stdout.startswith(f"tasc-pwm at {name}: "), p.stdout
         p = run("stop", "--line", str(line), "--station", name + "?", "--no-db", cwd=tmp_path)
         _one_line_error(p, f"'{name}?'", name)
+
+
+@pytest.mark.parametrize("columns", [80, 120])
+def test_summary_tables_never_cut_a_number(tmp_path: Path, columns: int) -> None:
+    """At 80 or 120 columns the compare table shows every number whole (a vertical layout when
+    the one-line-per-controller table does not fit), never an ellipsis."""
+    import os
+
+    from railstop.cli import _fmt
+
+    out_dir = tmp_path / "cmp"
+    args = (
+        "compare",
+        "--runs",
+        "200",
+        "--chunk-size",
+        "100",
+        "--out",
+        str(out_dir),
+        "--db",
+        str(tmp_path / "c.db"),
+    )
+    first = run(*args, "--json", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    resumed = run(*args, "--resume", "--json", cwd=tmp_path)
+    rows = json.loads(resumed.stdout)["controllers"]
+    env = {**os.environ, "COLUMNS": str(columns)}
+    p = subprocess.run(
+        [*EXE, *args, "--resume"], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env
+    )
+    assert p.returncode == 0, p.stderr
+    assert "…" not in p.stdout
+    assert max(len(line) for line in p.stdout.splitlines()) <= columns
+    for row in rows:
+        assert row["controller"] in p.stdout
+        for key in (
+            "within_0_30",
+            "within_0_35",
+            "mean_m",
+            "p99_abs_m",
+            "overrun_0_35_ci95_upper",
+            "mean_stop_time_s",
+        ):
+            assert _fmt(key, row[key]) in p.stdout, (key, _fmt(key, row[key]))

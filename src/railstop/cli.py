@@ -29,7 +29,7 @@ from railstop.controllers import CONTROLLERS
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
-    from rich.table import Table
+    from rich.console import RenderableType
     from typer._click import Command, Context
 
     from railstop.config.schema import Line, Station, Vehicle
@@ -513,7 +513,12 @@ def _fmt(key: str, value: object) -> str:
     return str(value)
 
 
-def _summary_table(title: str, rows: list[dict[str, object]]) -> Table:
+def _summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
+    """The campaign summary: one line per controller when the terminal is wide enough, else one
+    small metric/value table per controller side by side; a number is never cut off."""
+    from rich.columns import Columns
+    from rich.console import Group
+    from rich.measure import Measurement
     from rich.table import Table
 
     cols = (
@@ -532,16 +537,27 @@ def _summary_table(title: str, rows: list[dict[str, object]]) -> Table:
         ("mean_stop_time_s", "time"),
         ("runs_per_s", "runs/s"),
     )
-    table = Table(
-        title=title,
-        caption="within bands: share of runs; errors in m (+ = overrun); P>+0.35 ≤: 95 % Clopper-Pearson "
-        "upper bound on the overrun probability; jerk99: p99 of max jerk m/s³; time: mean stop time s",
+    caption = (
+        "within bands: share of runs; errors in m (+ = overrun); P>+0.35 ≤: 95 % Clopper-Pearson "
+        "upper bound on the overrun probability; jerk99: p99 of max jerk m/s³; time: mean stop time s"
     )
+    table = Table(title=title, caption=caption)
     for key, label in cols:
         table.add_column(label, justify="left" if key == "controller" else "right", no_wrap=True)
     for row in rows:
         table.add_row(*(_fmt(k, row.get(k)) for k, _ in cols))
-    return table
+    natural = Measurement.get(out, out.options.update(max_width=100_000), table).maximum
+    if natural <= out.width:
+        return table
+    blocks = []
+    for row in rows:
+        block = Table(title=str(row.get("controller")), show_header=False)
+        block.add_column("metric", no_wrap=True)
+        block.add_column("value", justify="right", no_wrap=True)
+        for key, label in cols[1:]:
+            block.add_row(label, _fmt(key, row.get(key)))
+        blocks.append(block)
+    return Group(title, Columns(blocks), caption)
 
 
 @app.command()

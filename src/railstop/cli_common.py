@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import NoReturn
 
@@ -11,8 +12,8 @@ from rich.text import Text
 
 # Markup is off: names, traces and messages come from user data and are printed literally
 # (a station "[A]" stays "[A]"); styled output is built from rich Text objects (styled()).
-# Wide enough for the demo table when the output is a file or a pipe.
-out = Console(width=None if sys.stdout.isatty() else 160, markup=False)
+# Wide enough for the demo table when the output is a file or a pipe (unless COLUMNS says).
+out = Console(width=None if sys.stdout.isatty() or "COLUMNS" in os.environ else 160, markup=False)
 err = Console(stderr=True, markup=False)
 
 
