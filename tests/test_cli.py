@@ -214,3 +214,41 @@ def test_summary_tables_never_cut_a_number(tmp_path: Path, columns: int) -> None
             "mean_stop_time_s",
         ):
             assert _fmt(key, row[key]) in p.stdout, (key, _fmt(key, row[key]))
+
+
+def test_version(tmp_path: Path) -> None:
+    from railstop import __version__
+
+    p = run("--version", cwd=tmp_path)
+    assert p.returncode == 0 and p.stdout.strip() == f"railstop {__version__}"
+
+
+def test_run_without_its_disturbances_is_refused(tmp_path: Path) -> None:
+    """--run replays a campaign run; without --disturbances it used to be ignored silently."""
+    p = run("stop", "--run", "5", "--no-db", cwd=tmp_path)
+    _one_line_error(p, "--run 5", "--disturbances")
+
+
+def test_a_stop_that_never_stands_still_is_not_an_overrun(tmp_path: Path) -> None:
+    """Fail safe: a train still moving when the simulation ends has no stop error; the command says
+    so and exits 1 (text and JSON), never 'stop error +1608 m (overrun)' with exit 0."""
+    from importlib import resources
+
+    text = resources.files("railstop.data").joinpath("vehicle.toml").read_text(encoding="utf-8")
+    weak = tmp_path / "weak.toml"  # brakes a fiftieth of the embedded train's
+    weak.write_text(
+        text.replace(
+            "notch_decel_mps2 = [0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0]",
+            "notch_decel_mps2 = [0.003, 0.006, 0.009, 0.012, 0.015, 0.018, 0.02]",
+        )
+        .replace("pwm_decel_mps2 = [0.0, 0.0, 1.0, 1.0]", "pwm_decel_mps2 = [0.0, 0.0, 0.02, 0.02]")
+        .replace("emergency_decel_mps2 = 1.3", "emergency_decel_mps2 = 0.03"),
+        encoding="utf-8",
+    )
+    p = run("stop", "--vehicle", str(weak), "--no-db", cwd=tmp_path)
+    assert p.returncode == 1, p.stderr
+    assert "did NOT come to a stand" in p.stdout and "overrun" not in p.stdout
+    p = run("stop", "--vehicle", str(weak), "--no-db", "--json", cwd=tmp_path)
+    assert p.returncode == 1
+    row = json.loads(p.stdout)
+    assert row["stopped"] is False and row["stop_time_s"] is None

@@ -74,6 +74,25 @@ app = typer.Typer(
     no_args_is_help=True,
     help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
 )
+
+
+def _version(value: bool) -> None:
+    if value:
+        from railstop import __version__
+
+        print(f"railstop {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _main_options(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """railstop: precise station stopping for urban rail (ground TASC and its simulator)."""
+
+
 app.add_typer(doors_app, name="doors")
 app.command()(dwell)
 app.add_typer(telegram_app, name="telegram")
@@ -149,6 +168,8 @@ def stop(
         fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
     if run >= RUN_LIMIT:
         fail(f"--run: a campaign run number is below 2^63 (got {run})")
+    if run != 0 and disturbances is None:
+        fail(f"--run {run} replays a campaign run: give the campaign's --disturbances (and --seed)")
     source = ctx.get_parameter_source("db")
     if no_db and source is not None and source.name == "COMMANDLINE":
         fail("--db and --no-db exclude each other")
@@ -177,6 +198,8 @@ def stop(
         fail(str(exc))
     if as_json:
         print(json.dumps(result.summary()))
+        if not result.stopped:
+            raise typer.Exit(1)
         return
     what = (
         "onboard ATO, no TASC telegrams"
@@ -190,6 +213,18 @@ def stop(
         else f"run {result.run} of {result.disturbances!r} seed {result.seed} "
         f"(load {result.load_factor:.2f}, brake gain {result.brake_gain:.3f}): "
     )
+    if not result.stopped:
+        # Fail safe: a train still moving at the end of the simulated time has no stop error.
+        out.print(
+            f"{result.controller} at {result.station}: {drawn}the train did NOT come to a stand "
+            f"within the simulated time; its front was {result.stop_error_m:+.3f} m from the stopping "
+            f"point when the simulation ended, {what}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        if plot is not None:
+            out.print(f"plot: {plot}", highlight=False)
+        raise typer.Exit(1)
     out.print(
         f"{result.controller} at {result.station}: {drawn}stop error {result.stop_error_m:+.3f} m "
         f"({'overrun' if result.stop_error_m > 0 else 'short'}), "
