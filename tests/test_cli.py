@@ -252,3 +252,15 @@ def test_a_stop_that_never_stands_still_is_not_an_overrun(tmp_path: Path) -> Non
     assert p.returncode == 1
     row = json.loads(p.stdout)
     assert row["stopped"] is False and row["stop_time_s"] is None
+
+
+def test_plot_path_printed_is_the_file_written(tmp_path: Path) -> None:
+    """A name without extension gets .png, and the command prints that name; a folder is refused."""
+    p = run("stop", "--plot", "noext", "--no-db", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip().splitlines()[-1] == "plot: noext.png"
+    assert (tmp_path / "noext.png").stat().st_size > 10_000
+    (tmp_path / "adir").mkdir()
+    p = run("stop", "--plot", "adir", "--no-db", cwd=tmp_path)
+    _one_line_error(p, "adir", "is a folder")
+    assert not (tmp_path / "adir.png").exists()

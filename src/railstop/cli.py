@@ -193,7 +193,7 @@ def stop(
         if not no_db:
             _save(db, result)
         if plot is not None:
-            _plot(plot, result, batch, st)
+            plot = _plot(plot, result, batch, st)
     except RailstopError as exc:
         fail(str(exc))
     if as_json:
@@ -270,13 +270,13 @@ def _save(db: Path, result: StopResult) -> None:
         store.save_stop(record)
 
 
-def _plot(path: Path, result: StopResult, batch: BatchResult, station: Station) -> None:
+def _plot(path: Path, result: StopResult, batch: BatchResult, station: Station) -> Path:
     from railstop.report.plot import plot_stop
 
     if batch.trace is None:
         raise RailstopError("no trace was recorded")
     try:
-        plot_stop(
+        return plot_stop(
             batch.trace,
             run=0,
             station_name=station.name,

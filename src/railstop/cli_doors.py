@@ -234,7 +234,7 @@ def dwell(
         if plot is not None:
             from railstop.report.dwell_plot import plot_dwell
 
-            plot_dwell(result, plot)
+            plot = plot_dwell(result, plot)
     except RailstopError as exc:
         fail(str(exc))
     if as_json:

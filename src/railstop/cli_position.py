@@ -109,7 +109,7 @@ def position_run(
         if plot is not None:
             from railstop.report.position_plot import plot_position_run
 
-            plot_position_run(result, plot)
+            plot = plot_position_run(result, plot)
     except RailstopError as exc:
         fail(str(exc))
     if as_json:

@@ -120,7 +120,7 @@ def plot_dwell(result: DwellResult, path: str | Path) -> Path:
             fontsize=11,
             fontweight="bold",
         )
-        write_figure(fig, out, _DPI)
+        out = write_figure(fig, out, _DPI)
     finally:
         plt.close(fig)
     return out

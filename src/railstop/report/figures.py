@@ -11,8 +11,19 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
+def figure_path(path: str | Path) -> Path:
+    """The file a plot is written to: ``path``, with ``.png`` added when it has no extension; a
+    folder is a RailstopError (a plot needs a file name)."""
+    out = Path(path)
+    if out.is_dir():
+        raise RailstopError(f"{out}: is a folder; give the plot a file name, e.g. {out / 'plot.png'}")
+    return out if out.suffix else out.with_name(out.name + ".png")
+
+
 def write_figure(fig: Figure, path: Path, dpi: int) -> Path:
-    """Save ``fig`` to ``path``; an unwritable path is a RailstopError naming it."""
+    """Save ``fig`` to :func:`figure_path` of ``path`` and return that file; an unwritable path
+    is a RailstopError naming it."""
+    path = figure_path(path)
     try:
         fig.savefig(path, dpi=dpi)
     except OSError as exc:

@@ -83,7 +83,7 @@ def plot_stop(
         )
         _decel_panel(bottom, trace, run=run, passage_times_s=passage_times_s, commands=mine)
         fig.suptitle(title, fontsize=13, fontweight="bold")
-        write_figure(fig, out, _DPI)
+        out = write_figure(fig, out, _DPI)
     finally:
         # pyplot keeps every figure alive until closed; a campaign plots many.
         plt.close(fig)

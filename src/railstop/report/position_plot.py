@@ -109,7 +109,7 @@ def plot_position_run(result: PositionRunResult, path: str | Path, *, run: int =
             fontsize=12,
             fontweight="bold",
         )
-        write_figure(fig, out, _DPI)
+        out = write_figure(fig, out, _DPI)
     finally:
         plt.close(fig)
     return out
