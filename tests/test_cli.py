@@ -32,12 +32,7 @@ def test_check_bad_file_one_line_exit_2(tmp_path: Path) -> None:
         "doppler = { beyond_stop_m = 10.0 }\n"
     )
     p = run("check", "--line", str(bad), cwd=tmp_path)
-    assert p.returncode == 2
-    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, p.stderr
-    assert str(bad) in p.stderr.replace("\n", "")
-    assert "stations[0].tasc.detectors_before_stop_m" in p.stderr
-    assert "Traceback" not in p.stderr
+    _one_line_error(p, str(bad), "stations[0].tasc.detectors_before_stop_m")
 
 
 def test_check_unknown_key(tmp_path: Path) -> None:

@@ -791,8 +791,6 @@ def certify(
     from railstop.sim.certify import CertifyError, CertifySpec
     from railstop.sim.certify import certify as run_certify
 
-    if method not in ("is", "mc"):
-        fail(f"--method: must be is or mc (got {method!r})")
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)

@@ -380,35 +380,54 @@ def load_disturbances(spec: str | Path) -> DisturbanceSet:
 DEFAULT_LOW_ADHESION_LENGTH_M = Distribution(uniform=(30.0, 80.0))
 
 
-def _draw(dist: Distribution, streams: RunStreams, name: str) -> FloatArray:
-    base = counter_base(name)
-    n = streams.n
-    if dist.fixed is not None:
-        return np.full(n, float(dist.fixed))
+def quantile(dist: Distribution, u: FloatArray) -> FloatArray:
+    """The value of ``dist`` at quantile u (its inverse CDF; u uniform in [0, 1) gives the
+    distribution itself). A normal is clipped like a drawn one (:func:`clipped`)."""
     if dist.uniform is not None:
         lo, hi = dist.uniform
-        return lo + (hi - lo) * streams.uniform(Stream.DISTURBANCE, base)
+        return lo + (hi - lo) * u
     if dist.choice is not None:
         values = np.asarray(dist.choice, dtype=np.float64)
-        u = streams.uniform(Stream.DISTURBANCE, base)
-        idx = np.minimum((u * values.size).astype(np.int64), values.size - 1)
-        return values[idx]
-    assert dist.normal is not None
+        return values[np.minimum((u * values.size).astype(np.int64), values.size - 1)]
+    if dist.normal is not None:
+        from scipy.special import ndtri
+
+        mean, sd = dist.normal
+        with np.errstate(invalid="ignore"):
+            return clipped(dist, mean + sd * ndtri(u))  # u = 0 gives -inf: clipped
+    assert dist.fixed is not None  # exactly one kind is set (Distribution validates it)
+    return np.full(u.shape, float(dist.fixed))
+
+
+def clipped(dist: Distribution, x: FloatArray) -> FloatArray:
+    """``x`` clipped to the distribution's clip bounds, if it has them (clipped, not resampled)."""
+    return np.clip(x, dist.clip[0], dist.clip[1]) if dist.clip is not None else x
+
+
+def probability(dist: DisturbanceSet, name: str) -> float:
+    """The set's ``*_probability`` parameter ``name`` (0 when the set does not name it)."""
+    given = dist.params.get(name)
+    return float(given.fixed or 0.0) if given is not None else 0.0
+
+
+def _draw(dist: Distribution, streams: RunStreams, name: str) -> FloatArray:
+    base = counter_base(name)
+    if dist.fixed is not None:
+        return np.full(streams.n, float(dist.fixed))
+    if dist.normal is None:
+        return quantile(dist, streams.uniform(Stream.DISTURBANCE, base))
     mean, sd = dist.normal
     # normal(c) reads uniform counters 2c and 2c + 1: base and base + 1 (base is even).
-    x = mean + sd * streams.normal(Stream.DISTURBANCE, base + 1)
-    if dist.clip is not None:
-        x = np.clip(x, dist.clip[0], dist.clip[1])  # clipped, not resampled
-    return x
+    return clipped(dist, mean + sd * streams.normal(Stream.DISTURBANCE, base + 1))
 
 
 def _zone_means_permille(station: Station) -> tuple[float, float]:
     """The station's own mean gradient (permille) over the approach and the platform zones."""
-    a0, p0, p1 = _zones(station)
-    elev = station_gradient(station, 1).elevation_m(np.array([[a0, p0, p1]]))[0]
+    zones = _zones(station)
+    elev = station_gradient(station, 1).elevation_m(np.array([zones]))[0]
 
     def mean(i: int) -> float:
-        length = (a0, p0, p1)[i + 1] - (a0, p0, p1)[i]
+        length = zones[i + 1] - zones[i]
         return float((elev[i + 1] - elev[i]) / length * 1e3) if length > 0.0 else 0.0
 
     return mean(0), mean(1)
@@ -506,7 +525,7 @@ def draw_scenario(
     # Low adhesion: with probability p a run meets a patch of drawn mu and length
     # starting uniformly between the first detector and 10 m before the stop.
     if "low_adhesion_probability" in p:
-        prob = float(p["low_adhesion_probability"].fixed or 0.0)
+        prob = probability(dist, "low_adhesion_probability")
         values["low_adhesion_probability"] = np.full(n, prob)
         hit = streams.uniform(Stream.DISTURBANCE, counter_base("low_adhesion_probability")) < prob
     else:
@@ -577,5 +596,7 @@ __all__ = [
     "load_disturbances",
     "nominal_values",
     "patch_start_range",
+    "probability",
+    "quantile",
     "scenario_from_values",
 ]

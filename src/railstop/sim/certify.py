@@ -89,6 +89,8 @@ from railstop.config.disturbances import (
     DisturbanceSet,
     nominal_values,
     patch_start_range,
+    probability,
+    quantile,
     scenario_from_values,
 )
 from railstop.config.schema import Line, Vehicle
@@ -167,11 +169,6 @@ def _varies(dist: Distribution) -> bool:
     return False
 
 
-def _patch_probability(dist: DisturbanceSet) -> float:
-    p = dist.params.get("low_adhesion_probability")
-    return float(p.fixed or 0.0) if p is not None else 0.0
-
-
 def _patch_params(dist: DisturbanceSet) -> dict[str, Distribution]:
     """The patch's distributions: its adhesion (if the set names it; else the dry rail's, as in a
     campaign) and its length (the set's or the default)."""
@@ -185,7 +182,7 @@ def coordinates(dist: DisturbanceSet) -> tuple[tuple[Coordinate, ...], tuple[Til
     """The cube's coordinates and the tiltable in-run Bernoulli draws of a disturbance set."""
     even = tuple(np.linspace(0.0, 1.0, BINS + 1).tolist())
     coords: list[Coordinate] = []
-    patch_p = _patch_probability(dist)
+    patch_p = probability(dist, "low_adhesion_probability")
     patch_names = ("low_adhesion_mu", "low_adhesion_length_m")
     for name, d in dist.params.items():
         if name.endswith("_probability") or name in patch_names:
@@ -201,31 +198,10 @@ def coordinates(dist: DisturbanceSet) -> tuple[tuple[Coordinate, ...], tuple[Til
                 coords.append(Coordinate(name, even))
     tilts: list[Tilt] = []
     for name in ("sensor_miss_probability", "radio_loss_probability"):
-        given = dist.params.get(name)
-        p = float(given.fixed or 0.0) if given is not None else 0.0
+        p = probability(dist, name)
         if 0.0 < p < 1.0:
             tilts.append(Tilt(name, p))
     return tuple(coords), tuple(tilts)
-
-
-def _inverse_cdf(dist: Distribution, u: FloatArray) -> FloatArray:
-    """The value of ``dist`` at the quantile u (u uniform gives the distribution itself)."""
-    if dist.uniform is not None:
-        lo, hi = dist.uniform
-        return lo + (hi - lo) * u
-    if dist.choice is not None:
-        values = np.asarray(dist.choice, dtype=np.float64)
-        return values[np.minimum((u * values.size).astype(np.int64), values.size - 1)]
-    if dist.normal is not None:
-        from scipy.special import ndtri
-
-        mean, sd = dist.normal
-        with np.errstate(invalid="ignore"):
-            x = mean + sd * ndtri(u)  # u = 0 gives -inf: clipped below
-        assert dist.clip is not None  # a normal without clip is rejected when the set is read
-        return np.clip(x, dist.clip[0], dist.clip[1])
-    assert dist.fixed is not None
-    return np.full(u.shape, float(dist.fixed))
 
 
 # --------------------------------------------------------------------------- the proposal
@@ -360,8 +336,8 @@ def sample_block(
     middle = np.full(n, 0.5)
     for name, dist in {**params, **patch}.items():
         if not name.endswith("_probability"):
-            values[name] = _inverse_cdf(dist, middle)
-    patch_p = _patch_probability(spec.disturbances)
+            values[name] = quantile(dist, middle)
+    patch_p = probability(spec.disturbances, "low_adhesion_probability")
     hit = np.full(n, patch_p >= 1.0)
     start = np.full(n, math.nan)
     lo, hi = patch_start_range(station)
@@ -372,7 +348,7 @@ def sample_block(
             start = lo + (hi - lo) * u[:, j]
         else:
             dist = patch[c.name] if c.name in patch else params[c.name]
-            values[c.name] = _inverse_cdf(dist, u[:, j])
+            values[c.name] = quantile(dist, u[:, j])
     values[LOW_ADHESION] = hit
     values[LOW_ADHESION_START] = np.where(hit, start, np.inf)
     if "low_adhesion_probability" in params:
@@ -391,8 +367,10 @@ def sample_block(
         track=spec.line.track,
     )
     res, _, _ = run_kernel(model, scenario, seed=spec.seed, first_run=first)
-    columns = {"sensor_miss_probability": (RES_MISS_TRIALS, RES_MISSES)}
-    columns["radio_loss_probability"] = (RES_LOSS_TRIALS, RES_LOSSES)
+    columns = {
+        "sensor_miss_probability": (RES_MISS_TRIALS, RES_MISSES),
+        "radio_loss_probability": (RES_LOSS_TRIALS, RES_LOSSES),
+    }
     trials = np.zeros((n, len(proposal.tilts)))
     successes = np.zeros((n, len(proposal.tilts)))
     for i, (t, q) in enumerate(zip(proposal.tilts, proposal.q, strict=True)):

@@ -238,9 +238,9 @@ def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -
     sends = {int(c[-1]): i for i, c in enumerate(rec.commands)}
     attempts: dict[int, FloatArray] = {int(a[LA_STEP]): a for a in rec.attempts}
     delivered = {int(k) for k in rec.deliveries}
-    arrivals = {int(np.ceil((a[LA_ARRIVAL] - 1e-9) / dt_s)) for a in rec.attempts if not a[LA_LOST]}
     last = rec.trace.shape[0] - 1  # the step in which the train came to a stand
-    arrivals = {k for k in arrivals if k <= last}
+    arrival_steps = (int(np.ceil((a[LA_ARRIVAL] - 1e-9) / dt_s)) for a in rec.attempts if not a[LA_LOST])
+    arrivals = {k for k in arrival_steps if k <= last}
     pending: FloatArray | None = None
     for k in sorted(set(sends) | set(attempts) | delivered | arrivals):
         now = k * dt_s
