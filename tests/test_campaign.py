@@ -8,12 +8,14 @@ that several assertions need is computed once per test (or cached per module).
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +24,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+import railstop.sim.campaign as campaign_module
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import (
     LOW_ADHESION,
@@ -32,6 +35,7 @@ from railstop.config.disturbances import (
     nominal_values,
 )
 from railstop.config.schema import Line, Station, Vehicle
+from railstop.errors import RailstopError
 from railstop.sim.campaign import (
     CHUNK_DIR,
     RESULT_COLUMNS,
@@ -39,6 +43,7 @@ from railstop.sim.campaign import (
     SUMMARY_FILE,
     CampaignOutcome,
     CampaignSpec,
+    campaign_lock,
     run_campaign,
 )
 from railstop.sim.engine import CONTROLLERS
@@ -376,6 +381,61 @@ def test_killed_campaign_resumes_to_the_uninterrupted_result(
     assert rows[0]["runs"] == KILL_RUNS and rows[0]["summary"]["runs"] == KILL_RUNS
 
 
+@pytest.mark.parametrize(
+    ("sig", "code", "cause"),
+    [(signal.SIGTERM, 143, "terminated (SIGTERM)"), (signal.SIGINT, 130, "interrupted")],
+)
+def test_sigterm_or_ctrl_c_stops_cleanly_says_what_it_kept_and_resumes(
+    tmp_path: Path, sig: signal.Signals, code: int, cause: str
+) -> None:
+    """A signal mid-campaign (2 threads): exit 128 + signal soon, one line naming the chunks kept
+    and how to finish, no traceback; a non-terminal stderr got periodic status lines; --resume
+    finishes with exactly the missing runs."""
+    out = tmp_path / "camp"
+    runs, chunk = 24_000, 500
+    args = ("campaign", "--runs", str(runs), "--chunk-size", str(chunk), "--workers", "2")
+    args += ("--out", str(out), "--db", str(tmp_path / "c.db"), "--json")
+    log = tmp_path / "stderr.txt"
+    env = {**os.environ, "RAILSTOP_STATUS_S": "0.2"}
+    with log.open("w") as stderr:
+        proc = subprocess.Popen(
+            [*EXE, *args], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=stderr, env=env
+        )
+        try:
+            deadline = time.monotonic() + 120.0
+            while len(chunk_files(out)) < 3:
+                assert proc.poll() is None, f"ended (exit {proc.returncode}) before the signal"
+                assert time.monotonic() < deadline, "no 3 chunks within 120 s"
+                time.sleep(0.02)
+            proc.send_signal(sig)
+            t_signal = time.monotonic()
+            assert proc.wait(timeout=60) == code
+            stop_s = time.monotonic() - t_signal
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=60)
+    text = log.read_text()
+    assert "Traceback" not in text, text
+    assert stop_s < 15.0  # a running 500-run block finishes, the rest never starts
+    kept = len(chunk_files(out))
+    assert 3 <= kept < runs // chunk
+    last = [ln for ln in text.splitlines() if ln.strip()][-1]
+    assert last.startswith(f"{cause}: tasc-pwm at "), text
+    assert f": {kept} of {runs // chunk} chunks ({kept * chunk:,} of {runs:,} runs) kept in {out}" in last
+    assert "--resume" in last
+    status = [
+        ln for ln in text.splitlines() if re.match(r"railstop: tasc-pwm at \S+: [\d,]+/24,000 runs", ln)
+    ]
+    assert status, text
+    assert not (out / RUNS_FILE).exists()
+
+    resumed = json_object(run(*args, "--resume", cwd=tmp_path))
+    assert resumed["runs_simulated"] == runs - kept * chunk
+    rows = read_runs(out).column("run").to_pylist()
+    assert rows == list(range(runs))
+
+
 def test_existing_campaign_dir_needs_matching_resume(
     tmp_path: Path, line: Line, vehicle: Vehicle, standard: DisturbanceSet
 ) -> None:
@@ -399,6 +459,87 @@ def test_existing_campaign_dir_needs_matching_resume(
     # The same campaign resumes fine (so the refusals above are about the mismatch).
     ok = json_object(run(*base, "--seed", "1", "--resume", "--json", cwd=tmp_path))
     assert ok["runs"] == 2 and ok["runs_simulated"] == 0
+
+
+def test_resume_refuses_a_chunk_of_another_campaign_or_range(
+    tmp_path: Path, line: Line, vehicle: Vehicle, standard: DisturbanceSet
+) -> None:
+    """A chunk copied in from another seed, or renamed to another slot, is refused on --resume."""
+    base = ("campaign", "--runs", "6", "--chunk-size", "2", "--workers", "1", "--db", str(tmp_path / "c.db"))
+    mine, other = tmp_path / "mine", tmp_path / "other"
+    campaign(line, vehicle, mine, controller="tasc-pwm", runs=6, seed=1, disturbances=standard, chunk_size=2)
+    campaign(line, vehicle, other, controller="tasc-pwm", runs=6, seed=2, disturbances=standard, chunk_size=2)
+    before = read_runs(mine)
+    name = "chunk-000001.parquet"
+
+    # Another seed's chunk 1 in place of ours (the gap a kill left, filled by hand).
+    (mine / CHUNK_DIR / name).unlink()
+    (mine / CHUNK_DIR / name).write_bytes((other / CHUNK_DIR / name).read_bytes())
+    p = run(*base, "--seed", "1", "--out", str(mine), "--resume", "--json", cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    assert len(error_lines(p)) == 1, p.stderr
+    assert name in p.stderr and "belongs to campaign" in p.stderr and "Traceback" not in p.stderr
+
+    # Our own chunk 0 copied to slot 1: the right campaign, the wrong runs.
+    (mine / CHUNK_DIR / name).write_bytes((mine / CHUNK_DIR / "chunk-000000.parquet").read_bytes())
+    p = run(*base, "--seed", "1", "--out", str(mine), "--resume", "--json", cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    assert len(error_lines(p)) == 1, p.stderr
+    assert "holds runs 0-2" in p.stderr and "chunk 1 holds runs 2-4" in p.stderr
+
+    # Put back what the campaign wrote: it resumes to the same rows, nothing simulated.
+    (mine / CHUNK_DIR / name).unlink()
+    ok = json_object(run(*base, "--seed", "1", "--out", str(mine), "--resume", "--json", cwd=tmp_path))
+    assert ok["runs_simulated"] == 2
+    assert read_runs(mine).equals(before)
+
+
+def test_second_process_on_the_same_campaign_is_refused(tmp_path: Path) -> None:
+    out = tmp_path / "camp"
+    with campaign_lock(out):
+        p = run("campaign", "--runs", "2", "--out", str(out), "--db", str(tmp_path / "c.db"), cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    assert len(error_lines(p)) == 1, p.stderr
+    assert f"another railstop process {os.getpid()} is running this campaign" in p.stderr
+    assert not (out / "campaign.json").exists()  # the refused process wrote nothing
+    # The lock dies with its holder: the same command now runs.
+    p = run("campaign", "--runs", "2", "--out", str(out), "--db", str(tmp_path / "c.db"), cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+
+
+@pytest.mark.parametrize(("runs", "says"), [(10**12, "on disk"), (2**63, "64-bit run numbers")])
+def test_campaign_beyond_disk_memory_or_run_numbers_is_refused_at_once(
+    tmp_path: Path, runs: int, says: str
+) -> None:
+    """Nothing is built per chunk up front: the refusal comes before any work or memory growth."""
+    out = tmp_path / "big"
+    t0 = time.monotonic()
+    p = run("campaign", "--runs", str(runs), "--out", str(out), "--db", str(tmp_path / "c.db"), cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    assert len(error_lines(p)) == 1, p.stderr
+    assert says in p.stderr and "Traceback" not in p.stderr
+    assert time.monotonic() - t0 < 60.0
+    assert not out.exists()
+
+
+def test_campaign_whose_summary_exceeds_memory_is_refused(
+    tmp_path: Path, line: Line, vehicle: Vehicle, standard: DisturbanceSet, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On a machine of 1 GB, 10 million runs (1.2 GB of summary working set) are refused."""
+    monkeypatch.setattr(campaign_module, "_physical_memory", lambda: 10**9)
+    spec = CampaignSpec(
+        line=line,
+        vehicle=vehicle,
+        station=line.station(None).name,
+        controller="tasc-pwm",
+        runs=10**7,
+        seed=1,
+        disturbances=standard,
+    )
+    with pytest.raises(RailstopError, match=r"10,000,000 runs need about 1\.2 GB of memory.*has 1\.0 GB"):
+        run_campaign(spec, tmp_path / "big")
+    assert not (tmp_path / "big").exists()
+    campaign_module.check_capacity(replace(spec, runs=10**6), tmp_path / "big")  # 120 MB: fine
 
 
 # --------------------------------------------------------------------------

@@ -226,24 +226,17 @@ def test_run_without_its_disturbances_is_refused(tmp_path: Path) -> None:
 
 def test_a_stop_that_never_stands_still_is_not_an_overrun(tmp_path: Path) -> None:
     """Fail safe: a train still moving when the simulation ends has no stop error; the command says
-    so and exits 1 (text and JSON), never 'stop error +1608 m (overrun)' with exit 0."""
-    from importlib import resources
+    so and exits 1 (text and JSON), never 'stop error +1608 m (overrun)' with exit 0.
 
-    text = resources.files("railstop.data").joinpath("vehicle.toml").read_text(encoding="utf-8")
-    weak = tmp_path / "weak.toml"  # brakes a fiftieth of the embedded train's
-    weak.write_text(
-        text.replace(
-            "notch_decel_mps2 = [0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0]",
-            "notch_decel_mps2 = [0.003, 0.006, 0.009, 0.012, 0.015, 0.018, 0.02]",
-        )
-        .replace("pwm_decel_mps2 = [0.0, 0.0, 1.0, 1.0]", "pwm_decel_mps2 = [0.0, 0.0, 0.02, 0.02]")
-        .replace("emergency_decel_mps2 = 1.3", "emergency_decel_mps2 = 0.03"),
-        encoding="utf-8",
-    )
-    p = run("stop", "--vehicle", str(weak), "--no-db", cwd=tmp_path)
+    The line and vehicle are plausible; the run's brakes deliver a fiftieth of their nominal
+    deceleration (a disturbance set with brake_gain fixed at 0.02).
+    """
+    weak = tmp_path / "weak.toml"
+    weak.write_text('description = "failed brakes"\nbrake_gain = { fixed = 0.02 }\n', encoding="utf-8")
+    p = run("stop", "--disturbances", str(weak), "--no-db", cwd=tmp_path)
     assert p.returncode == 1, p.stderr
     assert "did NOT come to a stand" in p.stdout and "overrun" not in p.stdout
-    p = run("stop", "--vehicle", str(weak), "--no-db", "--json", cwd=tmp_path)
+    p = run("stop", "--disturbances", str(weak), "--no-db", "--json", cwd=tmp_path)
     assert p.returncode == 1
     row = json.loads(p.stdout)
     assert row["stopped"] is False and row["stop_time_s"] is None
@@ -259,3 +252,29 @@ def test_plot_path_printed_is_the_file_written(tmp_path: Path) -> None:
     p = run("stop", "--plot", "adir", "--no-db", cwd=tmp_path)
     _one_line_error(p, "adir", "is a folder")
     assert not (tmp_path / "adir.png").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "needles"),
+    [
+        (("campaign", "--runs", "0"), ("railstop campaign", "'--runs'", "greater than or equal to 1")),
+        (("campaign", "--no-such-option"), ("railstop campaign", "No such option: --no-such-option")),
+        (("campain",), ("No such command 'campain'", "Did you mean 'campaign'?")),
+        (("doors", "verify", "--doors-per-side", "x"), ("railstop doors verify", "'--doors-per-side'")),
+        (("stop", "--seed"), ("'--seed' requires an argument",)),
+    ],
+)
+def test_usage_errors_are_one_line_not_a_box(
+    tmp_path: Path, args: tuple[str, ...], needles: tuple[str, ...]
+) -> None:
+    """Option values the command line itself refuses: one line naming the command and the
+    option, exit 2, and where to look (not Typer's framed multi-line box)."""
+    p = run(*args, cwd=tmp_path)
+    _one_line_error(p, *needles, "--help)")
+    assert "╭" not in p.stderr and "│" not in p.stderr
+
+
+def test_railstop_alone_prints_the_help(tmp_path: Path) -> None:
+    p = run(cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "Usage: railstop" in p.stdout and "campaign" in p.stdout

@@ -13,15 +13,15 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from railstop.cli_common import err, fail, out, styled
+from railstop.cli_common import fail, out, print_error, styled
 from railstop.cli_doors import doors_app, dwell
+from railstop.cli_progress import Reporter, on_interrupt, run_program
 from railstop.cli_telegram import telegram_app
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
@@ -113,12 +113,19 @@ def _controller(name: str) -> str:
 def check(line: LineOpt = None, vehicle: VehicleOpt = None) -> None:
     """Validate a line file (and optionally a vehicle file)."""
     from railstop.config import load_line, load_vehicle
+    from railstop.config.loader import line_source
+    from railstop.config.plausibility import plausibility_problems
 
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
     except RailstopError as exc:
         fail(str(exc))
+    problems = plausibility_problems(ln, veh, line_source(line))
+    if problems:  # every one, a line each
+        for problem in problems[:-1]:
+            print_error(str(problem))
+        fail(str(problems[-1]))
     src = str(line) if line else "embedded default line"
     out.print(
         f"ok: {src}: line {ln.line.name!r}, {len(ln.stations)} stations "
@@ -158,10 +165,11 @@ def stop(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
-    from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.plausibility import load_checked
     from railstop.controllers import ATO_CONTROLLERS
     from railstop.sim.single import run_stop
+    from railstop.streams import RUN_LIMIT
     from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
 
     if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
@@ -174,8 +182,7 @@ def stop(
     if no_db and source is not None and source.name == "COMMANDLINE":
         fail("--db and --no-db exclude each other")
     try:
-        ln = load_line(line)
-        veh = load_vehicle(vehicle)
+        ln, veh = load_checked(line, vehicle)
         st = ln.station(station)
         dist = None if disturbances is None else load_disturbances(disturbances)
         result, batch = run_stop(
@@ -327,12 +334,11 @@ def demo(
     """Stop at every station with every controller, then compare the controllers on the standard set."""
     from rich.table import Table
 
-    from railstop.config import load_line, load_vehicle
+    from railstop.config.plausibility import load_checked
     from railstop.sim.single import run_stop
 
     try:
-        ln = load_line(line)
-        veh = load_vehicle(vehicle)
+        ln, veh = load_checked(line, vehicle)
         out_dir.mkdir(parents=True, exist_ok=True)
     except RailstopError as exc:
         fail(str(exc))
@@ -354,34 +360,39 @@ def demo(
             col, no_wrap=True, justify="left" if col in ("station", "controller", "case") else "right"
         )
     cases = (("nominal", 0.0, 1.0), ("crush, brake 0.85", 1.0, 0.85))
+    jobs = [(st, ctrl, case) for st in ln.stations for ctrl in CONTROLLERS for case in cases]
     try:
-        for st in ln.stations:
-            for ctrl in CONTROLLERS:
-                for label, lf, bg in cases:
-                    result, batch = run_stop(
-                        line=ln,
-                        station=st,
-                        vehicle=veh,
-                        controller=ctrl,
-                        seed=1,
-                        load_factor=lf,
-                        brake_gain=bg,
-                    )
-                    _save(db, result)
-                    if label == "nominal":
-                        _plot(out_dir / f"{st.name}-{ctrl}.png".lower(), result, batch, st)
-                    err_m = result.stop_error_m
-                    colour = "green" if abs(err_m) <= 0.10 else ("yellow" if abs(err_m) <= 0.35 else "red")
-                    table.add_row(
-                        st.name,
-                        ctrl,
-                        label,
-                        styled(f"{err_m:+.3f}", colour),
-                        f"{result.stop_time_s}",
-                        f"{result.max_jerk_mps3:.2f}",
-                        str(result.notch_changes),
-                        str(result.commands),
-                    )
+        with (
+            Reporter(f"demo: stops on {ln.line.name}", unit="stops") as status,
+            on_interrupt(lambda: f"the stops' plots and database rows so far are in {out_dir}"),
+        ):
+            status.update(0, len(jobs))
+            for done, (st, ctrl, (label, lf, bg)) in enumerate(jobs, 1):
+                result, batch = run_stop(
+                    line=ln,
+                    station=st,
+                    vehicle=veh,
+                    controller=ctrl,
+                    seed=1,
+                    load_factor=lf,
+                    brake_gain=bg,
+                )
+                _save(db, result)
+                if label == "nominal":
+                    _plot(out_dir / f"{st.name}-{ctrl}.png".lower(), result, batch, st)
+                err_m = result.stop_error_m
+                colour = "green" if abs(err_m) <= 0.10 else ("yellow" if abs(err_m) <= 0.35 else "red")
+                table.add_row(
+                    st.name,
+                    ctrl,
+                    label,
+                    styled(f"{err_m:+.3f}", colour),
+                    f"{result.stop_time_s}",
+                    f"{result.max_jerk_mps3:.2f}",
+                    str(result.notch_changes),
+                    str(result.commands),
+                )
+                status.update(done, len(jobs))
     except RailstopError as exc:
         fail(str(exc))
     out.print(table)
@@ -401,7 +412,6 @@ def demo(
             resume=False,
             chunk_size=-(-demo_runs // (os.cpu_count() or 1)),
             db=db,
-            show_progress=err.is_terminal,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -433,9 +443,6 @@ SUMMARY_KEYS = (
     "runs_per_s",
 )
 
-# Run numbers are 64-bit signed integers in the random streams and the Parquet rows.
-RUN_LIMIT = 2**63
-
 DisturbancesOpt = Annotated[str, typer.Option(help="Disturbance set: standard, nominal or a TOML file.")]
 WorkersOpt = Annotated[
     int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
@@ -445,25 +452,6 @@ SchedulerOpt = Annotated[
     typer.Option(help="Run the chunks on the Dask scheduler at this address (tcp://HOST:PORT)."),
 ]
 ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
-
-
-def _progress_bar(enabled: bool, label: str):
-    """A rich progress bar on a terminal; a no-op callback otherwise."""
-    from contextlib import nullcontext
-
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    if not enabled:
-        return nullcontext(None)
-    literal = label.replace("{", "{{").replace("}", "}}")  # a format string, not markup
-    return Progress(
-        TextColumn(literal, markup=False),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        console=err,
-        transient=True,
-    )
 
 
 def _run_one_campaign(
@@ -480,11 +468,10 @@ def _run_one_campaign(
     resume: bool,
     chunk_size: int,
     db: Path,
-    show_progress: bool,
     scheduler: str | None = None,
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
-    from railstop.sim.campaign import RUNS_FILE, CampaignSpec, run_campaign
+    from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
     from railstop.store import open_store
 
     spec = CampaignSpec(
@@ -498,15 +485,17 @@ def _run_one_campaign(
         chunk_size=chunk_size,
     )
     n_workers = workers or os.cpu_count() or 1
-    with _progress_bar(show_progress, f"{controller} at {spec.station}") as bar:
-        task = None if bar is None else bar.add_task("runs", total=runs)
 
-        def progress(done: int, total: int) -> None:
-            if bar is not None and task is not None:
-                bar.update(task, completed=done, total=total)
+    def kept() -> str:
+        chunks, kept_runs = finished_chunks(spec, out_dir)
+        return (
+            f"{controller} at {spec.station}: {chunks} of {spec.chunks} chunks ({kept_runs:,} of "
+            f"{spec.runs:,} runs) kept in {out_dir}; the same command with --resume finishes it"
+        )
 
+    with Reporter(f"{controller} at {spec.station}") as status, on_interrupt(kept):
         outcome = run_campaign(
-            spec, out_dir, workers=n_workers, resume=resume, progress=progress, scheduler=scheduler
+            spec, out_dir, workers=n_workers, resume=resume, progress=status.update, scheduler=scheduler
         )
     summary = dict(outcome.summary)
     with open_store(db) as store:
@@ -616,11 +605,10 @@ def campaign(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Monte Carlo campaign: many stops of one controller under a disturbance set."""
-    from railstop.config import load_line, load_vehicle
+    from railstop.config.plausibility import load_checked
 
     try:
-        ln = load_line(line)
-        veh = load_vehicle(vehicle)
+        ln, veh = load_checked(line, vehicle)
         st = ln.station(station)
         target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())
         row = _run_one_campaign(
@@ -636,7 +624,6 @@ def campaign(
             resume=resume,
             chunk_size=chunk_size,
             db=db,
-            show_progress=not as_json and err.is_terminal,
             scheduler=scheduler,
         )
     except RailstopError as exc:
@@ -666,7 +653,6 @@ def _compare(
     resume: bool,
     chunk_size: int,
     db: Path,
-    show_progress: bool,
 ) -> list[dict[str, object]]:
     """Every controller on identical draws (same seed, same disturbance set)."""
     return [
@@ -684,7 +670,6 @@ def _compare(
             resume=resume,
             chunk_size=chunk_size,
             db=db,
-            show_progress=show_progress,
         )
         for ctrl in CONTROLLERS
     ]
@@ -711,11 +696,10 @@ def compare(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Run every controller on identical disturbance draws and print one table."""
-    from railstop.config import load_line, load_vehicle
+    from railstop.config.plausibility import load_checked
 
     try:
-        ln = load_line(line)
-        veh = load_vehicle(vehicle)
+        ln, veh = load_checked(line, vehicle)
         st = ln.station(station)
         target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())
         rows = _compare(
@@ -731,7 +715,6 @@ def compare(
             resume=resume,
             chunk_size=chunk_size,
             db=db,
-            show_progress=not as_json and err.is_terminal,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -786,14 +769,13 @@ def certify(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Bound P(stop error > threshold) by importance sampling: estimate, interval, bound."""
-    from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.plausibility import load_checked
     from railstop.sim.certify import CertifyError, CertifySpec
     from railstop.sim.certify import certify as run_certify
 
     try:
-        ln = load_line(line)
-        veh = load_vehicle(vehicle)
+        ln, veh = load_checked(line, vehicle)
         spec = CertifySpec(
             line=ln,
             vehicle=veh,
@@ -803,15 +785,12 @@ def certify(
             threshold_m=threshold_m,
             seed=seed,
         )
-        with _progress_bar(not as_json and err.is_terminal, f"{controller} at {spec.station}") as bar:
-            tasks: dict[str, Any] = {}
+        label = f"certify {controller} at {spec.station}"
+        with Reporter(label) as status, on_interrupt(lambda: "certify keeps no partial result"):
 
             def progress(stage: str, done: int, total: int) -> None:
-                if bar is None:
-                    return
-                if stage not in tasks:
-                    tasks[stage] = bar.add_task(stage, total=total)
-                bar.update(tasks[stage], completed=done, total=total)
+                status.stage(f"{label}, {stage}")
+                status.update(done, total)
 
             result = run_certify(
                 spec,
@@ -902,11 +881,7 @@ def report(
 
 
 def main() -> None:
-    try:
-        app()
-    except KeyboardInterrupt:
-        err.print("interrupted (a campaign keeps its finished chunks: run it again with --resume)")
-        sys.exit(130)
+    run_program(app)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,12 @@ def styled(text: str, style: str) -> Text:
     return Text(text, style=style)
 
 
-def fail(message: str) -> NoReturn:
-    """Print ``error: message`` (literally: brackets are not markup) and exit with code 2."""
+def print_error(message: str) -> None:
+    """Print ``error: message`` on stderr, literally (brackets are not markup), on one line."""
     err.print(Text.assemble(styled("error:", "bold red"), " ", message), highlight=False, soft_wrap=True)
+
+
+def fail(message: str) -> NoReturn:
+    """Print ``error: message`` and exit with code 2."""
+    print_error(message)
     raise typer.Exit(2)

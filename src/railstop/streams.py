@@ -28,6 +28,9 @@ from numpy.typing import NDArray
 
 from railstop.jit import njit_inline
 
+#: Run numbers (and seeds) are signed 64-bit integers in the streams and the Parquet rows.
+RUN_LIMIT = 2**63
+
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)

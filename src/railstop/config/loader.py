@@ -82,6 +82,11 @@ def _data_text(name: str) -> tuple[str, dict[str, Any]]:
     return f"railstop/data/{name}", tomllib.loads(ref.read_text(encoding="utf-8"))
 
 
+def line_source(path: str | Path | None) -> str:
+    """How messages name a line file (``None``: the embedded default line)."""
+    return f"railstop/data/{DEFAULT_LINE}" if path is None else str(path)
+
+
 def load_line(path: str | Path | None = None) -> Line:
     """Load a line file; ``None`` gives the embedded default line."""
     if path is None:

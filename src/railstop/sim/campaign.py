@@ -11,9 +11,18 @@ the results do not depend on the chunk size or on the number of workers.
 
 Layout of ``DIR``:
     campaign.json     the manifest (what was asked; checked on resume)
-    chunks/           one Parquet file per finished chunk
+    chunks/           one Parquet file per finished chunk; its metadata names the
+                      campaign (the hash of the manifest) and the runs it holds,
+                      and ``--resume`` checks both before trusting it
     runs.parquet      every run, in run order (written when all chunks are done)
     summary.json      the summary statistics
+    .lock             held (``flock``) by the one process running the campaign
+
+A chunk is simulated in blocks of at most ``BLOCK_RUNS`` runs (for progress
+and load balance); blocks are never held beyond their chunk, and nothing is
+built per chunk up front, so the bookkeeping stays small however many runs
+are asked. What the disk and memory cannot hold is refused before any run
+(:func:`check_capacity`).
 """
 
 from __future__ import annotations
@@ -23,8 +32,9 @@ import functools
 import hashlib
 import json
 import os
+import shutil
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,21 +43,31 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from railstop.config.disturbances import DisturbanceSet, draw_scenario
+from railstop.config.disturbances import PARAMETERS, DisturbanceSet, draw_scenario
 from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
 from railstop.report.campaign_report import summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
 from railstop.sim.executor import execute
-from railstop.streams import RunStreams
+from railstop.streams import RUN_LIMIT, RunStreams
 from railstop.wayside.tasc_unit import SignalForm
 
 MANIFEST = "campaign.json"
 RUNS_FILE = "runs.parquet"
 SUMMARY_FILE = "summary.json"
 CHUNK_DIR = "chunks"
+LOCK_FILE = ".lock"
 DEFAULT_CHUNK = 10_000
-MANIFEST_VERSION = 1
+# Runs per block handed to a worker: small enough for a progress step of well under a second,
+# large enough that the per-call cost does not show (1,000-run blocks run as fast as 10,000).
+BLOCK_RUNS = 1_000
+# 2: chunks carry the campaign's identity and run range in their Parquet metadata.
+MANIFEST_VERSION = 2
+# Bytes per run of the summary's working set: five result columns (26 B) plus the
+# temporaries of the masks, the absolute errors and the percentile's partition copies.
+SUMMARY_BYTES_PER_RUN = 120
+# Bytes per value on disk, uncompressed: the chunks and runs.parquet each hold every column.
+DISK_BYTES_PER_VALUE = 8
 # The stop model's version: a campaign is resumed (and a run replayed) only by the model that
 # made it. 2: the compiled kernel, each run ending at its own stop (the lockstep array engine,
 # version 1, went on stepping stopped runs, so in continuous update its command counts
@@ -101,6 +121,10 @@ class CampaignSpec:
             "data_sha256": _data_hash(self.line, self.vehicle),
         }
 
+    def identity(self) -> str:
+        """The campaign's identity: the SHA-256 of its manifest (every chunk file carries it)."""
+        return manifest_identity(self.manifest())
+
     @property
     def chunks(self) -> int:
         return -(-self.runs // self.chunk_size)
@@ -108,6 +132,10 @@ class CampaignSpec:
     def chunk_range(self, k: int) -> tuple[int, int]:
         first = k * self.chunk_size
         return first, min(first + self.chunk_size, self.runs)
+
+
+def manifest_identity(manifest: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()
 
 
 def _data_hash(line: Line, vehicle: Vehicle) -> str:
@@ -187,12 +215,120 @@ def simulate_block(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
     return _chunk_table(first, result, drawn)
 
 
-def _write_chunk(out: Path, k: int, table: pa.Table) -> None:
-    """Write chunk k atomically (temporary file, then rename): a chunk file is whole or absent."""
+_META_CAMPAIGN = b"railstop.campaign"
+_META_RUNS = b"railstop.runs"
+
+
+def _write_chunk(spec: CampaignSpec, identity: str, out: Path, k: int, table: pa.Table) -> None:
+    """Write chunk k atomically (temporary file, then rename): a chunk file is whole or absent.
+
+    Its metadata says which campaign it belongs to and which runs it holds.
+    """
+    first, end = spec.chunk_range(k)
+    table = table.replace_schema_metadata({_META_CAMPAIGN: identity.encode(), _META_RUNS: f"{first}-{end}"})
     path = _chunk_path(out, k)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     pq.write_table(table, tmp)
     os.replace(tmp, path)
+
+
+def _verify_chunk(spec: CampaignSpec, identity: str, path: Path, k: int) -> None:
+    """A finished chunk found on --resume must be this campaign's chunk k, whole; else refuse."""
+    first, end = spec.chunk_range(k)
+    try:
+        meta = pq.read_metadata(path)
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise _unreadable(path, exc) from None
+    tags = meta.metadata or {}
+    owner = tags.get(_META_CAMPAIGN, b"").decode(errors="replace")
+    runs = tags.get(_META_RUNS, b"").decode(errors="replace")
+    if owner != identity:
+        what = f"campaign {owner[:12]}" if owner else "no campaign (written by an older railstop?)"
+        raise RailstopError(
+            f"{path}: this chunk belongs to {what}, not to the campaign in {path.parent.parent} "
+            f"({identity[:12]}); move it away and --resume"
+        )
+    if runs != f"{first}-{end}" or meta.num_rows != end - first:
+        raise RailstopError(
+            f"{path}: holds runs {runs or '?'} ({meta.num_rows} rows) where chunk {k} holds runs "
+            f"{first}-{end} ({end - first}); move it away and --resume"
+        )
+
+
+def _unreadable(path: Path, exc: Exception) -> RailstopError:
+    return RailstopError(f"{path}: cannot read a finished chunk ({exc}); move it away and --resume")
+
+
+@contextlib.contextmanager
+def campaign_lock(out: Path) -> Iterator[None]:
+    """Hold ``out/.lock`` for the duration: a second process on the same campaign is refused.
+
+    ``flock`` is released by the kernel when the process ends however it ends,
+    so a killed campaign never leaves a stale lock. The file keeps the holder's
+    PID for the message; it is not deleted (that would race with a new holder).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: no lock
+            yield
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            who = f"railstop process {holder}" if holder.isdigit() else "railstop process"
+            raise RailstopError(
+                f"{out}: another {who} is running this campaign; wait for it to end or stop it"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+def check_capacity(spec: CampaignSpec, out: Path) -> None:
+    """Refuse, before any run, a campaign whose files the disk cannot hold or whose summary
+    does not fit in memory (the estimates are upper bounds: the values are stored uncompressed)."""
+    if spec.seed < -RUN_LIMIT or spec.seed >= RUN_LIMIT:
+        raise RailstopError(f"--seed: {spec.seed} is outside the 64-bit range of the random streams")
+    if spec.runs >= RUN_LIMIT:
+        raise RailstopError(f"--runs: {spec.runs:,} is beyond the 64-bit run numbers (< 2^63)")
+    columns = len(RESULT_COLUMNS) + len(PARAMETERS) + 2  # the drawn values (draw_scenario)
+    need = 2 * spec.runs * columns * DISK_BYTES_PER_VALUE  # the chunks, then runs.parquet
+    place = out
+    while not place.exists() and place != place.parent:
+        place = place.parent
+    free = shutil.disk_usage(place).free
+    if need > free:
+        raise RailstopError(
+            f"--runs: {spec.runs:,} runs need up to {_size(need)} on disk ({columns} columns, "
+            f"chunks and runs.parquet); {place} has {_size(free)} free"
+        )
+    memory = _physical_memory()
+    if memory and spec.runs * SUMMARY_BYTES_PER_RUN > memory:
+        raise RailstopError(
+            f"--runs: {spec.runs:,} runs need about {_size(spec.runs * SUMMARY_BYTES_PER_RUN)} of memory "
+            f"for the summary; this machine has {_size(memory)} (run several campaigns with other seeds)"
+        )
+
+
+def _physical_memory() -> int:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if n < 1000 or unit == "PB":
+            return f"{n:,.0f} {unit}" if unit == "B" else f"{n:,.1f} {unit}"
+        n /= 1000
+    raise AssertionError("unreachable")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -207,8 +343,20 @@ class CampaignOutcome:
 Progress = Callable[[int, int], None]  # (runs done so far, runs in total)
 
 
-def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> list[int]:
-    """Check or write the manifest; return the chunks still to run."""
+def finished_chunks(spec: CampaignSpec, out: Path) -> tuple[int, int]:
+    """The chunk files in ``out`` now and the runs they hold (by name: for messages, unchecked)."""
+    chunks = runs = 0
+    with contextlib.suppress(OSError), os.scandir(Path(out) / CHUNK_DIR) as entries:
+        for entry in entries:
+            name = entry.name
+            if name.startswith("chunk-") and name.endswith(".parquet") and name[6:-8].isdigit():
+                first, end = spec.chunk_range(int(name[6:-8]))
+                chunks += 1
+                runs += max(end - first, 0)
+    return chunks, runs
+
+
+def _check_spec(spec: CampaignSpec) -> None:
     if spec.controller not in CONTROLLERS:
         raise RailstopError(
             f"--controller: unknown controller {spec.controller!r}; choose one of: {', '.join(CONTROLLERS)}"
@@ -217,7 +365,15 @@ def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> list[int]:
         raise RailstopError(
             f"--runs and the chunk size must be at least 1 (got {spec.runs}, {spec.chunk_size})"
         )
+
+
+def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> set[int]:
+    """Check or write the manifest and the chunks already there; return the finished chunks.
+
+    The caller holds the folder's lock.
+    """
     manifest = spec.manifest()
+    identity = manifest_identity(manifest)
     path = out / MANIFEST
     if path.exists():
         if not resume:
@@ -230,52 +386,76 @@ def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> list[int]:
             raise RailstopError(
                 f"{path}: --resume asks for a different campaign (differs in: {', '.join(diff)})"
             )
-    elif resume and out.exists() and any(out.iterdir()):
+    elif resume and any(p.name != LOCK_FILE for p in out.iterdir()):
         raise RailstopError(f"{out}: --resume but no {MANIFEST} there")
-    (out / CHUNK_DIR).mkdir(parents=True, exist_ok=True)
+    chunk_dir = out / CHUNK_DIR
+    chunk_dir.mkdir(parents=True, exist_ok=True)
     if not path.exists():
         tmp = path.with_name(f".{MANIFEST}.tmp")
         tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True), encoding="utf-8")
         os.replace(tmp, path)
-    for stale in (out / CHUNK_DIR).glob(".*.tmp"):  # a chunk killed while writing
-        stale.unlink(missing_ok=True)
-    return [k for k in range(spec.chunks) if not _chunk_path(out, k).exists()]
+    finished: set[int] = set()
+    with os.scandir(chunk_dir) as entries:
+        for entry in entries:
+            name = entry.name
+            if name.startswith(".") and name.endswith(".tmp"):  # a chunk killed while being written
+                Path(entry.path).unlink(missing_ok=True)
+            elif name.startswith("chunk-") and name.endswith(".parquet") and name[6:-8].isdigit():
+                k = int(name[6:-8])
+                if k >= spec.chunks:
+                    raise RailstopError(
+                        f"{entry.path}: chunk {k} is beyond this campaign's {spec.chunks} chunks; "
+                        "move it away and --resume"
+                    )
+                _verify_chunk(spec, identity, Path(entry.path), k)
+                finished.add(k)
+    return finished
 
 
 def _executed(
-    spec: CampaignSpec, out: Path, todo: list[int], workers: int, scheduler: str | None
+    spec: CampaignSpec, out: Path, finished: set[int], workers: int, scheduler: str | None
 ) -> Iterator[int]:
-    """Run the chunks in ``todo`` where the executor says; write each as it arrives, yield its run count.
+    """Run the chunks not ``finished`` where the executor says; write each as it arrives;
+    yield the run count of every block as it comes back.
 
     Interrupted (Ctrl-C, a kill, a failed chunk): the chunks not yet written
     are abandoned (their files are written atomically, so none is half
     there); every finished one stays.
     """
-    blocks = _blocks(spec, todo, 1 if scheduler else workers)
-    parts: dict[int, dict[int, pa.Table]] = {k: {} for k in todo}
-    expected = {k: sum(1 for b in blocks if b[0] == k) for k in todo}
+    identity = spec.identity()
+    todo = (k for k in range(spec.chunks) if k not in finished)
+    parts: dict[int, dict[int, pa.Table]] = {}
     with contextlib.closing(
-        execute(functools.partial(simulate_block, spec), blocks, workers=workers, scheduler=scheduler)
+        execute(
+            functools.partial(simulate_block, spec),
+            _blocks(spec, todo, spec.chunks - len(finished), 1 if scheduler else workers),
+            workers=workers,
+            scheduler=scheduler,
+        )
     ) as results:
         for (k, first, _), table in results:
-            parts[k][first] = table
-            if len(parts[k]) == expected[k]:
-                _write_chunk(out, k, pa.concat_tables([parts[k][a] for a in sorted(parts[k])]))
+            got = parts.setdefault(k, {})
+            got[first] = table
+            lo, hi = spec.chunk_range(k)
+            if sum(t.num_rows for t in got.values()) == hi - lo:
+                _write_chunk(spec, identity, out, k, pa.concat_tables([got[a] for a in sorted(got)]))
                 del parts[k]
             yield table.num_rows
 
 
-def _blocks(spec: CampaignSpec, todo: list[int], workers: int) -> list[tuple[int, int, int]]:
-    """The blocks (chunk, first run, end) to simulate: whole chunks, or when there are fewer
-    chunks than workers each chunk cut into as many blocks as keep every worker busy (a run's
-    result does not depend on its block, so the chunk files are the same)."""
-    split = max(1, -(-workers // max(len(todo), 1)))
-    blocks: list[tuple[int, int, int]] = []
+def _blocks(
+    spec: CampaignSpec, todo: Iterable[int], n_todo: int, workers: int
+) -> Iterator[tuple[int, int, int]]:
+    """The blocks (chunk, first run, end) to simulate, lazily: each chunk cut into blocks of at
+    most ``BLOCK_RUNS`` runs, and into more when there are fewer chunks than workers so that
+    every worker is busy (a run's result does not depend on its block, so the chunk files are
+    the same)."""
+    split = max(1, -(-workers // max(n_todo, 1)))
     for k in todo:
         first, end = spec.chunk_range(k)
-        size = -(-(end - first) // split)
-        blocks.extend((k, a, min(a + size, end)) for a in range(first, end, size))
-    return blocks
+        size = max(1, min(BLOCK_RUNS, -(-(end - first) // split)))
+        for a in range(first, end, size):
+            yield k, a, min(a + size, end)
 
 
 def run_campaign(
@@ -293,44 +473,52 @@ def run_campaign(
     ``scheduler``: the address of a Dask scheduler to run the chunks on instead.
     """
     out = Path(out)
-    todo = _prepare(spec, out, resume)
-    done_runs = spec.runs - sum(spec.chunk_range(k)[1] - spec.chunk_range(k)[0] for k in todo)
-    if progress:
-        progress(done_runs, spec.runs)
-    t0 = time.perf_counter()
-    simulated = 0
-    for n in _executed(spec, out, todo, workers, scheduler):
-        simulated += n
+    _check_spec(spec)
+    check_capacity(spec, out)
+    with campaign_lock(out):
+        finished = _prepare(spec, out, resume)
+        done_runs = sum(spec.chunk_range(k)[1] - spec.chunk_range(k)[0] for k in finished)
         if progress:
-            progress(done_runs + simulated, spec.runs)
-    elapsed = time.perf_counter() - t0
-    table = merge_chunks(spec, out)
-    summary = summarise(table)
-    summary["runs_per_s"] = round(simulated / elapsed, 1) if simulated and elapsed > 0 else None
-    tmp = out / f".{SUMMARY_FILE}.tmp"
-    tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
-    os.replace(tmp, out / SUMMARY_FILE)
+            progress(done_runs, spec.runs)
+        t0 = time.perf_counter()
+        simulated = 0
+        for n in _executed(spec, out, finished, workers, scheduler):
+            simulated += n
+            if progress:
+                progress(done_runs + simulated, spec.runs)
+        elapsed = time.perf_counter() - t0
+        merge_chunks(spec, out)
+        summary = summarise(pq.read_table(out / RUNS_FILE, columns=list(SUMMARY_COLUMNS)))
+        summary["runs_per_s"] = round(simulated / elapsed, 1) if simulated and elapsed > 0 else None
+        tmp = out / f".{SUMMARY_FILE}.tmp"
+        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
+        os.replace(tmp, out / SUMMARY_FILE)
     return CampaignOutcome(
         out=out, manifest=spec.manifest(), summary=summary, runs_simulated=simulated, elapsed_s=elapsed
     )
 
 
-def merge_chunks(spec: CampaignSpec, out: Path) -> pa.Table:
-    """Concatenate the chunk files in run order into ``runs.parquet``."""
-    tables = []
-    for k in range(spec.chunks):
-        path = _chunk_path(out, k)
-        try:
-            tables.append(pq.read_table(path))
-        except (OSError, pa.ArrowInvalid) as exc:
-            raise RailstopError(
-                f"{path}: cannot read a finished chunk ({exc}); delete it and --resume"
-            ) from None
-    table = pa.concat_tables(tables)
+SUMMARY_COLUMNS = ("stop_error_m", "max_jerk_mps3", "stop_time_s", "stopped", "slid")
+
+
+def merge_chunks(spec: CampaignSpec, out: Path) -> None:
+    """Write the chunk files in run order into ``runs.parquet``, one chunk in memory at a time."""
     tmp = out / f".{RUNS_FILE}.tmp"
-    pq.write_table(table, tmp)
+    writer: pq.ParquetWriter | None = None
+    try:
+        for k in range(spec.chunks):
+            path = _chunk_path(out, k)
+            try:
+                table = pq.read_table(path).replace_schema_metadata(None)
+            except (OSError, pa.ArrowInvalid) as exc:
+                raise _unreadable(path, exc) from None
+            if writer is None:
+                writer = pq.ParquetWriter(tmp, table.schema)
+            writer.write_table(table)
+    finally:
+        if writer is not None:
+            writer.close()
     os.replace(tmp, out / RUNS_FILE)
-    return table
 
 
 def summarise(table: pa.Table) -> dict[str, Any]:

@@ -1,0 +1,149 @@
+"""Engineering plausibility of a line with a vehicle: checks the schema cannot make alone.
+
+The schema checks each file on its own (types, ranges, order). A line can pass
+it and still be one no train can use; these checks catch that before a stop is
+simulated, each as a :class:`~railstop.errors.ConfigError` naming the line
+file, the field and its value:
+
+- every TASC detector, the Doppler radar and the start of the approach lie on
+  the line (chainage 0 .. the line's length or the end of its track circuits)
+  and after the previous station's stopping point (a zone cannot reach back
+  through another station's stop);
+- the entry speed of every TASC zone is at most the line's speed limit;
+- the zone is long enough: a train entering at the entry speed can stop
+  before the stopping point from the first detector, braking at
+  ``BRAKE_MARGIN`` of full service after the brake's dead time and build-up,
+  on the steepest downhill of the zone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from railstop.config.disturbances import APPROACH_BEFORE_FIRST_DETECTOR_M
+from railstop.config.loader import line_source, load_line, load_vehicle
+from railstop.config.schema import Line, Station, Vehicle
+from railstop.errors import ConfigError, RailstopError
+
+G_MPS2 = 9.80665
+# [interpretation] SPEC §1 has the wayside compute the braking the train needs from the first
+# detector on; "with margin" is taken as: the stop must be reachable at 80 % of full service,
+# the weak end of the standard disturbance set's brake gain (0.8), so that a train with weak
+# brakes still has full service in reserve.
+BRAKE_MARGIN = 0.8
+
+
+def _line_end(line: Line) -> float | None:
+    ends = [e for e in (line.line.length_m, line.track.end_m) if e is not None]
+    return min(ends) if ends else None
+
+
+def _worst_permille(station: Station, start_m: float, end_m: float) -> float:
+    """The steepest downhill (most negative permille, R direction) over [start_m, end_m]; 0 if level."""
+    worst = 0.0
+    for seg in station.gradient:
+        if seg.end_m > start_m and seg.start_m < end_m:
+            worst = min(worst, seg.permille)
+    return worst
+
+
+def stopping_distance_m(station: Station, vehicle: Vehicle, speed_kmh: float) -> float:
+    """From the first detector at ``speed_kmh``: dead time and build-up at speed, then braking at
+    ``BRAKE_MARGIN`` of full service less the zone's steepest downhill (inf if that cannot stop)."""
+    v = speed_kmh / 3.6
+    brake = vehicle.brake
+    first = station.detector_positions_m()[0]
+    grade = _worst_permille(station, first, station.stop_point_m)
+    decel = BRAKE_MARGIN * brake.full_service_mps2 + G_MPS2 * grade / 1000.0
+    if decel <= 0.0:
+        return float("inf")
+    return v * (brake.dead_time_s + brake.time_constant_s) + v * v / (2.0 * decel)
+
+
+def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[ConfigError]:
+    """Every problem found, in station order (empty: the line is usable with this vehicle)."""
+    problems: list[ConfigError] = []
+    end = _line_end(line)
+    on_line = f"0 .. {end:g} m" if end is not None else "chainage >= 0 m"
+    limit = line.line.speed_limit_kmh
+    for i, st in enumerate(line.stations):
+        where = f"stations[{i}].tasc"
+        zone = st.tasc
+        previous_stop = line.stations[i - 1].stop_point_m if i > 0 else None
+        for j, (d, x) in enumerate(zip(zone.detectors_before_stop_m, st.detector_positions_m(), strict=True)):
+            field = f"{where}.detectors_before_stop_m[{j}]"
+            if x < 0.0 or (end is not None and x > end):
+                problems.append(
+                    ConfigError(source, field, f"puts the detector at {x:g} m, off the line ({on_line})", d)
+                )
+            elif previous_stop is not None and x <= previous_stop:
+                problems.append(
+                    ConfigError(
+                        source,
+                        field,
+                        f"puts the detector at {x:g} m, at or before the stopping point of "
+                        f"{line.stations[i - 1].name!r} ({previous_stop:g} m)",
+                        d,
+                    )
+                )
+        approach = st.detector_positions_m()[0] - APPROACH_BEFORE_FIRST_DETECTOR_M
+        if approach < 0.0 and st.detector_positions_m()[0] >= 0.0:
+            problems.append(
+                ConfigError(
+                    source,
+                    f"{where}.detectors_before_stop_m[0]",
+                    f"the approach starts {APPROACH_BEFORE_FIRST_DETECTOR_M:g} m before the first detector, "
+                    f"at {approach:g} m, off the line ({on_line})",
+                    zone.detectors_before_stop_m[0],
+                )
+            )
+        if zone.doppler is not None and end is not None:
+            radar = st.stop_point_m + zone.doppler.beyond_stop_m
+            if radar > end:
+                problems.append(
+                    ConfigError(
+                        source,
+                        f"{where}.doppler.beyond_stop_m",
+                        f"puts the radar at {radar:g} m, off the line ({on_line})",
+                        zone.doppler.beyond_stop_m,
+                    )
+                )
+        if zone.entry_speed_kmh > limit:
+            problems.append(
+                ConfigError(
+                    source,
+                    f"{where}.entry_speed_kmh",
+                    f"above the line's speed limit line.speed_limit_kmh = {limit:g} km/h",
+                    zone.entry_speed_kmh,
+                )
+            )
+        need = stopping_distance_m(st, vehicle, zone.entry_speed_kmh)
+        first = zone.detectors_before_stop_m[0]
+        if need > first:
+            grade = _worst_permille(st, st.detector_positions_m()[0], st.stop_point_m)
+            problems.append(
+                ConfigError(
+                    source,
+                    f"{where}.detectors_before_stop_m[0]",
+                    f"the zone of {st.name!r} is too short: from {zone.entry_speed_kmh:g} km/h "
+                    f"{vehicle.name!r} needs {need:.0f} m at {BRAKE_MARGIN:.0%} of full service "
+                    f"({vehicle.brake.full_service_mps2:g} m/s²) on its steepest downhill ({grade:g} ‰)",
+                    first,
+                )
+            )
+    return problems
+
+
+def load_checked(line: str | Path | None, vehicle: str | Path | None) -> tuple[Line, Vehicle]:
+    """Load the line and vehicle files (None: the embedded ones) and check them together.
+
+    Raises the first problem (one line, saying how many more ``railstop check`` lists).
+    """
+    ln = load_line(line)
+    veh = load_vehicle(vehicle)
+    problems = plausibility_problems(ln, veh, line_source(line))
+    if len(problems) == 1:
+        raise problems[0]
+    if problems:
+        raise RailstopError(f"{problems[0]}; {len(problems) - 1} more: `railstop check` lists them")
+    return ln, veh

@@ -1,0 +1,173 @@
+"""Engineering plausibility of a line with a vehicle (``railstop.config.plausibility``)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from railstop.config import load_line, load_vehicle
+from railstop.config.loader import validate
+from railstop.config.plausibility import BRAKE_MARGIN, plausibility_problems, stopping_distance_m
+from railstop.config.schema import Line
+from railstop.sim.single import run_stop
+
+EXE = [sys.executable, "-m", "railstop.cli"]
+LINE_TOML = Path(__file__).resolve().parents[1] / "src" / "railstop" / "data" / "line.toml"
+
+
+def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+
+
+def line_data() -> dict[str, Any]:
+    return tomllib.loads(LINE_TOML.read_text(encoding="utf-8"))
+
+
+def write_line(tmp_path: Path, data: dict[str, Any]) -> Path:
+    """The line as TOML (tomllib reads, a tiny writer for this file's shapes writes)."""
+
+    def value(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
+        return repr(v)
+
+    lines = ["[line]", *(f"{k} = {value(v)}" for k, v in data["line"].items())]
+    for st in data["stations"]:
+        lines.append("[[stations]]")
+        lines += [f"{k} = {value(v)}" for k, v in st.items()]
+    lines.append("[track]")
+    lines += [f"{k} = {value(v)}" for k, v in data["track"].items()]
+    path = tmp_path / "line.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def as_line(data: dict[str, Any]) -> Line:
+    return validate(Line, data, "test")
+
+
+def fields(problems: list[Any]) -> list[str]:
+    return [p.field for p in problems]
+
+
+def test_the_embedded_line_is_plausible() -> None:
+    assert plausibility_problems(load_line(None), load_vehicle(None), "x") == []
+
+
+def test_a_detector_off_the_line_is_named_with_its_value() -> None:
+    data = line_data()
+    data["stations"][0]["tasc"]["detectors_before_stop_m"][0] = 1300.0  # Riverside stops at 1200 m
+    problems = plausibility_problems(as_line(data), load_vehicle(None), "line.toml")
+    assert fields(problems) == ["stations[0].tasc.detectors_before_stop_m[0]"]
+    assert "at -100 m, off the line (0 .. 5800 m)" in str(problems[0])
+    assert "(got 1300.0)" in str(problems[0])
+
+
+def test_a_zone_reaching_back_past_the_previous_stop_and_a_radar_off_the_end() -> None:
+    data = line_data()
+    # Hillcrest stops at 2650 m; a detector 1500 m before it is at 1150 m, before Riverside's 1200 m.
+    data["stations"][1]["tasc"]["detectors_before_stop_m"][0] = 1500.0
+    data["stations"][3]["tasc"]["doppler"]["beyond_stop_m"] = 250.0  # Harbour 5600 + 250 > 5800
+    problems = plausibility_problems(as_line(data), load_vehicle(None), "line.toml")
+    assert fields(problems) == [
+        "stations[1].tasc.detectors_before_stop_m[0]",
+        "stations[3].tasc.doppler.beyond_stop_m",
+    ]
+    assert "at or before the stopping point of 'Riverside' (1200 m)" in str(problems[0])
+    assert "puts the radar at 5850 m, off the line" in str(problems[1])
+
+
+def test_the_approach_must_start_on_the_line() -> None:
+    data = line_data()
+    data["stations"][0]["stop_point_m"] = 400.0  # first detector at 70 m, approach from -80 m
+    data["stations"][0]["gradient"] = []
+    problems = plausibility_problems(as_line(data), load_vehicle(None), "line.toml")
+    assert fields(problems) == ["stations[0].tasc.detectors_before_stop_m[0]"]
+    assert "the approach starts 150 m before the first detector, at -80 m" in str(problems[0])
+
+
+def test_entry_speed_above_the_line_limit() -> None:
+    data = line_data()
+    data["line"]["speed_limit_kmh"] = 58.0  # Riverside and Hillcrest enter at 60, Museum at 65
+    problems = plausibility_problems(as_line(data), load_vehicle(None), "line.toml")
+    assert fields(problems) == [f"stations[{i}].tasc.entry_speed_kmh" for i in (0, 1, 2)]
+    assert "above the line's speed limit line.speed_limit_kmh = 58 km/h (got 60.0)" in str(problems[0])
+
+
+def test_the_stopping_distance_is_the_kinematics_of_the_margin_braking() -> None:
+    """Level zone: v·(dead time + build-up) + v²/(2·0.8·full service); a downhill lengthens it."""
+    line, vehicle = load_line(None), load_vehicle(None)
+    st = line.station("Riverside")  # level
+    v = 60.0 / 3.6
+    brake = vehicle.brake
+    expected = v * (brake.dead_time_s + brake.time_constant_s) + v * v / (
+        2 * BRAKE_MARGIN * brake.full_service_mps2
+    )
+    assert stopping_distance_m(st, vehicle, 60.0) == pytest.approx(expected, rel=1e-12)
+    hill = line.station("Hillcrest")  # -15 permille in its zone
+    assert stopping_distance_m(hill, vehicle, 60.0) > expected
+
+
+def test_a_zone_flagged_too_short_overruns_and_one_passed_stops() -> None:
+    """The check means what it says: the stop from a flagged zone overruns the PSD tolerance by
+    far, and the same station with its zone just long enough stops within it."""
+    vehicle = load_vehicle(None)
+    data = line_data()
+    harbour = data["stations"][3]
+    need = stopping_distance_m(as_line(data).stations[3], vehicle, harbour["tasc"]["entry_speed_kmh"])
+    harbour["tasc"]["detectors_before_stop_m"] = [0.6 * need, 0.45 * need, 0.3 * need, 0.15 * need, 6.0]
+    short = as_line(data)
+    problems = plausibility_problems(short, vehicle, "line.toml")
+    assert fields(problems) == ["stations[3].tasc.detectors_before_stop_m[0]"]
+    shorter = stopping_distance_m(short.stations[3], vehicle, harbour["tasc"]["entry_speed_kmh"])
+    assert f"is too short: from 55 km/h '6-car metro EMU (4M2T)' needs {shorter:.0f} m at 80%" in str(
+        problems[0]
+    )
+    result, _ = run_stop(
+        line=short, station=short.stations[3], vehicle=vehicle, controller="tasc-pwm", seed=1
+    )
+    assert result.stop_error_m > 5.0  # a runaway past the platform stop, not a near miss
+
+    harbour["tasc"]["detectors_before_stop_m"] = [1.05 * need, 0.7 * need, 0.45 * need, 0.2 * need, 6.0]
+    ok = as_line(data)
+    assert plausibility_problems(ok, vehicle, "line.toml") == []
+    result, _ = run_stop(line=ok, station=ok.stations[3], vehicle=vehicle, controller="tasc-pwm", seed=1)
+    assert abs(result.stop_error_m) <= 0.35
+
+
+def test_check_lists_every_problem_and_stop_refuses_in_one_line(tmp_path: Path) -> None:
+    data = line_data()
+    data["stations"][0]["tasc"]["detectors_before_stop_m"][0] = 1300.0
+    data["stations"][2]["tasc"]["entry_speed_kmh"] = 95.0
+    path = write_line(tmp_path, data)
+
+    p = run("check", "--line", str(path), cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert "Traceback" not in p.stderr
+    assert [ln.split(": ")[2] for ln in lines] == [
+        "stations[0].tasc.detectors_before_stop_m[0]",
+        "stations[2].tasc.entry_speed_kmh",
+        "stations[2].tasc.detectors_before_stop_m[0]",  # 95 km/h does not stop in Museum's zone
+    ]
+    assert all(ln.startswith(f"error: {path}: ") for ln in lines)
+
+    for args in (("stop", "--no-db"), ("campaign", "--runs", "10", "--out", "c")):
+        p = run(*args, "--line", str(path), cwd=tmp_path)
+        assert p.returncode == 2, p.stderr
+        lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1, p.stderr
+        assert "detectors_before_stop_m[0]: puts the detector at -100 m" in lines[0]
+        assert lines[0].endswith("2 more: `railstop check` lists them")
+    assert not (tmp_path / "c").exists()
