@@ -5,7 +5,7 @@
 Runs ``railstop compare`` in-process (identical draws for every controller)
 and prints the issue's targets next to the measured figures:
 tasc-pwm >= 99.9 % within ±0.30 m, tasc-step >= 99.5 % within ±0.35 m,
-overrun_0_35_ci95_upper <= 1e-4 for tasc-pwm; ato reported beside them.
+overrun_ci95_upper <= 1e-4 for tasc-pwm; ato reported beside them.
 A finished campaign folder is resumed, not recomputed.
 """
 
@@ -56,14 +56,14 @@ def main() -> None:
         print(
             f"{controller:22} {100 * s['within_0_30']:7.3f}% {100 * s['within_0_35']:7.3f}% "
             f"{100 * s['within_0_50']:7.3f}% {s['p99_abs_m']:7.3f} {s['max_abs_m']:7.3f} "
-            f"{s['overruns_0_35']:7d} {s['overrun_0_35_ci95_upper']:15.2e}",
+            f"{s['overruns']:7d} {s['overrun_ci95_upper']:15.2e}",
             flush=True,
         )
     pwm, step = results["tasc-pwm"], results["tasc-step"]
     print("targets:")
     print(f"  tasc-pwm within ±0.30 m >= 99.9 %: {100 * pwm['within_0_30']:.3f} %")
     print(f"  tasc-step within ±0.35 m >= 99.5 %: {100 * step['within_0_35']:.3f} %")
-    print(f"  tasc-pwm P(error > +0.35 m) 95 % upper bound <= 1e-4: {pwm['overrun_0_35_ci95_upper']:.2e}")
+    print(f"  tasc-pwm P(error > +0.35 m) 95 % upper bound <= 1e-4: {pwm['overrun_ci95_upper']:.2e}")
 
 
 if __name__ == "__main__":

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import base64
+import html
 import json
 import math
+import re
 import statistics
 from collections.abc import Callable
 from html.parser import HTMLParser
@@ -102,27 +105,47 @@ def compare_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 class _Images(HTMLParser):
     def __init__(self) -> None:
         super().__init__()
-        self.src: list[str] = []
+        self.images: list[tuple[str, str]] = []  # (src, data-file)
 
     def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
         if tag == "img":
-            self.src += [v for k, v in attrs if k == "src" and v is not None]
+            a = dict(attrs)
+            self.images.append((a.get("src") or "", a.get("data-file") or ""))
 
 
 def _assert_pngs(report: Path) -> list[Path]:
-    """Every image of the report is a relative link to a PNG in report-files/; return their paths."""
+    """Every image of the report is embedded (the page is one self-contained file) as a PNG data
+    URI, and the same bytes are in report-files/ for reuse; return the paths of those copies."""
     parser = _Images()
     parser.feed(report.read_text(encoding="utf-8"))
-    assert parser.src
+    assert parser.images
     images = []
-    for src in parser.src:
-        assert not Path(src).is_absolute() and ":" not in src, src
-        img = report.parent / src
-        images.append(img)
-        assert img.is_file(), img
-        assert img.parent == report.parent / REPORT_FILES_DIR
-        assert img.read_bytes()[:8] == PNG_MAGIC, img
+    prefix = "data:image/png;base64,"
+    for src, name in parser.images:
+        assert src.startswith(prefix), src[:40]
+        data = base64.b64decode(src[len(prefix) :], validate=True)
+        assert data[:8] == PNG_MAGIC
+        copy = report.parent / REPORT_FILES_DIR / name
+        assert copy.is_file(), copy
+        assert copy.read_bytes() == data
+        images.append(copy)
     return images
+
+
+def _summary_rows(text: str) -> tuple[list[str], dict[str, list[str]]]:
+    """The summary table as (controllers, {row label: cells, one per controller})."""
+    table = text[text.index('<table class="summary">') :]
+    table = table[: table.index("</table>")]
+    lines = [ln for ln in table.splitlines() if ln.startswith("<tr>")]
+    names = re.findall(r"</span>([^<]*)</th>", lines[0])
+    rows = {}
+    for ln in lines[1:]:
+        label = re.match(r"<tr><th>([^<]*)</th>", ln)
+        assert label, ln
+        rows[html.unescape(label.group(1))] = [
+            html.unescape(c) for c in re.findall(r'<td class="num">([^<]*)</td>', ln)
+        ]
+    return names, rows
 
 
 # --------------------------------------------------------------------------- summary_stats
@@ -137,7 +160,7 @@ def test_summary_stats_hand_computed() -> None:
     jerk = np.arange(1.0, 11.0)
     stop_time = np.array([30.0, math.nan, 31.0, 32.0, 33.0, 34.0, 35.0, 36.0, 37.0, 38.0])
 
-    s = summary_stats(error, jerk, stop_time, stopped, slid)
+    s = summary_stats(error, jerk, stop_time, stopped, slid, tolerance_m=0.35)
 
     assert s["runs"] == 10
     assert s["within_0_30"] == pytest.approx(0.4)  # 0.0, -0.29, 0.30 (inclusive), 0.2
@@ -148,52 +171,68 @@ def test_summary_stats_hand_computed() -> None:
     # Sorted |error|: 0 .1 .2 .29 .30 .32 .35 .40 .45 .60; the 99th percentile is 91 % from .45 to .60.
     assert s["p99_abs_m"] == pytest.approx(0.45 + 0.91 * 0.15)
     assert s["max_abs_m"] == pytest.approx(0.6)
-    assert s["overruns_0_35"] == 2  # 0.40 and 0.6; -0.45 is short, not over
-    assert s["overrun_0_35_ci95_upper"] == pytest.approx(beta.ppf(0.95, 3, 8))
-    assert s["overrun_0_35_ci95_upper"] >= 2 / 10
+    assert s["overruns"] == 2  # 0.40 and 0.6; -0.45 is short, not over
+    assert s["overrun_ci95_upper"] == pytest.approx(beta.ppf(0.95, 3, 8))
+    assert s["overrun_ci95_upper"] >= 2 / 10
     assert s["p99_max_jerk_mps3"] == pytest.approx(9.91)
     assert s["mean_stop_time_s"] == pytest.approx(34.0)  # 30 and 31..38, without the moving run
     assert s["not_stopped"] == 1
     assert s["slid"] == 2
-    assert isinstance(s["runs"], int) and isinstance(s["overruns_0_35"], int)
+    assert isinstance(s["runs"], int) and isinstance(s["overruns"], int)
 
 
 def test_summary_stats_without_overruns_bound_is_rule_of_three_exact() -> None:
     n = 20
     error = np.linspace(-0.25, 0.25, n)
     ones = np.ones(n)
-    s = summary_stats(error, ones, ones * 30.0, np.ones(n, dtype=bool), np.zeros(n, dtype=bool))
-    assert s["overruns_0_35"] == 0
+    s = summary_stats(
+        error, ones, ones * 30.0, np.ones(n, dtype=bool), np.zeros(n, dtype=bool), tolerance_m=0.35
+    )
+    assert s["overruns"] == 0
     assert s["within_0_30"] == s["within_0_35"] == s["within_0_50"] == 1.0
-    assert s["overrun_0_35_ci95_upper"] == pytest.approx(1.0 - 0.05 ** (1.0 / n))
-    assert s["overrun_0_35_ci95_upper"] == pytest.approx(beta.ppf(0.95, 1, n))
+    assert s["overrun_ci95_upper"] == pytest.approx(1.0 - 0.05 ** (1.0 / n))
+    assert s["overrun_ci95_upper"] == pytest.approx(beta.ppf(0.95, 1, n))
 
 
 def test_summary_stats_all_overrun_bound_is_one() -> None:
     n = 5
     s = summary_stats(
-        np.full(n, 1.0), np.ones(n), np.ones(n), np.ones(n, dtype=bool), np.zeros(n, dtype=bool)
+        np.full(n, 1.0),
+        np.ones(n),
+        np.ones(n),
+        np.ones(n, dtype=bool),
+        np.zeros(n, dtype=bool),
+        tolerance_m=0.35,
     )
-    assert s["overruns_0_35"] == n
-    assert s["overrun_0_35_ci95_upper"] == 1.0
+    assert s["overruns"] == n
+    assert s["overrun_ci95_upper"] == 1.0
     assert s["within_0_50"] == 0.0
 
 
 def test_summary_stats_bound_matches_beta_on_a_campaign() -> None:
     error = _errors(1_000, seed=3)
     ones = np.ones(error.size)
-    s = summary_stats(error, ones, ones, np.ones(error.size, dtype=bool), np.zeros(error.size, dtype=bool))
+    s = summary_stats(
+        error, ones, ones, np.ones(error.size, dtype=bool), np.zeros(error.size, dtype=bool), tolerance_m=0.35
+    )
     k = sum(1 for v in PLANTED.values() if v > 0.35)
-    assert s["overruns_0_35"] == k == 4
-    assert s["overrun_0_35_ci95_upper"] == pytest.approx(beta.ppf(0.95, k + 1, 1_000 - k))
-    assert s["overrun_0_35_ci95_upper"] > k / 1_000
+    assert s["overruns"] == k == 4
+    assert s["overrun_ci95_upper"] == pytest.approx(beta.ppf(0.95, k + 1, 1_000 - k))
+    assert s["overrun_ci95_upper"] > k / 1_000
     assert s["max_abs_m"] == pytest.approx(0.9)
     assert s["within_0_35"] == pytest.approx((1_000 - 6) / 1_000)
 
 
 def test_summary_stats_rejects_mismatched_columns() -> None:
     with pytest.raises(RailstopError, match="stopped"):
-        summary_stats(np.zeros(3), np.zeros(3), np.zeros(3), np.ones(2, dtype=bool), np.zeros(3, dtype=bool))
+        summary_stats(
+            np.zeros(3),
+            np.zeros(3),
+            np.zeros(3),
+            np.ones(2, dtype=bool),
+            np.zeros(3, dtype=bool),
+            tolerance_m=0.35,
+        )
 
 
 # --------------------------------------------------------------------------- loading
@@ -254,8 +293,10 @@ def test_report_of_several_controllers(compare_dir: Path) -> None:
 
     for field in ("Riverside", "railstop demo line", "6-car metro EMU (4M2T)", "standard", "1,000"):
         assert field in text
-    for name in CONTROLLERS:
-        assert name in text
+    names, rows = _summary_rows(text)
+    assert sorted(names) == sorted(CONTROLLERS)
+    assert rows["PSD tolerance"] == ["±0.35 m"] * len(names)  # no summary.json: the default
+    for i, name in enumerate(names):
         _, columns = load_campaign(compare_dir / name)
         s = summary_stats(
             columns["stop_error_m"],
@@ -263,18 +304,18 @@ def test_report_of_several_controllers(compare_dir: Path) -> None:
             columns["stop_time_s"],
             columns["stopped"],
             columns["slid"],
+            tolerance_m=0.35,
         )
-        row = next(line for line in text.splitlines() if f"</span>{name}</th>" in line)
-        for key in ("within_0_30", "within_0_35", "within_0_50"):
-            assert f">{100 * s[key]:.2f} %<" in row
-        assert f">{s['mean_m']:+.3f}<" in row
-        assert f">{s['std_m']:.3f}<" in row
-        assert f">{s['p99_abs_m']:.3f}<" in row
-        assert f">{s['max_abs_m']:.3f}<" in row
-        assert ">0.900<" in row  # the planted +0.9 m is everyone's largest miss
-        assert f">{s['overruns_0_35']}<" in row
-        assert f">{_pct(s['overrun_0_35_ci95_upper'])}<" in row
-        assert f">{s['p99_max_jerk_mps3']:.2f}<" in row
+        assert rows["within the PSD tolerance (±0.35 m)"][i] == f"{100 * s['within_tolerance']:.2f} %"
+        assert rows["within ±0.30 m"][i] == f"{100 * s['within_0_30']:.2f} %"
+        assert rows["within ±0.50 m"][i] == f"{100 * s['within_0_50']:.2f} %"
+        assert rows["mean (m)"][i] == f"{s['mean_m']:+.3f}"
+        assert rows["std (m)"][i] == f"{s['std_m']:.3f}"
+        assert rows["p99 |error| (m)"][i] == f"{s['p99_abs_m']:.3f}"
+        assert rows["max |error| (m)"][i] == "0.900"  # the planted +0.9 m is everyone's largest miss
+        assert rows["overruns > +0.35 m"][i] == f"{s['overruns']}"
+        assert rows["P(overrun > +0.35 m), 95 % upper bound"][i] == _pct(s["overrun_ci95_upper"])
+        assert rows["p99 max jerk (m/s³)"][i] == f"{s['p99_max_jerk_mps3']:.2f}"
     # Varying parameters get a worst-run column; the constant one is left out everywhere.
     assert "load_factor" in text
     assert "platform_gradient_permille" not in text

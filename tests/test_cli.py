@@ -205,7 +205,7 @@ def test_summary_tables_never_cut_a_number(tmp_path: Path, columns: int) -> None
             "within_0_35",
             "mean_m",
             "p99_abs_m",
-            "overrun_0_35_ci95_upper",
+            "overrun_ci95_upper",
             "mean_stop_time_s",
         ):
             assert _fmt(key, row[key]) in p.stdout, (key, _fmt(key, row[key]))
@@ -278,3 +278,31 @@ def test_railstop_alone_prints_the_help(tmp_path: Path) -> None:
     p = run(cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert "Usage: railstop" in p.stdout and "campaign" in p.stdout
+
+
+def test_psd_tolerance_is_station_data_and_an_option(tmp_path: Path) -> None:
+    """The tolerance a stop is judged by comes from the station (psd_tolerance_m; SPEC §3 lines use
+    ±0.50 m) unless --tolerance-m says otherwise; nothing assumes 0.35 m."""
+    from importlib import resources
+
+    text = resources.files("railstop.data").joinpath("line.toml").read_text(encoding="utf-8")
+    manual = tmp_path / "manual.toml"  # Riverside with the ±0.50 m of a manually driven line
+    manual.write_text(
+        text.replace('platform_side = "R"\n', 'platform_side = "R"\npsd_tolerance_m = 0.5\n', 1),
+        encoding="utf-8",
+    )
+    default = json.loads(run("stop", "--no-db", "--json", cwd=tmp_path).stdout)
+    assert default["psd_tolerance_m"] == 0.35 and default["within_tolerance"] is True
+    row = json.loads(run("stop", "--no-db", "--json", "--line", str(manual), cwd=tmp_path).stdout)
+    assert row["psd_tolerance_m"] == 0.5 and row["within_tolerance"] is True
+    assert row["stop_error_m"] == default["stop_error_m"]  # the tolerance judges; it does not steer
+
+    tight = 0.5 * abs(default["stop_error_m"])  # half the nominal stop's error: outside
+    p = run("stop", "--no-db", "--tolerance-m", str(tight), cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert f"OUTSIDE the PSD tolerance ±{tight:g} m" in p.stdout
+    row = json.loads(run("stop", "--no-db", "--json", "--tolerance-m", str(tight), cwd=tmp_path).stdout)
+    assert row["psd_tolerance_m"] == tight and row["within_tolerance"] is False
+
+    for bad in ("0", "-0.1", "nan", "2.5"):
+        _one_line_error(run("stop", "--no-db", "--tolerance-m", bad, cwd=tmp_path), "--tolerance-m", bad)

@@ -43,6 +43,7 @@ def _plot(stop: BatchResult, path: Path | str) -> Path:
         commands=stop.commands,
         title=f"{station.name}, tasc-pwm",
         path=path,
+        tolerance_m=station.psd_tolerance_m,
     )
 
 
@@ -75,6 +76,7 @@ def test_plot_handles_a_detector_never_passed(stop: BatchResult, tmp_path: Path)
         commands=[],
         title="no commands",
         path=tmp_path / "partial.png",
+        tolerance_m=0.35,
     )
     assert out.read_bytes()[:8] == PNG_MAGIC
 

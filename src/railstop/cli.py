@@ -101,6 +101,23 @@ LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (de
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
 ]
+ToleranceOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--tolerance-m",
+        help="PSD tolerance to judge the stops by, 0 < m <= 2 (default: the station's psd_tolerance_m).",
+    ),
+]
+
+
+def _tolerance(value: float | None) -> float | None:
+    """--tolerance-m checked: a positive finite number of metres up to 2 (a stop further off than
+    2 m is no 'precise stop'), or None for the station's own."""
+    import math
+
+    if value is not None and not (math.isfinite(value) and 0.0 < value <= 2.0):
+        fail(f"--tolerance-m: must be more than 0 and at most 2 m (got {value})")
+    return value
 
 
 def _controller(name: str) -> str:
@@ -155,6 +172,7 @@ def stop(
         typer.Option(help="Replay a campaign run drawn from this set: standard, nominal or a TOML file."),
     ] = None,
     run: Annotated[int, typer.Option(min=0, help="The campaign run to replay (with --disturbances).")] = 0,
+    tolerance_m: ToleranceOpt = None,
     plot: Annotated[Path | None, typer.Option(help="Write a PNG plot of the stop here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file.")] = Path("railstop.db"),
@@ -196,6 +214,7 @@ def stop(
             form=None if form is None else SignalForm(form),
             disturbances=dist,
             run=run,
+            tolerance_m=_tolerance(tolerance_m),
         )
         if not no_db:
             _save(db, result)
@@ -218,7 +237,7 @@ def stop(
         ""
         if result.disturbances is None
         else f"run {result.run} of {result.disturbances!r} seed {result.seed} "
-        f"(load {result.load_factor:.2f}, brake gain {result.brake_gain:.3f}): "
+        f"(load {result.load_factor:.0%}, brake gain {result.brake_gain:.3f}): "
     )
     if not result.stopped:
         # Fail safe: a train still moving at the end of the simulated time has no stop error.
@@ -232,9 +251,11 @@ def stop(
         if plot is not None:
             out.print(f"plot: {plot}", highlight=False)
         raise typer.Exit(1)
+    verdict = "within" if result.within_tolerance else "OUTSIDE"
     out.print(
         f"{result.controller} at {result.station}: {drawn}stop error {result.stop_error_m:+.3f} m "
-        f"({'overrun' if result.stop_error_m > 0 else 'short'}), "
+        f"({'overrun' if result.stop_error_m > 0 else 'short'}, {verdict} the PSD tolerance "
+        f"±{result.psd_tolerance_m:g} m), "
         f"{result.stop_time_s} s from the first detector, max jerk {result.max_jerk_mps3:.2f} m/s³, "
         f"{result.notch_changes} notch changes, {what}",
         highlight=False,
@@ -248,6 +269,7 @@ def _save(db: Path, result: StopResult) -> None:
     """SPEC §1 claims 8, 20: every computed command and its inputs go to the database."""
     from datetime import UTC, datetime
 
+    from railstop.provenance import stamp
     from railstop.store import StopRecord, open_store
 
     record = StopRecord(
@@ -262,6 +284,8 @@ def _save(db: Path, result: StopResult) -> None:
             "form": result.form,
             "disturbances": result.disturbances,
             "run": result.run,
+            "psd_tolerance_m": result.psd_tolerance_m,
+            **stamp(result.inputs_sha256),  # railstop version, when, the inputs' hash
         },
         commands=result.command_log,
         stop_error_m=result.stop_error_m,
@@ -278,6 +302,7 @@ def _save(db: Path, result: StopResult) -> None:
 
 
 def _plot(path: Path, result: StopResult, batch: BatchResult, station: Station) -> Path:
+    from railstop.provenance import footer, stamp
     from railstop.report.plot import plot_stop
 
     if batch.trace is None:
@@ -292,10 +317,18 @@ def _plot(path: Path, result: StopResult, batch: BatchResult, station: Station) 
             passage_times_s=list(batch.detector_passages_s[0]),
             commands=batch.commands,
             title=(
-                f"{result.controller} at {station.name} (load {result.load_factor:g}, "
-                f"brake gain {result.brake_gain:g}): stop error {result.stop_error_m:+.3f} m"
+                f"{result.controller} at {station.name} (load {result.load_factor:.0%}, "
+                f"brake gain {result.brake_gain:.2f}): stop error {result.stop_error_m:+.3f} m"
             ),
             path=path,
+            tolerance_m=result.psd_tolerance_m,
+            footer=footer(
+                stamp(result.inputs_sha256),
+                seed=result.seed,
+                disturbances=result.disturbances,
+                run=result.run if result.disturbances is not None else None,
+                form=result.form,
+            ),
         )
     except OSError as exc:
         raise RailstopError(f"cannot write plot {path}: {exc.strerror}") from None
@@ -345,7 +378,10 @@ def demo(
     except OSError as exc:
         fail(f"cannot create {out_dir}: {exc.strerror}")
     db = out_dir / "railstop.db"
-    table = Table(title=f"Ground TASC stops on {ln.line.name} (error + = overrun; PSD tolerance ±0.35 m)")
+    tolerances = ", ".join(sorted({f"±{st.psd_tolerance_m:g} m" for st in ln.stations}))
+    table = Table(
+        title=f"Ground TASC stops on {ln.line.name} (error + = overrun; PSD tolerance {tolerances})"
+    )
     for col in (
         "station",
         "controller",
@@ -381,7 +417,7 @@ def demo(
                 if label == "nominal":
                     _plot(out_dir / f"{st.name}-{ctrl}.png".lower(), result, batch, st)
                 err_m = result.stop_error_m
-                colour = "green" if abs(err_m) <= 0.10 else ("yellow" if abs(err_m) <= 0.35 else "red")
+                colour = "green" if abs(err_m) <= 0.10 else ("yellow" if result.within_tolerance else "red")
                 table.add_row(
                     st.name,
                     ctrl,
@@ -427,22 +463,6 @@ def demo(
     )
 
 
-SUMMARY_KEYS = (
-    "runs",
-    "within_0_30",
-    "within_0_35",
-    "within_0_50",
-    "mean_m",
-    "std_m",
-    "p99_abs_m",
-    "max_abs_m",
-    "overruns_0_35",
-    "overrun_0_35_ci95_upper",
-    "p99_max_jerk_mps3",
-    "mean_stop_time_s",
-    "runs_per_s",
-)
-
 DisturbancesOpt = Annotated[str, typer.Option(help="Disturbance set: standard, nominal or a TOML file.")]
 WorkersOpt = Annotated[
     int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
@@ -469,6 +489,7 @@ def _run_one_campaign(
     chunk_size: int,
     db: Path,
     scheduler: str | None = None,
+    tolerance_m: float | None = None,
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
@@ -483,6 +504,7 @@ def _run_one_campaign(
         seed=seed,
         disturbances=load_disturbances(disturbances),
         chunk_size=chunk_size,
+        tolerance_m=tolerance_m,
     )
     n_workers = workers or os.cpu_count() or 1
 
@@ -522,7 +544,7 @@ def _fmt(key: str, value: object) -> str:
         return "-"
     if key.startswith("within"):
         return f"{100.0 * float(value):.2f}%"  # type: ignore[arg-type]
-    if key == "overrun_0_35_ci95_upper":
+    if key == "overrun_ci95_upper":
         return f"{float(value):.2e}"  # type: ignore[arg-type]
     if isinstance(value, float):
         if key == "runs_per_s":
@@ -545,25 +567,33 @@ def _summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
     from rich.measure import Measurement
     from rich.table import Table
 
+    tols = sorted({float(t) for r in rows if isinstance(t := r.get("tolerance_m"), (int, float))})
+    tol = f"{tols[0]:g}" if len(tols) == 1 else "tol"
+    # The station's PSD tolerance, and the fixed reference bands that differ from it.
+    bands = [
+        (f"within_{band:.2f}".replace(".", "_"), f"±{band:.2f}")
+        for band in (0.30, 0.50)
+        if not (len(tols) == 1 and abs(band - tols[0]) < 1e-9)
+    ]
     cols = (
         ("controller", "controller"),
         ("runs", "runs"),
-        ("within_0_30", "±0.30"),
-        ("within_0_35", "±0.35"),
-        ("within_0_50", "±0.50"),
+        ("within_tolerance", f"±{tol} PSD"),
+        *bands,
         ("mean_m", "mean"),
         ("std_m", "std"),
         ("p99_abs_m", "p99|e|"),
         ("max_abs_m", "max|e|"),
-        ("overruns_0_35", ">+0.35"),
-        ("overrun_0_35_ci95_upper", "P>+0.35 ≤"),
+        ("overruns", f">+{tol}"),
+        ("overrun_ci95_upper", f"P>+{tol} ≤"),
         ("p99_max_jerk_mps3", "jerk99"),
         ("mean_stop_time_s", "time"),
         ("runs_per_s", "runs/s"),
     )
     caption = (
-        "within bands: share of runs; errors in m (+ = overrun); P>+0.35 ≤: 95 % Clopper-Pearson "
-        "upper bound on the overrun probability; jerk99: p99 of max jerk m/s³; time: mean stop time s"
+        f"within bands: share of runs; PSD: the station's tolerance; errors in m (+ = overrun); P>+{tol} ≤: "
+        "95 % Clopper-Pearson upper bound on the overrun probability; jerk99: p99 of max jerk m/s³; "
+        "time: mean stop time s"
     )
     table = Table(title=title, caption=caption)
     for key, label in cols:
@@ -601,6 +631,7 @@ def campaign(
     chunk_size: ChunkOpt = 10_000,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
+    tolerance_m: ToleranceOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -625,6 +656,7 @@ def campaign(
             chunk_size=chunk_size,
             db=db,
             scheduler=scheduler,
+            tolerance_m=_tolerance(tolerance_m),
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -653,6 +685,7 @@ def _compare(
     resume: bool,
     chunk_size: int,
     db: Path,
+    tolerance_m: float | None = None,
 ) -> list[dict[str, object]]:
     """Every controller on identical draws (same seed, same disturbance set)."""
     return [
@@ -670,6 +703,7 @@ def _compare(
             resume=resume,
             chunk_size=chunk_size,
             db=db,
+            tolerance_m=tolerance_m,
         )
         for ctrl in CONTROLLERS
     ]
@@ -692,6 +726,7 @@ def compare(
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summaries).")] = Path(
         "railstop.db"
     ),
+    tolerance_m: ToleranceOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -715,6 +750,7 @@ def compare(
             resume=resume,
             chunk_size=chunk_size,
             db=db,
+            tolerance_m=_tolerance(tolerance_m),
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -745,8 +781,12 @@ def certify(
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
     controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
     threshold_m: Annotated[
-        float, typer.Option("--threshold-m", help="A hit is a stop error above this (m, + = overrun).")
-    ] = 0.35,
+        float | None,
+        typer.Option(
+            "--threshold-m",
+            help="A hit is a stop error above this (m, + = overrun; default: the station's PSD tolerance).",
+        ),
+    ] = None,
     target: Annotated[
         float, typer.Option(help="Probability to certify (the bound must be at most this).")
     ] = 1e-6,
@@ -782,7 +822,7 @@ def certify(
             station=ln.station(station).name,
             controller=_controller(controller),
             disturbances=load_disturbances(disturbances),
-            threshold_m=threshold_m,
+            threshold_m=ln.station(station).psd_tolerance_m if threshold_m is None else threshold_m,
             seed=seed,
         )
         label = f"certify {controller} at {spec.station}"
@@ -857,6 +897,13 @@ def _print_certificate(row: dict[str, Any]) -> None:
 def report(
     directory: Annotated[Path, typer.Argument(help="A campaign folder, or a folder of them (from compare).")],
     worst: Annotated[int, typer.Option(min=0, help="Speed profiles of the N worst runs per controller.")] = 5,
+    tolerance_m: Annotated[
+        float | None,
+        typer.Option(
+            "--tolerance-m",
+            help="PSD tolerance to judge the runs by, 0 < m <= 2 (default: each campaign's station's).",
+        ),
+    ] = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -872,7 +919,14 @@ def report(
         def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
             return replay_profile(campaign_dir, run, ln, veh)
 
-        path = write_report(directory, replay=replay, worst=worst)  # type: ignore[arg-type]
+        with Reporter(f"report {directory}", unit="figures") as status:
+            path = write_report(
+                directory,
+                replay=replay,  # type: ignore[arg-type]
+                worst=worst,
+                tolerance_m=_tolerance(tolerance_m),
+                progress=status.update,
+            )
     except RailstopError as exc:
         fail(str(exc))
     except OSError as exc:

@@ -171,7 +171,13 @@ class Reporter:
         if not self.enabled:
             return
         rate, left = self.rate_and_left(done, total)
-        rate_text = "" if rate is None else f"{rate:,.0f} {self.unit}/s"
+        rate_text = (
+            ""
+            if rate is None
+            else f"{rate:,.0f} {self.unit}/s"
+            if rate >= 10
+            else f"{rate:.2g} {self.unit}/s"
+        )
         left_text = "" if left is None else f"about {_duration(left)} left"
         if self._bar is not None:
             self._bar.update(self._task, completed=done, total=total, rate=rate_text, left=left_text)

@@ -112,6 +112,9 @@ class Station(_Model):
     platform_side: Literal["L", "R"]
     platform_end_m: FiniteFloat | None = None
     gradient: list[GradientSegment] = Field(default_factory=list)
+    # How far from the stopping point a stop still lets the platform screen doors open: SPEC §1
+    # gives ±35 cm for the Korean metro with PSD, SPEC §3 ±500 mm for manually driven lines.
+    psd_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.35
     tasc: TascZone
     # Position references of the conventional onboard ATO (the baseline TASC
     # replaces): transponders that reset its odometry, metres before the

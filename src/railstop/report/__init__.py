@@ -5,9 +5,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from railstop.report.plot import PSD_TOLERANCE_M, plot_stop
+    from railstop.report.plot import plot_stop
 
-__all__ = ["PSD_TOLERANCE_M", "plot_stop"]
+__all__ = ["plot_stop"]
 
 
 def __getattr__(name: str) -> Any:

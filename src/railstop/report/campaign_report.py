@@ -3,11 +3,14 @@
 A campaign directory holds ``campaign.json`` (the manifest) and ``runs.parquet``
 (one row per randomised stop: the results and the disturbances drawn for it).
 ``write_report`` turns one campaign, or a directory of campaigns (one per
-controller, as ``compare`` writes them), into ``report.html`` with its PNGs in
-``report-files/`` beside it: a summary table per controller, the stop-error
-histogram, the empirical CDF of |error|, the stop error against every
-disturbance parameter ("what drives the misses") and, given a replay function,
-the speed profiles of the worst runs.
+controller, as ``compare`` writes them), into ``report.html``: one
+self-contained file (the figures are embedded; copies of them as PNG files are
+written to ``report-files/`` for slides) with where the numbers come from
+(railstop version, date, seed, disturbance set, input hashes), a summary per
+controller against the station's PSD tolerance, the stop-error histogram, the
+empirical CDF of |error|, the stop error against every disturbance parameter
+("what drives the misses") and, given a replay function, the speed profiles of
+the worst runs with the commands they received and the detectors.
 
 Everything works on whole numpy columns: 10^5 runs per controller take a few
 seconds, almost all of it drawing.
@@ -15,6 +18,7 @@ seconds, almost all of it drawing.
 
 from __future__ import annotations
 
+import base64
 import html
 import json
 import math
@@ -41,7 +45,6 @@ if TYPE_CHECKING:
 __all__ = [
     "BANDS_M",
     "MANIFEST_NAME",
-    "OVERRUN_LIMIT_M",
     "REPORT_FILES_DIR",
     "REPORT_NAME",
     "RESULT_COLUMNS",
@@ -81,9 +84,12 @@ _REQUIRED_COLUMNS: tuple[str, ...] = (
     "slid",
 )
 
-# Tolerance bands of the summary (m); 0.35 m is the platform-screen-door tolerance.
+# Fixed reference bands of the summary (m), beside the station's own PSD tolerance
+# (Station.psd_tolerance_m: SPEC §1 ±0.35 m, SPEC §3 ±0.50 m for manual lines).
 BANDS_M: tuple[float, ...] = (0.30, 0.35, 0.50)
-OVERRUN_LIMIT_M = 0.35
+# The tolerance of a campaign whose summary.json does not say (written before it was station data).
+DEFAULT_TOLERANCE_M = 0.35
+SUMMARY_NAME = "summary.json"
 CONFIDENCE = 0.95
 
 # replay(campaign_dir, run) -> (distance_to_stop_m, speed_kmh) of that run.
@@ -112,20 +118,26 @@ def summary_stats(
     stop_time_s: Sequence[float] | np.ndarray,
     stopped: Sequence[bool] | np.ndarray,
     slid: Sequence[bool] | np.ndarray,
+    *,
+    tolerance_m: float,
 ) -> dict[str, float | int]:
     """The summary statistics of one controller's campaign, from its result columns.
 
-    Keys: ``runs``; ``within_0_30``, ``within_0_35``, ``within_0_50`` (fractions
+    ``tolerance_m``: the station's PSD tolerance (``Station.psd_tolerance_m``).
+    Keys: ``runs``; ``tolerance_m``; ``within_tolerance`` and the fixed
+    reference bands ``within_0_30``, ``within_0_35``, ``within_0_50`` (fractions
     in [0, 1] of runs that stopped with |error| ≤ the band; a run that did not
     stop is outside every band whatever its error); ``mean_m``, ``std_m``
     (sample standard deviation), ``p99_abs_m``, ``max_abs_m`` of the stop error
     over all runs with a finite error (a run that did not stop contributes its
-    error at the time limit); ``overruns_0_35`` (runs with error > +0.35 m) and
-    ``overrun_0_35_ci95_upper``, the one-sided 95 % Clopper–Pearson upper bound
-    on P(error > +0.35 m) (1 when every run overran); ``p99_max_jerk_mps3``;
+    error at the time limit); ``overruns`` (runs with error > +tolerance) and
+    ``overrun_ci95_upper``, the one-sided 95 % Clopper–Pearson upper bound
+    on P(error > +tolerance) (1 when every run overran); ``p99_max_jerk_mps3``;
     ``mean_stop_time_s`` over the runs that stopped; ``not_stopped``, ``slid``
     (counts). Statistics of no values are NaN.
     """
+    if not (math.isfinite(tolerance_m) and tolerance_m > 0.0):
+        raise RailstopError(f"summary_stats: tolerance_m must be a positive number (got {tolerance_m})")
     error = np.asarray(stop_error_m, dtype=np.float64).ravel()
     jerk = np.asarray(max_jerk_mps3, dtype=np.float64).ravel()
     t_stop = np.asarray(stop_time_s, dtype=np.float64).ravel()
@@ -146,26 +158,27 @@ def summary_stats(
     abs_error = np.abs(error)
     # NaN compares False: a run without a finite error is outside every band too.
     ok = is_stopped & finite
-    within = {
-        f"within_{band:.2f}".replace(".", "_"): (
-            float(np.count_nonzero(ok & (abs_error <= band)) / n) if n else math.nan
-        )
-        for band in BANDS_M
-    }
+
+    def share_within(band: float) -> float:
+        return float(np.count_nonzero(ok & (abs_error <= band)) / n) if n else math.nan
+
+    within = {f"within_{band:.2f}".replace(".", "_"): share_within(band) for band in BANDS_M}
     good = error[finite]
     good_abs = abs_error[finite]
-    k = int(np.count_nonzero(error > OVERRUN_LIMIT_M))
+    k = int(np.count_nonzero(error > tolerance_m))
     jerk_ok = jerk[np.isfinite(jerk)]
     t_ok = t_stop[is_stopped & np.isfinite(t_stop)]
     return {
         "runs": n,
+        "tolerance_m": float(tolerance_m),
+        "within_tolerance": share_within(tolerance_m),
         **within,
         "mean_m": float(np.mean(good)) if good.size else math.nan,
         "std_m": float(np.std(good, ddof=1)) if good.size > 1 else (0.0 if good.size else math.nan),
         "p99_abs_m": float(np.percentile(good_abs, 99.0)) if good.size else math.nan,
         "max_abs_m": float(np.max(good_abs)) if good.size else math.nan,
-        "overruns_0_35": k,
-        "overrun_0_35_ci95_upper": clopper_pearson_upper(k, n, CONFIDENCE),
+        "overruns": k,
+        "overrun_ci95_upper": clopper_pearson_upper(k, n, CONFIDENCE),
         "p99_max_jerk_mps3": float(np.percentile(jerk_ok, 99.0)) if jerk_ok.size else math.nan,
         "mean_stop_time_s": float(np.mean(t_ok)) if t_ok.size else math.nan,
         "not_stopped": int(np.count_nonzero(~is_stopped)),
@@ -260,6 +273,8 @@ class _Campaign:
     manifest: dict[str, Any]
     columns: dict[str, np.ndarray]
     stats: dict[str, float | int]
+    tolerance: float
+    provenance: dict[str, Any]
 
     @property
     def error(self) -> np.ndarray:
@@ -282,11 +297,27 @@ class _Campaign:
         return rows[order]
 
 
-def _load_all(paths: list[Path]) -> list[_Campaign]:
+def _summary_file(path: Path) -> dict[str, Any]:
+    """The campaign's summary.json, or {} if it has none or it is unreadable (the report
+    recomputes every statistic from runs.parquet; it only takes the tolerance and provenance)."""
+    try:
+        data = json.loads((path / SUMMARY_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _load_all(paths: list[Path], tolerance_m: float | None) -> list[_Campaign]:
     campaigns: list[_Campaign] = []
     seen: dict[str, int] = {}
     for i, path in enumerate(paths):
         manifest, columns = load_campaign(path)
+        summary = _summary_file(path)
+        tol = tolerance_m
+        if tol is None:
+            written = summary.get("tolerance_m")
+            ok = isinstance(written, (int, float)) and math.isfinite(written) and written > 0
+            tol = float(written) if ok and written is not None else DEFAULT_TOLERANCE_M
         base = str(manifest.get("controller") or path.name)
         seen[base] = seen.get(base, 0) + 1
         name = base if seen[base] == 1 else f"{base} ({path.name})"
@@ -297,7 +328,9 @@ def _load_all(paths: list[Path]) -> list[_Campaign]:
             columns["stop_time_s"],
             columns["stopped"],
             columns["slid"],
+            tolerance_m=tol,
         )
+        prov = summary.get("provenance")
         campaigns.append(
             _Campaign(
                 path=path,
@@ -307,13 +340,26 @@ def _load_all(paths: list[Path]) -> list[_Campaign]:
                 manifest=manifest,
                 columns=columns,
                 stats=stats,
+                tolerance=tol,
+                provenance=prov if isinstance(prov, dict) else {},
             )
         )
     return campaigns
 
 
-def write_report(directory: Path, *, replay: Replay | None = None, worst: int = 5) -> Path:
-    """Write ``directory/report.html`` (PNGs in ``directory/report-files/``) and return its path.
+ReportProgress = Callable[[int, int], None]  # (figures done, figures in all)
+
+
+def write_report(
+    directory: Path,
+    *,
+    replay: Replay | None = None,
+    worst: int = 5,
+    tolerance_m: float | None = None,
+    progress: ReportProgress | None = None,
+) -> Path:
+    """Write ``directory/report.html`` (figures embedded; PNG copies in ``directory/report-files/``)
+    and return its path.
 
     ``directory`` is a campaign directory or holds campaign directories, one per
     controller. ``replay(campaign_dir, run)`` re-simulates one run and returns
@@ -322,23 +368,43 @@ def write_report(directory: Path, *, replay: Replay | None = None, worst: int = 
     (positive before the stopping point) or position minus stopping point
     (negative before it): the profile starts far out, and its first value tells
     which. Without ``replay`` the profiles are left out and the report says so.
+    ``tolerance_m``: the PSD tolerance to judge against (None: each campaign's,
+    from its summary.json, i.e. its station's ``psd_tolerance_m``).
     """
+    from railstop.provenance import stamp
+
     directory = Path(directory)
     if worst < 0:
         raise RailstopError(f"worst: must be at least 0 (got {worst})")
-    campaigns = _load_all(find_campaigns(directory))
+    if tolerance_m is not None and not (math.isfinite(tolerance_m) and tolerance_m > 0.0):
+        raise RailstopError(f"--tolerance-m: must be a positive number of metres (got {tolerance_m})")
+    campaigns = _load_all(find_campaigns(directory), tolerance_m)
     files = directory / REPORT_FILES_DIR
     try:
         files.mkdir(exist_ok=True)
     except OSError as exc:
         raise RailstopError(f"{files}: cannot create the directory: {exc.strerror or exc}") from None
 
-    figures: dict[str, Path] = {}
-    figures["errors"] = _save(_error_histogram(campaigns), files / "stop-error-histogram.png")
-    figures["cdf"] = _save(_abs_error_cdf(campaigns), files / "abs-error-cdf.png")
     parameters = _varying_parameters(campaigns)
+    n_driver = 0 if not parameters else (1 if len(parameters) <= _PANELS_PER_FIGURE else 2)
+    total = 2 + n_driver + (len(campaigns) if replay is not None and worst > 0 else 0)
+    done = 0
+
+    def saved(fig: Figure, name: str) -> Path:
+        nonlocal done
+        path = _save(fig, files / name)
+        done += 1
+        if progress:
+            progress(done, total)
+        return path
+
+    if progress:
+        progress(0, total)
+    figures: dict[str, Path] = {}
+    figures["errors"] = saved(_error_histogram(campaigns), "stop-error-histogram.png")
+    figures["cdf"] = saved(_abs_error_cdf(campaigns), "abs-error-cdf.png")
     driver_pngs = [
-        _save(fig, files / f"what-drives-the-misses-{i + 1}.png")
+        saved(fig, f"what-drives-the-misses-{i + 1}.png")
         for i, fig in enumerate(_driver_figures(campaigns, parameters))
     ]
     worst_rows = {c.name: c.worst_rows(worst) for c in campaigns}
@@ -348,7 +414,7 @@ def write_report(directory: Path, *, replay: Replay | None = None, worst: int = 
             rows = worst_rows[c.name]
             if rows.size:
                 fig = _worst_profiles(c, rows, replay)
-                profile_pngs[c.name] = _save(fig, files / f"worst-runs-{c.slug}.png")
+                profile_pngs[c.name] = saved(fig, f"worst-runs-{c.slug}.png")
 
     page = _html(
         directory,
@@ -360,6 +426,7 @@ def write_report(directory: Path, *, replay: Replay | None = None, worst: int = 
         profile_pngs=profile_pngs,
         replayed=replay is not None,
         worst=worst,
+        written=stamp(),
     )
     out = directory / REPORT_NAME
     try:
@@ -386,16 +453,16 @@ def _figure(figsize: tuple[float, float]) -> Figure:
 # --------------------------------------------------------------------------- plots
 
 
-def _psd_band(ax: Axes, *, vertical: bool = True) -> None:
+def _tolerances(campaigns: list[_Campaign]) -> list[float]:
+    return sorted({c.tolerance for c in campaigns})
+
+
+def _psd_band(ax: Axes, tolerances: list[float], *, vertical: bool = True) -> None:
+    """The PSD tolerance band (one per distinct tolerance of the campaigns shown)."""
     span = ax.axvspan if vertical else ax.axhspan
-    band = span(
-        -OVERRUN_LIMIT_M,
-        OVERRUN_LIMIT_M,
-        color="tab:green",
-        alpha=0.18,
-        label=f"PSD tolerance ±{OVERRUN_LIMIT_M:g} m",
-    )
-    band.set_zorder(0)
+    for tol in tolerances or [DEFAULT_TOLERANCE_M]:
+        band = span(-tol, tol, color="tab:green", alpha=0.18, label=f"PSD tolerance ±{tol:g} m")
+        band.set_zorder(0)
 
 
 def _error_histogram(campaigns: list[_Campaign]) -> Figure:
@@ -417,7 +484,7 @@ def _error_histogram(campaigns: list[_Campaign]) -> Figure:
     hi = max(hi, hi_all) if hi_all <= hi + margin else hi
     n_max = max(e.size for e in finite)
     edges = np.linspace(lo, hi, int(np.clip(math.sqrt(n_max), 20, 100)) + 1)
-    _psd_band(ax)
+    _psd_band(ax, _tolerances(campaigns))
     ax.axvline(0.0, color="tab:green", lw=1.2)
     notes: list[str] = []
     for c, e in zip(campaigns, finite, strict=True):
@@ -497,7 +564,8 @@ def _abs_error_cdf(campaigns: list[_Campaign]) -> Figure:
             tail_ax.step(tx, ty, where="post", color=c.color, lw=1.6, label=c.name)
     for ax, right in ((cdf_ax, min(bulk_max, tail_max)), (tail_ax, tail_max)):
         ax.axvline(0.30, color="0.25", ls=":", lw=1.4, label="0.30 m")
-        ax.axvline(OVERRUN_LIMIT_M, color="black", ls="--", lw=1.2, label=f"{OVERRUN_LIMIT_M:g} m (PSD)")
+        for tol in _tolerances(campaigns):
+            ax.axvline(tol, color="black", ls="--", lw=1.2, label=f"{tol:g} m (PSD)")
         ax.set_xlim(0.0, right)
         ax.set_xlabel("|stop error| (m)")
         ax.grid(True, alpha=0.4)
@@ -611,9 +679,15 @@ def _driver_panel(ax: Axes, campaigns: list[_Campaign], name: str, rng: np.rando
     discrete = values.size <= _DISCRETE_MAX_VALUES
     step = float(np.min(np.diff(values))) if values.size > 1 else 1.0
     binned = total > _BINNED_ABOVE
-    _psd_band(ax, vertical=False)
+    _psd_band(ax, sorted({c.tolerance for c, _, _ in pairs}), vertical=False)
     ax.axhline(0.0, color="tab:green", lw=1.0)
-    for i, (c, x, y) in enumerate(pairs):
+    # The widest cloud first, the narrowest last (on top): a wide ato cloud must not hide the
+    # TASC points. The spread is the 1st-99th percentile range of the error.
+    spread = [float(np.subtract(*np.percentile(y, (99.0, 1.0)))) if y.size else 0.0 for _, _, y in pairs]
+    order = sorted(range(len(pairs)), key=lambda j: -spread[j])
+    for rank, i in enumerate(order):
+        c, x, y = pairs[i]
+        z = 2 + rank
         # Discrete values: spread the points (and the controllers) a little so they do not hide each other.
         shift = (i - (len(pairs) - 1) / 2) * 0.12 * step if discrete and len(pairs) > 1 else 0.0
         if binned and x.size >= 100:
@@ -621,7 +695,7 @@ def _driver_panel(ax: Axes, campaigns: list[_Campaign], name: str, rng: np.rando
             xs = x[sample] + shift
             if discrete:
                 xs = xs + rng.uniform(-0.04, 0.04, xs.size) * step
-            ax.scatter(xs, y[sample], s=2, color=c.color, alpha=0.12, linewidths=0, rasterized=True)
+            ax.scatter(xs, y[sample], s=2, color=c.color, alpha=0.12, linewidths=0, rasterized=True, zorder=z)
             centres, (p1, p50, p99) = _binned(x, y, discrete)
             if discrete:
                 ax.errorbar(
@@ -633,17 +707,20 @@ def _driver_panel(ax: Axes, campaigns: list[_Campaign], name: str, rng: np.rando
                     color=c.color,
                     capsize=3,
                     lw=1.2,
+                    zorder=z + 0.5,
                 )
             else:
-                ax.plot(centres, p50, color=c.color, lw=1.8)
-                ax.plot(centres, p1, color=c.color, lw=1.0, ls="--")
-                ax.plot(centres, p99, color=c.color, lw=1.0, ls="--")
+                ax.plot(centres, p50, color=c.color, lw=1.8, zorder=z + 0.5)
+                ax.plot(centres, p1, color=c.color, lw=1.0, ls="--", zorder=z + 0.5)
+                ax.plot(centres, p99, color=c.color, lw=1.0, ls="--", zorder=z + 0.5)
         else:
             xs = x + shift
             if discrete:
                 xs = xs + rng.uniform(-0.04, 0.04, xs.size) * step
             alpha = 0.6 if x.size <= 2_000 else 0.25
-            ax.scatter(xs, y, s=6 if x.size <= 2_000 else 2, color=c.color, alpha=alpha, linewidths=0)
+            ax.scatter(
+                xs, y, s=6 if x.size <= 2_000 else 2, color=c.color, alpha=alpha, linewidths=0, zorder=z
+            )
     if discrete and values.size <= 3 and np.all(np.isin(values, (0.0, 1.0))):
         ax.set_xticks([0.0, 1.0], ["no", "yes"])
     ax.set_title(name, fontsize=9)
@@ -684,11 +761,19 @@ def _worst_profiles(c: _Campaign, rows: np.ndarray, replay: Replay) -> Figure:
     grid = fig.add_gridspec(1, 2, width_ratios=(4.0, 1.0))
     ax = fig.add_subplot(grid[0, 0])
     zoom = fig.add_subplot(grid[0, 1])
-    _psd_band(ax)
-    zoom.axvspan(-OVERRUN_LIMIT_M, OVERRUN_LIMIT_M, color="tab:green", alpha=0.18, zorder=0)
+    _psd_band(ax, [c.tolerance])
+    zoom.axvspan(-c.tolerance, c.tolerance, color="tab:green", alpha=0.18, zorder=0)
     for a in (ax, zoom):
         a.axvline(0.0, color="tab:green", lw=1.3)
+    # The wheel detectors of the station (where the wayside measures the train and commands).
+    detectors = c.manifest.get("detectors_before_stop_m")
+    if isinstance(detectors, list):
+        for j, d in enumerate(detectors):
+            if isinstance(d, (int, float)):
+                ax.axvline(-float(d), color="0.45", ls="--", lw=0.9, label="detectors" if j == 0 else None)
     run_ids = np.asarray(c.columns["run"])
+    received = c.columns.get("commands_received")
+    sent = c.columns.get("commands_sent")
     finals: list[float] = []
     v_top = 1.0
     profiles = []
@@ -698,6 +783,8 @@ def _worst_profiles(c: _Campaign, rows: np.ndarray, replay: Replay) -> Figure:
         profiles.append((x, v))
         colour = _PROFILE_COLORS[k % len(_PROFILE_COLORS)]
         label = f"run {run}: {float(c.error[row]):+.3f} m"
+        if received is not None and sent is not None:
+            label += f", {int(received[row])} of {int(sent[row])} commands received"
         ax.plot(x, v, color=colour, lw=1.4, label=label)
         zoom.plot(x, v, color=colour, lw=1.3)
         for a in (ax, zoom):
@@ -723,6 +810,10 @@ def _worst_profiles(c: _Campaign, rows: np.ndarray, replay: Replay) -> Figure:
     ax.set_xlabel("distance to the stopping point (m)")
     ax.set_ylabel("speed (km/h)")
     ax.set_title(f"{c.name}: speed over distance of the {rows.size} worst runs", fontsize=11)
+    if c.provenance:
+        from railstop.provenance import footer
+
+        fig.text(0.005, 0.005, footer(c.provenance), fontsize=6.5, color="0.4", ha="left", va="bottom")
     ax.grid(True, alpha=0.4)
     ax.legend(loc="lower left", fontsize=8, framealpha=0.9)
     return fig
@@ -740,7 +831,8 @@ table { border-collapse: collapse; font-size: 0.88em; margin: 0.6em 0; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.5em; }
 th { background: #f2f2f2; text-align: left; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
-table.meta th { width: 14em; }
+table.meta th { width: 17em; }
+table.summary th, table.worst th { white-space: nowrap; }
 .wide { overflow-x: auto; }
 figure { margin: 1em 0; }
 figure img { max-width: 100%; height: auto; }
@@ -769,42 +861,27 @@ def _small_pct(fraction: float) -> str:
     return _num(value, ".2f" if abs(value) >= 1.0 else "#.3g", " %")
 
 
-def _stat_cells(s: dict[str, float | int]) -> list[str]:
-    """The summary row of one controller, in the order of ``_STAT_HEADERS``."""
+def _stat_rows(tolerances: list[float]) -> list[tuple[str, Callable[[dict[str, Any]], str]]]:
+    """The summary's rows: (label, the cell of one controller's statistics)."""
+    tol = f"±{tolerances[0]:g} m" if len(tolerances) == 1 else "± its tolerance"
+    over = f"+{tolerances[0]:g} m" if len(tolerances) == 1 else "+ its tolerance"
     return [
-        f"{int(s['runs']):,}",
-        _pct(float(s["within_0_30"])),
-        _pct(float(s["within_0_35"])),
-        _pct(float(s["within_0_50"])),
-        _num(float(s["mean_m"]), "+.3f"),
-        _num(float(s["std_m"]), ".3f"),
-        _num(float(s["p99_abs_m"]), ".3f"),
-        _num(float(s["max_abs_m"]), ".3f"),
-        f"{int(s['overruns_0_35']):,}",
-        _small_pct(float(s["overrun_0_35_ci95_upper"])),
-        _num(float(s["p99_max_jerk_mps3"]), ".2f"),
-        _num(float(s["mean_stop_time_s"]), ".1f"),
-        f"{int(s['not_stopped']):,}",
-        f"{int(s['slid']):,}",
+        ("runs", lambda s: f"{int(s['runs']):,}"),
+        ("PSD tolerance", lambda s: f"±{float(s['tolerance_m']):g} m"),
+        (f"within the PSD tolerance ({tol})", lambda s: _pct(float(s["within_tolerance"]))),
+        ("within ±0.30 m", lambda s: _pct(float(s["within_0_30"]))),
+        ("within ±0.50 m", lambda s: _pct(float(s["within_0_50"]))),
+        ("mean (m)", lambda s: _num(float(s["mean_m"]), "+.3f")),
+        ("std (m)", lambda s: _num(float(s["std_m"]), ".3f")),
+        ("p99 |error| (m)", lambda s: _num(float(s["p99_abs_m"]), ".3f")),
+        ("max |error| (m)", lambda s: _num(float(s["max_abs_m"]), ".3f")),
+        (f"overruns > {over}", lambda s: f"{int(s['overruns']):,}"),
+        (f"P(overrun > {over}), 95 % upper bound", lambda s: _small_pct(float(s["overrun_ci95_upper"]))),
+        ("p99 max jerk (m/s³)", lambda s: _num(float(s["p99_max_jerk_mps3"]), ".2f")),
+        ("mean stop time (s)", lambda s: _num(float(s["mean_stop_time_s"]), ".1f")),
+        ("not stopped", lambda s: f"{int(s['not_stopped']):,}"),
+        ("slid", lambda s: f"{int(s['slid']):,}"),
     ]
-
-
-_STAT_HEADERS = (
-    "runs",
-    "within ±0.30 m",
-    "within ±0.35 m",
-    "within ±0.50 m",
-    "mean (m)",
-    "std (m)",
-    "p99 |error| (m)",
-    "max |error| (m)",
-    "overruns > +0.35 m",
-    "P(overrun > +0.35 m), 95 % upper bound",
-    "p99 max jerk (m/s³)",
-    "mean stop time (s)",
-    "not stopped",
-    "slid",
-)
 
 
 def _manifest_values(campaigns: list[_Campaign], getter: Callable[[dict[str, Any]], object]) -> str:
@@ -822,9 +899,13 @@ def _disturbance_name(manifest: dict[str, Any]) -> object:
     return d.get("name") if isinstance(d, dict) else d
 
 
-def _img(path: Path, directory: Path, alt: str, caption: str) -> str:
-    src = path.relative_to(directory).as_posix()
-    return f'<figure><img src="{_e(src)}" alt="{_e(alt)}"><figcaption>{_e(caption)}</figcaption></figure>'
+def _img(path: Path, alt: str, caption: str) -> str:
+    """The figure embedded in the page (a data URI): the report is one self-contained file."""
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return (
+        f'<figure><img src="data:image/png;base64,{data}" alt="{_e(alt)}" data-file="{_e(path.name)}">'
+        f"<figcaption>{_e(caption)}</figcaption></figure>"
+    )
 
 
 def _param_cell(values: np.ndarray, row: int) -> str:
@@ -847,11 +928,24 @@ def _html(
     profile_pngs: dict[str, Path],
     replayed: bool,
     worst: int,
+    written: dict[str, Any],
 ) -> str:
+    from railstop.provenance import manifest_sha256
+
     station = _manifest_values(campaigns, lambda m: m.get("station"))
     sizes = {c.runs for c in campaigns}
     runs = (
         f"{next(iter(sizes)):,}" if len(sizes) == 1 else ", ".join(f"{c.name}: {c.runs:,}" for c in campaigns)
+    )
+    tolerances = _tolerances(campaigns)
+    ran = ", ".join(
+        sorted(
+            {
+                f"railstop {c.provenance.get('railstop', '?')}, {c.provenance.get('written_utc', '?')}"
+                for c in campaigns
+                if c.provenance
+            }
+        )
     )
     meta = [
         ("station", station),
@@ -861,6 +955,19 @@ def _html(
         ("seed", _manifest_values(campaigns, lambda m: m.get("seed"))),
         ("runs per controller", runs),
         ("controllers", ", ".join(c.name for c in campaigns)),
+        ("PSD tolerance", ", ".join(f"±{t:g} m" for t in tolerances)),
+        ("stop model version", _manifest_values(campaigns, lambda m: m.get("model_version"))),
+        (
+            "line and vehicle data (SHA-256)",
+            _manifest_values(campaigns, lambda m: str(m.get("data_sha256", ""))[:16]),
+        ),
+        (
+            "campaigns (SHA-256 of the manifest)",
+            ", ".join(f"{c.name}: {manifest_sha256(c.manifest)[:16]}" for c in campaigns),
+        ),
+        ("campaigns run by", ran or "—"),
+        ("report written by", f"railstop {written['railstop']}, {written['written_utc']}"),
+        ("folder", str(directory)),
     ]
     out: list[str] = [
         "<!DOCTYPE html>",
@@ -873,12 +980,16 @@ def _html(
         "</table>",
         "<h2>Summary</h2>",
         '<div class="wide"><table class="summary">',
-        "<tr><th>controller</th>" + "".join(f"<th>{_e(h)}</th>" for h in _STAT_HEADERS) + "</tr>",
+        "<tr><th></th>"
+        + "".join(
+            f'<th><span class="swatch" style="background:{_e(_hex(c.color))}"></span>{_e(c.name)}</th>'
+            for c in campaigns
+        )
+        + "</tr>",
     ]
-    for c in campaigns:
-        cells = "".join(f'<td class="num">{_e(v)}</td>' for v in _stat_cells(c.stats))
-        swatch = f'<span class="swatch" style="background:{_e(_hex(c.color))}"></span>'
-        out.append(f"<tr><th>{swatch}{_e(c.name)}</th>{cells}</tr>")
+    for label, cell in _stat_rows(tolerances):
+        cells = "".join(f'<td class="num">{_e(cell(c.stats))}</td>' for c in campaigns)
+        out.append(f"<tr><th>{_e(label)}</th>{cells}</tr>")
     out += [
         "</table></div>",
         '<p class="note">A run that did not come to rest counts as outside every band; its error is the '
@@ -888,16 +999,15 @@ def _html(
         "<h2>Stop error</h2>",
         _img(
             figures["errors"],
-            directory,
             "stop-error histogram",
-            f"Stop error per controller; the shaded band is the ±{OVERRUN_LIMIT_M:g} m PSD tolerance.",
+            "Stop error per controller; the shaded band is the PSD tolerance "
+            f"({', '.join(f'±{t:g} m' for t in tolerances)}).",
         ),
         _img(
             figures["cdf"],
-            directory,
             "empirical CDF of |stop error|",
             "Empirical CDF of |stop error| (left) and its complement on a log scale (right), "
-            "with the 0.30 m and 0.35 m limits.",
+            f"with the 0.30 m reference and the PSD tolerance ({', '.join(f'{t:g} m' for t in tolerances)}).",
         ),
         "<h2>What drives the misses</h2>",
     ]
@@ -906,10 +1016,11 @@ def _html(
             f'<p class="note">Stop error against each disturbance parameter that varies in the campaign '
             f"({len(parameters)}: {_e(', '.join(parameters))}); panels with more than {_BINNED_ABOVE:,} "
             "points show the median (solid) and the 1st and 99th percentiles (dashed) per bin over a faint "
-            "sample of the runs.</p>"
+            "sample of the runs. The controller with the widest spread is drawn first, the narrowest on "
+            "top, so that no controller hides another.</p>"
         )
         out += [
-            _img(png, directory, f"what drives the misses ({i + 1})", "Stop error against the disturbances.")
+            _img(png, f"what drives the misses ({i + 1})", "Stop error against the disturbances.")
             for i, png in enumerate(driver_pngs)
         ]
     else:
@@ -931,32 +1042,48 @@ def _html(
         if rows.size == 0:
             out.append('<p class="note">The campaign has no runs.</p>')
             continue
-        shown = [p for p in parameters if p in c.columns]
-        head = ["run", "stop error (m)", "stop time (s)", "stopped", "slid", *shown]
-        out.append('<div class="wide"><table class="worst">')
-        out.append("<tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>")
-        for row in rows:
-            row_cells = [
-                str(int(c.columns["run"][row])),
-                _num(float(c.error[row]), "+.3f"),
-                _num(float(c.columns["stop_time_s"][row]), ".1f"),
-                "yes" if bool(c.columns["stopped"][row]) else "no",
-                "yes" if bool(c.columns["slid"][row]) else "no",
-                *(_param_cell(c.columns[p], int(row)) for p in shown),
-            ]
-            out.append("<tr>" + "".join(f'<td class="num">{_e(v)}</td>' for v in row_cells) + "</tr>")
-        out.append("</table></div>")
+        out += _worst_table(c, rows, [p for p in parameters if p in c.columns])
         if c.name in profile_pngs:
             out.append(
                 _img(
                     profile_pngs[c.name],
-                    directory,
                     f"{c.name}: worst runs",
-                    f"{c.name}: speed over distance of the worst runs, re-simulated.",
+                    f"{c.name}: speed over distance of the worst runs, re-simulated, with the detectors "
+                    "and the commands each run received.",
                 )
             )
+    out.append(f'<p class="note">{_e(footer_text(written))}</p>')
     out.append("</body></html>")
     return "\n".join(out) + "\n"
+
+
+def _worst_table(c: _Campaign, rows: np.ndarray, shown: list[str]) -> list[str]:
+    """One column per run, one row per quantity: fits the page however many parameters vary."""
+    cols = c.columns
+    table: list[tuple[str, list[str]]] = [
+        ("stop error (m)", [_num(float(c.error[r]), "+.3f") for r in rows]),
+        ("stop time (s)", [_num(float(cols["stop_time_s"][r]), ".1f") for r in rows]),
+        ("stopped", ["yes" if bool(cols["stopped"][r]) else "no" for r in rows]),
+        ("slid", ["yes" if bool(cols["slid"][r]) else "no" for r in rows]),
+    ]
+    if "commands_received" in cols and "commands_sent" in cols:
+        got, sent = cols["commands_received"], cols["commands_sent"]
+        table.append(("commands received / sent", [f"{int(got[r])} / {int(sent[r])}" for r in rows]))
+    table += [(p, [_param_cell(cols[p], int(r)) for r in rows]) for p in shown]
+    head = "".join(f'<th class="num">{int(cols["run"][r])}</th>' for r in rows)
+    out = ['<div class="wide"><table class="worst">', f"<tr><th>run</th>{head}</tr>"]
+    for label, cells in table:
+        out.append(
+            f"<tr><th>{_e(label)}</th>" + "".join(f'<td class="num">{_e(v)}</td>' for v in cells) + "</tr>"
+        )
+    out.append("</table></div>")
+    return out
+
+
+def footer_text(written: dict[str, Any]) -> str:
+    from railstop.provenance import footer
+
+    return footer(written)
 
 
 def _hex(color: str) -> str:

@@ -28,8 +28,6 @@ from railstop.errors import RailstopError
 from railstop.report.figures import write_figure
 from railstop.sim.engine import Trace
 
-# Platform screen doors: the stop must be within ±0.35 m of the stopping point.
-PSD_TOLERANCE_M = 0.35
 KMH_PER_MPS = 3.6
 
 _FIGSIZE_IN = (10.0, 8.0)
@@ -48,8 +46,14 @@ def plot_stop(
     commands: list[dict[str, Any]],
     title: str,
     path: str | Path,
+    tolerance_m: float,
+    footer: str = "",
 ) -> Path:
     """Write the two-panel PNG of run ``run`` of ``trace`` to ``path``; return the path.
+
+    ``tolerance_m``: the station's PSD tolerance (the green band); ``footer``: a
+    small line at the bottom saying where the plot comes from (version, date,
+    seed, input hash: see ``railstop.provenance.footer``).
 
     ``passage_times_s[i]`` is when detector i was passed (NaN if never).
     ``commands`` are command records (``BatchResult.commands``: the wayside
@@ -80,9 +84,12 @@ def plot_stop(
             station_name=station_name,
             stop_point_m=stop_point_m,
             detector_positions_m=detector_positions_m,
+            tolerance_m=tolerance_m,
         )
         _decel_panel(bottom, trace, run=run, passage_times_s=passage_times_s, commands=mine)
         fig.suptitle(title, fontsize=13, fontweight="bold")
+        if footer:
+            fig.text(0.005, 0.002, footer, fontsize=7, color="0.4", ha="left", va="bottom")
         out = write_figure(fig, out, _DPI)
     finally:
         # pyplot keeps every figure alive until closed; a campaign plots many.
@@ -99,6 +106,7 @@ def _speed_panel(
     station_name: str,
     stop_point_m: float,
     detector_positions_m: Sequence[float],
+    tolerance_m: float,
 ) -> None:
     x = trace.position_m[:, run] - stop_point_m
     v_kmh = trace.speed_mps[:, run] * KMH_PER_MPS
@@ -108,11 +116,7 @@ def _speed_panel(
 
     ax.plot(x, v_kmh, color="tab:blue", lw=1.8, label="speed")
     band = ax.axvspan(
-        -PSD_TOLERANCE_M,
-        PSD_TOLERANCE_M,
-        color="tab:green",
-        alpha=0.25,
-        label=f"PSD tolerance ±{PSD_TOLERANCE_M:g} m",
+        -tolerance_m, tolerance_m, color="tab:green", alpha=0.25, label=f"PSD tolerance ±{tolerance_m:g} m"
     )
     band.set_zorder(0)
     ax.axvline(0.0, color="tab:green", lw=1.5, label="stopping point")
@@ -163,15 +167,15 @@ def _speed_panel(
     ax.set_title(f"{station_name}: speed over distance", fontsize=11)
     ax.grid(True, alpha=0.4)
     ax.legend(loc="lower left", fontsize=9, framealpha=0.9)
-    _stop_zoom(zoom, x, v_kmh, final_x)
+    _stop_zoom(zoom, x, v_kmh, final_x, tolerance_m)
 
 
-def _stop_zoom(inset: Axes, x: np.ndarray, v_kmh: np.ndarray, final_x: float) -> None:
-    """The last metres: at 250 m full scale the ±0.35 m band is a few pixels wide."""
+def _stop_zoom(inset: Axes, x: np.ndarray, v_kmh: np.ndarray, final_x: float, tolerance_m: float) -> None:
+    """The last metres: at 250 m full scale the tolerance band is a few pixels wide."""
     left = min(-3.0, final_x - 1.0)
     right = max(1.0, final_x + 1.0)
     window = (x >= left) & (x <= right)
-    inset.axvspan(-PSD_TOLERANCE_M, PSD_TOLERANCE_M, color="tab:green", alpha=0.25, zorder=0)
+    inset.axvspan(-tolerance_m, tolerance_m, color="tab:green", alpha=0.25, zorder=0)
     inset.axvline(0.0, color="tab:green", lw=1.2)
     inset.plot(x, v_kmh, color="tab:blue", lw=1.5)
     inset.plot([final_x], [v_kmh[-1]], marker="o", ms=6, color="tab:red", ls="none", zorder=5)

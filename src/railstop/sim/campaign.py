@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import hashlib
 import json
 import os
 import shutil
@@ -46,6 +45,7 @@ import pyarrow.parquet as pq
 from railstop.config.disturbances import PARAMETERS, DisturbanceSet, draw_scenario
 from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
+from railstop.provenance import inputs_sha256, manifest_sha256, stamp
 from railstop.report.campaign_report import summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
 from railstop.sim.executor import execute
@@ -101,6 +101,14 @@ class CampaignSpec:
     disturbances: DisturbanceSet
     chunk_size: int = DEFAULT_CHUNK
     form: int | None = None
+    # The PSD tolerance of the summary (None: the station's psd_tolerance_m). Not in the
+    # manifest: it does not change a run, so a resume may summarise with another one.
+    tolerance_m: float | None = None
+
+    def tolerance(self) -> float:
+        return (
+            self.line.station(self.station).psd_tolerance_m if self.tolerance_m is None else self.tolerance_m
+        )
 
     def manifest(self) -> dict[str, Any]:
         st = self.line.station(self.station)
@@ -117,13 +125,15 @@ class CampaignSpec:
             "disturbances": {"name": self.disturbances.name, "set": self.disturbances.to_dict()},
             "line": self.line.line.name,
             "vehicle": self.vehicle.name,
+            # Where the wayside sees the train (for the report's plots; also in the data hash).
+            "detectors_before_stop_m": list(st.tasc.detectors_before_stop_m),
             # The data the numbers come from: a resume must use the same.
             "data_sha256": _data_hash(self.line, self.vehicle),
         }
 
     def identity(self) -> str:
         """The campaign's identity: the SHA-256 of its manifest (every chunk file carries it)."""
-        return manifest_identity(self.manifest())
+        return manifest_sha256(self.manifest())
 
     @property
     def chunks(self) -> int:
@@ -134,13 +144,8 @@ class CampaignSpec:
         return first, min(first + self.chunk_size, self.runs)
 
 
-def manifest_identity(manifest: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()
-
-
 def _data_hash(line: Line, vehicle: Vehicle) -> str:
-    text = json.dumps([line.model_dump(mode="json"), vehicle.model_dump(mode="json")], sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()
+    return inputs_sha256(line.model_dump(mode="json"), vehicle.model_dump(mode="json"))
 
 
 def simulate_runs(
@@ -373,7 +378,7 @@ def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> set[int]:
     The caller holds the folder's lock.
     """
     manifest = spec.manifest()
-    identity = manifest_identity(manifest)
+    identity = manifest_sha256(manifest)
     path = out / MANIFEST
     if path.exists():
         if not resume:
@@ -488,8 +493,12 @@ def run_campaign(
                 progress(done_runs + simulated, spec.runs)
         elapsed = time.perf_counter() - t0
         merge_chunks(spec, out)
-        summary = summarise(pq.read_table(out / RUNS_FILE, columns=list(SUMMARY_COLUMNS)))
+        summary = summarise(
+            pq.read_table(out / RUNS_FILE, columns=list(SUMMARY_COLUMNS)), tolerance_m=spec.tolerance()
+        )
         summary["runs_per_s"] = round(simulated / elapsed, 1) if simulated and elapsed > 0 else None
+        # Who summarised it, when, and the campaign it is (the manifest's hash, as in the chunks).
+        summary["provenance"] = stamp(spec.identity())
         tmp = out / f".{SUMMARY_FILE}.tmp"
         tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
         os.replace(tmp, out / SUMMARY_FILE)
@@ -521,14 +530,19 @@ def merge_chunks(spec: CampaignSpec, out: Path) -> None:
     os.replace(tmp, out / RUNS_FILE)
 
 
-def summarise(table: pa.Table) -> dict[str, Any]:
+def summarise(table: pa.Table, *, tolerance_m: float) -> dict[str, Any]:
     """The campaign's summary statistics (see ``summary_stats``), JSON-ready."""
 
     def col(name: str) -> np.ndarray:
         return table.column(name).to_numpy()
 
     stats = summary_stats(
-        col("stop_error_m"), col("max_jerk_mps3"), col("stop_time_s"), col("stopped"), col("slid")
+        col("stop_error_m"),
+        col("max_jerk_mps3"),
+        col("stop_time_s"),
+        col("stopped"),
+        col("slid"),
+        tolerance_m=tolerance_m,
     )
     return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.schema import Line, Station, Vehicle
+from railstop.provenance import inputs_sha256
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
@@ -34,6 +35,9 @@ class StopResult:
     slid: bool
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
+    psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
+    within_tolerance: bool = False  # at rest with |stop error| <= psd_tolerance_m
+    inputs_sha256: str = ""  # of the line, vehicle and disturbance data (railstop.provenance)
     # Braking-telegram frames on the air (safety layer): sent, delivered, rejected by reason.
     frames: dict[str, int] = field(default_factory=dict)
     command_log: list[dict[str, Any]] = field(default_factory=list, repr=False)
@@ -64,6 +68,7 @@ def run_stop(
     form: SignalForm | None = None,
     disturbances: DisturbanceSet | None = None,
     run: int = 0,
+    tolerance_m: float | None = None,
 ) -> tuple[StopResult, BatchResult]:
     """One detailed stop.
 
@@ -101,6 +106,13 @@ def run_stop(
         load_factor = float(drawn["load_factor"][0])
         brake_gain = float(drawn["brake_gain"][0])
     stop_time = float(batch.stop_time_s[0])
+    tol = station.psd_tolerance_m if tolerance_m is None else tolerance_m
+    error = round(float(batch.stop_error_m[0]), 6)
+    inputs = inputs_sha256(
+        line.model_dump(mode="json"),
+        vehicle.model_dump(mode="json"),
+        None if disturbances is None else disturbances.to_dict(),
+    )
     result = StopResult(
         controller=controller,
         station=station.name,
@@ -109,7 +121,7 @@ def run_stop(
         form=int(station.tasc.signal_form if form is None else form),
         load_factor=round(load_factor, 6),
         brake_gain=round(brake_gain, 6),
-        stop_error_m=round(float(batch.stop_error_m[0]), 6),
+        stop_error_m=error,
         stop_time_s=round(stop_time, 3) if np.isfinite(stop_time) else None,
         max_jerk_mps3=round(float(batch.max_jerk_mps3[0]), 4),
         notch_changes=int(batch.notch_changes[0]),
@@ -119,6 +131,9 @@ def run_stop(
         slid=bool(batch.slid[0]),
         disturbances=None if disturbances is None else disturbances.name,
         run=run,
+        psd_tolerance_m=tol,
+        within_tolerance=bool(batch.stopped[0]) and abs(error) <= tol,
+        inputs_sha256=inputs,
         frames=dict(batch.link_frames),
         command_log=batch.commands,
     )
