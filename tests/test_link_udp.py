@@ -198,6 +198,9 @@ def test_two_processes_deliver_genuine_and_reject_threats(category: int, corrupt
     got = json.loads(out.strip().splitlines()[-1])
     assert got["complete"] is True
     assert got["datagrams"] == n + replay + corrupt
+    # Nothing dropped on the way: by the kernel (Linux counts it; elsewhere it is unknown) or the queue.
+    assert got["dropped_by_kernel"] == (0 if sys.platform.startswith("linux") else None)
+    assert got["dropped_queue_full"] == 0
     # The N genuine telegrams, in order, intact down to the codec's CRC-16.
     assert got["delivered"] == n and got["decoded"] == n and got["telegram_errors"] == {}
     assert got["payloads"] == [demo_payload(i).hex() for i in range(n)]
@@ -258,3 +261,30 @@ def test_receiver_without_sender_gives_up_incomplete() -> None:
     assert res.returncode == 1, res.stderr
     got = json.loads(res.stdout.strip().splitlines()[-1])
     assert got["complete"] is False and got["delivered"] == 0 and got["datagrams"] == 0
+
+
+@pytest.mark.parametrize(
+    ("command", "option", "value", "want"),
+    [
+        ("send", "--epoch", "nan", "not a number (got 'nan')"),
+        ("receive", "--epoch", "inf", "not finite (got 'inf')"),
+        ("receive", "--wait-s", "nan", "not a number (got 'nan')"),
+        ("receive", "--max-age-s", "0", "must be greater than 0 (got '0')"),
+        ("receive", "--linger-s", "-1", "must be at least 0 (got '-1')"),
+        ("send", "--interval-s", "-inf", "not finite (got '-inf')"),
+        ("receive", "--peer-id", str(2**70), f"a node id is 0..65535 (got '{2**70}')"),
+        ("send", "--src-id", "-1", "a node id is 0..65535 (got '-1')"),
+        ("send", "--count", "x", "not a whole number (got 'x')"),
+    ],
+)
+def test_a_bad_number_is_one_line_naming_the_option(command: str, option: str, value: str, want: str) -> None:
+    """NaN is "not a number", infinity "not finite"; the option is named, never an internal field."""
+    args = {"--port": "9", "--count": "1", "--epoch": "0", "--category": "1"}
+    if command == "receive":
+        args["--wait-s"] = "0.2"
+    args[option] = value
+    argv = [f"{k}={v}" for k, v in args.items()]  # --x=-inf: a value, not an option
+    res = subprocess.run(udp_cli(command, *argv), capture_output=True, text=True, timeout=10)
+    assert res.returncode == 2, res
+    assert res.stderr.strip().splitlines() == [f"error: argument {option}: {want}"]
+    assert res.stdout == ""

@@ -469,8 +469,8 @@ def test_cli_position_run_json_and_plot(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (("--slides", "-1"), "slides: must satisfy >= 0"),
-        (("--diameter-error-pct", "30"), "diameter_error_pct"),
+        (("--slides", "-1"), "--slides: must be at least 0 (got -1)"),
+        (("--diameter-error-pct", "30"), "--diameter-error-pct: must be between -20 % and 20 % (got 30)"),
         (("--disturbances", "nonsense"), "no such file"),
     ],
 )

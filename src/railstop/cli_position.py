@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import typer
 
@@ -12,9 +15,93 @@ from railstop.cli_common import fail, out
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.errors import RailstopError
-from railstop.sim.position_run import PositionRunSettings, disturbance_overrides, run_position
+from railstop.sim.position_run import (
+    SETTING_LIMITS,
+    PositionRunSettings,
+    SettingError,
+    check_streams,
+    disturbance_overrides,
+    run_position,
+)
 
 _DEFAULTS = PositionRunSettings()
+
+
+@dataclass(frozen=True, slots=True)
+class _Number:
+    """A numeric option: the setting it gives (as ``value × scale``), in which unit, whole or not."""
+
+    setting: str
+    whole: bool = False
+    scale: float = 1.0
+    unit: str = ""
+
+
+# Numbers are taken as text and parsed here, so that every refusal quotes the value as typed and
+# states the rule in the option's own unit (mm, h), not in the simulation's (m, s).
+_NUMBERS: dict[str, _Number] = {
+    "--seed": _Number("seed", whole=True),
+    "--run": _Number("run", whole=True),
+    "--diameter-error-pct": _Number("diameter_error_pct", unit="%"),
+    "--wheel-diameter-mm": _Number("wheel_diameter_m", scale=1e-3, unit="mm"),
+    "--slides": _Number("slides", whole=True),
+    "--slips": _Number("slips", whole=True),
+    "--low-mu": _Number("low_mu"),
+    "--holdover-h": _Number("holdover_s", scale=3600.0, unit="h"),
+}
+_OPTION_OF = {spec.setting: option for option, spec in _NUMBERS.items()}
+_EXACT_FLOAT_INT = 2**53
+
+
+def _shown(text: str) -> str:
+    """The value as typed: bare when it reads as a number, quoted otherwise."""
+    try:
+        float(text)
+    except ValueError:
+        return repr(text)
+    return text.strip()
+
+
+def _number(option: str, text: str) -> int | float:
+    """The setting's value of ``text`` (``value × scale``); a bad one is a one-line exit."""
+    spec = _NUMBERS[option]
+    try:
+        value: float = float(text)
+    except ValueError:
+        fail(f"{option}: not a number (got {text!r})")
+    number: int | float = value
+    if spec.whole:
+        try:
+            number = int(text)
+        except ValueError:
+            if math.isnan(value):
+                fail(f"{option}: not a number (got {_shown(text)})")
+            if math.isinf(value):
+                fail(f"{option}: not finite (got {_shown(text)})")
+            if not value.is_integer() or abs(value) > _EXACT_FLOAT_INT:
+                fail(f"{option}: not a whole number (got {_shown(text)})")
+            number = int(value)  # e.g. 1e3
+    setting = number if spec.scale == 1.0 else number * spec.scale
+    limit = SETTING_LIMITS.get(spec.setting)
+    problem = None if limit is None else limit.problem(setting, scale=spec.scale, unit=spec.unit)
+    if problem is not None:
+        fail(f"{option}: {problem} (got {_shown(text)})")
+    return setting
+
+
+_VEHICLES = "the vehicle's"
+_LINE_DATA = "the line's data"
+
+
+def _rule(option: str) -> str:
+    """The range of ``option`` in its own unit, for its help."""
+    spec = _NUMBERS[option]
+    return SETTING_LIMITS[spec.setting].rule(scale=spec.scale, unit=spec.unit)
+
+
+def _default(value: object) -> str:
+    """A help text's default; the bracket is escaped (the help is rich markup)."""
+    return f"\\[default: {value}]"
 
 
 def position_run(
@@ -24,10 +111,14 @@ def position_run(
     vehicle: Annotated[
         Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
     ] = None,
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    seed: Annotated[str, typer.Option(metavar="<int>", help="Random seed.")] = "1",
     run: Annotated[
-        int, typer.Option(help="Run index of the random streams (and of the disturbance draw).")
-    ] = 0,
+        str,
+        typer.Option(
+            metavar="<int>",
+            help="Run index of the random streams (and of the disturbance draw).",
+        ),
+    ] = "0",
     disturbances: Annotated[
         str | None,
         typer.Option(
@@ -36,25 +127,42 @@ def position_run(
         ),
     ] = None,
     diameter_error_pct: Annotated[
-        float | None,
+        str | None,
         typer.Option(
-            help=f"Odometer's assumed wheel diameter = actual x (1 + error/100) "
-            f"[default: {_DEFAULTS.diameter_error_pct:g}]."
+            metavar="<float>",
+            help="Odometer's assumed wheel diameter = actual x (1 + error/100); "
+            f"{_rule('--diameter-error-pct')}. {_default(f'{_DEFAULTS.diameter_error_pct:g}')}",
         ),
     ] = None,
     wheel_diameter_mm: Annotated[
-        float | None, typer.Option(help="Actual wheel diameter [default: the vehicle's].")
+        str | None,
+        typer.Option(
+            metavar="<float>",
+            help=f"Actual wheel diameter; {_rule('--wheel-diameter-mm')}. {_default(_VEHICLES)}",
+        ),
     ] = None,
     slides: Annotated[
-        int | None,
-        typer.Option(help=f"Braking zones with a low-adhesion patch (slide) [default: {_DEFAULTS.slides}]."),
+        str | None,
+        typer.Option(
+            metavar="<int>",
+            help=f"Braking zones with a low-adhesion patch (slide), at most one per stopping point. "
+            f"{_default(_DEFAULTS.slides)}",
+        ),
     ] = None,
     slips: Annotated[
-        int | None,
-        typer.Option(help=f"Traction zones with a low-adhesion patch (slip) [default: {_DEFAULTS.slips}]."),
+        str | None,
+        typer.Option(
+            metavar="<int>",
+            help=f"Traction zones with a low-adhesion patch (slip), at most one per departure. "
+            f"{_default(_DEFAULTS.slips)}",
+        ),
     ] = None,
     low_mu: Annotated[
-        float | None, typer.Option(help=f"Adhesion in a patch [default: {_DEFAULTS.low_mu:g}].")
+        str | None,
+        typer.Option(
+            metavar="<float>",
+            help=f"Adhesion in a patch; {_rule('--low-mu')}. {_default(f'{_DEFAULTS.low_mu:g}')}",
+        ),
     ] = None,
     no_gnss: Annotated[
         bool,
@@ -67,8 +175,12 @@ def position_run(
         bool, typer.Option("--no-learning", help="Switch the learner off (calibrated = corrected).")
     ] = False,
     holdover_h: Annotated[
-        float | None,
-        typer.Option(help="Hours since a clock without time source was set [default: the line's data]."),
+        str | None,
+        typer.Option(
+            metavar="<float>",
+            help=f"Hours since a clock without time source was set; {_rule('--holdover-h')}. "
+            f"{_default(_LINE_DATA)}",
+        ),
     ] = None,
     plot: Annotated[
         Path | None, typer.Option(help="Write a PNG of the errors against chainage here.")
@@ -76,29 +188,39 @@ def position_run(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Drive one train over the whole line: raw, corrected (SPEC §2) and calibrated position errors."""
+    typed = {
+        "--seed": seed,
+        "--run": run,
+        "--diameter-error-pct": diameter_error_pct,
+        "--wheel-diameter-mm": wheel_diameter_mm,
+        "--slides": slides,
+        "--slips": slips,
+        "--low-mu": low_mu,
+        "--holdover-h": holdover_h,
+    }
+    given = {option: text for option, text in typed.items() if text is not None}
+    explicit = {_NUMBERS[option].setting: _number(option, text) for option, text in given.items()}
+    seed_n, run_n = int(explicit.pop("seed")), int(explicit.pop("run"))
+    if plot is not None:
+        _check_plot_path(plot)
+    drawn: set[str] = set()
     try:
-        ln = load_line(line)
-        veh = load_vehicle(vehicle)
+        check_streams(seed_n, run_n)
+        ln = _load("--line", line, load_line)
+        veh = _load("--vehicle", vehicle, load_vehicle)
         values: dict[str, Any] = {}
         if disturbances is not None:
-            values.update(disturbance_overrides(load_disturbances(disturbances), ln, veh, seed=seed, run=run))
-        explicit = {
-            "diameter_error_pct": diameter_error_pct,
-            "wheel_diameter_m": None if wheel_diameter_mm is None else wheel_diameter_mm * 1e-3,
-            "slides": slides,
-            "slips": slips,
-            "low_mu": low_mu,
-            "holdover_s": None if holdover_h is None else holdover_h * 3600.0,
-        }
+            dist = _load("--disturbances", disturbances, load_disturbances)
+            values.update(disturbance_overrides(dist, ln, veh, seed=seed_n, run=run_n))
+        drawn = set(values)
         for key, value in explicit.items():
-            if value is not None:
-                values[key] = value
-                # A count given on the command line replaces the set's per-zone chance.
-                if key in ("slides", "slips"):
-                    values.pop(f"{key[:-1]}_probability", None)
+            values[key] = value
+            # A count given on the command line replaces the set's per-zone chance.
+            if key in ("slides", "slips"):
+                values.pop(f"{key[:-1]}_probability", None)
         settings = PositionRunSettings(
-            seed=seed,
-            run=run,
+            seed=seed_n,
+            run=run_n,
             gnss=not no_gnss,
             repeaters=not no_repeaters,
             learn=not no_learning,
@@ -109,7 +231,19 @@ def position_run(
         if plot is not None:
             from railstop.report.position_plot import plot_position_run
 
-            plot = plot_position_run(result, plot)
+            try:
+                plot = plot_position_run(result, plot)
+            except RailstopError as exc:
+                fail(f"--plot: {exc}")
+    except SettingError as exc:
+        option = _OPTION_OF.get(exc.setting)
+        if option is not None and option in given:
+            fail(f"{option}: {exc.detail} (got {_shown(given[option])})")
+        if exc.setting in drawn:
+            fail(f"--disturbances: {disturbances}: {exc}")
+        if option is not None:
+            fail(f"{option}: {exc.detail} (got {exc.value!r}, the default)")
+        fail(str(exc))
     except RailstopError as exc:
         fail(str(exc))
     if as_json:
@@ -136,3 +270,28 @@ def position_run(
     )
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)
+
+
+T = TypeVar("T")
+
+
+def _load(option: str, source: Any, load: Callable[[Any], T]) -> T:
+    """``load(source)``; a file given by ``option`` that cannot be used is one line naming the option."""
+    try:
+        return load(source)
+    except RailstopError as exc:
+        if source is None:
+            raise
+        fail(f"{option}: {exc}")
+
+
+def _check_plot_path(plot: Path) -> None:
+    """Refuse a plot file that cannot be written before the run, not after it."""
+    from railstop.report.figures import figure_path
+
+    try:
+        target = figure_path(plot)
+    except RailstopError as exc:
+        fail(f"--plot: {exc}")
+    if not target.parent.is_dir():
+        fail(f"--plot: {target}: directory {str(target.parent)!r} does not exist")

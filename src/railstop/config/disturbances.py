@@ -183,6 +183,11 @@ def _pair(what: str) -> Any:
 def _probability_number(v: Any) -> Any:
     if isinstance(v, bool) or not isinstance(v, int | float):
         raise ValueError("a probability is a plain number between 0 and 1, e.g. 0.02")
+    # NaN and infinity are named as such (the range check would call them too small or too big).
+    if math.isnan(v):
+        raise ValueError("not a number")
+    if math.isinf(v):
+        raise ValueError("not finite")
     return v
 
 

@@ -12,6 +12,15 @@ the TASC units) stay pure.
   datagrams received are dropped and counted.
 * The receive queue is bounded: when it is full the *oldest* frame is dropped
   (a late TASC telegram is worth less than the newest one) and counted.
+* Datagrams the kernel drops before the endpoint sees them (socket receive
+  buffer full) are counted too, on Linux: the socket has ``SO_RXQ_OVFL`` set and
+  is read with ``recvmsg``, whose ancillary data carries the kernel's drop
+  counter of the socket (``EndpointStats.dropped_by_kernel``). The counter
+  arrives with each datagram, as it stood when that datagram was queued, so
+  drops after the last datagram received show only with the next one. Where
+  the option does not exist (not Linux) or the event loop cannot watch a socket
+  (Windows' proactor), the endpoint uses asyncio's own datagram transport and
+  the counter is None: unknown, not zero.
 
 Two processes (``python -m railstop.link.udp``)
 -----------------------------------------------
@@ -26,6 +35,8 @@ on stderr once bound), accepts frames with ``SafeReceiver`` until N were
 delivered (or ``--wait-s`` ran out), lingers ``--linger-s`` for stragglers,
 decodes the delivered payloads and prints one JSON line:
 ``{"counts": receiver.counts, "delivered": ..., "rejected": {reason: n}, ...}``;
+with the endpoint's counts (``datagrams``, ``dropped_queue_full``,
+``dropped_oversize``, ``dropped_by_kernel``: null where it cannot be known);
 exit status 0 when N were delivered, 1 when not, 2 on a usage error.
 Category 3 (``--category 3``, open transmission: radio) needs ``--key-hex``,
 a master key; each direction uses ``safety.link_key(master, src, dst)``.
@@ -46,6 +57,8 @@ import asyncio
 import collections
 import json
 import math
+import socket
+import struct
 import sys
 import time
 from collections.abc import Sequence
@@ -63,6 +76,12 @@ Address = tuple[str, int]
 MAX_DATAGRAM_BYTES = 1472
 DEFAULT_QUEUE_FRAMES = 256
 
+#: Socket option asking the kernel for its drop counter with each datagram (Linux: 40, absent from
+#: Python's ``socket`` module); None where there is no such option.
+SO_RXQ_OVFL: int | None = getattr(socket, "SO_RXQ_OVFL", 40 if sys.platform.startswith("linux") else None)
+_DROPS = struct.Struct("=I")  # the counter: a native uint32 (wraps at 2^32)
+_READS_PER_WAKE = 64  # datagrams read per readiness callback, so a flood cannot starve the loop
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EndpointStats:
@@ -72,6 +91,7 @@ class EndpointStats:
     received: int
     dropped_queue_full: int  # oldest frames dropped because the queue was full
     dropped_oversize: int  # received datagrams longer than max_frame_bytes
+    dropped_by_kernel: int | None  # dropped by the kernel (receive buffer full); None = cannot know
     errors: int  # errors the socket reported (e.g. ICMP port unreachable)
 
 
@@ -85,8 +105,115 @@ class _Protocol(asyncio.DatagramProtocol):
     def error_received(self, exc: Exception) -> None:
         self._endpoint._errors += 1
 
+    def kernel_drops(self, count: int) -> None:
+        """The kernel's drop counter of the socket, as it came with the latest datagram."""
+        self._endpoint._dropped_kernel = count
+
     def connection_lost(self, exc: Exception | None) -> None:
         self._endpoint._wake.set()  # a waiting recv() returns
+
+
+class _RecvmsgTransport(asyncio.DatagramTransport):
+    """A datagram transport that reads with ``recvmsg`` to get the ``SO_RXQ_OVFL`` drop counter.
+
+    asyncio's own transport reads with ``recvfrom``, which drops ancillary data. Needs an event
+    loop that can watch a socket (``add_reader``). Sends go out at once; a send the socket
+    cannot take now (EAGAIN) waits in a buffer until it can, as with asyncio's transport.
+    """
+
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, sock: socket.socket, protocol: _Protocol, max_size: int
+    ) -> None:
+        super().__init__(extra={"socket": sock, "sockname": sock.getsockname()})
+        self._loop = loop
+        self._sock = sock
+        self._fd = sock.fileno()
+        self._protocol = protocol
+        self._max_size = max_size
+        self._ancillary = socket.CMSG_SPACE(_DROPS.size)
+        self._pending: collections.deque[tuple[bytes, Any]] = collections.deque()
+        self._closing = False
+        loop.add_reader(self._fd, self._read_ready)  # NotImplementedError: the caller falls back
+
+    def _read_ready(self) -> None:
+        for _ in range(_READS_PER_WAKE):
+            try:
+                data, ancdata, _flags, addr = self._sock.recvmsg(self._max_size, self._ancillary)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:  # e.g. ICMP port unreachable of an earlier send
+                self._protocol.error_received(exc)
+                continue
+            for level, kind, payload in ancdata:
+                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= _DROPS.size:
+                    self._protocol.kernel_drops(_DROPS.unpack_from(payload)[0])
+            self._protocol.datagram_received(data, addr)
+            if self._closing:
+                return
+
+    def sendto(self, data: bytes | bytearray | memoryview, addr: Any = None) -> None:
+        if self._closing:
+            raise LinkError("endpoint is closed")
+        if not self._pending:
+            try:
+                self._sock.sendto(data, addr)
+                return
+            except (BlockingIOError, InterruptedError):
+                self._loop.add_writer(self._fd, self._write_ready)
+            except OSError as exc:
+                self._protocol.error_received(exc)
+                return
+        self._pending.append((bytes(data), addr))
+
+    def _write_ready(self) -> None:
+        while self._pending:
+            data, addr = self._pending[0]
+            try:
+                self._sock.sendto(data, addr)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                self._protocol.error_received(exc)
+            self._pending.popleft()
+        self._loop.remove_writer(self._fd)
+        if self._closing:
+            self._finish()
+
+    def is_closing(self) -> bool:
+        return self._closing
+
+    def close(self) -> None:
+        """Stop reading; close the socket once the sends waiting in the buffer are out."""
+        if self._closing:
+            return
+        self._closing = True
+        self._loop.remove_reader(self._fd)
+        if not self._pending:
+            self._finish()
+
+    def abort(self) -> None:
+        self._closing = True
+        self._pending.clear()
+        self._loop.remove_reader(self._fd)
+        self._loop.remove_writer(self._fd)
+        self._finish()
+
+    def _finish(self) -> None:
+        if self._sock.fileno() < 0:
+            return
+        self._loop.call_soon(self._protocol.connection_lost, None)
+        self._sock.close()
+
+
+def _enable_drop_counter(sock: socket.socket) -> bool:
+    """Ask the kernel for its drop counter with each datagram; False where it cannot."""
+    if SO_RXQ_OVFL is None:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+    except OSError:
+        return False
+    return True
 
 
 class UdpEndpoint:
@@ -103,6 +230,7 @@ class UdpEndpoint:
         self._received = 0
         self._dropped_full = 0
         self._dropped_oversize = 0
+        self._dropped_kernel: int | None = None  # None until open_endpoint enables the counter
         self._errors = 0
 
     # -- socket callbacks ------------------------------------------------
@@ -139,6 +267,7 @@ class UdpEndpoint:
             received=self._received,
             dropped_queue_full=self._dropped_full,
             dropped_oversize=self._dropped_oversize,
+            dropped_by_kernel=self._dropped_kernel,
             errors=self._errors,
         )
 
@@ -193,20 +322,64 @@ async def open_endpoint(
     *,
     queue_frames: int = DEFAULT_QUEUE_FRAMES,
     max_frame_bytes: int = MAX_DATAGRAM_BYTES,
+    receive_buffer_bytes: int | None = None,
 ) -> UdpEndpoint:
-    """Bind a UDP endpoint at ``local`` (port 0 = any free port); ``remote`` = default destination."""
+    """Bind a UDP endpoint at ``local`` (port 0 = any free port); ``remote`` = default destination.
+
+    ``receive_buffer_bytes`` sets the socket's SO_RCVBUF (the kernel may round it; None = the
+    system default). ``stats.dropped_by_kernel`` counts what the kernel dropped when that buffer
+    was full: 0 from the start on Linux, None where it cannot be known (see the module docstring).
+    """
     if queue_frames < 1:
         raise LinkError(f"queue_frames must be >= 1 (got {queue_frames!r})")
     if not 1 <= max_frame_bytes <= 65507:  # largest UDP payload over IPv4
         raise LinkError(f"max_frame_bytes must be 1..65507 (got {max_frame_bytes!r})")
+    if receive_buffer_bytes is not None and receive_buffer_bytes < 1:
+        raise LinkError(f"receive_buffer_bytes must be >= 1 (got {receive_buffer_bytes!r})")
     endpoint = UdpEndpoint(remote=remote, queue_frames=queue_frames, max_frame_bytes=max_frame_bytes)
     loop = asyncio.get_running_loop()
+    sock = await _bound_socket(loop, local)
+    protocol = _Protocol(endpoint)
     try:
-        transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(endpoint), local_addr=local)
+        if receive_buffer_bytes is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
+        transport: asyncio.DatagramTransport | None = None
+        if _enable_drop_counter(sock):
+            try:
+                # One byte more than a frame may have: a longer datagram shows as too long.
+                transport = _RecvmsgTransport(loop, sock, protocol, max_frame_bytes + 1)
+                endpoint._dropped_kernel = 0
+            except NotImplementedError:  # an event loop that cannot watch a socket
+                transport = None
+        if transport is None:
+            transport, _ = await loop.create_datagram_endpoint(lambda: protocol, sock=sock)
     except OSError as exc:
-        raise LinkError(f"cannot bind UDP {local[0]}:{local[1]}: {exc.strerror or exc}") from None
+        sock.close()
+        raise LinkError(f"cannot set up UDP {local[0]}:{local[1]}: {exc.strerror or exc}") from None
     endpoint._transport = transport
     return endpoint
+
+
+async def _bound_socket(loop: asyncio.AbstractEventLoop, local: Address) -> socket.socket:
+    """A non-blocking UDP socket bound to ``local`` (the first of its addresses that binds)."""
+    host, port = local
+    try:
+        infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM, proto=socket.IPPROTO_UDP)
+    except OSError as exc:
+        raise LinkError(f"cannot bind UDP {host}:{port}: {exc.strerror or exc}") from None
+    problem: OSError | None = None
+    for family, kind, proto, _, address in infos:
+        sock = socket.socket(family, kind, proto)
+        try:
+            sock.setblocking(False)
+            sock.bind(address)
+        except OSError as exc:
+            sock.close()
+            problem = exc
+            continue
+        return sock
+    detail = "no address" if problem is None else problem.strerror or str(problem)
+    raise LinkError(f"cannot bind UDP {host}:{port}: {detail}")
 
 
 # --------------------------------------------------------------------------
@@ -341,6 +514,7 @@ async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
         "datagrams": stats.received,
         "dropped_queue_full": stats.dropped_queue_full,
         "dropped_oversize": stats.dropped_oversize,
+        "dropped_by_kernel": stats.dropped_by_kernel,
         "payloads": payloads,
     }
 
@@ -355,15 +529,50 @@ def _key(text: str) -> bytes:
     return key
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not (value > 0.0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a positive number (got {text!r})")
+def _finite(text: str) -> float:
+    """A finite number; NaN is "not a number" and infinity "not finite" (never too big or small)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number (got {text!r})") from None
+    if math.isnan(value):
+        raise argparse.ArgumentTypeError(f"not a number (got {text!r})")
+    if math.isinf(value):
+        raise argparse.ArgumentTypeError(f"not finite (got {text!r})")
     return value
 
 
+def _positive(text: str) -> float:
+    value = _finite(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be greater than 0 (got {text!r})")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _finite(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"must be at least 0 (got {text!r})")
+    return value
+
+
+def _node_id(text: str) -> int:
+    """A safety-layer node id: a uint16 in the frame header."""
+    value = _whole(text)
+    if not 0 <= value <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"a node id is 0..65535 (got {text!r})")
+    return value
+
+
+def _whole(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number (got {text!r})") from None
+
+
 def _port(text: str) -> int:
-    value = int(text)
+    value = _whole(text)
     if not 1 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"a UDP port is 1..65535 (got {text!r})")
     return value
@@ -378,7 +587,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _non_negative_int(text: str) -> int:
-    value = int(text)
+    value = _whole(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0 (got {text!r})")
     return value
@@ -406,27 +615,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     common.add_argument(
         "--epoch",
-        type=float,
+        type=_finite,
         required=True,
         help="shared time origin, a time.time() value (stands for GNSS-synchronised clocks)",
     )
 
     snd = sub.add_parser("send", parents=[common], help="wrap and send telegrams")
-    snd.add_argument("--src-id", type=int, default=1)
-    snd.add_argument("--dst-id", type=int, default=2)
-    snd.add_argument("--interval-s", type=float, default=0.005, help="pause between datagrams")
+    snd.add_argument("--src-id", type=_node_id, default=1, help="this sender's id (0..65535)")
+    snd.add_argument("--dst-id", type=_node_id, default=2, help="the receiver's id (0..65535)")
+    snd.add_argument("--interval-s", type=_non_negative, default=0.005, help="pause between datagrams")
     snd.add_argument("--replay", type=_non_negative_int, default=0, help="inject K re-sent old frames")
     snd.add_argument(
         "--corrupt", type=_non_negative_int, default=0, help="inject K frames with a bit flipped"
     )
 
     rcv = sub.add_parser("receive", parents=[common], help="accept telegrams, print JSON counts")
-    rcv.add_argument("--own-id", type=int, default=2)
-    rcv.add_argument("--peer-id", type=int, default=1)
+    rcv.add_argument("--own-id", type=_node_id, default=2, help="this receiver's id (0..65535)")
+    rcv.add_argument("--peer-id", type=_node_id, default=1, help="the sender's id (0..65535)")
     rcv.add_argument("--max-age-s", type=_positive, default=1.0, help="oldest acceptable telegram")
     rcv.add_argument("--timeout-s", type=_positive, default=2.0, help="safety-layer supervision timeout")
     rcv.add_argument("--wait-s", type=_positive, default=10.0, help="give up after this long")
-    rcv.add_argument("--linger-s", type=float, default=0.2, help="keep listening after the last one")
+    rcv.add_argument("--linger-s", type=_non_negative, default=0.2, help="keep listening after the last one")
     return parser
 
 

@@ -21,7 +21,8 @@ Disturbances of a run: the odometer's assumed wheel diameter is off by
 point: the service brake demand exceeds adhesion, the train slides under
 wheel-slide protection) and some *traction zones* (5-125 m after a departure:
 the wheels slip under anti-slip control). ``slides`` / ``slips`` choose that
-many zones per run at random; ``slide_probability`` / ``slip_probability``
+many zones per run at random (a zone holds one patch: more than the line's
+zones is refused); ``slide_probability`` / ``slip_probability``
 instead give each zone a patch with that chance (how a disturbance set's
 ``low_adhesion_probability`` is used). Where the patches go is drawn from
 ``Stream.ADHESION``: zone z (braking zones 0..S-1 of the S stops, then
@@ -31,6 +32,7 @@ traction zones S..2S-1) uses counters 4z (which zones), 4z + 1 (start) and
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -55,6 +57,7 @@ from railstop.physics.train import (
 from railstop.sensors.gnss_clock import GnssClock, in_shadow
 from railstop.sensors.odometer import Tachometer, creep_factor
 from railstop.sensors.track_circuit import TrackCircuitDetector
+from railstop.streams import RUN_LIMIT as STREAM_LIMIT
 from railstop.streams import RunStreams, Stream
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
 
@@ -69,6 +72,85 @@ PATCH_COUNTERS = 4
 BRAKING_ZONE_M = (60.0, 300.0)  # patch starts this far before a stopping point
 TRACTION_ZONE_M = (5.0, 125.0)  # patch starts this far after a departure
 CHAINAGE_STEP_M = 1.0  # grid of the error-against-chainage statistics
+
+
+class SettingError(SimulationError):
+    """A position-run setting out of its range: ``setting`` (field name), ``detail`` (why), ``value``.
+
+    ``str(error)`` is ``setting: detail (got value)``; the CLI puts the option and the value as
+    typed instead (``railstop.cli_position``).
+    """
+
+    def __init__(self, setting: str, detail: str, value: object) -> None:
+        self.setting = setting
+        self.detail = detail
+        self.value = value
+        super().__init__(f"{setting}: {detail} (got {value!r})")
+
+
+@dataclass(frozen=True, slots=True)
+class Limit:
+    """The finite interval a numeric setting must lie in (None = unbounded on that side), with its unit."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    unit: str = ""
+
+    def problem(self, x: float, *, scale: float = 1.0, unit: str | None = None) -> str | None:
+        """Why ``x`` (in the setting's unit) is refused, None if it is not. NaN is "not a number",
+        ±inf "not finite"; the bounds of the rule are quoted divided by ``scale`` in ``unit`` (the
+        unit of an option that gives the setting as ``value × scale``)."""
+        if isinstance(x, float) and math.isnan(x):
+            return "not a number"
+        if isinstance(x, float) and math.isinf(x):
+            return "not finite"
+        above = self.lo is None or (x > self.lo if self.lo_open else x >= self.lo)
+        below = self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)
+        if above and below:
+            return None
+        return f"must be {self.rule(scale=scale, unit=self.unit if unit is None else unit)}"
+
+    def rule(self, *, scale: float = 1.0, unit: str = "") -> str:
+        """``between 0 h and 8888.89 h``, ``greater than 0 and at most 0.5``, ``at least 0``..."""
+        u = f" {unit}" if unit else ""
+        lo = None if self.lo is None else f"{self.lo / scale:g}{u}"
+        hi = None if self.hi is None else f"{self.hi / scale:g}{u}"
+        low = None if lo is None else (f"greater than {lo}" if self.lo_open else f"at least {lo}")
+        high = None if hi is None else (f"less than {hi}" if self.hi_open else f"at most {hi}")
+        if low is not None and high is not None:
+            return f"between {lo} and {hi}" if not (self.lo_open or self.hi_open) else f"{low} and {high}"
+        return low or high or "finite"
+
+
+#: The range of every numeric setting (``patch_length_m``, a pair, is checked on its own).
+SETTING_LIMITS: dict[str, Limit] = {
+    "diameter_error_pct": Limit(-20.0, 20.0, unit="%"),
+    "wheel_diameter_m": Limit(0.5, 1.2, lo_open=True, hi_open=True, unit="m"),
+    "slides": Limit(0),
+    "slips": Limit(0),
+    "slide_probability": Limit(0.0, 1.0),
+    "slip_probability": Limit(0.0, 1.0),
+    "low_mu": Limit(0.0, 0.5, lo_open=True),
+    "holdover_s": Limit(0.0, 3.2e7, unit="s"),  # as the line data's track.clocks.holdover_s
+    "load_factor": Limit(0.0, 1.0),
+    "telegram_latency_s": Limit(0.0, 2.0, unit="s"),
+    "dwell_s": Limit(0.0, 600.0, unit="s"),
+    "dt_s": Limit(0.0, 0.2, lo_open=True, unit="s"),
+}
+
+
+def check_streams(seed: int, run: int, n: int = 1) -> None:
+    """``seed`` and runs ``run .. run + n - 1`` are in the random streams' signed 64-bit range."""
+    if not -STREAM_LIMIT <= seed < STREAM_LIMIT:
+        raise SettingError(
+            "seed", "must be between -2^63 and 2^63 - 1, the range of the random streams", seed
+        )
+    if not 0 <= run < STREAM_LIMIT:
+        raise SettingError("run", "must be between 0 and 2^63 - 1", run)
+    if run + n > STREAM_LIMIT:
+        raise SettingError("run", f"runs {run} .. {run + n - 1} go beyond 2^63 - 1", run)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -95,31 +177,19 @@ class PositionRunSettings:
     dt_s: float = DT_S
 
     def __post_init__(self) -> None:
-        checks = [
-            ("diameter_error_pct", -20.0 <= self.diameter_error_pct <= 20.0, "-20 <= x <= 20"),
-            ("slides", self.slides >= 0, ">= 0"),
-            ("slips", self.slips >= 0, ">= 0"),
-            ("low_mu", 0.0 < self.low_mu <= 0.5, "0 < x <= 0.5"),
-            ("load_factor", 0.0 <= self.load_factor <= 1.0, "0 <= x <= 1"),
-            ("telegram_latency_s", 0.0 <= self.telegram_latency_s <= 2.0, "0 <= x <= 2"),
-            ("dwell_s", 0.0 <= self.dwell_s <= 600.0, "0 <= x <= 600"),
-            ("dt_s", 0.0 < self.dt_s <= 0.2, "0 < x <= 0.2"),
-            (
-                "patch_length_m",
-                0.0 < self.patch_length_m[0] <= self.patch_length_m[1] <= 1000.0,
-                "0 < lo <= hi <= 1000",
-            ),
-        ]
-        for prob in ("slide_probability", "slip_probability"):
-            p = getattr(self, prob)
-            checks.append((prob, p is None or 0.0 <= p <= 1.0, "0 <= x <= 1"))
-        if self.holdover_s is not None:
-            checks.append(("holdover_s", 0.0 <= self.holdover_s <= 3.2e7, "0 <= x <= 3.2e7"))
-        if self.wheel_diameter_m is not None:
-            checks.append(("wheel_diameter_m", 0.5 < self.wheel_diameter_m < 1.2, "0.5 < x < 1.2"))
-        for name, ok, rule in checks:
-            if not ok:
-                raise SimulationError(f"{name}: must satisfy {rule} (got {getattr(self, name)!r})")
+        check_streams(self.seed, self.run)
+        for name, limit in SETTING_LIMITS.items():
+            value = getattr(self, name)
+            problem = None if value is None else limit.problem(value)
+            if problem is not None:
+                raise SettingError(name, problem, value)
+        lo, hi = self.patch_length_m
+        if math.isnan(lo) or math.isnan(hi):
+            raise SettingError("patch_length_m", "not a number", self.patch_length_m)
+        if math.isinf(lo) or math.isinf(hi):
+            raise SettingError("patch_length_m", "not finite", self.patch_length_m)
+        if not 0.0 < lo <= hi <= 1000.0:
+            raise SettingError("patch_length_m", "must satisfy 0 m < lo <= hi <= 1000 m", self.patch_length_m)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -263,6 +333,26 @@ def line_gradient(line: Line, n: int) -> GradientProfile:
     return GradientProfile.create(np.asarray(bps), np.tile(np.asarray(vals), (n, 1)))
 
 
+def _check_patch_counts(settings: PositionRunSettings, stop_count: int) -> None:
+    """``slides`` / ``slips`` (when no per-zone chance replaces them) fit the line's zones.
+
+    A zone holds at most one patch: there is one braking zone per stopping point and one
+    traction zone per departure (the start, then every stop but the last), so at most
+    ``stop_count`` of each. More is refused rather than capped.
+    """
+    for name, count, prob, patch, zone, what in (
+        ("slides", settings.slides, settings.slide_probability, "slide", "braking", "stopping points"),
+        ("slips", settings.slips, settings.slip_probability, "slip", "traction", "departures"),
+    ):
+        if prob is None and count > stop_count:
+            raise SettingError(
+                name,
+                f"at most {stop_count} on this line: one {patch} patch per {zone} zone, "
+                f"and the line has {stop_count} {what}",
+                count,
+            )
+
+
 def _patches(
     settings: PositionRunSettings, streams: RunStreams, stops_m: FloatArray, start_m: FloatArray
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
@@ -287,7 +377,7 @@ def _patches(
             has[:, cols] = prio[:, cols] < prob
         else:
             rank = np.argsort(np.argsort(prio[:, cols], axis=1), axis=1)
-            has[:, cols] = rank < min(count, cols.size)
+            has[:, cols] = rank < count  # count <= cols.size: _check_patch_counts
     lo, hi = settings.patch_length_m
     length = lo + (hi - lo) * u_len
     before = BRAKING_ZONE_M[0] + (BRAKING_ZONE_M[1] - BRAKING_ZONE_M[0]) * u_start
@@ -379,12 +469,14 @@ def run_position(
         raise SimulationError(
             "vehicle.traction: the vehicle has no tractive-effort curve; position-run needs it"
         )
+    check_streams(cfg.seed, cfg.run, n)
     traction = vehicle.traction
     track = line.track
     dt = cfg.dt_s
     streams = RunStreams.for_runs(cfg.seed, cfg.run, n)
 
     stops = np.array([s.stop_point_m for s in line.stations], dtype=np.float64)
+    _check_patch_counts(cfg, stops.size)
     start = np.full(n, vehicle.length_m + 10.0)  # the whole train on the line, at rest
     if stops[0] <= start[0] + 50.0:
         raise SimulationError(

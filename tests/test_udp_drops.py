@@ -1,0 +1,123 @@
+"""Datagrams the kernel drops on the receiver (socket receive buffer full) are counted: SO_RXQ_OVFL.
+
+Real sockets on 127.0.0.1, no mocks: the receiver gets a small SO_RCVBUF, a plain sender socket
+blasts datagrams at it while the event loop (hence the receiver) does not read, then everything
+is read. The kernel's counter must equal what was sent and never arrived.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import pytest
+
+import railstop.link.udp as udp
+from railstop.link.udp import open_endpoint
+
+LOOPBACK = "127.0.0.1"
+LINUX = sys.platform.startswith("linux")
+
+
+def run(coro_fn: Callable[[], Awaitable[Any]], timeout_s: float = 20.0) -> Any:
+    async def guarded() -> Any:
+        return await asyncio.wait_for(coro_fn(), timeout_s)
+
+    return asyncio.run(guarded())
+
+
+async def drain(ep: udp.UdpEndpoint, quiet_s: float = 0.3) -> list[bytes]:
+    """Every frame until none came for ``quiet_s``."""
+    got: list[bytes] = []
+    while (item := await ep.recv(quiet_s)) is not None:
+        got.append(item[0])
+    return got
+
+
+@pytest.mark.skipif(not LINUX, reason="SO_RXQ_OVFL is Linux only")
+def test_kernel_drops_on_a_full_receive_buffer_are_counted() -> None:
+    blast = 500  # below net.core.netdev_max_backlog (1000): no drop before the socket
+
+    async def body() -> None:
+        rx = await open_endpoint((LOOPBACK, 0), queue_frames=100_000, receive_buffer_bytes=4096)
+        async with rx:
+            assert rx.stats.dropped_by_kernel == 0
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+                # No await in this loop: the event loop, hence the receiver, reads nothing meanwhile.
+                for i in range(blast):
+                    tx.sendto(i.to_bytes(4, "big") + bytes(196), rx.local_address)
+                got = await drain(rx)
+                # The counter comes with the next datagram queued after the drops: one more.
+                tx.sendto(b"last", rx.local_address)
+                got += await drain(rx)
+            sent = blast + 1
+            stats = rx.stats
+            assert got[-1] == b"last"
+            assert stats.received == len(got) < sent
+            # Nothing else dropped: whatever did not arrive, the kernel dropped.
+            assert stats.dropped_queue_full == 0 and stats.dropped_oversize == 0 and stats.errors == 0
+            assert stats.dropped_by_kernel is not None and stats.dropped_by_kernel > 0
+            assert stats.dropped_by_kernel == sent - stats.received
+            # What arrived is in order, the first ones (they filled the buffer) among them.
+            numbers = [int.from_bytes(g[:4], "big") for g in got[:-1]]
+            assert numbers == sorted(numbers) and numbers[0] == 0
+
+    run(body)
+
+
+@pytest.mark.skipif(not LINUX, reason="SO_RXQ_OVFL is Linux only")
+def test_no_drops_is_zero_and_replies_still_work() -> None:
+    async def body() -> None:
+        b = await open_endpoint((LOOPBACK, 0))
+        a = await open_endpoint((LOOPBACK, 0), b.local_address)
+        async with b, a:
+            for i in range(50):
+                a.send(bytes([i]))
+            got = [await b.recv(2.0) for _ in range(50)]
+            assert [g[0] for g in got if g] == [bytes([i]) for i in range(50)]
+            b.send(b"ack", got[0][1])  # type: ignore[index]
+            assert await a.recv(2.0) == (b"ack", b.local_address)
+            assert b.stats.dropped_by_kernel == 0 and a.stats.dropped_by_kernel == 0
+
+    run(body)
+
+
+def test_without_so_rxq_ovfl_the_counter_is_none(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the option does not exist (not Linux) the endpoint still works and says it cannot count."""
+    monkeypatch.setattr(udp, "SO_RXQ_OVFL", None)
+
+    async def body() -> None:
+        b = await open_endpoint((LOOPBACK, 0))
+        a = await open_endpoint((LOOPBACK, 0), b.local_address)
+        async with b, a:
+            a.send(b"x")
+            assert await b.recv(2.0) == (b"x", a.local_address)
+            assert b.stats.dropped_by_kernel is None
+
+    run(body)
+
+
+def test_receive_command_reports_kernel_drops() -> None:
+    """``python -m railstop.link.udp receive`` prints the counter (0 here: nothing was dropped)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((LOOPBACK, 0))
+        port = s.getsockname()[1]
+    args = ["receive", "--port", str(port), "--count", "1", "--category", "1", "--epoch", repr(time.time())]
+    res = subprocess.run(
+        [sys.executable, "-m", "railstop.link.udp", *args, "--wait-s", "0.3"],
+        capture_output=True,
+        text=True,
+        timeout=20,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    assert res.returncode == 1, res.stderr  # nothing was sent: incomplete
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    assert "dropped_by_kernel" in got
+    assert got["dropped_by_kernel"] == (0 if LINUX else None)
