@@ -229,10 +229,15 @@ def position_run(
         result = run_position(ln, veh, settings)
         summary = result.summary()
         if plot is not None:
+            from dataclasses import asdict
+
+            from railstop.provenance import footer, inputs_sha256, stamp
             from railstop.report.position_plot import plot_position_run
 
+            inputs = inputs_sha256(ln.model_dump(mode="json"), veh.model_dump(mode="json"), asdict(settings))
+            note = footer(stamp(inputs), seed=seed_n, run=run_n, disturbances=disturbances)
             try:
-                plot = plot_position_run(result, plot)
+                plot = plot_position_run(result, plot, footer=note)
             except RailstopError as exc:
                 fail(f"--plot: {exc}")
     except SettingError as exc:

@@ -35,8 +35,9 @@ _SHADOW_FACE = (1.0, 0.9, 0.9, 1.0)
 _SHADOW_HATCH = (0.85, 0.45, 0.45, 0.6)
 
 
-def plot_position_run(result: PositionRunResult, path: str | Path, *, run: int = 0) -> Path:
-    """Write the three-panel PNG of run ``run`` to ``path``; return the path."""
+def plot_position_run(result: PositionRunResult, path: str | Path, *, run: int = 0, footer: str = "") -> Path:
+    """Write the three-panel PNG of run ``run`` to ``path``; return the path. ``footer``: where the
+    plot comes from (``railstop.provenance.footer``), small at the bottom."""
     out = Path(path)
     if not 0 <= run < result.n:
         raise RailstopError(f"run: no run {run} in a result of {result.n} runs")
@@ -109,6 +110,8 @@ def plot_position_run(result: PositionRunResult, path: str | Path, *, run: int =
             fontsize=12,
             fontweight="bold",
         )
+        if footer:
+            fig.text(0.005, 0.002, footer, fontsize=7, color="0.4", ha="left", va="bottom")
         out = write_figure(fig, out, _DPI)
     finally:
         plt.close(fig)
