@@ -187,13 +187,15 @@ def stop(
     from railstop.config.plausibility import load_checked
     from railstop.controllers import ATO_CONTROLLERS
     from railstop.sim.single import run_stop
-    from railstop.streams import RUN_LIMIT
+    from railstop.streams import RUN_LIMIT, SEED_RANGE, seed_in_range
     from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
 
     if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
         fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
     if run >= RUN_LIMIT:
         fail(f"--run: a campaign run number is below 2^63 (got {run})")
+    if not seed_in_range(seed):
+        fail(f"--seed: {SEED_RANGE} (got {seed})")
     if run != 0 and disturbances is None:
         fail(f"--run {run} replays a campaign run: give the campaign's --disturbances (and --seed)")
     source = ctx.get_parameter_source("db")

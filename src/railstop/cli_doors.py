@@ -176,9 +176,12 @@ def dwell(
     from railstop.config import load_line, load_vehicle
     from railstop.config.doors import load_doors
     from railstop.sim.dwell import MODES, run_dwell
+    from railstop.streams import SEED_RANGE, seed_in_range
 
     if mode not in MODES:
         fail(f"--mode: must be one of {', '.join(MODES)} (got {mode!r})")
+    if not seed_in_range(seed):
+        fail(f"--seed: {SEED_RANGE} (got {seed})")
     error_m: float | None = None
     if stop_error_m is not None:
         try:

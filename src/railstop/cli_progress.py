@@ -192,6 +192,21 @@ class Reporter:
         err.print(line, highlight=False, soft_wrap=True)
 
 
+def _rejected_value(exc: BaseException) -> str | None:
+    """The value the user typed, when Typer refused it through a pydantic check (its message
+    says what was wrong but not what was given)."""
+    cause = exc.__cause__
+    errors = getattr(cause, "errors", None)
+    if not callable(errors):
+        return None
+    try:
+        first = errors()[0]
+    except (IndexError, TypeError, ValueError):
+        return None
+    value = first.get("input") if isinstance(first, dict) else None
+    return None if value is None else str(value)
+
+
 def _click_exceptions() -> Any:
     import importlib
 
@@ -221,6 +236,9 @@ def run_program(app: Any) -> NoReturn:
         ctx = getattr(exc, "ctx", None)
         where = ctx.command_path if ctx is not None else "railstop"
         message = " ".join(exc.format_message().split())
+        given = _rejected_value(exc)
+        if given is not None and "(got " not in message:
+            message = f"{message.rstrip('.')} (got {given})"
         hint = f" (see {where} --help)" if isinstance(exc, exceptions.UsageError) else ""
         err.print(f"error: {where}: {message}{hint}", highlight=False, soft_wrap=True)
         code = exc.exit_code

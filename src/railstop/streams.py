@@ -30,6 +30,13 @@ from railstop.jit import njit_inline
 
 #: Run numbers (and seeds) are signed 64-bit integers in the streams and the Parquet rows.
 RUN_LIMIT = 2**63
+#: What every seed check says (a seed outside the range would silently stand for another one).
+SEED_RANGE = "must be between -2^63 and 2^63 - 1, the range of the random streams"
+
+
+def seed_in_range(seed: int) -> bool:
+    return -RUN_LIMIT <= seed < RUN_LIMIT
+
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)

@@ -10,6 +10,7 @@ file, the field and its value:
   and after the previous station's stopping point (a zone cannot reach back
   through another station's stop);
 - the entry speed of every TASC zone is at most the line's speed limit;
+- the medium of every TASC zone is one of the presets of ``railstop/data/media.toml``;
 - the zone is long enough: a train entering at the entry speed can stop
   before the stopping point from the first detector, braking at
   ``BRAKE_MARGIN`` of full service after the brake's dead time and build-up,
@@ -24,6 +25,7 @@ from railstop.config.disturbances import APPROACH_BEFORE_FIRST_DETECTOR_M
 from railstop.config.loader import line_source, load_line, load_vehicle
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.errors import ConfigError, RailstopError
+from railstop.link.channel import MEDIA_FILE, load_media
 
 G_MPS2 = 9.80665
 # [interpretation] SPEC §1 has the wayside compute the braking the train needs from the first
@@ -66,6 +68,7 @@ def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[Con
     end = _line_end(line)
     on_line = f"0 .. {end:g} m" if end is not None else "chainage >= 0 m"
     limit = line.line.speed_limit_kmh
+    media = sorted(load_media())
     for i, st in enumerate(line.stations):
         where = f"stations[{i}].tasc"
         zone = st.tasc
@@ -115,6 +118,15 @@ def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[Con
                     f"{where}.entry_speed_kmh",
                     f"above the line's speed limit line.speed_limit_kmh = {limit:g} km/h",
                     zone.entry_speed_kmh,
+                )
+            )
+        if zone.medium not in media:
+            problems.append(
+                ConfigError(
+                    source,
+                    f"{where}.medium",
+                    f"unknown medium; railstop/data/{MEDIA_FILE} has: {', '.join(media)}",
+                    zone.medium,
                 )
             )
         need = stopping_distance_m(st, vehicle, zone.entry_speed_kmh)

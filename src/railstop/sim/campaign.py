@@ -48,8 +48,8 @@ from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, stamp
 from railstop.report.campaign_report import summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
-from railstop.sim.executor import execute
-from railstop.streams import RUN_LIMIT, RunStreams
+from railstop.sim.executor import describe, execute
+from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 
 MANIFEST = "campaign.json"
@@ -298,8 +298,8 @@ def campaign_lock(out: Path) -> Iterator[None]:
 def check_capacity(spec: CampaignSpec, out: Path) -> None:
     """Refuse, before any run, a campaign whose files the disk cannot hold or whose summary
     does not fit in memory (the estimates are upper bounds: the values are stored uncompressed)."""
-    if spec.seed < -RUN_LIMIT or spec.seed >= RUN_LIMIT:
-        raise RailstopError(f"--seed: {spec.seed} is outside the 64-bit range of the random streams")
+    if not seed_in_range(spec.seed):
+        raise RailstopError(f"--seed: {SEED_RANGE} (got {spec.seed})")
     if spec.runs >= RUN_LIMIT:
         raise RailstopError(f"--runs: {spec.runs:,} is beyond the 64-bit run numbers (< 2^63)")
     columns = len(RESULT_COLUMNS) + len(PARAMETERS) + 2  # the drawn values (draw_scenario)
@@ -480,6 +480,8 @@ def run_campaign(
     out = Path(out)
     _check_spec(spec)
     check_capacity(spec, out)
+    if scheduler is not None:
+        describe(scheduler=scheduler)  # an address that does not answer: refused before the folder
     with campaign_lock(out):
         finished = _prepare(spec, out, resume)
         done_runs = sum(spec.chunk_range(k)[1] - spec.chunk_range(k)[0] for k in finished)

@@ -97,7 +97,7 @@ from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
 from railstop.sim.engine import DT_S, MAX_TIME_S
 from railstop.sim.executor import execute
-from railstop.streams import RunStreams, Stream
+from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, Stream, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 
 FloatArray = NDArray[np.float64]
@@ -607,13 +607,22 @@ def certify(
     """
     from railstop.report.bounds import betting_upper, clopper_pearson, clopper_pearson_upper
 
-    _check("runs", runs, runs >= 1, "must be at least 1")
+    # Estimation runs are numbered 0 .. runs - 1 and tuning runs from TUNING_FIRST_RUN on, within
+    # the random streams' 64-bit range: the two must not overlap, nor run past 2^63.
+    _check("runs", runs, 1 <= runs <= TUNING_FIRST_RUN, "must be between 1 and 2^40")
     _check("target", target, 0.0 < target < 1.0, "must be strictly between 0 and 1")
     _check("confidence", confidence, 0.0 < confidence < 1.0, "must be strictly between 0 and 1")
     _check("method", method, method in ("is", "mc"), "must be is or mc")
     _check("defensive", defensive, 0.0 < defensive <= 1.0, "must be in (0, 1]")
-    _check("tuning_runs", tuning_runs, tuning_runs >= 100, "must be at least 100")
+    most = (RUN_LIMIT - TUNING_FIRST_RUN) // max_levels  # every level's runs get their own numbers
+    _check("tuning_runs", tuning_runs, 100 <= tuning_runs <= most, f"must be between 100 and {most}")
     _check("threshold_m", spec.threshold_m, math.isfinite(spec.threshold_m), "must be a finite number")
+    _check(
+        "seed",
+        spec.seed,
+        seed_in_range(spec.seed),
+        SEED_RANGE,
+    )
     t0 = time.perf_counter()
 
     def stage(name: str, total: int) -> Callable[[int], None] | None:

@@ -58,7 +58,7 @@ from railstop.sensors.gnss_clock import GnssClock, in_shadow
 from railstop.sensors.odometer import Tachometer, creep_factor
 from railstop.sensors.track_circuit import TrackCircuitDetector
 from railstop.streams import RUN_LIMIT as STREAM_LIMIT
-from railstop.streams import RunStreams, Stream
+from railstop.streams import SEED_RANGE, RunStreams, Stream, seed_in_range
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
 
 FloatArray = NDArray[np.float64]
@@ -143,10 +143,8 @@ SETTING_LIMITS: dict[str, Limit] = {
 
 def check_streams(seed: int, run: int, n: int = 1) -> None:
     """``seed`` and runs ``run .. run + n - 1`` are in the random streams' signed 64-bit range."""
-    if not -STREAM_LIMIT <= seed < STREAM_LIMIT:
-        raise SettingError(
-            "seed", "must be between -2^63 and 2^63 - 1, the range of the random streams", seed
-        )
+    if not seed_in_range(seed):
+        raise SettingError("seed", SEED_RANGE, seed)
     if not 0 <= run < STREAM_LIMIT:
         raise SettingError("run", "must be between 0 and 2^63 - 1", run)
     if run + n > STREAM_LIMIT:

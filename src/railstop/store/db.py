@@ -643,6 +643,8 @@ def _value(src: str, name: str, v: Any, kind: type, nullable: bool) -> Any:
         # bool is an int subclass, but True as a notch or a seed is a bug.
         if isinstance(v, bool | np.bool_) or not isinstance(v, numbers.Integral):
             raise bad("expected an integer")
+        if not -(2**63) <= int(v) < 2**63:  # SQLite's INTEGER (and BigInteger) is 64-bit
+            raise bad("outside the 64-bit integer range of the database")
         return int(v)
     if isinstance(v, bool | np.bool_) or not isinstance(v, numbers.Real):
         raise bad("expected a number")
