@@ -89,8 +89,8 @@ def verify_cmd(
         typer.Option(
             min=1,
             max=2,
-            help="Door units per side in the model: 1 (about 2 s) or 2 (about 1 min; also covers "
-            "interactions between the doors of one side).",
+            help="Door units per side in the model: 1 (270 states) or 2 (3,450 states, many times "
+            "longer; also covers interactions between the doors of one side).",
         ),
     ] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
@@ -235,9 +235,11 @@ def dwell(
         with open_store(db) as store:
             store.save_dwell(key=key, station=st.name, events=result.timeline)
         if plot is not None:
+            from railstop.provenance import footer, inputs_sha256, stamp
             from railstop.report.dwell_plot import plot_dwell
 
-            plot = plot_dwell(result, plot)
+            inputs = inputs_sha256(ln.model_dump(mode="json"), cfg.fingerprint(), source)
+            plot = plot_dwell(result, plot, footer=footer(stamp(inputs), seed=seed, stop_error=source))
     except RailstopError as exc:
         fail(str(exc))
     if as_json:

@@ -64,8 +64,9 @@ def _state_colour(value: str) -> str:
     return _STATE_COLOURS.get(value.split(" ")[0], "#dddddd")
 
 
-def plot_dwell(result: DwellResult, path: str | Path) -> Path:
-    """Write the timeline PNG of ``result`` to ``path``; return the path."""
+def plot_dwell(result: DwellResult, path: str | Path, *, footer: str = "") -> Path:
+    """Write the timeline PNG of ``result`` to ``path``; return the path. ``footer``: where the
+    plot comes from (``railstop.provenance.footer``), small at the bottom."""
     out = Path(path)
     if not out.parent.is_dir():
         raise RailstopError(f"{out}: directory {str(out.parent)!r} does not exist")
@@ -120,6 +121,8 @@ def plot_dwell(result: DwellResult, path: str | Path) -> Path:
             fontsize=11,
             fontweight="bold",
         )
+        if footer:
+            fig.text(0.005, 0.002, footer, fontsize=7, color="0.4", ha="left", va="bottom")
         out = write_figure(fig, out, _DPI)
     finally:
         plt.close(fig)
