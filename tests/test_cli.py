@@ -306,3 +306,29 @@ def test_psd_tolerance_is_station_data_and_an_option(tmp_path: Path) -> None:
 
     for bad in ("0", "-0.1", "nan", "2.5"):
         _one_line_error(run("stop", "--no-db", "--tolerance-m", bad, cwd=tmp_path), "--tolerance-m", bad)
+
+
+def test_campaign_and_compare_take_a_signal_form(tmp_path: Path) -> None:
+    """--form on campaign and compare: the manifest and the rows say which form ran, and a run
+    of the form-3 campaign replays as the detailed stop with --form 3."""
+    import pyarrow.parquet as pq
+
+    p = run("campaign", "--runs", "12", "--form", "3", "--out", "c3", "--db", "c.db", "--json", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    row = json.loads(p.stdout)
+    assert row["form"] == 3
+    assert json.loads((tmp_path / "c3" / "campaign.json").read_text())["form"] == 3
+    errors = pq.read_table(tmp_path / "c3" / "runs.parquet").column("stop_error_m").to_pylist()
+    replay = run(
+        "stop", "--form", "3", "--disturbances", "standard", "--run", "7", "--no-db", "--json", cwd=tmp_path
+    )
+    assert replay.returncode == 0, replay.stderr
+    assert json.loads(replay.stdout)["stop_error_m"] == pytest.approx(errors[7], abs=1e-6)
+    default = run("campaign", "--runs", "12", "--out", "c6", "--db", "c.db", "--json", cwd=tmp_path)
+    assert json.loads(default.stdout)["form"] == 6  # the station's
+    assert pq.read_table(tmp_path / "c6" / "runs.parquet").column("stop_error_m").to_pylist() != errors
+
+    p = run("compare", "--runs", "4", "--form", "5", "--out", "cmp", "--db", "c.db", "--json", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert {r["form"] for r in json.loads(p.stdout)["controllers"]} == {5}
+    _one_line_error(run("campaign", "--form", "9", "--runs", "2", cwd=tmp_path), "--form", "(got 9)")

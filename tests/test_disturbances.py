@@ -90,7 +90,7 @@ def big_draw(standard: DisturbanceSet) -> tuple[Scenario, dict[str, np.ndarray]]
 
 
 def test_builtin_sets_load(standard: DisturbanceSet) -> None:
-    assert builtin_sets() == ["nominal", "standard"]
+    assert builtin_sets() == ["nominal", "standard", "wide"]
     assert standard.name == "standard"
     assert standard.source == "railstop/data/disturbances/standard.toml"
     assert standard.description
@@ -132,6 +132,29 @@ def test_standard_matches_the_issue_table(standard: DisturbanceSet) -> None:
     assert d == expected
     assert list(d) == list(PARAMETERS)  # to_dict keeps the fixed parameter order
     json.dumps(standard.to_dict())  # JSON-able for the campaign manifest
+
+
+def test_wide_is_the_standard_set_with_slow_brakes_and_a_poor_radio(standard: DisturbanceSet) -> None:
+    """The wide set differs from the standard one exactly in the six parameters it widens, and
+    its draws span the new ranges (10,000 runs)."""
+    wide = load_disturbances("wide")
+    changed = {
+        "brake_gain": {"uniform": [0.8, 1.25]},
+        "brake_dead_time_s": {"uniform": [0.15, 0.8]},
+        "brake_time_constant_s": {"uniform": [0.25, 0.9]},
+        "radio_latency_ms": {"uniform": [20.0, 200.0]},
+        "radio_loss_probability": 0.10,
+        "sensor_miss_probability": 0.01,
+    }
+    d, base = wide.to_dict(), standard.to_dict()
+    d.pop("description"), base.pop("description")
+    assert {k: v for k, v in d.items() if base.get(k) != v} == changed
+    _, values = draw_scenario(wide, HILLCREST, VEHICLE, RunStreams.for_runs(SEED, 0, 10_000))
+    for name, spec in changed.items():
+        if isinstance(spec, dict):
+            lo, hi = spec["uniform"]
+            x = values[name]
+            assert lo <= x.min() < lo + 0.01 * (hi - lo) and hi - 0.01 * (hi - lo) < x.max() <= hi, name
 
 
 @pytest.mark.parametrize("station", LINE.stations, ids=lambda s: s.name)

@@ -101,6 +101,10 @@ LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (de
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
 ]
+FormOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),
+]
 ToleranceOpt = Annotated[
     float | None,
     typer.Option(
@@ -163,13 +167,12 @@ def stop(
     brake_gain: Annotated[
         float, typer.Option(min=0.5, max=1.5, help="Actual / nominal braking deceleration.")
     ] = 1.0,
-    form: Annotated[
-        int | None,
-        typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),
-    ] = None,
+    form: FormOpt = None,
     disturbances: Annotated[
         str | None,
-        typer.Option(help="Replay a campaign run drawn from this set: standard, nominal or a TOML file."),
+        typer.Option(
+            help="Replay a campaign run drawn from this set: standard, wide, nominal or a TOML file."
+        ),
     ] = None,
     run: Annotated[int, typer.Option(min=0, help="The campaign run to replay (with --disturbances).")] = 0,
     tolerance_m: ToleranceOpt = None,
@@ -465,7 +468,9 @@ def demo(
     )
 
 
-DisturbancesOpt = Annotated[str, typer.Option(help="Disturbance set: standard, nominal or a TOML file.")]
+DisturbancesOpt = Annotated[
+    str, typer.Option(help="Disturbance set: standard, wide, nominal or a TOML file.")
+]
 WorkersOpt = Annotated[
     int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
 ]
@@ -492,6 +497,7 @@ def _run_one_campaign(
     db: Path,
     scheduler: str | None = None,
     tolerance_m: float | None = None,
+    form: int | None = None,
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
@@ -507,6 +513,7 @@ def _run_one_campaign(
         disturbances=load_disturbances(disturbances),
         chunk_size=chunk_size,
         tolerance_m=tolerance_m,
+        form=form,
     )
     n_workers = workers or os.cpu_count() or 1
 
@@ -532,6 +539,7 @@ def _run_one_campaign(
     return {
         "station": spec.station,
         "controller": controller,
+        "form": outcome.manifest["form"],
         "seed": seed,
         "disturbances": spec.disturbances.name,
         "out": str(out_dir),
@@ -634,6 +642,7 @@ def campaign(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
     tolerance_m: ToleranceOpt = None,
+    form: FormOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -659,6 +668,7 @@ def campaign(
             db=db,
             scheduler=scheduler,
             tolerance_m=_tolerance(tolerance_m),
+            form=form,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -668,7 +678,11 @@ def campaign(
         print(json.dumps(row))
         return
     out.print(
-        _summary_table(f"{row['runs']} stops at {row['station']} ({row['disturbances']}, seed {seed})", [row])
+        _summary_table(
+            f"{row['runs']} stops at {row['station']} ({row['disturbances']}, seed {seed}"
+            f"{'' if form is None else f', form {form}'})",
+            [row],
+        )
     )
     out.print(f"per-run rows: {target}/runs.parquet; summary also in {db}", highlight=False)
 
@@ -688,6 +702,7 @@ def _compare(
     chunk_size: int,
     db: Path,
     tolerance_m: float | None = None,
+    form: int | None = None,
 ) -> list[dict[str, object]]:
     """Every controller on identical draws (same seed, same disturbance set)."""
     return [
@@ -706,6 +721,7 @@ def _compare(
             chunk_size=chunk_size,
             db=db,
             tolerance_m=tolerance_m,
+            form=form,
         )
         for ctrl in CONTROLLERS
     ]
@@ -729,6 +745,7 @@ def compare(
         "railstop.db"
     ),
     tolerance_m: ToleranceOpt = None,
+    form: FormOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -753,6 +770,7 @@ def compare(
             chunk_size=chunk_size,
             db=db,
             tolerance_m=_tolerance(tolerance_m),
+            form=form,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -772,7 +790,9 @@ def compare(
         return
     out.print(
         _summary_table(
-            f"{runs} stops per controller at {st.name} ({rows[0]['disturbances']}, seed {seed})", rows
+            f"{runs} stops per controller at {st.name} ({rows[0]['disturbances']}, seed {seed}"
+            f"{'' if form is None else f', form {form}'})",
+            rows,
         )
     )
     out.print(f"campaigns in {target}/; `railstop report {target}` writes the HTML report", highlight=False)
