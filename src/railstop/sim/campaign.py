@@ -48,7 +48,7 @@ from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, stamp
 from railstop.report.campaign_report import summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
-from railstop.sim.executor import describe, execute
+from railstop.sim.executor import blocks, describe, execute
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 
@@ -202,6 +202,14 @@ def _chunk_path(out: Path, k: int) -> Path:
     return out / CHUNK_DIR / f"chunk-{k:06d}.parquet"
 
 
+def _chunk_index(name: str) -> int | None:
+    """k of a file named as ``_chunk_path`` names chunk k; None for any other name."""
+    if not (name.startswith("chunk-") and name.endswith(".parquet")):
+        return None
+    digits = name.removeprefix("chunk-").removesuffix(".parquet")
+    return int(digits) if digits.isdigit() else None
+
+
 def simulate_block(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
     """The per-run rows of runs ``first .. end - 1`` of a chunk (``block`` = (chunk, first, end)): a
     pure function of the spec and the block, so any thread, process or machine may compute it."""
@@ -353,9 +361,9 @@ def finished_chunks(spec: CampaignSpec, out: Path) -> tuple[int, int]:
     chunks = runs = 0
     with contextlib.suppress(OSError), os.scandir(Path(out) / CHUNK_DIR) as entries:
         for entry in entries:
-            name = entry.name
-            if name.startswith("chunk-") and name.endswith(".parquet") and name[6:-8].isdigit():
-                first, end = spec.chunk_range(int(name[6:-8]))
+            k = _chunk_index(entry.name)
+            if k is not None:
+                first, end = spec.chunk_range(k)
                 chunks += 1
                 runs += max(end - first, 0)
     return chunks, runs
@@ -402,11 +410,10 @@ def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> set[int]:
     finished: set[int] = set()
     with os.scandir(chunk_dir) as entries:
         for entry in entries:
-            name = entry.name
-            if name.startswith(".") and name.endswith(".tmp"):  # a chunk killed while being written
+            k = _chunk_index(entry.name)
+            if entry.name.startswith(".") and entry.name.endswith(".tmp"):  # killed while being written
                 Path(entry.path).unlink(missing_ok=True)
-            elif name.startswith("chunk-") and name.endswith(".parquet") and name[6:-8].isdigit():
-                k = int(name[6:-8])
+            elif k is not None:
                 if k >= spec.chunks:
                     raise RailstopError(
                         f"{entry.path}: chunk {k} is beyond this campaign's {spec.chunks} chunks; "
@@ -457,10 +464,8 @@ def _blocks(
     the same)."""
     split = max(1, -(-workers // max(n_todo, 1)))
     for k in todo:
-        first, end = spec.chunk_range(k)
-        size = max(1, min(BLOCK_RUNS, -(-(end - first) // split)))
-        for a in range(first, end, size):
-            yield k, a, min(a + size, end)
+        for a, b in blocks(*spec.chunk_range(k), split, BLOCK_RUNS):
+            yield k, a, b
 
 
 def run_campaign(

@@ -96,7 +96,7 @@ from railstop.config.disturbances import (
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
 from railstop.sim.engine import DT_S, MAX_TIME_S
-from railstop.sim.executor import execute
+from railstop.sim.executor import blocks, execute
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, Stream, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 
@@ -398,8 +398,7 @@ def sample_block(
 
 
 def _blocks(first: int, n: int, workers: int) -> list[tuple[int, int]]:
-    size = max(1, min(BLOCK_RUNS, -(-n // max(1, workers))))
-    return [(a, min(a + size, first + n)) for a in range(first, first + n, size)]
+    return list(blocks(first, first + n, workers, BLOCK_RUNS))
 
 
 def _sample(

@@ -60,7 +60,7 @@ import signal
 import sys
 import time
 import uuid
-from collections.abc import Callable, Generator, Iterable
+from collections.abc import Callable, Generator, Iterable, Iterator
 from concurrent.futures import (
     FIRST_COMPLETED,
     Executor,
@@ -119,6 +119,14 @@ def execute(
     if workers > 1:
         return _threads(fn, items, workers)
     return _in_process(fn, items)
+
+
+def blocks(first: int, end: int, parts: int, most: int) -> Iterator[tuple[int, int]]:
+    """Runs ``first .. end - 1`` cut into consecutive ``(a, b)`` blocks: at least ``parts`` of them
+    (so that that many workers are busy) where there are runs enough, each at most ``most`` runs."""
+    size = max(1, min(most, -(-(end - first) // max(1, parts))))
+    for a in range(first, end, size):
+        yield a, min(a + size, end)
 
 
 def describe(
