@@ -174,9 +174,7 @@ class _PwmReceiver:
 
     def __init__(self, existing_duty: float) -> None:
         station = LINE.stations[0]
-        self.rp = receiver_params(
-            TASC_PWM, int(SignalForm.BRAKE_COMMAND), VEHICLE, station.stop_point_m, DT_S
-        )
+        self.rp = receiver_params(TASC_PWM, int(SignalForm.BRAKE_COMMAND), VEHICLE, station, DT_S)
         self.rx = np.empty(RX_SIZE)
         self.mod = np.empty(MOD_SIZE)
         self.hist_v = np.empty(HISTORY)

@@ -90,7 +90,7 @@ def big_draw(standard: DisturbanceSet) -> tuple[Scenario, dict[str, np.ndarray]]
 
 
 def test_builtin_sets_load(standard: DisturbanceSet) -> None:
-    assert builtin_sets() == ["nominal", "standard", "wide"]
+    assert builtin_sets() == ["loss-95", "nominal", "outage-after-first", "standard", "wide"]
     assert standard.name == "standard"
     assert standard.source == "railstop/data/disturbances/standard.toml"
     assert standard.description
@@ -126,6 +126,9 @@ def test_standard_matches_the_issue_table(standard: DisturbanceSet) -> None:
         # Added with the link layer: none in the standard set.
         "radio_jitter_ms": {"fixed": 0.0},
         "radio_bit_error_rate": {"fixed": 0.0},
+        # Added with the supervision: a fault, none in service.
+        "radio_outage_start_s": {"fixed": 0.0},
+        "radio_outage_duration_s": {"fixed": 0.0},
     }
     d = standard.to_dict()
     assert d.pop("description") == standard.description
@@ -663,7 +666,7 @@ def test_missing_file_and_unknown_set(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as info:
         load_disturbances(tmp_path / "absent.toml")
     assert str(tmp_path / "absent.toml") in str(info.value)
-    with pytest.raises(ConfigError, match="nominal, standard"):
+    with pytest.raises(ConfigError, match="nominal, outage-after-first, standard"):
         load_disturbances("standrad")
 
 

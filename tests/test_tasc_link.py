@@ -9,9 +9,11 @@ import pytest
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
+from railstop.control.supervision import eb_cause_name
 from railstop.link.codec import TascRequiredDecel, decode, encode, layout_of
 from railstop.link.safety import frame_size
 from railstop.sim.campaign import simulate_runs
+from railstop.sim.engine import BatchResult
 from railstop.sim.single import run_stop
 from railstop.sim.tasc_link import (
     frame_bytes,
@@ -43,6 +45,7 @@ def _random_telegrams(form: SignalForm, n: int, rng: np.random.Generator) -> Tas
         notch=rng.integers(0, 8, n),
         duty=np.where(rng.random(n) < 0.3, np.nan, rng.uniform(0.0, 1.0, n)),
         delta=rng.integers(-1, 2, n),
+        emergency=(rng.random(n) < 0.1).astype(np.int64),  # the wayside's emergency stop
     )
 
 
@@ -91,6 +94,10 @@ radio_bit_error_rate = { fixed = 0.002 }
     return path
 
 
+def batch_cause(batch: BatchResult, run: int) -> str | None:
+    return eb_cause_name(int(batch.emergency_brake[run]))
+
+
 @pytest.mark.parametrize("form", [SignalForm.REQUIRED_DECELERATION, SignalForm.SPEED], ids=lambda f: f.name)
 def test_bytes_and_model_agree_on_a_bad_link(harsh_link: Path, form: SignalForm) -> None:
     """Each detailed stop (real frames, corrupted bits, safety checks) equals its campaign run."""
@@ -121,8 +128,10 @@ def test_bytes_and_model_agree_on_a_bad_link(harsh_link: Path, form: SignalForm)
         )
         assert single.stop_error_m == round(float(batch.stop_error_m[run]), 6)
         assert single.commands == int(batch.commands_received[run])
-        # Every telegram the train took is a frame the safety layer delivered.
-        assert single.frames["delivered"] == single.commands
+        assert single.emergency_brake == batch_cause(batch, run)
+        # Every telegram the train took is a frame the safety layer delivered; the other frames
+        # delivered are cyclic repeats of a command it had (life signs for its supervision).
+        assert single.frames["delivered"] >= single.commands
         assert single.frames["sent"] >= single.frames["delivered"]
         for reason, count in single.frames.items():
             if reason not in ("sent", "delivered"):
@@ -139,7 +148,9 @@ def test_loop_medium_closed_category() -> None:
     loop = st.model_copy(update={"tasc": st.tasc.model_copy(update={"medium": "loop", "safety_category": 1})})
     radio, _ = run_stop(line=LINE, station=st, vehicle=VEHICLE, controller="tasc-pwm", seed=1)
     slow, _ = run_stop(line=LINE, station=loop, vehicle=VEHICLE, controller="tasc-pwm", seed=1)
-    assert slow.frames["delivered"] == slow.commands == 5
+    assert slow.commands == 5
+    assert slow.frames["delivered"] > slow.commands  # the cyclic repeats of each command
+    assert slow.emergency_brake is None
     assert slow.frames["bad_mac"] == 0
     # The poll cycle delays every command; the closed loop still stops in tolerance.
     assert abs(slow.stop_error_m) <= 0.35

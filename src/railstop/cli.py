@@ -257,6 +257,12 @@ def stop(
             out.print(f"plot: {plot}", highlight=False)
         raise typer.Exit(1)
     verdict = "within" if result.within_tolerance else "OUTSIDE"
+    if result.emergency_brake is not None:
+        # DESIGN rule 10: say first that the supervision stopped the train, and why.
+        what = (
+            f"EMERGENCY BRAKE ({result.emergency_brake}) {result.emergency_brake_s} s after the first "
+            f"detector; {what}"
+        )
     out.print(
         f"{result.controller} at {result.station}: {drawn}stop error {result.stop_error_m:+.3f} m "
         f"({'overrun' if result.stop_error_m > 0 else 'short'}, {verdict} the PSD tolerance "
@@ -596,13 +602,15 @@ def _summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
         ("max_abs_m", "max|e|"),
         ("overruns", f">+{tol}"),
         ("overrun_ci95_upper", f"P>+{tol} ≤"),
+        ("emergency_brakes", "EB"),
         ("p99_max_jerk_mps3", "jerk99"),
         ("mean_stop_time_s", "time"),
         ("runs_per_s", "runs/s"),
     )
     caption = (
         f"within bands: share of runs; PSD: the station's tolerance; errors in m (+ = overrun); P>+{tol} ≤: "
-        "95 % Clopper-Pearson upper bound on the overrun probability; jerk99: p99 of max jerk m/s³; "
+        "95 % Clopper-Pearson upper bound on the overrun probability; EB: runs stopped by the "
+        "emergency brake (supervision); jerk99: p99 of max jerk m/s³; "
         "time: mean stop time s"
     )
     table = Table(title=title, caption=caption)

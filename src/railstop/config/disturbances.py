@@ -137,6 +137,11 @@ _SPECS: dict[str, _Spec] = {
     # cycle, is station data: tasc.medium).
     "radio_jitter_ms": _Spec("ms, standard deviation per frame", _Range(0.0, 1000.0), 19),
     "radio_bit_error_rate": _Spec("per bit", _Range(0.0, 0.01), 20),
+    # A radio outage (a fault, DESIGN rule 10): every braking frame sent from this long after
+    # the first telegram the train received, for the duration, is lost (0: no outage). With
+    # start 0 and a long duration: every telegram after the first is lost.
+    "radio_outage_start_s": _Spec("s after the first telegram received", _Range(0.0, 1000.0), 21),
+    "radio_outage_duration_s": _Spec("s (0: no outage)", _Range(0.0, 1e6), 22),
 }
 
 #: Every supported parameter name, in a fixed order (the Parquet column order).
@@ -467,6 +472,8 @@ def nominal_values(station: Station, vehicle: Vehicle, n: int) -> dict[str, Floa
         "doppler_noise_pct": 0.0,
         "radio_jitter_ms": 0.0,
         "radio_bit_error_rate": 0.0,
+        "radio_outage_start_s": 0.0,
+        "radio_outage_duration_s": 0.0,
     }
     return {k: np.full(n, float(v)) for k, v in nominal.items()}
 
@@ -504,6 +511,8 @@ _TO_SCENARIO: dict[str, tuple[str, float]] = {
     "doppler_noise_pct": ("doppler_noise_frac", 1e-2),
     "radio_jitter_ms": ("radio_jitter_s", 1e-3),
     "radio_bit_error_rate": ("radio_bit_error_rate", 1.0),
+    "radio_outage_start_s": ("radio_outage_start_s", 1.0),
+    "radio_outage_duration_s": ("radio_outage_duration_s", 1.0),
 }
 
 

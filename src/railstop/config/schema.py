@@ -80,6 +80,15 @@ class TascZone(_Model):
     medium: str = "radio"
     safety_category: Literal[1, 2, 3] = 3
     max_telegram_age_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
+    # Supervision (DESIGN rule 10): once the train has a braking telegram, a telegram (new or a
+    # cyclic repeat) must arrive at least this often, else the onboard unit applies the
+    # emergency brake through wire e. The first one must have come this long after the train
+    # is surely past the second detector (the third without a Doppler radar).
+    supervision_timeout_s: Annotated[float, Field(gt=0.0, le=10.0)] = 1.0
+    # The wayside's overrun guard (DESIGN rule 10): an emergency-stop telegram when stopping
+    # before the platform end would need more than this fraction of the vehicle's full service
+    # after the response time (assumed latency + brake dead time + lag).
+    overrun_guard_decel_fraction: Annotated[float, Field(gt=0.0, le=5.0)] = 1.0
 
     @field_validator("detectors_before_stop_m")
     @classmethod
@@ -436,6 +445,23 @@ class Positioning(_Model):
     gate_sigma: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = 4.0
 
 
+class Atp(_Model):
+    """The train's own protection around TASC (DESIGN rule 10): the overrun guard.
+
+    The guard knows the station's platform end from its line data and the
+    train's position from its odometer, reset at the ATO transponders; it
+    counts the odometer's possible error (``odometer_uncertainty_pct`` of the
+    distance since the last reset plus ``position_margin_m``) against itself,
+    and applies the emergency brake when stopping before the platform end
+    would need more than ``guard_decel_fraction`` x full service after the
+    brake's response time.
+    """
+
+    odometer_uncertainty_pct: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = 1.5
+    position_margin_m: Annotated[float, Field(ge=0.0, le=20.0, allow_inf_nan=False)] = 0.5
+    guard_decel_fraction: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 1.0
+
+
 class Vehicle(_Model):
     name: Annotated[str, Field(min_length=1)]
     cars: Annotated[int, Field(ge=1, le=20)]
@@ -453,6 +479,7 @@ class Vehicle(_Model):
     # Needed to drive between stations (position-run); a braking-only vehicle file may omit it.
     traction: Traction | None = None
     positioning: Positioning = Field(default_factory=Positioning)
+    atp: Atp = Field(default_factory=Atp)
 
 
 class VehicleFile(_Model):

@@ -76,6 +76,7 @@ __all__ = [
     "TascBrakeCommand",
     "TascDecel",
     "TascDistance",
+    "TascEmergencyStop",
     "TascIncreaseDecrease",
     "TascInterval",
     "TascPosition",
@@ -314,6 +315,15 @@ class TascIncreaseDecrease(Telegram):
     train_id: int
     detector: int
     delta: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TascEmergencyStop(Telegram):
+    """The wayside's overrun guard (DESIGN rule 10): apply the emergency brake (wire e) now."""
+
+    TYPE: ClassVar[str] = "tasc-emergency-stop"
+    train_id: int
+    detector: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -592,6 +602,16 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     description="one notch step down / none / up",
                 ),
             ),
+        ),
+        Layout(
+            name="tasc-emergency-stop",
+            code=0x9F,
+            cls=TascEmergencyStop,
+            medium=_LOOP,
+            description="the wayside's overrun guard: emergency brake (wire e), any signal form "
+            "(not in SPEC §1: DESIGN rule 10 needs the wayside to be able to stop a train it measures "
+            "running past the platform end; number 15 of the TASC group)",
+            fields=(_TRAIN_ID, _DETECTOR),
         ),
         Layout(
             name="cbtc-report",

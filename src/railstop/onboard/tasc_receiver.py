@@ -23,12 +23,13 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from railstop.config.schema import Vehicle
+from railstop.config.schema import Station, Vehicle
 from railstop.control.notch import (
     modulator_init_1,
     modulator_restart_1,
     modulator_update_1,
 )
+from railstop.control.supervision import EB_ONBOARD_GUARD, EB_TIMEOUT, EB_WAYSIDE_GUARD, overrun_guard_1
 from railstop.control.tasc import (
     REG_WEIGHTS,
     clip_1,
@@ -49,6 +50,7 @@ from railstop.wayside.tasc_unit import (
     TEL_DETECTOR,
     TEL_DISTANCE,
     TEL_DUTY,
+    TEL_EMERGENCY,
     TEL_INTERVAL,
     TEL_MEASURED,
     TEL_NOTCH,
@@ -90,7 +92,15 @@ RP_BASE_DELAY = 9  # dead time + lag (forms 1-5 onboard planner)
 RP_JERK = 10
 RP_STOP = 11
 RP_SPEED_SAMPLES = 12
-RP_SIZE = 13
+RP_TIMEOUT = 13  # supervision: longest gap between braking telegrams inside the zone
+RP_GUARD_RESPONSE = 14  # overrun guard: the brake's response time (dead time + lag)
+RP_GUARD_LIMIT = 15  # overrun guard: the deceleration beyond which the service brake cannot do
+RP_END = 16  # the platform end (chainage)
+RP_ODO_UNC = 17  # the odometer's possible error, fraction of the distance since the last reset
+RP_POS_MARGIN = 18  # ... plus this (m)
+RP_ZONE_START = 19  # the first transponder (chainage): the train knows it is in the TASC zone
+RP_FIRST_BY = 20  # the detector (chainage) by which the first telegram must have come
+RP_SIZE = 21
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -106,12 +116,23 @@ RX_GAIN_DEN = 10
 RX_FIRST_RX = 11  # the train holds its speed until told to brake
 RX_EXISTING = 12  # the train's own PWM brake signal (released: 0)
 RX_ONBOARD_DUTY = 13  # config 3: the onboard PWM duty of the current target
-RX_SIZE = 14
+RX_LAST_RX = 14  # time of the last braking telegram delivered (new or a cyclic repeat)
+RX_IN_ZONE = 15  # 1 once the train's own position says it is in the TASC zone
+RX_FIX_POS = 16  # the train's own position at its last transponder reset (chainage; NaN: none)
+RX_SINCE_FIX = 17  # odometer distance since that reset
+RX_EB = 18  # emergency brake cause (control.supervision EB_*; 0: none), latched
+RX_EB_T = 19  # when it was applied
+RX_TACH_PREV = 20  # the tachometer speed of the last step (NaN: none yet)
+RX_TACH_DECEL = 21  # the tachometer's deceleration, smoothed over GUARD_DECEL_TAU_S
+RX_SIZE = 22
+
+GUARD_DECEL_TAU_S = 0.3  # smoothing of the onboard guard's deceleration from the tachometer
 
 
-def receiver_params(config: str, form: int, vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray:
+def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, dt_s: float) -> FloatArray:
     """The RP_* vector of a receiver (see the RP_* constants)."""
     brake = vehicle.brake
+    stop_point_m = station.stop_point_m
     rp = np.zeros(RP_SIZE)
     rp[RP_CONFIG] = CONFIG_CODES[config]
     rp[RP_FORM] = form
@@ -127,6 +148,19 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, stop_point_m: floa
     rp[RP_JERK] = brake.jerk_limit_mps3
     rp[RP_STOP] = stop_point_m
     rp[RP_SPEED_SAMPLES] = max(2, round(0.3 / dt_s))  # as the wayside's Doppler speed window
+    rp[RP_TIMEOUT] = station.tasc.supervision_timeout_s
+    rp[RP_GUARD_RESPONSE] = brake.dead_time_s + brake.time_constant_s
+    rp[RP_GUARD_LIMIT] = vehicle.atp.guard_decel_fraction * brake.full_service_mps2
+    rp[RP_END] = station.platform_end
+    rp[RP_ODO_UNC] = vehicle.atp.odometer_uncertainty_pct / 100.0
+    rp[RP_POS_MARGIN] = vehicle.atp.position_margin_m
+    rp[RP_ZONE_START] = station.ato_transponders_m()[0]
+    # The wayside's first command comes at the first detector (at the second without a Doppler
+    # radar, SPEC §1 variant 2); one missed detector is tolerated: the wayside then speaks at the
+    # next one. Past that detector the supervision clock runs. [interpretation]
+    first = 1 if station.tasc.doppler is not None else 2
+    detectors = station.detector_positions_m()
+    rp[RP_FIRST_BY] = detectors[min(first, len(detectors) - 1)]
     return rp
 
 
@@ -142,6 +176,10 @@ def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e:
     rx[RX_FIXED_DUTY] = np.nan
     rx[RX_TCOL] = -1.0
     rx[RX_FIRST_RX] = np.inf
+    rx[RX_LAST_RX] = -np.inf
+    rx[RX_FIX_POS] = np.nan
+    rx[RX_EB_T] = np.nan
+    rx[RX_TACH_PREV] = np.nan
     modulator_init_1(mod)
     hist_v[:] = 0.0
     hist_e[:] = np.inf
@@ -177,6 +215,12 @@ def receiver_receive_1(
     now_s: float,
 ) -> None:
     """Take the telegram delivered now (SPEC §1: forms 6-8 as such; forms 1-5 planned onboard)."""
+    rx[RX_LAST_RX] = now_s
+    if tele[TEL_EMERGENCY] > 0.0:
+        # The wayside's overrun guard (DESIGN rule 10): emergency brake through wire e.
+        _apply_eb_1(rx, EB_WAYSIDE_GUARD, now_s)
+        rx[RX_RECEIVED] += 1.0
+        return
     rx[RX_ACTIVE] = 1.0
     rx[RX_RECEIVED] += 1.0
     modulator_restart_1(mod)
@@ -310,3 +354,76 @@ def receiver_step_output_1(
         )
         rx[RX_NOTCH] = rx[RX_FIXED_NOTCH] if rx[RX_FIXED_NOTCH] >= 0.0 else notch
     return int(rx[RX_NOTCH])
+
+
+# --------------------------------------------------------------------------
+# Supervision (DESIGN rules 4, 10; control.supervision): the train's own position, the
+# telegram time-out inside the zone and the overrun guard. The emergency brake is latched.
+
+
+@njit_inline
+def _apply_eb_1(rx: FloatArray, cause: int, now_s: float) -> None:
+    if rx[RX_EB] == 0.0:
+        rx[RX_EB] = cause
+        rx[RX_EB_T] = now_s
+
+
+@njit_inline
+def receiver_alive_1(rx: FloatArray, now_s: float) -> None:
+    """A cyclic repeat of the telegram the unit already has: a life sign, nothing else."""
+    rx[RX_LAST_RX] = now_s
+
+
+@njit_inline
+def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float, now_s: float) -> None:
+    """The train's own ATP reset its odometer at a transponder at ``position_m``. At the first
+    one (the zone's start, SPEC §1: the first detector) it knows it is in the TASC zone and the
+    telegram supervision starts."""
+    rx[RX_FIX_POS] = position_m
+    rx[RX_SINCE_FIX] = 0.0
+    if position_m >= rp[RP_ZONE_START] - 1e-9:
+        rx[RX_IN_ZONE] = 1.0
+
+
+@njit_inline
+def receiver_supervise_1(
+    rx: FloatArray, rp: FloatArray, now_s: float, odometer_m: float, speed_mps: float
+) -> bool:
+    """One step of the onboard supervision; True while the emergency brake is applied.
+
+    ``odometer_m``: the distance the odometer counted in the last step; ``speed_mps``: the
+    tachometer's speed (both carry the odometer's diameter error).
+    """
+    if np.isfinite(rx[RX_FIX_POS]):
+        rx[RX_SINCE_FIX] += odometer_m
+    if np.isfinite(rx[RX_TACH_PREV]):
+        dt = rp[RP_DT]
+        alpha = dt / (GUARD_DECEL_TAU_S + dt)
+        rx[RX_TACH_DECEL] += alpha * ((rx[RX_TACH_PREV] - speed_mps) / dt - rx[RX_TACH_DECEL])
+    rx[RX_TACH_PREV] = speed_mps
+    if rx[RX_EB] > 0.0:
+        return True
+    since = rx[RX_SINCE_FIX]
+    unc = rp[RP_ODO_UNC] * abs(since) + rp[RP_POS_MARGIN]
+    # No telegram yet: the clock starts once the train is surely past the detector by which the
+    # wayside must have spoken (its possible odometer error counted for the wayside).
+    if rx[RX_IN_ZONE] > 0.0 and rx[RX_LAST_RX] == -np.inf and rx[RX_FIX_POS] + since - unc >= rp[RP_FIRST_BY]:
+        rx[RX_LAST_RX] = now_s
+    if rx[RX_IN_ZONE] > 0.0 and rx[RX_LAST_RX] > -np.inf and now_s - rx[RX_LAST_RX] > rp[RP_TIMEOUT] + 1e-9:
+        # DESIGN rule 10: braking telegrams stopped arriving inside the zone.
+        _apply_eb_1(rx, EB_TIMEOUT, now_s)
+        return True
+    if np.isfinite(rx[RX_FIX_POS]):
+        # The overrun guard on the train's own odometry, its possible error counted against it
+        # (the train may be further on than the odometer says).
+        position = rx[RX_FIX_POS] + since + unc
+        if overrun_guard_1(
+            speed_mps * (1.0 + rp[RP_ODO_UNC]),
+            rx[RX_TACH_DECEL] * (1.0 - rp[RP_ODO_UNC]),
+            rp[RP_END] - position,
+            rp[RP_GUARD_RESPONSE],
+            rp[RP_GUARD_LIMIT],
+        ):
+            _apply_eb_1(rx, EB_ONBOARD_GUARD, now_s)
+            return True
+    return False

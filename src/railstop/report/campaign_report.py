@@ -73,6 +73,8 @@ RESULT_COLUMNS: tuple[str, ...] = (
     "commands_received",
     "stopped",
     "slid",
+    "emergency_brake",
+    "emergency_brake_s",
 )
 # The report cannot be written without these.
 _REQUIRED_COLUMNS: tuple[str, ...] = (
@@ -120,7 +122,9 @@ def summary_stats(
     slid: Sequence[bool] | np.ndarray,
     *,
     tolerance_m: float,
-) -> dict[str, float | int]:
+    emergency_brake: Sequence[int] | np.ndarray | None = None,
+    platform_end_m: float | None = None,
+) -> dict[str, Any]:
     """The summary statistics of one controller's campaign, from its result columns.
 
     ``tolerance_m``: the station's PSD tolerance (``Station.psd_tolerance_m``).
@@ -135,6 +139,12 @@ def summary_stats(
     on P(error > +tolerance) (1 when every run overran); ``p99_max_jerk_mps3``;
     ``mean_stop_time_s`` over the runs that stopped; ``not_stopped``, ``slid``
     (counts). Statistics of no values are NaN.
+
+    With ``emergency_brake`` (the cause codes, 0 none; DESIGN rule 10):
+    ``emergency_brakes`` (count), ``emergency_brakes_by_cause`` (name -> count)
+    and ``silent_misses``, runs outside the tolerance that no emergency brake
+    stopped. With ``platform_end_m`` (the platform end beyond the stopping
+    point): ``past_platform_end``, runs whose front ended beyond it.
     """
     if not (math.isfinite(tolerance_m) and tolerance_m > 0.0):
         raise RailstopError(f"summary_stats: tolerance_m must be a positive number (got {tolerance_m})")
@@ -183,7 +193,33 @@ def summary_stats(
         "mean_stop_time_s": float(np.mean(t_ok)) if t_ok.size else math.nan,
         "not_stopped": int(np.count_nonzero(~is_stopped)),
         "slid": int(np.count_nonzero(has_slid)),
+        **_fail_safe_stats(error, ok & (abs_error <= tolerance_m), emergency_brake, platform_end_m),
     }
+
+
+def _fail_safe_stats(
+    error: np.ndarray,
+    in_tolerance: np.ndarray,
+    emergency_brake: Sequence[int] | np.ndarray | None,
+    platform_end_m: float | None,
+) -> dict[str, Any]:
+    from railstop.control.supervision import EB_CAUSES
+
+    out: dict[str, Any] = {}
+    if emergency_brake is not None:
+        eb = np.asarray(emergency_brake, dtype=np.int64).ravel()
+        if eb.size != error.size:
+            raise RailstopError(
+                f"summary_stats: emergency_brake: {eb.size} values for {error.size} stop errors"
+            )
+        out["emergency_brakes"] = int(np.count_nonzero(eb))
+        out["emergency_brakes_by_cause"] = {
+            name: int(np.count_nonzero(eb == code)) for code, name in EB_CAUSES.items() if np.any(eb == code)
+        }
+        out["silent_misses"] = int(np.count_nonzero(~in_tolerance & (eb == 0)))
+    if platform_end_m is not None:
+        out["past_platform_end"] = int(np.count_nonzero(error > platform_end_m))
+    return out
 
 
 # --------------------------------------------------------------------------- loading
@@ -329,6 +365,7 @@ def _load_all(paths: list[Path], tolerance_m: float | None) -> list[_Campaign]:
             columns["stopped"],
             columns["slid"],
             tolerance_m=tol,
+            emergency_brake=columns.get("emergency_brake"),
         )
         prov = summary.get("provenance")
         campaigns.append(

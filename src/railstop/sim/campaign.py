@@ -73,7 +73,9 @@ DISK_BYTES_PER_VALUE = 8
 # version 1, went on stepping stopped runs, so in continuous update its command counts
 # depended on the other runs of the chunk). 3: the Doppler noise drawn by the ziggurat
 # (streams.key_normal_zig) instead of Box–Muller: same distribution, other numbers.
-MODEL_VERSION = 3
+# 4: the supervision (emergency brake, overrun guards) and the cyclic repeat of the latest
+# braking telegram (more link draws per run).
+MODEL_VERSION = 4
 
 RESULT_COLUMNS = (
     "run",
@@ -85,6 +87,8 @@ RESULT_COLUMNS = (
     "commands_received",
     "stopped",
     "slid",
+    "emergency_brake",
+    "emergency_brake_s",
 )
 
 
@@ -192,6 +196,10 @@ def _chunk_table(first_run: int, result: BatchResult, drawn: dict[str, np.ndarra
         "commands_received": result.commands_received.astype(np.int64),
         "stopped": result.stopped,
         "slid": result.slid,
+        # DESIGN rule 10: the cause code (control.supervision.EB_CAUSES; 0 none) and its time.
+        "emergency_brake": result.emergency_brake.astype(np.int64),
+        # Null where none was applied (a NaN would make equal tables compare unequal).
+        "emergency_brake_s": pa.array(result.emergency_brake_s, mask=np.isnan(result.emergency_brake_s)),
     }
     for name, values in drawn.items():
         cols[name] = np.asarray(values)
@@ -500,8 +508,11 @@ def run_campaign(
                 progress(done_runs + simulated, spec.runs)
         elapsed = time.perf_counter() - t0
         merge_chunks(spec, out)
+        st = spec.line.station(spec.station)
         summary = summarise(
-            pq.read_table(out / RUNS_FILE, columns=list(SUMMARY_COLUMNS)), tolerance_m=spec.tolerance()
+            pq.read_table(out / RUNS_FILE, columns=list(SUMMARY_COLUMNS)),
+            tolerance_m=spec.tolerance(),
+            platform_end_m=st.platform_end - st.stop_point_m,
         )
         summary["runs_per_s"] = round(simulated / elapsed, 1) if simulated and elapsed > 0 else None
         # Who summarised it, when, and the campaign it is (the manifest's hash, as in the chunks).
@@ -514,7 +525,7 @@ def run_campaign(
     )
 
 
-SUMMARY_COLUMNS = ("stop_error_m", "max_jerk_mps3", "stop_time_s", "stopped", "slid")
+SUMMARY_COLUMNS = ("stop_error_m", "max_jerk_mps3", "stop_time_s", "stopped", "slid", "emergency_brake")
 
 
 def merge_chunks(spec: CampaignSpec, out: Path) -> None:
@@ -537,7 +548,7 @@ def merge_chunks(spec: CampaignSpec, out: Path) -> None:
     os.replace(tmp, out / RUNS_FILE)
 
 
-def summarise(table: pa.Table, *, tolerance_m: float) -> dict[str, Any]:
+def summarise(table: pa.Table, *, tolerance_m: float, platform_end_m: float | None = None) -> dict[str, Any]:
     """The campaign's summary statistics (see ``summary_stats``), JSON-ready."""
 
     def col(name: str) -> np.ndarray:
@@ -550,6 +561,8 @@ def summarise(table: pa.Table, *, tolerance_m: float) -> dict[str, Any]:
         col("stopped"),
         col("slid"),
         tolerance_m=tolerance_m,
+        emergency_brake=col("emergency_brake") if "emergency_brake" in table.column_names else None,
+        platform_end_m=platform_end_m,
     )
     return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}
 

@@ -13,6 +13,7 @@ the kernel delivered, with the same contents; a disagreement is an error.
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -61,6 +62,10 @@ class BatchResult:
     commands_received: IntArray
     stopped: BoolArray
     slid: BoolArray
+    # DESIGN rule 10: the emergency brake's cause (control.supervision EB_*; 0 none) and when
+    # it was applied, from the first detector (NaN: never).
+    emergency_brake: IntArray
+    emergency_brake_s: FloatArray
     detector_passages_s: FloatArray  # (n, D) true passage times (NaN if never)
     trace: Trace | None = None
     commands: list[dict[str, Any]] = field(default_factory=list)
@@ -86,6 +91,8 @@ def run_batch(
     ``track``: the line's track circuits (``ato-corrected`` needs them).
     """
     from railstop.sim.kernel import (
+        RES_EB,
+        RES_EB_T,
         RES_ERROR,
         RES_MAX_JERK,
         RES_NOTCH_CHANGES,
@@ -135,6 +142,8 @@ def run_batch(
         commands_received=res[:, RES_RECEIVED].astype(np.int64),
         stopped=res[:, RES_STOPPED] > 0.0,
         slid=res[:, RES_SLID] > 0.0,
+        emergency_brake=res[:, RES_EB].astype(np.int64),
+        emergency_brake_s=res[:, RES_EB_T].copy(),
         detector_passages_s=passages,
         trace=trace,
         commands=commands,
@@ -180,6 +189,7 @@ def _commands(rows: FloatArray, form: SignalForm) -> list[dict[str, Any]]:
         CR_DETECTOR,
         CR_DISTANCE,
         CR_EFFECT,
+        CR_EMERGENCY,
         CR_GAIN,
         CR_NOTCH,
         CR_PASSAGE,
@@ -204,6 +214,7 @@ def _commands(rows: FloatArray, form: SignalForm) -> list[dict[str, Any]]:
             "notch": int(r[CR_NOTCH]),
             "delta": int(r[CR_DELTA]),
             "effect_s": float(r[CR_EFFECT]),
+            "emergency": bool(r[CR_EMERGENCY]),
         }
         for r in rows
     ]
@@ -213,7 +224,7 @@ def _telegram(row: FloatArray, form: SignalForm) -> TascTelegrams:
     """One kernel telegram vector as a one-run telegram array (the codec's input)."""
     values: dict[str, Any] = {}
     for j, name in enumerate(TEL_FIELDS):
-        if name in ("detector", "notch", "delta"):
+        if name in ("detector", "notch", "delta", "emergency"):
             values[name] = np.full(1, int(row[j]), dtype=np.int64)
         else:
             values[name] = np.full(1, row[j])
@@ -225,40 +236,53 @@ def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -
 
     Every attempt the kernel did not lose is encoded, wrapped in a safety
     frame, bit-flipped when the kernel corrupted it, and handed to the
-    safety receiver at its arrival step; the receiver must deliver exactly at
-    the steps the kernel delivered, and the decoded telegram must equal the
-    one the kernel's receiver used, field by field. The run ends at its stop:
+    safety receiver at its arrival step; the receiver must deliver exactly as
+    many frames at each step as the kernel delivered, and every decoded
+    telegram must equal the command's message, which is checked to carry the
+    kernel's telegram field by field. The run ends at its stop:
     a frame still in the air then is never received (nor checked).
     """
+    from railstop.link.codec import Telegram, decode, encode
     from railstop.sim.kernel import LA_ARRIVAL, LA_CORRUPT, LA_FLIP, LA_LOST, LA_STEP
-    from railstop.sim.tasc_link import ByteLink
+    from railstop.sim.tasc_link import ByteLink, from_message, to_message
 
     tasc = station.tasc
     link = ByteLink(category=tasc.safety_category, max_age_s=tasc.max_telegram_age_s)
     sends = {int(c[-1]): i for i, c in enumerate(rec.commands)}
     attempts: dict[int, FloatArray] = {int(a[LA_STEP]): a for a in rec.attempts}
-    delivered = {int(k) for k in rec.deliveries}
+    delivered = Counter(int(k) for k in rec.deliveries)
     last = rec.trace.shape[0] - 1  # the step in which the train came to a stand
     arrival_steps = (int(np.ceil((a[LA_ARRIVAL] - 1e-9) / dt_s)) for a in rec.attempts if not a[LA_LOST])
     arrivals = {k for k in arrival_steps if k <= last}
-    pending: FloatArray | None = None
-    for k in sorted(set(sends) | set(attempts) | delivered | arrivals):
+    message: Telegram | None = None
+    payload = b""
+    for k in sorted(set(sends) | set(attempts) | set(delivered) | arrivals):
         now = k * dt_s
         if k in sends:
             pending = rec.sends[sends[k]]
+            # The command's message, checked once to carry exactly the kernel's telegram: every
+            # copy on the air is then checked against the message.
+            payload = encode(to_message(_telegram(pending, form), 0))
+            message = decode(payload)  # at the wire's resolution
+            _check_fields(from_message(message, form), pending, now)
             link.drop_genuine()
         a = attempts.get(k)
-        if a is not None and not a[LA_LOST] and pending is not None:
+        if a is not None and not a[LA_LOST] and message is not None:
             flip = float(a[LA_FLIP]) if a[LA_CORRUPT] else None
-            link.transmit(_telegram(pending, form), now, float(a[LA_ARRIVAL]), flip)
-        got = link.arrive(now, form)
-        if (got is not None) != (k in delivered):
+            link.transmit(payload, now, float(a[LA_ARRIVAL]), flip)
+        got = link.arrive(now)
+        if len(got) != delivered.get(k, 0):
             raise SimulationError(f"t = {now:.2f} s: the byte link and the kernel's link model disagree")
-        if got is not None and pending is not None:
-            for j, name in enumerate(TEL_FIELDS):
-                value = float(getattr(got, name)[0])
-                if not (value == pending[j] or (np.isnan(value) and np.isnan(pending[j]))):
-                    raise SimulationError(
-                        f"t = {now:.2f} s: telegram field {name}: decoded {value}, kernel {pending[j]}"
-                    )
+        for msg in got:
+            if msg != message:
+                raise SimulationError(f"t = {now:.2f} s: decoded {msg}, kernel sent {message}")
     return {"sent": link.frames_sent, **link.receiver.counts}
+
+
+def _check_fields(got: TascTelegrams, pending: FloatArray, now: float) -> None:
+    for j, name in enumerate(TEL_FIELDS):
+        value = float(getattr(got, name)[0])
+        if not (value == pending[j] or (np.isnan(value) and np.isnan(pending[j]))):
+            raise SimulationError(
+                f"t = {now:.2f} s: telegram field {name}: decoded {value}, kernel {pending[j]}"
+            )

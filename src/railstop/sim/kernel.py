@@ -51,16 +51,21 @@ from railstop.onboard.positioning import LOG_ROWS
 from railstop.onboard.tasc_receiver import (
     CONFIG_CODES,
     RX_ACTIVE,
+    RX_EB,
+    RX_EB_T,
     RX_FIRST_RX,
     RX_RECEIVED,
     RX_SIZE,
     RX_TARGET,
+    receiver_alive_1,
+    receiver_fix_1,
     receiver_init_1,
     receiver_observe_1,
     receiver_params,
     receiver_pwm_output_1,
     receiver_receive_1,
     receiver_step_output_1,
+    receiver_supervise_1,
     receiver_window,
 )
 from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
@@ -80,6 +85,7 @@ from railstop.wayside.tasc_unit import (
     CR_SIZE,
     TEL_DELTA,
     TEL_DETECTOR,
+    TEL_EMERGENCY,
     TEL_FIELDS,
     TEL_MEASURED,
     TEL_NOTCH,
@@ -90,7 +96,10 @@ from railstop.wayside.tasc_unit import (
     WP_CONTINUOUS,
     WP_CONTINUOUS_PERIOD,
     WP_DT,
+    WP_END_MARGIN,
     WP_FORM,
+    WP_GUARD_LIMIT,
+    WP_GUARD_RESPONSE,
     WP_HAS_DOPPLER,
     WP_JERK,
     WP_LAG,
@@ -134,7 +143,9 @@ SC_BER = 15
 SC_SENSOR_JITTER = 16
 SC_MISS = 17
 SC_DOPPLER_NOISE = 18
-SC_SIZE = 19
+SC_OUTAGE_START = 19  # radio outage: from this long after the first telegram delivered ...
+SC_OUTAGE_LEN = 20  # ... for this long every frame is lost (0: no outage)
+SC_SIZE = 21
 _SCENARIO_FIELDS = (
     "entry_speed_mps",
     "load_factor",
@@ -155,6 +166,8 @@ _SCENARIO_FIELDS = (
     "sensor_jitter_s",
     "sensor_miss_probability",
     "doppler_noise_frac",
+    "radio_outage_start_s",
+    "radio_outage_duration_s",
 )
 
 # Kernel parameters (station, vehicle, controller).
@@ -181,7 +194,8 @@ KP_AIRTIME = 19
 KP_FRAME_BITS = 20
 KP_MAX_AGE = 21
 KP_QUANT_AGE = 22  # form 4: counts per second of the passage age
-KP_SIZE = 23
+KP_IN_FLIGHT = 23  # frames that can be in the air at once (max age / repeat period + 2)
+KP_SIZE = 24
 
 # Results per run.
 RES_ERROR = 0  # front at rest minus stopping point (+ = overrun)
@@ -198,7 +212,9 @@ RES_MISS_TRIALS = 8
 RES_MISSES = 9
 RES_LOSS_TRIALS = 10
 RES_LOSSES = 11
-RES_SIZE = 12
+RES_EB = 12  # emergency brake cause (control.supervision EB_*; 0: none)
+RES_EB_T = 13  # when it was applied (NaN: never)
+RES_SIZE = 14
 
 # Trace columns (recording).
 TR_T = 0
@@ -210,7 +226,8 @@ TR_BRAKE = 5
 TR_ACCEL = 6
 TR_NOTCH = 7
 TR_DUTY = 8
-TR_SIZE = 9
+TR_EB = 9  # 1 while the emergency brake (wire e) is applied
+TR_SIZE = 10
 
 # Link attempt log columns (recording): what the byte-level checker replays.
 LA_STEP = 0
@@ -264,10 +281,21 @@ def _quantize(
     tele: np.ndarray, out: np.ndarray, quant: np.ndarray, carried: np.ndarray, form: int, quant_age: float
 ) -> None:
     """What the train can receive: carried fields at the codec's resolution, the rest NaN (0 for
-    the notch and delta); form 4 carries the passage as its age at the measurement time."""
+    the notch and delta); form 4 carries the passage as its age at the measurement time. An
+    emergency-stop telegram carries the detector and its flag only."""
+    if tele[TEL_EMERGENCY] > 0.0:
+        for j in range(TEL_SIZE):
+            out[j] = np.nan
+        out[TEL_DETECTOR] = tele[TEL_DETECTOR]
+        out[TEL_NOTCH] = 0.0
+        out[TEL_DELTA] = 0.0
+        out[TEL_EMERGENCY] = 1.0
+        return
     for j in range(TEL_SIZE):
         if j == TEL_DETECTOR:
             out[j] = tele[j]
+        elif j == TEL_EMERGENCY:
+            out[j] = 0.0
         elif j in (TEL_NOTCH, TEL_DELTA):
             out[j] = tele[j] if carried[j] > 0 else 0.0
         elif carried[j] == 0:
@@ -335,6 +363,8 @@ def _simulate_run(
     at: np.ndarray,
     tele: np.ndarray,
     pending: np.ndarray,
+    fl_arr: np.ndarray,
+    fl_seq: np.ndarray,
     crow: np.ndarray,
     res: np.ndarray,
     passages: np.ndarray,
@@ -420,10 +450,17 @@ def _simulate_run(
             fp[FP_DELAY_PRIOR_VAR],
         )
         ato_fix_1(at, stop_point - belief)
-    # The link: one pending telegram, its delivery time and the next transmission attempt.
-    has_pending = False
-    due_s = np.inf
+    # The link (SPEC §5 media, EN 50159 layer): the latest command is sent cyclically, a copy
+    # every repeat period, until the train stands (the train discards copies it already has; a
+    # copy is its life sign). Frames in the air: arrival times and attempt numbers (the safety
+    # layer's sequence order); a newer command supersedes the copies of the old one in the air.
+    pending_id = 0  # the command the pending telegram carries (1, 2, ...)
+    applied_id = 0  # the newest command the receiver has taken
+    n_fl = 0
+    last_seq = -1  # the newest attempt delivered (the safety layer delivers only newer ones)
     next_try_s = np.inf
+    first_rx_s = np.inf
+    outage_len = sc[SC_OUTAGE_LEN]
     attempt = 0
     losses = 0
     miss_trials = 0
@@ -443,6 +480,8 @@ def _simulate_run(
     for j in range(n_det):
         passages[j] = np.nan
 
+    odo_step = 0.0
+    eb = False
     max_jerk = 0.0
     slid = False
     prev_accel = 0.0
@@ -501,8 +540,8 @@ def _simulate_run(
                 )
                 # A newer telegram replaces the one not yet delivered (the wayside sends only its latest).
                 _quantize(tele, pending, quant, carried, int(wp[WP_FORM]), kp[KP_QUANT_AGE])
-                has_pending = True
-                due_s = np.inf
+                pending_id += 1
+                n_fl = 0
                 next_try_s = -np.inf
                 if record:
                     for j in range(CR_SIZE):
@@ -517,6 +556,9 @@ def _simulate_run(
                 attempt += 1
                 lost = key_uniform(k_loss, c) < loss_p
                 losses += lost
+                # A radio outage (a fault of the data: SC_OUTAGE_*) loses every frame sent in it.
+                rel = t - first_rx_s - sc[SC_OUTAGE_START]
+                lost = lost or (outage_len > 0.0 and rel >= -1e-9 and rel < outage_len)
                 corrupt = False
                 if ber > 0.0 and not lost:
                     corrupt = key_uniform(k_corrupt, 2 * c) < corrupt_p
@@ -526,11 +568,11 @@ def _simulate_run(
                 # The step that receives the frame, and the safety layer's age check there (ms).
                 receive_s = np.ceil((arrival - 1e-9) / dt) * dt
                 stale = np.rint(receive_s * 1000.0) - np.rint(t * 1000.0) > kp[KP_MAX_AGE] * 1000.0
-                if not (lost or corrupt or stale):
-                    due_s = arrival
-                    next_try_s = np.inf
-                else:
-                    next_try_s = t + kp[KP_REPEAT]
+                if not (lost or corrupt or stale) and n_fl < fl_arr.size:
+                    fl_arr[n_fl] = arrival
+                    fl_seq[n_fl] = c
+                    n_fl += 1
+                next_try_s = t + kp[KP_REPEAT]
                 if record:
                     attempts[n_att, LA_STEP] = k
                     attempts[n_att, LA_LOST] = lost
@@ -539,8 +581,28 @@ def _simulate_run(
                     attempts[n_att, LA_ARRIVAL] = arrival
                     attempts[n_att, LA_STALE] = stale
                     n_att += 1
-            if has_pending and due_s <= t + 1e-9:
-                due_s = np.inf
+            # Frames arrived by now, in sending order: the safety layer delivers a frame only if
+            # it is newer than the last one delivered (an overtaken frame is out of order).
+            delivered = False
+            m = 0
+            for j in range(n_fl):
+                if fl_arr[j] <= t + 1e-9:
+                    if fl_seq[j] > last_seq:
+                        last_seq = fl_seq[j]
+                        delivered = True
+                        if record:  # one entry per frame delivered
+                            deliveries[n_del] = k
+                            n_del += 1
+                else:
+                    fl_arr[m] = fl_arr[j]
+                    fl_seq[m] = fl_seq[j]
+                    m += 1
+            n_fl = m
+            if delivered and applied_id == pending_id:
+                receiver_alive_1(rx, t)  # a copy of the command the train has: a life sign
+            elif delivered:
+                applied_id = pending_id
+                first_rx_s = min(first_rx_s, t)
                 receiver_receive_1(
                     rx,
                     rp,
@@ -558,17 +620,16 @@ def _simulate_run(
                     pending,
                     t,
                 )
-                if record:
-                    deliveries[n_del] = k
-                    n_del += 1
             receiver_observe_1(rx, rp, tach, tach_v)
+            # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
+            eb = receiver_supervise_1(rx, rp, t, odo_step, tach_v)
             if pwm_train:
                 notch = -1
                 duty = receiver_pwm_output_1(rx, rp, k)
             else:
                 notch = receiver_step_output_1(rx, rp, mod, table, k, tach_v)
                 duty = np.nan
-            braking = np.isfinite(rx[RX_FIRST_RX])
+            braking = np.isfinite(rx[RX_FIRST_RX]) or eb
         # Onboard -> ECU (step code through the brake line, or PWM) -> actuator -> brakes.
         if notch >= 0:
             ecu_notch = line_notch(notch)
@@ -579,6 +640,8 @@ def _simulate_run(
         else:
             ecu_notch = -1
             demand = pwm_to_decel_1(duty, pwm_duty, pwm_decel)
+        if eb:
+            demand = kp[KP_EMERGENCY]  # wire e: the emergency brake, whatever the service command
         limited, output = actuator_step_1(
             ring, k, delay_steps, demand, limited, output, lag_alpha, jerk_step, kp[KP_EMERGENCY]
         )
@@ -622,10 +685,11 @@ def _simulate_run(
         if passage_1(det_pos, truth_next, x0, x):
             passages[truth_next] = t + crossing_time_1(x0, v0, accel, det_pos[truth_next])
             truth_next += 1
+        # Odometer: wheel revolutions x pi x assumed diameter (SPEC §2).
+        revs = (x - x0) * creep_1(sliding, ssr) / (np.pi * wheel)
+        odometer = revs * np.pi * assumed
+        odo_step = odometer
         if is_ato:
-            # Odometer: wheel revolutions x pi x assumed diameter (SPEC §2).
-            revs = (x - x0) * creep_1(sliding, ssr) / (np.pi * wheel)
-            odometer = revs * np.pi * assumed
             ato_odometer_1(at, odometer)
             if corrected_positioning:
                 corrected, calibrated = fixes_step_run(
@@ -660,6 +724,10 @@ def _simulate_run(
                 ato_fix_1(at, stop_point - transponders[transponder_next])
                 transponder_next += 1
         else:
+            # The train's own ATP resets its odometer at the transponders (the first one: the zone).
+            if passage_1(transponders, transponder_next, x0, x):
+                receiver_fix_1(rx, rp, transponders[transponder_next], t + dt)
+                transponder_next += 1
             passed = False
             if passage_1(det_pos, sensor_next, x0, x):
                 det_idx = sensor_next
@@ -685,6 +753,7 @@ def _simulate_run(
             trace[k, TR_ACCEL] = accel
             trace[k, TR_NOTCH] = ecu_notch
             trace[k, TR_DUTY] = duty
+            trace[k, TR_EB] = eb
         if stopped:
             break
     res[RES_ERROR] = x - stop_point
@@ -699,6 +768,8 @@ def _simulate_run(
     res[RES_MISSES] = misses
     res[RES_LOSS_TRIALS] = attempt
     res[RES_LOSSES] = losses
+    res[RES_EB] = 0.0 if is_ato else rx[RX_EB]
+    res[RES_EB_T] = np.nan if is_ato else rx[RX_EB_T] - passages[0]
     if record:
         counters[RC_STEPS] = k + 1
         counters[RC_COMMANDS] = n_cmd
@@ -769,6 +840,8 @@ def simulate_block(
     at = np.empty(AT_SIZE)
     tele = np.empty(TEL_SIZE)
     pending = np.full(TEL_SIZE, np.nan)
+    fl_arr = np.empty(max(int(kp[KP_IN_FLIGHT]), 1))
+    fl_seq = np.empty(max(int(kp[KP_IN_FLIGHT]), 1), dtype=np.int64)
     crow = np.empty(CR_SIZE)
     fx = np.empty(FX_SIZE)
     fxi = np.empty(FXI_SIZE, dtype=np.int64)
@@ -827,6 +900,8 @@ def simulate_block(
             at,
             tele,
             pending,
+            fl_arr,
+            fl_seq,
             crow,
             res[r],
             passages[r],
@@ -930,6 +1005,8 @@ class KernelModel:
         kp[KP_AIRTIME] = float(airtime_s(medium, n_bytes))
         kp[KP_FRAME_BITS] = 8.0 * n_bytes
         kp[KP_MAX_AGE] = tasc.max_telegram_age_s
+        # A frame older than the maximum age is refused, so no more than this many are in the air.
+        kp[KP_IN_FLIGHT] = int(np.ceil(tasc.max_telegram_age_s / tasc.repeat_period_s)) + 2
         quant, carried, quant_age = _quantization(form)
         kp[KP_QUANT_AGE] = quant_age
         det_to_stop = np.asarray(tasc.detectors_before_stop_m, dtype=np.float64)
@@ -947,6 +1024,9 @@ class KernelModel:
         wp[WP_MAX_DECEL] = brake.full_service_mps2
         wp[WP_LAG] = brake.time_constant_s
         wp[WP_STOP] = station.stop_point_m
+        wp[WP_END_MARGIN] = station.platform_end - station.stop_point_m
+        wp[WP_GUARD_RESPONSE] = wp[WP_BASE_DELAY]
+        wp[WP_GUARD_LIMIT] = tasc.overrun_guard_decel_fraction * brake.full_service_mps2
         window = max(round(radar.fit_window_s / dt_s), 2) if radar is not None else 2
         rcfg = controller if controller in CONFIG_CODES else "tasc-brake-controller"
         fp = np.zeros(FP_SIZE)
@@ -990,7 +1070,7 @@ class KernelModel:
             det_to_stop=det_to_stop,
             transponders=np.asarray(station.ato_transponders_m(), dtype=np.float64),
             wp=wp,
-            rp=receiver_params(rcfg, int(form), vehicle, station.stop_point_m, dt_s),
+            rp=receiver_params(rcfg, int(form), vehicle, station, dt_s),
             ap=ato_params(vehicle, station.stop_point_m, dt_s),
             ext=external_params(vehicle, station.stop_point_m),
             quant=quant,

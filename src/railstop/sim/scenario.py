@@ -39,6 +39,8 @@ class Scenario:
     sensor_jitter_s: FloatArray
     sensor_miss_probability: FloatArray
     doppler_noise_frac: FloatArray
+    radio_outage_start_s: FloatArray  # after the first telegram the train received
+    radio_outage_duration_s: FloatArray  # 0: no outage
 
     @property
     def n(self) -> int:
@@ -80,6 +82,8 @@ class Scenario:
             sensor_jitter_s=full(0.0),
             sensor_miss_probability=full(0.0),
             doppler_noise_frac=full(0.0),
+            radio_outage_start_s=full(0.0),
+            radio_outage_duration_s=full(0.0),
         )
 
     def with_values(self, **changes: object) -> Scenario:

@@ -9,6 +9,7 @@ import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.schema import Line, Station, Vehicle
+from railstop.control.supervision import eb_cause_name
 from railstop.provenance import inputs_sha256
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.scenario import Scenario
@@ -33,6 +34,10 @@ class StopResult:
     commands_sent: int
     stopped: bool
     slid: bool
+    # DESIGN rule 10: why the emergency brake was applied (None: it was not), and when, from
+    # the first detector (control.supervision.EB_CAUSES).
+    emergency_brake: str | None = None
+    emergency_brake_s: float | None = None
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
     psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
@@ -129,6 +134,10 @@ def run_stop(
         commands_sent=int(batch.commands_sent[0]),
         stopped=bool(batch.stopped[0]),
         slid=bool(batch.slid[0]),
+        emergency_brake=eb_cause_name(int(batch.emergency_brake[0])),
+        emergency_brake_s=(
+            round(float(batch.emergency_brake_s[0]), 3) if np.isfinite(batch.emergency_brake_s[0]) else None
+        ),
         disturbances=None if disturbances is None else disturbances.name,
         run=run,
         psd_tolerance_m=tol,

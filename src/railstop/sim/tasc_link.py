@@ -31,6 +31,7 @@ from railstop.link.codec import (
     TascBrakeCommand,
     TascDecel,
     TascDistance,
+    TascEmergencyStop,
     TascIncreaseDecrease,
     TascInterval,
     TascPosition,
@@ -38,7 +39,6 @@ from railstop.link.codec import (
     TascSpeed,
     Telegram,
     decode,
-    encode,
     layout_of,
     quantize,
 )
@@ -109,13 +109,22 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
         for name in carried:
             if name in _FLOAT_FIELDS:
                 changes[name] = quantize(kind, name, getattr(tele, name))
-    return replace(tele, **changes)  # type: ignore[arg-type]
+    out = replace(tele, **changes)  # type: ignore[arg-type]
+    eb = np.asarray(tele.emergency) != 0
+    if eb.any():  # an emergency-stop telegram carries the detector only
+        blank: dict[str, object] = {n: np.where(eb, np.nan, getattr(out, n)) for n in _FLOAT_FIELDS}
+        for name in ("notch", "delta"):
+            blank[name] = np.where(eb, 0, getattr(out, name))
+        out = replace(out, **blank)  # type: ignore[arg-type]
+    return out
 
 
 def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Telegram:
     """The codec message of run ``row`` of a (quantised) telegram."""
     form = SignalForm(tele.form)
     det = int(tele.detector[row])
+    if int(tele.emergency[row]):
+        return TascEmergencyStop(train_id=train_id, detector=det)
     if form == SignalForm.POSITION:
         return TascPosition(
             train_id=train_id,
@@ -173,7 +182,8 @@ def from_message(msg: Telegram, form: SignalForm) -> TascTelegrams:
         return np.full(1, np.nan if v is None else float(v))
 
     passage = val("passage_s")
-    if form == SignalForm.SPEED:
+    emergency = isinstance(msg, TascEmergencyStop)
+    if form == SignalForm.SPEED and not emergency:
         passage = np.full(1, msg.passage_s)  # type: ignore[attr-defined]
     return TascTelegrams(
         form=form,
@@ -190,6 +200,7 @@ def from_message(msg: Telegram, form: SignalForm) -> TascTelegrams:
         notch=np.full(1, int(getattr(msg, "notch", 0)), dtype=np.int64),  # 0 when not carried
         duty=val("duty") if form == SignalForm.BRAKE_COMMAND else nan,
         delta=np.full(1, int(getattr(msg, "delta", 0)), dtype=np.int64),
+        emergency=np.full(1, int(emergency), dtype=np.int64),
     )
 
 
@@ -223,11 +234,11 @@ class ByteLink:
             timeout_s=1e9,  # the TASC zone's supervision is the onboard unit's, not modelled here
         )
 
-    def transmit(
-        self, tele: TascTelegrams, now_s: float, arrival_s: float, corrupt_bit: float | None
-    ) -> None:
-        """One attempt sent at ``now_s``; ``corrupt_bit`` in [0, 1) picks the flipped bit (None: intact)."""
-        frame = bytearray(self.sender.wrap(encode(to_message(tele, 0)), now_s))
+    def transmit(self, payload: bytes, now_s: float, arrival_s: float, corrupt_bit: float | None) -> None:
+        """One attempt of the codec frame ``payload`` sent at ``now_s`` (a cyclic repeat sends the
+        same payload in a new safety frame); ``corrupt_bit`` in [0, 1) picks the flipped bit
+        (None: intact)."""
+        frame = bytearray(self.sender.wrap(payload, now_s))
         self.frames_sent += 1
         if corrupt_bit is not None:
             bit = min(int(corrupt_bit * 8 * len(frame)), 8 * len(frame) - 1)
@@ -238,9 +249,10 @@ class ByteLink:
         """A newer telegram supersedes the one in flight: the wayside sends only its latest."""
         self.in_flight = [f for f in self.in_flight if not f[2]]
 
-    def arrive(self, now_s: float, form: SignalForm) -> TascTelegrams | None:
-        """Frames arrived by ``now_s`` go through the safety receiver; the genuine one is decoded."""
-        got: TascTelegrams | None = None
+    def arrive(self, now_s: float) -> list[Telegram]:
+        """Frames arrived by ``now_s`` go through the safety receiver; the decoded telegrams of
+        those it delivered, in order."""
+        got: list[Telegram] = []
         keep: list[tuple[float, bytes, bool]] = []
         for arrival, frame, genuine in self.in_flight:
             if arrival > now_s + 1e-9:
@@ -248,6 +260,6 @@ class ByteLink:
                 continue
             verdict = self.receiver.accept(frame, now_s)
             if isinstance(verdict, Delivered):
-                got = from_message(decode(verdict.payload), form)
+                got.append(decode(verdict.payload))
         self.in_flight = keep
         return got

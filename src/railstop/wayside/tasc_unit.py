@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.control.notch import nearest_notch_1
+from railstop.control.supervision import overrun_guard_1
 from railstop.control.tasc import (
     REG_WEIGHTS,
     clip_1,
@@ -88,6 +89,7 @@ class TascTelegrams:
     notch: IntArray
     duty: FloatArray
     delta: IntArray
+    emergency: IntArray  # 1: the wayside's overrun guard fired (the emergency-stop telegram)
 
 
 def finite_or_none(x: float) -> float | None:
@@ -115,7 +117,8 @@ TEL_REQUIRED = 8
 TEL_NOTCH = 9
 TEL_DUTY = 10
 TEL_DELTA = 11
-TEL_SIZE = 12
+TEL_EMERGENCY = 12  # 1: an emergency-stop telegram (the wayside's overrun guard), every form
+TEL_SIZE = 13
 #: Telegram vector index -> TascTelegrams field (the array form of the same telegram).
 TEL_FIELDS: tuple[str, ...] = (
     "detector",
@@ -130,6 +133,7 @@ TEL_FIELDS: tuple[str, ...] = (
     "notch",
     "duty",
     "delta",
+    "emergency",
 )
 
 WP_FORM = 0
@@ -143,7 +147,10 @@ WP_JERK = 7
 WP_MAX_DECEL = 8  # full service
 WP_LAG = 9  # brake build-up time constant
 WP_STOP = 10
-WP_SIZE = 11
+WP_END_MARGIN = 11  # platform end beyond the stopping point (the overrun guard's end)
+WP_GUARD_RESPONSE = 12  # the guard's response time: assumed latency + brake dead time + lag
+WP_GUARD_LIMIT = 13  # the guard's deceleration limit (full service x guard fraction)
+WP_SIZE = 14
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -159,7 +166,9 @@ WS_BELIEVED = 14  # form 8: what the train is believed to apply
 WS_SENT = 15
 WS_FIRST_SENT = 16  # the train holds its speed until told to brake
 WS_NEXT_UPDATE = 17
-WS_SIZE = 18
+WS_EMERGENCY = 18  # 1 once the overrun guard fired (latched: every later telegram says so)
+WS_DECEL = 19  # the deceleration measured at the last command (the overrun guard's; 0: none)
+WS_SIZE = 20
 
 # Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
 CR_T = 0
@@ -174,7 +183,8 @@ CR_COMMAND = 8
 CR_NOTCH = 9
 CR_DELTA = 10
 CR_EFFECT = 11
-CR_SIZE = 12
+CR_EMERGENCY = 12  # 1: the overrun guard fired, the telegram is an emergency stop
+CR_SIZE = 13
 
 # The fields forms 1-5 put on the air besides the detector and times (SPEC §1 claim 3).
 _MEASUREMENT_OF_FORM = np.array([-1, TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL])
@@ -232,6 +242,24 @@ def wayside_observe_1(
             ws[WS_SUMS + 4] += t_rel * doppler_mps
         ws[WS_DCOUNT] = min(ws[WS_DCOUNT] + 1.0, float(window))
         ws[WS_TRAVEL] += doppler_mps * wp[WP_DT]
+    if (
+        wp[WP_HAS_DOPPLER] > 0.0
+        and np.isfinite(doppler_mps)
+        and ws[WS_EMERGENCY] == 0.0
+        and ws[WS_LAST_DET] >= 0.0
+        and not passed
+        and overrun_guard_1(
+            doppler_mps,
+            ws[WS_DECEL],
+            wp[WP_STOP] + wp[WP_END_MARGIN] - pass_x[2] - ws[WS_TRAVEL],
+            wp[WP_GUARD_RESPONSE],
+            wp[WP_GUARD_LIMIT],
+        )
+    ):
+        # DESIGN rule 10, the wayside's overrun guard on every Doppler sample: an emergency-stop
+        # telegram now (wayside_command_1 sends it).
+        ws[WS_EMERGENCY] = 1.0
+        return True
     if passed:
         for j in range(2):
             pass_t[j] = pass_t[j + 1]
@@ -376,6 +404,11 @@ def wayside_command_1(
         new_passage,
     )
     interval = pass_t[2] - pass_t[1]
+    ws[WS_DECEL] = decel if np.isfinite(decel) else 0.0
+    if ws[WS_EMERGENCY] == 0.0 and overrun_guard_1(
+        speed, ws[WS_DECEL], distance + wp[WP_END_MARGIN], wp[WP_GUARD_RESPONSE], wp[WP_GUARD_LIMIT]
+    ):
+        ws[WS_EMERGENCY] = 1.0  # DESIGN rule 10: the overrun guard at a command (both variants)
     # Loop closure (SPEC §1 claims 2, 19) and the next command.
     num, den = gain_update_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN], decel, cmd_mean, ext_mean)
     ws[WS_GAIN_NUM] = num
@@ -433,6 +466,7 @@ def wayside_command_1(
     tele[TEL_NOTCH] = notch
     tele[TEL_DUTY] = decel_to_pwm_1(command, pwm_duty, pwm_decel)
     tele[TEL_DELTA] = delta
+    tele[TEL_EMERGENCY] = ws[WS_EMERGENCY]
     if form <= 5:  # forms 1-5 carry only their measurement (SPEC §1)
         keep = _MEASUREMENT_OF_FORM[form]
         for j in (TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL, TEL_REQUIRED):
@@ -450,3 +484,4 @@ def wayside_command_1(
     record[CR_NOTCH] = notch
     record[CR_DELTA] = delta
     record[CR_EFFECT] = effect
+    record[CR_EMERGENCY] = ws[WS_EMERGENCY]

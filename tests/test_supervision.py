@@ -1,0 +1,326 @@
+"""Fail-safe supervision of the TASC stop (DESIGN rules 4 and 10): every rule shown firing.
+
+- the telegram supervision: no braking telegram inside the zone -> emergency brake (wire e);
+- the onboard overrun guard (the train's own odometry) and the wayside's (its measurements);
+- no false alarm in ordinary service; the causes reach the results and the campaign summary.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import DisturbanceSet, load_disturbances
+from railstop.control.notch import MOD_SIZE
+from railstop.control.supervision import (
+    EB_ONBOARD_GUARD,
+    EB_TIMEOUT,
+    EB_WAYSIDE_GUARD,
+    eb_cause_name,
+    overrun_guard_1,
+)
+from railstop.control.tasc import HISTORY
+from railstop.controllers import TASC_CONTROLLERS, TASC_PWM
+from railstop.onboard.tasc_receiver import (
+    RX_EB,
+    RX_SIZE,
+    receiver_alive_1,
+    receiver_fix_1,
+    receiver_init_1,
+    receiver_params,
+    receiver_supervise_1,
+)
+from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
+from railstop.sim.single import run_stop
+from railstop.wayside.tasc_unit import (
+    TEL_EMERGENCY,
+    WS_EMERGENCY,
+    WS_SIZE,
+    SignalForm,
+    wayside_init_1,
+    wayside_observe_1,
+)
+
+LINE = default_line()
+VEHICLE = default_vehicle()
+RIVERSIDE = LINE.station("Riverside")
+DT = 0.01
+
+
+def _with(base: str, **changes: object) -> DisturbanceSet:
+    d = load_disturbances(base).to_dict()
+    d.update(changes)
+    return DisturbanceSet.from_dict(d, name=f"{base}+fault", source="test")
+
+
+# ---------------------------------------------------------------- the guard's arithmetic
+
+
+def test_guard_fires_only_when_the_end_is_out_of_reach() -> None:
+    # 16 m/s, 0.8 s response, limit 1.0 m/s²: needs 12.8 m + 128 m.
+    assert not overrun_guard_1(16.0, 0.0, 150.0, 0.8, 1.0)
+    assert overrun_guard_1(16.0, 0.0, 136.0, 0.8, 1.0)
+    # Already braking at 0.6 m/s²: 12.6 m + 120.4 m, so the same distance is enough.
+    assert not overrun_guard_1(16.0, 0.6, 136.0, 0.8, 1.0)
+    # At rest: only past the end.
+    assert not overrun_guard_1(0.0, 0.0, 0.5, 0.8, 1.0)
+    assert overrun_guard_1(0.0, 0.0, -0.1, 0.8, 1.0)
+    # An unknown deceleration (NaN) counts as none.
+    assert overrun_guard_1(16.0, np.nan, 136.0, 0.8, 1.0)
+
+
+@given(
+    v=st.floats(0.1, 30.0),
+    a=st.floats(0.0, 1.5),
+    d=st.floats(-5.0, 500.0),
+    extra=st.floats(0.01, 5.0),
+)
+def test_guard_is_monotone(v: float, a: float, d: float, extra: float) -> None:
+    """Faster, nearer or braking less never makes the guard fire later."""
+    if overrun_guard_1(v, a, d, 0.8, 1.0):
+        assert overrun_guard_1(v + extra, a, d, 0.8, 1.0)
+        assert overrun_guard_1(v, a, d - extra, 0.8, 1.0)
+        assert overrun_guard_1(v, max(a - extra, 0.0), d, 0.8, 1.0)
+
+
+# ---------------------------------------------------------------- the onboard unit alone
+
+
+class _Onboard:
+    """The onboard receiver's supervision, driven step by step as the kernel drives it."""
+
+    def __init__(self) -> None:
+        self.rp = receiver_params(TASC_PWM, 6, VEHICLE, RIVERSIDE, DT)
+        self.rx = np.empty(RX_SIZE)
+        receiver_init_1(self.rx, np.empty(MOD_SIZE), np.empty(HISTORY), np.empty(HISTORY))
+        self.t = 0.0
+
+    def run(self, seconds: float, speed: float, telegram_every_s: float | None) -> bool:
+        next_tel = 0.0
+        eb = False
+        for _ in range(round(seconds / DT)):
+            if telegram_every_s is not None and self.t >= next_tel:
+                receiver_alive_1(self.rx, self.t)
+                next_tel = self.t + telegram_every_s
+            eb = receiver_supervise_1(self.rx, self.rp, self.t, speed * DT, speed)
+            self.t += DT
+        return eb
+
+
+def test_onboard_timeout_fires_after_the_supervision_time() -> None:
+    """DESIGN rule 10: inside the zone, braking telegrams stop -> emergency brake, 1 s later."""
+    unit = _Onboard()
+    first = RIVERSIDE.ato_transponders_m()[0]
+    receiver_fix_1(unit.rx, unit.rp, first, 0.0)
+    assert not unit.run(2.0, 2.0, telegram_every_s=0.1)  # life signs every 0.1 s: no alarm
+    # The last life sign came at most 0.1 s before: silent for at most 0.95 s, still no alarm.
+    assert not unit.run(0.85, 2.0, telegram_every_s=None)
+    assert unit.run(0.2, 2.0, telegram_every_s=None)  # silent for > 1 s: wire e
+    assert unit.rx[RX_EB] == EB_TIMEOUT
+    # Latched: telegrams coming back do not release it before standstill.
+    assert unit.run(1.0, 2.0, telegram_every_s=0.1)
+
+
+def test_onboard_first_telegram_deadline() -> None:
+    """No telegram at all: the clock starts once the train is surely past the second detector."""
+    unit = _Onboard()
+    first = RIVERSIDE.detector_positions_m()[0]
+    receiver_fix_1(unit.rx, unit.rp, first, 0.0)
+    # 2 m/s from the first detector: 100 m to the second, plus the odometer's possible error.
+    assert not unit.run(45.0, 2.0, telegram_every_s=None)
+    assert unit.run(8.0, 2.0, telegram_every_s=None)
+    assert unit.rx[RX_EB] == EB_TIMEOUT
+
+
+def test_onboard_overrun_guard_fires_on_its_own_odometry() -> None:
+    """A train at line speed near the platform end with telegrams coming but no braking."""
+    unit = _Onboard()
+    # Fixed 25 m before the stop (the precise-stop transponder), at 16 m/s: cannot stop by the
+    # platform end (5 m beyond) with full service.
+    receiver_fix_1(unit.rx, unit.rp, RIVERSIDE.ato_transponders_m()[1], 0.0)
+    assert unit.run(0.05, 16.0, telegram_every_s=0.1)
+    assert unit.rx[RX_EB] == EB_ONBOARD_GUARD
+    # The same train at 3 m/s is no danger.
+    slow = _Onboard()
+    receiver_fix_1(slow.rx, slow.rp, RIVERSIDE.ato_transponders_m()[1], 0.0)
+    assert not slow.run(1.0, 3.0, telegram_every_s=0.1)
+
+
+# ---------------------------------------------------------------- the wayside unit alone
+
+
+def test_wayside_guard_sends_an_emergency_stop() -> None:
+    """The wayside's Doppler sees a train too fast for the platform end: an emergency-stop telegram."""
+    from railstop.sim.kernel import KernelModel
+
+    model = KernelModel.create(
+        station=RIVERSIDE, vehicle=VEHICLE, controller=TASC_PWM, form=None, dt_s=DT, max_time_s=150.0
+    )
+    ws = np.empty(WS_SIZE)
+    hv, he, pt, px = np.empty(HISTORY), np.empty(HISTORY), np.empty(3), np.empty(3)
+    wayside_init_1(ws, hv, he, pt, px)
+    dbuf = np.zeros(model.window)
+    det = model.det_pos
+    last = det.size - 1
+    # The train passed the last detector (6 m before the stop) at 12 m/s.
+    assert wayside_observe_1(ws, model.wp, dbuf, pt, px, det, 0.0, True, last, 0.0, 12.0)
+    assert ws[WS_EMERGENCY] == 0.0  # the passage alone is a command, not yet the guard
+    due = wayside_observe_1(ws, model.wp, dbuf, pt, px, det, DT, False, last, 0.0, 12.0)
+    assert due and ws[WS_EMERGENCY] == 1.0
+
+
+# ---------------------------------------------------------------- whole stops
+
+
+@pytest.mark.parametrize("controller", TASC_CONTROLLERS)
+def test_every_telegram_after_the_first_lost_ends_by_emergency_brake(controller: str) -> None:
+    """The issue's fault target, on 40 standard runs per controller: 100 % emergency brake by the
+    telegram supervision, 0 past the platform end."""
+    fault = load_disturbances("outage-after-first")
+    batch, _ = simulate_runs(
+        station=RIVERSIDE,
+        vehicle=VEHICLE,
+        controller=controller,
+        disturbances=fault,
+        seed=11,
+        first_run=0,
+        n=40,
+        track=LINE.track,
+    )
+    assert np.all(batch.emergency_brake == EB_TIMEOUT)
+    assert np.all(batch.stopped)
+    assert np.all(batch.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m)
+    assert np.all(batch.stop_error_m < 0.0)  # well short: braked from the zone's start
+
+
+def test_no_telegram_at_all_stops_the_train() -> None:
+    """Every frame lost: the train would hold its speed for ever; the supervision stops it."""
+    result, batch = run_stop(
+        line=LINE,
+        station=RIVERSIDE,
+        vehicle=VEHICLE,
+        controller=TASC_PWM,
+        seed=1,
+        disturbances=_with("nominal", radio_loss_probability=1.0),
+    )
+    assert result.commands == 0
+    assert result.emergency_brake == "telegram-timeout"
+    assert result.stopped and result.stop_error_m < 0.0
+    # The trace shows wire e: the demand is the emergency deceleration from then on.
+    assert batch.trace is not None
+    demand = batch.trace.demand_decel_mps2[:, 0]
+    assert demand[-1] == VEHICLE.brake.emergency_decel_mps2
+
+
+def test_loss_95_never_a_silent_miss() -> None:
+    """95 % of the frames lost: each stop within tolerance or by emergency brake."""
+    batch, _ = simulate_runs(
+        station=RIVERSIDE,
+        vehicle=VEHICLE,
+        controller=TASC_PWM,
+        disturbances=load_disturbances("loss-95"),
+        seed=5,
+        first_run=0,
+        n=60,
+        track=LINE.track,
+    )
+    ok = batch.stopped & (np.abs(batch.stop_error_m) <= RIVERSIDE.psd_tolerance_m)
+    assert np.all(ok | (batch.emergency_brake != 0))
+    assert np.all(batch.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m)
+
+
+@pytest.mark.parametrize("controller", TASC_CONTROLLERS)
+def test_no_false_alarm_in_standard_service(controller: str) -> None:
+    """Ordinary service (standard set, 300 runs): no emergency brake."""
+    batch, _ = simulate_runs(
+        station=RIVERSIDE,
+        vehicle=VEHICLE,
+        controller=controller,
+        disturbances=load_disturbances("standard"),
+        seed=7,
+        first_run=0,
+        n=300,
+        track=LINE.track,
+    )
+    assert np.count_nonzero(batch.emergency_brake) == 0
+
+
+def _open_loop(onboard_fraction: float, wayside_fraction: float) -> tuple[object, object]:
+    """A station whose only detectors are 220 m out and brakes 25 % weak: after the first command
+    nothing corrects the train and it would run past the platform end. The guards' limits are
+    data (vehicle.atp, tasc); a limit of 5 x full service blinds that guard."""
+    zone = RIVERSIDE.tasc.model_copy(
+        update={"detectors_before_stop_m": [220.0, 219.0], "overrun_guard_decel_fraction": wayside_fraction}
+    )
+    station = RIVERSIDE.model_copy(update={"tasc": zone})
+    vehicle = VEHICLE.model_copy(
+        update={"atp": VEHICLE.atp.model_copy(update={"guard_decel_fraction": onboard_fraction})}
+    )
+    result, batch = run_stop(
+        line=LINE,
+        station=station,
+        vehicle=vehicle,
+        controller=TASC_PWM,
+        seed=1,
+        disturbances=_with("nominal", brake_gain={"fixed": 0.75}),
+    )
+    return result, batch
+
+
+def test_open_loop_overrun_without_guards_passes_the_platform_end() -> None:
+    """Both guards blind (a limit of 5 x full service): only when the end is within the response
+    distance does one fire, too late; the train ends past the platform end."""
+    result, _ = _open_loop(5.0, 5.0)
+    assert result.stop_error_m > RIVERSIDE.platform_end - RIVERSIDE.stop_point_m
+
+
+def test_onboard_overrun_guard_in_a_stop() -> None:
+    result, batch = _open_loop(1.0, 5.0)
+    assert result.emergency_brake == eb_cause_name(EB_ONBOARD_GUARD)
+    assert result.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m
+    assert not any(c["emergency"] for c in batch.commands)
+
+
+def test_wayside_overrun_guard_in_a_stop() -> None:
+    """The train's own guard blind: the wayside's emergency-stop telegram stops it."""
+    result, batch = _open_loop(5.0, 1.0)
+    assert result.emergency_brake == eb_cause_name(EB_WAYSIDE_GUARD)
+    assert result.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m
+    assert batch.commands[-1]["emergency"]  # recorded with the command history (claim 20)
+
+
+def test_campaign_reports_emergency_brakes(tmp_path: Path) -> None:
+    spec = CampaignSpec(
+        line=LINE,
+        vehicle=VEHICLE,
+        station="Riverside",
+        controller=TASC_PWM,
+        runs=30,
+        seed=2,
+        disturbances=load_disturbances("outage-after-first"),
+        chunk_size=30,
+        form=int(SignalForm.REQUIRED_DECELERATION),
+    )
+    outcome = run_campaign(spec, tmp_path / "c")
+    s = outcome.summary
+    assert s["emergency_brakes"] == 30
+    assert s["emergency_brakes_by_cause"] == {"telegram-timeout": 30}
+    assert s["past_platform_end"] == 0
+    assert s["silent_misses"] == 0
+    written = json.loads((tmp_path / "c" / "summary.json").read_text(encoding="utf-8"))
+    assert written["emergency_brakes"] == 30
+
+
+def test_emergency_stop_telegram_on_the_wire() -> None:
+    """The emergency-stop telegram goes through the codec and the safety layer like any other."""
+    from railstop.link.codec import TascEmergencyStop, decode, encode
+
+    msg = TascEmergencyStop(train_id=1, detector=4)
+    assert decode(encode(msg)) == msg
+    assert TEL_EMERGENCY > 0
