@@ -37,7 +37,8 @@ from railstop.onboard.tasc_receiver import (
     receiver_supervise_1,
 )
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
-from railstop.sim.single import run_stop
+from railstop.sim.engine import BatchResult
+from railstop.sim.single import StopResult, run_stop
 from railstop.wayside.tasc_unit import (
     TEL_EMERGENCY,
     WS_EMERGENCY,
@@ -50,7 +51,23 @@ from railstop.wayside.tasc_unit import (
 LINE = default_line()
 VEHICLE = default_vehicle()
 RIVERSIDE = LINE.station("Riverside")
+PLATFORM_END = RIVERSIDE.platform_end - RIVERSIDE.stop_point_m  # beyond the stopping point
 DT = 0.01
+
+
+def _riverside(controller: str, disturbances: str, seed: int, n: int) -> BatchResult:
+    """Runs 0 .. n - 1 of a campaign at Riverside."""
+    batch, _ = simulate_runs(
+        station=RIVERSIDE,
+        vehicle=VEHICLE,
+        controller=controller,
+        disturbances=load_disturbances(disturbances),
+        seed=seed,
+        first_run=0,
+        n=n,
+        track=LINE.track,
+    )
+    return batch
 
 
 def _with(base: str, **changes: object) -> DisturbanceSet:
@@ -117,7 +134,7 @@ def test_onboard_timeout_fires_after_the_supervision_time() -> None:
     """DESIGN rule 10: inside the zone, braking telegrams stop -> emergency brake, 1 s later."""
     unit = _Onboard()
     first = RIVERSIDE.ato_transponders_m()[0]
-    receiver_fix_1(unit.rx, unit.rp, first, 0.0)
+    receiver_fix_1(unit.rx, unit.rp, first)
     assert not unit.run(2.0, 2.0, telegram_every_s=0.1)  # life signs every 0.1 s: no alarm
     # The last life sign came at most 0.1 s before: silent for at most 0.95 s, still no alarm.
     assert not unit.run(0.85, 2.0, telegram_every_s=None)
@@ -131,7 +148,7 @@ def test_onboard_first_telegram_deadline() -> None:
     """No telegram at all: the clock starts once the train is surely past the second detector."""
     unit = _Onboard()
     first = RIVERSIDE.detector_positions_m()[0]
-    receiver_fix_1(unit.rx, unit.rp, first, 0.0)
+    receiver_fix_1(unit.rx, unit.rp, first)
     # 2 m/s from the first detector: 100 m to the second, plus the odometer's possible error.
     assert not unit.run(45.0, 2.0, telegram_every_s=None)
     assert unit.run(8.0, 2.0, telegram_every_s=None)
@@ -143,12 +160,12 @@ def test_onboard_overrun_guard_fires_on_its_own_odometry() -> None:
     unit = _Onboard()
     # Fixed 25 m before the stop (the precise-stop transponder), at 16 m/s: cannot stop by the
     # platform end (5 m beyond) with full service.
-    receiver_fix_1(unit.rx, unit.rp, RIVERSIDE.ato_transponders_m()[1], 0.0)
+    receiver_fix_1(unit.rx, unit.rp, RIVERSIDE.ato_transponders_m()[1])
     assert unit.run(0.05, 16.0, telegram_every_s=0.1)
     assert unit.rx[RX_EB] == EB_ONBOARD_GUARD
     # The same train at 3 m/s is no danger.
     slow = _Onboard()
-    receiver_fix_1(slow.rx, slow.rp, RIVERSIDE.ato_transponders_m()[1], 0.0)
+    receiver_fix_1(slow.rx, slow.rp, RIVERSIDE.ato_transponders_m()[1])
     assert not slow.run(1.0, 3.0, telegram_every_s=0.1)
 
 
@@ -182,20 +199,10 @@ def test_wayside_guard_sends_an_emergency_stop() -> None:
 def test_every_telegram_after_the_first_lost_ends_by_emergency_brake(controller: str) -> None:
     """The issue's fault target, on 40 standard runs per controller: 100 % emergency brake by the
     telegram supervision, 0 past the platform end."""
-    fault = load_disturbances("outage-after-first")
-    batch, _ = simulate_runs(
-        station=RIVERSIDE,
-        vehicle=VEHICLE,
-        controller=controller,
-        disturbances=fault,
-        seed=11,
-        first_run=0,
-        n=40,
-        track=LINE.track,
-    )
+    batch = _riverside(controller, "outage-after-first", seed=11, n=40)
     assert np.all(batch.emergency_brake == EB_TIMEOUT)
     assert np.all(batch.stopped)
-    assert np.all(batch.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m)
+    assert np.all(batch.stop_error_m < PLATFORM_END)
     assert np.all(batch.stop_error_m < 0.0)  # well short: braked from the zone's start
 
 
@@ -220,38 +227,20 @@ def test_no_telegram_at_all_stops_the_train() -> None:
 
 def test_loss_95_never_a_silent_miss() -> None:
     """95 % of the frames lost: each stop within tolerance or by emergency brake."""
-    batch, _ = simulate_runs(
-        station=RIVERSIDE,
-        vehicle=VEHICLE,
-        controller=TASC_PWM,
-        disturbances=load_disturbances("loss-95"),
-        seed=5,
-        first_run=0,
-        n=60,
-        track=LINE.track,
-    )
+    batch = _riverside(TASC_PWM, "loss-95", seed=5, n=60)
     ok = batch.stopped & (np.abs(batch.stop_error_m) <= RIVERSIDE.psd_tolerance_m)
     assert np.all(ok | (batch.emergency_brake != 0))
-    assert np.all(batch.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m)
+    assert np.all(batch.stop_error_m < PLATFORM_END)
 
 
 @pytest.mark.parametrize("controller", TASC_CONTROLLERS)
 def test_no_false_alarm_in_standard_service(controller: str) -> None:
     """Ordinary service (standard set, 300 runs): no emergency brake."""
-    batch, _ = simulate_runs(
-        station=RIVERSIDE,
-        vehicle=VEHICLE,
-        controller=controller,
-        disturbances=load_disturbances("standard"),
-        seed=7,
-        first_run=0,
-        n=300,
-        track=LINE.track,
-    )
+    batch = _riverside(controller, "standard", seed=7, n=300)
     assert np.count_nonzero(batch.emergency_brake) == 0
 
 
-def _open_loop(onboard_fraction: float, wayside_fraction: float) -> tuple[object, object]:
+def _open_loop(onboard_fraction: float, wayside_fraction: float) -> tuple[StopResult, BatchResult]:
     """A station whose only detectors are 220 m out and brakes 25 % weak: after the first command
     nothing corrects the train and it would run past the platform end. The guards' limits are
     data (vehicle.atp, tasc); a limit of 5 x full service blinds that guard."""
@@ -277,13 +266,13 @@ def test_open_loop_overrun_without_guards_passes_the_platform_end() -> None:
     """Both guards blind (a limit of 5 x full service): only when the end is within the response
     distance does one fire, too late; the train ends past the platform end."""
     result, _ = _open_loop(5.0, 5.0)
-    assert result.stop_error_m > RIVERSIDE.platform_end - RIVERSIDE.stop_point_m
+    assert result.stop_error_m > PLATFORM_END
 
 
 def test_onboard_overrun_guard_in_a_stop() -> None:
     result, batch = _open_loop(1.0, 5.0)
     assert result.emergency_brake == eb_cause_name(EB_ONBOARD_GUARD)
-    assert result.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m
+    assert result.stop_error_m < PLATFORM_END
     assert not any(c["emergency"] for c in batch.commands)
 
 
@@ -291,7 +280,7 @@ def test_wayside_overrun_guard_in_a_stop() -> None:
     """The train's own guard blind: the wayside's emergency-stop telegram stops it."""
     result, batch = _open_loop(5.0, 1.0)
     assert result.emergency_brake == eb_cause_name(EB_WAYSIDE_GUARD)
-    assert result.stop_error_m < RIVERSIDE.platform_end - RIVERSIDE.stop_point_m
+    assert result.stop_error_m < PLATFORM_END
     assert batch.commands[-1]["emergency"]  # recorded with the command history (claim 20)
 
 

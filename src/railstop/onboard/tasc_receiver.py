@@ -84,23 +84,21 @@ RP_FORM = 1
 RP_CYCLE_STEPS = 2  # the brake controller's cycle (config 1), else 1
 RP_PWM_STEPS = 3  # steps per PWM carrier period (config 3)
 RP_MIN_HOLD = 4
-RP_RESPONSE = 5  # dead time + lag: the modulator's model of the brake response
+RP_RESPONSE = 5  # dead time + lag: the brake response (modulator, forms 1-5 planner, overrun guard)
 RP_DT = 6
 RP_MAX_DECEL = 7
 RP_LAG = 8
-RP_BASE_DELAY = 9  # dead time + lag (forms 1-5 onboard planner)
-RP_JERK = 10
-RP_STOP = 11
-RP_SPEED_SAMPLES = 12
-RP_TIMEOUT = 13  # supervision: longest gap between braking telegrams inside the zone
-RP_GUARD_RESPONSE = 14  # overrun guard: the brake's response time (dead time + lag)
-RP_GUARD_LIMIT = 15  # overrun guard: the deceleration beyond which the service brake cannot do
-RP_END = 16  # the platform end (chainage)
-RP_ODO_UNC = 17  # the odometer's possible error, fraction of the distance since the last reset
-RP_POS_MARGIN = 18  # ... plus this (m)
-RP_ZONE_START = 19  # the first transponder (chainage): the train knows it is in the TASC zone
-RP_FIRST_BY = 20  # the detector (chainage) by which the first telegram must have come
-RP_SIZE = 21
+RP_JERK = 9
+RP_STOP = 10
+RP_SPEED_SAMPLES = 11
+RP_TIMEOUT = 12  # supervision: longest gap between braking telegrams inside the zone
+RP_GUARD_LIMIT = 13  # overrun guard: the deceleration beyond which the service brake cannot do
+RP_END = 14  # the platform end (chainage)
+RP_ODO_UNC = 15  # the odometer's possible error, fraction of the distance since the last reset
+RP_POS_MARGIN = 16  # ... plus this (m)
+RP_ZONE_START = 17  # the first transponder (chainage): the train knows it is in the TASC zone
+RP_FIRST_BY = 18  # the detector (chainage) by which the first telegram must have come
+RP_SIZE = 19
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -144,12 +142,10 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     rp[RP_DT] = dt_s
     rp[RP_MAX_DECEL] = brake.full_service_mps2
     rp[RP_LAG] = brake.time_constant_s
-    rp[RP_BASE_DELAY] = brake.dead_time_s + brake.time_constant_s
     rp[RP_JERK] = brake.jerk_limit_mps3
     rp[RP_STOP] = stop_point_m
     rp[RP_SPEED_SAMPLES] = max(2, round(0.3 / dt_s))  # as the wayside's Doppler speed window
     rp[RP_TIMEOUT] = station.tasc.supervision_timeout_s
-    rp[RP_GUARD_RESPONSE] = brake.dead_time_s + brake.time_constant_s
     rp[RP_GUARD_LIMIT] = vehicle.atp.guard_decel_fraction * brake.full_service_mps2
     rp[RP_END] = station.platform_end
     rp[RP_ODO_UNC] = vehicle.atp.odometer_uncertainty_pct / 100.0
@@ -313,7 +309,7 @@ def _receiver_plan_1(
         hist_v,
         hist_e,
         gain_value_1(num, den),
-        rp[RP_BASE_DELAY],
+        rp[RP_RESPONSE],
         rp[RP_JERK],
         rp[RP_MAX_DECEL],
         ext,
@@ -375,7 +371,7 @@ def receiver_alive_1(rx: FloatArray, now_s: float) -> None:
 
 
 @njit_inline
-def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float, now_s: float) -> None:
+def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float) -> None:
     """The train's own ATP reset its odometer at a transponder at ``position_m``. At the first
     one (the zone's start, SPEC §1: the first detector) it knows it is in the TASC zone and the
     telegram supervision starts."""
@@ -421,7 +417,7 @@ def receiver_supervise_1(
             speed_mps * (1.0 + rp[RP_ODO_UNC]),
             rx[RX_TACH_DECEL] * (1.0 - rp[RP_ODO_UNC]),
             rp[RP_END] - position,
-            rp[RP_GUARD_RESPONSE],
+            rp[RP_RESPONSE],
             rp[RP_GUARD_LIMIT],
         ):
             _apply_eb_1(rx, EB_ONBOARD_GUARD, now_s)

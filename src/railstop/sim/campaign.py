@@ -46,7 +46,7 @@ from railstop.config.disturbances import PARAMETERS, DisturbanceSet, draw_scenar
 from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, stamp
-from railstop.report.campaign_report import summary_stats
+from railstop.report.campaign_report import RESULT_COLUMNS, summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
 from railstop.sim.executor import blocks, describe, execute
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
@@ -76,20 +76,6 @@ DISK_BYTES_PER_VALUE = 8
 # 4: the supervision (emergency brake, overrun guards) and the cyclic repeat of the latest
 # braking telegram (more link draws per run).
 MODEL_VERSION = 4
-
-RESULT_COLUMNS = (
-    "run",
-    "stop_error_m",
-    "stop_time_s",
-    "max_jerk_mps3",
-    "notch_changes",
-    "commands_sent",
-    "commands_received",
-    "stopped",
-    "slid",
-    "emergency_brake",
-    "emergency_brake_s",
-)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

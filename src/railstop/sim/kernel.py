@@ -99,7 +99,6 @@ from railstop.wayside.tasc_unit import (
     WP_END_MARGIN,
     WP_FORM,
     WP_GUARD_LIMIT,
-    WP_GUARD_RESPONSE,
     WP_HAS_DOPPLER,
     WP_JERK,
     WP_LAG,
@@ -226,8 +225,7 @@ TR_BRAKE = 5
 TR_ACCEL = 6
 TR_NOTCH = 7
 TR_DUTY = 8
-TR_EB = 9  # 1 while the emergency brake (wire e) is applied
-TR_SIZE = 10
+TR_SIZE = 9
 
 # Link attempt log columns (recording): what the byte-level checker replays.
 LA_STEP = 0
@@ -726,7 +724,7 @@ def _simulate_run(
         else:
             # The train's own ATP resets its odometer at the transponders (the first one: the zone).
             if passage_1(transponders, transponder_next, x0, x):
-                receiver_fix_1(rx, rp, transponders[transponder_next], t + dt)
+                receiver_fix_1(rx, rp, transponders[transponder_next])
                 transponder_next += 1
             passed = False
             if passage_1(det_pos, sensor_next, x0, x):
@@ -753,7 +751,6 @@ def _simulate_run(
             trace[k, TR_ACCEL] = accel
             trace[k, TR_NOTCH] = ecu_notch
             trace[k, TR_DUTY] = duty
-            trace[k, TR_EB] = eb
         if stopped:
             break
     res[RES_ERROR] = x - stop_point
@@ -1025,7 +1022,6 @@ class KernelModel:
         wp[WP_LAG] = brake.time_constant_s
         wp[WP_STOP] = station.stop_point_m
         wp[WP_END_MARGIN] = station.platform_end - station.stop_point_m
-        wp[WP_GUARD_RESPONSE] = wp[WP_BASE_DELAY]
         wp[WP_GUARD_LIMIT] = tasc.overrun_guard_decel_fraction * brake.full_service_mps2
         window = max(round(radar.fit_window_s / dt_s), 2) if radar is not None else 2
         rcfg = controller if controller in CONFIG_CODES else "tasc-brake-controller"

@@ -208,10 +208,10 @@ def from_message(msg: Telegram, form: SignalForm) -> TascTelegrams:
 class ByteLink:
     """The braking telegrams of one run as real frames: codec + EN 50159 safety layer.
 
-    ``transmit`` builds the frame of an attempt (flipping one bit when the
-    attempt's draw says it is corrupted); ``arrive`` hands frames that have
-    arrived to the safety receiver and returns the decoded telegram of the
-    genuine one, if any. Rejections are counted by reason (``receiver.counts``).
+    ``transmit`` wraps a codec frame in the safety frame of an attempt (flipping
+    one bit when the attempt's draw says it is corrupted); ``arrive`` hands
+    frames that have arrived to the safety receiver and returns the decoded
+    telegrams it delivered. Rejections are counted by reason (``receiver.counts``).
     """
 
     category: int

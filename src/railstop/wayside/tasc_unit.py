@@ -148,9 +148,8 @@ WP_MAX_DECEL = 8  # full service
 WP_LAG = 9  # brake build-up time constant
 WP_STOP = 10
 WP_END_MARGIN = 11  # platform end beyond the stopping point (the overrun guard's end)
-WP_GUARD_RESPONSE = 12  # the guard's response time: assumed latency + brake dead time + lag
-WP_GUARD_LIMIT = 13  # the guard's deceleration limit (full service x guard fraction)
-WP_SIZE = 14
+WP_GUARD_LIMIT = 12  # the overrun guard's deceleration limit (full service x guard fraction)
+WP_SIZE = 13
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -252,7 +251,7 @@ def wayside_observe_1(
             doppler_mps,
             ws[WS_DECEL],
             wp[WP_STOP] + wp[WP_END_MARGIN] - pass_x[2] - ws[WS_TRAVEL],
-            wp[WP_GUARD_RESPONSE],
+            wp[WP_BASE_DELAY],
             wp[WP_GUARD_LIMIT],
         )
     ):
@@ -406,7 +405,7 @@ def wayside_command_1(
     interval = pass_t[2] - pass_t[1]
     ws[WS_DECEL] = decel if np.isfinite(decel) else 0.0
     if ws[WS_EMERGENCY] == 0.0 and overrun_guard_1(
-        speed, ws[WS_DECEL], distance + wp[WP_END_MARGIN], wp[WP_GUARD_RESPONSE], wp[WP_GUARD_LIMIT]
+        speed, ws[WS_DECEL], distance + wp[WP_END_MARGIN], wp[WP_BASE_DELAY], wp[WP_GUARD_LIMIT]
     ):
         ws[WS_EMERGENCY] = 1.0  # DESIGN rule 10: the overrun guard at a command (both variants)
     # Loop closure (SPEC §1 claims 2, 19) and the next command.
