@@ -10,21 +10,28 @@ competent version of that scheme, not a straw man:
   (``Station.ato_transponders_m``; by default one at the first TASC detector
   and a precise-stop transponder 25 m before the stop);
 - speed: the tachometer (so it carries the same diameter error);
-- control: a constant-deceleration brake curve to its odometric stopping
-  point, drawn anew at every transponder fix; every controller cycle it demands
-  the curve's deceleration less the gradient and resistance of its line data
-  (brakes assumed nominal), plus a speed feedback ``ATO_SPEED_GAIN_PER_S`` ×
-  (tachometer speed - curve speed), the curve read a little ahead of the
-  train (``ATO_LEAD_FRACTION`` of the brake's equivalent dead time; gain and
-  lead tuned so that ±15 % brake effectiveness costs under 0.2 m). The
-  feedback corrects a weak or strong brake as the speed departs from the
-  curve, but nothing measures the train from outside;
+- control: the best published onboard stop law we know (magicant's
+  bve-autopilot TASC, its ``algorithm.md``), re-expressed: a
+  constant-deceleration pattern to its odometric stopping point, drawn anew
+  through the train's state at every transponder fix, and every controller
+  cycle the deceleration that rejoins the pattern in ``ATO_REJOIN_S``
+  (pattern deceleration × speed / pattern speed - (pattern speed - speed) /
+  ``ATO_REJOIN_S``): it approaches the pattern gradually instead of at once,
+  so a late or early brake response does not make it hunt. Near the stop,
+  where ``ATO_REJOIN_S`` is longer than the time left, two bounds keep it
+  continuous (max / min, no switch): above the pattern it asks at least the
+  deceleration that rejoins the pattern halfway to the stop; below it, at most
+  the constant deceleration that stops exactly there. It demands that less
+  the gradient and resistance of its line data (brakes assumed nominal), the
+  pattern read a little ahead of the train (``ATO_LEAD_FRACTION`` of the
+  brake's equivalent dead time). The feedback corrects a weak or strong brake
+  as the speed departs from the pattern, but nothing measures the train from
+  outside;
 - brakes: the train's own brake controller realises the demand with the
   B1..B7 notches (minimum hold, end-phase choice by the predicted stop),
   exactly as in ``tasc-brake-controller``.
 **[interpretation]** SPEC §1 describes the ATO only by its weakness; the
-transponder layout and the re-planning law are railstop's choice of a fair
-baseline.
+transponder layout and the law are railstop's choice of a fair baseline.
 """
 
 from __future__ import annotations
@@ -39,8 +46,8 @@ from railstop.jit import njit_inline, njit_step
 
 FloatArray = NDArray[np.float64]
 
-ATO_SPEED_GAIN_PER_S = 1.2  # speed-error feedback (1/s)
-ATO_LEAD_FRACTION = 0.15  # of the brake's equivalent dead time: how far ahead the curve is read
+ATO_REJOIN_S = 2.0  # the pattern is rejoined in this long (bve-autopilot's "2 seconds")
+ATO_LEAD_FRACTION = 0.15  # of the brake's equivalent dead time: how far ahead the pattern is read
 
 
 # --------------------------------------------------------------------------
@@ -87,7 +94,7 @@ def ato_init_1(at: FloatArray, mod: FloatArray) -> None:
 
 @njit_inline
 def ato_fix_1(at: FloatArray, distance_m: float) -> None:
-    """A position fix: the distance to the stopping point is now ``distance_m``; a new brake curve."""
+    """A position fix: the distance to the stopping point is now ``distance_m``; a new pattern."""
     at[AT_DISTANCE] = distance_m
     at[AT_ACTIVE] = 1.0
     at[AT_FIXES] += 1.0
@@ -118,21 +125,18 @@ def ato_output_1(
     if k % cycle == 0:
         if active:
             full = ap[AP_MAX_DECEL]
-            # The curve is compared a little ahead of the train: a lead that keeps
-            # the loop from lagging the curve by the brake's delay.
+            # The pattern is compared a little ahead of the train: a lead that keeps the loop
+            # from lagging it by the brake's delay.
             lead_s = ATO_LEAD_FRACTION * ap[AP_RESPONSE]
             distance = at[AT_DISTANCE]
             ahead = max(distance - speed_mps * lead_s, 0.0)
             if np.isnan(at[AT_CURVE]):
-                # The brake curve (train deceleration) through the state at the latest fix.
-                at[AT_CURVE] = clip_1(speed_mps**2 / (2.0 * max(ahead, 1.0)), 0.05, full)
-            curve = at[AT_CURVE]
-            v_ref = np.sqrt(2.0 * curve * ahead)
-            ext_now = external_decel_1(ext, grad, distance, speed_mps)
-            command = curve - ext_now + ATO_SPEED_GAIN_PER_S * (speed_mps - v_ref)
-            if distance <= 0.0:  # at or past its stopping point with speed left: full service
-                command = full
-            at[AT_TARGET] = clip_1(command, 0.0, full)
+                # The pattern (train deceleration) through the state at the latest fix; before the
+                # brakes are on, through the point where they will have responded, so that the
+                # train meets the pattern instead of starting behind it.
+                start = ahead if at[AT_BRAKING] > 0.0 else distance - speed_mps * ap[AP_RESPONSE]
+                at[AT_CURVE] = clip_1(speed_mps**2 / (2.0 * max(start, 1.0)), 0.05, full)
+            at[AT_TARGET] = _ato_brake_1(at[AT_CURVE], ahead, distance, speed_mps, ap, ext, grad)
             if at[AT_TARGET] > 0.0:
                 at[AT_BRAKING] = 1.0
             at[AT_PLANS] += 1.0
@@ -148,3 +152,33 @@ def ato_output_1(
             True,
         )
     return int(at[AT_NOTCH])
+
+
+@njit_inline
+def _ato_brake_1(
+    curve: float,
+    ahead: float,
+    distance: float,
+    speed_mps: float,
+    ap: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+) -> float:
+    """The brake deceleration the ATO asks for (see the module docstring)."""
+    full = ap[AP_MAX_DECEL]
+    if distance <= 0.0:  # at or past its stopping point with speed left: full service
+        return full
+    v = speed_mps
+    v_pattern = np.sqrt(2.0 * curve * ahead)
+    ratio = v / v_pattern if v_pattern > 0.0 else 1.0
+    train = curve * ratio - (v_pattern - v) / ATO_REJOIN_S
+    if v > v_pattern:
+        # Above the pattern: at least rejoin it halfway to the stop.
+        half = ahead / 2.0
+        train = max(train, (v * v - 2.0 * curve * half) / (2.0 * half)) if half > 1e-3 else full
+    elif ahead > 1e-3:
+        # Below it: no more than stopping exactly at the stopping point.
+        train = min(train, v * v / (2.0 * ahead))
+    # The line data's gradient and resistance at the train.
+    ext_now = external_decel_1(ext, grad, distance, speed_mps)
+    return clip_1(train - ext_now, 0.0, full)
