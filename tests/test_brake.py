@@ -24,7 +24,6 @@ from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES, external_params
 from railstop.controllers import TASC_PWM
 from railstop.onboard.tasc_receiver import (
-    RX_EXISTING,
     RX_SIZE,
     receiver_init_1,
     receiver_params,
@@ -180,7 +179,7 @@ class _PwmReceiver:
         self.hist_v = np.empty(HISTORY)
         self.hist_e = np.empty(HISTORY)
         receiver_init_1(self.rx, self.mod, self.hist_v, self.hist_e)
-        self.rx[RX_EXISTING] = existing_duty  # the train's own PWM brake signal
+        self.existing = existing_duty  # the train's own PWM brake signal
         self.tach = np.zeros(receiver_window(DT_S))
         self.taus = np.zeros(SAMPLES)
         self.table = np.concatenate(([0.0], np.asarray(BRAKE.notch_decel_mps2, dtype=np.float64)))
@@ -212,7 +211,7 @@ class _PwmReceiver:
 
     def output(self, k: int) -> float:
         """The duty the ECU sees in step ``k``."""
-        return receiver_pwm_output_1(self.rx, self.rp, k)
+        return receiver_pwm_output_1(self.rx, self.rp, k, self.existing)
 
 
 def _superimposed(existing: float, onboard: float) -> float:

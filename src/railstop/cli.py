@@ -238,6 +238,10 @@ def stop(
         else f"{result.commands} commands received (form {result.form}: "
         f"{FORM_NAMES[SignalForm(result.form)]})"
     )
+    if result.switch_over_s is not None:
+        what += (
+            f", ECU input switched over to the onboard unit {result.switch_over_s} s after the first detector"
+        )
     drawn = (
         ""
         if result.disturbances is None

@@ -2,8 +2,9 @@
 without loading the compiled model).
 
 - SPEC §1 ground TASC, in its three onboard configurations: config 1 through
-  the train's brake controller, config 2 the step code through the switching
-  unit, config 3 PWM superimposed at the zero crossing;
+  the train's brake controller; config 2 through the switching unit, the
+  step code (SW1-SW3) or, on a PWM train, the PWM signal (SW11/SW12, claim
+  14); config 3 PWM superimposed at the zero crossing;
 - the conventional onboard ATO the ground TASC replaces (SPEC §1 "Problem"),
   positioned at station transponders, and the same ATO positioned by SPEC §2
   track-circuit corrections.
@@ -14,9 +15,10 @@ from __future__ import annotations
 TASC_BRAKE_CONTROLLER = "tasc-brake-controller"
 TASC_STEP = "tasc-step"
 TASC_PWM = "tasc-pwm"
+TASC_SWITCHED_PWM = "tasc-switched-pwm"
 ATO = "ato"
 ATO_CORRECTED = "ato-corrected"
 
-TASC_CONTROLLERS: tuple[str, ...] = (TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_PWM)
+TASC_CONTROLLERS: tuple[str, ...] = (TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_SWITCHED_PWM, TASC_PWM)
 ATO_CONTROLLERS: tuple[str, ...] = (ATO, ATO_CORRECTED)
 CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS)

@@ -89,6 +89,19 @@ class TascZone(_Model):
     # before the platform end would need more than this fraction of the vehicle's full service
     # after the response time (assumed latency + brake dead time + lag).
     overrun_guard_decel_fraction: Annotated[float, Field(gt=0.0, le=5.0)] = 1.0
+    # The train's own control around TASC (SPEC §1: "before the TASC zone and alongside it the
+    # train runs under its own brake controller"): it keeps its speed up to the zone and, from
+    # the zone's first transponder (the first detector), its brake controller applies this
+    # initial brake step, B1..B7 (a PWM train: that step's deceleration as a duty). TASC takes
+    # over as its configuration says: config 1 gives the brake controller the onboard command,
+    # config 2 switches the ECU's input over; config 3 superimposes, so the train's step stays
+    # a floor TASC cannot go below to standstill (the OR of the two pulses). 0 (default): no
+    # initial brake, the train holds its speed until its first braking telegram (the
+    # supervision brakes it if none comes). [interpretation] SPEC §1 names the train's own
+    # control but not its law; an initial brake step before the automatic stop is common
+    # practice. The wayside's law does not model it yet: with the detectors-only variant the
+    # first command, at the second detector, then over-estimates the speed.
+    initial_brake_notch: Annotated[int, Field(ge=0, le=7)] = 0
 
     @field_validator("detectors_before_stop_m")
     @classmethod
@@ -369,6 +382,9 @@ class BrakeModel(_Model):
     controller_cycle_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
     controller_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.3
     tasc_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.2
+    # Config 2's switching unit (SPEC §1 claims 12-14): the changeover switches' transfer time,
+    # break before make: for this long the ECU input is open (000: no service brake).
+    switch_transfer_s: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.02
 
     @field_validator("notch_decel_mps2")
     @classmethod

@@ -3,13 +3,21 @@
 - ``tasc-brake-controller`` (config 1, claims 9-11): the command goes to the
   train's own brake controller, whose logic picks the notch every control
   cycle (alternating the two notches around a continuous target, with a
-  minimum hold) and drives the encoder -> 3-wire step code.
-- ``tasc-step`` (config 2, claims 12-14): the onboard controller turns the
-  required deceleration into the B1..B7 step code itself and forces wires
-  a, b, c through the switching unit (SW1-SW3), every simulation step.
+  minimum hold) and drives the encoder -> 3-wire step code. Until the first
+  braking telegram the brake controller follows the train's own ATO.
+- ``tasc-step`` (config 2, claims 12-14, step variant): the onboard controller
+  turns the required deceleration into the B1..B7 step code itself; the
+  switching unit (switching controller 250, changeover switches SW1-SW3 of
+  unit 240) changes the ECU's input over from the train's own wires a, b, c
+  to the onboard output once the onboard unit has a command
+  (``receiver_switch_1``), every simulation step after that.
+- ``tasc-switched-pwm`` (config 2, claim 14, PWM variant): the same on a PWM
+  train, with the two switches SW11, SW12 on the PWM line; the onboard PWM
+  then runs on its own carrier clock.
 - ``tasc-pwm`` (config 3, claims 15, 25): a PWM duty synchronised to the zero
-  crossing of the existing PWM brake signal and superimposed on it: the ECU
-  sees the larger duty, latched once per carrier period.
+  crossing of the existing PWM brake signal (the train's own ATO's) and
+  superimposed on it: the ECU sees the larger duty, latched once per carrier
+  period (``railstop.onboard.pwm_wave`` shows it at waveform level).
 
 For signal forms 1-5 the receiver computes the required deceleration itself
 (SPEC §1) with the same control law as the wayside, from the telegram's
@@ -41,7 +49,7 @@ from railstop.control.tasc import (
     plan_command_1,
     regression_taus_1,
 )
-from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP
+from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP, TASC_SWITCHED_PWM
 from railstop.jit import njit_inline, njit_step
 from railstop.physics.brake import decel_to_pwm_1
 from railstop.wayside.tasc_unit import (
@@ -67,6 +75,7 @@ BoolArray = NDArray[np.bool_]
 class OnboardConfig(StrEnum):
     BRAKE_CONTROLLER = TASC_BRAKE_CONTROLLER
     STEP = TASC_STEP
+    SWITCHED_PWM = TASC_SWITCHED_PWM
     PWM = TASC_PWM
 
 
@@ -77,9 +86,19 @@ CONFIG_CODES: dict[str, int] = {
     OnboardConfig.BRAKE_CONTROLLER.value: 1,
     OnboardConfig.STEP.value: 2,
     OnboardConfig.PWM.value: 3,
+    OnboardConfig.SWITCHED_PWM.value: 4,
 }
+CFG_BRAKE_CONTROLLER = 1
+CFG_STEP = 2
+CFG_PWM = 3
+CFG_SWITCHED_PWM = 4
 
-RP_CONFIG = 0  # 1 brake controller, 2 step (switching unit), 3 PWM superposition
+# Positions of config 2's changeover switches (SW1-SW3, SW11/SW12), as recorded in the trace.
+SWITCH_TRAIN = 0  # the ECU reads the train's own brake command
+SWITCH_TRANSFER = 1  # contacts moving (break before make): the ECU input is open
+SWITCH_ONBOARD = 2  # the ECU reads the onboard unit's output
+
+RP_CONFIG = 0  # CFG_*: 1 brake controller, 2 step (switching unit), 3 PWM superposition, 4 switched PWM
 RP_FORM = 1
 RP_CYCLE_STEPS = 2  # the brake controller's cycle (config 1), else 1
 RP_PWM_STEPS = 3  # steps per PWM carrier period (config 3)
@@ -98,7 +117,8 @@ RP_ODO_UNC = 15  # the odometer's possible error, fraction of the distance since
 RP_POS_MARGIN = 16  # ... plus this (m)
 RP_ZONE_START = 17  # the first transponder (chainage): the train knows it is in the TASC zone
 RP_FIRST_BY = 18  # the detector (chainage) by which the first telegram must have come
-RP_SIZE = 19
+RP_TRANSFER_STEPS = 19  # config 2: steps the changeover switches take (break before make)
+RP_SIZE = 20
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -122,7 +142,9 @@ RX_EB = 18  # emergency brake cause (control.supervision EB_*; 0: none), latched
 RX_EB_T = 19  # when it was applied
 RX_TACH_PREV = 20  # the tachometer speed of the last step (NaN: none yet)
 RX_TACH_DECEL = 21  # the tachometer's deceleration, smoothed over GUARD_DECEL_TAU_S
-RX_SIZE = 22
+RX_SWITCH = 22  # config 2: the changeover switches' position (SWITCH_*)
+RX_SWITCH_LEFT = 23  # ... steps of the transfer still to go
+RX_SIZE = 24
 
 GUARD_DECEL_TAU_S = 0.3  # smoothing of the onboard guard's deceleration from the tachometer
 
@@ -157,6 +179,7 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     first = 1 if station.tasc.doppler is not None else 2
     detectors = station.detector_positions_m()
     rp[RP_FIRST_BY] = detectors[min(first, len(detectors) - 1)]
+    rp[RP_TRANSFER_STEPS] = round(brake.switch_transfer_s / dt_s)
     return rp
 
 
@@ -234,7 +257,7 @@ def receiver_receive_1(
         _receiver_plan_1(rx, rp, tach, hist_v, hist_e, taus, det_to_stop, ext, grad, tele, now_s)
     if rx[RX_TARGET] > 0.0:
         rx[RX_FIRST_RX] = min(rx[RX_FIRST_RX], now_s)
-    if int(rp[RP_CONFIG]) == 3:
+    if int(rp[RP_CONFIG]) in (CFG_PWM, CFG_SWITCHED_PWM):
         duty = rx[RX_FIXED_DUTY]
         rx[RX_ONBOARD_DUTY] = (
             duty if np.isfinite(duty) else decel_to_pwm_1(rx[RX_TARGET], pwm_duty, pwm_decel)
@@ -320,13 +343,38 @@ def _receiver_plan_1(
 
 
 @njit_inline
-def receiver_pwm_output_1(rx: FloatArray, rp: FloatArray, k: int) -> float:
-    """Config 3's brake signal of step ``k``: a PWM duty synchronised to the zero crossing of the
-    existing PWM brake signal and superimposed on it. Both pulses start together, so the ECU sees
-    their OR, the larger duty, latched once per carrier period (SPEC §1 claims 15, 25)."""
+def receiver_pwm_output_1(rx: FloatArray, rp: FloatArray, k: int, existing: float) -> float:
+    """The onboard PWM brake signal of step ``k``, latched once per carrier period.
+
+    Config 3: synchronised to the zero crossing of the existing PWM brake signal (duty
+    ``existing``, the train's own) and superimposed on it: both pulses start together, so the
+    ECU sees their OR, the larger duty (SPEC §1 claims 15, 25). Config 2 (switched PWM): the
+    onboard duty alone, on the onboard unit's own carrier clock; the switching unit decides
+    whether the ECU sees it.
+    """
     if k % int(rp[RP_PWM_STEPS]) == 0:
-        rx[RX_LATCHED] = max(rx[RX_EXISTING], rx[RX_ONBOARD_DUTY] if rx[RX_ACTIVE] > 0.0 else 0.0)
+        rx[RX_EXISTING] = existing
+        onboard = rx[RX_ONBOARD_DUTY] if rx[RX_ACTIVE] > 0.0 else 0.0
+        rx[RX_LATCHED] = max(existing, onboard) if int(rp[RP_CONFIG]) == CFG_PWM else onboard
     return rx[RX_LATCHED]
+
+
+@njit_inline
+def receiver_switch_1(rx: FloatArray, rp: FloatArray) -> int:
+    """Config 2's switching unit, one step: the switching controller changes the ECU's input over
+    to the onboard output once the onboard unit has a braking command (SPEC §1 paras 194, 198),
+    break before make over ``RP_TRANSFER_STEPS``; it stays over to standstill.
+    **[interpretation]** SPEC §1 does not say when the switches go back; not within the stop."""
+    pos = int(rx[RX_SWITCH])
+    if pos == SWITCH_TRAIN and rx[RX_ACTIVE] > 0.0:
+        pos = SWITCH_TRANSFER
+        rx[RX_SWITCH_LEFT] = rp[RP_TRANSFER_STEPS]
+    if pos == SWITCH_TRANSFER:
+        if rx[RX_SWITCH_LEFT] <= 0.0:
+            pos = SWITCH_ONBOARD
+        rx[RX_SWITCH_LEFT] -= 1.0
+    rx[RX_SWITCH] = pos
+    return pos
 
 
 @njit_step

@@ -75,7 +75,9 @@ DISK_BYTES_PER_VALUE = 8
 # (streams.key_normal_zig) instead of Box–Muller: same distribution, other numbers.
 # 4: the supervision (emergency brake, overrun guards) and the cyclic repeat of the latest
 # braking telegram (more link draws per run).
-MODEL_VERSION = 4
+# 5: the onboard ATO's law (bve-autopilot's pattern rejoin), the train's own brake command
+# around TASC, config 2's switching unit and its PWM variant.
+MODEL_VERSION = 5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -50,6 +50,11 @@ class Trace:
     accel_mps2: FloatArray  # the train's total acceleration
     notch: IntArray  # step-coded trains (-1 for PWM trains)
     duty: FloatArray  # PWM trains (NaN for step trains)
+    # TASC trains: the train's own brake demand (station.tasc.initial_brake_notch; NaN for the
+    # ATO controllers) and config 2's changeover switch position (0 the train's command,
+    # 1 in transfer, 2 the onboard unit's; -1 without a switching unit).
+    own_demand_mps2: FloatArray
+    switch: IntArray
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -158,6 +163,8 @@ def _trace(tr: FloatArray) -> Trace:
         TR_DEMAND,
         TR_DUTY,
         TR_NOTCH,
+        TR_OWN,
+        TR_SWITCH,
         TR_T,
         TR_TARGET,
         TR_V,
@@ -177,6 +184,8 @@ def _trace(tr: FloatArray) -> Trace:
         accel_mps2=col(TR_ACCEL),
         notch=tr[:, TR_NOTCH : TR_NOTCH + 1].astype(np.int64),
         duty=col(TR_DUTY),
+        own_demand_mps2=col(TR_OWN),
+        switch=np.nan_to_num(tr[:, TR_SWITCH : TR_SWITCH + 1], nan=-1.0).astype(np.int64),
     )
 
 

@@ -31,7 +31,6 @@ from numpy.typing import NDArray
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES, external_params
-from railstop.controllers import TASC_PWM
 from railstop.errors import RailstopError, SimulationError
 from railstop.jit import njit, njit_step
 from railstop.link.channel import airtime_s, media_preset
@@ -49,7 +48,12 @@ from railstop.onboard.ato import (
 )
 from railstop.onboard.positioning import LOG_ROWS
 from railstop.onboard.tasc_receiver import (
+    CFG_BRAKE_CONTROLLER,
+    CFG_PWM,
+    CFG_STEP,
+    CFG_SWITCHED_PWM,
     CONFIG_CODES,
+    RP_CONFIG,
     RX_ACTIVE,
     RX_EB,
     RX_EB_T,
@@ -57,6 +61,8 @@ from railstop.onboard.tasc_receiver import (
     RX_RECEIVED,
     RX_SIZE,
     RX_TARGET,
+    SWITCH_ONBOARD,
+    SWITCH_TRAIN,
     receiver_alive_1,
     receiver_fix_1,
     receiver_init_1,
@@ -66,9 +72,10 @@ from railstop.onboard.tasc_receiver import (
     receiver_receive_1,
     receiver_step_output_1,
     receiver_supervise_1,
+    receiver_switch_1,
     receiver_window,
 )
-from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
+from railstop.physics.brake import actuator_step_1, decel_to_pwm_1, line_notch, pwm_to_decel_1
 from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
 from railstop.sensors.wayside import crossing_time_1, passage_1
 from railstop.sim.corrected_position import (
@@ -117,10 +124,9 @@ from railstop.wayside.tasc_unit import (
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-# Controller codes of the kernel.
-CTRL_PWM = CONFIG_CODES[TASC_PWM]  # (a plain int: compiled code reads it as a constant)
-CTRL_ATO = 4
-CTRL_ATO_CORRECTED = 5
+# Controller codes of the kernel: the TASC configurations' codes (CFG_*), then the onboard ATOs.
+CTRL_ATO = 8
+CTRL_ATO_CORRECTED = 9
 
 # Scenario columns (one row per run): what the disturbance draw decides.
 SC_ENTRY_SPEED = 0
@@ -194,7 +200,8 @@ KP_FRAME_BITS = 20
 KP_MAX_AGE = 21
 KP_QUANT_AGE = 22  # form 4: counts per second of the passage age
 KP_IN_FLIGHT = 23  # frames that can be in the air at once (max age / repeat period + 2)
-KP_SIZE = 24
+KP_INITIAL_NOTCH = 24  # TASC trains: the initial brake step of the train's own control (0: none)
+KP_SIZE = 25
 
 # Results per run.
 RES_ERROR = 0  # front at rest minus stopping point (+ = overrun)
@@ -225,7 +232,9 @@ TR_BRAKE = 5
 TR_ACCEL = 6
 TR_NOTCH = 7
 TR_DUTY = 8
-TR_SIZE = 9
+TR_OWN = 9  # TASC trains: the train's own brake demand (its ATO's; NaN for the ATO controllers)
+TR_SWITCH = 10  # config 2: the changeover switches' position (SWITCH_*; NaN otherwise)
+TR_SIZE = 11
 
 # Link attempt log columns (recording): what the byte-level checker replays.
 LA_STEP = 0
@@ -415,15 +424,22 @@ def _simulate_run(
     lag_alpha = 1.0 - np.exp(-dt / sc[SC_TAU])
     jerk_step = kp[KP_JERK] * dt
 
-    # The units of this controller (the ATO, or the wayside unit and the receiver; both own the
+    # The units of this controller: the ATO, or the wayside unit and the receiver (both own the
     # one modulator state).
     if is_ato:
         ato_init_1(at, mod)
     else:
         wayside_init_1(ws, wh_v, wh_e, pass_t, pass_x)
         receiver_init_1(rx, mod, rh_v, rh_e)
+    # The train's own control around TASC (station.tasc.initial_brake_notch): its initial brake
+    # step from the zone's first transponder on (0 before it, and with none).
+    own_notch = 0
     corrected_positioning = controller == CTRL_ATO_CORRECTED
-    pwm_train = controller == CTRL_PWM
+    config = int(rp[RP_CONFIG])
+    pwm_train = config in (CFG_PWM, CFG_SWITCHED_PWM)
+    switched = config in (CFG_STEP, CFG_SWITCHED_PWM)
+    own_demand = np.nan
+    switch_pos = -1
     if corrected_positioning:
         # SPEC §2: no transponders; the position comes from track-circuit corrections. Before the
         # simulated approach the train was corrected at the last circuit boundary behind it.
@@ -621,13 +637,36 @@ def _simulate_run(
             receiver_observe_1(rx, rp, tach, tach_v)
             # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
             eb = receiver_supervise_1(rx, rp, t, odo_step, tach_v)
+            # The train's own brake command (SPEC §1; tasc.initial_brake_notch): a step, or on a
+            # PWM train that step's deceleration as a duty.
+            own_duty = decel_to_pwm_1(table[own_notch], pwm_duty, pwm_decel) if pwm_train else np.nan
+            if switched:
+                switch_pos = receiver_switch_1(rx, rp)
             if pwm_train:
                 notch = -1
-                duty = receiver_pwm_output_1(rx, rp, k)
+                # Config 3 superimposes on the train's duty; config 2 switches between the two.
+                onboard = receiver_pwm_output_1(rx, rp, k, own_duty)
+                own_demand = pwm_to_decel_1(own_duty, pwm_duty, pwm_decel)
+                if config == CFG_PWM or switch_pos == SWITCH_ONBOARD:
+                    duty = onboard
+                elif switch_pos == SWITCH_TRAIN:
+                    duty = own_duty
+                else:
+                    duty = 0.0  # contacts in transfer: the ECU input is open
             else:
-                notch = receiver_step_output_1(rx, rp, mod, table, k, tach_v)
                 duty = np.nan
-            braking = np.isfinite(rx[RX_FIRST_RX]) or eb
+                onboard_notch = receiver_step_output_1(rx, rp, mod, table, k, tach_v)
+                own_demand = table[line_notch(own_notch)]
+                if config == CFG_BRAKE_CONTROLLER:
+                    # Config 1: the brake controller follows the onboard unit once it has a command.
+                    notch = onboard_notch if rx[RX_ACTIVE] > 0.0 else own_notch
+                elif switch_pos == SWITCH_ONBOARD:
+                    notch = onboard_notch
+                elif switch_pos == SWITCH_TRAIN:
+                    notch = own_notch
+                else:
+                    notch = 0  # contacts in transfer: wires a, b, c open (000)
+            braking = np.isfinite(rx[RX_FIRST_RX]) or eb or own_notch > 0
         # Onboard -> ECU (step code through the brake line, or PWM) -> actuator -> brakes.
         if notch >= 0:
             ecu_notch = line_notch(notch)
@@ -722,10 +761,12 @@ def _simulate_run(
                 ato_fix_1(at, stop_point - transponders[transponder_next])
                 transponder_next += 1
         else:
-            # The train's own ATP resets its odometer at the transponders (the first one: the zone).
+            # The train's own ATP resets its odometer at the transponders; at the first one (the
+            # zone's start) its brake controller applies the initial brake step.
             if passage_1(transponders, transponder_next, x0, x):
                 receiver_fix_1(rx, rp, transponders[transponder_next])
                 transponder_next += 1
+                own_notch = int(kp[KP_INITIAL_NOTCH])
             passed = False
             if passage_1(det_pos, sensor_next, x0, x):
                 det_idx = sensor_next
@@ -751,6 +792,8 @@ def _simulate_run(
             trace[k, TR_ACCEL] = accel
             trace[k, TR_NOTCH] = ecu_notch
             trace[k, TR_DUTY] = duty
+            trace[k, TR_OWN] = own_demand
+            trace[k, TR_SWITCH] = switch_pos if switch_pos >= 0 else np.nan
         if stopped:
             break
     res[RES_ERROR] = x - stop_point
@@ -1006,6 +1049,7 @@ class KernelModel:
         kp[KP_IN_FLIGHT] = int(np.ceil(tasc.max_telegram_age_s / tasc.repeat_period_s)) + 2
         quant, carried, quant_age = _quantization(form)
         kp[KP_QUANT_AGE] = quant_age
+        kp[KP_INITIAL_NOTCH] = tasc.initial_brake_notch
         det_to_stop = np.asarray(tasc.detectors_before_stop_m, dtype=np.float64)
         wp = np.zeros(WP_SIZE)
         wp[WP_FORM] = int(form)

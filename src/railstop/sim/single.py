@@ -38,6 +38,9 @@ class StopResult:
     # the first detector (control.supervision.EB_CAUSES).
     emergency_brake: str | None = None
     emergency_brake_s: float | None = None
+    # Config 2 (SPEC §1 claims 12-14): when the switching unit had changed the brake ECU's input
+    # over to the onboard unit, from the first detector (None: no switching unit, or no change).
+    switch_over_s: float | None = None
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
     psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
@@ -59,6 +62,17 @@ class StopResult:
         if self.disturbances is not None:
             return f"{key}|disturbances={self.disturbances}|run={self.run}"
         return f"{key}|load={self.load_factor:g}|gain={self.brake_gain:g}"
+
+
+def _switch_over_s(batch: BatchResult) -> float | None:
+    """When config 2's switching unit reached the onboard position, from the first detector."""
+    from railstop.onboard.tasc_receiver import SWITCH_ONBOARD
+
+    trace, first = batch.trace, float(batch.detector_passages_s[0, 0])
+    if trace is None or not np.isfinite(first):
+        return None
+    over = np.flatnonzero(trace.switch[:, 0] == SWITCH_ONBOARD)
+    return round(float(trace.t_s[over[0], 0]) - first, 3) if over.size else None
 
 
 def run_stop(
@@ -119,6 +133,7 @@ def run_stop(
         None if disturbances is None else disturbances.to_dict(),
     )
     result = StopResult(
+        switch_over_s=_switch_over_s(batch),
         controller=controller,
         station=station.name,
         line=line.line.name,

@@ -1,0 +1,246 @@
+"""The onboard configurations as drawn (SPEC §1 claims 9-15, 25) and the train's own control
+around TASC: config 1's brake controller input, config 2's switching unit (step SW1-SW3 and PWM
+SW11/SW12 variants, switch positions in the trace), config 3's zero-crossing synchronised OR
+superposition at waveform level and in a stop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from railstop.config import default_line, default_vehicle
+from railstop.config.schema import Line, Station, Vehicle
+from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP, TASC_SWITCHED_PWM
+from railstop.onboard.pwm_wave import (
+    duty_per_period,
+    pwm_wave,
+    superimpose,
+    synchronised_wave,
+    time_grid,
+    zero_crossings,
+)
+from railstop.onboard.tasc_receiver import (
+    RX_ACTIVE,
+    RX_ONBOARD_DUTY,
+    RX_SIZE,
+    SWITCH_ONBOARD,
+    SWITCH_TRAIN,
+    SWITCH_TRANSFER,
+    receiver_params,
+    receiver_pwm_output_1,
+)
+from railstop.physics.brake import decel_to_pwm_1
+from railstop.sim.single import run_stop
+
+LINE = default_line()
+VEHICLE = default_vehicle()
+CARRIER = 50.0
+
+
+def _with_initial(station: Station, notch: int) -> Station:
+    return station.model_copy(update={"tasc": station.tasc.model_copy(update={"initial_brake_notch": notch})})
+
+
+def _detectors_only(station: Station) -> Station:
+    return station.model_copy(update={"tasc": station.tasc.model_copy(update={"doppler": None})})
+
+
+def _line_with(station: Station) -> Line:
+    stations = [station if s.name == station.name else s for s in LINE.stations]
+    return LINE.model_copy(update={"stations": stations})
+
+
+def _stop(controller: str, station: Station, vehicle: Vehicle = VEHICLE):  # type: ignore[no-untyped-def]
+    result, batch = run_stop(
+        line=_line_with(station), station=station, vehicle=vehicle, controller=controller, seed=0
+    )
+    assert batch.trace is not None
+    return result, batch, batch.trace
+
+
+# ---------------------------------------------------------------- config 3 at waveform level
+
+
+def test_patent_example_50_plus_70_is_70_when_phase_locked() -> None:
+    t = time_grid(CARRIER, periods=20)
+    existing = pwm_wave(0.5, CARRIER, t, phase_s=0.0037)  # the train's signal, any phase
+    edges = zero_crossings(existing, t)
+    onboard = synchronised_wave(0.7, CARRIER, t, edges)
+    ecu = duty_per_period(superimpose(existing, onboard), CARRIER, t - 0.0037)
+    # Every whole period after the first lock: exactly the larger duty.
+    assert np.allclose(ecu[1:], 0.7, atol=2e-3)
+    # The onboard pulses start at the train's edges (phase-locked).
+    own_edges = zero_crossings(onboard, t)
+    assert np.allclose(own_edges[: edges.size], edges, atol=t[1] - t[0])
+
+
+def test_out_of_phase_pulses_would_add_up() -> None:
+    """Why the zero-crossing detector is there: unsynchronised, the OR is more than either."""
+    t = time_grid(CARRIER, periods=20)
+    existing = pwm_wave(0.5, CARRIER, t)
+    onboard = pwm_wave(0.7, CARRIER, t, phase_s=0.5 / CARRIER)  # half a period late
+    ecu = duty_per_period(superimpose(existing, onboard), CARRIER, t)
+    assert np.all(ecu > 0.95)
+
+
+def test_no_train_pulses_onboard_free_runs() -> None:
+    t = time_grid(CARRIER, periods=10)
+    existing = pwm_wave(0.0, CARRIER, t)
+    edges = zero_crossings(existing, t)
+    assert edges.size == 0
+    ecu = duty_per_period(superimpose(existing, synchronised_wave(0.7, CARRIER, t, edges)), CARRIER, t)
+    assert np.allclose(ecu, 0.7, atol=2e-3)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    existing=st.floats(0.0, 1.0),
+    onboard=st.floats(0.0, 1.0),
+    phase=st.floats(0.0, 1.0 / CARRIER, exclude_max=True),
+)
+def test_kernel_rule_is_the_waveform_or(existing: float, onboard: float, phase: float) -> None:
+    """The kernel's scalar rule (the larger duty, latched per period) equals the OR of the
+    synchronised waveforms, for any duties and any phase of the train's signal."""
+    t = time_grid(CARRIER, periods=6, samples_per_period=2000)
+    train = pwm_wave(existing, CARRIER, t, phase_s=phase)
+    ours = synchronised_wave(onboard, CARRIER, t, zero_crossings(train, t))
+    measured = duty_per_period(superimpose(train, ours), CARRIER, t - phase)[1:]
+
+    rp = receiver_params(TASC_PWM, 6, VEHICLE, LINE.stations[0], 0.01)
+    rx = np.zeros(RX_SIZE)
+    rx[RX_ACTIVE] = 1.0
+    rx[RX_ONBOARD_DUTY] = onboard
+    latched = receiver_pwm_output_1(rx, rp, 0, existing)
+    assert latched == max(existing, onboard)
+    assert np.allclose(measured, latched, atol=2e-3)
+
+
+def test_waveform_inputs_are_checked() -> None:
+    t = time_grid(CARRIER, periods=2)
+    with pytest.raises(ValueError, match=r"outside 0\.\.1"):
+        pwm_wave(1.2, CARRIER, t)
+    with pytest.raises(ValueError, match="time_grid"):
+        time_grid(0.0, periods=2)
+
+
+# ---------------------------------------------------------------- the train's own control
+
+
+@pytest.mark.parametrize("controller", [TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_SWITCHED_PWM, TASC_PWM])
+def test_initial_brake_acts_from_the_zone_until_tasc_speaks(controller: str) -> None:
+    # Detectors only: the first telegram comes at the second detector, 100 m into the zone.
+    station = _with_initial(_detectors_only(LINE.station("Riverside")), 2)
+    _, batch, tr = _stop(controller, station)
+    first = batch.detector_passages_s[0, 0]
+    target = tr.target_decel_mps2[:, 0]
+    told = np.flatnonzero(np.isfinite(target))[0]  # the first braking telegram taken
+    t = tr.t_s[:, 0]
+    zone = (t > first + 0.05) & (np.arange(t.size) < told)
+    b2 = VEHICLE.brake.notch_decel_mps2[1]
+    assert zone.any()
+    # The train's own command is B2 from the zone's start, and before TASC speaks the ECU gets it.
+    assert np.allclose(tr.own_demand_mps2[zone, 0], b2, atol=0.02)
+    assert np.allclose(tr.demand_decel_mps2[zone, 0], tr.own_demand_mps2[zone, 0])
+    before = t < first - 0.05
+    assert np.all(tr.own_demand_mps2[before, 0] == 0.0)
+    assert np.all(tr.demand_decel_mps2[before, 0] == 0.0)
+    # The train slowed on its own before TASC spoke.
+    assert tr.speed_mps[told, 0] < tr.speed_mps[0, 0] - 1.0
+
+
+@pytest.mark.parametrize("controller", [TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_SWITCHED_PWM])
+def test_tasc_takes_over_from_the_initial_brake(controller: str) -> None:
+    # Within the PSD tolerance; not yet the ±0.10 m of a stop without the initial brake: the
+    # wayside does not model the train's own step before its first command (step: +0.13 m).
+    result, _, _ = _stop(controller, _with_initial(LINE.station("Riverside"), 2))
+    assert abs(result.stop_error_m) < 0.35
+
+
+def test_without_initial_brake_the_train_holds_its_speed() -> None:
+    _, _, tr = _stop(TASC_STEP, _with_initial(LINE.station("Riverside"), 0))
+    told = np.flatnonzero(np.isfinite(tr.target_decel_mps2[:, 0]))[0]
+    assert np.all(tr.own_demand_mps2[:told, 0] == 0.0)
+    assert np.allclose(tr.speed_mps[:told, 0], tr.speed_mps[0, 0])
+
+
+def test_config3_superimposes_on_the_trains_own_demand() -> None:
+    """Config 3 does not replace the train's command: the ECU always sees at least it."""
+    _, _, tr = _stop(TASC_PWM, _with_initial(LINE.station("Riverside"), 1))
+    own = tr.own_demand_mps2[:, 0]
+    demand = tr.demand_decel_mps2[:, 0]
+    assert np.any(own > 0.0)
+    # Latched once per carrier period (two steps): at least the train's demand of either step.
+    own_latched = np.minimum(own, np.concatenate(([own[0]], own[:-1])))
+    assert np.all(demand >= own_latched - 1e-9)
+    target = tr.target_decel_mps2[:, 0]
+    took = np.isfinite(target)
+    # Where TASC asks for more, the ECU sees TASC's duty (once latched at the next period).
+    assert np.any(demand[took] > own[took] + 0.1)
+
+
+# ---------------------------------------------------------------- config 2's switching unit
+
+
+@pytest.mark.parametrize("controller", [TASC_STEP, TASC_SWITCHED_PWM])
+def test_switching_unit_changes_over_break_before_make(controller: str) -> None:
+    station = _with_initial(LINE.station("Riverside"), 2)
+    _, _, tr = _stop(controller, station)
+    sw = tr.switch[:, 0]
+    target = tr.target_decel_mps2[:, 0]
+    told = np.flatnonzero(np.isfinite(target))[0]
+    # The train's command until the onboard unit has one, then the transfer, then onboard to the end.
+    assert np.all(sw[:told] == SWITCH_TRAIN)
+    transfer = np.flatnonzero(sw == SWITCH_TRANSFER)
+    steps = round(VEHICLE.brake.switch_transfer_s / 0.01)
+    assert transfer.size == steps
+    assert np.array_equal(transfer, np.arange(told, told + steps))
+    assert np.all(sw[told + steps :] == SWITCH_ONBOARD)
+    # While the contacts move the ECU input is open: no service brake is asked for.
+    assert np.all(tr.demand_decel_mps2[transfer, 0] == 0.0)
+    # Before, the ECU got the train's own B2.
+    assert tr.demand_decel_mps2[told - 1, 0] == pytest.approx(VEHICLE.brake.notch_decel_mps2[1], abs=0.02)
+
+
+def test_stop_result_reports_when_the_switch_went_over() -> None:
+    """`railstop stop` says when config 2's ECU input went over: at the first command's arrival
+    plus the transfer, from the first detector; no such time without a switching unit."""
+    result, batch, tr = _stop(TASC_STEP, LINE.station("Riverside"))
+    told = np.flatnonzero(np.isfinite(tr.target_decel_mps2[:, 0]))[0]
+    steps = round(VEHICLE.brake.switch_transfer_s / 0.01)
+    expected = tr.t_s[told + steps, 0] - batch.detector_passages_s[0, 0]
+    assert result.switch_over_s == pytest.approx(expected, abs=1e-3)
+    assert _stop(TASC_PWM, LINE.station("Riverside"))[0].switch_over_s is None
+
+
+def test_switch_transfer_time_is_data() -> None:
+    brake = VEHICLE.brake.model_copy(update={"switch_transfer_s": 0.0})
+    vehicle = VEHICLE.model_copy(update={"brake": brake})
+    _, _, tr = _stop(TASC_STEP, LINE.station("Riverside"), vehicle)
+    sw = tr.switch[:, 0]
+    assert not np.any(sw == SWITCH_TRANSFER)
+    assert np.any(sw == SWITCH_ONBOARD)
+
+
+@pytest.mark.parametrize("controller", [TASC_BRAKE_CONTROLLER, TASC_PWM])
+def test_no_switching_unit_outside_config_2(controller: str) -> None:
+    _, _, tr = _stop(controller, LINE.station("Riverside"))
+    assert np.all(tr.switch[:, 0] == -1)
+
+
+def test_switched_pwm_drives_the_ecu_with_the_onboard_duty() -> None:
+    """Config 2, PWM variant: after the changeover the ECU's duty is the onboard unit's own."""
+    _, _, tr = _stop(TASC_SWITCHED_PWM, _with_initial(LINE.station("Riverside"), 3))
+    sw = tr.switch[:, 0]
+    on = np.flatnonzero(sw == SWITCH_ONBOARD)
+    target = tr.target_decel_mps2[on, 0]
+    duty = tr.duty[on, 0]
+    brake = VEHICLE.brake
+    expected = np.array(
+        [decel_to_pwm_1(a, np.asarray(brake.pwm_duty), np.asarray(brake.pwm_decel_mps2)) for a in target]
+    )
+    # Latched once per carrier period: equal to the target's duty within a period of a change.
+    assert np.mean(np.isclose(duty, expected, atol=1e-9)) > 0.9
+    # Before the changeover the ECU had the train's own B3.
+    assert tr.demand_decel_mps2[on[0] - 3, 0] == pytest.approx(brake.notch_decel_mps2[2], abs=0.01)
