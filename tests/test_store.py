@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from railstop.errors import RailstopError
-from railstop.store import COMMAND_FIELDS, RESULT_FIELDS, StopRecord, open_store
+from railstop.store import COMMAND_FIELDS, RESULT_FIELDS, SENT_FIELDS, StopRecord, open_store
 
 
 def _command(i: int, **changes: Any) -> dict[str, Any]:
@@ -32,6 +32,10 @@ def _command(i: int, **changes: Any) -> dict[str, Any]:
         "notch": 5,
         "delta": 0,
         "effect_s": 2.6 + 4.0 * i,
+        # What went on the air (claim 20): a form-6 telegram at the wire's resolution.
+        "emergency": False,
+        "telegram_type": "tasc-required-decel",
+        "telegram": {"train_id": 1, "detector": i, "required_mps2": 0.665},
     }
     row.update(changes)
     return row
@@ -91,6 +95,9 @@ def test_save_and_read_back(tmp_path: Path) -> None:
     with sqlite3.connect(db) as con:
         cols = {row[1] for row in con.execute("PRAGMA table_info(commands)")}
     assert set(COMMAND_FIELDS) <= cols
+    assert {"emergency", "telegram_type", "telegram_json"} <= cols
+    with open_store(db) as store:
+        assert list(store.commands(run_id)[0]) == [*COMMAND_FIELDS, *SENT_FIELDS]
 
 
 def test_data_survives_reopening(tmp_path: Path) -> None:
@@ -182,6 +189,18 @@ def test_nan_where_a_value_is_required_is_refused(tmp_path: Path) -> None:
             row = _command(0)
             del row["gain"]
             store.save_stop(_record(commands=[row]))
+        # What went on the air is part of the record (claim 20): required, and checked.
+        for name in SENT_FIELDS:
+            row = _command(0)
+            del row[name]
+            with pytest.raises(RailstopError, match=rf"commands\[0\]\.{name}: missing"):
+                store.save_stop(_record(commands=[row]))
+        with pytest.raises(RailstopError, match=r"commands\[0\]\.emergency: expected true or false"):
+            store.save_stop(_record(commands=[_command(0, emergency=1)]))
+        with pytest.raises(RailstopError, match=r"commands\[0\]\.telegram: must be a dict"):
+            store.save_stop(_record(commands=[_command(0, telegram="required 0.665")]))
+        with pytest.raises(RailstopError, match=r"commands\[0\]\.telegram\.x: expected a number"):
+            store.save_stop(_record(commands=[_command(0, telegram={"x": object()})]))
         # Nothing half-written.
         assert store.runs() == []
 

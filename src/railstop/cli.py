@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from railstop.config.schema import Line, Station, Vehicle
     from railstop.sim.engine import BatchResult
     from railstop.sim.single import StopResult
+    from railstop.store.db import StopRecord
 
 _POSITION_RUN = "position-run"
 _UNBUILT: Command = TyperCommand(name=_POSITION_RUN, hidden=True)
@@ -189,7 +190,7 @@ def stop(
     from railstop.config.disturbances import load_disturbances
     from railstop.config.plausibility import load_checked
     from railstop.controllers import ATO_CONTROLLERS
-    from railstop.sim.single import run_stop
+    from railstop.sim.single import run_stop, stop_record
     from railstop.streams import RUN_LIMIT, SEED_RANGE, seed_in_range
     from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
 
@@ -222,7 +223,7 @@ def stop(
             tolerance_m=_tolerance(tolerance_m),
         )
         if not no_db:
-            _save(db, result)
+            _save(db, stop_record(result, line=ln, station=st, vehicle=veh))
         if plot is not None:
             plot = _plot(plot, result, batch, st)
     except RailstopError as exc:
@@ -280,38 +281,10 @@ def stop(
         out.print(f"plot: {plot}", highlight=False)
 
 
-def _save(db: Path, result: StopResult) -> None:
-    """SPEC §1 claims 8, 20: every computed command and its inputs go to the database."""
-    from datetime import UTC, datetime
+def _save(db: Path, record: StopRecord) -> None:
+    """SPEC §1 claims 8, 20: the stop's record (``railstop.sim.single.stop_record``) goes to the database."""
+    from railstop.store import open_store
 
-    from railstop.provenance import stamp
-    from railstop.store import StopRecord, open_store
-
-    record = StopRecord(
-        run_key=result.run_key,
-        station=result.station,
-        controller=result.controller,
-        seed=result.seed,
-        line=result.line,
-        parameters={
-            "load_factor": result.load_factor,
-            "brake_gain": result.brake_gain,
-            "form": result.form,
-            "disturbances": result.disturbances,
-            "run": result.run,
-            "psd_tolerance_m": result.psd_tolerance_m,
-            **stamp(result.inputs_sha256),  # railstop version, when, the inputs' hash
-        },
-        commands=result.command_log,
-        stop_error_m=result.stop_error_m,
-        stop_time_s=result.stop_time_s,
-        max_jerk_mps3=result.max_jerk_mps3,
-        notch_changes=result.notch_changes,
-        commands_received=result.commands,
-        commands_sent=result.commands_sent,
-        stopped=result.stopped,
-        created_utc=datetime.now(UTC).isoformat(timespec="seconds"),
-    )
     with open_store(db) as store:
         store.save_stop(record)
 
@@ -383,7 +356,7 @@ def demo(
     from rich.table import Table
 
     from railstop.config.plausibility import load_checked
-    from railstop.sim.single import run_stop
+    from railstop.sim.single import run_stop, stop_record
 
     try:
         ln, veh = load_checked(line, vehicle)
@@ -428,7 +401,7 @@ def demo(
                     load_factor=lf,
                     brake_gain=bg,
                 )
-                _save(db, result)
+                _save(db, stop_record(result, line=ln, station=st, vehicle=veh))
                 if label == "nominal":
                     _plot(out_dir / f"{st.name}-{ctrl}.png".lower(), result, batch, st)
                 err_m = result.stop_error_m

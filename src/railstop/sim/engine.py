@@ -135,7 +135,7 @@ def run_batch(
     frames: dict[str, int] = {}
     if rec is not None:
         trace = _trace(rec.trace)
-        commands = _commands(rec.commands, model.form)
+        commands = _commands(rec.commands, model.form, rec.sends)
         if controller not in ATO_CONTROLLERS:
             frames = check_byte_link(rec, station, model.form, dt_s)
     return BatchResult(
@@ -189,8 +189,20 @@ def _trace(tr: FloatArray) -> Trace:
     )
 
 
-def _commands(rows: FloatArray, form: SignalForm) -> list[dict[str, Any]]:
-    """The command records of the detailed stop (SPEC §1 claims 8, 20), as the database stores them."""
+def _commands(rows: FloatArray, form: SignalForm, sends: FloatArray) -> list[dict[str, Any]]:
+    """The command records of the detailed stop (SPEC §1 claims 8, 20), as the database stores them.
+
+    ``rows`` are the wayside unit's command records (``CR_*``, and the step each was sent in),
+    ``sends`` the telegram vector the kernel put on the air for each (``TEL_*``, one row per
+    record). Claim 20 keeps the history of every computed command; besides its inputs and
+    what the unit computed, each record carries what actually went on the air: the codec
+    type (``telegram_type``) and the decoded message's fields (``telegram``), encoded and
+    decoded as ``check_byte_link`` does, so at the wire's resolution. Signal forms 1-5 carry
+    measurements only: their computed notch never went to the train, their telegram says so.
+    The ATO controllers send nothing and have no records.
+    """
+    from railstop.link.codec import decode, encode, layout_of
+    from railstop.sim.tasc_link import to_message
     from railstop.wayside.tasc_unit import (
         CR_COMMAND,
         CR_DECEL,
@@ -207,26 +219,37 @@ def _commands(rows: FloatArray, form: SignalForm) -> list[dict[str, Any]]:
         CR_T,
     )
 
-    return [
-        {
-            "run": 0,
-            "t_s": float(r[CR_T]),
-            "form": int(form),
-            "detector": int(r[CR_DETECTOR]),
-            "passage_s": float(r[CR_PASSAGE]),
-            "distance_m": float(r[CR_DISTANCE]),
-            "speed_mps": float(r[CR_SPEED]),
-            "measured_decel_mps2": finite_or_none(r[CR_DECEL]),
-            "gain": float(r[CR_GAIN]),
-            "required_decel_mps2": finite_or_none(r[CR_REQUIRED]),
-            "command_decel_mps2": float(r[CR_COMMAND]),
-            "notch": int(r[CR_NOTCH]),
-            "delta": int(r[CR_DELTA]),
-            "effect_s": float(r[CR_EFFECT]),
-            "emergency": bool(r[CR_EMERGENCY]),
-        }
-        for r in rows
-    ]
+    if len(rows) != len(sends):
+        raise SimulationError(f"{len(rows)} command records but {len(sends)} telegrams recorded")
+    out = []
+    for r, sent in zip(rows, sends, strict=True):
+        message = decode(encode(to_message(_telegram(sent, form), 0)))  # at the wire's resolution
+        out.append(
+            {
+                "run": 0,
+                "t_s": float(r[CR_T]),
+                "form": int(form),
+                "detector": int(r[CR_DETECTOR]),
+                "passage_s": float(r[CR_PASSAGE]),
+                "distance_m": float(r[CR_DISTANCE]),
+                "speed_mps": float(r[CR_SPEED]),
+                "measured_decel_mps2": finite_or_none(r[CR_DECEL]),
+                "gain": float(r[CR_GAIN]),
+                "required_decel_mps2": finite_or_none(r[CR_REQUIRED]),
+                "command_decel_mps2": float(r[CR_COMMAND]),
+                "notch": int(r[CR_NOTCH]),
+                "delta": int(r[CR_DELTA]),
+                "effect_s": float(r[CR_EFFECT]),
+                # DESIGN rule 10: the wayside's overrun guard made this an emergency-stop telegram.
+                "emergency": bool(r[CR_EMERGENCY]),
+                # SPEC §1 claim 20: what went on the air for this command.
+                "telegram_type": message.TYPE,
+                "telegram": {
+                    attr: getattr(message, attr) for f in layout_of(message).fields for attr in f.attributes
+                },
+            }
+        )
+    return out
 
 
 def _telegram(row: FloatArray, form: SignalForm) -> TascTelegrams:

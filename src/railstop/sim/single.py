@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -15,6 +15,9 @@ from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import SignalForm
+
+if TYPE_CHECKING:  # the store loads SQLAlchemy: only a stop that is saved needs it (--no-db)
+    from railstop.store.db import StationRecord, StopRecord
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -162,3 +165,73 @@ def run_stop(
         command_log=batch.commands,
     )
     return result, batch
+
+
+def station_record(line: Line, station: Station) -> StationRecord:
+    """The station as the database keeps it (SPEC §1 claim 8: stopping point, detector positions)."""
+    from railstop.store.db import StationRecord
+
+    radar = station.tasc.doppler
+    return StationRecord(
+        line=line.line.name,
+        name=station.name,
+        stop_point_m=station.stop_point_m,
+        platform_length_m=station.platform_length_m,
+        psd_tolerance_m=station.psd_tolerance_m,
+        signal_form=station.tasc.signal_form,
+        detector_positions_m=station.detector_positions_m(),
+        detectors_before_stop_m=list(station.tasc.detectors_before_stop_m),
+        # SPEC §1 speed detection unit: the Doppler sensor beyond the stopping point (None: no radar).
+        doppler_position_m=None if radar is None else station.stop_point_m + radar.beyond_stop_m,
+        tasc=station.tasc.model_dump(mode="json"),
+    )
+
+
+def stop_record(result: StopResult, *, line: Line, station: Station, vehicle: Vehicle) -> StopRecord:
+    """The database record of a stop ``run_stop`` made with this line, station and vehicle.
+
+    SPEC §1 claim 8: the database unit keeps the stopping point, the detector positions and the
+    braking data: the run's parameters hold them (with the station row's natural key, line and
+    name), and the station row itself goes with the stop. Claim 20: the history of every
+    computed command, with what went on the air (``BatchResult.commands``).
+    """
+    from railstop.provenance import stamp
+    from railstop.store.db import StopRecord
+
+    st = station_record(line, station)
+    brake = vehicle.brake
+    parameters: dict[str, Any] = {
+        "load_factor": result.load_factor,
+        "brake_gain": result.brake_gain,
+        "form": result.form,
+        "disturbances": result.disturbances,
+        "run": result.run,
+        "psd_tolerance_m": result.psd_tolerance_m,
+        **stamp(result.inputs_sha256),  # railstop version, when, the inputs' hash
+        # SPEC §1 claim 8: the stopping point and the detector positions (chainages, m) ...
+        "station_key": {"line": st.line, "name": st.name},
+        "stop_point_m": st.stop_point_m,
+        "detector_positions_m": st.detector_positions_m,
+        "doppler_position_m": st.doppler_position_m,
+        # ... and the braking data that decides the stop: the notch table B1..B7, full service,
+        # the brake's dead time, time constant and jerk limit, the PWM map.
+        "vehicle": vehicle.name,
+        "brake": {**brake.model_dump(mode="json"), "full_service_mps2": brake.full_service_mps2},
+    }
+    return StopRecord(
+        run_key=result.run_key,
+        station=result.station,
+        controller=result.controller,
+        seed=result.seed,
+        line=result.line,
+        parameters=parameters,
+        commands=result.command_log,  # SPEC §1 claim 20
+        stop_error_m=result.stop_error_m,
+        stop_time_s=result.stop_time_s,
+        max_jerk_mps3=result.max_jerk_mps3,
+        notch_changes=result.notch_changes,
+        commands_received=result.commands,
+        commands_sent=result.commands_sent,
+        stopped=result.stopped,
+        station_data=st,
+    )

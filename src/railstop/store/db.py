@@ -2,20 +2,32 @@
 
 Claim 8: the database unit keeps the stopping point, the detector positions
 and the braking data. Claim 20: it keeps the history of every computed
-command. Here one stop is three kinds of rows:
+command. Here one stop is up to four kinds of rows:
 
+* ``stations``: the station the stop was made at, one row per (line name,
+  station name): its stopping point, detector positions (chainages and
+  distances before the stop), Doppler radar position, signal form, platform
+  and its whole TASC zone as JSON (claim 8); shared by every stop there;
 * ``runs``: what was simulated (station, controller, seed, line and every
-  parameter that decides the stop, e.g. stopping point, detector positions,
-  load and brake gain, as JSON), identified by a natural key ``run_key``;
+  parameter that decides the stop, as JSON: the stopping point, the detector
+  positions, the vehicle's braking data, load and brake gain, and the
+  station row's natural key), identified by a natural key ``run_key``;
 * ``commands``: every command the wayside unit computed for that stop, one
   column per field of a command record (claim 20): the ``CR_*`` columns of
   ``railstop.wayside.tasc_unit`` as the detailed stop turns them into dicts
-  (``railstop.sim.engine._commands``);
-* ``stop_results``: how the stop ended (claim 8's braking data).
+  (``railstop.sim.engine._commands``), whether it was an emergency stop, and
+  what went on the air: the telegram's codec type and its decoded fields;
+* ``stop_results``: how the stop ended.
 
 Saving the same ``run_key`` again never duplicates a stop: identical data is
 left untouched, different data replaces the old rows in the same
-transaction, so a re-run campaign converges on one row set per stop.
+transaction, so a re-run campaign converges on one row set per stop. The
+station row is upserted in that transaction: identical data is left as it
+is, changed data updates it (and its ``updated_utc``).
+
+``schema_info`` records the schema version. ``open_store`` brings a file of
+an older version up to date (new tables, new nullable columns; old rows keep
+NULL there) and refuses one written by a newer railstop.
 """
 
 from __future__ import annotations
@@ -35,6 +47,7 @@ import numpy as np
 from sqlalchemy import (
     BigInteger,
     Boolean,
+    Connection,
     Float,
     ForeignKey,
     Integer,
@@ -44,7 +57,11 @@ from sqlalchemy import (
     create_engine,
     delete,
     event,
+    func,
+    insert,
+    inspect,
     select,
+    text,
 )
 from sqlalchemy.engine import URL, Engine, make_url
 from sqlalchemy.exc import ArgumentError, IntegrityError, SQLAlchemyError
@@ -76,6 +93,12 @@ _COMMAND_SPEC: dict[str, tuple[type, bool]] = {
 }
 COMMAND_FIELDS: tuple[str, ...] = tuple(_COMMAND_SPEC)
 
+# What went on the air for each command (SPEC §1 claim 20; schema version 2): the emergency-stop
+# flag of the record (DESIGN rule 10, the wayside's overrun guard), the telegram's codec type
+# (``railstop.link.codec``, e.g. "tasc-distance") and its decoded fields (a dict, stored as
+# JSON). Required when saving; NULL (None) in rows written by schema version 1.
+SENT_FIELDS: tuple[str, ...] = ("emergency", "telegram_type", "telegram")
+
 # The result of one stop (claim 8: braking data); ``stop_time_s`` is None
 # when the train never came to rest.
 _RESULT_SPEC: dict[str, tuple[type, bool]] = {
@@ -88,6 +111,26 @@ _RESULT_SPEC: dict[str, tuple[type, bool]] = {
     "stopped": (bool, False),
 }
 RESULT_FIELDS: tuple[str, ...] = tuple(_RESULT_SPEC)
+
+# One station row (SPEC §1 claim 8: the stopping point and the detector positions), natural key
+# (line, name); the JSON columns are read back decoded, without their ``_json`` suffix.
+STATION_FIELDS: tuple[str, ...] = (
+    "line",
+    "name",
+    "stop_point_m",
+    "platform_length_m",
+    "psd_tolerance_m",
+    "signal_form",
+    "detector_positions_m",
+    "detectors_before_stop_m",
+    "doppler_position_m",
+    "tasc",
+)
+_STATION_JSON = ("detector_positions_m", "detectors_before_stop_m", "tasc")
+
+# 1: runs, commands (the CR_* columns only), stop_results, campaigns, dwell_events; no schema_info.
+# 2: stations; commands.emergency, telegram_type, telegram_json; schema_info.
+SCHEMA_VERSION = 2
 
 _RUN_FIELDS: tuple[str, ...] = (
     "run_key",
@@ -105,15 +148,43 @@ def _utc_now() -> str:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class StationRecord:
+    """One station as the database keeps it (SPEC §1 claim 8: stopping point, detector positions).
+
+    Chainages in metres. ``detector_positions_m`` are the detectors' chainages,
+    ``detectors_before_stop_m`` the same as distances before the stopping
+    point (farthest first); ``doppler_position_m`` is the Doppler radar's
+    chainage (None: no radar); ``tasc`` the station's whole TASC zone as
+    JSON data. ``railstop.sim.single.station_record`` builds it from the
+    line data.
+    """
+
+    line: str
+    name: str
+    stop_point_m: float
+    platform_length_m: float
+    psd_tolerance_m: float
+    signal_form: int
+    detector_positions_m: list[float]
+    detectors_before_stop_m: list[float]
+    doppler_position_m: float | None
+    tasc: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class StopRecord:
     """One stop as it goes into the database (claims 8, 20).
 
     ``parameters`` holds what decides the stop (stopping point, detector
-    positions, load, brake gain, ...); non-finite floats are kept (Python's
-    JSON writes them as ``NaN``/``Infinity``) because ``inf`` is meaningful,
-    e.g. "no low-adhesion patch". ``commands`` are the command records of
-    the detailed stop (``BatchResult.commands``, built from the wayside
-    unit's ``CR_*`` columns); keys beyond ``COMMAND_FIELDS`` are ignored.
+    positions, braking data, load, brake gain, ...) as JSON data: numbers,
+    strings, booleans, None, lists and dicts of them; non-finite floats are
+    kept (Python's JSON writes them as ``NaN``/``Infinity``) because ``inf``
+    is meaningful, e.g. "no low-adhesion patch". ``commands`` are the command
+    records of the detailed stop (``BatchResult.commands``): the keys
+    ``COMMAND_FIELDS`` and ``SENT_FIELDS`` are required, others are ignored.
+    ``station_data`` (optional) is upserted into ``stations`` with the stop;
+    its line and name must be the record's. ``railstop.sim.single.stop_record``
+    builds the whole record of a simulated stop.
     """
 
     run_key: str
@@ -121,7 +192,7 @@ class StopRecord:
     controller: str
     seed: int
     line: str
-    parameters: dict[str, float | str | None]
+    parameters: dict[str, Any]
     commands: list[dict[str, Any]]
     stop_error_m: float
     stop_time_s: float | None
@@ -131,6 +202,7 @@ class StopRecord:
     commands_sent: int
     stopped: bool
     created_utc: str = field(default_factory=_utc_now)
+    station_data: StationRecord | None = None
 
 
 # -- schema -------------------------------------------------------------------
@@ -140,8 +212,42 @@ class _Base(DeclarativeBase):
     pass
 
 
+class StationRow(_Base):
+    """One station's stop data (SPEC §1 claim 8: the stopping point, the detector positions).
+
+    Natural key (line, name); upserted with every stop made there (schema version 2).
+    """
+
+    __tablename__ = "stations"
+    __table_args__ = (UniqueConstraint("line", "name", name="uq_stations_line_name"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    line: Mapped[str] = mapped_column(String)
+    name: Mapped[str] = mapped_column(String)
+    stop_point_m: Mapped[float] = mapped_column(Float)
+    platform_length_m: Mapped[float] = mapped_column(Float)
+    psd_tolerance_m: Mapped[float] = mapped_column(Float)
+    signal_form: Mapped[int] = mapped_column(Integer)
+    detector_positions_m_json: Mapped[str] = mapped_column(Text)  # chainages, farthest first
+    detectors_before_stop_m_json: Mapped[str] = mapped_column(Text)
+    doppler_position_m: Mapped[float | None] = mapped_column(Float, nullable=True)  # None: no radar
+    tasc_json: Mapped[str] = mapped_column(Text)  # the whole TascZone
+    created_utc: Mapped[str] = mapped_column(String(40))
+    updated_utc: Mapped[str] = mapped_column(String(40))
+
+
+class SchemaInfoRow(_Base):
+    """One row per schema version this file was brought to; the newest is the file's version."""
+
+    __tablename__ = "schema_info"
+
+    version: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    applied_utc: Mapped[str] = mapped_column(String(40))
+    note: Mapped[str] = mapped_column(Text)
+
+
 class RunRow(_Base):
-    """One simulated stop and what decided it (claim 8: stopping point, detectors)."""
+    """One simulated stop and what decided it (claim 8: stopping point, detectors, braking data)."""
 
     __tablename__ = "runs"
     __table_args__ = (UniqueConstraint("run_key", name="uq_runs_run_key"),)
@@ -180,6 +286,11 @@ class CommandRow(_Base):
     notch: Mapped[int] = mapped_column(Integer)
     delta: Mapped[int] = mapped_column(Integer)
     effect_s: Mapped[float] = mapped_column(Float)
+    # Claim 20, what went on the air (schema version 2: added to older files by open_store,
+    # hence nullable; rows written by version 1 keep NULL).
+    emergency: Mapped[bool | None] = mapped_column(Boolean, nullable=True)
+    telegram_type: Mapped[str | None] = mapped_column(String, nullable=True)
+    telegram_json: Mapped[str | None] = mapped_column(Text, nullable=True)
 
 
 class ResultRow(_Base):
@@ -275,18 +386,21 @@ class Store:
 
     # -- writing ------------------------------------------------------------
     def save_stop(self, run: StopRecord) -> int:
-        """Write ``run`` (run row, commands, result) in one transaction; return its id.
+        """Write ``run`` (station, run row, commands, result) in one transaction; return its id.
 
         A ``run_key`` already stored keeps its id: identical data is left as
         it is, otherwise the run row is updated and its commands and result
-        replaced by the new ones.
+        replaced by the new ones. The station row (``run.station_data``) is
+        inserted, left as it is when identical, or updated.
         """
-        values, commands, result = _normalise(run)
+        values, commands, result, station = _normalise(run)
         # Two writers may both find the key missing and both insert it; the
         # unique constraint stops the second, which then retries as an update.
         for attempt in range(2):
             try:
                 with self._session() as session, session.begin():
+                    if station is not None:
+                        _upsert_station(session, station)  # SPEC §1 claim 8, same transaction
                     return _upsert(session, values, commands, result)
             except IntegrityError as exc:
                 if attempt == 1:
@@ -407,9 +521,35 @@ class Store:
         return out
 
     def commands(self, run_id: int) -> list[dict[str, Any]]:
-        """The command history of one run in the order computed (keys ``COMMAND_FIELDS``)."""
+        """The command history of one run in the order computed (claim 20).
+
+        Keys ``COMMAND_FIELDS`` then ``SENT_FIELDS`` (``telegram`` decoded from
+        JSON); the ``SENT_FIELDS`` are None in rows written by schema version 1.
+        """
         with self._reading() as session:
-            return _command_dicts(session, run_id)
+            return [_decode_command(c) for c in _command_dicts(session, run_id)]
+
+    def stations(self) -> list[dict[str, Any]]:
+        """Every stored station (claim 8), in the order first saved.
+
+        Keys ``id``, ``STATION_FIELDS`` (the JSON columns decoded), ``created_utc``, ``updated_utc``.
+        """
+        with self._reading() as session:
+            rows = session.scalars(select(StationRow).order_by(StationRow.id)).all()
+            return [_station_dict(r) for r in rows]
+
+    def station(self, line: str, name: str) -> dict[str, Any] | None:
+        """The station ``name`` of the line ``line`` (as ``stations()`` gives it), or None."""
+        with self._reading() as session:
+            row = session.scalars(
+                select(StationRow).where(StationRow.line == line, StationRow.name == name)
+            ).one_or_none()
+            return None if row is None else _station_dict(row)
+
+    def schema_version(self) -> int:
+        """The schema version of the open file (``SCHEMA_VERSION`` once opened)."""
+        with self._reading() as session:
+            return int(session.scalar(select(func.max(SchemaInfoRow.version))) or 0)
 
     def result(self, run_id: int) -> dict[str, Any] | None:
         """The result of one run (keys ``RESULT_FIELDS``), or None if there is none."""
@@ -474,12 +614,85 @@ def open_store(path: str | Path) -> Store:
     if engine.dialect.name == "sqlite":
         # SQLite ignores foreign keys unless asked, per connection.
         event.listen(engine, "connect", _sqlite_foreign_keys)
-    try:
-        _Base.metadata.create_all(engine)
-    except (SQLAlchemyError, ImportError) as exc:
-        engine.dispose()
-        raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
+    # Two processes opening the same new or old file may both create or migrate it: the
+    # second one's statements then fail on what the first did, and a second pass finds
+    # the file up to date.
+    for attempt in range(2):
+        try:
+            _prepare_schema(engine, label)
+            break
+        except RailstopError:
+            engine.dispose()
+            raise
+        except (SQLAlchemyError, ImportError) as exc:
+            if attempt == 1 or isinstance(exc, ImportError):
+                engine.dispose()
+                raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
     return Store(engine, label)
+
+
+# -- schema versions ----------------------------------------------------------
+
+
+def _prepare_schema(engine: Engine, label: str) -> None:
+    """Create the tables of a new file, bring an older one up to ``SCHEMA_VERSION``.
+
+    A file without ``schema_info`` whose tables exist is version 1. Every
+    column added since is nullable: missing ones are added with ``ALTER
+    TABLE ... ADD COLUMN`` (old rows keep NULL, nothing is rewritten), missing
+    tables are created. A file of a newer version is refused untouched.
+    """
+    with engine.begin() as conn:
+        names = set(inspect(conn).get_table_names())
+        found = _file_version(conn, names)
+        if found > SCHEMA_VERSION:
+            raise RailstopError(
+                f"{label}: written by a newer railstop (database schema version {found}, this "
+                f"railstop knows up to {SCHEMA_VERSION}); open it with that version or use another file"
+            )
+        if found == SCHEMA_VERSION:
+            return
+        _Base.metadata.create_all(conn)
+        added = _add_missing_columns(conn, names, label)
+        if found == 0:
+            note = "created"
+        else:
+            new_tables = sorted(set(_Base.metadata.tables) - names)
+            note = f"migrated from version {found}: new tables {', '.join(new_tables) or 'none'}; "
+            note += f"new columns {', '.join(added) or 'none'}"
+        conn.execute(insert(SchemaInfoRow).values(version=SCHEMA_VERSION, applied_utc=_utc_now(), note=note))
+
+
+def _file_version(conn: Connection, names: set[str]) -> int:
+    """The file's schema version: 0 for an empty file, 1 for tables without ``schema_info``."""
+    if SchemaInfoRow.__tablename__ in names:
+        version = conn.scalar(select(func.max(SchemaInfoRow.version)))
+        if version is not None:
+            return int(version)
+    return 1 if names & set(_Base.metadata.tables) else 0
+
+
+def _add_missing_columns(conn: Connection, existing: set[str], label: str) -> list[str]:
+    """Add to every table the file already had the model's columns it lacks; return ``table.column``s."""
+    added = []
+    prep = conn.dialect.identifier_preparer
+    for table in _Base.metadata.sorted_tables:
+        if table.name not in existing:
+            continue
+        present = {c["name"] for c in inspect(conn).get_columns(table.name)}
+        for column in table.columns:
+            if column.name in present:
+                continue
+            if not column.nullable:
+                raise RailstopError(
+                    f"{label}: table {table.name} lacks column {column.name}, which cannot be added"
+                )
+            kind = column.type.compile(dialect=conn.dialect)
+            conn.execute(
+                text(f"ALTER TABLE {prep.format_table(table)} ADD COLUMN {prep.format_column(column)} {kind}")
+            )
+            added.append(f"{table.name}.{column.name}")
+    return added
 
 
 # -- helpers ------------------------------------------------------------------
@@ -510,6 +723,24 @@ def _one_line(exc: BaseException) -> str:
     inner = getattr(exc, "orig", None) or exc
     text = str(inner).strip()
     return text.splitlines()[0] if text else type(inner).__name__
+
+
+def _upsert_station(session: Session, values: dict[str, Any]) -> int:
+    """SPEC §1 claim 8: insert the station, leave it when identical, else update it; return its id."""
+    row = session.scalars(
+        select(StationRow).where(StationRow.line == values["line"], StationRow.name == values["name"])
+    ).one_or_none()
+    if row is None:
+        now = _utc_now()
+        row = StationRow(**values, created_utc=now, updated_utc=now)
+        session.add(row)
+        session.flush()  # assigns row.id; a concurrent insert fails here, and the save is retried
+        return row.id
+    if any(getattr(row, k) != v for k, v in values.items()):
+        for k, v in values.items():
+            setattr(row, k, v)
+        row.updated_utc = _utc_now()
+    return row.id
 
 
 def _upsert(
@@ -543,10 +774,30 @@ def _upsert(
     return run_id
 
 
+# The command columns as stored: the record, then what went on the air (claim 20).
+_COMMAND_COLUMNS: tuple[str, ...] = (*COMMAND_FIELDS, "emergency", "telegram_type", "telegram_json")
+
+
 def _command_dicts(session: Session, run_id: int) -> list[dict[str, Any]]:
-    cols = [getattr(CommandRow, f) for f in COMMAND_FIELDS]
+    cols = [getattr(CommandRow, f) for f in _COMMAND_COLUMNS]
     rows = session.execute(select(*cols).where(CommandRow.run_id == run_id).order_by(CommandRow.seq)).all()
-    return [dict(zip(COMMAND_FIELDS, r, strict=True)) for r in rows]
+    return [dict(zip(_COMMAND_COLUMNS, r, strict=True)) for r in rows]
+
+
+def _decode_command(row: dict[str, Any]) -> dict[str, Any]:
+    out = dict(row)
+    raw = out.pop("telegram_json")
+    out["telegram"] = None if raw is None else json.loads(raw)
+    return out
+
+
+def _station_dict(row: StationRow) -> dict[str, Any]:
+    out: dict[str, Any] = {"id": row.id}
+    for name in STATION_FIELDS:
+        out[name] = json.loads(getattr(row, f"{name}_json")) if name in _STATION_JSON else getattr(row, name)
+    out["created_utc"] = row.created_utc
+    out["updated_utc"] = row.updated_utc
+    return out
 
 
 def _result_dict(session: Session, run_id: int) -> dict[str, Any] | None:
@@ -585,7 +836,7 @@ def _dwell_dicts(session: Session, key: str) -> list[dict[str, Any]]:
 
 def _normalise(
     run: StopRecord,
-) -> tuple[dict[str, Any], list[dict[str, Any]], dict[str, Any]]:
+) -> tuple[dict[str, Any], list[dict[str, Any]], dict[str, Any], dict[str, Any] | None]:
     """Plain Python values for every column, or a ``RailstopError`` naming the field.
 
     numpy scalars become int/float/bool; NaN becomes None where None is
@@ -610,17 +861,68 @@ def _normalise(
     for i, cmd in enumerate(run.commands):
         if not isinstance(cmd, Mapping):
             raise RailstopError(f"{src}: commands[{i}]: must be a dict (got {cmd!r})")
-        row = {}
-        for name, (kind, nullable) in _COMMAND_SPEC.items():
+        for name in (*_COMMAND_SPEC, *SENT_FIELDS):
             if name not in cmd:
                 raise RailstopError(f"{src}: commands[{i}].{name}: missing")
-            row[name] = _value(src, f"commands[{i}].{name}", cmd[name], kind, nullable)
+        row = {
+            name: _value(src, f"commands[{i}].{name}", cmd[name], kind, nullable)
+            for name, (kind, nullable) in _COMMAND_SPEC.items()
+        }
+        # Claim 20: what went on the air (DESIGN rule 10: an emergency stop or not).
+        row["emergency"] = _value(src, f"commands[{i}].emergency", cmd["emergency"], bool, False)
+        row["telegram_type"] = _value(src, f"commands[{i}].telegram_type", cmd["telegram_type"], str, False)
+        telegram = cmd["telegram"]
+        if not isinstance(telegram, Mapping):
+            raise RailstopError(f"{src}: commands[{i}].telegram: must be a dict (got {telegram!r})")
+        row["telegram_json"] = json.dumps(_json_data(src, f"commands[{i}].telegram", telegram))
         commands.append(row)
     result = {
         name: _value(src, name, getattr(run, name), kind, nullable)
         for name, (kind, nullable) in _RESULT_SPEC.items()
     }
-    return values, commands, result
+    station = None
+    if run.station_data is not None:
+        station = _station_values(src, run.station_data)
+        if (station["line"], station["name"]) != (values["line"], values["station"]):
+            raise RailstopError(
+                f"{src}: station_data: is station {station['name']!r} of line {station['line']!r}, "
+                f"the run's is {values['station']!r} of line {values['line']!r}"
+            )
+    return values, commands, result, station
+
+
+def _station_values(src: str, st: Any) -> dict[str, Any]:
+    """The ``stations`` columns of a ``StationRecord`` (SPEC §1 claim 8), or a ``RailstopError``."""
+    if not isinstance(st, StationRecord):
+        raise RailstopError(f"{src}: station_data: must be a StationRecord (got {type(st).__name__})")
+    where = f"{src}: station_data"
+
+    def finite(name: str, v: Any, nullable: bool = False) -> float | None:
+        f = _value(where, name, v, float, nullable)
+        if f is not None and not math.isfinite(f):
+            raise RailstopError(f"{where}: {name}: expected a finite number (got {v!r})")
+        return f
+
+    def chainages(name: str, v: Any) -> str:
+        if isinstance(v, str | Mapping) or not isinstance(v, Sequence):
+            raise RailstopError(f"{where}: {name}: must be a list of numbers (got {v!r})")
+        return json.dumps([finite(f"{name}[{i}]", x) for i, x in enumerate(v)])
+
+    if not isinstance(st.tasc, Mapping):
+        raise RailstopError(f"{where}: tasc: must be a dict (got {type(st.tasc).__name__})")
+    return {
+        "line": _value(where, "line", st.line, str, False),
+        "name": _value(where, "name", st.name, str, False),
+        "stop_point_m": finite("stop_point_m", st.stop_point_m),
+        "platform_length_m": finite("platform_length_m", st.platform_length_m),
+        "psd_tolerance_m": finite("psd_tolerance_m", st.psd_tolerance_m),
+        "signal_form": _value(where, "signal_form", st.signal_form, int, False),
+        "detector_positions_m_json": chainages("detector_positions_m", st.detector_positions_m),
+        "detectors_before_stop_m_json": chainages("detectors_before_stop_m", st.detectors_before_stop_m),
+        "doppler_position_m": finite("doppler_position_m", st.doppler_position_m, nullable=True),
+        # Sorted keys: the same zone gives the same text, so an unchanged station compares equal.
+        "tasc_json": json.dumps(_json_data(where, "tasc", st.tasc), sort_keys=True),
+    }
 
 
 def _value(src: str, name: str, v: Any, kind: type, nullable: bool) -> Any:
@@ -659,19 +961,30 @@ def _value(src: str, name: str, v: Any, kind: type, nullable: bool) -> Any:
 def _parameters_json(src: str, params: Any) -> str:
     if not isinstance(params, Mapping):
         raise RailstopError(f"{src}: parameters: must be a dict (got {type(params)})")
-    clean: dict[str, Any] = {}
-    for k, v in params.items():
-        if not isinstance(k, str):
-            raise RailstopError(f"{src}: parameters: keys must be strings (got {k!r})")
-        if v is None or isinstance(v, str | bool):
-            clean[k] = v
-        elif isinstance(v, np.bool_):
-            clean[k] = bool(v)
-        elif isinstance(v, numbers.Integral):
-            clean[k] = int(v)
-        elif isinstance(v, numbers.Real):
-            clean[k] = float(v)
-        else:
-            raise RailstopError(f"{src}: parameters.{k}: expected a number, string or None (got {v!r})")
     # Sorted keys: the same parameters give the same text, so a re-save compares equal.
-    return json.dumps(clean, sort_keys=True)
+    return json.dumps(_json_data(src, "parameters", params), sort_keys=True)
+
+
+def _json_data(src: str, name: str, v: Any) -> Any:
+    """``v`` as plain JSON data (numpy scalars and arrays become Python values), or a ``RailstopError``.
+
+    Dicts need string keys; non-finite floats are kept (JSON ``NaN``/``Infinity``).
+    """
+    if v is None or isinstance(v, str | bool):
+        return v
+    if isinstance(v, np.bool_):
+        return bool(v)
+    if isinstance(v, numbers.Integral):
+        return int(v)
+    if isinstance(v, numbers.Real):
+        return float(v)
+    if isinstance(v, Mapping):
+        out = {}
+        for k, x in v.items():
+            if not isinstance(k, str):
+                raise RailstopError(f"{src}: {name}: keys must be strings (got {k!r})")
+            out[k] = _json_data(src, f"{name}.{k}", x)
+        return out
+    if isinstance(v, Sequence | np.ndarray) and not isinstance(v, bytes | bytearray):
+        return [_json_data(src, f"{name}[{i}]", x) for i, x in enumerate(v)]
+    raise RailstopError(f"{src}: {name}: expected a number, string, None, list or dict (got {v!r})")
