@@ -44,11 +44,19 @@ def test_decode_prints_every_field_with_units() -> None:
 
 
 def test_round_trip_through_both_commands_json() -> None:
-    fields = ["train_id=12", "detector=3", "speed_mps=-0.0125", "measured_s=61.0004", "passage_age_s=2.5"]
+    fields = [
+        "train_id=12",
+        "detector=3",
+        "speed_mps=-0.0125",
+        "distance_m=35.25",
+        "measured_s=61.0004",
+        "passage_age_s=2.5",
+    ]
     p = run("encode", "tasc-speed", *fields, "--json")
     assert p.returncode == 0, p.stderr
     encoded = json.loads(p.stdout)
-    assert encoded["type"] == "tasc-speed" and encoded["bytes"] == 14
+    # Form 4 carries the speed and the distance (SPEC §1 para 92): a 15-byte payload, 18-byte frame.
+    assert encoded["type"] == "tasc-speed" and encoded["bytes"] == 18
     p = run("decode", "--json", "0x" + encoded["hex"].upper())
     assert p.returncode == 0, p.stderr
     decoded = json.loads(p.stdout)
@@ -60,6 +68,7 @@ def test_round_trip_through_both_commands_json() -> None:
             "train_id": 12,
             "detector": 3,
             "speed_mps": -0.012,
+            "distance_m": 35.25,
             "measured_s": 61.0,
             "passage_age_s": 2.5,
         },
@@ -85,6 +94,18 @@ def test_types_lists_every_layout() -> None:
         (("decode", "0012"), "rejected: unknown_type:"),
         (("encode", "tasc-brakes", "notch=1"), "unknown telegram type 'tasc-brakes'"),
         (("encode", "tasc-required-decel", "train_id=1", "detector=2"), "missing field 'required_mps2'"),
+        (
+            (
+                "encode",
+                "tasc-speed",
+                "train_id=1",
+                "detector=2",
+                "speed_mps=3",
+                "measured_s=10",
+                "passage_age_s=1",
+            ),
+            "missing field 'distance_m'",
+        ),
         (
             ("encode", "tasc-required-decel", "train_id=1", "detector=2", "required_mps2=1", "speed=2"),
             "unknown field 'speed'",

@@ -28,8 +28,10 @@ from railstop.link.codec import (
     PsdStatus,
     TascBrakeCommand,
     TascDecel,
+    TascDistance,
     TascIncreaseDecrease,
     TascInterval,
+    TascPosition,
     TascRequiredDecel,
     TascSpeed,
     Telegram,
@@ -143,8 +145,30 @@ REFERENCES = [
     ),
     # type b1 | circuit 107 = 0000006b | -0.5 s = -5000 x 0.1 ms = ffffec78 | CRC
     (TrackCircuitOccupancy(circuit_id=107, gnss_time_s=-0.5), "b1 0000006b ffffec78 6342"),
-    # type 95 | train 1 | detector 0 | decel absent = 8000 | 12.345 s = 12345 ms = 00003039 | CRC
-    (TascDecel(train_id=1, detector=0, decel_mps2=None, passage_s=12.345), "95 0001 00 8000 00003039 62f7"),
+    # type 95 | train 1 | detector 0 | decel absent = 8000 | distance 42.195 m = 42195 mm = 0000a4d3
+    # | passage 12.345 s = 12345 ms = 00003039 | measured 13.000 s = 13000 ms = 000032c8 | CRC
+    (
+        TascDecel(
+            train_id=1, detector=0, decel_mps2=None, distance_m=42.195, passage_s=12.345, measured_s=13.0
+        ),
+        "95 0001 00 8000 0000a4d3 00003039 000032c8 f1f7",
+    ),
+    # type 93 | train 0102 | detector 03 | interval 2.500 s = 2500 ms = 09c4
+    # | passage 100.250 s = 100250 ms = 0001879a | position 1234.567 m = 1234567 mm = 0012d687
+    # | distance -0.250 m (past the stopping point) = -250 mm = ffffff06
+    # | measured 101.000 s = 101000 ms = 00018a88 | CRC
+    (
+        TascInterval(
+            train_id=0x0102,
+            detector=3,
+            interval_s=2.5,
+            passage_s=100.25,
+            position_m=1234.567,
+            distance_m=-0.25,
+            measured_s=101.0,
+        ),
+        "93 0102 03 09c4 0001879a 0012d687 ffffff06 00018a88 723e",
+    ),
     # type 18 | train 9 | detector 4 | decrease = -1 = ff | CRC
     (TascIncreaseDecrease(train_id=9, detector=4, delta=-1), "18 0009 04 ff 5bde"),
 ]
@@ -179,10 +203,56 @@ def test_tasc_forms_map_to_group_1_by_form_number() -> None:
 
 def test_speed_telegram_gives_the_passage_time_back() -> None:
     msg = decode(
-        encode(TascSpeed(train_id=1, detector=3, speed_mps=4.2, measured_s=100.25, passage_age_s=1.5))
+        encode(
+            TascSpeed(
+                train_id=1, detector=3, speed_mps=4.2, distance_m=120.5, measured_s=100.25, passage_age_s=1.5
+            )
+        )
     )
     assert isinstance(msg, TascSpeed)
     assert msg.passage_s == pytest.approx(98.75)
+    assert msg.distance_m == 120.5
+
+
+# SPEC §1 para 92: the combination each of forms 1-5 carries after the train id and the detector,
+# in wire order. Forms 1-3 carry the same three quantities (time between two detectors, position,
+# distance), each with its own quantity first; form 4 the speed and the distance; form 5 the
+# deceleration and the distance. None carries a required deceleration (the train computes it).
+PARA_92 = {
+    1: ("position_m", "distance_m", "interval_s", "passage_s", "measured_s"),
+    2: ("distance_m", "position_m", "interval_s", "passage_s", "measured_s"),
+    3: ("interval_s", "passage_s", "position_m", "distance_m", "measured_s"),
+    4: ("speed_mps", "distance_m", "measured_s", "passage_age_s"),
+    5: ("decel_mps2", "distance_m", "passage_s", "measured_s"),
+}
+PARA_92_PAYLOAD_BYTES = {1: 21, 2: 21, 3: 21, 4: 15, 5: 17}
+
+
+@pytest.mark.parametrize("form", sorted(PARA_92))
+def test_forms_1_to_5_carry_the_para_92_combinations(form: int) -> None:
+    layout = LAYOUTS[TASC_FORM_TYPES[form]]
+    assert tuple(f.name for f in layout.fields) == ("train_id", "detector", *PARA_92[form])
+    assert layout.payload_size == PARA_92_PAYLOAD_BYTES[form]
+    assert "distance_m" in PARA_92[form]
+    assert "required_mps2" not in PARA_92[form]
+
+
+def test_forms_1_to_3_carry_the_same_fields_in_their_own_order() -> None:
+    """Every field has one wire type, resolution, range and absent code in all three forms."""
+
+    def wire(f: Field) -> tuple[Any, ...]:
+        return (f.code, f.unit, f.counts_per_unit, f.min, f.max, f.absent)
+
+    by_name = [{f.name: f for f in LAYOUTS[TASC_FORM_TYPES[form]].fields} for form in (1, 2, 3)]
+    assert set(by_name[0]) == set(by_name[1]) == set(by_name[2])
+    for name in by_name[0]:
+        assert wire(by_name[0][name]) == wire(by_name[1][name]) == wire(by_name[2][name]), name
+    orders = [tuple(f.name for f in LAYOUTS[TASC_FORM_TYPES[form]].fields) for form in (1, 2, 3)]
+    assert len(set(orders)) == 3
+    # The distance of forms 4 and 5 is the same field too.
+    for form in (4, 5):
+        fields_ = {f.name: f for f in LAYOUTS[TASC_FORM_TYPES[form]].fields}
+        assert wire(fields_["distance_m"]) == wire(by_name[0]["distance_m"])
 
 
 # --------------------------------------------------------------------------
@@ -291,11 +361,81 @@ def test_unknown_type_bytes() -> None:
         (TascBrakeCommand(train_id=1, detector=0, notch=8, duty=0.5), "notch"),
         (TascBrakeCommand(train_id=1, detector=0, notch=7, duty=1.00005001), "duty"),
         (
-            TascSpeed(train_id=1, detector=0, speed_mps=-32.768, measured_s=0.0, passage_age_s=0.0),
+            TascSpeed(
+                train_id=1, detector=0, speed_mps=-32.768, distance_m=10.0, measured_s=0.0, passage_age_s=0.0
+            ),
             "speed_mps",
         ),
-        (TascInterval(train_id=1, detector=1, interval_s=65.535, passage_s=1.0), "interval_s"),
-        (TascDecel(train_id=1, detector=1, decel_mps2=float("-inf"), passage_s=1.0), "decel_mps2"),
+        (
+            TascSpeed(
+                train_id=1,
+                detector=0,
+                speed_mps=3.0,
+                distance_m=100_000.001,
+                measured_s=0.0,
+                passage_age_s=0.0,
+            ),
+            "distance_m",
+        ),
+        (
+            TascPosition(
+                train_id=1,
+                detector=1,
+                position_m=-0.001,
+                distance_m=10.0,
+                interval_s=None,
+                passage_s=1.0,
+                measured_s=1.0,
+            ),
+            "position_m",
+        ),
+        (
+            TascDistance(
+                train_id=1,
+                detector=1,
+                distance_m=-100_000.001,
+                position_m=0.0,
+                interval_s=2.0,
+                passage_s=1.0,
+                measured_s=1.0,
+            ),
+            "distance_m",
+        ),
+        (
+            TascInterval(
+                train_id=1,
+                detector=1,
+                interval_s=65.535,
+                passage_s=1.0,
+                position_m=0.0,
+                distance_m=10.0,
+                measured_s=1.0,
+            ),
+            "interval_s",
+        ),
+        (
+            TascInterval(
+                train_id=1,
+                detector=1,
+                interval_s=1.0,
+                passage_s=1.0,
+                position_m=0.0,
+                distance_m=10.0,
+                measured_s=float("nan"),
+            ),
+            "measured_s",
+        ),
+        (
+            TascDecel(
+                train_id=1,
+                detector=1,
+                decel_mps2=float("-inf"),
+                distance_m=10.0,
+                passage_s=1.0,
+                measured_s=1.0,
+            ),
+            "decel_mps2",
+        ),
         (CbtcReport(train_id=1, position_m=-0.001, speed_mps=0.0, direction="R", time_s=0.0), "position_m"),
         (CbtcReport(train_id=1, position_m=0.0, speed_mps=0.0, direction="R", time_s=4294967.296), "time_s"),
         (
@@ -322,6 +462,10 @@ def test_encode_out_of_range_names_field_and_value(msg: Telegram, field: str) ->
         (TascIncreaseDecrease(train_id=1, detector=0, delta=1.0), "delta"),  # type: ignore[arg-type]
         (CbtcReport(train_id=1, position_m=0.0, speed_mps=0.0, direction="X", time_s=0.0), "direction"),
         (TascRequiredDecel(train_id=1, detector=0, required_mps2=None), "required_mps2"),  # type: ignore[arg-type]
+        (
+            TascDecel(train_id=1, detector=1, decel_mps2=0.5, distance_m=None, passage_s=1.0, measured_s=1.0),  # type: ignore[arg-type]
+            "distance_m",
+        ),  # the distance has no absent code: a form-5 telegram always carries it
         (TascRequiredDecel(train_id=1, detector=0, required_mps2="0.5"), "required_mps2"),  # type: ignore[arg-type]
         (TascRequiredDecel(train_id=1.0, detector=0, required_mps2=0.5), "train_id"),  # type: ignore[arg-type]
         (TascRequiredDecel(train_id=True, detector=0, required_mps2=0.5), "train_id"),
@@ -360,7 +504,8 @@ def test_encode_unknown_class() -> None:
         ("96 0001 40 0001", "out_of_range", "detector"),  # detector 64
         ("17 0001 00 08 ffff", "out_of_range", "notch"),  # B8 does not exist
         ("17 0001 00 07 2711", "out_of_range", "duty"),  # 1.0001
-        ("14 0001 00 8000 00000000 0000", "out_of_range", "speed_mps"),  # -32.768 m/s
+        ("14 0001 00 8000 00000000 00000000 0000", "out_of_range", "speed_mps"),  # -32.768 m/s
+        ("12 0001 00 05f5e101 00000000 ffff 00000000 00000000", "out_of_range", "distance_m"),  # 100.001 km
         ("22 0001 00000000 03e9 0000 00000000", "out_of_range", "gradient_permille"),  # 100.1 ‰
         ("18 0001 00 02", "bad_value", "delta"),
         ("18 0001 00 80", "bad_value", "delta"),
@@ -377,8 +522,28 @@ def test_decode_field_errors(body: str, why: str, field: str) -> None:
 
 
 def test_decode_absent_values() -> None:
-    msg = decode(with_crc(bytes.fromhex("93 0002 00 ffff 00000064")))
-    assert msg == TascInterval(train_id=2, detector=0, interval_s=None, passage_s=0.1)
+    # form 3 before the second detector: interval absent | passage 0.1 s | 1000 m | 250 m | 0.1 s
+    msg = decode(with_crc(bytes.fromhex("93 0002 00 ffff 00000064 000f4240 0003d090 00000064")))
+    assert msg == TascInterval(
+        train_id=2,
+        detector=0,
+        interval_s=None,
+        passage_s=0.1,
+        position_m=1000.0,
+        distance_m=250.0,
+        measured_s=0.1,
+    )
+    # form 1, the same: 1000 m | 250 m | interval absent | passage 0.1 s | 0.1 s
+    msg = decode(with_crc(bytes.fromhex("11 0002 00 000f4240 0003d090 ffff 00000064 00000064")))
+    assert msg == TascPosition(
+        train_id=2,
+        detector=0,
+        position_m=1000.0,
+        distance_m=250.0,
+        interval_s=None,
+        passage_s=0.1,
+        measured_s=0.1,
+    )
     msg = decode(with_crc(bytes.fromhex("17 0002 01 05 ffff")))
     assert msg == TascBrakeCommand(train_id=2, detector=1, notch=5, duty=None)
 
@@ -439,8 +604,16 @@ def test_describe_lists_every_field_with_units() -> None:
         "direction": "L (-chainage, down)",
         "time_s": "3.000 s",
     }
-    rows = dict(describe(TascDecel(train_id=1, detector=0, decel_mps2=None, passage_s=1.0)))
+    rows = dict(
+        describe(
+            TascDecel(
+                train_id=1, detector=0, decel_mps2=None, distance_m=-0.25, passage_s=1.0, measured_s=2.0
+            )
+        )
+    )
     assert rows["decel_mps2"] == "absent"
+    assert rows["distance_m"] == "-0.250 m"
+    assert list(rows) == ["train_id", "detector", "decel_mps2", "distance_m", "passage_s", "measured_s"]
     rows = dict(describe(TascIncreaseDecrease(train_id=1, detector=0, delta=1)))
     assert rows["delta"] == "+1 (increase)"
     door = sample(LAYOUTS[DoorCommand])
@@ -541,11 +714,16 @@ def test_types_and_layout_lookup() -> None:
 
 
 def test_loop_telegrams_fit_about_ten_bytes() -> None:
-    """SPEC §5: ~10 bytes on the loop / transponder; the three 11-byte ones say why in their note."""
+    """SPEC §5: ~10 bytes on the loop / transponder. Only forms 1-5 are longer (they carry a
+    combination of SPEC §1 para 92), and every longer one says why in its note."""
+    combinations = {TASC_FORM_TYPES[form] for form in PARA_92}
     for layout in ALL:
         if layout.medium != "radio":
-            assert layout.payload_size <= SPEC_PAYLOAD_BYTES + 1, layout.name
             assert (layout.payload_size > SPEC_PAYLOAD_BYTES) == bool(layout.note), layout.name
+            if layout.cls not in combinations:
+                assert layout.payload_size <= SPEC_PAYLOAD_BYTES, layout.name
+            else:
+                assert "para 92" in layout.note, layout.name
 
 
 def test_docs_telegrams_md_is_up_to_date() -> None:

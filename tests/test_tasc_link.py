@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from railstop.sim.campaign import simulate_runs
 from railstop.sim.engine import BatchResult
 from railstop.sim.single import run_stop
 from railstop.sim.tasc_link import (
+    CARRIED,
     frame_bytes,
     from_message,
     quantize_telegrams,
@@ -68,12 +70,52 @@ def test_quantisation_drops_what_the_form_does_not_carry() -> None:
     assert np.allclose(q.required_mps2 * 1000.0, np.round(q.required_mps2 * 1000.0), atol=1e-9)
 
 
+# SPEC §1 para 92: the measurements forms 1-5 put on the air (the train computes the rest).
+PARA_92 = {
+    SignalForm.POSITION: {"position_m", "distance_m", "interval_s", "passage_s", "measured_s"},
+    SignalForm.DISTANCE: {"position_m", "distance_m", "interval_s", "passage_s", "measured_s"},
+    SignalForm.INTERVAL_TIME: {"position_m", "distance_m", "interval_s", "passage_s", "measured_s"},
+    SignalForm.SPEED: {"speed_mps", "distance_m", "passage_s", "measured_s"},
+    SignalForm.DECELERATION: {"decel_mps2", "distance_m", "passage_s", "measured_s"},
+}
+_FLOATS = ("passage_s", "measured_s", "position_m", "distance_m", "interval_s", "speed_mps", "decel_mps2")
+
+
+@pytest.mark.parametrize("form", sorted(PARA_92), ids=lambda f: f.name)
+def test_forms_1_to_5_carry_the_para_92_combination(form: SignalForm) -> None:
+    """Quantised and through the bytes alike: the combination is there, nothing else is."""
+    assert set(CARRIED[form]) == PARA_92[form]
+    rng = np.random.default_rng(10 + int(form))
+    tele = _random_telegrams(form, 50, rng)
+    tele = replace(tele, emergency=np.zeros(50, dtype=np.int64))
+    q = quantize_telegrams(tele)
+    for name in _FLOATS:
+        values = getattr(q, name)
+        if name in PARA_92[form]:
+            # Only the absent codes of the interval and the deceleration may be NaN.
+            assert np.array_equal(np.isnan(values), np.isnan(getattr(tele, name))), name
+        else:
+            assert np.all(np.isnan(values)), name
+    assert np.all(np.isnan(q.required_mps2)) and np.all(np.isnan(q.duty))
+    assert np.all(q.notch == 0) and np.all(q.delta == 0)
+    for row in range(50):
+        carried = {f.name for f in layout_of(decode(encode(to_message(q, row)))).fields}
+        assert "distance_m" in carried
+        assert "required_mps2" not in carried
+
+
 def test_frame_size_on_the_air() -> None:
     # Form 6: train id (2) + detector (1) + required deceleration (2) = 5-byte payload,
     # in a type + payload + CRC-16 codec frame (8), in a category-3 safety frame.
     assert layout_of(TascRequiredDecel).payload_size == 5
     assert frame_bytes(SignalForm.REQUIRED_DECELERATION, 3) == frame_size(8, 3)
     assert frame_bytes(SignalForm.REQUIRED_DECELERATION, 1) < frame_bytes(SignalForm.REQUIRED_DECELERATION, 3)
+    # Train id and detector (3), then forms 1-3: + position (4) + distance (4) + interval (2)
+    # + passage (4) + measurement time (4) = 21;
+    # form 4: + speed (2) + distance (4) + measurement time (4) + passage age (2) = 15;
+    # form 5: + deceleration (2) + distance (4) + passage (4) + measurement time (4) = 17.
+    for form, payload in ((1, 21), (2, 21), (3, 21), (4, 15), (5, 17)):
+        assert frame_bytes(SignalForm(form), 3) == frame_size(payload + 3, 3), form
 
 
 @pytest.fixture(scope="module")

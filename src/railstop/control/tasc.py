@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
-from railstop.jit import njit_step
+from railstop.jit import njit_inline, njit_step
 from railstop.physics.train import G_MPS2, mean_gradient_1
 
 FloatArray = NDArray[np.float64]
@@ -397,6 +397,41 @@ def fit_ring_1(
     if speed_samples < ring.size and count >= 2:
         v_now, _ = line_fit_1(ring, newest, min(count, max(speed_samples, 2)), dt_s)
     return v_now, -slope
+
+
+# The running line fit of speed over time since a command took effect (the measurement
+# interval between commands): 5 sums at ``at`` in a unit's state vector.
+FIT_SUMS = 5
+
+
+@njit_inline
+def interval_fit_reset_1(state: FloatArray, at: int) -> None:
+    for j in range(FIT_SUMS):
+        state[at + j] = 0.0
+
+
+@njit_inline
+def interval_fit_add_1(state: FloatArray, at: int, t_rel_s: float, speed_mps: float) -> None:
+    """One speed sample ``t_rel_s`` after the interval's start (sums of 1, t, t², v, t·v)."""
+    state[at] += 1.0
+    state[at + 1] += t_rel_s
+    state[at + 2] += t_rel_s * t_rel_s
+    state[at + 3] += speed_mps
+    state[at + 4] += t_rel_s * speed_mps
+
+
+@njit_inline
+def interval_fit_decel_1(state: FloatArray, at: int) -> tuple[int, float]:
+    """(samples, deceleration) of the interval's line fit: the deceleration over the whole
+    interval between commands (a brake controller alternating two notches matches its target
+    only on average over its alternation); NaN with fewer than two samples."""
+    c = state[at]
+    if c < 2.0:
+        return int(c), np.nan
+    st = state[at + 1]
+    sxx = state[at + 2] - st * st / c
+    slope = (state[at + 4] - st * state[at + 3] / c) / sxx if sxx > 0.0 else 0.0
+    return int(c), -slope
 
 
 @njit_step

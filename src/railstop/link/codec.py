@@ -226,47 +226,70 @@ class Layout:
 # The messages (SPEC §1 claim 3 forms 1-8, SPEC §4 CBTC, SPEC §2, SPEC §5 doors)
 
 
+# Forms 1-5 carry the combinations of SPEC §1 para 92 (claim 3 with para 67: "one or more of the
+# signals, combined as needed"), from which the onboard unit computes the required deceleration
+# (claim 10): forms 1-3 the time between the last two detectors, the position and the distance
+# (the train computes its speed and deceleration); form 4 the speed and the distance (it computes
+# the deceleration); form 5 the deceleration and the distance. [interpretation] Para 92 gives the
+# combinations, not which form carries which: each form carries the one that contains its own
+# quantity, so forms 1-3 carry the same three, in their own order.
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TascPosition(Telegram):
-    """SPEC §1 claim 3 form 1: the train position the wayside detected, at ``measured_s``."""
+    """SPEC §1 claim 3 form 1: the train position the wayside detected, at ``measured_s``, with the
+    distance to the stopping point and the time between the last two detectors (para 92)."""
 
     TYPE: ClassVar[str] = "tasc-position"
     train_id: int
     detector: int
     position_m: float
+    distance_m: float
+    interval_s: float | None
+    passage_s: float
     measured_s: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TascDistance(Telegram):
-    """SPEC §1 claim 3 form 2: distance from the train to the stopping point, at ``measured_s``."""
+    """SPEC §1 claim 3 form 2: distance from the train to the stopping point, at ``measured_s``,
+    with the position and the time between the last two detectors (para 92)."""
 
     TYPE: ClassVar[str] = "tasc-distance"
     train_id: int
     detector: int
     distance_m: float
+    position_m: float
+    interval_s: float | None
+    passage_s: float
     measured_s: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TascInterval(Telegram):
-    """SPEC §1 claim 3 form 3: time between the last two detectors (None after the first one)."""
+    """SPEC §1 claim 3 form 3: time between the last two detectors (None after the first one), with
+    the position and the distance at ``measured_s`` (para 92)."""
 
     TYPE: ClassVar[str] = "tasc-interval"
     train_id: int
     detector: int
     interval_s: float | None
     passage_s: float
+    position_m: float
+    distance_m: float
+    measured_s: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TascSpeed(Telegram):
-    """SPEC §1 claim 3 form 4: speed at ``measured_s``; the last passage was ``passage_age_s`` before."""
+    """SPEC §1 claim 3 form 4: speed and distance to the stopping point (para 92) at
+    ``measured_s``; the last passage was ``passage_age_s`` before."""
 
     TYPE: ClassVar[str] = "tasc-speed"
     train_id: int
     detector: int
     speed_mps: float
+    distance_m: float
     measured_s: float
     passage_age_s: float
 
@@ -277,13 +300,16 @@ class TascSpeed(Telegram):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TascDecel(Telegram):
-    """SPEC §1 claim 3 form 5: measured deceleration (None before it can be measured)."""
+    """SPEC §1 claim 3 form 5: measured deceleration (None before it can be measured) and the
+    distance to the stopping point at ``measured_s`` (para 92)."""
 
     TYPE: ClassVar[str] = "tasc-decel"
     train_id: int
     detector: int
     decel_mps2: float | None
+    distance_m: float
     passage_s: float
+    measured_s: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -408,6 +434,39 @@ def _time_ms(name: str, description: str) -> Field:
 
 
 _LOOP = "loop / transponder"
+_POSITION = Field(
+    name="position_m",
+    code="I",
+    unit="m",
+    counts_per_unit=1000,
+    min=0.0,
+    max=0xFFFF_FFFF / 1000,
+    description="front of the train, chainage",
+)
+_DISTANCE = Field(
+    name="distance_m",
+    code="i",
+    unit="m",
+    counts_per_unit=1000,
+    min=-100_000.0,
+    max=100_000.0,
+    description="to the stopping point (negative: past it)",
+)
+_INTERVAL = Field(
+    name="interval_s",
+    code="H",
+    unit="s",
+    counts_per_unit=1000,
+    min=0.0,
+    max=65.534,
+    absent=0xFFFF,
+    description="from detector-1 to detector (0xFFFF: none yet)",
+)
+# Para 92's payloads are longer than SPEC §5's ~10 bytes: the same note for forms 1-5.
+_COMBINATION_NOTE = (
+    "Longer than SPEC §5's ~10-byte payload: it carries a combination of SPEC §1 para 92 "
+    "(an absolute chainage or distance at 1 mm and an absolute time at 1 ms need 4 bytes each)."
+)
 
 LAYOUTS: dict[type[Telegram], Layout] = {
     layout.cls: layout
@@ -417,22 +476,17 @@ LAYOUTS: dict[type[Telegram], Layout] = {
             code=0x11,
             cls=TascPosition,
             medium=_LOOP,
-            description="SPEC §1 form 1: train position detected by the wayside",
-            note="11-byte payload, one over SPEC §5's ~10: an absolute chainage at 1 mm and an "
-            "absolute time at 1 ms need 4 bytes each.",
+            description="SPEC §1 form 1: train position detected by the wayside, with the distance "
+            "and the time between two detectors (para 92)",
+            note=_COMBINATION_NOTE,
             fields=(
                 _TRAIN_ID,
                 _DETECTOR,
-                Field(
-                    name="position_m",
-                    code="I",
-                    unit="m",
-                    counts_per_unit=1000,
-                    min=0.0,
-                    max=0xFFFF_FFFF / 1000,
-                    description="front of the train, chainage",
-                ),
-                _time_ms("measured_s", "time the position refers to (sender clock)"),
+                _POSITION,
+                _DISTANCE,
+                _INTERVAL,
+                _time_ms("passage_s", "passage time at detector"),
+                _time_ms("measured_s", "time position and distance refer to (sender clock)"),
             ),
         ),
         Layout(
@@ -440,22 +494,17 @@ LAYOUTS: dict[type[Telegram], Layout] = {
             code=0x12,
             cls=TascDistance,
             medium=_LOOP,
-            description="SPEC §1 form 2: distance between the train and the stopping point",
-            note="11-byte payload, one over SPEC §5's ~10: a signed distance at 1 mm (a station "
-            "zone is longer than the 327 m an int16 of cm holds) and an absolute time need 4 bytes each.",
+            description="SPEC §1 form 2: distance between the train and the stopping point, with the "
+            "position and the time between two detectors (para 92)",
+            note=_COMBINATION_NOTE + " A station zone is longer than the 327 m an int16 of cm holds.",
             fields=(
                 _TRAIN_ID,
                 _DETECTOR,
-                Field(
-                    name="distance_m",
-                    code="i",
-                    unit="m",
-                    counts_per_unit=1000,
-                    min=-100_000.0,
-                    max=100_000.0,
-                    description="to the stopping point (negative: past it)",
-                ),
-                _time_ms("measured_s", "time the distance refers to (sender clock)"),
+                _DISTANCE,
+                _POSITION,
+                _INTERVAL,
+                _time_ms("passage_s", "passage time at detector"),
+                _time_ms("measured_s", "time distance and position refer to (sender clock)"),
             ),
         ),
         Layout(
@@ -463,21 +512,17 @@ LAYOUTS: dict[type[Telegram], Layout] = {
             code=0x93,
             cls=TascInterval,
             medium=_LOOP,
-            description="SPEC §1 form 3: time taken between two detectors",
+            description="SPEC §1 form 3: time taken between two detectors, with the position and the "
+            "distance (para 92)",
+            note=_COMBINATION_NOTE,
             fields=(
                 _TRAIN_ID,
                 _DETECTOR,
-                Field(
-                    name="interval_s",
-                    code="H",
-                    unit="s",
-                    counts_per_unit=1000,
-                    min=0.0,
-                    max=65.534,
-                    absent=0xFFFF,
-                    description="from detector-1 to detector (0xFFFF: none yet)",
-                ),
+                _INTERVAL,
                 _time_ms("passage_s", "passage time at detector"),
+                _POSITION,
+                _DISTANCE,
+                _time_ms("measured_s", "time position and distance refer to (sender clock)"),
             ),
         ),
         Layout(
@@ -485,9 +530,8 @@ LAYOUTS: dict[type[Telegram], Layout] = {
             code=0x14,
             cls=TascSpeed,
             medium=_LOOP,
-            description="SPEC §1 form 4: speed",
-            note="11-byte payload, one over SPEC §5's ~10: the receiver needs the time of the speed "
-            "(4 bytes) and of the last passage (2 bytes, relative).",
+            description="SPEC §1 form 4: speed, with the distance (para 92)",
+            note=_COMBINATION_NOTE + " The last passage is carried as its age (2 bytes).",
             fields=(
                 _TRAIN_ID,
                 _DETECTOR,
@@ -500,7 +544,8 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     max=32.767,
                     description="measured speed (signed: a noisy fit near standstill may dip below 0)",
                 ),
-                _time_ms("measured_s", "time the speed refers to (sender clock)"),
+                _DISTANCE,
+                _time_ms("measured_s", "time speed and distance refer to (sender clock)"),
                 Field(
                     name="passage_age_s",
                     code="H",
@@ -517,7 +562,8 @@ LAYOUTS: dict[type[Telegram], Layout] = {
             code=0x95,
             cls=TascDecel,
             medium=_LOOP,
-            description="SPEC §1 form 5: measured deceleration",
+            description="SPEC §1 form 5: measured deceleration, with the distance (para 92)",
+            note=_COMBINATION_NOTE,
             fields=(
                 _TRAIN_ID,
                 _DETECTOR,
@@ -531,7 +577,9 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     absent=-0x8000,
                     description="measured deceleration, + = slowing (-32768: not measured yet)",
                 ),
+                _DISTANCE,
                 _time_ms("passage_s", "passage time at detector"),
+                _time_ms("measured_s", "time the distance refers to (sender clock)"),
             ),
         ),
         Layout(

@@ -49,12 +49,10 @@ def pwm_wave(duty: float, carrier_hz: float, t: FloatArray, phase_s: float = 0.0
 
 
 def zero_crossings(wave: BoolArray, t: FloatArray) -> FloatArray:
-    """The zero-crossing detector: the instants the signal leaves zero (rising edges)."""
+    """The zero-crossing detector: the instants the signal leaves zero (rising edges). A signal
+    already high when the record starts has no edge there: the detector sees transitions only."""
     rising = np.flatnonzero(~wave[:-1] & wave[1:]) + 1
-    starts = t[rising]
-    if wave.size and wave[0]:
-        starts = np.concatenate(([t[0]], starts))
-    return starts
+    return t[rising]
 
 
 def synchronised_wave(duty: float, carrier_hz: float, t: FloatArray, edges: FloatArray) -> BoolArray:

@@ -39,12 +39,15 @@ from railstop.control.notch import (
 )
 from railstop.control.supervision import EB_ONBOARD_GUARD, EB_TIMEOUT, EB_WAYSIDE_GUARD, overrun_guard_1
 from railstop.control.tasc import (
+    FIT_SUMS,
     REG_WEIGHTS,
-    clip_1,
     fit_ring_1,
     gain_update_1,
     gain_value_1,
     history_push_1,
+    interval_fit_add_1,
+    interval_fit_decel_1,
+    interval_fit_reset_1,
     modelled_means_1,
     plan_command_1,
     regression_taus_1,
@@ -63,7 +66,6 @@ from railstop.wayside.tasc_unit import (
     TEL_MEASURED,
     TEL_NOTCH,
     TEL_PASSAGE,
-    TEL_POSITION,
     TEL_REQUIRED,
     TEL_SPEED,
 )
@@ -144,7 +146,16 @@ RX_TACH_PREV = 20  # the tachometer speed of the last step (NaN: none yet)
 RX_TACH_DECEL = 21  # the tachometer's deceleration, smoothed over GUARD_DECEL_TAU_S
 RX_SWITCH = 22  # config 2: the changeover switches' position (SWITCH_*)
 RX_SWITCH_LEFT = 23  # ... steps of the transfer still to go
-RX_SIZE = 24
+RX_PREV_V = 24  # form 4: the speed the last used telegram gave (NaN: none yet)
+RX_PREV_REF = 25  # forms 4, 5: its distance to the stopping point
+RX_PREV_DET = 26  # forms 1-3: the detector of the last passage the unit took (-1: none)
+RX_COMB_DECEL = 27  # form 4: the deceleration the combination gave (NaN: none yet)
+RX_ODO = 28  # forms 1-5: the tachometer's distance since the start (m)
+RX_PREV_ODO = 29  # ... at the last passage (forms 1-3) or measurement (form 5) taken (NaN: none)
+RX_SCALE = 30  # forms 1-3, 5: true over tachometer distance, from the wayside's measurements
+RX_WIN_START = 31  # forms 1-5: the start of the measurement interval (the last command's effect)
+RX_SUMS = 32  # ... the running line fit of the tachometer's speed over it (control.tasc)
+RX_SIZE = RX_SUMS + FIT_SUMS
 
 GUARD_DECEL_TAU_S = 0.3  # smoothing of the onboard guard's deceleration from the tachometer
 
@@ -199,20 +210,32 @@ def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e:
     rx[RX_FIX_POS] = np.nan
     rx[RX_EB_T] = np.nan
     rx[RX_TACH_PREV] = np.nan
+    rx[RX_PREV_V] = np.nan
+    rx[RX_PREV_REF] = np.nan
+    rx[RX_PREV_DET] = -1.0
+    rx[RX_COMB_DECEL] = np.nan
+    rx[RX_PREV_ODO] = np.nan
+    rx[RX_SCALE] = 1.0
+    rx[RX_WIN_START] = np.inf
     modulator_init_1(mod)
     hist_v[:] = 0.0
     hist_e[:] = np.inf
 
 
 @njit_inline
-def receiver_observe_1(rx: FloatArray, rp: FloatArray, tach: FloatArray, speed_mps: float) -> None:
+def receiver_observe_1(
+    rx: FloatArray, rp: FloatArray, tach: FloatArray, speed_mps: float, now_s: float
+) -> None:
     """Onboard speed from the tachometer (only the forms 1-5 planner uses it)."""
     if rp[RP_FORM] > 5:
         return
+    if now_s >= rx[RX_WIN_START]:
+        interval_fit_add_1(rx, RX_SUMS, now_s - rx[RX_WIN_START], speed_mps)
     col = (int(rx[RX_TCOL]) + 1) % tach.size
     rx[RX_TCOL] = col
     tach[col] = speed_mps
     rx[RX_TCOUNT] = min(rx[RX_TCOUNT] + 1.0, float(tach.size))
+    rx[RX_ODO] += speed_mps * rp[RP_DT]
 
 
 @njit_step
@@ -251,8 +274,12 @@ def receiver_receive_1(
         rx[RX_FIXED_DUTY] = tele[TEL_DUTY]
         rx[RX_TARGET] = table[max(int(tele[TEL_NOTCH]), 0)]
     elif form == 8:
-        # SPEC §1 config 1: increase / decrease passed as such: one notch per telegram.
-        rx[RX_TARGET] = clip_1(rx[RX_TARGET] + tele[TEL_DELTA] * table[1], 0.0, rp[RP_MAX_DECEL])
+        # SPEC §1 claim 11, paras 93-94: increase / decrease the current braking, passed to the
+        # brake controller as such: one notch up or down per telegram (a PWM train: that notch's
+        # deceleration as a duty).
+        notch = min(max(max(rx[RX_FIXED_NOTCH], 0.0) + tele[TEL_DELTA], 0.0), float(table.size - 1))
+        rx[RX_FIXED_NOTCH] = notch
+        rx[RX_TARGET] = table[int(notch)]
     else:
         _receiver_plan_1(rx, rp, tach, hist_v, hist_e, taus, det_to_stop, ext, grad, tele, now_s)
     if rx[RX_TARGET] > 0.0:
@@ -278,36 +305,84 @@ def _receiver_plan_1(
     tele: FloatArray,
     now_s: float,
 ) -> None:
-    """Forms 1-5: complete the measurement and compute the required deceleration onboard,
-    with the same law as the wayside."""
+    """Forms 1-5: the onboard unit computes the required deceleration itself (claim 10) from the
+    combination of para 92 the telegram carries, with the same law as the wayside:
+
+    1. forms 1-3, the time between the last two detectors, the position and the distance: the
+       mean speed over that interval (detector spacing from the unit's own database over the
+       time) against the tachometer's mean over the same interval calibrates the tachometer;
+       the speed and deceleration now are the tachometer's, so calibrated;
+    2. form 4, the speed and the distance: the deceleration from two successive (speed,
+       distance) pairs, (v1² - v2²) / 2 (d1 - d2);
+    3. form 5, the deceleration and the distance: two successive distances against the
+       tachometer's distance over the same time calibrate it, which gives the speed; the
+       wayside's deceleration only where the tachometer has none yet.
+
+    The distance always comes from the wayside, advanced to now. What a combination does not
+    give (anything before a second telegram) comes from the tachometer as it is.
+    [interpretation] Para 92 says the train computes speed and deceleration from these, not how;
+    a mean speed over an interval of several seconds is no speed at the end of it while the
+    braking changes, so the interval calibrates the tachometer instead, which removes the wheel
+    diameter error the ground TASC exists to remove. The loop gain is closed on the
+    tachometer's deceleration over the interval since the last command took effect, whose
+    window the modelled means match."""
     dt = rp[RP_DT]
     count = int(rx[RX_TCOUNT])
     tach_v, tach_a = fit_ring_1(tach, int(rx[RX_TCOL]), count, dt, int(rp[RP_SPEED_SAMPLES]))
     form = int(rp[RP_FORM])
     det = int(tele[TEL_DETECTOR])
-    since = now_s - tele[TEL_PASSAGE]
-    a_est = tach_a if np.isfinite(tach_a) else 0.0
-    if form == 5 and np.isfinite(tele[TEL_DECEL]):
-        a_est = tele[TEL_DECEL]
-    speed = tach_v
-    if form == 4:
-        speed = tele[TEL_SPEED] - a_est * (now_s - tele[TEL_MEASURED])
-    elif form == 3:
-        # Mean speed over the last interval belongs to its midpoint in time.
+    lag = now_s - tele[TEL_MEASURED]
+    a_tach = tach_a if np.isfinite(tach_a) else 0.0
+    if form <= 3 and det != int(rx[RX_PREV_DET]):
+        # A new passage: the tachometer's distance at it (back from now at the present speed).
+        odo_pass = rx[RX_ODO] - tach_v * (now_s - tele[TEL_PASSAGE])
         interval = tele[TEL_INTERVAL]
-        if np.isfinite(interval) and interval > 0 and det > 0:
-            spacing = det_to_stop[max(det - 1, 0)] - det_to_stop[det]
-            speed = spacing / interval - a_est * (since + interval / 2.0)
-    if form == 1:
-        distance = rp[RP_STOP] - tele[TEL_POSITION]
-    elif form == 2:
-        distance = tele[TEL_DISTANCE]
-    else:
-        distance = det_to_stop[det] - (speed * since + 0.5 * a_est * since * since)
-    if form <= 2:
-        lag = now_s - tele[TEL_MEASURED]
-        distance = distance - (speed * lag + 0.5 * a_est * lag * lag)
-    regression_taus_1(now_s - (count - 1) * dt, now_s, taus)
+        prev = int(rx[RX_PREV_DET])
+        if prev == det - 1 and np.isfinite(interval) and interval > 0.0 and np.isfinite(rx[RX_PREV_ODO]):
+            tach_mean = (odo_pass - rx[RX_PREV_ODO]) / interval
+            true_mean = (det_to_stop[prev] - det_to_stop[det]) / interval
+            if tach_mean > 0.5:
+                rx[RX_SCALE] = true_mean / tach_mean
+        rx[RX_PREV_ODO] = odo_pass
+        rx[RX_PREV_DET] = det
+    elif form == 5:
+        odo_meas = rx[RX_ODO] - tach_v * lag
+        d_m = tele[TEL_DISTANCE]
+        if np.isfinite(rx[RX_PREV_ODO]) and odo_meas - rx[RX_PREV_ODO] > 5.0:
+            rx[RX_SCALE] = (rx[RX_PREV_REF] - d_m) / (odo_meas - rx[RX_PREV_ODO])
+        if not np.isfinite(rx[RX_PREV_ODO]) or odo_meas - rx[RX_PREV_ODO] > 5.0:
+            rx[RX_PREV_ODO] = odo_meas
+            rx[RX_PREV_REF] = d_m
+    scale = rx[RX_SCALE]
+    speed = tach_v * scale
+    a_est = a_tach * scale
+    if form == 4:
+        v_m = tele[TEL_SPEED]
+        d_m = tele[TEL_DISTANCE]
+        if np.isfinite(rx[RX_PREV_V]) and rx[RX_PREV_REF] - d_m > 1.0:
+            rx[RX_COMB_DECEL] = (rx[RX_PREV_V] ** 2 - v_m**2) / (2.0 * (rx[RX_PREV_REF] - d_m))
+            rx[RX_PREV_V] = v_m
+            rx[RX_PREV_REF] = d_m
+        elif not np.isfinite(rx[RX_PREV_V]):
+            rx[RX_PREV_V] = v_m
+            rx[RX_PREV_REF] = d_m
+        a_est = rx[RX_COMB_DECEL] if np.isfinite(rx[RX_COMB_DECEL]) else a_tach
+        speed = v_m - a_est * lag
+    elif form == 5 and np.isfinite(tele[TEL_DECEL]) and not np.isfinite(tach_a):
+        # The wayside's deceleration stands in only where the tachometer has none: it is the mean
+        # over the wayside's own interval, which the onboard unit's model of its commands does
+        # not match (measured: with it the form-5 stops ended up to 0.38 m short).
+        a_est = tele[TEL_DECEL]
+    # The loop gain's measurement: the tachometer's deceleration over the interval since the last
+    # command took effect when that is longer than the 1 s ring (as the wayside's Doppler fit).
+    window = count
+    measured = a_tach * scale
+    c, interval_decel = interval_fit_decel_1(rx, RX_SUMS)
+    if c > count:
+        window = c
+        measured = interval_decel * scale
+    distance = tele[TEL_DISTANCE] - (speed * lag + 0.5 * a_est * lag * lag)
+    regression_taus_1(now_s - (window - 1) * dt, now_s, taus)
     cmd_mean, ext_mean = modelled_means_1(
         hist_v,
         hist_e,
@@ -322,7 +397,7 @@ def _receiver_plan_1(
         a_est,
         now_s,
     )
-    num, den = gain_update_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN], a_est, cmd_mean, ext_mean)
+    num, den = gain_update_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN], measured, cmd_mean, ext_mean)
     rx[RX_GAIN_NUM] = num
     rx[RX_GAIN_DEN] = den
     command, _, effect = plan_command_1(
@@ -340,6 +415,8 @@ def _receiver_plan_1(
     )
     history_push_1(hist_v, hist_e, command, effect)
     rx[RX_TARGET] = command
+    rx[RX_WIN_START] = effect
+    interval_fit_reset_1(rx, RX_SUMS)
 
 
 @njit_inline

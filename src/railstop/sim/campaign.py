@@ -77,7 +77,10 @@ DISK_BYTES_PER_VALUE = 8
 # braking telegram (more link draws per run).
 # 5: the onboard ATO's law (bve-autopilot's pattern rejoin), the train's own brake command
 # around TASC, config 2's switching unit and its PWM variant.
-MODEL_VERSION = 5
+# 6: signal forms 1-5 carry para 92's combinations (longer frames) and the onboard planner
+# calibrates its tachometer and fits its deceleration over the interval between commands;
+# forms 7 and 8 are modulated by the wayside. Form 6 runs are unchanged.
+MODEL_VERSION = 6
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -110,14 +110,19 @@ from railstop.wayside.tasc_unit import (
     WP_JERK,
     WP_LAG,
     WP_MAX_DECEL,
+    WP_MOD_CYCLE,
+    WP_MOD_HOLD,
+    WP_MODULATE,
     WP_SIZE,
     WP_SPEED_SAMPLES,
+    WP_STEP_SPACING,
     WP_STOP,
     WS_SENT,
     WS_SIZE,
     SignalForm,
     wayside_command_1,
     wayside_init_1,
+    wayside_modulate_1,
     wayside_observe_1,
 )
 
@@ -530,8 +535,11 @@ def _simulate_run(
             braking = at[AT_BRAKING] > 0.0
         else:
             # Wayside unit -> link -> onboard receiver.
-            if wayside_observe_1(ws, wp, dbuf, pass_t, pass_x, det_pos, t, passed, det_idx, pass_s, doppler):
-                wayside_command_1(
+            due = wayside_observe_1(
+                ws, wp, dbuf, pass_t, pass_x, det_pos, t, passed, det_idx, pass_s, doppler
+            )
+            if due:
+                due = wayside_command_1(
                     ws,
                     wp,
                     dbuf,
@@ -552,6 +560,10 @@ def _simulate_run(
                     tele,
                     crow,
                 )
+            else:
+                # Forms 7, 8: the wayside's own notch modulation between commands.
+                due = wayside_modulate_1(ws, wp, table, t, doppler, tele, crow)
+            if due:
                 # A newer telegram replaces the one not yet delivered (the wayside sends only its latest).
                 _quantize(tele, pending, quant, carried, int(wp[WP_FORM]), kp[KP_QUANT_AGE])
                 pending_id += 1
@@ -634,7 +646,7 @@ def _simulate_run(
                     pending,
                     t,
                 )
-            receiver_observe_1(rx, rp, tach, tach_v)
+            receiver_observe_1(rx, rp, tach, tach_v, t)
             # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
             eb = receiver_supervise_1(rx, rp, t, odo_step, tach_v)
             # The train's own brake command (SPEC §1; tasc.initial_brake_notch): a step, or on a
@@ -1067,6 +1079,17 @@ class KernelModel:
         wp[WP_STOP] = station.stop_point_m
         wp[WP_END_MARGIN] = station.platform_end - station.stop_point_m
         wp[WP_GUARD_LIMIT] = tasc.overrun_guard_decel_fraction * brake.full_service_mps2
+        # Forms 7, 8: the wayside modulates the notches as the train's brake controller would
+        # (its cycle and minimum hold, brake data of the wayside's database, SPEC §1 claim 8).
+        wp[WP_MODULATE] = form in (SignalForm.BRAKE_COMMAND, SignalForm.INCREASE_DECREASE)
+        wp[WP_MOD_CYCLE] = brake.controller_cycle_s
+        wp[WP_MOD_HOLD] = brake.controller_min_hold_s
+        wp[WP_STEP_SPACING] = brake.controller_min_hold_s
+        if form == SignalForm.INCREASE_DECREASE:
+            # One notch per step telegram: the braking builds up no faster than a notch's
+            # deceleration per step spacing, which the plan treats as a jerk limit.
+            notch_step = brake.full_service_mps2 / len(brake.notch_decel_mps2)
+            wp[WP_JERK] = min(brake.jerk_limit_mps3, notch_step / wp[WP_STEP_SPACING])
         window = max(round(radar.fit_window_s / dt_s), 2) if radar is not None else 2
         rcfg = controller if controller in CONFIG_CODES else "tasc-brake-controller"
         fp = np.zeros(FP_SIZE)

@@ -53,13 +53,15 @@ TRAIN_ID = 0x0001  # the train (one per run in a campaign: its own link)
 # management; a simulation only needs every run to use the same one.
 _DEMO_MASTER = hashlib.sha256(b"railstop demonstration TASC link master key").digest()
 
-# SPEC §1 claim 3: the array fields each form puts on the air (the rest is NaN).
+# SPEC §1 claim 3: the array fields each form puts on the air (the rest is NaN); forms 1-5 carry
+# the combinations of para 92 (railstop.link.codec).
+_COMBINATION_1 = ("position_m", "distance_m", "interval_s", "passage_s", "measured_s")
 CARRIED: dict[SignalForm, tuple[str, ...]] = {
-    SignalForm.POSITION: ("position_m", "measured_s"),
-    SignalForm.DISTANCE: ("distance_m", "measured_s"),
-    SignalForm.INTERVAL_TIME: ("interval_s", "passage_s"),
-    SignalForm.SPEED: ("speed_mps", "measured_s", "passage_s"),
-    SignalForm.DECELERATION: ("decel_mps2", "passage_s"),
+    SignalForm.POSITION: _COMBINATION_1,
+    SignalForm.DISTANCE: _COMBINATION_1,
+    SignalForm.INTERVAL_TIME: _COMBINATION_1,
+    SignalForm.SPEED: ("speed_mps", "distance_m", "measured_s", "passage_s"),
+    SignalForm.DECELERATION: ("decel_mps2", "distance_m", "passage_s", "measured_s"),
     SignalForm.REQUIRED_DECELERATION: ("required_mps2",),
     SignalForm.BRAKE_COMMAND: ("notch", "duty"),
     SignalForm.INCREASE_DECREASE: ("delta",),
@@ -104,6 +106,7 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
         age = quantize(kind, "passage_age_s", tele.measured_s - tele.passage_s)
         changes["measured_s"] = measured
         changes["speed_mps"] = quantize(kind, "speed_mps", tele.speed_mps)
+        changes["distance_m"] = quantize(kind, "distance_m", tele.distance_m)
         changes["passage_s"] = measured - age
     else:
         for name in carried:
@@ -125,33 +128,28 @@ def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Teleg
     det = int(tele.detector[row])
     if int(tele.emergency[row]):
         return TascEmergencyStop(train_id=train_id, detector=det)
-    if form == SignalForm.POSITION:
-        return TascPosition(
-            train_id=train_id,
-            detector=det,
-            position_m=float(tele.position_m[row]),
-            measured_s=float(tele.measured_s[row]),
-        )
-    if form == SignalForm.DISTANCE:
-        return TascDistance(
-            train_id=train_id,
-            detector=det,
-            distance_m=float(tele.distance_m[row]),
-            measured_s=float(tele.measured_s[row]),
-        )
-    if form == SignalForm.INTERVAL_TIME:
-        return TascInterval(
-            train_id=train_id,
-            detector=det,
-            interval_s=finite_or_none(tele.interval_s[row]),
-            passage_s=float(tele.passage_s[row]),
-        )
+    if form in (SignalForm.POSITION, SignalForm.DISTANCE, SignalForm.INTERVAL_TIME):
+        combination = {
+            "train_id": train_id,
+            "detector": det,
+            "position_m": float(tele.position_m[row]),
+            "distance_m": float(tele.distance_m[row]),
+            "interval_s": finite_or_none(tele.interval_s[row]),
+            "passage_s": float(tele.passage_s[row]),
+            "measured_s": float(tele.measured_s[row]),
+        }
+        if form == SignalForm.POSITION:
+            return TascPosition(**combination)  # type: ignore[arg-type]
+        if form == SignalForm.DISTANCE:
+            return TascDistance(**combination)  # type: ignore[arg-type]
+        return TascInterval(**combination)  # type: ignore[arg-type]
     if form == SignalForm.SPEED:
         measured = float(tele.measured_s[row])
         return TascSpeed(
             train_id=train_id,
             detector=det,
             speed_mps=float(tele.speed_mps[row]),
+            distance_m=float(tele.distance_m[row]),
             measured_s=measured,
             passage_age_s=measured - float(tele.passage_s[row]),
         )
@@ -160,7 +158,9 @@ def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Teleg
             train_id=train_id,
             detector=det,
             decel_mps2=finite_or_none(tele.decel_mps2[row]),
+            distance_m=float(tele.distance_m[row]),
             passage_s=float(tele.passage_s[row]),
+            measured_s=float(tele.measured_s[row]),
         )
     if form == SignalForm.REQUIRED_DECELERATION:
         return TascRequiredDecel(

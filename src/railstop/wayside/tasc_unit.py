@@ -17,11 +17,16 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from railstop.control.notch import nearest_notch_1
+from railstop.control.notch import (
+    MOD_SIZE,
+    modulator_init_1,
+    modulator_restart_1,
+    modulator_update_1,
+    nearest_notch_1,
+)
 from railstop.control.supervision import overrun_guard_1
 from railstop.control.tasc import (
     REG_WEIGHTS,
-    clip_1,
     external_decel_1,
     fit_passages_1,
     fit_ring_1,
@@ -30,6 +35,9 @@ from railstop.control.tasc import (
     hat_weights_1,
     history_push_1,
     history_value_at_1,
+    interval_fit_add_1,
+    interval_fit_decel_1,
+    interval_fit_reset_1,
     modelled_means_1,
     plan_command_1,
     regression_taus_1,
@@ -149,7 +157,11 @@ WP_LAG = 9  # brake build-up time constant
 WP_STOP = 10
 WP_END_MARGIN = 11  # platform end beyond the stopping point (the overrun guard's end)
 WP_GUARD_LIMIT = 12  # the overrun guard's deceleration limit (full service x guard fraction)
-WP_SIZE = 13
+WP_MODULATE = 13  # forms 7, 8: the wayside realises its command with the notches itself
+WP_MOD_CYCLE = 14  # ... every this many seconds (the train's brake controller cycle)
+WP_MOD_HOLD = 15  # ... holding a notch at least this long (the train's brake controller's)
+WP_STEP_SPACING = 16  # form 8: one step telegram at most this often
+WP_SIZE = 17
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -161,13 +173,17 @@ WS_LAST_PASS = 10
 WS_TRAVEL = 11  # Doppler-integrated travel since the last passage
 WS_GAIN_NUM = 12
 WS_GAIN_DEN = 13
-WS_BELIEVED = 14  # form 8: what the train is believed to apply
+WS_MOD_SENT = 14  # forms 7, 8: the notch last sent (form 8: the train is believed to apply)
 WS_SENT = 15
 WS_FIRST_SENT = 16  # the train holds its speed until told to brake
 WS_NEXT_UPDATE = 17
 WS_EMERGENCY = 18  # 1 once the overrun guard fired (latched: every later telegram says so)
 WS_DECEL = 19  # the deceleration measured at the last command (the overrun guard's; 0: none)
-WS_SIZE = 20
+WS_TARGET = 20  # forms 7, 8: the deceleration the notches realise (the last command; NaN: none)
+WS_MOD_NEXT = 21  # forms 7, 8: the next modulator cycle
+WS_LAST_STEP = 22  # form 8: when the last step telegram was sent
+WS_MOD = 23  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
+WS_SIZE = WS_MOD + MOD_SIZE
 
 # Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
 CR_T = 0
@@ -185,8 +201,20 @@ CR_EFFECT = 11
 CR_EMERGENCY = 12  # 1: the overrun guard fired, the telegram is an emergency stop
 CR_SIZE = 13
 
-# The fields forms 1-5 put on the air besides the detector and times (SPEC §1 claim 3).
-_MEASUREMENT_OF_FORM = np.array([-1, TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL])
+# The measurements forms 1-5 put on the air besides the detector and times: the combinations of
+# SPEC §1 para 92 (claim 3, para 67), one row per form, columns _MEASUREMENTS; the
+# railstop.link.codec layouts carry the same.
+_MEASUREMENTS = np.array([TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL, TEL_REQUIRED])
+_COMBINATION_OF_FORM = np.array(
+    [
+        [0, 0, 0, 0, 0, 0],
+        [1, 1, 1, 0, 0, 0],  # form 1: position, with distance and interval
+        [1, 1, 1, 0, 0, 0],  # form 2: distance, with position and interval
+        [1, 1, 1, 0, 0, 0],  # form 3: interval, with position and distance
+        [0, 1, 0, 1, 0, 0],  # form 4: speed and distance
+        [0, 1, 0, 0, 1, 0],  # form 5: deceleration and distance
+    ]
+)
 _PASSAGE_FRAC = (np.arange(16) + 0.5) / 16
 
 
@@ -200,6 +228,10 @@ def wayside_init_1(
     ws[WS_LAST_PASS] = np.nan
     ws[WS_FIRST_SENT] = np.inf
     ws[WS_NEXT_UPDATE] = np.inf
+    ws[WS_TARGET] = np.nan
+    ws[WS_MOD_NEXT] = np.inf
+    ws[WS_LAST_STEP] = -np.inf
+    modulator_init_1(ws[WS_MOD : WS_MOD + MOD_SIZE])
     hist_v[:] = 0.0
     hist_e[:] = np.inf
     pass_t[:] = np.nan
@@ -234,11 +266,7 @@ def wayside_observe_1(
         dbuf[col] = doppler_mps
         t_rel = max(now_s - ws[WS_WIN_START], -1.0)
         if t_rel >= 0.0:
-            ws[WS_SUMS] += 1.0
-            ws[WS_SUMS + 1] += t_rel
-            ws[WS_SUMS + 2] += t_rel * t_rel
-            ws[WS_SUMS + 3] += doppler_mps
-            ws[WS_SUMS + 4] += t_rel * doppler_mps
+            interval_fit_add_1(ws, WS_SUMS, t_rel, doppler_mps)
         ws[WS_DCOUNT] = min(ws[WS_DCOUNT] + 1.0, float(window))
         ws[WS_TRAVEL] += doppler_mps * wp[WP_DT]
     if (
@@ -302,13 +330,10 @@ def _wayside_measure_1(
         # Prefer the interval since the last command took effect when it is longer: the
         # deceleration over the whole interval between commands (a brake controller
         # alternating two notches matches the target only on average over its alternation).
-        c = ws[WS_SUMS]
+        c, interval_decel = interval_fit_decel_1(ws, WS_SUMS)
         if c > count:
-            st = ws[WS_SUMS + 1]
-            sxx = ws[WS_SUMS + 2] - st * st / max(c, 1.0)
-            slope = (ws[WS_SUMS + 4] - st * ws[WS_SUMS + 3] / max(c, 1.0)) / sxx if sxx > 0.0 else 0.0
-            decel = -slope
-            count = int(c)
+            decel = interval_decel
+            count = c
         if new_passage:  # at a passage, the travel since it is reconstructed from the fit
             since = now_s - ws[WS_LAST_PASS]
             ws[WS_TRAVEL] = speed * since + 0.5 * decel * since * since
@@ -362,6 +387,75 @@ def _wayside_measure_1(
     return speed, decel, distance, cmd_mean, ext_mean
 
 
+@njit_inline
+def _modulated_notch_1(ws: FloatArray, wp: FloatArray, notch: int, now_s: float) -> tuple[int, int]:
+    """Forms 7, 8: the notch to send for the modulator's ``notch``, and form 8's step (+1, -1, 0):
+    one notch per telegram from the notch the train is believed to apply.
+
+    A step must reach the train: the link carries only the wayside's latest telegram, so a step
+    sent before the previous one was delivered would replace it and the train would be a notch
+    off for the rest of the stop. Steps are therefore at least ``WP_STEP_SPACING`` apart (the
+    brake controller's minimum hold: with the cyclic repeat every 0.1 s, three transmissions of
+    each step, all delivered before the next on a link faster than 0.1 s). On a slower link a
+    step can still be replaced; spacing by the maximum telegram age (0.5 s) would exclude that
+    but made the stops coarser (measured: 210 of 256 forms benchmark stops in band against 229).
+    [interpretation] SPEC §1 gives form 8 no protocol."""
+    sent = int(ws[WS_MOD_SENT])
+    delta = 0
+    if int(wp[WP_FORM]) == 8:
+        if now_s + 1e-9 >= ws[WS_LAST_STEP] + wp[WP_STEP_SPACING]:
+            delta = 1 if notch > sent else (-1 if notch < sent else 0)
+        notch = sent + delta
+        if delta != 0:
+            ws[WS_LAST_STEP] = now_s
+    ws[WS_MOD_SENT] = notch
+    return notch, delta
+
+
+@njit_inline
+def wayside_modulate_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    table: FloatArray,
+    now_s: float,
+    doppler_mps: float,
+    tele: FloatArray,
+    record: FloatArray,
+) -> bool:
+    """Forms 7, 8 between commands: one cycle of the wayside's modulator when one is due; True when
+    its notch changed, with the new telegram in ``tele`` (the last command's, with the new notch or
+    step) and its record in ``record``. Time-driven, so it runs without a Doppler radar too (the
+    end phase then has no speed)."""
+    if wp[WP_MODULATE] == 0.0 or ws[WS_EMERGENCY] > 0.0 or not np.isfinite(ws[WS_TARGET]):
+        return False
+    if now_s + 1e-9 < ws[WS_MOD_NEXT]:
+        return False
+    ws[WS_MOD_NEXT] += wp[WP_MOD_CYCLE]
+    has_speed = np.isfinite(doppler_mps)
+    notch = modulator_update_1(
+        ws[WS_MOD : WS_MOD + MOD_SIZE],
+        table,
+        wp[WP_MOD_HOLD],
+        wp[WP_BASE_DELAY],
+        ws[WS_TARGET],
+        True,
+        wp[WP_MOD_CYCLE],
+        doppler_mps if has_speed else 0.0,
+        has_speed,
+    )
+    notch, delta = _modulated_notch_1(ws, wp, notch, now_s)
+    if delta == 0 and (int(wp[WP_FORM]) == 8 or notch == int(tele[TEL_NOTCH])):
+        return False
+    ws[WS_SENT] += 1.0
+    tele[TEL_MEASURED] = now_s
+    tele[TEL_NOTCH] = notch
+    tele[TEL_DELTA] = delta
+    record[CR_T] = now_s
+    record[CR_NOTCH] = notch
+    record[CR_DELTA] = delta
+    return True
+
+
 @njit_step
 def wayside_command_1(
     ws: FloatArray,
@@ -383,9 +477,9 @@ def wayside_command_1(
     new_passage: bool,
     tele: FloatArray,
     record: FloatArray,
-) -> None:
+) -> bool:
     """The command due now: measure, close the loop, plan; the telegram into ``tele``, its
-    record (CR_*: SPEC §1 claims 8, 20) into ``record``."""
+    record (CR_*: SPEC §1 claims 8, 20) into ``record``; True when the telegram is to be sent."""
     speed, decel, distance, cmd_mean, ext_mean = _wayside_measure_1(
         ws,
         wp,
@@ -429,27 +523,35 @@ def wayside_command_1(
     form = int(wp[WP_FORM])
     notch = nearest_notch_1(command, table)
     delta = 0
-    executed = command
-    if form == 7:  # BRAKE_COMMAND
-        executed = table[notch]
-    elif form == 8:  # INCREASE_DECREASE: one notch up or down per telegram
-        step = table[1]
-        believed = ws[WS_BELIEVED]
-        if command > believed + step / 2:
-            delta = 1
-        elif command < believed - step / 2:
-            delta = -1
-        executed = clip_1(believed + delta * step, 0.0, wp[WP_MAX_DECEL])
-        ws[WS_BELIEVED] = executed
-    if form >= 6:
-        history_push_1(hist_v, hist_e, executed, effect)
-    ws[WS_SENT] += 1.0
-    if executed > 0.0:  # the train holds its speed (its own traction control) until told to brake
+    if wp[WP_MODULATE] > 0.0:
+        # Forms 7 and 8 leave the train nothing to compute (SPEC §1 claim 3: a brake-system
+        # command; increase / decrease the current braking, paras 93-94), so the wayside realises
+        # its continuous command with the notches itself, as a brake controller would: the same
+        # modulator (control.notch), run on the wayside's clock against the brake's response
+        # including the radio latency, one new telegram whenever its notch changes
+        # (wayside_modulate_1). Form 8 moves the train one notch per telegram.
+        # [interpretation] SPEC §1 names the forms only; a notch command held from one detector
+        # to the next cannot stop a train within a notch's worth of deceleration.
+        ws[WS_TARGET] = command
+        wmod = ws[WS_MOD : WS_MOD + MOD_SIZE]
+        modulator_restart_1(wmod)
+        notch = modulator_update_1(
+            wmod, table, wp[WP_MOD_HOLD], wp[WP_BASE_DELAY], command, True, wp[WP_MOD_CYCLE], speed, True
+        )
+        ws[WS_MOD_NEXT] = now_s + wp[WP_MOD_CYCLE]
+        notch, delta = _modulated_notch_1(ws, wp, notch, now_s)
+    if form >= 6:  # forms 1-5: the train computes its own command from the measurements
+        history_push_1(hist_v, hist_e, command, effect)
+    # Form 8 says only "more" or "less": a command that changes no notch is not sent (the cyclic
+    # repeat of the last telegram keeps the train's supervision alive).
+    send = form != 8 or delta != 0 or ws[WS_EMERGENCY] > 0.0
+    if send:
+        ws[WS_SENT] += 1.0
+    if command > 0.0:  # the train holds its speed (its own traction control) until told to brake
         ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], now_s)
     # The next measurement interval starts when this command takes effect.
     ws[WS_WIN_START] = effect
-    for j in range(5):
-        ws[WS_SUMS + j] = 0.0
+    interval_fit_reset_1(ws, WS_SUMS)
     if wp[WP_CONTINUOUS] > 0.0:
         ws[WS_NEXT_UPDATE] = now_s + wp[WP_CONTINUOUS_PERIOD]
     last_det = ws[WS_LAST_DET]
@@ -466,11 +568,10 @@ def wayside_command_1(
     tele[TEL_DUTY] = decel_to_pwm_1(command, pwm_duty, pwm_decel)
     tele[TEL_DELTA] = delta
     tele[TEL_EMERGENCY] = ws[WS_EMERGENCY]
-    if form <= 5:  # forms 1-5 carry only their measurement (SPEC §1)
-        keep = _MEASUREMENT_OF_FORM[form]
-        for j in (TEL_POSITION, TEL_DISTANCE, TEL_INTERVAL, TEL_SPEED, TEL_DECEL, TEL_REQUIRED):
-            if j != keep:
-                tele[j] = np.nan
+    if form <= 5:  # forms 1-5 carry measurements only, in para 92's combinations (SPEC §1)
+        for m in range(_MEASUREMENTS.size):
+            if _COMBINATION_OF_FORM[form, m] == 0:
+                tele[_MEASUREMENTS[m]] = np.nan
     record[CR_T] = now_s
     record[CR_DETECTOR] = last_det
     record[CR_PASSAGE] = ws[WS_LAST_PASS]
@@ -484,3 +585,4 @@ def wayside_command_1(
     record[CR_DELTA] = delta
     record[CR_EFFECT] = effect
     record[CR_EMERGENCY] = ws[WS_EMERGENCY]
+    return send

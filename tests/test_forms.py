@@ -1,0 +1,122 @@
+"""A test per signal form stops a train (issue 13): every form of SPEC §1 claim 3 with every TASC
+controller at Riverside, nominal and at crush load with weak brakes, and what each form's
+telegrams carry on the air (forms 1-5: para 92's combinations; forms 7, 8: the wayside's
+notch modulation).
+
+``benchmarks/tasc_forms.py`` measures the same stops at every default station."""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+import pytest
+
+from railstop.config import default_line, default_vehicle
+from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_CONTROLLERS, TASC_STEP
+from railstop.link.codec import TASC_FORM_TYPES
+from railstop.sim.engine import BatchResult
+from railstop.sim.single import StopResult, run_stop
+from railstop.wayside.tasc_unit import SignalForm
+
+LINE = default_line()
+VEHICLE = default_vehicle()
+STATION = LINE.station("Riverside")  # the line's first, the CLI's default
+FORMS = list(SignalForm)
+# (load factor, brake gain, band): the single-stop targets of the ground-TASC issue.
+CASES = {"nominal": (0.0, 1.0, 0.10), "crush": (1.0, 0.85, 0.35)}
+STEP_CODED = (TASC_BRAKE_CONTROLLER, TASC_STEP)  # config 1 and config 2's step code: notches only
+
+# SPEC §1 para 92: the measurements each of forms 1-5 must carry (the train computes the rest).
+PARA_92: dict[SignalForm, tuple[str, ...]] = {
+    SignalForm.POSITION: ("distance_m", "interval_s", "position_m"),
+    SignalForm.DISTANCE: ("distance_m", "interval_s", "position_m"),
+    SignalForm.INTERVAL_TIME: ("distance_m", "interval_s", "position_m"),
+    SignalForm.SPEED: ("distance_m", "speed_mps"),
+    SignalForm.DECELERATION: ("distance_m", "decel_mps2"),
+}
+# Absent (None) allowed: the interval before the second detector, the deceleration before the
+# wayside can measure one.
+MAY_BE_ABSENT = ("interval_s", "decel_mps2")
+
+
+@cache
+def _stop(form: SignalForm, controller: str, case: str) -> tuple[StopResult, BatchResult]:
+    load, gain, _ = CASES[case]
+    return run_stop(
+        line=LINE,
+        station=STATION,
+        vehicle=VEHICLE,
+        controller=controller,
+        seed=1,
+        load_factor=load,
+        brake_gain=gain,
+        form=form,
+    )
+
+
+def _telegrams(form: SignalForm, controller: str, case: str) -> list[dict[str, Any]]:
+    """The command records of the stop; every one went on the air as a telegram of the form."""
+    commands = _stop(form, controller, case)[1].commands
+    assert commands, "no telegram was sent"
+    want = TASC_FORM_TYPES[int(form)].TYPE
+    assert [c["telegram_type"] for c in commands] == [want] * len(commands)
+    return commands
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("controller", TASC_CONTROLLERS)
+@pytest.mark.parametrize("form", FORMS, ids=lambda f: f"form{int(f)}")
+def test_form_stops_the_train_within_its_band(form: SignalForm, controller: str, case: str) -> None:
+    result, _ = _stop(form, controller, case)
+    band = CASES[case][2]
+    assert result.form == int(form)
+    assert result.stopped
+    assert result.emergency_brake is None
+    assert abs(result.stop_error_m) <= band, f"{result.stop_error_m:+.3f} m"
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("controller", TASC_CONTROLLERS)
+@pytest.mark.parametrize("form", sorted(PARA_92), ids=lambda f: f"form{int(f)}")
+def test_forms_1_to_5_carry_the_para_92_combination(form: SignalForm, controller: str, case: str) -> None:
+    """Measurements only, in para 92's combination: the distance in every form, the interval and
+    the position in forms 1-3, the speed in form 4, the deceleration in form 5; never the
+    required deceleration (claim 10: the train computes it)."""
+    for telegram in (c["telegram"] for c in _telegrams(form, controller, case)):
+        assert "required_mps2" not in telegram
+        for key in PARA_92[form]:
+            assert key in telegram, key
+            if key not in MAY_BE_ABSENT:
+                assert telegram[key] is not None, key
+        if "interval_s" in PARA_92[form] and telegram["detector"] > 0:
+            assert telegram["interval_s"] is not None and telegram["interval_s"] > 0.0
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("controller", STEP_CODED)
+def test_form_7_the_wayside_modulates_the_notch(controller: str, case: str) -> None:
+    """A step-coded train gets more telegrams than the 5 detector commands: the wayside sends a
+    new one whenever its modulator's notch changes, so between two detector commands every
+    telegram changes the notch."""
+    result, _ = _stop(SignalForm.BRAKE_COMMAND, controller, case)
+    assert result.commands > 5
+    telegrams = _telegrams(SignalForm.BRAKE_COMMAND, controller, case)
+    assert len(telegrams) > 5
+    for prev, this in zip(telegrams, telegrams[1:], strict=False):
+        if this["detector"] == prev["detector"]:  # a modulation telegram, not a detector command
+            assert this["telegram"]["notch"] != prev["telegram"]["notch"], this["t_s"]
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("controller", TASC_CONTROLLERS)
+def test_form_8_one_notch_step_per_telegram_spaced(controller: str, case: str) -> None:
+    """Every telegram is one notch up or down, and the wayside spaces its steps at least the
+    train's minimum notch hold apart."""
+    hold = VEHICLE.brake.controller_min_hold_s
+    telegrams = _telegrams(SignalForm.INCREASE_DECREASE, controller, case)
+    assert [c["telegram"]["delta"] for c in telegrams] == [c["delta"] for c in telegrams]
+    assert all(c["telegram"]["delta"] in (-1, 1) for c in telegrams)
+    times = [c["t_s"] for c in telegrams]
+    for earlier, later in zip(times, times[1:], strict=False):
+        assert later - earlier >= hold - 1e-9, (earlier, later)
