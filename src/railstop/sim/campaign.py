@@ -79,7 +79,8 @@ DISK_BYTES_PER_VALUE = 8
 # around TASC, config 2's switching unit and its PWM variant.
 # 6: signal forms 1-5 carry para 92's combinations (longer frames) and the onboard planner
 # calibrates its tachometer and fits its deceleration over the interval between commands;
-# forms 7 and 8 are modulated by the wayside. Form 6 runs are unchanged.
+# forms 7 and 8 are modulated by the wayside; the wayside models the train's own initial brake
+# step. Form 6 runs without an initial brake step are unchanged.
 MODEL_VERSION = 6
 
 

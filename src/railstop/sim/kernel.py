@@ -107,6 +107,8 @@ from railstop.wayside.tasc_unit import (
     WP_FORM,
     WP_GUARD_LIMIT,
     WP_HAS_DOPPLER,
+    WP_INITIAL_DECEL,
+    WP_INITIAL_DELAY,
     WP_JERK,
     WP_LAG,
     WP_MAX_DECEL,
@@ -1084,6 +1086,8 @@ class KernelModel:
         wp[WP_MODULATE] = form in (SignalForm.BRAKE_COMMAND, SignalForm.INCREASE_DECREASE)
         wp[WP_MOD_CYCLE] = brake.controller_cycle_s
         wp[WP_MOD_HOLD] = brake.controller_min_hold_s
+        wp[WP_INITIAL_DECEL] = ([0.0, *brake.notch_decel_mps2])[tasc.initial_brake_notch]
+        wp[WP_INITIAL_DELAY] = brake.dead_time_s + brake.time_constant_s
         wp[WP_STEP_SPACING] = brake.controller_min_hold_s
         if form == SignalForm.INCREASE_DECREASE:
             # One notch per step telegram: the braking builds up no faster than a notch's

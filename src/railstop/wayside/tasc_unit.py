@@ -161,7 +161,9 @@ WP_MODULATE = 13  # forms 7, 8: the wayside realises its command with the notche
 WP_MOD_CYCLE = 14  # ... every this many seconds (the train's brake controller cycle)
 WP_MOD_HOLD = 15  # ... holding a notch at least this long (the train's brake controller's)
 WP_STEP_SPACING = 16  # form 8: one step telegram at most this often
-WP_SIZE = 17
+WP_INITIAL_DECEL = 17  # the train's own initial brake step in the zone (tasc.initial_brake_notch)
+WP_INITIAL_DELAY = 18  # ... acts this long after the first detector (dead time + lag, no radio)
+WP_SIZE = 19
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -480,6 +482,16 @@ def wayside_command_1(
 ) -> bool:
     """The command due now: measure, close the loop, plan; the telegram into ``tele``, its
     record (CR_*: SPEC §1 claims 8, 20) into ``record``; True when the telegram is to be sent."""
+    if ws[WS_SENT] == 0.0 and wp[WP_INITIAL_DECEL] > 0.0:
+        # The train's own initial brake step from the zone's first transponder, at the first
+        # detector (tasc.initial_brake_notch): the wayside's database knows it, so its model of
+        # the train brakes from that passage on instead of holding the speed. [interpretation]
+        # Configs 1 and 2 replace it with the first command, as the model's history does.
+        first_x = wp[WP_STOP] - det_to_stop[0]
+        for j in range(3):
+            if pass_x[j] == first_x and np.isfinite(pass_t[j]):
+                history_push_1(hist_v, hist_e, wp[WP_INITIAL_DECEL], pass_t[j] + wp[WP_INITIAL_DELAY])
+                ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], pass_t[j])
     speed, decel, distance, cmd_mean, ext_mean = _wayside_measure_1(
         ws,
         wp,
