@@ -32,7 +32,7 @@ from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES, external_params
 from railstop.errors import RailstopError, SimulationError
-from railstop.jit import njit, njit_step
+from railstop.jit import njit, njit_inline, njit_step
 from railstop.link.channel import airtime_s, media_preset
 from railstop.link.codec import TASC_FORM_TYPES, layout_of
 from railstop.onboard.ato import (
@@ -326,6 +326,19 @@ def _quantize(
         out[TEL_PASSAGE] = measured - age
 
 
+@njit_inline
+def _own_command_1(
+    notch: int, pwm_train: bool, table: FloatArray, pwm_duty: FloatArray, pwm_decel: FloatArray
+) -> tuple[float, float]:
+    """The train's own brake command (SPEC §1; tasc.initial_brake_notch) as (duty, deceleration
+    demanded): a step, or on a PWM train that step's deceleration as a duty (NaN on a step train).
+    It changes only at the zone's transponders, so it is computed when it changes, not every step."""
+    if pwm_train:
+        duty = decel_to_pwm_1(table[notch], pwm_duty, pwm_decel)
+        return duty, pwm_to_decel_1(duty, pwm_duty, pwm_decel)
+    return np.nan, table[line_notch(notch)]
+
+
 @njit_step
 def _simulate_run(
     row: int,
@@ -445,7 +458,9 @@ def _simulate_run(
     config = int(rp[RP_CONFIG])
     pwm_train = config in (CFG_PWM, CFG_SWITCHED_PWM)
     switched = config in (CFG_STEP, CFG_SWITCHED_PWM)
+    own_duty = np.nan
     own_demand = np.nan
+    own_for = -1  # the own notch own_duty and own_demand were computed for (-1: none yet)
     switch_pos = -1
     if corrected_positioning:
         # SPEC §2: no transponders; the position comes from track-circuit corrections. Before the
@@ -651,16 +666,15 @@ def _simulate_run(
             receiver_observe_1(rx, rp, tach, tach_v, t)
             # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
             eb = receiver_supervise_1(rx, rp, t, odo_step, tach_v)
-            # The train's own brake command (SPEC §1; tasc.initial_brake_notch): a step, or on a
-            # PWM train that step's deceleration as a duty.
-            own_duty = decel_to_pwm_1(table[own_notch], pwm_duty, pwm_decel) if pwm_train else np.nan
+            if own_notch != own_for:
+                own_duty, own_demand = _own_command_1(own_notch, pwm_train, table, pwm_duty, pwm_decel)
+                own_for = own_notch
             if switched:
                 switch_pos = receiver_switch_1(rx, rp)
             if pwm_train:
                 notch = -1
                 # Config 3 superimposes on the train's duty; config 2 switches between the two.
                 onboard = receiver_pwm_output_1(rx, rp, k, own_duty)
-                own_demand = pwm_to_decel_1(own_duty, pwm_duty, pwm_decel)
                 if config == CFG_PWM or switch_pos == SWITCH_ONBOARD:
                     duty = onboard
                 elif switch_pos == SWITCH_TRAIN:
@@ -670,7 +684,6 @@ def _simulate_run(
             else:
                 duty = np.nan
                 onboard_notch = receiver_step_output_1(rx, rp, mod, table, k, tach_v)
-                own_demand = table[line_notch(own_notch)]
                 if config == CFG_BRAKE_CONTROLLER:
                     # Config 1: the brake controller follows the onboard unit once it has a command.
                     notch = onboard_notch if rx[RX_ACTIVE] > 0.0 else own_notch

@@ -390,6 +390,24 @@ def _wayside_measure_1(
 
 
 @njit_inline
+def _modulator_cycle_1(ws: FloatArray, wp: FloatArray, table: FloatArray, speed_mps: float) -> int:
+    """Forms 7, 8: one cycle of the wayside's notch modulator on its target (``speed_mps`` NaN: no
+    speed, the end phase is not planned), timed as the train's brake controller would be."""
+    has_speed = np.isfinite(speed_mps)
+    return modulator_update_1(
+        ws[WS_MOD : WS_MOD + MOD_SIZE],
+        table,
+        wp[WP_MOD_HOLD],
+        wp[WP_BASE_DELAY],
+        ws[WS_TARGET],
+        True,
+        wp[WP_MOD_CYCLE],
+        speed_mps if has_speed else 0.0,
+        has_speed,
+    )
+
+
+@njit_inline
 def _modulated_notch_1(ws: FloatArray, wp: FloatArray, notch: int, now_s: float) -> tuple[int, int]:
     """Forms 7, 8: the notch to send for the modulator's ``notch``, and form 8's step (+1, -1, 0):
     one notch per telegram from the notch the train is believed to apply.
@@ -433,19 +451,7 @@ def wayside_modulate_1(
     if now_s + 1e-9 < ws[WS_MOD_NEXT]:
         return False
     ws[WS_MOD_NEXT] += wp[WP_MOD_CYCLE]
-    has_speed = np.isfinite(doppler_mps)
-    notch = modulator_update_1(
-        ws[WS_MOD : WS_MOD + MOD_SIZE],
-        table,
-        wp[WP_MOD_HOLD],
-        wp[WP_BASE_DELAY],
-        ws[WS_TARGET],
-        True,
-        wp[WP_MOD_CYCLE],
-        doppler_mps if has_speed else 0.0,
-        has_speed,
-    )
-    notch, delta = _modulated_notch_1(ws, wp, notch, now_s)
+    notch, delta = _modulated_notch_1(ws, wp, _modulator_cycle_1(ws, wp, table, doppler_mps), now_s)
     if delta == 0 and (int(wp[WP_FORM]) == 8 or notch == int(tele[TEL_NOTCH])):
         return False
     ws[WS_SENT] += 1.0
@@ -482,11 +488,12 @@ def wayside_command_1(
 ) -> bool:
     """The command due now: measure, close the loop, plan; the telegram into ``tele``, its
     record (CR_*: SPEC §1 claims 8, 20) into ``record``; True when the telegram is to be sent."""
-    if ws[WS_SENT] == 0.0 and wp[WP_INITIAL_DECEL] > 0.0:
+    if wp[WP_INITIAL_DECEL] > 0.0 and not np.isfinite(hist_e[0]):
         # The train's own initial brake step from the zone's first transponder, at the first
         # detector (tasc.initial_brake_notch): the wayside's database knows it, so its model of
         # the train brakes from that passage on instead of holding the speed. [interpretation]
-        # Configs 1 and 2 replace it with the first command, as the model's history does.
+        # Configs 1 and 2 replace it with the first command, as the model's history does. Once,
+        # into the empty history (a form-8 command that changes no notch is planned, not sent).
         first_x = wp[WP_STOP] - det_to_stop[0]
         for j in range(3):
             if pass_x[j] == first_x and np.isfinite(pass_t[j]):
@@ -545,13 +552,9 @@ def wayside_command_1(
         # [interpretation] SPEC §1 names the forms only; a notch command held from one detector
         # to the next cannot stop a train within a notch's worth of deceleration.
         ws[WS_TARGET] = command
-        wmod = ws[WS_MOD : WS_MOD + MOD_SIZE]
-        modulator_restart_1(wmod)
-        notch = modulator_update_1(
-            wmod, table, wp[WP_MOD_HOLD], wp[WP_BASE_DELAY], command, True, wp[WP_MOD_CYCLE], speed, True
-        )
+        modulator_restart_1(ws[WS_MOD : WS_MOD + MOD_SIZE])
         ws[WS_MOD_NEXT] = now_s + wp[WP_MOD_CYCLE]
-        notch, delta = _modulated_notch_1(ws, wp, notch, now_s)
+        notch, delta = _modulated_notch_1(ws, wp, _modulator_cycle_1(ws, wp, table, speed), now_s)
     if form >= 6:  # forms 1-5: the train computes its own command from the measurements
         history_push_1(hist_v, hist_e, command, effect)
     # Form 8 says only "more" or "less": a command that changes no notch is not sent (the cyclic
