@@ -181,7 +181,7 @@ def test_wayside_guard_sends_an_emergency_stop() -> None:
     )
     ws = np.empty(WS_SIZE)
     hv, he, pt, px = np.empty(HISTORY), np.empty(HISTORY), np.empty(3), np.empty(3)
-    wayside_init_1(ws, hv, he, pt, px)
+    wayside_init_1(ws, model.wp, hv, he, pt, px)
     dbuf = np.zeros(model.window)
     det = model.det_pos
     last = det.size - 1

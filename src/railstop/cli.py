@@ -277,6 +277,18 @@ def stop(
         highlight=False,
         soft_wrap=True,
     )
+    wayside = []
+    if result.brake_delay_identified_s is not None:
+        wayside.append(
+            f"brake response identified from the Doppler: equivalent dead time "
+            f"{result.brake_delay_identified_s:.2f} s (radio + dead time + lag; nominal "
+            f"{st.tasc.assumed_link_latency_s + veh.brake.dead_time_s + veh.brake.time_constant_s:.2f} s), "
+            f"lag {result.brake_lag_identified_s:.2f} s (nominal {veh.brake.time_constant_s:.2f} s)"
+        )
+    if result.detectors_filled:
+        wayside.append(f"{result.detectors_filled} missed detector passage(s) filled in from the Doppler")
+    if wayside:
+        out.print("wayside: " + "; ".join(wayside), highlight=False, soft_wrap=True)
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)
 

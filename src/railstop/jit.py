@@ -48,6 +48,7 @@ JIT_MODULES: tuple[str, ...] = (
     "sim/corrected_position.py",
     "control/notch.py",
     "control/tasc.py",
+    "control/brake_ident.py",
     "control/supervision.py",
     "wayside/tasc_unit.py",
     "onboard/tasc_receiver.py",

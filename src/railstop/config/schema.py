@@ -68,6 +68,12 @@ class TascZone(_Model):
     continuous_period_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
     signal_form: Annotated[int, Field(ge=1, le=8)] = 6
     assumed_link_latency_s: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    # Identify the brake response (dead time, lag) online from the Doppler radar once the
+    # first braking command has acted, and plan with it (beyond SPEC §1: control.brake_ident).
+    identify_brake_response: bool = True
+    # Fill in a missed detector's passage from the Doppler-integrated travel (beyond SPEC §1:
+    # wayside.tasc_unit.wayside_passage_1).
+    fill_missed_detectors: bool = True
     # Cyclic transmission: the latest telegram is repeated at this period
     # (the train discards repeats it already has), so one lost copy costs a
     # period, not the command.

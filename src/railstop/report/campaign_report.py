@@ -75,6 +75,9 @@ RESULT_COLUMNS: tuple[str, ...] = (
     "slid",
     "emergency_brake",
     "emergency_brake_s",
+    "brake_delay_identified_s",
+    "brake_lag_identified_s",
+    "detectors_filled",
 )
 # The report cannot be written without these.
 _REQUIRED_COLUMNS: tuple[str, ...] = (

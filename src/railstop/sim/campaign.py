@@ -81,7 +81,9 @@ DISK_BYTES_PER_VALUE = 8
 # calibrates its tachometer and fits its deceleration over the interval between commands;
 # forms 7 and 8 are modulated by the wayside; the wayside models the train's own initial brake
 # step. Form 6 runs without an initial brake step are unchanged.
-MODEL_VERSION = 6
+# 7: the wayside identifies the brake response (dead time, lag) from its radar after the first
+# braking command and plans with it (control.brake_ident); two result columns for it.
+MODEL_VERSION = 7
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -192,6 +194,13 @@ def _chunk_table(first_run: int, result: BatchResult, drawn: dict[str, np.ndarra
         "emergency_brake": result.emergency_brake.astype(np.int64),
         # Null where none was applied (a NaN would make equal tables compare unequal).
         "emergency_brake_s": pa.array(result.emergency_brake_s, mask=np.isnan(result.emergency_brake_s)),
+        "brake_delay_identified_s": pa.array(
+            result.brake_delay_identified_s, mask=np.isnan(result.brake_delay_identified_s)
+        ),
+        "brake_lag_identified_s": pa.array(
+            result.brake_lag_identified_s, mask=np.isnan(result.brake_lag_identified_s)
+        ),
+        "detectors_filled": result.detectors_filled,
     }
     for name, values in drawn.items():
         cols[name] = np.asarray(values)

@@ -71,6 +71,11 @@ class BatchResult:
     # it was applied, from the first detector (NaN: never).
     emergency_brake: IntArray
     emergency_brake_s: FloatArray
+    # The brake response the wayside identified from its radar (control.brake_ident): equivalent
+    # dead time and build-up lag, NaN where it did not (no radar, no braking step, no fit).
+    brake_delay_identified_s: FloatArray
+    brake_lag_identified_s: FloatArray
+    detectors_filled: IntArray  # passages the wayside filled in from its radar (missed detectors)
     detector_passages_s: FloatArray  # (n, D) true passage times (NaN if never)
     trace: Trace | None = None
     commands: list[dict[str, Any]] = field(default_factory=list)
@@ -99,6 +104,9 @@ def run_batch(
         RES_EB,
         RES_EB_T,
         RES_ERROR,
+        RES_FILLED,
+        RES_ID_DELAY,
+        RES_ID_LAG,
         RES_MAX_JERK,
         RES_NOTCH_CHANGES,
         RES_RECEIVED,
@@ -149,6 +157,9 @@ def run_batch(
         slid=res[:, RES_SLID] > 0.0,
         emergency_brake=res[:, RES_EB].astype(np.int64),
         emergency_brake_s=res[:, RES_EB_T].copy(),
+        brake_delay_identified_s=res[:, RES_ID_DELAY].copy(),
+        brake_lag_identified_s=res[:, RES_ID_LAG].copy(),
+        detectors_filled=res[:, RES_FILLED].astype(np.int64),
         detector_passages_s=passages,
         trace=trace,
         commands=commands,

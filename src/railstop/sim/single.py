@@ -44,6 +44,12 @@ class StopResult:
     # Config 2 (SPEC §1 claims 12-14): when the switching unit had changed the brake ECU's input
     # over to the onboard unit, from the first detector (None: no switching unit, or no change).
     switch_over_s: float | None = None
+    # The wayside's robust loop (control.brake_ident, wayside_passage_1): the brake response it
+    # identified from its radar (equivalent dead time and lag; None: not identified) and the
+    # passages of missed detectors it filled in.
+    brake_delay_identified_s: float | None = None
+    brake_lag_identified_s: float | None = None
+    detectors_filled: int = 0
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
     psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
@@ -65,6 +71,10 @@ class StopResult:
         if self.disturbances is not None:
             return f"{key}|disturbances={self.disturbances}|run={self.run}"
         return f"{key}|load={self.load_factor:g}|gain={self.brake_gain:g}"
+
+
+def _finite_or_none(x: float) -> float | None:
+    return round(float(x), 3) if np.isfinite(x) else None
 
 
 def _switch_over_s(batch: BatchResult) -> float | None:
@@ -137,6 +147,9 @@ def run_stop(
     )
     result = StopResult(
         switch_over_s=_switch_over_s(batch),
+        brake_delay_identified_s=_finite_or_none(batch.brake_delay_identified_s[0]),
+        brake_lag_identified_s=_finite_or_none(batch.brake_lag_identified_s[0]),
+        detectors_filled=int(batch.detectors_filled[0]),
         controller=controller,
         station=station.name,
         line=line.line.name,

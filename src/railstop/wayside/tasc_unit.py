@@ -17,6 +17,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.control.brake_ident import MIN_STEP_MPS2, identify_response_1
 from railstop.control.notch import (
     MOD_SIZE,
     modulator_init_1,
@@ -163,7 +164,11 @@ WP_MOD_HOLD = 15  # ... holding a notch at least this long (the train's brake co
 WP_STEP_SPACING = 16  # form 8: one step telegram at most this often
 WP_INITIAL_DECEL = 17  # the train's own initial brake step in the zone (tasc.initial_brake_notch)
 WP_INITIAL_DELAY = 18  # ... acts this long after the first detector (dead time + lag, no radio)
-WP_SIZE = 19
+WP_IDENTIFY = 19  # identify the brake response online from the Doppler samples (control.brake_ident)
+WP_ID_AFTER = 20  # ... this long after the first command that steps the braking enough
+WP_FIT_SAMPLES = 21  # Doppler samples of the deceleration fit (the radar buffer may hold more)
+WP_FILL = 22  # fill in a missed detector's passage from the Doppler-integrated travel
+WP_SIZE = 23
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -184,7 +189,12 @@ WS_DECEL = 19  # the deceleration measured at the last command (the overrun guar
 WS_TARGET = 20  # forms 7, 8: the deceleration the notches realise (the last command; NaN: none)
 WS_MOD_NEXT = 21  # forms 7, 8: the next modulator cycle
 WS_LAST_STEP = 22  # form 8: when the last step telegram was sent
-WS_MOD = 23  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
+WS_DELAY = 23  # the equivalent dead time the plan uses (WP_BASE_DELAY until identified)
+WS_LAG = 24  # the build-up lag the plan uses (WP_LAG until identified)
+WS_ID_AT = 25  # when the brake response is to be identified (inf: not due, or done)
+WS_ID_GAIN = 26  # the loop gain the identification found (NaN: not identified)
+WS_FILLED = 27  # detector passages filled in from the Doppler (wayside_passage_1)
+WS_MOD = 28  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
 WS_SIZE = WS_MOD + MOD_SIZE
 
 # Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
@@ -222,9 +232,18 @@ _PASSAGE_FRAC = (np.arange(16) + 0.5) / 16
 
 @njit_step
 def wayside_init_1(
-    ws: FloatArray, hist_v: FloatArray, hist_e: FloatArray, pass_t: FloatArray, pass_x: FloatArray
+    ws: FloatArray,
+    wp: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    pass_t: FloatArray,
+    pass_x: FloatArray,
 ) -> None:
     ws[:] = 0.0
+    ws[WS_DELAY] = wp[WP_BASE_DELAY]
+    ws[WS_LAG] = wp[WP_LAG]
+    ws[WS_ID_AT] = np.inf
+    ws[WS_ID_GAIN] = np.nan
     ws[WS_COL] = -1.0
     ws[WS_LAST_DET] = -1.0
     ws[WS_LAST_PASS] = np.nan
@@ -238,6 +257,44 @@ def wayside_init_1(
     hist_e[:] = np.inf
     pass_t[:] = np.nan
     pass_x[:] = np.nan
+
+
+#: A missed detector's passage is filled in once the Doppler-integrated travel is this far
+#: beyond it (m): well beyond a passage's report (one 10 ms step, 0.2 m at 70 km/h, plus the
+#: sensor's jitter), well short of the next detector.
+FILL_MARGIN_M = 0.5
+
+
+@njit_inline
+def wayside_passage_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    pass_x: FloatArray,
+    det_pos: FloatArray,
+    now_s: float,
+    passed: bool,
+    detector: int,
+    passage_s: float,
+    doppler_mps: float,
+) -> tuple[bool, int, float]:
+    """The detector passage the wayside unit takes this step: (passed, detector, passage time).
+
+    Issue 13 item 6, beyond SPEC §1 (which assumes every detector reports): with a Doppler
+    radar the unit knows how far the train has run since the last passage; once that is
+    ``FILL_MARGIN_M`` beyond the next detector and no passage came, the detector missed the
+    train, and the unit fills in its passage (the time from the travel and the speed) so the
+    command of that detector is not lost. A late report of a detector already filled in is
+    ignored. Without a radar, or before the first passage, nothing is filled in."""
+    last = int(ws[WS_LAST_DET])
+    if passed:
+        return detector > last, detector, passage_s
+    if wp[WP_FILL] == 0.0 or last < 0 or last + 1 >= det_pos.size or not (doppler_mps > 0.0):
+        return False, detector, passage_s
+    over = ws[WS_TRAVEL] - (det_pos[last + 1] - pass_x[2])
+    if over < FILL_MARGIN_M:
+        return False, detector, passage_s
+    ws[WS_FILLED] += 1.0
+    return True, last + 1, now_s - over / doppler_mps
 
 
 @njit_inline
@@ -281,7 +338,7 @@ def wayside_observe_1(
             doppler_mps,
             ws[WS_DECEL],
             wp[WP_STOP] + wp[WP_END_MARGIN] - pass_x[2] - ws[WS_TRAVEL],
-            wp[WP_BASE_DELAY],
+            max(wp[WP_BASE_DELAY], ws[WS_DELAY]),
             wp[WP_GUARD_LIMIT],
         )
     ):
@@ -306,6 +363,62 @@ def wayside_observe_1(
 
 
 @njit_step
+def wayside_identify_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    dbuf: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    det_to_stop: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    scratch: FloatArray,
+    now_s: float,
+) -> None:
+    """Identify the brake response once, ``WP_ID_AFTER`` after the first braking command
+    (control.brake_ident; issue 13 item 6, beyond SPEC §1), when the step was large enough to
+    show it. The plan from then on uses the identified equivalent dead time and lag, and the
+    effect times of the commands already sent move with it. The overrun guard keeps the larger
+    of the nominal and the identified delay (an estimate never makes supervision laxer)."""
+    if not (now_s >= ws[WS_ID_AT]) or ws[WS_ID_AT] == -np.inf:
+        return
+    ws[WS_ID_AT] = -np.inf  # once
+    step = 0.0
+    for j in range(hist_v.size):
+        if np.isfinite(hist_e[j]):
+            step = max(step, hist_v[j])
+    if step < MIN_STEP_MPS2:
+        return
+    newest = int(ws[WS_COL])
+    speed = dbuf[newest]
+    distance = det_to_stop[int(ws[WS_LAST_DET])] - ws[WS_TRAVEL]
+    delay, lag, gain = identify_response_1(
+        dbuf,
+        newest,
+        int(ws[WS_DCOUNT]),
+        wp[WP_DT],
+        now_s,
+        ws[WS_FIRST_SENT],
+        external_decel_1(ext, grad, distance, speed),
+        hist_v,
+        hist_e,
+        ws[WS_DELAY],
+        wp[WP_BASE_DELAY],
+        wp[WP_LAG],
+        scratch,
+    )
+    if not np.isfinite(delay):
+        return
+    shift = delay - ws[WS_DELAY]
+    for j in range(hist_e.size):
+        if np.isfinite(hist_e[j]):
+            hist_e[j] += shift
+    ws[WS_DELAY] = delay
+    ws[WS_LAG] = lag
+    ws[WS_ID_GAIN] = gain
+
+
+@njit_step
 def _wayside_measure_1(
     ws: FloatArray,
     wp: FloatArray,
@@ -327,7 +440,7 @@ def _wayside_measure_1(
     dt = wp[WP_DT]
     last_det = int(ws[WS_LAST_DET])
     if wp[WP_HAS_DOPPLER] > 0.0:
-        count = int(ws[WS_DCOUNT])
+        count = min(int(ws[WS_DCOUNT]), int(wp[WP_FIT_SAMPLES]))
         speed, decel = fit_ring_1(dbuf, int(ws[WS_COL]), count, dt, int(wp[WP_SPEED_SAMPLES]))
         # Prefer the interval since the last command took effect when it is longer: the
         # deceleration over the whole interval between commands (a brake controller
@@ -347,7 +460,7 @@ def _wayside_measure_1(
             taus,
             REG_WEIGHTS,
             ws[WS_FIRST_SENT],
-            wp[WP_LAG],
+            ws[WS_LAG],
             ext,
             grad,
             distance,
@@ -384,7 +497,7 @@ def _wayside_measure_1(
         _, decel = fit_passages_1(pass_t, pass_x, count)
         hat_weights_1(pass_t[0], t1, t2, taus, weights)
         cmd_mean, ext_mean = modelled_means_1(
-            hist_v, hist_e, taus, weights, first, wp[WP_LAG], ext, grad, distance, speed, decel, now_s
+            hist_v, hist_e, taus, weights, first, ws[WS_LAG], ext, grad, distance, speed, decel, now_s
         )
     return speed, decel, distance, cmd_mean, ext_mean
 
@@ -398,7 +511,7 @@ def _modulator_cycle_1(ws: FloatArray, wp: FloatArray, table: FloatArray, speed_
         ws[WS_MOD : WS_MOD + MOD_SIZE],
         table,
         wp[WP_MOD_HOLD],
-        wp[WP_BASE_DELAY],
+        ws[WS_DELAY],
         ws[WS_TARGET],
         True,
         wp[WP_MOD_CYCLE],
@@ -518,7 +631,11 @@ def wayside_command_1(
     interval = pass_t[2] - pass_t[1]
     ws[WS_DECEL] = decel if np.isfinite(decel) else 0.0
     if ws[WS_EMERGENCY] == 0.0 and overrun_guard_1(
-        speed, ws[WS_DECEL], distance + wp[WP_END_MARGIN], wp[WP_BASE_DELAY], wp[WP_GUARD_LIMIT]
+        speed,
+        ws[WS_DECEL],
+        distance + wp[WP_END_MARGIN],
+        max(wp[WP_BASE_DELAY], ws[WS_DELAY]),
+        wp[WP_GUARD_LIMIT],
     ):
         ws[WS_EMERGENCY] = 1.0  # DESIGN rule 10: the overrun guard at a command (both variants)
     # Loop closure (SPEC §1 claims 2, 19) and the next command.
@@ -533,7 +650,7 @@ def wayside_command_1(
         hist_v,
         hist_e,
         gain,
-        wp[WP_BASE_DELAY],
+        ws[WS_DELAY],
         wp[WP_JERK],
         wp[WP_MAX_DECEL],
         ext,
@@ -564,6 +681,14 @@ def wayside_command_1(
         ws[WS_SENT] += 1.0
     if command > 0.0:  # the train holds its speed (its own traction control) until told to brake
         ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], now_s)
+    if (
+        wp[WP_IDENTIFY] > 0.0
+        and ws[WS_ID_AT] == np.inf
+        and abs(command - history_value_at_1(hist_v, hist_e, now_s)) >= MIN_STEP_MPS2
+    ):
+        # The first command that steps the braking enough to show the response: identify it
+        # once its build-up is in the radar's buffer (wayside_identify_1).
+        ws[WS_ID_AT] = now_s + wp[WP_ID_AFTER]
     # The next measurement interval starts when this command takes effect.
     ws[WS_WIN_START] = effect
     interval_fit_reset_1(ws, WS_SUMS)
