@@ -64,6 +64,11 @@ def main() -> None:
     print(f"  tasc-pwm within ±0.30 m >= 99.9 %: {100 * pwm['within_0_30']:.3f} %")
     print(f"  tasc-step within ±0.35 m >= 99.5 %: {100 * step['within_0_35']:.3f} %")
     print(f"  tasc-pwm P(error > +0.35 m) 95 % upper bound <= 1e-4: {pwm['overrun_ci95_upper']:.2e}")
+    print(
+        f"    apart: {pwm['overruns_low_adhesion']} overruns in the {pwm['low_adhesion_runs']:,} runs that "
+        f"met a low-adhesion patch; {pwm['overruns_no_low_adhesion']} in the other "
+        f"{args.runs - pwm['low_adhesion_runs']:,}, bound {pwm['overrun_ci95_upper_no_low_adhesion']:.2e}"
+    )
 
 
 if __name__ == "__main__":

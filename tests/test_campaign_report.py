@@ -223,6 +223,39 @@ def test_summary_stats_bound_matches_beta_on_a_campaign() -> None:
     assert s["within_0_35"] == pytest.approx((1_000 - 6) / 1_000)
 
 
+def test_summary_stats_reports_the_low_adhesion_runs_apart() -> None:
+    """Overruns split by whether the run met a low-adhesion patch; the bound over the others."""
+    error = np.array([0.5, 0.9, 0.1, -0.2, 0.4, 0.0, 0.1, 0.2])
+    patch = np.array([True, True, True, False, False, False, False, False])
+    n = error.size
+    ones = np.ones(n)
+    s = summary_stats(
+        error,
+        ones,
+        ones,
+        np.ones(n, dtype=bool),
+        np.zeros(n, dtype=bool),
+        tolerance_m=0.35,
+        low_adhesion=patch,
+    )
+    assert s["overruns"] == 3
+    assert (s["low_adhesion_runs"], s["overruns_low_adhesion"], s["overruns_no_low_adhesion"]) == (3, 2, 1)
+    assert s["overrun_ci95_upper_no_low_adhesion"] == pytest.approx(beta.ppf(0.95, 2, 4))
+    assert "low_adhesion_runs" not in summary_stats(
+        error, ones, ones, np.ones(n, dtype=bool), np.zeros(n, dtype=bool), tolerance_m=0.35
+    )
+    with pytest.raises(RailstopError, match="low_adhesion"):
+        summary_stats(
+            error,
+            ones,
+            ones,
+            np.ones(n, dtype=bool),
+            np.zeros(n, dtype=bool),
+            tolerance_m=0.35,
+            low_adhesion=patch[:2],
+        )
+
+
 def test_summary_stats_rejects_mismatched_columns() -> None:
     with pytest.raises(RailstopError, match="stopped"):
         summary_stats(

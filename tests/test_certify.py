@@ -97,7 +97,10 @@ def test_weights_are_exact_likelihood_ratios() -> None:
 
 def test_agrees_with_plain_monte_carlo_near_one_in_a_thousand() -> None:
     """Plain Monte Carlo through the campaign's own draws (30,000 runs, ~1e-3) against importance
-    sampling on 10,000 runs: each estimate lies in the other's interval."""
+    sampling on 10,000 runs: the plain estimate lies in the sampler's interval, and the two
+    estimates differ by less than three standard errors of their difference (each estimate
+    inside the other's 99 % interval is too strict a check for two noisy estimates: it fails
+    about one time in fifty when both are right)."""
     result, _ = simulate_runs(
         station=LINE.station("Riverside"),
         vehicle=VEHICLE,
@@ -114,8 +117,11 @@ def test_agrees_with_plain_monte_carlo_near_one_in_a_thousand() -> None:
     r = certify(
         _spec(), runs=10_000, target=1e-6, confidence=0.99, tuning_runs=2_000, max_levels=3, workers=2
     )
-    assert lo_mc <= r.estimate <= hi_mc, (r.estimate, lo_mc, hi_mc)
+    assert lo_mc < hi_mc
     assert r.lower <= p_mc <= r.upper_two_sided, (p_mc, r.lower, r.upper_two_sided)
+    se_mc = math.sqrt(p_mc * (1.0 - p_mc) / 30_000)
+    se_is = (r.upper_two_sided - r.lower) / (2.0 * 2.576)  # the 99 % interval's half-width / z
+    assert abs(r.estimate - p_mc) < 3.0 * math.hypot(se_mc, se_is), (r.estimate, p_mc, se_mc, se_is)
     assert r.upper >= r.estimate
     # the tuned proposal made the overruns more common per run (that is the point of it; since the
     # supervision turns a lost radio into an emergency brake short of the stop, only detector misses

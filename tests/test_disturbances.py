@@ -90,7 +90,7 @@ def big_draw(standard: DisturbanceSet) -> tuple[Scenario, dict[str, np.ndarray]]
 
 
 def test_builtin_sets_load(standard: DisturbanceSet) -> None:
-    assert builtin_sets() == ["loss-95", "nominal", "outage-after-first", "standard", "wide"]
+    assert builtin_sets() == ["control-law", "loss-95", "nominal", "outage-after-first", "standard", "wide"]
     assert standard.name == "standard"
     assert standard.source == "railstop/data/disturbances/standard.toml"
     assert standard.description
@@ -101,6 +101,10 @@ def test_builtin_sets_load(standard: DisturbanceSet) -> None:
     assert nominal.source == "railstop/data/disturbances/nominal.toml"
     assert nominal.params == {}
     assert nominal.to_dict() == {"description": nominal.description}
+    # The control law alone: the standard set without odometer error and low adhesion.
+    law = load_disturbances("control-law")
+    differ = {k for k in PARAMETERS if law.params.get(k) != standard.params.get(k)}
+    assert differ == {"odometer_diameter_error_pct", "low_adhesion_probability"}
 
 
 def test_standard_matches_the_issue_table(standard: DisturbanceSet) -> None:

@@ -172,7 +172,8 @@ def stop(
     disturbances: Annotated[
         str | None,
         typer.Option(
-            help="Replay a campaign run drawn from this set: standard, wide, nominal or a TOML file."
+            help="Replay a campaign run drawn from this set: standard, wide, nominal, control-law, "
+            "loss-95, outage-after-first or a TOML file."
         ),
     ] = None,
     run: Annotated[int, typer.Option(min=0, help="The campaign run to replay (with --disturbances).")] = 0,
@@ -464,7 +465,11 @@ def demo(
 
 
 DisturbancesOpt = Annotated[
-    str, typer.Option(help="Disturbance set: standard, wide, nominal or a TOML file.")
+    str,
+    typer.Option(
+        help="Disturbance set: standard, wide, nominal, control-law, loss-95, outage-after-first "
+        "or a TOML file."
+    ),
 ]
 WorkersOpt = Annotated[
     int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")

@@ -123,7 +123,8 @@ def position_run(
         str | None,
         typer.Option(
             help="Take wheel_diameter_mm, odometer_diameter_error_pct and low_adhesion_* from this set "
-            "(standard, wide, nominal or a TOML file), drawn for --run; explicit options win."
+            "(standard, wide, nominal, control-law, loss-95, outage-after-first or a TOML file), "
+            "drawn for --run; explicit options win."
         ),
     ] = None,
     diameter_error_pct: Annotated[

@@ -127,6 +127,7 @@ def summary_stats(
     tolerance_m: float,
     emergency_brake: Sequence[int] | np.ndarray | None = None,
     platform_end_m: float | None = None,
+    low_adhesion: Sequence[bool] | np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The summary statistics of one controller's campaign, from its result columns.
 
@@ -147,7 +148,12 @@ def summary_stats(
     ``emergency_brakes`` (count), ``emergency_brakes_by_cause`` (name -> count)
     and ``silent_misses``, runs outside the tolerance that no emergency brake
     stopped. With ``platform_end_m`` (the platform end beyond the stopping
-    point): ``past_platform_end``, runs whose front ended beyond it.
+    point): ``past_platform_end``, runs whose front ended beyond it. With
+    ``low_adhesion`` (the runs that met a low-adhesion patch): the overruns
+    reported apart, ``low_adhesion_runs``, ``overruns_low_adhesion`` and, over
+    the runs that met none, ``overruns_no_low_adhesion`` with its bound
+    ``overrun_ci95_upper_no_low_adhesion`` (no stop law answers for a patch
+    whose adhesion cannot give the braking the distance left needs).
     """
     if not (math.isfinite(tolerance_m) and tolerance_m > 0.0):
         raise RailstopError(f"summary_stats: tolerance_m must be a positive number (got {tolerance_m})")
@@ -197,6 +203,27 @@ def summary_stats(
         "not_stopped": int(np.count_nonzero(~is_stopped)),
         "slid": int(np.count_nonzero(has_slid)),
         **_fail_safe_stats(error, ok & (abs_error <= tolerance_m), emergency_brake, platform_end_m),
+        **_adhesion_stats(error > tolerance_m, low_adhesion),
+    }
+
+
+def _adhesion_stats(overrun: np.ndarray, low_adhesion: Sequence[bool] | np.ndarray | None) -> dict[str, Any]:
+    if low_adhesion is None:
+        return {}
+    patch = np.asarray(low_adhesion, dtype=bool).ravel()
+    if patch.size != overrun.size:
+        raise RailstopError(
+            f"summary_stats: low_adhesion: {patch.size} values for {overrun.size} stop errors"
+        )
+    dry = int(np.count_nonzero(~patch))
+    dry_overruns = int(np.count_nonzero(overrun & ~patch))
+    return {
+        "low_adhesion_runs": int(np.count_nonzero(patch)),
+        "overruns_low_adhesion": int(np.count_nonzero(overrun & patch)),
+        "overruns_no_low_adhesion": dry_overruns,
+        "overrun_ci95_upper_no_low_adhesion": clopper_pearson_upper(dry_overruns, dry, CONFIDENCE)
+        if dry
+        else math.nan,
     }
 
 

@@ -526,7 +526,15 @@ def run_campaign(
     )
 
 
-SUMMARY_COLUMNS = ("stop_error_m", "max_jerk_mps3", "stop_time_s", "stopped", "slid", "emergency_brake")
+SUMMARY_COLUMNS = (
+    "stop_error_m",
+    "max_jerk_mps3",
+    "stop_time_s",
+    "stopped",
+    "slid",
+    "emergency_brake",
+    "low_adhesion",  # drawn with every run (draw_scenario)
+)
 
 
 def merge_chunks(spec: CampaignSpec, out: Path) -> None:
@@ -564,6 +572,7 @@ def summarise(table: pa.Table, *, tolerance_m: float, platform_end_m: float | No
         tolerance_m=tolerance_m,
         emergency_brake=col("emergency_brake") if "emergency_brake" in table.column_names else None,
         platform_end_m=platform_end_m,
+        low_adhesion=col("low_adhesion") if "low_adhesion" in table.column_names else None,
     )
     return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}
 

@@ -191,10 +191,11 @@ WS_MOD_NEXT = 21  # forms 7, 8: the next modulator cycle
 WS_LAST_STEP = 22  # form 8: when the last step telegram was sent
 WS_DELAY = 23  # the equivalent dead time the plan uses (WP_BASE_DELAY until identified)
 WS_LAG = 24  # the build-up lag the plan uses (WP_LAG until identified)
-WS_ID_AT = 25  # when the brake response is to be identified (inf: not due, or done)
+WS_ID_AT = 25  # when the brake response is to be identified (inf: not due)
 WS_ID_GAIN = 26  # the loop gain the identification found (NaN: not identified)
 WS_FILLED = 27  # detector passages filled in from the Doppler (wayside_passage_1)
-WS_MOD = 28  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
+WS_ID_DONE = 28  # 1 once the identification ran (whatever it found)
+WS_MOD = 29  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
 WS_SIZE = WS_MOD + MOD_SIZE
 
 # Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
@@ -380,9 +381,10 @@ def wayside_identify_1(
     show it. The plan from then on uses the identified equivalent dead time and lag, and the
     effect times of the commands already sent move with it. The overrun guard keeps the larger
     of the nominal and the identified delay (an estimate never makes supervision laxer)."""
-    if not (now_s >= ws[WS_ID_AT]) or ws[WS_ID_AT] == -np.inf:
+    if not (now_s >= ws[WS_ID_AT]):
         return
-    ws[WS_ID_AT] = -np.inf  # once
+    ws[WS_ID_AT] = np.inf  # once: not due again
+    ws[WS_ID_DONE] = 1.0
     step = 0.0
     for j in range(hist_v.size):
         if np.isfinite(hist_e[j]):
@@ -683,6 +685,7 @@ def wayside_command_1(
         ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], now_s)
     if (
         wp[WP_IDENTIFY] > 0.0
+        and ws[WS_ID_DONE] == 0.0
         and ws[WS_ID_AT] == np.inf
         and abs(command - history_value_at_1(hist_v, hist_e, now_s)) >= MIN_STEP_MPS2
     ):
