@@ -102,6 +102,10 @@ LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (de
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
 ]
+OperationOpt = Annotated[
+    Path | None,
+    typer.Option("--operation", help="Operation TOML file: trains, headway, dwells (default: embedded)."),
+]
 FormOpt = Annotated[
     int | None,
     typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),
@@ -132,15 +136,17 @@ def _controller(name: str) -> str:
 
 
 @app.command()
-def check(line: LineOpt = None, vehicle: VehicleOpt = None) -> None:
-    """Validate a line file (and optionally a vehicle file)."""
+def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: OperationOpt = None) -> None:
+    """Validate a line file (and optionally a vehicle and an operation file)."""
     from railstop.config import load_line, load_vehicle
     from railstop.config.loader import line_source
+    from railstop.config.operation import load_operation
     from railstop.config.plausibility import plausibility_problems
 
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
+        op = load_operation(operation, ln)
     except RailstopError as exc:
         fail(str(exc))
     problems = plausibility_problems(ln, veh, line_source(line))
@@ -149,10 +155,16 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None) -> None:
             print_error(str(problem))
         fail(str(problems[-1]))
     src = str(line) if line else "embedded default line"
+    blocks = len(ln.signalling.blocks) if ln.signalling is not None else 0
+    entry = (
+        f"every {op.headway_s:g} s" if op.entries_s is None else f"at {len(op.entries_s)} timetabled times"
+    )
     out.print(
         f"ok: {src}: line {ln.line.name!r}, {len(ln.stations)} stations "
-        f"({', '.join(s.name for s in ln.stations)}); vehicle {veh.name!r}",
+        f"({', '.join(s.name for s in ln.stations)}), {len(ln.segments)} segments, {blocks} blocks; "
+        f"vehicle {veh.name!r}; operation: {op.trains} trains {entry} ({op.controller})",
         highlight=False,
+        soft_wrap=True,
     )
 
 

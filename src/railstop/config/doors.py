@@ -13,7 +13,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from railstop.config.loader import _data_text, read_toml, validate
+from railstop.config.loader import data_text, read_toml, validate
 from railstop.config.schema import FieldProblem, _Model
 from railstop.control.doors import Action, ActionRow, ActionTable
 
@@ -153,7 +153,7 @@ class DoorsConfig:
 def load_doors(path: str | Path | None = None) -> DoorsConfig:
     """Load a door data file; ``None`` gives the embedded default."""
     if path is None:
-        source, data = _data_text(DEFAULT_DOORS)
+        source, data = data_text(DEFAULT_DOORS)
     else:
         source, data = str(path), read_toml(Path(path))
     return DoorsConfig(validate(DoorsFile, data, source), source)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -29,6 +30,11 @@ def format_loc(loc: tuple[int | str, ...]) -> str:
     return out or "(top level)"
 
 
+def parse_loc(path: str) -> tuple[int | str, ...]:
+    """``stations[1].tasc.x`` -> ``('stations', 1, 'tasc', 'x')`` (the inverse of format_loc)."""
+    return tuple(int(p[1:-1]) if p.startswith("[") else p for p in re.findall(r"\[\d+\]|[^.\[\]]+", path))
+
+
 def _lookup(data: Any, loc: tuple[int | str, ...]) -> Any:
     cur = data
     for part in loc:
@@ -51,7 +57,7 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
         problem = (err.get("ctx") or {}).get("error")
         if isinstance(problem, FieldProblem):
             # A whole-model check about one field: name that field and its value.
-            loc = (*loc, problem.field)
+            loc = (*loc, *parse_loc(problem.field))
         value = err.get("input") if err["type"] != "missing" else None
         if isinstance(value, dict):
             # A model-level check: report the field it talks about where we can.
@@ -77,7 +83,7 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(str(path), "(toml syntax)", str(exc)) from None
 
 
-def _data_text(name: str) -> tuple[str, dict[str, Any]]:
+def data_text(name: str) -> tuple[str, dict[str, Any]]:
     ref = resources.files("railstop.data").joinpath(name)
     return f"railstop/data/{name}", tomllib.loads(ref.read_text(encoding="utf-8"))
 
@@ -90,7 +96,7 @@ def line_source(path: str | Path | None) -> str:
 def load_line(path: str | Path | None = None) -> Line:
     """Load a line file; ``None`` gives the embedded default line."""
     if path is None:
-        source, data = _data_text(DEFAULT_LINE)
+        source, data = data_text(DEFAULT_LINE)
     else:
         source, data = str(path), read_toml(Path(path))
     return validate(Line, data, source)
@@ -99,7 +105,7 @@ def load_line(path: str | Path | None = None) -> Line:
 def load_vehicle(path: str | Path | None = None) -> Vehicle:
     """Load a vehicle file; ``None`` gives the embedded default vehicle."""
     if path is None:
-        source, data = _data_text(DEFAULT_VEHICLE)
+        source, data = data_text(DEFAULT_VEHICLE)
     else:
         source, data = str(path), read_toml(Path(path))
     return validate(VehicleFile, data, source).vehicle

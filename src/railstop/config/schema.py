@@ -8,38 +8,27 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
-PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
-NonNegFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
-Fraction = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+from railstop.config.base import FieldProblem, FiniteFloat, Fraction, NonNegFloat, PositiveFloat, Stretch
+from railstop.config.base import Model as _Model
+from railstop.config.layout import (
+    Segment,
+    Signalling,
+    SpeedLimit,
+    check_blocks,
+    check_chain,
+    check_segments,
+    check_speed_limits,
+)
 
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, str_strip_whitespace=True)
-
-
-class FieldProblem(ValueError):
-    """A whole-model check that is about one field: the loader reports that field and its value."""
-
-    def __init__(self, field: str, message: str) -> None:
-        super().__init__(message)
-        self.field = field
+__all__ = ["FieldProblem", "FiniteFloat", "Fraction", "NonNegFloat", "PositiveFloat"]
 
 
-class GradientSegment(_Model):
+class GradientSegment(Stretch):
     """A constant gradient between two chainages; + is uphill in the R direction."""
 
-    start_m: FiniteFloat
-    end_m: FiniteFloat
     permille: Annotated[float, Field(ge=-60.0, le=60.0, allow_inf_nan=False)]
-
-    @model_validator(mode="after")
-    def _ordered(self) -> GradientSegment:
-        if self.end_m <= self.start_m:
-            raise FieldProblem("end_m", f"end_m must be greater than start_m ({self.start_m})")
-        return self
 
 
 class DopplerRadar(_Model):
@@ -182,7 +171,7 @@ class Station(_Model):
         return [self.stop_point_m - d for d in self.tasc.detectors_before_stop_m]
 
 
-class TrackCircuit(_Model):
+class TrackCircuit(Stretch):
     """SPEC §2: a track circuit; the onboard track-circuit DB maps its ID to the chainage of its start.
 
     ``kind``: "jointless" (audio-frequency, the electrical boundary is a tuned
@@ -191,34 +180,14 @@ class TrackCircuit(_Model):
     """
 
     id: Annotated[int, Field(ge=1, le=65535)]  # fits the 16 bits of an occupancy telegram
-    start_m: FiniteFloat
-    end_m: FiniteFloat
     kind: Literal["jointless", "insulated"] = "jointless"
 
-    @model_validator(mode="after")
-    def _ordered(self) -> TrackCircuit:
-        if self.end_m <= self.start_m:
-            raise FieldProblem(
-                "end_m", f"end_m must be greater than start_m ({self.start_m}), got {self.end_m}"
-            )
-        return self
 
-
-class Tunnel(_Model):
+class Tunnel(Stretch):
     """A GNSS shadow (SPEC §2); ``repeater`` = a satellite-signal repeater covers the whole section."""
 
     name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
-    start_m: FiniteFloat
-    end_m: FiniteFloat
     repeater: bool = False
-
-    @model_validator(mode="after")
-    def _ordered(self) -> Tunnel:
-        if self.end_m <= self.start_m:
-            raise FieldProblem(
-                "end_m", f"end_m must be greater than start_m ({self.start_m}), got {self.end_m}"
-            )
-        return self
 
 
 class TrackCircuitDetection(_Model):
@@ -265,28 +234,7 @@ class Track(_Model):
 
     @model_validator(mode="after")
     def _layout(self) -> Track:
-        seen: dict[int, int] = {}
-        for i, c in enumerate(self.circuits):
-            if c.id in seen:
-                raise FieldProblem(
-                    f"circuits[{i}].id",
-                    f"track circuit IDs must be unique: {c.id} is also circuits[{seen[c.id]}]",
-                )
-            seen[c.id] = i
-        if self.circuits and self.circuits[0].start_m != 0.0:
-            raise FieldProblem(
-                "circuits[0].start_m",
-                f"the first track circuit must start at chainage 0, got {self.circuits[0].start_m}",
-            )
-        for i in range(1, len(self.circuits)):
-            prev, cur = self.circuits[i - 1], self.circuits[i]
-            if cur.start_m != prev.end_m:
-                what = "overlaps" if cur.start_m < prev.end_m else "leaves a gap after"
-                raise FieldProblem(
-                    f"circuits[{i}].start_m",
-                    f"track circuits must be listed in order and contiguous: circuit {cur.id} starts at "
-                    f"{cur.start_m} m and {what} circuit {prev.id} ending at {prev.end_m} m",
-                )
+        check_chain(self.circuits, "circuits", "track circuit", "circuit")
         tunnels = sorted(enumerate(self.tunnels), key=lambda it: it[1].start_m)
         for (_, a), (j, b) in zip(tunnels, tunnels[1:], strict=False):
             if b.start_m < a.end_m:
@@ -313,6 +261,11 @@ class Line(_Model):
     stations: list[Station] = Field(min_length=1)
     # SPEC §2 track circuits, GNSS shadows, detection and clocks (empty: no position correction data).
     track: Track = Field(default_factory=Track)
+    # The line with many trains (config.layout): segments with IDs (SPEC §4), fixed-block
+    # signalling over the track circuits, civil speed limits. Empty / None: a line of single stops.
+    segments: list[Segment] = Field(default_factory=list)
+    signalling: Signalling | None = None
+    speed_limits: list[SpeedLimit] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _unique(self) -> Line:
@@ -351,6 +304,15 @@ class Line(_Model):
                     f"track.tunnels[{i}]",
                     f"tunnel {t.start_m} .. {t.end_m} m is not on the line (0 .. {end} m)",
                 )
+        return self
+
+    @model_validator(mode="after")
+    def _layout(self) -> Line:
+        end = self.line.length_m if self.line.length_m is not None else self.track.end_m
+        check_segments(self.segments, end)
+        if self.signalling is not None:
+            check_blocks(self.signalling.blocks, [c.id for c in self.track.circuits])
+        check_speed_limits(self.speed_limits, end)
         return self
 
     @property

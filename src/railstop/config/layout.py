@@ -1,0 +1,169 @@
+"""Line layout data for the line with many trains: segments, block signalling, speed limits.
+
+- **Segments** with IDs are what the CBTC zone controller protects (SPEC §4:
+  a protection zone covers every segment from a lost train's occupancy end to
+  its forward stop point). They cover the line from chainage 0, contiguous.
+- **Blocks** are the fixed-block signalling of the line before CBTC: each is
+  a run of consecutive track circuits (SPEC §2's circuits, so the block's
+  occupancy is the circuits' occupancy) with a signal at its entry. A train
+  may run into a block only when the signal at its entry shows proceed, i.e.
+  the block and the overlap beyond its end are clear. **[interpretation]**
+  the source documents describe CBTC and the stop; the fixed block is the
+  conventional baseline the line simulation needs until CBTC replaces it.
+- **Speed limits** are civil limits over a stretch (curves, turnouts); the
+  line's own limit applies elsewhere, and the lower of the two where both do.
+
+Every rule here is a check on data a railway engineer edits (DESIGN rule 6):
+a problem names the field and its value (``FieldProblem``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Annotated, Protocol
+
+from pydantic import Field
+
+from railstop.config.base import FieldProblem, Model, Stretch
+
+
+class Segment(Stretch):
+    """A track segment with an ID (SPEC §4: the zone controller's unit of protection)."""
+
+    id: Annotated[int, Field(ge=1, le=65535)]  # 16 bits, as in the CBTC telegrams
+
+
+class Block(Model):
+    """A fixed block: consecutive track circuits (listed in running order) and its entry signal."""
+
+    id: Annotated[str, Field(min_length=1, max_length=16)]
+    circuits: list[Annotated[int, Field(ge=1, le=65535)]] = Field(min_length=1)
+    signal: Annotated[str, Field(min_length=1, max_length=16)]
+
+
+class Signalling(Model):
+    """Fixed-block signalling: the blocks in running order and the safety distances."""
+
+    blocks: list[Block] = Field(min_length=1)
+    # The overlap: the stretch beyond a red signal that must be clear as well, for a train
+    # that stops a little past it (a common 50-200 m; this line runs ATP to the signal).
+    overlap_m: Annotated[float, Field(ge=0.0, le=500.0, allow_inf_nan=False)] = 50.0
+    # How many clear blocks ahead a proceed aspect promises (3-aspect signalling: 2).
+    blocks_ahead: Annotated[int, Field(ge=1, le=5)] = 2
+
+
+class SpeedLimit(Stretch):
+    """A civil speed limit over a stretch of the line."""
+
+    limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
+    reason: Annotated[str, Field(max_length=64)] | None = None
+
+
+class _IdStretch(Protocol):
+    id: int
+    start_m: float
+    end_m: float
+
+
+def check_chain(items: Sequence[_IdStretch], field: str, noun: str, short: str) -> None:
+    """IDs unique; in order and contiguous from chainage 0 (``field`` names the list in messages,
+    ``noun`` its items, ``short`` one item before its ID)."""
+    seen: dict[int, int] = {}
+    for i, s in enumerate(items):
+        if s.id in seen:
+            raise FieldProblem(
+                f"{field}[{i}].id", f"{noun} IDs must be unique: {s.id} is also {field}[{seen[s.id]}]"
+            )
+        seen[s.id] = i
+    if items and items[0].start_m != 0.0:
+        raise FieldProblem(
+            f"{field}[0].start_m", f"the first {noun} must start at chainage 0, got {items[0].start_m}"
+        )
+    for i in range(1, len(items)):
+        prev, cur = items[i - 1], items[i]
+        if cur.start_m != prev.end_m:
+            what = "overlaps" if cur.start_m < prev.end_m else "leaves a gap after"
+            raise FieldProblem(
+                f"{field}[{i}].start_m",
+                f"{noun}s must be listed in order and contiguous: {short} {cur.id} starts at "
+                f"{cur.start_m} m and {what} {short} {prev.id} ending at {prev.end_m} m",
+            )
+
+
+def check_segments(segments: Sequence[Segment], line_end_m: float | None) -> None:
+    """Unique IDs, in order and contiguous from chainage 0 to the line's end."""
+    check_chain(segments, "segments", "segment", "segment")
+    if segments and line_end_m is not None and segments[-1].end_m != line_end_m:
+        raise FieldProblem(
+            f"segments[{len(segments) - 1}].end_m",
+            f"the last segment must end at the line's end ({line_end_m} m), got {segments[-1].end_m}",
+        )
+
+
+def check_blocks(blocks: Sequence[Block], circuit_ids: Sequence[int]) -> None:
+    """Every track circuit in exactly one block; blocks in running order, each a run of
+    consecutive circuits; unique block IDs and signal names."""
+    if not circuit_ids:
+        raise FieldProblem("signalling.blocks", "blocks are made of track circuits: the line has none")
+    order = {cid: k for k, cid in enumerate(circuit_ids)}
+    ids: dict[str, int] = {}
+    signals: dict[str, int] = {}
+    expected = 0  # the index of the next circuit in running order
+    for i, b in enumerate(blocks):
+        if b.id in ids:
+            raise FieldProblem(
+                f"signalling.blocks[{i}].id",
+                f"block IDs must be unique: {b.id!r} is also blocks[{ids[b.id]}]",
+            )
+        ids[b.id] = i
+        if b.signal in signals:
+            raise FieldProblem(
+                f"signalling.blocks[{i}].signal",
+                f"signal names must be unique: {b.signal!r} also stands at blocks[{signals[b.signal]}]",
+            )
+        signals[b.signal] = i
+        for j, cid in enumerate(b.circuits):
+            if cid not in order:
+                raise FieldProblem(
+                    f"signalling.blocks[{i}].circuits[{j}]", f"no track circuit {cid} on this line"
+                )
+            if order[cid] != expected:
+                raise FieldProblem(
+                    f"signalling.blocks[{i}].circuits[{j}]",
+                    f"blocks must take the track circuits in running order, each once: circuit {cid} "
+                    f"where circuit {circuit_ids[expected] if expected < len(circuit_ids) else '(none)'} "
+                    "comes next",
+                )
+            expected += 1
+    if expected != len(circuit_ids):
+        raise FieldProblem(
+            "signalling.blocks",
+            f"the blocks must cover every track circuit: {circuit_ids[expected]} and after are in none",
+        )
+
+
+def check_speed_limits(limits: Sequence[SpeedLimit], line_end_m: float | None) -> None:
+    """On the line and not overlapping (where a local limit is above the line's own, the lower
+    one holds)."""
+    ordered = sorted(enumerate(limits), key=lambda it: it[1].start_m)
+    for (_, a), (j, b) in zip(ordered, ordered[1:], strict=False):
+        if b.start_m < a.end_m:
+            raise FieldProblem(
+                f"speed_limits[{j}].start_m",
+                f"speed limits overlap: {b.start_m} m is before the end of another at {a.end_m} m",
+            )
+    for i, s in enumerate(limits):
+        if s.start_m < 0.0 or (line_end_m is not None and s.end_m > line_end_m):
+            raise FieldProblem(f"speed_limits[{i}]", f"{s.start_m} .. {s.end_m} m is not on the line")
+
+
+__all__ = [
+    "Block",
+    "Segment",
+    "Signalling",
+    "SpeedLimit",
+    "check_blocks",
+    "check_chain",
+    "check_segments",
+    "check_speed_limits",
+]
