@@ -21,6 +21,7 @@ from typer.core import TyperCommand, TyperGroup
 
 from railstop.cli_common import fail, out, print_error, styled
 from railstop.cli_doors import doors_app, dwell
+from railstop.cli_line import line_app
 from railstop.cli_progress import Reporter, on_interrupt, run_program
 from railstop.cli_telegram import telegram_app
 
@@ -97,6 +98,7 @@ def _main_options(
 app.add_typer(doors_app, name="doors")
 app.command()(dwell)
 app.add_typer(telegram_app, name="telegram")
+app.add_typer(line_app, name="line")
 
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[

@@ -7,7 +7,8 @@
   a run of consecutive track circuits (SPEC §2's circuits, so the block's
   occupancy is the circuits' occupancy) with a signal at its entry. A train
   may run into a block only when the signal at its entry shows proceed, i.e.
-  the block and the overlap beyond its end are clear. **[interpretation]**
+  the block and the overlap beyond its end are clear (``blocks_ahead`` = 1;
+  more blocks for a more restrictive layout). **[interpretation]**
   the source documents describe CBTC and the stop; the fixed block is the
   conventional baseline the line simulation needs until CBTC replaces it.
 - **Speed limits** are civil limits over a stretch (curves, turnouts); the
@@ -48,8 +49,10 @@ class Signalling(Model):
     # The overlap: the stretch beyond a red signal that must be clear as well, for a train
     # that stops a little past it (a common 50-200 m; this line runs ATP to the signal).
     overlap_m: Annotated[float, Field(ge=0.0, le=500.0, allow_inf_nan=False)] = 50.0
-    # How many clear blocks ahead a proceed aspect promises (3-aspect signalling: 2).
-    blocks_ahead: Annotated[int, Field(ge=1, le=5)] = 2
+    # How many blocks from its own must be clear (with the overlap beyond the last) for a signal
+    # to show proceed: 1, the usual rule (the next signal may be at stop: a caution aspect);
+    # more is a more restrictive layout.
+    blocks_ahead: Annotated[int, Field(ge=1, le=5)] = 1
 
 
 class SpeedLimit(Stretch):

@@ -1,0 +1,385 @@
+"""The line with many trains on one clock (issue 14, first increment).
+
+A driver (DESIGN: drivers wire units, units decide): ``SimClock`` advances
+the plant every ``step_s`` and delivers the units' messages. What runs:
+
+- **the plant** (this module): every train's true motion between stations
+  (the train's own ATO, ``control.line_ato``, demands; traction, the brakes'
+  service deceleration and running resistance act), and the track circuits'
+  occupancy from the trains' extents, reported on every change
+  (``CircuitOccupancy``);
+- **the fixed-block interlocking** (``wayside.interlocking``), a unit: the
+  reports in, the signal aspects out (broadcast); each train's ATP takes them
+  (``TrainAspects``, a unit per train) and its ATO brakes for the first signal
+  at stop ahead;
+- **the station stop by ground TASC**: at the hand-over point before a
+  station's first detector, when the train's authority reaches the stopping
+  point (the approach signal's proceed aspect promises the approach and
+  platform blocks clear), the stop model (``sim.engine.run_batch``, the same
+  compiled units as every campaign: wayside TASC unit, link, onboard unit,
+  brakes) stops the train, from the train's own speed there and a
+  disturbance draw of its own; the train then follows the recorded
+  trajectory on the line's clock, so the circuits it clears free the blocks
+  behind it at the right time;
+- **the dwell**: the operation's dwell time, then departure on the next
+  proceed aspect.
+
+Not yet (issue 14, later increments): the onboard position (odometer and
+SPEC §2 corrections) driving the train, the dwell's door and PSD telegrams
+(CPCS/WPCS) over the link, the link model between the units, line campaigns.
+A train here drives from its true position.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
+from railstop.config.operation import Operation
+from railstop.config.schema import Line, Station, Vehicle
+from railstop.control.line_ato import (
+    authority_end_m,
+    ceiling_mps,
+    demand_mps2,
+    handover_m,
+    static_profile,
+)
+from railstop.control.supervision import eb_cause_name
+from railstop.errors import SimulationError
+from railstop.messages import CircuitOccupancy, Output, SignalAspects
+from railstop.physics.traction import tractive_effort_n
+from railstop.sim.clock import SimClock
+from railstop.streams import RunStreams
+from railstop.units import Message
+from railstop.wayside.interlocking import FixedBlockInterlocking
+
+KMH = 1.0 / 3.6
+#: The train's own ATO plans its braking curves at this share of full service.
+PLANNING_SHARE = 0.7
+#: A train the station cannot take yet (platform not clear) waits this far before the hand-over
+#: point, so that it is back at speed when the stop takes it. [interpretation] a driver or ATO
+#: would stop at the approach signal; here the signal stands at the first detector.
+HOLD_BACK_M = 60.0
+#: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
+RUNS_PER_TRAIN = 100
+
+
+class TrainAspects:
+    """A train's ATP receiver of the signal aspects (a unit): it keeps the latest it was told.
+    Until the first, every signal is at stop (DESIGN rule 10)."""
+
+    accepts: tuple[type, ...] = (SignalAspects,)
+
+    def __init__(self, name: str, signals: int) -> None:
+        self.name = name
+        self.proceed: tuple[bool, ...] = (False,) * signals
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        if isinstance(message, SignalAspects):
+            self.proceed = message.proceed
+        return []
+
+    def next_deadline_s(self) -> float | None:
+        return None
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        return []
+
+
+@dataclass(slots=True)
+class Train:
+    index: int
+    request_s: float  # when it asks to enter
+    phase: str = "waiting"  # waiting, running, stopping, dwelling, gone
+    x_m: float = 0.0  # front
+    v_mps: float = 0.0
+    next_station: int = 0
+    entered_s: float = np.nan
+    exited_s: float = np.nan
+    until_s: float = np.nan  # dwelling: when the doors have closed
+    play_t: Any = None  # stopping: the stop's trajectory (times on the line's clock, positions)
+    play_x: Any = None
+    load_factor: float = 0.5
+    samples_t: list[float] = field(default_factory=list)
+    samples_x: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopRecord:
+    train: int
+    station: str
+    arrive_s: float  # standstill
+    error_m: float
+    entry_speed_kmh: float
+    emergency_brake: str | None
+    within_tolerance: bool
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LineResult:
+    trains: int
+    entered: int
+    exited: int
+    stops: list[StopRecord]
+    duration_s: float
+    wall_s: float
+    entry_s: list[float]
+    exit_s: list[float]
+    request_s: list[float]
+    samples: list[tuple[list[float], list[float]]]  # per train: times, front positions
+    signal_m: list[float]
+    station_m: list[tuple[str, float]]
+    min_separation_m: float
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON of ``railstop line run``."""
+        errors = np.array([abs(s.error_m) for s in self.stops])
+        journeys = [(x - r) for x, r in zip(self.exit_s, self.request_s, strict=True) if np.isfinite(x)]
+        # A train's delay: its journey (from asking to enter to leaving the line) against the
+        # quickest journey of the run (the first train's, on an empty line, in practice).
+        fastest = min(journeys) if journeys else np.nan
+        exits = sorted(x for x in self.exit_s if np.isfinite(x))
+        tph = (len(exits) - 1) / (exits[-1] - exits[0]) * 3600.0 if len(exits) >= 2 else None
+        return {
+            "trains": self.trains,
+            "entered": self.entered,
+            "exited": self.exited,
+            "stops": len(self.stops),
+            "stops_within_tolerance": int(sum(s.within_tolerance for s in self.stops)),
+            "stop_error_p99_m": round(float(np.percentile(errors, 99.0)), 4) if errors.size else None,
+            "stop_error_max_m": round(float(errors.max()), 4) if errors.size else None,
+            "trains_per_hour": round(tph, 2) if tph is not None else None,
+            "mean_delay_s": round(float(np.mean([j - fastest for j in journeys])), 2) if journeys else None,
+            "emergency_brakes": int(sum(s.emergency_brake is not None for s in self.stops)),
+            # Counted, not assumed: the least gap between a train's front and the rear ahead.
+            "min_separation_m": round(self.min_separation_m, 2)
+            if np.isfinite(self.min_separation_m)
+            else None,
+            # The onboard position does not drive the trains yet (a later increment).
+            "position_error_p99_m": None,
+            "duration_s": self.duration_s,
+            "wall_s": round(self.wall_s, 3),
+            "sim_to_wall": round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else None,
+        }
+
+
+class LineSimulation:
+    def __init__(
+        self,
+        *,
+        line: Line,
+        vehicle: Vehicle,
+        operation: Operation,
+        disturbances: DisturbanceSet | None = None,
+        seed: int = 1,
+        step_s: float = 0.1,
+    ) -> None:
+        if line.signalling is None:
+            raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
+        if vehicle.traction is None:
+            raise SimulationError(f"vehicle {vehicle.name!r} has no [vehicle.traction]: the trains must run")
+        self.traction = vehicle.traction
+        self.line = line
+        self.vehicle = vehicle
+        self.operation = operation
+        self.dist = disturbances if disturbances is not None else load_disturbances("nominal")
+        self.seed = seed
+        self.end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
+        brake = vehicle.brake
+        self.brake_mps2 = brake.full_service_mps2
+        self.plan_mps2 = PLANNING_SHARE * brake.full_service_mps2
+        self.profile = static_profile(line, self.end_m, self.plan_mps2)
+        self.interlocking = FixedBlockInterlocking(line, clear_at_start=True)
+        self.signal_m = self.interlocking.signal_m
+        self.circuits = [(c.id, c.start_m, c.end_m) for c in line.track.circuits]
+        self.trains = [Train(index=k, request_s=t) for k, t in enumerate(operation.entry_times_s())]
+        self.receivers = [TrainAspects(f"train-{t.index}", len(self.signal_m)) for t in self.trains]
+        for r in self.receivers:
+            r.proceed = self.interlocking.aspects
+        self.clock = SimClock([self.interlocking, *self.receivers], step_s=step_s)
+        self._occupied: set[int] = set()
+        self.stops: list[StopRecord] = []
+        self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
+
+    # ------------------------------------------------------------------ the plant
+
+    def _occupancy(self) -> list[Output]:
+        occ: set[int] = set()
+        length = self.vehicle.length_m
+        for t in self.trains:
+            if t.phase in ("waiting", "gone"):
+                continue
+            lo, hi = t.x_m - length, t.x_m
+            for cid, a, b in self.circuits:
+                if a < hi and b > lo:
+                    occ.add(cid)
+        out = [
+            Output(to="interlocking", message=CircuitOccupancy(circuit_id=c, occupied=c in occ))
+            for c in sorted(occ ^ self._occupied)
+        ]
+        self._occupied = occ
+        return out
+
+    def _traction_mps2(self, v: float, mass_kg: float) -> float:
+        tr = self.traction
+        force = float(tractive_effort_n(tr, np.array([v]))[0])
+        return min(tr.max_accel_mps2, force / mass_kg)
+
+    def _mass_kg(self, train: Train) -> float:
+        veh = self.vehicle
+        return veh.tare_mass_kg * (1.0 + veh.rotating_mass_factor) + train.load_factor * veh.crush_payload_kg
+
+    def _run(self, train: Train, now_s: float, dt: float) -> None:
+        proceed = self.receivers[train.index].proceed
+        auth = authority_end_m(train.x_m, self.signal_m, proceed)
+        st_next = (
+            self.line.stations[train.next_station] if train.next_station < len(self.line.stations) else None
+        )
+        target = auth
+        if st_next is not None and auth < st_next.stop_point_m:
+            # The platform is not clear: the station stop cannot take the train, so its ATO
+            # stops it HOLD_BACK_M before the hand-over point, from where it runs up to speed
+            # again once the platform clears.
+            entry = st_next.tasc.entry_speed_kmh * KMH
+            target = min(auth, handover_m(st_next.detector_positions_m()[0], entry) - HOLD_BACK_M)
+        ceiling = ceiling_mps(self.profile, train.x_m, train.v_mps, target, self.plan_mps2)
+        mass = self._mass_kg(train)
+        veh = self.vehicle
+        v = train.v_mps
+        resist = (veh.davis_a_n + veh.davis_b_n_per_mps * v + veh.davis_c_n_per_mps2 * v * v) / mass
+        a = demand_mps2(v, ceiling, self._traction_mps2(v, mass), self.brake_mps2)
+        if a > 0.0:
+            a -= resist  # traction works against the resistance; braking is the ECU's total
+        v_new = max(v + a * dt, 0.0)
+        x_new = train.x_m + 0.5 * (v + v_new) * dt
+        if st_next is not None:
+            h = handover_m(st_next.detector_positions_m()[0], v_new)
+            if x_new >= h > train.x_m and auth >= st_next.stop_point_m:
+                # Land exactly at the hand-over point, then the station stop takes the train.
+                frac = (h - train.x_m) / max(x_new - train.x_m, 1e-9)
+                train.x_m, train.v_mps = h, v + (v_new - v) * frac
+                self._stop(train, st_next, now_s - dt + frac * dt)
+                return
+        train.x_m, train.v_mps = x_new, v_new
+        if train.x_m - veh.length_m >= self.end_m:
+            train.phase = "gone"
+            train.exited_s = now_s
+
+    def _stop(self, train: Train, st: Station, t0_s: float) -> None:
+        """The station stop by ground TASC from the train's state at the hand-over point."""
+        from railstop.sim.engine import run_batch
+
+        station_index = self.line.stations.index(st)
+        run = train.index * RUNS_PER_TRAIN + station_index
+        streams = RunStreams.for_runs(self.seed, run, 1)
+        scenario, _ = draw_scenario(self.dist, st, self.vehicle, streams)
+        scenario = scenario.with_values(entry_speed_mps=np.array([train.v_mps]))
+        train.load_factor = float(scenario.load_factor[0])
+        batch = run_batch(
+            station=st,
+            vehicle=self.vehicle,
+            scenario=scenario,
+            controller=self.operation.controller,
+            streams=streams,
+            record=True,
+            track=self.line.track,
+        )
+        if batch.trace is None:
+            raise SimulationError("the station stop returned no trajectory")
+        tr_t = batch.trace.t_s[:, 0]
+        tr_x = batch.trace.position_m[:, 0]
+        keep = np.isfinite(tr_t) & np.isfinite(tr_x)
+        error = float(batch.stop_error_m[0])
+        stopped = bool(batch.stopped[0])
+        eb = eb_cause_name(int(batch.emergency_brake[0]))
+        train.play_t = t0_s + np.concatenate(([0.0], tr_t[keep]))
+        train.play_x = np.concatenate(([train.x_m], tr_x[keep]))
+        train.phase = "stopping"
+        arrive = float(train.play_t[-1])
+        self.stops.append(
+            StopRecord(
+                train=train.index,
+                station=st.name,
+                arrive_s=round(arrive, 3),
+                error_m=round(error, 4),
+                entry_speed_kmh=round(train.v_mps / KMH, 2),
+                emergency_brake=eb,
+                within_tolerance=stopped and abs(error) <= st.psd_tolerance_m,
+            )
+        )
+
+    def _play(self, train: Train, now_s: float) -> None:
+        if now_s < train.play_t[-1]:
+            train.x_m = float(np.interp(now_s, train.play_t, train.play_x))
+            return
+        train.x_m = float(train.play_x[-1])
+        train.v_mps = 0.0
+        st = self.line.stations[train.next_station]
+        train.phase = "dwelling"
+        train.until_s = float(train.play_t[-1]) + self.operation.dwell_at_s(st.name)
+        train.next_station += 1
+        train.play_t = train.play_x = None
+
+    def plant(self, now_s: float, dt: float) -> list[Output]:
+        entry_proceed = self._entry_signal_proceed()
+        for train in self.trains:
+            if train.phase == "waiting":
+                if now_s >= train.request_s and entry_proceed and self._entry_clear():
+                    train.phase = "running"
+                    train.x_m = self.operation.entry_m
+                    train.v_mps = self.operation.entry_speed_kmh * KMH
+                    train.entered_s = now_s
+                    entry_proceed = False  # one train per step
+            elif train.phase == "running":
+                self._run(train, now_s, dt)
+            elif train.phase == "stopping":
+                self._play(train, now_s)
+            elif train.phase == "dwelling" and now_s >= train.until_s:
+                train.phase = "running"
+            if train.phase in ("running", "stopping", "dwelling"):
+                train.samples_t.append(now_s)
+                train.samples_x.append(train.x_m)
+        on_line = sorted(t.x_m for t in self.trains if t.phase in ("running", "stopping", "dwelling"))
+        for follower, leader in zip(on_line, on_line[1:], strict=False):
+            self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
+        return self._occupancy()
+
+    def _entry_signal_proceed(self) -> bool:
+        # The signal protecting the block the trains enter into.
+        k = max(i for i, s in enumerate(self.signal_m) if s <= self.operation.entry_m)
+        return self.interlocking.aspects[k]
+
+    def _entry_clear(self) -> bool:
+        # No train's rear still within the train's own length of the entry point.
+        length = self.vehicle.length_m
+        return all(
+            t.phase in ("waiting", "gone") or t.x_m - length > self.operation.entry_m + 1.0
+            for t in self.trains
+        )
+
+    # ------------------------------------------------------------------ the run
+
+    def run(self, duration_s: float) -> LineResult:
+        t0 = time.perf_counter()
+        self.clock.deliver(self._occupancy())
+        self.clock.run(duration_s, self.plant)
+        wall = time.perf_counter() - t0
+        return LineResult(
+            trains=len(self.trains),
+            entered=int(sum(bool(np.isfinite(t.entered_s)) for t in self.trains)),
+            exited=int(sum(bool(np.isfinite(t.exited_s)) for t in self.trains)),
+            stops=list(self.stops),
+            duration_s=duration_s,
+            wall_s=wall,
+            entry_s=[t.entered_s for t in self.trains],
+            exit_s=[t.exited_s for t in self.trains],
+            request_s=[t.request_s for t in self.trains],
+            samples=[(t.samples_t, t.samples_x) for t in self.trains],
+            signal_m=list(self.signal_m),
+            station_m=[(s.name, s.stop_point_m) for s in self.line.stations],
+            min_separation_m=float(self.min_separation_m),
+        )

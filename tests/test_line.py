@@ -1,0 +1,263 @@
+"""The line with many trains (issue 14): the scheduler, the fixed-block interlocking, the
+train's own ATO between stations, and whole runs of the line through the CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import load_disturbances
+from railstop.config.operation import Operation, load_operation
+from railstop.control.line_ato import (
+    SIGNAL_MARGIN_M,
+    authority_end_m,
+    ceiling_mps,
+    demand_mps2,
+    handover_m,
+    static_profile,
+)
+from railstop.errors import InterlockError, SimulationError
+from railstop.messages import BROADCAST, CircuitOccupancy, Output, SignalAspects
+from railstop.sim.clock import SimClock
+from railstop.sim.line import LineSimulation
+from railstop.units import Message
+from railstop.wayside.interlocking import FixedBlockInterlocking
+
+LINE = default_line()
+VEHICLE = default_vehicle()
+RAILSTOP = str(Path(sys.executable).with_name("railstop"))
+KMH = 1.0 / 3.6
+
+
+# ---------------------------------------------------------------- the scheduler
+
+
+class _Ticker:
+    """A unit with a cycle: it wakes every ``period_s`` and says so to ``to``."""
+
+    accepts: tuple[type, ...] = (SignalAspects,)
+
+    def __init__(self, name: str, period_s: float, to: str) -> None:
+        self.name = name
+        self.period_s = period_s
+        self.to = to
+        self.next_s = period_s
+        self.woken: list[float] = []
+        self.heard: list[tuple[float, Message]] = []
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        self.heard.append((now_s, message))
+        return []
+
+    def next_deadline_s(self) -> float | None:
+        return self.next_s
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        self.woken.append(now_s)
+        self.next_s = now_s + self.period_s
+        return [Output(to=self.to, message=SignalAspects(proceed=(True,)))]
+
+
+def test_deadlines_fire_at_their_own_time_between_plant_steps() -> None:
+    a = _Ticker("a", 0.25, "b")
+    b = _Ticker("b", 0.4, "a")
+    steps: list[float] = []
+
+    def plant(now_s: float, step_s: float) -> list[Output]:
+        steps.append(now_s)
+        return []
+
+    clock = SimClock([a, b], step_s=0.1)
+    clock.run(1.0, plant)
+    assert a.woken == pytest.approx([0.25, 0.5, 0.75, 1.0])
+    assert b.woken == pytest.approx([0.4, 0.8])
+    assert [t for t, _ in b.heard] == pytest.approx(a.woken)  # delivered when sent
+    assert steps == pytest.approx([0.1 * k for k in range(1, 11)])
+
+
+def test_a_broadcast_reaches_the_units_that_accept_its_type() -> None:
+    a = _Ticker("a", 10.0, "b")
+    inter = FixedBlockInterlocking(LINE, clear_at_start=True)
+    clock = SimClock([a, inter], step_s=0.1)
+    clock.deliver([Output(to=BROADCAST, message=SignalAspects(proceed=(False,)))])
+    assert len(a.heard) == 1  # the interlocking does not take aspects: not delivered to it
+
+
+def test_a_message_for_no_unit_and_a_loop_are_errors() -> None:
+    class _Echo(_Ticker):
+        def handle(self, message: Message, now_s: float) -> list[Output]:
+            return [Output(to=self.name, message=message)]
+
+    clock = SimClock([_Echo("e", 10.0, "e")], step_s=0.1)
+    with pytest.raises(SimulationError, match="not a unit"):
+        clock.deliver([Output(to="nobody", message=SignalAspects(proceed=()))])
+    with pytest.raises(SimulationError, match="a loop"):
+        clock.deliver([Output(to="e", message=SignalAspects(proceed=()))])
+
+
+# ---------------------------------------------------------------- the interlocking
+
+
+def _occupy(inter: FixedBlockInterlocking, circuit: int, occupied: bool = True) -> list[Output]:
+    return inter.handle(CircuitOccupancy(circuit_id=circuit, occupied=occupied), 0.0)
+
+
+def test_a_signal_shows_stop_for_its_block_and_the_overlap() -> None:
+    inter = FixedBlockInterlocking(LINE, clear_at_start=True)
+    assert all(inter.aspects)
+    s03 = inter.signal_names.index("S03")  # Riverside approach: circuits 105, 106
+    out = _occupy(inter, 106)
+    assert len(out) == 1 and isinstance(out[0].message, SignalAspects)
+    assert not inter.aspects[s03]
+    # The signal before it: its own block (103, 104) is clear, but 105 lies in its 50 m overlap.
+    s02 = inter.signal_names.index("S02")
+    assert inter.aspects[s02]
+    _occupy(inter, 106, False)
+    _occupy(inter, 105)
+    assert not inter.aspects[s02] and not inter.aspects[s03]
+    _occupy(inter, 105, False)
+    assert all(inter.aspects)
+    assert _occupy(inter, 105, False) == []  # no change, no message
+
+
+def test_an_unreported_circuit_is_occupied() -> None:
+    """DESIGN rule 10: a live interlocking that has not heard of a circuit shows stop over it."""
+    inter = FixedBlockInterlocking(LINE)
+    assert not any(inter.aspects)
+    for c in LINE.track.circuits:
+        _occupy(inter, c.id, False)
+    assert all(inter.aspects)
+
+
+def test_the_interlocking_refuses_what_is_not_its_input() -> None:
+    inter = FixedBlockInterlocking(LINE, clear_at_start=True)
+    with pytest.raises(InterlockError, match="in no block"):
+        _occupy(inter, 999)
+    with pytest.raises(InterlockError, match="track-circuit reports"):
+        inter.handle(SignalAspects(proceed=()), 0.0)
+    bare = LINE.model_copy(update={"signalling": None})
+    with pytest.raises(InterlockError, match="no \\[signalling\\]"):
+        FixedBlockInterlocking(bare)
+
+
+# ---------------------------------------------------------------- the train's own ATO
+
+
+def test_the_static_profile_keeps_every_limit_and_brakes_into_it() -> None:
+    decel = 0.7
+    profile = static_profile(LINE, 5800.0, decel)
+    assert profile.max() == pytest.approx(80.0 * KMH)
+    curve = LINE.speed_limits[0]
+    inside = profile[int(curve.start_m) : int(curve.end_m)]
+    assert inside.max() <= curve.limit_kmh * KMH + 1e-9
+    for st in LINE.stations:
+        entry = st.tasc.entry_speed_kmh * KMH
+        k = round(handover_m(st.detector_positions_m()[0], entry))
+        assert profile[k] <= entry + 1e-9
+    # Never faster than a braking curve at the planning deceleration allows.
+    dv2 = profile[:-1] ** 2 - profile[1:] ** 2
+    assert dv2.max() <= 2.0 * decel * 1.0 + 1e-9
+
+
+def test_the_authority_ends_before_the_first_signal_at_stop() -> None:
+    signals = [0.0, 400.0, 800.0]
+    assert authority_end_m(100.0, signals, (True, True, False)) == 800.0 - SIGNAL_MARGIN_M
+    assert authority_end_m(100.0, signals, (False, False, True)) == 400.0 - SIGNAL_MARGIN_M
+    assert authority_end_m(900.0, signals, (False, False, False)) == np.inf
+    profile = static_profile(LINE, 5800.0, 0.7)
+    assert ceiling_mps(profile, 500.0, 10.0, 500.0, 0.7) == 0.0
+    assert demand_mps2(10.0, 0.0, 1.0, 1.0) == -1.0  # at most full service
+    assert demand_mps2(0.0, 20.0, 0.8, 1.0) == 0.8  # at most what traction gives
+
+
+# ---------------------------------------------------------------- whole runs
+
+
+@pytest.fixture(scope="module")
+def default_run() -> dict[str, object]:
+    sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=load_operation(None, LINE))
+    return sim.run(3600.0).summary()
+
+
+def test_twelve_trains_stop_at_every_station_within_the_tolerance(default_run: dict[str, object]) -> None:
+    """The issue's target: 12 trains, 120 s headway, an hour, the nominal draw: every stop of
+    every train within ±0.35 m."""
+    s = default_run
+    assert s["entered"] == s["exited"] == 12
+    assert s["stops"] == s["stops_within_tolerance"] == 48
+    assert isinstance(s["stop_error_p99_m"], float) and s["stop_error_p99_m"] <= 0.35
+    assert s["emergency_brakes"] == 0
+    assert isinstance(s["trains_per_hour"], float) and abs(s["trains_per_hour"] - 30.0) < 0.5
+
+
+def test_a_headway_too_short_for_the_blocks_queues_trains_without_collision() -> None:
+    """Entries every 45 s on a fixed-block line that holds about 28 trains an hour: trains wait
+    at the entry and at red signals, none comes closer than a block's worth, every stop holds."""
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=Operation(trains=10, headway_s=45.0),
+        disturbances=load_disturbances("standard"),
+    )
+    s = sim.run(3600.0).summary()
+    assert s["exited"] == 10
+    assert isinstance(s["min_separation_m"], float) and s["min_separation_m"] > 50.0
+    assert isinstance(s["mean_delay_s"], float) and s["mean_delay_s"] > 60.0  # they queued
+    assert isinstance(s["trains_per_hour"], float) and s["trains_per_hour"] < 3600.0 / 45.0
+    assert s["stops_within_tolerance"] == s["stops"] == 40
+
+
+def test_the_run_is_a_function_of_the_seed() -> None:
+    def summary(seed: int) -> dict[str, object]:
+        op = Operation(trains=3, headway_s=120.0)
+        sim = LineSimulation(
+            line=LINE, vehicle=VEHICLE, operation=op, disturbances=load_disturbances("standard"), seed=seed
+        )
+        out = sim.run(1200.0).summary()
+        for k in ("wall_s", "sim_to_wall"):
+            out.pop(k)
+        return out
+
+    assert summary(5) == summary(5)
+    assert summary(5) != summary(6)
+
+
+def test_line_run_through_the_cli(tmp_path: Path) -> None:
+    png = tmp_path / "line.png"
+    p = subprocess.run(
+        [RAILSTOP, "line", "run", "--trains", "3", "--duration-s", "900", "--json", "--plot", str(png)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert p.returncode == 0, p.stderr
+    s = json.loads(p.stdout)
+    for key in (
+        "trains",
+        "stops",
+        "stop_error_p99_m",
+        "trains_per_hour",
+        "mean_delay_s",
+        "emergency_brakes",
+        "position_error_p99_m",
+    ):
+        assert key in s
+    assert s["trains"] == 3 and s["stops"] == 12
+    assert png.stat().st_size > 10_000
+
+
+def test_line_run_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "op.toml"
+    bad.write_text('controller = "magic"\n', encoding="utf-8")
+    p = subprocess.run(
+        [RAILSTOP, "line", "run", "--operation", str(bad)], capture_output=True, text=True, check=False
+    )
+    assert p.returncode == 2
+    lines = (p.stdout + p.stderr).strip().splitlines()
+    assert len(lines) == 1 and f"{bad}: controller:" in lines[0] and "Traceback" not in p.stderr
