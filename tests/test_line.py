@@ -192,7 +192,9 @@ def test_twelve_trains_stop_at_every_station_within_the_tolerance(default_run: d
     assert s["entered"] == s["exited"] == 12
     assert s["stops"] == s["stops_within_tolerance"] == 48
     assert isinstance(s["stop_error_p99_m"], float) and s["stop_error_p99_m"] <= 0.35
-    assert s["emergency_brakes"] == 0
+    assert s["emergency_brakes"] == 0 and s["dwell_faults"] == 0
+    # The dwell runs the door units: doors open 30 s (40 at Hillcrest) plus the sequence around.
+    assert isinstance(s["mean_dwell_s"], float) and 32.5 < s["mean_dwell_s"] < 60.0
     assert isinstance(s["trains_per_hour"], float) and abs(s["trains_per_hour"] - 30.0) < 0.5
 
 
@@ -211,6 +213,24 @@ def test_a_headway_too_short_for_the_blocks_queues_trains_without_collision() ->
     assert isinstance(s["mean_delay_s"], float) and s["mean_delay_s"] > 60.0  # they queued
     assert isinstance(s["trains_per_hour"], float) and s["trains_per_hour"] < 3600.0 / 45.0
     assert s["stops_within_tolerance"] == s["stops"] == 40
+
+
+def test_a_dwell_fault_holds_the_train_and_the_line_behind_it() -> None:
+    """Every braking telegram after the first lost: the first train's stop ends by emergency
+    brake far short of the platform, its dwell in the SPEC §5 fault path (no start enable), so
+    it stays with its doors closed and the trains behind wait at red signals (DESIGN rule 10)."""
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=Operation(trains=3, headway_s=120.0),
+        disturbances=load_disturbances("outage-after-first"),
+    )
+    s = sim.run(1200.0).summary()
+    assert s["emergency_brakes"] == 1 and s["dwell_faults"] == 1
+    assert s["stops"] == 1 and s["exited"] == 0
+    assert isinstance(s["min_separation_m"], float) and s["min_separation_m"] > 50.0
+    held = [t for t in sim.trains if t.phase == "held"]
+    assert len(held) == 1 and held[0].x_m < LINE.stations[0].platform_start
 
 
 def test_the_run_is_a_function_of_the_seed() -> None:

@@ -78,10 +78,12 @@ def run_cmd(
             from railstop.report.line_plot import plot_line
 
             prov = stamp(inputs_sha256(ln.model_dump(), veh.model_dump(), op.model_dump()))
+            tph = summary["trains_per_hour"]
             title = (
-                f"{ln.line.name}: {summary['exited']} of {op.trains} trains through, "
-                f"{summary['stops']} stops by {op.controller} ({disturbances}), "
-                f"{summary['trains_per_hour']} trains/h"
+                f"{ln.line.name}: {summary['exited']} of {op.trains} trains through"
+                + (f" ({tph} trains/h)" if tph is not None else "")
+                + f", {summary['stops']} stops by {op.controller} ({disturbances}), "
+                f"{summary['dwell_faults']} dwell faults"
             )
             plot = plot_line(result, plot, title=title, footer=footer(prov, seed=seed))
     except RailstopError as exc:
@@ -96,7 +98,8 @@ def run_cmd(
         f"{summary['mean_delay_s']} s, least separation {summary['min_separation_m']} m); "
         f"{summary['stops']} station stops by {op.controller}, {summary['stops_within_tolerance']} within "
         f"the PSD tolerance, p99 |error| {summary['stop_error_p99_m']} m, {summary['emergency_brakes']} "
-        f"emergency brakes; simulated {summary['sim_to_wall']}x faster than real time",
+        f"emergency brakes; mean dwell {summary['mean_dwell_s']} s, {summary['dwell_faults']} dwell faults; "
+        f"simulated {summary['sim_to_wall']}x faster than real time",
         highlight=False,
         soft_wrap=True,
     )

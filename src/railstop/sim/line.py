@@ -21,12 +21,18 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   disturbance draw of its own; the train then follows the recorded
   trajectory on the line's clock, so the circuits it clears free the blocks
   behind it at the right time;
-- **the dwell**: the operation's dwell time, then departure on the next
-  proceed aspect.
+- **the dwell** by the door units of SPEC §5 (``sim.dwell.run_dwell``: stop
+  confirmation and PSC, the correction creep of an out-of-tolerance stop,
+  CPCS/WPCS, train doors and PSD, start enable), the doors standing open
+  for the operation's dwell time; departure at start enable and on the next
+  proceed aspect. A dwell that ends in the SPEC §5 fault path (no start
+  enable) keeps the train at the platform with its doors closed, and the
+  line behind it waits (DESIGN rule 10).
 
 Not yet (issue 14, later increments): the onboard position (odometer and
-SPEC §2 corrections) driving the train, the dwell's door and PSD telegrams
-(CPCS/WPCS) over the link, the link model between the units, line campaigns.
+SPEC §2 corrections) driving the train, the dwell's door and PSD signals
+crossing a link (the dwell driver passes them as values), the link model
+between the units, line campaigns.
 A train here drives from its true position.
 """
 
@@ -39,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
+from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
@@ -53,6 +60,7 @@ from railstop.errors import SimulationError
 from railstop.messages import CircuitOccupancy, Output, SignalAspects
 from railstop.physics.traction import tractive_effort_n
 from railstop.sim.clock import SimClock
+from railstop.sim.dwell import run_dwell
 from railstop.streams import RunStreams
 from railstop.units import Message
 from railstop.wayside.interlocking import FixedBlockInterlocking
@@ -64,6 +72,8 @@ PLANNING_SHARE = 0.7
 #: point, so that it is back at speed when the stop takes it. [interpretation] a driver or ATO
 #: would stop at the approach signal; here the signal stands at the first detector.
 HOLD_BACK_M = 60.0
+#: The phases of a train on the line (it occupies track).
+ON_LINE = ("running", "stopping", "dwelling", "held")
 #: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
 RUNS_PER_TRAIN = 100
 
@@ -94,7 +104,7 @@ class TrainAspects:
 class Train:
     index: int
     request_s: float  # when it asks to enter
-    phase: str = "waiting"  # waiting, running, stopping, dwelling, gone
+    phase: str = "waiting"  # waiting, running, stopping, dwelling, held (dwell fault), gone
     x_m: float = 0.0  # front
     v_mps: float = 0.0
     next_station: int = 0
@@ -120,11 +130,22 @@ class StopRecord:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class DwellRecord:
+    train: int
+    station: str
+    outcome: str  # start-enable | fault | stalled (sim.dwell)
+    dwell_s: float  # standstill to start enable (or to the fault)
+    psc_attempts: int
+    corrections: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class LineResult:
     trains: int
     entered: int
     exited: int
     stops: list[StopRecord]
+    dwells: list[DwellRecord]
     duration_s: float
     wall_s: float
     entry_s: list[float]
@@ -155,6 +176,10 @@ class LineResult:
             "trains_per_hour": round(tph, 2) if tph is not None else None,
             "mean_delay_s": round(float(np.mean([j - fastest for j in journeys])), 2) if journeys else None,
             "emergency_brakes": int(sum(s.emergency_brake is not None for s in self.stops)),
+            "mean_dwell_s": round(float(np.mean([d.dwell_s for d in self.dwells])), 2)
+            if self.dwells
+            else None,
+            "dwell_faults": int(sum(d.outcome != "start-enable" for d in self.dwells)),
             # Counted, not assumed: the least gap between a train's front and the rear ahead.
             "min_separation_m": round(self.min_separation_m, 2)
             if np.isfinite(self.min_separation_m)
@@ -203,6 +228,9 @@ class LineSimulation:
         self.clock = SimClock([self.interlocking, *self.receivers], step_s=step_s)
         self._occupied: set[int] = set()
         self.stops: list[StopRecord] = []
+        self.dwells: list[DwellRecord] = []
+        self.doors = load_doors(None)
+        self._doors_for: dict[float, DoorsConfig] = {}
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
 
     # ------------------------------------------------------------------ the plant
@@ -319,10 +347,42 @@ class LineSimulation:
         train.x_m = float(train.play_x[-1])
         train.v_mps = 0.0
         st = self.line.stations[train.next_station]
-        train.phase = "dwelling"
-        train.until_s = float(train.play_t[-1]) + self.operation.dwell_at_s(st.name)
+        arrive = float(train.play_t[-1])
+        dwell = run_dwell(
+            doors=self._doors(self.operation.dwell_at_s(st.name)),
+            station=st.name,
+            platform_side=st.platform_side,
+            stop_error_m=train.x_m - st.stop_point_m,
+        )
+        self.dwells.append(
+            DwellRecord(
+                train=train.index,
+                station=st.name,
+                outcome=dwell.outcome,
+                dwell_s=dwell.dwell_total_s,
+                psc_attempts=dwell.psc_attempts,
+                corrections=dwell.corrections,
+            )
+        )
         train.next_station += 1
         train.play_t = train.play_x = None
+        if dwell.start_enable_s is None:
+            # SPEC §5 fault path: no start enable, doors held closed, the train stays.
+            train.phase = "held"
+            return
+        train.x_m = st.stop_point_m + dwell.final_stop_error_m  # after any correction creep
+        train.phase = "dwelling"
+        train.until_s = arrive + dwell.start_enable_s
+
+    def _doors(self, dwell_s: float) -> DoorsConfig:
+        """The door data with the doors standing open for ``dwell_s``."""
+        cfg = self._doors_for.get(dwell_s)
+        if cfg is None:
+            f = self.doors.file
+            timing = f.timing.model_copy(update={"dwell_s": dwell_s})
+            cfg = DoorsConfig(f.model_copy(update={"timing": timing}), self.doors.source)
+            self._doors_for[dwell_s] = cfg
+        return cfg
 
     def plant(self, now_s: float, dt: float) -> list[Output]:
         entry_proceed = self._entry_signal_proceed()
@@ -340,10 +400,10 @@ class LineSimulation:
                 self._play(train, now_s)
             elif train.phase == "dwelling" and now_s >= train.until_s:
                 train.phase = "running"
-            if train.phase in ("running", "stopping", "dwelling"):
+            if train.phase in ON_LINE:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
-        on_line = sorted(t.x_m for t in self.trains if t.phase in ("running", "stopping", "dwelling"))
+        on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
         return self._occupancy()
@@ -373,6 +433,7 @@ class LineSimulation:
             entered=int(sum(bool(np.isfinite(t.entered_s)) for t in self.trains)),
             exited=int(sum(bool(np.isfinite(t.exited_s)) for t in self.trains)),
             stops=list(self.stops),
+            dwells=list(self.dwells),
             duration_s=duration_s,
             wall_s=wall,
             entry_s=[t.entered_s for t in self.trains],
