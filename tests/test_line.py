@@ -190,7 +190,7 @@ def test_twelve_trains_stop_at_every_station_within_the_tolerance(default_run: d
     every train within ±0.35 m."""
     s = default_run
     assert s["entered"] == s["exited"] == 12
-    assert s["stops"] == s["stops_within_tolerance"] == 48
+    assert s["stops"] == s["stops_within_tolerance"] == 48 and s["skipped_stops"] == 0
     assert isinstance(s["stop_error_p99_m"], float) and s["stop_error_p99_m"] <= 0.35
     assert s["emergency_brakes"] == 0 and s["dwell_faults"] == 0
     # The dwell runs the door units: doors open 30 s (40 at Hillcrest) plus the sequence around.
@@ -213,6 +213,23 @@ def test_a_headway_too_short_for_the_blocks_queues_trains_without_collision() ->
     assert isinstance(s["mean_delay_s"], float) and s["mean_delay_s"] > 60.0  # they queued
     assert isinstance(s["trains_per_hour"], float) and s["trains_per_hour"] < 3600.0 / 45.0
     assert s["stops_within_tolerance"] == s["stops"] == 40
+
+
+@pytest.mark.parametrize("error_pct", [2.0, -2.0])
+def test_trains_drive_from_their_onboard_position(error_pct: float) -> None:
+    """SPEC §2 in the loop: every train's odometer 2 % off, corrected at every track circuit
+    it enters (detection delay, electrical boundary) with the learned scale; its ATO brakes by
+    that position. Every stop is still made (the wayside's detectors take the train where it
+    is), the position error is sampled, and the learned scale finds the diameter error."""
+    sim = LineSimulation(
+        line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), odometer_error_pct=error_pct
+    )
+    s = sim.run(1500.0).summary()
+    assert s["stops"] == s["stops_within_tolerance"] == 12 and s["skipped_stops"] == 0
+    p99 = s["position_error_p99_m"]
+    assert isinstance(p99, float) and 0.0 < p99 < 10.0
+    scale = sim.positioning.scale_estimate
+    assert np.all(np.abs(scale - (1.0 + error_pct / 100.0)) < 0.005)
 
 
 def test_a_dwell_fault_holds_the_train_and_the_line_behind_it() -> None:

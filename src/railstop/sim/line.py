@@ -29,11 +29,18 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   enable) keeps the train at the platform with its doors closed, and the
   line behind it waits (DESIGN rule 10).
 
-Not yet (issue 14, later increments): the onboard position (odometer and
-SPEC §2 corrections) driving the train, the dwell's door and PSD signals
-crossing a link (the dwell driver passes them as values), the link model
-between the units, line campaigns.
-A train here drives from its true position.
+- **the onboard position** of every train (SPEC §2, ``onboard.positioning``):
+  its odometer (the assumed wheel diameter, so off by the drawn diameter
+  error), corrected at every track circuit it enters from the wayside's
+  occupancy telegram (the detection delay and the electrical boundary drawn
+  per circuit, GNSS time), with the learned scale; the train's ATO brakes for
+  the signals and limits by that position, and its error against the truth
+  is sampled every step. The station stop is taken over where the train
+  physically is (the wayside's detectors see it).
+
+Not yet (issue 14, later increments): slides between stations, the dwell's
+door and PSD signals crossing a link (the dwell driver passes them as
+values), the link model between the units, line campaigns.
 """
 
 from __future__ import annotations
@@ -58,10 +65,11 @@ from railstop.control.line_ato import (
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
 from railstop.messages import CircuitOccupancy, Output, SignalAspects
+from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import run_dwell
-from railstop.streams import RunStreams
+from railstop.streams import RunStreams, Stream
 from railstop.units import Message
 from railstop.wayside.interlocking import FixedBlockInterlocking
 
@@ -114,6 +122,11 @@ class Train:
     play_t: Any = None  # stopping: the stop's trajectory (times on the line's clock, positions)
     play_x: Any = None
     load_factor: float = 0.5
+    odometer_m: float = 0.0  # the train's odometer (SPEC §2), the assumed wheel diameter
+    odo_scale: float = 1.0  # odometer metres per true metre: 1 + the diameter error
+    front_circuit: int = -1  # index of the circuit the front is in (-1: not on the line)
+    x_onboard_m: float = 0.0  # where the train believes its front is (SPEC §2 positioning)
+    telegrams: list[tuple[float, int]] = field(default_factory=list)  # (occupancy time, circuit id)
     samples_t: list[float] = field(default_factory=list)
     samples_x: list[float] = field(default_factory=list)
 
@@ -155,6 +168,8 @@ class LineResult:
     signal_m: list[float]
     station_m: list[tuple[str, float]]
     min_separation_m: float
+    position_errors: list[float]
+    skipped_stops: int
 
     def summary(self) -> dict[str, Any]:
         """The JSON of ``railstop line run``."""
@@ -171,6 +186,7 @@ class LineResult:
             "exited": self.exited,
             "stops": len(self.stops),
             "stops_within_tolerance": int(sum(s.within_tolerance for s in self.stops)),
+            "skipped_stops": self.skipped_stops,
             "stop_error_p99_m": round(float(np.percentile(errors, 99.0)), 4) if errors.size else None,
             "stop_error_max_m": round(float(errors.max()), 4) if errors.size else None,
             "trains_per_hour": round(tph, 2) if tph is not None else None,
@@ -184,8 +200,12 @@ class LineResult:
             "min_separation_m": round(self.min_separation_m, 2)
             if np.isfinite(self.min_separation_m)
             else None,
-            # The onboard position does not drive the trains yet (a later increment).
-            "position_error_p99_m": None,
+            "position_error_p99_m": round(float(np.percentile(np.abs(self.position_errors), 99.0)), 3)
+            if self.position_errors
+            else None,
+            "position_error_max_m": round(float(np.max(np.abs(self.position_errors))), 3)
+            if self.position_errors
+            else None,
             "duration_s": self.duration_s,
             "wall_s": round(self.wall_s, 3),
             "sim_to_wall": round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else None,
@@ -202,7 +222,10 @@ class LineSimulation:
         disturbances: DisturbanceSet | None = None,
         seed: int = 1,
         step_s: float = 0.1,
+        odometer_error_pct: float | None = None,
     ) -> None:
+        """``odometer_error_pct``: every train's odometer diameter error (default: each train's
+        own draw of the disturbance set's ``odometer_diameter_error_pct``)."""
         if line.signalling is None:
             raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
         if vehicle.traction is None:
@@ -232,6 +255,86 @@ class LineSimulation:
         self.doors = load_doors(None)
         self._doors_for: dict[float, DoorsConfig] = {}
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
+        self.skipped_stops = 0
+        self._init_positioning(odometer_error_pct)
+
+    # ------------------------------------------------------------------ onboard position (SPEC §2)
+
+    def _init_positioning(self, odometer_error_pct: float | None) -> None:
+        n = len(self.trains)
+        # Each train's own streams (run indices past the stations'): its wheel, its circuits.
+        self.train_streams = RunStreams(
+            seed=self.seed,
+            run_index=np.array([t.index * RUNS_PER_TRAIN + RUNS_PER_TRAIN - 1 for t in self.trains]),
+        )
+        if odometer_error_pct is None:
+            _, values = draw_scenario(self.dist, self.line.stations[0], self.vehicle, self.train_streams)
+            err = np.asarray(values["odometer_diameter_error_pct"], dtype=np.float64) / 100.0
+        else:
+            err = np.full(n, odometer_error_pct / 100.0)
+        for t, e in zip(self.trains, err, strict=True):
+            t.odo_scale = 1.0 + float(e)
+        det = self.line.track.detection
+        circuits = self.line.track.circuits
+        self.circuit_starts = np.array([c.start_m for c in circuits])
+        self.circuit_sd = [det.boundary_sd_m(c.kind) for c in circuits]
+        self.positioning = PositioningUnit(
+            circuits=circuits,
+            settings=self.vehicle.positioning,
+            n=n,
+            cycle_s=self.clock.step_s,
+            start_position_m=np.full(n, self.operation.entry_m),
+            boundary_sd_m=self.circuit_sd,
+            delay_spread_s=det.delay_spread_s,
+            nominal_delay_s=det.delay_mean_s,
+        )
+        self.position_errors: list[float] = []
+
+    def _position_step(self, now_s: float, moved: list[float]) -> None:
+        """Odometers, the wayside's occupancy telegrams when a front enters a circuit (detection
+        delay and electrical boundary drawn per train and circuit), the units' logs and fixes."""
+        det = self.line.track.detection
+        circuits = self.line.track.circuits
+        for t, dx in zip(self.trains, moved, strict=True):
+            if t.phase not in ON_LINE:
+                continue
+            t.odometer_m += dx * t.odo_scale
+            k = int(np.searchsorted(self.circuit_starts, t.x_m, side="right")) - 1
+            while t.front_circuit < k:
+                t.front_circuit += 1
+                c = t.front_circuit
+                if c < 0:
+                    continue
+                st = self.train_streams.subset(np.array([t.index]))
+                boundary = circuits[c].start_m + self.circuit_sd[c] * float(
+                    st.normal(Stream.TC_BOUNDARY, c)[0]
+                )
+                delay = max(
+                    0.0, det.delay_mean_s + det.delay_spread_s * float(st.normal(Stream.TC_DELAY, c)[0])
+                )
+                speed = max(t.v_mps, 0.1)
+                entered = now_s - (t.x_m - boundary) / speed
+                t.telegrams.append((entered + delay, circuits[c].id))
+        n = len(self.trains)
+        self.positioning.log(
+            clock_time_s=np.full(n, now_s),
+            odometer_m=np.array([t.odometer_m for t in self.trains]),
+            speed_mps=np.array([t.v_mps * t.odo_scale for t in self.trains]),
+        )
+        for t in self.trains:
+            due = [tg for tg in t.telegrams if tg[0] <= now_s]
+            if due:
+                t.telegrams = [tg for tg in t.telegrams if tg[0] > now_s]
+                self.positioning.handle(
+                    run=np.full(len(due), t.index),
+                    circuit_id=np.array([c for _, c in due]),
+                    gnss_time_s=np.array([g for g, _ in due]),
+                )
+        est = self.positioning.calibrated_m()
+        for t in self.trains:
+            t.x_onboard_m = float(est[t.index])
+            if t.phase in ON_LINE:
+                self.position_errors.append(t.x_onboard_m - t.x_m)
 
     # ------------------------------------------------------------------ the plant
 
@@ -262,8 +365,10 @@ class LineSimulation:
         return veh.tare_mass_kg * (1.0 + veh.rotating_mass_factor) + train.load_factor * veh.crush_payload_kg
 
     def _run(self, train: Train, now_s: float, dt: float) -> None:
+        # The ATO knows its position from the onboard positioning (SPEC §2), not the truth.
+        here = train.x_onboard_m
         proceed = self.receivers[train.index].proceed
-        auth = authority_end_m(train.x_m, self.signal_m, proceed)
+        auth = authority_end_m(here, self.signal_m, proceed)
         st_next = (
             self.line.stations[train.next_station] if train.next_station < len(self.line.stations) else None
         )
@@ -274,7 +379,7 @@ class LineSimulation:
             # again once the platform clears.
             entry = st_next.tasc.entry_speed_kmh * KMH
             target = min(auth, handover_m(st_next.detector_positions_m()[0], entry) - HOLD_BACK_M)
-        ceiling = ceiling_mps(self.profile, train.x_m, train.v_mps, target, self.plan_mps2)
+        ceiling = ceiling_mps(self.profile, here, train.v_mps, target, self.plan_mps2)
         mass = self._mass_kg(train)
         veh = self.vehicle
         v = train.v_mps
@@ -285,14 +390,21 @@ class LineSimulation:
         v_new = max(v + a * dt, 0.0)
         x_new = train.x_m + 0.5 * (v + v_new) * dt
         if st_next is not None:
-            h = handover_m(st_next.detector_positions_m()[0], v_new)
-            if x_new >= h > train.x_m and auth >= st_next.stop_point_m:
-                # Land exactly at the hand-over point, then the station stop takes the train.
-                frac = (h - train.x_m) / max(x_new - train.x_m, 1e-9)
+            first = st_next.detector_positions_m()[0]
+            h = handover_m(first, v_new)
+            if x_new >= h and train.x_m < first and auth >= st_next.stop_point_m:
+                # Land at the hand-over point, then the station stop takes the train. (The point
+                # moves with the speed, 1.5 s before the detector: a front a few centimetres past
+                # it is taken there, so that the stop model's run starts where the train is.)
+                frac = min(max((h - train.x_m) / max(x_new - train.x_m, 1e-9), 0.0), 1.0)
                 train.x_m, train.v_mps = h, v + (v_new - v) * frac
                 self._stop(train, st_next, now_s - dt + frac * dt)
                 return
         train.x_m, train.v_mps = x_new, v_new
+        if st_next is not None and train.x_m > st_next.platform_end:
+            # Past a platform without its stop: counted, never silent (it must not happen).
+            self.skipped_stops += 1
+            train.next_station += 1
         if train.x_m - veh.length_m >= self.end_m:
             train.phase = "gone"
             train.exited_s = now_s
@@ -386,6 +498,7 @@ class LineSimulation:
 
     def plant(self, now_s: float, dt: float) -> list[Output]:
         entry_proceed = self._entry_signal_proceed()
+        before = [t.x_m for t in self.trains]
         for train in self.trains:
             if train.phase == "waiting":
                 if now_s >= train.request_s and entry_proceed and self._entry_clear():
@@ -403,6 +516,7 @@ class LineSimulation:
             if train.phase in ON_LINE:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
+        self._position_step(now_s, [t.x_m - b for t, b in zip(self.trains, before, strict=True)])
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
@@ -443,4 +557,6 @@ class LineSimulation:
             signal_m=list(self.signal_m),
             station_m=[(s.name, s.stop_point_m) for s in self.line.stations],
             min_separation_m=float(self.min_separation_m),
+            position_errors=self.position_errors,
+            skipped_stops=self.skipped_stops,
         )
