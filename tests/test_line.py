@@ -298,3 +298,56 @@ def test_line_run_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
     assert p.returncode == 2
     lines = (p.stdout + p.stderr).strip().splitlines()
     assert len(lines) == 1 and f"{bad}: controller:" in lines[0] and "Traceback" not in p.stderr
+
+
+# ---------------------------------------------------------------- line campaigns
+
+
+def _campaign(tmp: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [RAILSTOP, "line", "campaign", "--trains", "2", "--duration-s", "700", "--out", str(tmp), *args],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+
+
+def test_a_line_campaign_pools_its_runs_and_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "camp"
+    p = _campaign(out, "--runs", "3", "--workers", "2", "--json")
+    assert p.returncode == 0, p.stderr
+    s = json.loads(p.stdout)
+    assert s["runs"] == 3 and set(s["stations"]) == {st.name for st in LINE.stations}
+    assert sum(st["stops"] for st in s["stations"].values()) == 3 * 2 * 4
+    rows = [json.loads(line) for line in (out / "runs.jsonl").read_text(encoding="utf-8").splitlines()]
+    assert sorted(r["run"] for r in rows) == [0, 1, 2]
+    # Run r is the line run of seed S + r, reproduced alone.
+    alone = subprocess.run(
+        [RAILSTOP, "line", "run", "--trains", "2", "--duration-s", "700", "--seed", "3", "--json",
+         "--disturbances", "standard"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    row2 = next(r for r in rows if r["run"] == 2)["summary"]
+    again = json.loads(alone.stdout)
+    for key in ("stops", "stop_error_p99_m", "trains_per_hour", "position_error_p99_m"):
+        assert again[key] == row2[key]
+    # Killed mid-write: the cut last line runs again, the others are kept.
+    text = (out / "runs.jsonl").read_text(encoding="utf-8").splitlines()
+    (out / "runs.jsonl").write_text("\n".join(text[:2]) + "\n" + text[2][:40], encoding="utf-8")
+    r = _campaign(out, "--runs", "3", "--resume", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["runs"] == 3
+    lines = (out / "runs.jsonl").read_text(encoding="utf-8").splitlines()
+    assert len(lines) == 3  # the cut line dropped, its run written again
+    assert [json.loads(line) for line in lines[:2]] == rows[:2]
+    rerun = json.loads(lines[2])
+    assert rerun["stops"] == rows[2]["stops"] and rerun["dwells"] == rows[2]["dwells"]
+
+
+def test_a_line_campaign_refuses_to_mix_settings(tmp_path: Path) -> None:
+    out = tmp_path / "camp"
+    assert _campaign(out, "--runs", "1").returncode == 0
+    p = _campaign(out, "--runs", "1")
+    assert p.returncode == 2 and "already there" in p.stderr + p.stdout
+    q = _campaign(out, "--runs", "2", "--resume")
+    assert q.returncode == 2 and "other settings" in q.stderr + q.stdout

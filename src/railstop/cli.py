@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from railstop.cli_common import fail, out, print_error, styled
+from railstop.cli_common import LineOpt, OperationOpt, VehicleOpt, fail, out, print_error, styled
 from railstop.cli_doors import doors_app, dwell
 from railstop.cli_line import line_app
 from railstop.cli_progress import Reporter, on_interrupt, run_program
@@ -100,14 +100,6 @@ app.command()(dwell)
 app.add_typer(telegram_app, name="telegram")
 app.add_typer(line_app, name="line")
 
-LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
-VehicleOpt = Annotated[
-    Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
-]
-OperationOpt = Annotated[
-    Path | None,
-    typer.Option("--operation", help="Operation TOML file: trains, headway, dwells (default: embedded)."),
-]
 FormOpt = Annotated[
     int | None,
     typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),

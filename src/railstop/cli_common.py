@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import os
 import sys
-from typing import NoReturn
+from pathlib import Path
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
@@ -31,3 +32,14 @@ def fail(message: str) -> NoReturn:
     """Print ``error: message`` and exit with code 2."""
     print_error(message)
     raise typer.Exit(2)
+
+
+# Options several commands share (one definition, one help text).
+LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
+VehicleOpt = Annotated[
+    Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
+]
+OperationOpt = Annotated[
+    Path | None,
+    typer.Option("--operation", help="Operation TOML file: trains, headway, dwells (default: embedded)."),
+]

@@ -4,12 +4,23 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli_common import fail, out
+from railstop.cli_common import LineOpt, OperationOpt, VehicleOpt, fail
+from railstop.cli_common import out as console
 from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    from railstop.config.operation import Operation
+    from railstop.config.schema import Line
+
+TrainsOpt = Annotated[int | None, typer.Option(min=1, max=200, help="Trains (default: the operation's).")]
+HeadwayOpt = Annotated[
+    float | None,
+    typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
+]
 
 line_app = typer.Typer(
     add_completion=False,
@@ -20,13 +31,8 @@ line_app = typer.Typer(
 
 @line_app.command("run")
 def run_cmd(
-    trains: Annotated[
-        int | None, typer.Option(min=1, max=200, help="Trains (default: the operation's).")
-    ] = None,
-    headway_s: Annotated[
-        float | None,
-        typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
-    ] = None,
+    trains: TrainsOpt = None,
+    headway_s: HeadwayOpt = None,
     duration_s: Annotated[float, typer.Option(min=1.0, max=86400.0, help="Simulated time (s).")] = 3600.0,
     seed: Annotated[int, typer.Option(help="Random seed of the disturbance draws.")] = 1,
     disturbances: Annotated[
@@ -34,21 +40,14 @@ def run_cmd(
     ] = "nominal",
     plot: Annotated[Path | None, typer.Option(help="Write the time-distance diagram (PNG).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    line: Annotated[
-        Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")
-    ] = None,
-    vehicle: Annotated[
-        Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
-    ] = None,
-    operation: Annotated[
-        Path | None, typer.Option("--operation", help="Operation TOML file (default: embedded).")
-    ] = None,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    operation: OperationOpt = None,
 ) -> None:
     """Run the trains of the operation over the line: entries, running under the fixed-block
     signals, a station stop by ground TASC at every station, dwells; print the summary."""
     from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
-    from railstop.config.operation import load_operation
     from railstop.provenance import footer, inputs_sha256, stamp
     from railstop.sim.line import LineSimulation
     from railstop.streams import SEED_RANGE, seed_in_range
@@ -58,18 +57,7 @@ def run_cmd(
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
-        op = load_operation(operation, ln)
-        changes: dict[str, object] = {}
-        if trains is not None:
-            changes["trains"] = trains
-            if op.entries_s is not None:
-                fail("--trains: the operation file has a timetable (entries_s); edit it instead")
-        if headway_s is not None:
-            if op.entries_s is not None:
-                fail("--headway-s: the operation file has a timetable (entries_s); edit it instead")
-            changes["headway_s"] = headway_s
-        if changes:
-            op = op.model_validate({**op.model_dump(), **changes})
+        op = _operation(operation, ln, trains, headway_s)
         dist = load_disturbances(disturbances)
         sim = LineSimulation(line=ln, vehicle=veh, operation=op, disturbances=dist, seed=seed)
         result = sim.run(duration_s)
@@ -91,7 +79,7 @@ def run_cmd(
     if as_json:
         print(json.dumps(summary))
         return
-    out.print(
+    console.print(
         f"{ln.line.name}: {summary['entered']} of {summary['trains']} trains entered, "
         f"{summary['exited']} left "
         f"the line in {duration_s:g} s ({summary['trains_per_hour']} trains/h, mean delay "
@@ -104,4 +92,96 @@ def run_cmd(
         soft_wrap=True,
     )
     if plot is not None:
-        out.print(f"plot: {plot}", highlight=False)
+        console.print(f"plot: {plot}", highlight=False)
+
+
+@line_app.command("campaign")
+def campaign_cmd(
+    runs: Annotated[int, typer.Option(min=1, max=100_000, help="Line runs (run r has seed S + r).")] = 10,
+    seed: Annotated[int, typer.Option(help="Seed S of the first run.")] = 1,
+    trains: TrainsOpt = None,
+    headway_s: HeadwayOpt = None,
+    duration_s: Annotated[
+        float, typer.Option(min=1.0, max=86400.0, help="Simulated time per run (s).")
+    ] = 3600.0,
+    disturbances: Annotated[
+        str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
+    ] = "standard",
+    workers: Annotated[int, typer.Option(min=1, max=256, help="Processes (default: 1).")] = 1,
+    out: Annotated[Path, typer.Option(help="Campaign folder.")] = Path("line-campaign"),
+    resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    operation: OperationOpt = None,
+) -> None:
+    """Many line runs over disturbance draws: per station stop accuracy and dwell, trains per
+    hour, delays, emergency brakes, the onboard position's error."""
+    from rich.table import Table
+
+    from railstop.config import load_line, load_vehicle
+    from railstop.config.disturbances import load_disturbances
+    from railstop.sim.line_campaign import LineCampaignSpec, run_line_campaign
+    from railstop.streams import SEED_RANGE, seed_in_range
+
+    if not (seed_in_range(seed) and seed_in_range(seed + runs - 1)):
+        fail(f"--seed: {SEED_RANGE} for every run's seed S + r (got S = {seed}, {runs} runs)")
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+        op = _operation(operation, ln, trains, headway_s)
+        spec = LineCampaignSpec(
+            line=ln,
+            vehicle=veh,
+            operation=op,
+            disturbances=load_disturbances(disturbances),
+            runs=runs,
+            seed=seed,
+            duration_s=duration_s,
+        )
+        summary = run_line_campaign(spec, out, workers=workers, resume=resume)
+    except RailstopError as exc:
+        fail(str(exc))
+    if as_json:
+        print(json.dumps(summary))
+        return
+    table = Table(
+        title=f"{summary['runs']} line runs, {op.trains} trains every {op.headway_s:g} s ({disturbances})"
+    )
+    for col in ("station", "stops", "within tolerance", "p99 |error| m", "mean dwell s", "EB"):
+        table.add_column(col, justify="left" if col == "station" else "right")
+    for name, st in summary["stations"].items():
+        share = st["within_tolerance"]
+        table.add_row(
+            name,
+            f"{st['stops']:,}",
+            "-" if share is None else f"{100 * share:.2f}%",
+            str(st["p99_abs_error_m"]),
+            str(st["mean_dwell_s"]),
+            str(st["emergency_brakes"]),
+        )
+    console.print(table)
+    console.print(
+        f"trains/h {summary['trains_per_hour_mean']} (mean over runs), mean delay "
+        f"{summary['mean_delay_s_mean']} s, "
+        f"{summary['dwell_faults']} dwell faults, {summary['skipped_stops']} skipped stops, least separation "
+        f"{summary['min_separation_m']} m, onboard position p99 {summary['position_error_p99_m_mean']} m "
+        f"(worst run {summary['position_error_p99_m_worst']} m); runs and summary in {out}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def _operation(path: Path | None, line: Line, trains: int | None, headway_s: float | None) -> Operation:
+    """The operation file, with --trains and --headway-s over it (not over a timetable)."""
+    from railstop.config.operation import load_operation
+
+    op = load_operation(path, line)
+    changes: dict[str, object] = {}
+    for name, value, flag in (("trains", trains, "--trains"), ("headway_s", headway_s, "--headway-s")):
+        if value is None:
+            continue
+        if op.entries_s is not None:
+            raise RailstopError(f"{flag}: the operation file has a timetable (entries_s); edit it instead")
+        changes[name] = value
+    return op.model_validate({**op.model_dump(), **changes}) if changes else op

@@ -11,7 +11,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
-from railstop.cli_common import fail, out
+from railstop.cli_common import LineOpt, VehicleOpt, fail, out
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.errors import RailstopError
@@ -105,12 +105,8 @@ def _default(value: object) -> str:
 
 
 def position_run(
-    line: Annotated[
-        Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")
-    ] = None,
-    vehicle: Annotated[
-        Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
-    ] = None,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
     seed: Annotated[str, typer.Option(metavar="<int>", help="Random seed.")] = "1",
     run: Annotated[
         str,

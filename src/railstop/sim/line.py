@@ -69,6 +69,7 @@ from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import run_dwell
+from railstop.sim.scenario import station_gradient
 from railstop.streams import RunStreams, Stream
 from railstop.units import Message
 from railstop.wayside.interlocking import FixedBlockInterlocking
@@ -417,7 +418,11 @@ class LineSimulation:
         run = train.index * RUNS_PER_TRAIN + station_index
         streams = RunStreams.for_runs(self.seed, run, 1)
         scenario, _ = draw_scenario(self.dist, st, self.vehicle, streams)
-        scenario = scenario.with_values(entry_speed_mps=np.array([train.v_mps]))
+        # The train's own speed, and the station's own gradients: on the line the gradient is
+        # the track's, not a draw (a campaign draws it to try the station on other tracks).
+        scenario = scenario.with_values(
+            entry_speed_mps=np.array([train.v_mps]), gradient=station_gradient(st, 1)
+        )
         train.load_factor = float(scenario.load_factor[0])
         batch = run_batch(
             station=st,

@@ -1,0 +1,183 @@
+"""Line campaigns (issue 14 item 5): many runs of the line over disturbance draws, in processes.
+
+Run ``r`` of a campaign of seed ``S`` is the line run of seed ``S + r``: every
+station stop of every train draws its own disturbances from that seed
+(``sim.line``), so a run is reproduced alone by ``railstop line run --seed
+S+r``. Finished runs are appended to ``runs.jsonl`` in the campaign folder as
+they come back (one JSON object per line: the run's summary and its stops),
+so an interrupted campaign keeps them and ``--resume`` runs only the others.
+The summary pools the stops of every run per station.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from railstop.config.disturbances import DisturbanceSet
+from railstop.config.operation import Operation
+from railstop.config.schema import Line, Vehicle
+from railstop.errors import RailstopError
+
+RUNS_FILE = "runs.jsonl"
+SPEC_FILE = "campaign.json"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LineCampaignSpec:
+    line: Line
+    vehicle: Vehicle
+    operation: Operation
+    disturbances: DisturbanceSet
+    runs: int
+    seed: int
+    duration_s: float
+
+    def identity(self) -> dict[str, Any]:
+        """What decides the numbers (checked on --resume)."""
+        return {
+            "line": self.line.model_dump(mode="json"),
+            "vehicle": self.vehicle.model_dump(mode="json"),
+            "operation": self.operation.model_dump(mode="json"),
+            "disturbances": self.disturbances.name,
+            "disturbance_params": {k: str(v) for k, v in sorted(self.disturbances.params.items())},
+            "runs": self.runs,
+            "seed": self.seed,
+            "duration_s": self.duration_s,
+        }
+
+
+def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
+    """One line run of the campaign: its summary and its stops (JSON-ready)."""
+    from railstop.sim.line import LineSimulation
+
+    sim = LineSimulation(
+        line=spec.line,
+        vehicle=spec.vehicle,
+        operation=spec.operation,
+        disturbances=spec.disturbances,
+        seed=spec.seed + run,
+    )
+    result = sim.run(spec.duration_s)
+    return {
+        "run": run,
+        "summary": result.summary(),
+        "stops": [asdict(s) for s in result.stops],
+        "dwells": [asdict(d) for d in result.dwells],
+    }
+
+
+def _read_done(out: Path) -> dict[int, dict[str, Any]]:
+    path = out / RUNS_FILE
+    done: dict[int, dict[str, Any]] = {}
+    if not path.exists():
+        return done
+    lines = path.read_text(encoding="utf-8").splitlines()
+    for k, line in enumerate(lines):
+        try:
+            row = json.loads(line)
+            done[int(row["run"])] = row
+        except (ValueError, KeyError, TypeError):
+            # Only the last line can be cut (a kill mid-write): drop it, that run runs again.
+            if k != len(lines) - 1:
+                raise RailstopError(f"{path}: line {k + 1} is not a finished run") from None
+            path.write_text("".join(ln + "\n" for ln in lines[:-1]), encoding="utf-8")
+    return done
+
+
+def run_line_campaign(
+    spec: LineCampaignSpec,
+    out: Path,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Run the campaign into ``out`` (created); return its summary (also ``out/summary.json``)."""
+    out = Path(out)
+    ident = spec.identity()
+    spec_path = out / SPEC_FILE
+    if spec_path.exists():
+        if not resume:
+            raise RailstopError(f"{out}: a line campaign is already there; use --resume or another --out")
+        if json.loads(spec_path.read_text(encoding="utf-8")) != ident:
+            raise RailstopError(f"{out}: --resume with other settings than the campaign there")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        spec_path.write_text(json.dumps(ident, sort_keys=True), encoding="utf-8")
+    done = _read_done(out)
+    todo = [r for r in range(spec.runs) if r not in done]
+    with (out / RUNS_FILE).open("a", encoding="utf-8") as sink:
+        if workers <= 1:
+            for r in todo:
+                row = run_one(spec, r)
+                sink.write(json.dumps(row) + "\n")
+                sink.flush()
+                done[r] = row
+                if progress:
+                    progress(len(done), spec.runs)
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = [pool.submit(run_one, spec, r) for r in todo]
+                for f in as_completed(futures):
+                    row = f.result()
+                    sink.write(json.dumps(row) + "\n")
+                    sink.flush()
+                    os.fsync(sink.fileno())
+                    done[int(row["run"])] = row
+                    if progress:
+                        progress(len(done), spec.runs)
+    summary = summarise(spec, [done[r] for r in sorted(done)])
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
+    return summary
+
+
+def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per station: stops, share within its PSD tolerance, p99 |error|, mean dwell, emergency
+    brakes; over the runs: trains per hour, mean delay, position error p99 (mean and worst)."""
+    tol = {s.name: s.psd_tolerance_m for s in spec.line.stations}
+    stations: dict[str, dict[str, Any]] = {}
+    for name in tol:
+        errs = np.array([abs(s["error_m"]) for r in rows for s in r["stops"] if s["station"] == name])
+        dwells = [d["dwell_s"] for r in rows for d in r["dwells"] if d["station"] == name]
+        stations[name] = {
+            "stops": int(errs.size),
+            "within_tolerance": round(float(np.mean(errs <= tol[name])), 6) if errs.size else None,
+            "p99_abs_error_m": round(float(np.percentile(errs, 99.0)), 4) if errs.size else None,
+            "mean_dwell_s": round(float(np.mean(dwells)), 2) if dwells else None,
+            "emergency_brakes": int(
+                sum(1 for r in rows for s in r["stops"] if s["station"] == name and s["emergency_brake"])
+            ),
+        }
+
+    def values(key: str) -> list[float]:
+        return [float(r["summary"][key]) for r in rows if r["summary"].get(key) is not None]
+
+    def mean(key: str) -> float | None:
+        v = values(key)
+        return round(float(np.mean(v)), 3) if v else None
+
+    pos = values("position_error_p99_m")
+    return {
+        "runs": len(rows),
+        "seed": spec.seed,
+        "disturbances": spec.disturbances.name,
+        "trains": spec.operation.trains,
+        "headway_s": spec.operation.headway_s,
+        "stations": stations,
+        "trains_per_hour_mean": mean("trains_per_hour"),
+        "mean_delay_s_mean": mean("mean_delay_s"),
+        "emergency_brakes": int(sum(values("emergency_brakes"))),
+        "dwell_faults": int(sum(values("dwell_faults"))),
+        "skipped_stops": int(sum(values("skipped_stops"))),
+        "min_separation_m": round(min(values("min_separation_m")), 2) if values("min_separation_m") else None,
+        "position_error_p99_m_mean": round(float(np.mean(pos)), 3) if pos else None,
+        "position_error_p99_m_worst": round(float(np.max(pos)), 3) if pos else None,
+    }
