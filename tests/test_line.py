@@ -191,6 +191,7 @@ def test_twelve_trains_stop_at_every_station_within_the_tolerance(default_run: d
     s = default_run
     assert s["entered"] == s["exited"] == 12
     assert s["stops"] == s["stops_within_tolerance"] == 48 and s["skipped_stops"] == 0
+    assert s["signals_passed_at_danger"] == 0
     assert isinstance(s["stop_error_p99_m"], float) and s["stop_error_p99_m"] <= 0.35
     assert s["emergency_brakes"] == 0 and s["dwell_faults"] == 0
     # The dwell runs the door units: doors open 30 s (40 at Hillcrest) plus the sequence around.
@@ -248,6 +249,23 @@ def test_a_dwell_fault_holds_the_train_and_the_line_behind_it() -> None:
     assert isinstance(s["min_separation_m"], float) and s["min_separation_m"] > 50.0
     held = [t for t in sim.trains if t.phase == "held"]
     assert len(held) == 1 and held[0].x_m < LINE.stations[0].platform_start
+
+
+def test_no_train_waits_for_ever_at_a_signal_it_occupies() -> None:
+    """20 trains every 60 s on the standard set once ended with a train whose front stood 1.2 m
+    past a red signal (its onboard position 1.2 m behind): its own occupancy kept the signal at
+    stop, and the line behind it waited for ever. The ATO now stops 15 m before a red signal,
+    more than the onboard position's error; every train gets through, none passes a red one."""
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=Operation(trains=20, headway_s=60.0),
+        disturbances=load_disturbances("standard"),
+    )
+    s = sim.run(3600.0).summary()
+    assert s["entered"] == s["exited"] == 20
+    assert s["signals_passed_at_danger"] == 0 and s["skipped_stops"] == 0
+    assert s["stops"] == s["stops_within_tolerance"] == 80
 
 
 def test_the_run_is_a_function_of_the_seed() -> None:

@@ -31,8 +31,11 @@ KMH = 1.0 / 3.6
 
 #: Resolution of the static profile (m).
 PROFILE_DX_M = 1.0
-#: The ATO stops this far before a signal at stop.
-SIGNAL_MARGIN_M = 5.0
+#: The ATO stops this far before a signal at stop, by its onboard position: more than that
+#: position's error (SPEC §2 corrections through jointless circuits: p99 about 4 m, worst about
+#: 7 m on the default line) so that the true front stays behind the signal. A front past it
+#: would occupy the block the signal protects, keep the signal at stop and wait for ever.
+SIGNAL_MARGIN_M = 15.0
 #: Speed-error gain of the ATO's demand (1/s).
 SPEED_GAIN_PER_S = 1.5
 #: The ceiling is read this far ahead of the train (s at its speed): a speed-error law lags
@@ -76,12 +79,17 @@ def profile_at(profile: FloatArray, x_m: float) -> float:
     return float(profile[min(max(k, 0), profile.size - 1)])
 
 
-def authority_end_m(front_m: float, signal_m: Sequence[float], proceed: Sequence[bool]) -> float:
-    """A few metres before the first signal ahead of ``front_m`` that shows stop (inf: none)."""
+def stop_signal_m(front_m: float, signal_m: Sequence[float], proceed: Sequence[bool]) -> float:
+    """Where the first signal ahead of ``front_m`` that shows stop stands (inf: none)."""
     for pos, ok in zip(signal_m, proceed, strict=True):
         if pos > front_m and not ok:
-            return pos - SIGNAL_MARGIN_M
+            return pos
     return np.inf
+
+
+def authority_end_m(front_m: float, signal_m: Sequence[float], proceed: Sequence[bool]) -> float:
+    """``SIGNAL_MARGIN_M`` before the first signal ahead of ``front_m`` that shows stop (inf: none)."""
+    return stop_signal_m(front_m, signal_m, proceed) - SIGNAL_MARGIN_M
 
 
 def ceiling_mps(

@@ -61,6 +61,7 @@ from railstop.control.line_ato import (
     demand_mps2,
     handover_m,
     static_profile,
+    stop_signal_m,
 )
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
@@ -171,6 +172,7 @@ class LineResult:
     min_separation_m: float
     position_errors: list[float]
     skipped_stops: int
+    signals_passed_at_danger: int
 
     def summary(self) -> dict[str, Any]:
         """The JSON of ``railstop line run``."""
@@ -188,6 +190,7 @@ class LineResult:
             "stops": len(self.stops),
             "stops_within_tolerance": int(sum(s.within_tolerance for s in self.stops)),
             "skipped_stops": self.skipped_stops,
+            "signals_passed_at_danger": self.signals_passed_at_danger,
             "stop_error_p99_m": round(float(np.percentile(errors, 99.0)), 4) if errors.size else None,
             "stop_error_max_m": round(float(errors.max()), 4) if errors.size else None,
             "trains_per_hour": round(tph, 2) if tph is not None else None,
@@ -257,6 +260,7 @@ class LineSimulation:
         self._doors_for: dict[float, DoorsConfig] = {}
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
         self.skipped_stops = 0
+        self.signals_passed_at_danger = 0
         self._init_positioning(odometer_error_pct)
 
     # ------------------------------------------------------------------ onboard position (SPEC §2)
@@ -374,7 +378,11 @@ class LineSimulation:
             self.line.stations[train.next_station] if train.next_station < len(self.line.stations) else None
         )
         target = auth
-        if st_next is not None and auth < st_next.stop_point_m:
+        # The station can take the train when no signal at stop stands before its stopping point.
+        platform_clear = (
+            st_next is not None and stop_signal_m(here, self.signal_m, proceed) > st_next.stop_point_m
+        )
+        if st_next is not None and not platform_clear:
             # The platform is not clear: the station stop cannot take the train, so its ATO
             # stops it HOLD_BACK_M before the hand-over point, from where it runs up to speed
             # again once the platform clears.
@@ -393,7 +401,7 @@ class LineSimulation:
         if st_next is not None:
             first = st_next.detector_positions_m()[0]
             h = handover_m(first, v_new)
-            if x_new >= h and train.x_m < first and auth >= st_next.stop_point_m:
+            if x_new >= h and train.x_m < first and platform_clear:
                 # Land at the hand-over point, then the station stop takes the train. (The point
                 # moves with the speed, 1.5 s before the detector: a front a few centimetres past
                 # it is taken there, so that the stop model's run starts where the train is.)
@@ -401,6 +409,12 @@ class LineSimulation:
                 train.x_m, train.v_mps = h, v + (v_new - v) * frac
                 self._stop(train, st_next, now_s - dt + frac * dt)
                 return
+        for pos, ok in zip(self.signal_m, proceed, strict=True):
+            if train.x_m < pos <= x_new and not ok:
+                # A signal passed at danger: counted (it must not happen) and the train stopped by
+                # its emergency brake there (DESIGN rule 10).
+                self.signals_passed_at_danger += 1
+                v_new = 0.0
         train.x_m, train.v_mps = x_new, v_new
         if st_next is not None and train.x_m > st_next.platform_end:
             # Past a platform without its stop: counted, never silent (it must not happen).
@@ -564,4 +578,5 @@ class LineSimulation:
             min_separation_m=float(self.min_separation_m),
             position_errors=self.position_errors,
             skipped_stops=self.skipped_stops,
+            signals_passed_at_danger=self.signals_passed_at_danger,
         )

@@ -177,6 +177,7 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         "emergency_brakes": int(sum(values("emergency_brakes"))),
         "dwell_faults": int(sum(values("dwell_faults"))),
         "skipped_stops": int(sum(values("skipped_stops"))),
+        "signals_passed_at_danger": int(sum(values("signals_passed_at_danger"))),
         "min_separation_m": round(min(values("min_separation_m")), 2) if values("min_separation_m") else None,
         "position_error_p99_m_mean": round(float(np.mean(pos)), 3) if pos else None,
         "position_error_p99_m_worst": round(float(np.max(pos)), 3) if pos else None,
