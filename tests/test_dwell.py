@@ -267,3 +267,29 @@ def test_cli_dwell_bad_input_one_line_exit_2(args: tuple[str, ...], needle: str,
     assert p.returncode == 2
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and needle in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
+def test_a_lost_psc_reply_is_a_timeout_and_all_lost_is_the_fault_path() -> None:
+    """SPEC §5 over a faulty platform link: a PSC attempt whose reply is lost times out as for a
+    train not in position; the next attempt may succeed; with every reply lost the dwell ends in
+    the fault path, and neither the train doors nor the PSD ever open (DESIGN rule 10)."""
+    from railstop.config.doors import load_doors
+    from railstop.sim.dwell import run_dwell
+
+    doors = load_doors(None)
+    ok = run_dwell(doors=doors, station="X", platform_side="R", stop_error_m=0.02)
+    one = run_dwell(doors=doors, station="X", platform_side="R", stop_error_m=0.02, psc_lost=frozenset({1}))
+    assert ok.outcome == one.outcome == "start-enable"
+    assert (ok.psc_attempts, one.psc_attempts) == (1, 2)
+    assert one.start_enable_s is not None and ok.start_enable_s is not None
+    assert one.start_enable_s > ok.start_enable_s  # the time-out and the second attempt
+    every = frozenset(range(1, doors.stop_confirm.max_psc_attempts + 1))
+    lost = run_dwell(doors=doors, station="X", platform_side="R", stop_error_m=0.02, psc_lost=every)
+    assert lost.outcome == "fault" and lost.start_enable_s is None and lost.fault
+    opened = [
+        e
+        for e in lost.timeline
+        if (e.signal.startswith("train_doors") or e.signal == "PSD")
+        and e.value not in ("closed", "closed_locked")
+    ]
+    assert opened == []

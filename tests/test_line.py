@@ -268,6 +268,24 @@ def test_no_train_waits_for_ever_at_a_signal_it_occupies() -> None:
     assert s["stops"] == s["stops_within_tolerance"] == 80
 
 
+def test_a_faulty_platform_link_never_opens_doors() -> None:
+    """Every PSC reply lost on the platform link: the first train's first dwell ends in the
+    SPEC §5 fault path with its doors closed and the line behind it held; with a third of the
+    replies lost, the dwells retry PSC and every train still gets its start enable."""
+    every = LineSimulation(
+        line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), psc_loss_probability=1.0
+    )
+    s = every.run(1200.0).summary()
+    assert s["dwell_faults"] == 1 and s["stops"] == 1 and s["exited"] == 0
+    assert [t.phase for t in every.trains].count("held") == 1
+    some = LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), psc_loss_probability=0.3)
+    r = some.run(1500.0).summary()
+    assert r["dwell_faults"] == 0 and r["exited"] == 3
+    assert isinstance(r["psc_retries"], int) and r["psc_retries"] > 0
+    with pytest.raises(SimulationError, match="psc_loss_probability"):
+        LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), psc_loss_probability=1.5)
+
+
 def test_the_run_is_a_function_of_the_seed() -> None:
     def summary(seed: int) -> dict[str, object]:
         op = Operation(trains=3, headway_s=120.0)

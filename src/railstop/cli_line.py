@@ -17,6 +17,12 @@ if TYPE_CHECKING:
     from railstop.config.schema import Line
 
 TrainsOpt = Annotated[int | None, typer.Option(min=1, max=200, help="Trains (default: the operation's).")]
+PscLossOpt = Annotated[
+    float,
+    typer.Option(
+        min=0.0, max=1.0, help="Chance that the platform link loses a PSC reply (a fault; SPEC §5)."
+    ),
+]
 HeadwayOpt = Annotated[
     float | None,
     typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
@@ -38,6 +44,7 @@ def run_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "nominal",
+    psc_loss: PscLossOpt = 0.0,
     plot: Annotated[Path | None, typer.Option(help="Write the time-distance diagram (PNG).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     line: LineOpt = None,
@@ -59,7 +66,9 @@ def run_cmd(
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
         dist = load_disturbances(disturbances)
-        sim = LineSimulation(line=ln, vehicle=veh, operation=op, disturbances=dist, seed=seed)
+        sim = LineSimulation(
+            line=ln, vehicle=veh, operation=op, disturbances=dist, seed=seed, psc_loss_probability=psc_loss
+        )
         result = sim.run(duration_s)
         summary = result.summary()
         if plot is not None:
@@ -107,6 +116,7 @@ def campaign_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "standard",
+    psc_loss: PscLossOpt = 0.0,
     workers: Annotated[int, typer.Option(min=1, max=256, help="Processes (default: 1).")] = 1,
     out: Annotated[Path, typer.Option(help="Campaign folder.")] = Path("line-campaign"),
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
@@ -138,6 +148,7 @@ def campaign_cmd(
             runs=runs,
             seed=seed,
             duration_s=duration_s,
+            psc_loss_probability=psc_loss,
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume)
     except RailstopError as exc:

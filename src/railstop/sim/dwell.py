@@ -130,12 +130,15 @@ def run_dwell(
     obstruct_door: int | None = None,
     psd_fail: int | None = None,
     model: DoorModel | None = None,
+    psc_lost: frozenset[int] = frozenset(),
 ) -> DwellResult:
     """Simulate one dwell from a train that has just stopped ``stop_error_m`` from its stopping point.
 
     ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
     the platform side that is obstructed while closing (cleared later) / fails
-    to close (isolated by staff later).
+    to close (isolated by staff later). ``psc_lost``: the PSC attempts (1 = first) whose
+    WPCS reply the link loses: the onboard unit then times out as for a train not in
+    position (SPEC §5: no PSC, no door release).
     """
     if mode not in MODES:
         raise SimulationError(f"mode: must be one of {', '.join(MODES)} (got {mode!r})")
@@ -154,6 +157,7 @@ def run_dwell(
         manual=mode == "manual",
         obstruct=None if obstruct_door is None else obstruct_door - 1,
         psd_fail=None if psd_fail is None else psd_fail - 1,
+        psc_lost=psc_lost,
     )
     run.run()
     w = run.world
@@ -207,8 +211,10 @@ class _Dwell:
         manual: bool,
         obstruct: int | None,
         psd_fail: int | None,
+        psc_lost: frozenset[int] = frozenset(),
     ) -> None:
         self.cfg = doors
+        self.psc_lost = psc_lost
         self.timing = doors.timing
         self.sc = doors.stop_confirm
         self.model = model
@@ -376,7 +382,8 @@ class _Dwell:
         if phase != was:
             if phase == StopPhase.PSC_WAIT:
                 # SPEC §5: standstill confirmed -> PSC request; the WPCS answers only a train in position.
-                if answers_psc(self.error_m, self.sc.tolerance_m):
+                lost = w.stop.attempts in self.psc_lost  # the link lost this attempt's reply
+                if answers_psc(self.error_m, self.sc.tolerance_m) and not lost:
                     self._at(t.psc_reply_s, "psc_reply")
                 else:
                     self._at(t.psc_timeout_s, "psc_timeout")

@@ -200,6 +200,7 @@ class LineResult:
             if self.dwells
             else None,
             "dwell_faults": int(sum(d.outcome != "start-enable" for d in self.dwells)),
+            "psc_retries": int(sum(max(d.psc_attempts - 1, 0) for d in self.dwells)),
             # Counted, not assumed: the least gap between a train's front and the rear ahead.
             "min_separation_m": round(self.min_separation_m, 2)
             if np.isfinite(self.min_separation_m)
@@ -227,9 +228,17 @@ class LineSimulation:
         seed: int = 1,
         step_s: float = 0.1,
         odometer_error_pct: float | None = None,
+        psc_loss_probability: float = 0.0,
     ) -> None:
         """``odometer_error_pct``: every train's odometer diameter error (default: each train's
-        own draw of the disturbance set's ``odometer_diameter_error_pct``)."""
+        own draw of the disturbance set's ``odometer_diameter_error_pct``).
+        ``psc_loss_probability``: the chance that the link loses a PSC attempt's reply (SPEC §5,
+        drawn per train, station and attempt): a fault of the platform link."""
+        if not 0.0 <= psc_loss_probability <= 1.0:
+            raise SimulationError(
+                f"psc_loss_probability: a probability in [0, 1] (got {psc_loss_probability})"
+            )
+        self.psc_loss = psc_loss_probability
         if line.signalling is None:
             raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
         if vehicle.traction is None:
@@ -479,11 +488,13 @@ class LineSimulation:
         train.v_mps = 0.0
         st = self.line.stations[train.next_station]
         arrive = float(train.play_t[-1])
+        doors = self._doors(self.operation.dwell_at_s(st.name))
         dwell = run_dwell(
-            doors=self._doors(self.operation.dwell_at_s(st.name)),
+            doors=doors,
             station=st.name,
             platform_side=st.platform_side,
             stop_error_m=train.x_m - st.stop_point_m,
+            psc_lost=self._psc_lost(train, train.next_station, doors.stop_confirm.max_psc_attempts),
         )
         self.dwells.append(
             DwellRecord(
@@ -504,6 +515,17 @@ class LineSimulation:
         train.x_m = st.stop_point_m + dwell.final_stop_error_m  # after any correction creep
         train.phase = "dwelling"
         train.until_s = arrive + dwell.start_enable_s
+
+    def _psc_lost(self, train: Train, station_index: int, attempts: int) -> frozenset[int]:
+        """The PSC attempts of this dwell whose reply the link loses (train's own stream)."""
+        if self.psc_loss <= 0.0:
+            return frozenset()
+        st = self.train_streams.subset(np.array([train.index]))
+        return frozenset(
+            a
+            for a in range(1, attempts + 1)
+            if float(st.uniform(Stream.RADIO_LOSS, station_index * 16 + a)[0]) < self.psc_loss
+        )
 
     def _doors(self, dwell_s: float) -> DoorsConfig:
         """The door data with the doors standing open for ``dwell_s``."""

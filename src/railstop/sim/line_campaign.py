@@ -39,6 +39,7 @@ class LineCampaignSpec:
     runs: int
     seed: int
     duration_s: float
+    psc_loss_probability: float = 0.0
 
     def identity(self) -> dict[str, Any]:
         """What decides the numbers (checked on --resume)."""
@@ -51,6 +52,7 @@ class LineCampaignSpec:
             "runs": self.runs,
             "seed": self.seed,
             "duration_s": self.duration_s,
+            "psc_loss_probability": self.psc_loss_probability,
         }
 
 
@@ -64,6 +66,7 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         operation=spec.operation,
         disturbances=spec.disturbances,
         seed=spec.seed + run,
+        psc_loss_probability=spec.psc_loss_probability,
     )
     result = sim.run(spec.duration_s)
     return {
@@ -176,6 +179,7 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         "mean_delay_s_mean": mean("mean_delay_s"),
         "emergency_brakes": int(sum(values("emergency_brakes"))),
         "dwell_faults": int(sum(values("dwell_faults"))),
+        "psc_retries": int(sum(values("psc_retries"))),
         "skipped_stops": int(sum(values("skipped_stops"))),
         "signals_passed_at_danger": int(sum(values("signals_passed_at_danger"))),
         "min_separation_m": round(min(values("min_separation_m")), 2) if values("min_separation_m") else None,
