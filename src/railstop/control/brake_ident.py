@@ -204,6 +204,61 @@ def _misfit_at_1(
 
 
 @njit_step
+def _fine_1(
+    ring: FloatArray,
+    newest: int,
+    count: int,
+    dt_s: float,
+    now_s: float,
+    braking_from_s: float,
+    external_mps2: float,
+    values: FloatArray,
+    effects: FloatArray,
+    delay_s: float,
+    c_on: float,
+    c_lag: float,
+    i: int,
+    j: int,
+    scratch: FloatArray,
+) -> tuple[float, float]:
+    """Criterion and gain at the point (i, j) of the fine grid around the coarse best (c_on,
+    c_lag), index 1 its centre; infinite outside the allowed candidates (onset < 0, lag < 0.1)."""
+    onset = c_on + (i - 1) * FINE_STEP_S
+    lag = c_lag + (j - 1) * FINE_STEP_S
+    if onset < 0.0 or lag < 0.1:
+        return np.inf, np.nan
+    return _misfit_at_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                        values, effects, delay_s, onset, lag, FINE_STRIDE, scratch)  # fmt: skip
+
+
+@njit_step
+def _neighbour_1(
+    ring: FloatArray,
+    newest: int,
+    count: int,
+    dt_s: float,
+    now_s: float,
+    braking_from_s: float,
+    external_mps2: float,
+    values: FloatArray,
+    effects: FloatArray,
+    delay_s: float,
+    c_on: float,
+    c_lag: float,
+    i: int,
+    j: int,
+    scratch: FloatArray,
+) -> float:
+    """The criterion at fine-grid point (i, j): kept in ``scratch`` inside the 3 x 3 grid, else
+    computed (:func:`_fine_1`)."""
+    if 0 <= i <= 2 and 0 <= j <= 2:
+        return float(scratch[FINE + 3 * i + j])
+    f, _ = _fine_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                   values, effects, delay_s, c_on, c_lag, i, j, scratch)  # fmt: skip
+    return f
+
+
+@njit_step
 def _parabola_min_1(x1: float, step: float, f0: float, f1: float, f2: float) -> float:
     """Abscissa of the minimum of the parabola through (x1 - step, f0), (x1, f1), (x1 + step, f2)
     (x1 if the three do not bracket a minimum)."""
@@ -266,46 +321,23 @@ def identify_response_1(
     gain = np.nan
     for i in range(3):
         for j in range(3):
-            f, g = np.inf, np.nan
-            o = c_on + (i - 1) * FINE_STEP_S
-            lg = c_lag + (j - 1) * FINE_STEP_S
-            if o >= 0.0 and lg >= 0.1:
-                f, g = _misfit_at_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
-                                    values, effects, delay_s, o, lg, FINE_STRIDE, scratch)  # fmt: skip
+            f, g = _fine_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                           values, effects, delay_s, c_on, c_lag, i, j, scratch)  # fmt: skip
             scratch[FINE + 3 * i + j] = f
             if f < best:
                 best, bi, bj, gain = f, i, j, g
     if not np.isfinite(best):
         return np.nan, np.nan, np.nan
-    onset = c_on + (bi - 1) * FINE_STEP_S
-    lag = c_lag + (bj - 1) * FINE_STEP_S
     # A parabola along each axis through the best point and its neighbours (from the fine grid,
     # or one more candidate where the best point is on its edge).
-    f_on = np.inf, best, np.inf
-    f_lag = np.inf, best, np.inf
-    sides = (-1, 1)
-    for k in range(2):
-        d = sides[k]
-        ni = bi + d
-        if 0 <= ni <= 2:
-            f_side = scratch[FINE + 3 * ni + bj]
-        elif onset + d * FINE_STEP_S >= 0.0:
-            f_side, _ = _misfit_at_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
-                                     values, effects, delay_s, onset + d * FINE_STEP_S, lag, FINE_STRIDE,
-                                     scratch)  # fmt: skip
-        else:
-            f_side = np.inf
-        f_on = (f_side, f_on[1], f_on[2]) if d < 0 else (f_on[0], f_on[1], f_side)
-        nj = bj + d
-        if 0 <= nj <= 2:
-            f_side = scratch[FINE + 3 * bi + nj]
-        elif lag + d * FINE_STEP_S >= 0.1:
-            f_side, _ = _misfit_at_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
-                                     values, effects, delay_s, onset, lag + d * FINE_STEP_S, FINE_STRIDE,
-                                     scratch)  # fmt: skip
-        else:
-            f_side = np.inf
-        f_lag = (f_side, f_lag[1], f_lag[2]) if d < 0 else (f_lag[0], f_lag[1], f_side)
-    onset_fit = _parabola_min_1(onset, FINE_STEP_S, f_on[0], f_on[1], f_on[2])
-    lag_fit = _parabola_min_1(lag, FINE_STEP_S, f_lag[0], f_lag[1], f_lag[2])
+    on_lo = _neighbour_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                         values, effects, delay_s, c_on, c_lag, bi - 1, bj, scratch)  # fmt: skip
+    on_hi = _neighbour_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                         values, effects, delay_s, c_on, c_lag, bi + 1, bj, scratch)  # fmt: skip
+    lag_lo = _neighbour_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                          values, effects, delay_s, c_on, c_lag, bi, bj - 1, scratch)  # fmt: skip
+    lag_hi = _neighbour_1(ring, newest, count, dt_s, now_s, braking_from_s, external_mps2,
+                          values, effects, delay_s, c_on, c_lag, bi, bj + 1, scratch)  # fmt: skip
+    onset_fit = _parabola_min_1(c_on + (bi - 1) * FINE_STEP_S, FINE_STEP_S, on_lo, best, on_hi)
+    lag_fit = _parabola_min_1(c_lag + (bj - 1) * FINE_STEP_S, FINE_STEP_S, lag_lo, best, lag_hi)
     return onset_fit + lag_fit, lag_fit, gain
