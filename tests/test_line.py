@@ -23,10 +23,9 @@ from railstop.control.line_ato import (
     static_profile,
 )
 from railstop.errors import InterlockError, SimulationError
-from railstop.messages import BROADCAST, CircuitOccupancy, Output, SignalAspects
+from railstop.messages import BROADCAST, CircuitOccupancy, Message, Output, SignalAspects
 from railstop.sim.clock import SimClock
 from railstop.sim.line import LineSimulation
-from railstop.units import Message
 from railstop.wayside.interlocking import FixedBlockInterlocking
 
 LINE = default_line()

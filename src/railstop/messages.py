@@ -28,9 +28,13 @@ class SignalAspects:
     proceed: tuple[bool, ...]
 
 
+#: Every message a unit takes or sends.
+Message = CircuitOccupancy | SignalAspects
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Output:
     """A message for the unit named ``to`` (``BROADCAST``: every unit that takes its type)."""
 
     to: str
-    message: CircuitOccupancy | SignalAspects
+    message: Message

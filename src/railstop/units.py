@@ -12,9 +12,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from railstop.messages import CircuitOccupancy, Output, SignalAspects
-
-Message = CircuitOccupancy | SignalAspects
+from railstop.messages import Message, Output
 
 
 class Unit(Protocol):

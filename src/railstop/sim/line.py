@@ -65,14 +65,13 @@ from railstop.control.line_ato import (
 )
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
-from railstop.messages import CircuitOccupancy, Output, SignalAspects
+from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import run_dwell
 from railstop.sim.scenario import station_gradient
 from railstop.streams import RunStreams, Stream
-from railstop.units import Message
 from railstop.wayside.interlocking import FixedBlockInterlocking
 
 KMH = 1.0 / 3.6
@@ -256,6 +255,9 @@ class LineSimulation:
         self.profile = static_profile(line, self.end_m, self.plan_mps2)
         self.interlocking = FixedBlockInterlocking(line, clear_at_start=True)
         self.signal_m = self.interlocking.signal_m
+        self.first_detector_m = [st.detector_positions_m()[0] for st in line.stations]
+        # The signal protecting the block the trains enter into.
+        self.entry_signal = max(i for i, s in enumerate(self.signal_m) if s <= operation.entry_m)
         self.circuits = [(c.id, c.start_m, c.end_m) for c in line.track.circuits]
         self.trains = [Train(index=k, request_s=t) for k, t in enumerate(operation.entry_times_s())]
         self.receivers = [TrainAspects(f"train-{t.index}", len(self.signal_m)) for t in self.trains]
@@ -396,7 +398,7 @@ class LineSimulation:
             # stops it HOLD_BACK_M before the hand-over point, from where it runs up to speed
             # again once the platform clears.
             entry = st_next.tasc.entry_speed_kmh * KMH
-            target = min(auth, handover_m(st_next.detector_positions_m()[0], entry) - HOLD_BACK_M)
+            target = min(auth, handover_m(self.first_detector_m[train.next_station], entry) - HOLD_BACK_M)
         ceiling = ceiling_mps(self.profile, here, train.v_mps, target, self.plan_mps2)
         mass = self._mass_kg(train)
         veh = self.vehicle
@@ -408,7 +410,7 @@ class LineSimulation:
         v_new = max(v + a * dt, 0.0)
         x_new = train.x_m + 0.5 * (v + v_new) * dt
         if st_next is not None:
-            first = st_next.detector_positions_m()[0]
+            first = self.first_detector_m[train.next_station]
             h = handover_m(first, v_new)
             if x_new >= h and train.x_m < first and platform_clear:
                 # Land at the hand-over point, then the station stop takes the train. (The point
@@ -538,7 +540,7 @@ class LineSimulation:
         return cfg
 
     def plant(self, now_s: float, dt: float) -> list[Output]:
-        entry_proceed = self._entry_signal_proceed()
+        entry_proceed = self.interlocking.aspects[self.entry_signal]
         before = [t.x_m for t in self.trains]
         for train in self.trains:
             if train.phase == "waiting":
@@ -562,11 +564,6 @@ class LineSimulation:
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
         return self._occupancy()
-
-    def _entry_signal_proceed(self) -> bool:
-        # The signal protecting the block the trains enter into.
-        k = max(i for i, s in enumerate(self.signal_m) if s <= self.operation.entry_m)
-        return self.interlocking.aspects[k]
 
     def _entry_clear(self) -> bool:
         # No train's rear still within the train's own length of the entry point.

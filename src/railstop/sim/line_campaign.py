@@ -168,6 +168,7 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         return round(float(np.mean(v)), 3) if v else None
 
     pos = values("position_error_p99_m")
+    separation = values("min_separation_m")
     return {
         "runs": len(rows),
         "seed": spec.seed,
@@ -182,7 +183,7 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         "psc_retries": int(sum(values("psc_retries"))),
         "skipped_stops": int(sum(values("skipped_stops"))),
         "signals_passed_at_danger": int(sum(values("signals_passed_at_danger"))),
-        "min_separation_m": round(min(values("min_separation_m")), 2) if values("min_separation_m") else None,
+        "min_separation_m": round(min(separation), 2) if separation else None,
         "position_error_p99_m_mean": round(float(np.mean(pos)), 3) if pos else None,
         "position_error_p99_m_worst": round(float(np.max(pos)), 3) if pos else None,
     }

@@ -16,8 +16,7 @@ from __future__ import annotations
 
 from railstop.config.schema import Line
 from railstop.errors import InterlockError
-from railstop.messages import BROADCAST, CircuitOccupancy, Output, SignalAspects
-from railstop.units import Message
+from railstop.messages import BROADCAST, CircuitOccupancy, Message, Output, SignalAspects
 
 
 class FixedBlockInterlocking:
