@@ -249,6 +249,61 @@ def test_learner_corrects_a_wrong_nominal_delay() -> None:
 # Clocks and the wayside unit
 
 
+def _sliding_unit(accel_bias: float | None) -> tuple[PositioningUnit, float]:
+    """A train braking at 0.8 m/s² from 20 m/s that slides for 5 s (wheel 20 % short, WSP
+    acting), odometer 2 % long; its accelerometer reads the deceleration + ``accel_bias``
+    (None: it has none). Returns the unit and the true distance."""
+    unit = PositioningUnit(
+        circuits=_circuits([0.0, 240.0]),
+        settings=SETTINGS,
+        n=1,
+        cycle_s=DT,
+        start_position_m=np.zeros(1),
+    )
+    unit.carry_calibration(scale=np.array([1.02]), scale_sd=1e-4, delay_s=np.zeros(1), delay_sd_s=0.01)
+    x, v, odo = 0.0, 20.0, 0.0
+    for k in range(1, 500):
+        sliding = 100 <= k < 200
+        creep = 0.8 if sliding else 1.0
+        v1 = max(v - 0.8 * DT, 0.0)
+        dx = 0.5 * (v + v1) * DT
+        x, v, odo = x + dx, v1, odo + 1.02 * creep * dx
+        unit.log(
+            clock_time_s=np.array([k * DT]),
+            odometer_m=np.array([odo]),
+            speed_mps=np.array([1.02 * creep * v]),
+            wsp_active=np.array([sliding]),
+            accel_mps2=None if accel_bias is None else np.array([-0.8 + accel_bias]),
+        )
+    return unit, x
+
+
+@pytest.mark.parametrize("bias", [0.0, 0.02, -0.05])
+def test_a_slide_is_bridged_by_the_accelerometer(bias: float) -> None:
+    """Beyond SPEC §2: while the WSP acts the wheel does not count the distance (here 20 %
+    short over 5 s, about 13 m of odometer lost); the accelerometer's integral bridges it, off
+    by the bias x T²/2 and the interpolation only."""
+    unit, x = _sliding_unit(bias)
+    lost = x - unit.odometer_m[0] / 1.02
+    assert lost > 10.0
+    assert abs(unit.calibrated_m()[0] - x) < abs(bias) * 5.0**2 / 2.0 + 0.1
+
+
+def test_an_unbridged_slide_is_not_trusted() -> None:
+    """Without an accelerometer the slide's interval is counted as the wheel saw it and marked
+    untrusted: the next fix is taken as it is (gain 1) and nothing is learned from it."""
+    unit, x = _sliding_unit(None)
+    assert unit.calibrated_m()[0] < x - 10.0  # the wheel's shortfall stays until a fix
+    assert unit.wsp_since_fix[0]
+    # The front entered circuit 2 (start 240 m) at t = 20 s (20 t - 0.4 t² = 240; delay 0).
+    rep = unit.handle(run=np.array([0]), circuit_id=np.array([2]), gnss_time_s=np.array([20.0]))
+    assert rep.accepted[0]
+    since = (unit.compensated_odometer_m[0] - rep.odometer_at_fix_m[0]) / unit.scale_estimate[0]
+    assert abs(unit.calibrated_m()[0] - (240.0 + since)) < 1e-3
+    assert abs(unit.calibrated_m()[0] - x) < 0.05
+    assert abs(unit.scale_estimate[0] - 1.02) < 1e-7 and not unit.wsp_since_fix[0]
+
+
 def test_gnss_clock_disciplined_free_running_and_holdover() -> None:
     data = GnssClocks(disciplined_error_s=1e-7, free_run_drift_ppm=2.0, holdover_s=3600.0)
     streams = RunStreams.for_runs(5, 0, 400)

@@ -156,6 +156,7 @@ def test_unit_core_is_the_wrapper_run_by_run() -> None:
             0.25,
             sq.scale_prior_var,
             sq.delay_prior_var_s2,
+            sq.accel_bias_var,
         )
     speed = np.array([12.0, 15.0, 18.0])
     scale = np.array([1.02, 0.99, 1.0])
@@ -166,10 +167,18 @@ def test_unit_core_is_the_wrapper_run_by_run() -> None:
         t = 0.05 * k
         v = speed * (1.0 + 0.3 * np.sin(t / 9.0))
         x = x + v * 0.05
-        wsp = (k % 700) == np.arange(n)
-        unit.log(clock_time_s=np.full(n, t), odometer_m=scale * x, speed_mps=scale * v, wsp_active=wsp)
+        wsp = (k % 700) < 3 * (1 + np.arange(n))
+        # Runs 0 and 1 have an accelerometer (bridged slides), run 2 has none (untrusted).
+        acc = np.where(np.arange(n) < 2, speed * 0.3 * np.cos(t / 9.0) / 9.0 + 0.01, np.nan)
+        unit.log(
+            clock_time_s=np.full(n, t),
+            odometer_m=scale * x,
+            speed_mps=scale * v,
+            wsp_active=wsp,
+            accel_mps2=acc,
+        )
         for r, (st, ist, lg) in enumerate(runs):
-            unit_log_run(st, ist, lg, t, scale[r] * x[r], scale[r] * v[r], bool(wsp[r]))
+            unit_log_run(st, ist, lg, t, scale[r] * x[r], scale[r] * v[r], bool(wsp[r]), float(acc[r]))
         # A telegram 0.3 s after each boundary; now and then an unknown circuit or an old time.
         for r in range(n):
             c = int(next_c[r])

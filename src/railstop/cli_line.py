@@ -23,6 +23,28 @@ PscLossOpt = Annotated[
         min=0.0, max=1.0, help="Chance that the platform link loses a PSC reply (a fault; SPEC §5)."
     ),
 ]
+OdometerErrorOpt = Annotated[
+    float | None,
+    typer.Option(
+        min=-20.0,
+        max=20.0,
+        help="Every train's odometer diameter error, % (default: each train's draw of the set).",
+    ),
+]
+SlideOpt = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        max=1.0,
+        help="Chance per train and station of a low-adhesion patch where the ATO brakes (slides).",
+    ),
+]
+CalibrationOpt = Annotated[
+    str,
+    typer.Option(
+        help="Onboard positioning at entry: carried (the scale and delay of earlier trips) or cold."
+    ),
+]
 HeadwayOpt = Annotated[
     float | None,
     typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
@@ -45,6 +67,9 @@ def run_cmd(
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "nominal",
     psc_loss: PscLossOpt = 0.0,
+    odometer_error_pct: OdometerErrorOpt = None,
+    slide_probability: SlideOpt = 0.0,
+    calibration: CalibrationOpt = "carried",
     plot: Annotated[Path | None, typer.Option(help="Write the time-distance diagram (PNG).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     line: LineOpt = None,
@@ -61,13 +86,22 @@ def run_cmd(
 
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
+    _check_calibration(calibration)
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
         dist = load_disturbances(disturbances)
         sim = LineSimulation(
-            line=ln, vehicle=veh, operation=op, disturbances=dist, seed=seed, psc_loss_probability=psc_loss
+            line=ln,
+            vehicle=veh,
+            operation=op,
+            disturbances=dist,
+            seed=seed,
+            psc_loss_probability=psc_loss,
+            odometer_error_pct=odometer_error_pct,
+            slide_probability=slide_probability,
+            calibration=calibration,
         )
         result = sim.run(duration_s)
         summary = result.summary()
@@ -96,6 +130,8 @@ def run_cmd(
         f"{summary['stops']} station stops by {op.controller}, {summary['stops_within_tolerance']} within "
         f"the PSD tolerance, p99 |error| {summary['stop_error_p99_m']} m, {summary['emergency_brakes']} "
         f"emergency brakes; mean dwell {summary['mean_dwell_s']} s, {summary['dwell_faults']} dwell faults; "
+        f"onboard position p99 |error| {summary['position_error_p99_m']} m "
+        f"({summary['position_calibration']} calibration, {summary['slide_events']} slides); "
         f"simulated {summary['sim_to_wall']}x faster than real time",
         highlight=False,
         soft_wrap=True,
@@ -117,6 +153,9 @@ def campaign_cmd(
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "standard",
     psc_loss: PscLossOpt = 0.0,
+    odometer_error_pct: OdometerErrorOpt = None,
+    slide_probability: SlideOpt = 0.0,
+    calibration: CalibrationOpt = "carried",
     workers: Annotated[int, typer.Option(min=1, max=256, help="Processes (default: 1).")] = 1,
     out: Annotated[Path, typer.Option(help="Campaign folder.")] = Path("line-campaign"),
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
@@ -136,6 +175,7 @@ def campaign_cmd(
 
     if not (seed_in_range(seed) and seed_in_range(seed + runs - 1)):
         fail(f"--seed: {SEED_RANGE} for every run's seed S + r (got S = {seed}, {runs} runs)")
+    _check_calibration(calibration)
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -149,6 +189,9 @@ def campaign_cmd(
             seed=seed,
             duration_s=duration_s,
             psc_loss_probability=psc_loss,
+            odometer_error_pct=odometer_error_pct,
+            slide_probability=slide_probability,
+            calibration=calibration,
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume)
     except RailstopError as exc:
@@ -181,6 +224,13 @@ def campaign_cmd(
         highlight=False,
         soft_wrap=True,
     )
+
+
+def _check_calibration(calibration: str) -> None:
+    from railstop.sim.line import CALIBRATIONS
+
+    if calibration not in CALIBRATIONS:
+        fail(f"--calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
 
 
 def _operation(path: Path | None, line: Line, trains: int | None, headway_s: float | None) -> Operation:

@@ -63,6 +63,7 @@ class Stream(IntEnum):
     RADIO_CYCLE = 11  # SPEC §5 poll-cycle phase of a telegram attempt, counter = attempt
     RADIO_CORRUPT = 12  # bit errors of an attempt: counter 2k corrupted?, 2k + 1 which bit
     CERTIFY = 13  # rare-event certification: counter 0 mixture component, 1 + j cube coordinate j
+    ACCELEROMETER = 14  # the odometry's accelerometer: counter 0 its bias
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:

@@ -43,6 +43,10 @@ class Operation(Model):
     controller: str = "tasc-pwm"
     entry_m: FiniteFloat = 0.0
     entry_speed_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] = 60.0
+    # How well a train knows its position as it enters (standard deviation): it comes from the
+    # section before (a terminal platform or the depot's transfer track) with its position
+    # fixed there. [interpretation] within a platform stop's tolerance, about 0.3 m.
+    entry_position_sd_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 0.3
     # The dwell at a station: doors open, passengers, doors closed (SPEC §5's sequence runs
     # within it); per station where it differs.
     dwell_s: Annotated[float, Field(ge=5.0, le=600.0, allow_inf_nan=False)] = 30.0

@@ -427,6 +427,11 @@ class Positioning(_Model):
     delay_prior_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.2
     fix_sd_m: Annotated[float, Field(gt=0.0, le=50.0, allow_inf_nan=False)] = 1.5
     gate_sigma: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = 4.0
+    # Beyond SPEC §2: the accelerometer that bridges the odometer while the WSP acts (slide
+    # compensation); the standard deviation of its bias after the gradient's gravity is taken
+    # out. [interpretation] a MEMS unit of a train's odometry, with the gradient from the line
+    # data: a few hundredths of a m/s².
+    accelerometer_bias_sd_mps2: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.02
 
 
 class Atp(_Model):

@@ -19,54 +19,54 @@ error; corrected position and speed go to the train control. This unit:
   or whose time lies outside its log (DESIGN rule 7: no correction is safer
   than a wrong one; the rejection is counted).
 
-Beyond SPEC §2, a **learner** estimates from the history of fixes the
-odometer's scale ``a = D_assumed / D_actual`` and the constant part ``d`` of
-the delay between the first axle's entry and the time in the telegram
-(detection delay plus any constant clock offset). Between two fixes i-1, i
-(surveyed starts x, odometer readings o, tachometer speeds v at the telegram
-times) the train moved ``x_i - x_{i-1} + d (v_i - v_{i-1}) / a`` true metres
-(it was ``d · v / a`` past the start when the odometer was read), so::
+Beyond SPEC §2, one **extended Kalman filter** per run over the state
+``s = (p, a, d)``: the position ``p`` when the odometer was read at the last
+fix, the odometer's scale ``a = D_assumed / D_actual`` and the constant part
+``d`` of the delay between the first axle's entry and the time in the
+telegram (detection delay plus any constant clock offset). Between fixes the
+position is dead-reckoned, ``p' = p + m / a`` with ``m`` the odometer's count
+since the last fix (process noise ``ODOMETRY_NOISE_FRAC`` of the distance, and
+the bridged slides' error below). A fix of circuit start ``x`` at tachometer
+speed ``v`` measures ``x = p - d v / a`` (the train was ``d · v_true`` past the
+start when the odometer was read) with the noise of the circuit's boundary
+(from the DB: the line data gives it per kind; ``fix_sd_m`` when not given)
+and of the delay's spread times the speed. The prior: the start position
+(``fix_sd_m``, or what the caller knows of it), ``a ~ N(1, scale_prior)``,
+``d ~ N(d0, delay_prior)`` with d0 the line's nominal detection delay, or a
+calibration carried from earlier trips (:meth:`PositioningUnit.carry_calibration`).
+The scale is learned over the whole distance between fixes (not interval by
+interval), so a few kilometres find it to about 1e-4 and the dead reckoning
+then averages many fixes through jointless circuits' tuned zones. A fix
+further than ``gate_sigma`` standard deviations from the prediction
+contradicts the dead reckoning (an undetected slide): the position restarts
+from it, the scale and delay keep what they learned (counted as gated).
 
-    o_i - o_{i-1} = a (x_i - x_{i-1}) + d (v_i - v_{i-1}) + noise
+**Slide compensation** (beyond SPEC §2): while the wheel-slide / anti-slip
+protection acts (``wsp_active`` in the log) the wheel does not roll with the
+train. With an accelerometer (``accel_mps2``) the unit bridges the interval:
+its compensated odometer integrates the last tachometer speed before the WSP
+acted, moved on by the accelerometer, and the filter adds the bridge's error
+(the bias, ``accelerometer_bias_sd_mps2``, times T²/2; the start speed's
+``BRIDGE_SPEED_SD_MPS`` times T). Without one, the interval is not trusted:
+the next fix is taken as it is and nothing is learned from it. The SPEC §2
+document position always uses the raw odometer. Between fixes::
 
-linear in theta = (a, d). A Kalman filter over the fixes of each run (a
-recursive least squares with prior ``a ~ N(1, scale_prior)``, ``d ~ N(d0,
-delay_prior)``, d0 the nominal detection delay of the line data, 0 when not
-given) estimates theta. The noise of one fix is the boundary
-uncertainty of its circuit (from the DB: the line data gives it per kind;
-``fix_sd_m`` when not given) and the delay spread times the speed. Intervals
-in which the wheel-slide / anti-slip protection acted (``wsp_active`` in the
-log) are not learned from (the odometer was off by the creep), and an
-interval whose innovation exceeds ``gate_sigma`` standard deviations is
-rejected as an outlier.
+    calibrated(t) = p + (compensated odometer(t) - its value at the fix) / a
 
-The calibrated position does not simply jump to each fix: the fix
-``z = start + d · v_occ / a`` (the position when the odometer was read) is
-weighed against the calibrated dead reckoning since the previous fix,
-``p = p_prev + (o_i - o_{i-1}) / a``, by their variances (a scalar Kalman
-update): once the scale is known, dead reckoning over a few hundred metres
-is better than one fix through a jointless circuit's tuned zone. After a
-slide or slip the dead reckoning is not trusted (the fix is taken as it is).
-Between fixes::
-
-    calibrated(t) = p_i + (odo(t) - o_i) / a
-
-The scale error shows in proportion to the distance since the last fix, the
-delay in proportion to the speed at the fix: that is what separates them. At
-constant speed ``d`` is not observable (every fix shifts by the same ``d·v``)
-and the learner keeps its prior there; speed changes between fixes (leaving
-and approaching stations) reveal it.
+At constant speed ``d`` is not observable (every fix shifts by the same
+``d·v``) and the filter keeps its prior there; speed changes between fixes
+(leaving and approaching stations) reveal it.
 
 One implementation (DESIGN rule 1, ``railstop.jit``): the state of one run
 lives in three small arrays a caller allocates (:func:`unit_state_arrays`)
 and passes to compiled scalar functions:
 
 - ``state``: float64 (U_SIZE,), indices ``U_*`` below (newest odometer and
-  speed, the references of both positions, theta, its covariance, the
-  previous fix, whether WSP acted since it);
+  speed, the references of both positions, the filter's state and
+  covariance, the compensated odometer and the bridges since the last fix);
 - ``istate``: int64 (UI_SIZE,), indices ``UI_*`` (ring head, samples, and the
   corrections / rejections / learned / gated counters);
-- ``log``: float64 (LOG_ROWS, L), rows ``LOG_T``, ``LOG_ODO``, ``LOG_V``: the
+- ``log``: float64 (LOG_ROWS, L), rows ``LOG_T``, ``LOG_ODO``, ``LOG_V``, ``LOG_COMP``: the
   ring buffer, L = :func:`log_length` (window, cycle).
 
 A caller may pass longer ``state``/``istate`` vectors: these functions use
@@ -100,11 +100,15 @@ BoolArray = NDArray[np.bool_]
 # keeps the filter able to follow a slow change (wear, a clock in holdover).
 SCALE_PROCESS_SD = 1e-5
 DELAY_PROCESS_SD_S = 1e-3
-# An interval shorter than this (surveyed metres) carries no scale information worth learning.
-MIN_LEARN_DISTANCE_M = 20.0
 # Dead-reckoning error the learned scale does not explain (fraction of the distance, standard
 # deviation): pulse quantisation, wheel diameter differences between axles, curves.
 ODOMETRY_NOISE_FRAC = 1e-3
+# A bridged slide starts from the last tachometer speed before the WSP acted: its error
+# (standard deviation, m/s) grows the bridged distance's error with the bridge's length.
+BRIDGE_SPEED_SD_MPS = 0.05
+# The position's variance after a slide no accelerometer bridged: the dead reckoning is not
+# trusted, the next fix is taken as it is (the filter's gain 1).
+UNTRUSTED_VAR_M2 = 1e8
 
 _SCALE_PROCESS_VAR = SCALE_PROCESS_SD**2
 _DELAY_PROCESS_VAR_S2 = DELAY_PROCESS_SD_S**2
@@ -125,35 +129,42 @@ _FUTURE = int(FixOutcome.FUTURE)
 # Per-run state, float64 vector ``state``:
 U_ODO = 0  # newest odometer reading (m)
 U_SPEED = 1  # newest tachometer speed (m/s)
-U_REF_ODO = 2  # odometer reading of the last fix: the reference of both positions ...
+U_REF_ODO = 2  # odometer reading of the last fix: the reference of the SPEC §2 position ...
 U_DOC_REF = 3  # ... the SPEC §2 corrected position there (the circuit's start)
-U_CAL_REF = 4  # ... the calibrated position there
-U_CAL_VAR = 5  # variance of the calibrated position there (m²)
-U_A = 6  # learner theta: odometer scale a = D_assumed / D_actual
-U_D = 7  # learner theta: constant delay d (s)
-U_P00 = 8  # learner covariance P, row-major
-U_P01 = 9
-U_P10 = 10
-U_P11 = 11
-U_PREV_X = 12  # previous fix: circuit start (NaN before the first fix)
-U_PREV_ODO = 13  # ... odometer reading
-U_PREV_V = 14  # ... tachometer speed
-U_PREV_VAR = 15  # ... fix variance
-U_WSP = 16  # 1.0 when the wheel-slide / anti-slip protection acted since the previous fix
-U_SIZE = 17
+U_CAL_REF = 4  # filter state p: the calibrated position at the last fix
+U_CAL_VAR = 5  # its variance P_pp (m²)
+U_A = 6  # filter state a: odometer scale D_assumed / D_actual
+U_D = 7  # filter state d: constant delay (s)
+U_P00 = 8  # covariance of (a, d), row-major: P_aa
+U_P01 = 9  # P_ad
+U_P10 = 10  # P_da (= P_ad)
+U_P11 = 11  # P_dd
+U_PPA = 12  # covariance P_pa
+U_PPD = 13  # covariance P_pd
+U_WSP = 14  # 1.0 when WSP acted since the last fix without an accelerometer to bridge it
+U_COMP = 15  # newest slide-compensated odometer reading (m, odometer units)
+U_REF_COMP = 16  # the compensated odometer at the last fix: the calibrated position's reference
+U_VREF = 17  # the bridged wheel speed while WSP acts (m/s, odometer units)
+U_LAST_T = 18  # clock time of the newest log sample (-inf before the first)
+U_BRIDGE_CUR = 19  # length of the bridge in progress (s)
+U_BRIDGE_T = 20  # seconds bridged since the last fix
+U_BRIDGE_H = 21  # sum over the bridges since the last fix of (length² / 2) (s²)
+U_ACC_VAR = 22  # the accelerometer's bias variance (m²/s⁴), from the settings
+U_SIZE = 23
 # Per-run state, int64 vector ``istate``:
 UI_HEAD = 0  # index of the newest log sample (-1: none yet)
 UI_SAMPLES = 1  # samples logged
 UI_CORRECTIONS = 2
 UI_REJECTED = 3
-UI_LEARNED = 4
-UI_GATED = 5
+UI_LEARNED = 4  # fixes the filter took
+UI_GATED = 5  # fixes inconsistent with the dead reckoning: the position restarted from them
 UI_SIZE = 6
 # Rows of the log ring ``log`` (LOG_ROWS, L):
 LOG_T = 0  # the unit's own GNSS clock time of the sample (-inf: never written)
 LOG_ODO = 1
 LOG_V = 2
-LOG_ROWS = 3
+LOG_COMP = 3  # the slide-compensated odometer
+LOG_ROWS = 4
 
 
 def log_length(log_window_s: float, cycle_s: float) -> int:
@@ -168,6 +179,7 @@ class SettingsSquares(NamedTuple):
     scale_prior_var: float  # (scale_prior_pct / 100)²
     delay_prior_var_s2: float  # delay_prior_s²
     gate_sigma2: float  # gate_sigma²
+    accel_bias_var: float  # accelerometer_bias_sd_mps2²
 
 
 def settings_squares(settings: Positioning) -> SettingsSquares:
@@ -178,6 +190,7 @@ def settings_squares(settings: Positioning) -> SettingsSquares:
         scale_prior_var=(float(settings.scale_prior_pct) * 1e-2) ** 2,
         delay_prior_var_s2=float(settings.delay_prior_s) ** 2,
         gate_sigma2=float(settings.gate_sigma) ** 2,
+        accel_bias_var=float(settings.accelerometer_bias_sd_mps2) ** 2,
     )
 
 
@@ -201,8 +214,9 @@ def unit_init_run(
     nominal_delay_s: float,
     scale_prior_var: float,
     delay_prior_var_s2: float,
+    accel_bias_var: float,
 ) -> None:
-    """One run's unit at its start: empty log, positions at ``start_position_m``, the learner's prior.
+    """One run's unit at its start: empty log, positions at ``start_position_m``, the filter's prior.
 
     The start is known like a fix (variance ``fix_var_m2``). Without learning
     the calibrated position is the document's: no scale, no delay (d = 0).
@@ -211,26 +225,21 @@ def unit_init_run(
     log[LOG_T, :] = -np.inf
     log[LOG_ODO, :] = 0.0
     log[LOG_V, :] = 0.0
+    log[LOG_COMP, :] = 0.0
     for k in range(UI_SIZE):
         istate[k] = 0
     istate[UI_HEAD] = -1
-    state[U_ODO] = 0.0
-    state[U_SPEED] = 0.0
-    state[U_REF_ODO] = 0.0
+    for k in range(U_SIZE):
+        state[k] = 0.0
     state[U_DOC_REF] = start_position_m
     state[U_CAL_REF] = start_position_m
     state[U_CAL_VAR] = fix_var_m2
     state[U_A] = 1.0
     state[U_D] = nominal_delay_s if learn else 0.0
     state[U_P00] = scale_prior_var
-    state[U_P01] = 0.0
-    state[U_P10] = 0.0
     state[U_P11] = delay_prior_var_s2
-    state[U_PREV_X] = np.nan
-    state[U_PREV_ODO] = np.nan
-    state[U_PREV_V] = np.nan
-    state[U_PREV_VAR] = np.nan
-    state[U_WSP] = 0.0
+    state[U_LAST_T] = -np.inf
+    state[U_ACC_VAR] = accel_bias_var
     return
 
 
@@ -243,18 +252,44 @@ def unit_log_run(
     odometer_m: float,
     speed_mps: float,
     wsp_active: bool,
+    accel_mps2: float,
 ) -> None:
-    """One cycle's sample of one run: its clock reading, odometer and tachometer speed."""
+    """One cycle's sample of one run: its clock reading, odometer, tachometer speed, whether the
+    wheel-slide / anti-slip protection acts, and the accelerometer (m/s², gravity on the gradient
+    taken out; NaN: none).
+
+    Beyond SPEC §2 (slide compensation): while the WSP acts the wheel does not roll with the
+    train, so the compensated odometer does not count the wheel; it integrates a bridged speed
+    instead, the last tachometer speed before the WSP acted moved on by the accelerometer. Without
+    an accelerometer the wheel is counted and the interval is marked untrusted (as SPEC §2 alone).
+    """
     head = (istate[UI_HEAD] + 1) % log.shape[1]
     istate[UI_HEAD] = head
     istate[UI_SAMPLES] += 1
+    dt = clock_time_s - state[U_LAST_T] if np.isfinite(state[U_LAST_T]) else 0.0
+    dt = max(dt, 0.0)
+    bridge = wsp_active and np.isfinite(accel_mps2) and istate[UI_SAMPLES] > 1
+    if bridge:
+        v0 = state[U_VREF]
+        v1 = max(v0 + state[U_A] * accel_mps2 * dt, 0.0)  # odometer units: a x true
+        state[U_COMP] += 0.5 * (v0 + v1) * dt
+        state[U_VREF] = v1
+        state[U_BRIDGE_CUR] += dt
+        state[U_BRIDGE_T] += dt
+        state[U_BRIDGE_H] += state[U_BRIDGE_CUR] * dt  # the integral of the bridge's age: T²/2
+    else:
+        state[U_COMP] += odometer_m - state[U_ODO]
+        state[U_VREF] = speed_mps
+        state[U_BRIDGE_CUR] = 0.0
+        if wsp_active:
+            state[U_WSP] = 1.0
     log[LOG_T, head] = clock_time_s
     log[LOG_ODO, head] = odometer_m
-    log[LOG_V, head] = speed_mps
+    log[LOG_V, head] = state[U_VREF]
+    log[LOG_COMP, head] = state[U_COMP]
     state[U_ODO] = odometer_m
     state[U_SPEED] = speed_mps
-    if wsp_active:
-        state[U_WSP] = 1.0
+    state[U_LAST_T] = clock_time_s
     return
 
 
@@ -274,8 +309,8 @@ def unit_lookup(
 @njit_step
 def unit_odometer_at_run(
     istate: IntArray, log: FloatArray, clock_time_s: float, max_extrapolation_s: float
-) -> tuple[int, float, float]:
-    """(outcome, odometer, tachometer speed) of one run at its clock time ``clock_time_s``.
+) -> tuple[int, float, float, float]:
+    """(outcome, odometer, speed, compensated odometer) of one run at its clock time ``clock_time_s``.
 
     Linear interpolation between the log samples around the time; past the
     newest sample, extrapolation with the last speed up to
@@ -291,76 +326,22 @@ def unit_odometer_at_run(
     if not np.isfinite(log[LOG_T, (first + max(i, 0)) % length]):  # slots never written: -inf
         i = -1
     if i < 0:
-        return _STALE, np.nan, np.nan
+        return _STALE, np.nan, np.nan, np.nan
     if i == length - 1:
         newest = (first + i) % length
         dt_new = clock_time_s - log[LOG_T, newest]
         if dt_new <= max_extrapolation_s:
-            return _ACCEPTED, log[LOG_ODO, newest] + log[LOG_V, newest] * dt_new, log[LOG_V, newest]
-        return _FUTURE, np.nan, np.nan
+            ahead = log[LOG_V, newest] * dt_new
+            return _ACCEPTED, log[LOG_ODO, newest] + ahead, log[LOG_V, newest], log[LOG_COMP, newest] + ahead
+        return _FUTURE, np.nan, np.nan, np.nan
     s0 = (first + i) % length
     s1 = (first + i + 1) % length
     t0 = log[LOG_T, s0]
     w = (clock_time_s - t0) / (log[LOG_T, s1] - t0)
     odo = log[LOG_ODO, s0] + w * (log[LOG_ODO, s1] - log[LOG_ODO, s0])
     v = log[LOG_V, s0] + w * (log[LOG_V, s1] - log[LOG_V, s0])
-    return _ACCEPTED, odo, v
-
-
-@njit_inline
-def _unit_learn_run(
-    state: FloatArray,
-    istate: IntArray,
-    x_m: float,
-    odo_m: float,
-    v_mps: float,
-    fix_var_m2: float,
-    learn: bool,
-    gate_sigma2: float,
-) -> tuple[bool, bool]:
-    """Kalman update of theta = (a, d) with the interval since the run's previous fix: (learned, gated)."""
-    dx = x_m - state[U_PREV_X]
-    learned = False
-    gated = False
-    if learn and np.isfinite(dx) and dx >= MIN_LEARN_DISTANCE_M and state[U_WSP] == 0.0:
-        phi0 = dx
-        phi1 = v_mps - state[U_PREV_V]
-        y = odo_m - state[U_PREV_ODO]
-        a = state[U_A]
-        d = state[U_D]
-        c00 = state[U_P00] + _SCALE_PROCESS_VAR
-        c01 = state[U_P01] + 0.0
-        c10 = state[U_P10] + 0.0
-        c11 = state[U_P11] + _DELAY_PROCESS_VAR_S2
-        p0 = c00 * phi0 + c01 * phi1  # P phi
-        p1 = c10 * phi0 + c11 * phi1
-        # The interval's noise: that of its two fixes.
-        s_var = (phi0 * p0 + phi1 * p1) + fix_var_m2 + state[U_PREV_VAR]
-        innov = y - (phi0 * a + phi1 * d)
-        g0 = p0 / s_var
-        g1 = p1 / s_var
-        if innov * innov <= gate_sigma2 * s_var:
-            state[U_A] = a + g0 * innov
-            state[U_D] = d + g1 * innov
-            state[U_P00] = c00 - g0 * p0
-            state[U_P01] = c01 - g0 * p1
-            state[U_P10] = c10 - g1 * p0
-            state[U_P11] = c11 - g1 * p1
-            learned = True
-            istate[UI_LEARNED] += 1
-        else:  # an outlier: not learned from (the process noise stays added)
-            state[U_P00] = c00
-            state[U_P01] = c01
-            state[U_P10] = c10
-            state[U_P11] = c11
-            gated = True
-            istate[UI_GATED] += 1
-    state[U_PREV_X] = x_m
-    state[U_PREV_ODO] = odo_m
-    state[U_PREV_V] = v_mps
-    state[U_PREV_VAR] = fix_var_m2
-    state[U_WSP] = 0.0
-    return learned, gated
+    comp = log[LOG_COMP, s0] + w * (log[LOG_COMP, s1] - log[LOG_COMP, s0])
+    return _ACCEPTED, odo, v, comp
 
 
 @njit_step
@@ -387,7 +368,7 @@ def unit_handle_run(
     """
     known, x, sd = unit_lookup(db_ids, db_starts_m, db_sd_m, circuit_id)  # SPEC §2 S30: the DB
     # SPEC §2 S30: passing time -> odometer then.
-    outcome, o, vv = unit_odometer_at_run(istate, log, gnss_time_s, max_extrapolation_s)
+    outcome, o, vv, oc = unit_odometer_at_run(istate, log, gnss_time_s, max_extrapolation_s)
     if not known:
         outcome = _UNKNOWN_CIRCUIT
     if outcome != _ACCEPTED:
@@ -397,38 +378,88 @@ def unit_handle_run(
     fix_var = sd * sd + q * q
 
     # SPEC §2 S40: the odometer position at the occupancy instant becomes the circuit start.
-    moved = o - state[U_REF_ODO]
-    doc_before = state[U_DOC_REF] + moved
-    # Beyond SPEC §2: calibrated dead reckoning since the last fix, and its variance.
-    a0 = state[U_A]
-    cal_before = state[U_CAL_REF] + moved / a0
-    r1 = moved / (a0 * a0)
-    r2 = ODOMETRY_NOISE_FRAC * moved / a0
-    pred_var = state[U_CAL_VAR] + r1 * r1 * state[U_P00] + r2 * r2
-    if state[U_WSP] != 0.0 or not learn:
-        pred_var = np.inf
-
-    learned, gated = _unit_learn_run(state, istate, x, o, vv, fix_var, learn, gate_sigma2)
-
-    a = state[U_A]
-    d = state[U_D]
+    doc_before = state[U_DOC_REF] + (o - state[U_REF_ODO])
     state[U_REF_ODO] = o
     state[U_DOC_REF] = x
-    # Beyond SPEC §2: the train was d·v_true past the start when the odometer was read ...
-    z = x + d * vv / a
-    r3 = vv / a
-    z_var = fix_var + r3 * r3 * state[U_P11]
-    # ... and that fix is weighed against the dead reckoning (K = 1 after a slide or slip).
-    if np.isinf(pred_var):
-        gain = 1.0
-        state[U_CAL_VAR] = z_var
-    else:
-        gain = pred_var / (pred_var + z_var)
-        state[U_CAL_VAR] = (1.0 - gain) * pred_var
-    cal = cal_before + gain * (z - cal_before)
-    state[U_CAL_REF] = cal
     istate[UI_CORRECTIONS] += 1
-    return outcome, x, o, vv, doc_before - x, cal_before - cal, learned, gated
+
+    # Beyond SPEC §2: one extended Kalman filter over s = (p, a, d), p the position when the
+    # odometer was read at the telegram's time. Prediction: the compensated odometer since the
+    # last fix over the scale, p' = p + m / a.
+    a = state[U_A]
+    d = state[U_D]
+    m = oc - state[U_REF_COMP]
+    p = state[U_CAL_REF] + m / a
+    cal_before = p
+    state[U_REF_COMP] = oc
+    untrusted = state[U_WSP] != 0.0
+    bridged = BRIDGE_SPEED_SD_MPS * state[U_BRIDGE_T]
+    drift = state[U_BRIDGE_H]  # x the bias: the bridges' error
+    state[U_WSP] = 0.0
+    state[U_BRIDGE_T] = 0.0
+    state[U_BRIDGE_H] = 0.0
+    if not learn:  # the document's position: the fix as it is
+        state[U_CAL_REF] = x
+        state[U_CAL_VAR] = fix_var
+        return outcome, x, o, vv, doc_before - x, cal_before - x, False, False
+    j = -m / (a * a)  # dp'/da
+    paa = state[U_P00] + _SCALE_PROCESS_VAR
+    pad = state[U_P01]
+    pdd = state[U_P11] + _DELAY_PROCESS_VAR_S2
+    noise = ODOMETRY_NOISE_FRAC * m / a
+    q_p = noise * noise + bridged * bridged + drift * drift * state[U_ACC_VAR]
+    ppp = state[U_CAL_VAR] + 2.0 * j * state[U_PPA] + j * j * state[U_P00] + q_p
+    ppa = state[U_PPA] + j * state[U_P00]
+    ppd = state[U_PPD] + j * state[U_P01]
+    if untrusted:
+        # A slide or slip no accelerometer bridged: the dead reckoning since the last fix is
+        # not trusted, nor learned from (the position's prior is wide and uncorrelated).
+        ppp = UNTRUSTED_VAR_M2
+        ppa = 0.0
+        ppd = 0.0
+    # Measurement: the surveyed start x = p - d v / a (the train was d·v_true past the start
+    # when the odometer was read) + the boundary's and the delay spread's noise.
+    h0 = 1.0
+    h1 = d * vv / (a * a)
+    h2 = -vv / a
+    innov = x - (p - d * vv / a)
+    # P H'
+    g0 = ppp * h0 + ppa * h1 + ppd * h2
+    g1 = ppa * h0 + paa * h1 + pad * h2
+    g2 = ppd * h0 + pad * h1 + pdd * h2
+    s_var = h0 * g0 + h1 * g1 + h2 * g2 + fix_var
+    gated = innov * innov > gate_sigma2 * s_var
+    if gated:
+        # The fix contradicts the dead reckoning (an undetected slide, a wrong circuit start):
+        # the position restarts from the fix, the scale and delay keep what they learned.
+        istate[UI_GATED] += 1
+        p = x + d * vv / a
+        state[U_CAL_REF] = p
+        state[U_CAL_VAR] = fix_var + (vv / a) ** 2 * pdd
+        state[U_PPA] = 0.0
+        state[U_PPD] = 0.0
+        state[U_P00] = paa
+        state[U_P01] = pad
+        state[U_P10] = pad
+        state[U_P11] = pdd
+        return outcome, x, o, vv, doc_before - x, cal_before - p, False, True
+    k0 = g0 / s_var
+    k1 = g1 / s_var
+    k2 = g2 / s_var
+    p = p + k0 * innov
+    state[U_CAL_REF] = p
+    state[U_A] = a + k1 * innov
+    state[U_D] = d + k2 * innov
+    # P - K (H P) = P - K g' (P symmetric)
+    state[U_CAL_VAR] = ppp - k0 * g0
+    state[U_PPA] = ppa - k0 * g1
+    state[U_PPD] = ppd - k0 * g2
+    state[U_P00] = paa - k1 * g1
+    state[U_P01] = pad - k1 * g2
+    state[U_P10] = state[U_P01]
+    state[U_P11] = pdd - k2 * g2
+    istate[UI_LEARNED] += 1
+    return outcome, x, o, vv, doc_before - x, cal_before - p, True, False
 
 
 @njit_inline
@@ -440,7 +471,7 @@ def unit_corrected_m(state: FloatArray) -> float:
 @njit_inline
 def unit_calibrated_m(state: FloatArray) -> float:
     """Corrected position of one run with the learned scale and delay (beyond SPEC §2)."""
-    return state[U_CAL_REF] + (state[U_ODO] - state[U_REF_ODO]) / state[U_A]
+    return state[U_CAL_REF] + (state[U_COMP] - state[U_REF_COMP]) / state[U_A]
 
 
 # --------------------------------------------------------------------------
@@ -458,6 +489,7 @@ def _init_runs(
     nominal_delay_s: float,
     scale_prior_var: float,
     delay_prior_var_s2: float,
+    accel_bias_var: float,
 ) -> None:
     for i in range(start_position_m.size):
         unit_init_run(
@@ -470,6 +502,7 @@ def _init_runs(
             nominal_delay_s,
             scale_prior_var,
             delay_prior_var_s2,
+            accel_bias_var,
         )
     return
 
@@ -483,9 +516,19 @@ def _log_runs(
     odometer_m: FloatArray,
     speed_mps: FloatArray,
     wsp_active: BoolArray,
+    accel_mps2: FloatArray,
 ) -> None:
     for i in range(clock_time_s.size):
-        unit_log_run(state[i], istate[i], log[i], clock_time_s[i], odometer_m[i], speed_mps[i], wsp_active[i])
+        unit_log_run(
+            state[i],
+            istate[i],
+            log[i],
+            clock_time_s[i],
+            odometer_m[i],
+            speed_mps[i],
+            wsp_active[i],
+            accel_mps2[i],
+        )
     return
 
 
@@ -548,7 +591,7 @@ def _odometer_at_runs(
     v: FloatArray,
 ) -> None:
     for k in range(run.size):
-        outcome[k], odo[k], v[k] = unit_odometer_at_run(
+        outcome[k], odo[k], v[k], _ = unit_odometer_at_run(
             istate[run[k]], log[run[k]], clock_time_s[k], max_extrapolation_s
         )
     return
@@ -649,10 +692,12 @@ class PositioningUnit:
         boundary_sd_m: Sequence[float] | None = None,
         delay_spread_s: float = 0.0,
         nominal_delay_s: float = 0.0,
+        start_sd_m: float | None = None,
     ) -> None:
         """``boundary_sd_m``: per circuit (in the order of ``circuits``), the uncertainty of its
         start as a fix; ``delay_spread_s``, ``nominal_delay_s``: the detection delay's spread and
-        mean (all line data); the nominal delay is the learner's prior, it learns the actual one."""
+        mean (all line data); the nominal delay is the learner's prior, it learns the actual one.
+        ``start_sd_m``: how well the start position is known (None: ``fix_sd_m``, like a fix)."""
         if cycle_s <= 0.0:
             raise ValueError(f"cycle_s must be positive, got {cycle_s}")
         if delay_spread_s < 0.0:
@@ -663,16 +708,19 @@ class PositioningUnit:
         istate = np.empty((n, UI_SIZE), dtype=np.int64)
         log = np.empty((n, LOG_ROWS, length))
         sq = settings_squares(settings)
+        if start_sd_m is not None and not (start_sd_m >= 0.0 and np.isfinite(start_sd_m)):
+            raise ValueError(f"start_sd_m must be finite and not negative, got {start_sd_m}")
         _init_runs(
             state,
             istate,
             log,
             _f64_runs(start_position_m, n),
-            sq.fix_var_m2,
+            sq.fix_var_m2 if start_sd_m is None else float(start_sd_m) ** 2,
             bool(settings.learn),
             float(nominal_delay_s),
             sq.scale_prior_var,
             sq.delay_prior_var_s2,
+            sq.accel_bias_var,
         )
         self._bind(
             db=db, settings=settings, delay_spread_s=delay_spread_s, state=state, istate=istate, log=log
@@ -726,8 +774,10 @@ class PositioningUnit:
         odometer_m: FloatArray,
         speed_mps: FloatArray,
         wsp_active: BoolArray | None = None,
+        accel_mps2: FloatArray | None = None,
     ) -> None:
-        """One cycle's sample of every run: its clock reading, odometer and tachometer speed."""
+        """One cycle's sample of every run: its clock reading, odometer, tachometer speed, whether
+        the WSP acts and the accelerometer (None: the train has none, see :func:`unit_log_run`)."""
         n = self.n
         _log_runs(
             self.state,
@@ -737,6 +787,7 @@ class PositioningUnit:
             _f64_runs(odometer_m, n),
             _f64_runs(speed_mps, n),
             _bool_runs(False if wsp_active is None else wsp_active, n),
+            _f64_runs(np.nan if accel_mps2 is None else accel_mps2, n),
         )
 
     def handle(self, *, run: IntArray, circuit_id: IntArray, gnss_time_s: FloatArray) -> FixReport:
@@ -783,6 +834,20 @@ class PositioningUnit:
             gated=out_b[1],
         )
 
+    def carry_calibration(
+        self, *, scale: FloatArray, scale_sd: float, delay_s: FloatArray, delay_sd_s: float
+    ) -> None:
+        """Start every run's filter from a calibration kept from earlier trips (beyond SPEC §2):
+        the scale and delay with their standard deviations, in place of the settings' prior."""
+        if scale_sd < 0.0 or delay_sd_s < 0.0:
+            raise ValueError("standard deviations must not be negative")
+        self.state[:, U_A] = _f64_runs(scale, self.n)
+        self.state[:, U_D] = _f64_runs(delay_s, self.n)
+        self.state[:, U_P00] = scale_sd * scale_sd
+        self.state[:, U_P01] = 0.0
+        self.state[:, U_P10] = 0.0
+        self.state[:, U_P11] = delay_sd_s * delay_sd_s
+
     # ----------------------------------------------------------------- outputs
 
     def corrected_m(self) -> FloatArray:
@@ -791,11 +856,11 @@ class PositioningUnit:
 
     def calibrated_m(self) -> FloatArray:
         """Corrected position with the learned scale and delay (beyond SPEC §2)."""
-        return self.cal_ref_m + (self.odometer_m - self.ref_odo_m) / self.scale_estimate
+        return self.cal_ref_m + (self.state[:, U_COMP] - self.state[:, U_REF_COMP]) / self.scale_estimate
 
     def corrected_speed_mps(self) -> FloatArray:
-        """Tachometer speed with the learned scale."""
-        return self.speed_mps / self.scale_estimate
+        """Tachometer speed (bridged while the WSP acts) with the learned scale."""
+        return self.state[:, U_VREF] / self.scale_estimate
 
     @property
     def scale_estimate(self) -> FloatArray:
@@ -843,22 +908,6 @@ class PositioningUnit:
         return self.state[:, U_P00 : U_P11 + 1].reshape(self.n, 2, 2)
 
     @property
-    def prev_x_m(self) -> FloatArray:
-        return self.state[:, U_PREV_X]
-
-    @property
-    def prev_odo_m(self) -> FloatArray:
-        return self.state[:, U_PREV_ODO]
-
-    @property
-    def prev_v_mps(self) -> FloatArray:
-        return self.state[:, U_PREV_V]
-
-    @property
-    def prev_var_m2(self) -> FloatArray:
-        return self.state[:, U_PREV_VAR]
-
-    @property
     def wsp_since_fix(self) -> BoolArray:
         return self.state[:, U_WSP] != 0.0
 
@@ -899,6 +948,11 @@ class PositioningUnit:
     @property
     def log_v_mps(self) -> FloatArray:
         return self.log_ring[:, LOG_V, :]
+
+    @property
+    def compensated_odometer_m(self) -> FloatArray:
+        """The newest slide-compensated odometer reading (beyond SPEC §2)."""
+        return self.state[:, U_COMP]
 
     # ---------------------------------------------------------------- look-ups
 

@@ -13,6 +13,12 @@ revolutions; slip/slide and wheel wear make its error accumulate. Here:
 - the tachometer speed is the wheel's circumferential speed with the assumed
   diameter (no pulse quantisation: it is a filtered rate).
 
+The accelerometer (beyond SPEC §2, the slide compensation of
+``onboard.positioning``) reads the train's acceleration plus a bias of its
+own, constant over a run (drawn once: ``accelerometer_bias_sd_mps2`` of the
+vehicle's positioning; the gravity of the gradient is taken out with the line
+data, what remains of it is in the bias).
+
 Without creep and quantisation this is :func:`railstop.physics.train.odometer_increment_m`
 summed; a test checks that.
 """
@@ -23,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
+from railstop.streams import RunStreams, Stream
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -78,3 +86,8 @@ class Tachometer:
     def speed_mps(self, true_speed_mps: FloatArray, creep: FloatArray) -> FloatArray:
         """Tachometer speed: wheel speed with the assumed diameter."""
         return true_speed_mps * creep * self.scale
+
+
+def accelerometer_bias_mps2(streams: RunStreams, bias_sd_mps2: float) -> FloatArray:
+    """Each run's accelerometer bias (m/s²): normal, standard deviation ``bias_sd_mps2``."""
+    return bias_sd_mps2 * streams.normal(Stream.ACCELEROMETER, 0)

@@ -42,7 +42,11 @@ from railstop.jit import njit, njit_step
 from railstop.link.codec import TrackCircuitOccupancy, layout_of
 from railstop.onboard.positioning import (
     LOG_ROWS,
+    U_CAL_REF,
+    U_DOC_REF,
     U_ODO,
+    U_REF_COMP,
+    U_REF_ODO,
     U_SIZE,
     UI_SIZE,
     CircuitDb,
@@ -208,9 +212,20 @@ def fixes_init_run(
         # since then its odometer counted with its scale error.
         at_fix = boundary_m[last] + speed_mps * delay_s[last]
         belief = tc_starts_m[last] + delay_mean_s * speed_mps * tach_scale + (start_m - at_fix) * tach_scale
+    # The station-stop kernel's train has no accelerometer: a slide leaves its dead reckoning
+    # untrusted until the next fix (SPEC §2 alone), no bridge (accelerometer bias variance 0).
     unit_init_run(
-        state, istate, log, belief, fix_var_m2, learn, delay_mean_s, scale_prior_var, delay_prior_var_s2
+        state, istate, log, belief, fix_var_m2, learn, delay_mean_s, scale_prior_var, delay_prior_var_s2, 0.0
     )
+    if last >= 0:
+        # The unit's reference is that fix, the odometer having counted since: so the filter
+        # knows the distance its scale acted over (not only the distance since the start).
+        counted = (start_m - at_fix) * tach_scale
+        fixed = belief - counted
+        state[U_DOC_REF] = fixed
+        state[U_CAL_REF] = fixed
+        state[U_REF_ODO] = -counted
+        state[U_REF_COMP] = -counted
     state[FX_START] = belief
     return belief
 
@@ -251,7 +266,7 @@ def fixes_step_run(
     now = t0_s + dt_s
     odometer = state[U_ODO] + odometer_increment_m  # the cumulative reading: the newest logged + this step's
     # GNSS-disciplined onboard clock: its reading is the true time.
-    unit_log_run(state, istate, log, now, odometer, tach_speed_mps, sliding)
+    unit_log_run(state, istate, log, now, odometer, tach_speed_mps, sliding, np.nan)
     while True:
         nxt = istate[FXI_NEXT]
         hit, _, occupied = tc_next_entry(boundary_m, delay_s, nxt, x0_m, v0_mps, accel_mps2, x1_m, t0_s)

@@ -68,6 +68,8 @@ from railstop.errors import SimulationError
 from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
+from railstop.physics.train import G_MPS2
+from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import run_dwell
 from railstop.sim.scenario import station_gradient
@@ -85,6 +87,17 @@ HOLD_BACK_M = 60.0
 ON_LINE = ("running", "stopping", "dwelling", "held")
 #: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
 RUNS_PER_TRAIN = 100
+#: Adhesion on a low-adhesion patch between stations (wet leaves, as position-run's).
+LOW_MU = 0.05
+#: What one trip leaves of the learned scale and delay (standard deviations): a train in service
+#: enters with them (``calibration="carried"``). position-run's trips learn the scale to about
+#: 1e-4 and the delay to a few hundredths of a second.
+CARRIED_SCALE_SD = 2e-4
+CARRIED_DELAY_SD_S = 0.03
+#: Steps of sliding less than this apart are one slide event (the WSP releases and reapplies).
+SLIDE_GAP_S = 2.0
+#: How a train's onboard positioning starts: with the calibration of its earlier trips, or cold.
+CALIBRATIONS = ("carried", "cold")
 
 
 class TrainAspects:
@@ -120,11 +133,15 @@ class Train:
     entered_s: float = np.nan
     exited_s: float = np.nan
     until_s: float = np.nan  # dwelling: when the doors have closed
-    play_t: Any = None  # stopping: the stop's trajectory (times on the line's clock, positions)
-    play_x: Any = None
+    play_t: Any = None  # stopping: the stop's trajectory (times on the line's clock, positions,
+    play_x: Any = None  # speeds)
+    play_v: Any = None
     load_factor: float = 0.5
-    odometer_m: float = 0.0  # the train's odometer (SPEC §2), the assumed wheel diameter
     odo_scale: float = 1.0  # odometer metres per true metre: 1 + the diameter error
+    patches: list[tuple[float, float]] = field(default_factory=list)  # low adhesion (start, end)
+    sliding: bool = False  # braking beyond the adhesion: the WSP acts this step
+    slides: int = 0  # slide events: slides that started
+    last_slide_s: float = -np.inf  # the last step it slid
     front_circuit: int = -1  # index of the circuit the front is in (-1: not on the line)
     x_onboard_m: float = 0.0  # where the train believes its front is (SPEC §2 positioning)
     telegrams: list[tuple[float, int]] = field(default_factory=list)  # (occupancy time, circuit id)
@@ -172,6 +189,8 @@ class LineResult:
     position_errors: list[float]
     skipped_stops: int
     signals_passed_at_danger: int
+    slide_events: int = 0  # slides between stations (the WSP acting on a low-adhesion patch)
+    calibration: str = "carried"
 
     def summary(self) -> dict[str, Any]:
         """The JSON of ``railstop line run``."""
@@ -210,6 +229,8 @@ class LineResult:
             "position_error_max_m": round(float(np.max(np.abs(self.position_errors))), 3)
             if self.position_errors
             else None,
+            "position_calibration": self.calibration,
+            "slide_events": self.slide_events,
             "duration_s": self.duration_s,
             "wall_s": round(self.wall_s, 3),
             "sim_to_wall": round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else None,
@@ -228,16 +249,28 @@ class LineSimulation:
         step_s: float = 0.1,
         odometer_error_pct: float | None = None,
         psc_loss_probability: float = 0.0,
+        slide_probability: float = 0.0,
+        calibration: str = "carried",
     ) -> None:
         """``odometer_error_pct``: every train's odometer diameter error (default: each train's
         own draw of the disturbance set's ``odometer_diameter_error_pct``).
         ``psc_loss_probability``: the chance that the link loses a PSC attempt's reply (SPEC §5,
-        drawn per train, station and attempt): a fault of the platform link."""
-        if not 0.0 <= psc_loss_probability <= 1.0:
-            raise SimulationError(
-                f"psc_loss_probability: a probability in [0, 1] (got {psc_loss_probability})"
-            )
+        drawn per train, station and attempt): a fault of the platform link.
+        ``slide_probability``: the chance, per train and station, of a low-adhesion patch where
+        the ATO brakes for the station (see :meth:`_place_patches`). ``calibration``: "carried"
+        (the odometer scale and delay learned on earlier trips) or "cold" (the learner's prior)."""
+        for name, prob in (
+            ("psc_loss_probability", psc_loss_probability),
+            ("slide_probability", slide_probability),
+        ):
+            if not 0.0 <= prob <= 1.0:
+                raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
+        if calibration not in CALIBRATIONS:
+            raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
         self.psc_loss = psc_loss_probability
+        self.slide_probability = slide_probability
+        self.low_mu = LOW_MU
+        self.calibration = calibration
         if line.signalling is None:
             raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
         if vehicle.traction is None:
@@ -278,43 +311,93 @@ class LineSimulation:
 
     def _init_positioning(self, odometer_error_pct: float | None) -> None:
         n = len(self.trains)
+        veh = self.vehicle
         # Each train's own streams (run indices past the stations'): its wheel, its circuits.
         self.train_streams = RunStreams(
             seed=self.seed,
             run_index=np.array([t.index * RUNS_PER_TRAIN + RUNS_PER_TRAIN - 1 for t in self.trains]),
         )
         if odometer_error_pct is None:
-            _, values = draw_scenario(self.dist, self.line.stations[0], self.vehicle, self.train_streams)
+            _, values = draw_scenario(self.dist, self.line.stations[0], veh, self.train_streams)
             err = np.asarray(values["odometer_diameter_error_pct"], dtype=np.float64) / 100.0
         else:
             err = np.full(n, odometer_error_pct / 100.0)
         for t, e in zip(self.trains, err, strict=True):
             t.odo_scale = 1.0 + float(e)
+        # SPEC §2 tachometer: whole pulses of the wheel, read with the assumed diameter.
+        actual = np.full(n, veh.wheel_diameter_m)
+        self.tacho = Tachometer.create(
+            actual_diameter_m=actual,
+            assumed_diameter_m=actual * (1.0 + err),
+            pulses_per_rev=veh.positioning.tachometer_pulses_per_rev,
+        )
+        self.accel_bias = accelerometer_bias_mps2(
+            self.train_streams, veh.positioning.accelerometer_bias_sd_mps2
+        )
+        self._place_patches()
         det = self.line.track.detection
         circuits = self.line.track.circuits
         self.circuit_starts = np.array([c.start_m for c in circuits])
         self.circuit_sd = [det.boundary_sd_m(c.kind) for c in circuits]
         self.positioning = PositioningUnit(
             circuits=circuits,
-            settings=self.vehicle.positioning,
+            settings=veh.positioning,
             n=n,
             cycle_s=self.clock.step_s,
-            start_position_m=np.full(n, self.operation.entry_m),
+            # The train's belief as it enters: the entry, off by what it knows of it.
+            start_position_m=self.operation.entry_m
+            + self.operation.entry_position_sd_m * self.train_streams.normal(Stream.ACCELEROMETER, 3),
             boundary_sd_m=self.circuit_sd,
             delay_spread_s=det.delay_spread_s,
             nominal_delay_s=det.delay_mean_s,
+            start_sd_m=self.operation.entry_position_sd_m,
         )
+        if self.calibration == "carried":
+            # [interpretation] a train in service keeps the scale and delay it learned on its
+            # earlier trips (non-volatile, as wheel-diameter calibration is kept): it enters with
+            # them, each off by what one trip leaves (CARRIED_SCALE_SD, CARRIED_DELAY_SD_S).
+            st = self.train_streams
+            scale = np.asarray(self.tacho.scale) * (
+                1.0 + CARRIED_SCALE_SD * st.normal(Stream.ACCELEROMETER, 1)
+            )
+            delay = det.delay_mean_s + CARRIED_DELAY_SD_S * st.normal(Stream.ACCELEROMETER, 2)
+            self.positioning.carry_calibration(
+                scale=scale, scale_sd=CARRIED_SCALE_SD, delay_s=delay, delay_sd_s=CARRIED_DELAY_SD_S
+            )
         self.position_errors: list[float] = []
 
-    def _position_step(self, now_s: float, moved: list[float]) -> None:
+    def _place_patches(self) -> None:
+        """Low-adhesion patches (wet leaves, ``LOW_MU``) where the ATO brakes for a station: with
+        ``slide_probability`` per train and station, one 30-80 m patch ending 0-100 m before the
+        hand-over point (the ATO's braking down to the TASC entry speed), drawn per train."""
+        if self.slide_probability <= 0.0:
+            return
+        for t in self.trains:
+            st = self.train_streams.subset(np.array([t.index]))
+            for k, station in enumerate(self.line.stations):
+                u = [float(st.uniform(Stream.ADHESION, 3 * k + j)[0]) for j in range(3)]
+                if u[0] >= self.slide_probability:
+                    continue
+                end = handover_m(self.first_detector_m[k], station.tasc.entry_speed_kmh * KMH) - 100.0 * u[1]
+                t.patches.append((end - 30.0 - 50.0 * u[2], end))
+
+    def _position_step(self, now_s: float, moved: list[float], accel: list[float]) -> None:
         """Odometers, the wayside's occupancy telegrams when a front enters a circuit (detection
         delay and electrical boundary drawn per train and circuit), the units' logs and fixes."""
         det = self.line.track.detection
         circuits = self.line.track.circuits
-        for t, dx in zip(self.trains, moved, strict=True):
+        on_line = np.array([t.phase in ON_LINE for t in self.trains])
+        sliding = np.array([t.sliding for t in self.trains]) & on_line
+        creep = creep_factor(
+            sliding,
+            np.zeros_like(sliding),
+            slide_slip_ratio=self.vehicle.slide_slip_ratio,
+            traction_slip_ratio=0.0,
+        )
+        self.tacho.advance(np.where(on_line, np.asarray(moved), 0.0), creep)
+        for t in self.trains:
             if t.phase not in ON_LINE:
                 continue
-            t.odometer_m += dx * t.odo_scale
             k = int(np.searchsorted(self.circuit_starts, t.x_m, side="right")) - 1
             while t.front_circuit < k:
                 t.front_circuit += 1
@@ -334,8 +417,11 @@ class LineSimulation:
         n = len(self.trains)
         self.positioning.log(
             clock_time_s=np.full(n, now_s),
-            odometer_m=np.array([t.odometer_m for t in self.trains]),
-            speed_mps=np.array([t.v_mps * t.odo_scale for t in self.trains]),
+            odometer_m=self.tacho.odometer_m(),
+            speed_mps=self.tacho.speed_mps(np.array([t.v_mps for t in self.trains]), creep),
+            wsp_active=sliding,
+            # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
+            accel_mps2=np.asarray(accel) + self.accel_bias,
         )
         for t in self.trains:
             due = [tg for tg in t.telegrams if tg[0] <= now_s]
@@ -376,6 +462,10 @@ class LineSimulation:
         force = float(tractive_effort_n(tr, np.array([v]))[0])
         return min(tr.max_accel_mps2, force / mass_kg)
 
+    def _static_mass_kg(self, train: Train) -> float:
+        veh = self.vehicle
+        return veh.tare_mass_kg + train.load_factor * veh.crush_payload_kg
+
     def _mass_kg(self, train: Train) -> float:
         veh = self.vehicle
         return veh.tare_mass_kg * (1.0 + veh.rotating_mass_factor) + train.load_factor * veh.crush_payload_kg
@@ -407,6 +497,17 @@ class LineSimulation:
         a = demand_mps2(v, ceiling, self._traction_mps2(v, mass), self.brake_mps2)
         if a > 0.0:
             a -= resist  # traction works against the resistance; braking is the ECU's total
+        # On a low-adhesion patch the wheels slide when the braking asks more than the adhesion
+        # gives; the wheel-slide protection holds the deceleration at it (and the wheel short).
+        mu = self.low_mu if any(s0 <= train.x_m < s1 for s0, s1 in train.patches) else veh.adhesion_mu
+        limit = mu * G_MPS2 * self._static_mass_kg(train) / mass
+        sliding = a < -limit and v > 0.0
+        if sliding:
+            a = -limit
+            if now_s - train.last_slide_s > SLIDE_GAP_S:  # a new slide, not the WSP's next cycle
+                train.slides += 1
+            train.last_slide_s = now_s
+        train.sliding = sliding
         v_new = max(v + a * dt, 0.0)
         x_new = train.x_m + 0.5 * (v + v_new) * dt
         if st_next is not None:
@@ -462,12 +563,14 @@ class LineSimulation:
             raise SimulationError("the station stop returned no trajectory")
         tr_t = batch.trace.t_s[:, 0]
         tr_x = batch.trace.position_m[:, 0]
-        keep = np.isfinite(tr_t) & np.isfinite(tr_x)
+        tr_v = batch.trace.speed_mps[:, 0]
+        keep = np.isfinite(tr_t) & np.isfinite(tr_x) & np.isfinite(tr_v)
         error = float(batch.stop_error_m[0])
         stopped = bool(batch.stopped[0])
         eb = eb_cause_name(int(batch.emergency_brake[0]))
         train.play_t = t0_s + np.concatenate(([0.0], tr_t[keep]))
         train.play_x = np.concatenate(([train.x_m], tr_x[keep]))
+        train.play_v = np.concatenate(([train.v_mps], tr_v[keep]))
         train.phase = "stopping"
         arrive = float(train.play_t[-1])
         self.stops.append(
@@ -484,7 +587,9 @@ class LineSimulation:
 
     def _play(self, train: Train, now_s: float) -> None:
         if now_s < train.play_t[-1]:
+            # The speed too: the tachometer's log and the occupancy instants need it.
             train.x_m = float(np.interp(now_s, train.play_t, train.play_x))
+            train.v_mps = float(np.interp(now_s, train.play_t, train.play_v))
             return
         train.x_m = float(train.play_x[-1])
         train.v_mps = 0.0
@@ -509,7 +614,7 @@ class LineSimulation:
             )
         )
         train.next_station += 1
-        train.play_t = train.play_x = None
+        train.play_t = train.play_x = train.play_v = None
         if dwell.start_enable_s is None:
             # SPEC §5 fault path: no start enable, doors held closed, the train stays.
             train.phase = "held"
@@ -542,7 +647,9 @@ class LineSimulation:
     def plant(self, now_s: float, dt: float) -> list[Output]:
         entry_proceed = self.interlocking.aspects[self.entry_signal]
         before = [t.x_m for t in self.trains]
+        speed_before = [t.v_mps for t in self.trains]
         for train in self.trains:
+            train.sliding = False  # set by the running train's brakes below
             if train.phase == "waiting":
                 if now_s >= train.request_s and entry_proceed and self._entry_clear():
                     train.phase = "running"
@@ -559,7 +666,11 @@ class LineSimulation:
             if train.phase in ON_LINE:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
-        self._position_step(now_s, [t.x_m - b for t, b in zip(self.trains, before, strict=True)])
+        self._position_step(
+            now_s,
+            [t.x_m - b for t, b in zip(self.trains, before, strict=True)],
+            [(t.v_mps - v) / dt for t, v in zip(self.trains, speed_before, strict=True)],
+        )
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
@@ -598,4 +709,6 @@ class LineSimulation:
             position_errors=self.position_errors,
             skipped_stops=self.skipped_stops,
             signals_passed_at_danger=self.signals_passed_at_danger,
+            slide_events=sum(t.slides for t in self.trains),
+            calibration=self.calibration,
         )

@@ -40,6 +40,9 @@ class LineCampaignSpec:
     seed: int
     duration_s: float
     psc_loss_probability: float = 0.0
+    odometer_error_pct: float | None = None  # None: each train's draw of the disturbance set
+    slide_probability: float = 0.0
+    calibration: str = "carried"
 
     def identity(self) -> dict[str, Any]:
         """What decides the numbers (checked on --resume)."""
@@ -53,6 +56,9 @@ class LineCampaignSpec:
             "seed": self.seed,
             "duration_s": self.duration_s,
             "psc_loss_probability": self.psc_loss_probability,
+            "odometer_error_pct": self.odometer_error_pct,
+            "slide_probability": self.slide_probability,
+            "calibration": self.calibration,
         }
 
 
@@ -67,6 +73,9 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         disturbances=spec.disturbances,
         seed=spec.seed + run,
         psc_loss_probability=spec.psc_loss_probability,
+        odometer_error_pct=spec.odometer_error_pct,
+        slide_probability=spec.slide_probability,
+        calibration=spec.calibration,
     )
     result = sim.run(spec.duration_s)
     return {

@@ -55,7 +55,7 @@ from railstop.physics.train import (
     motion_step,
 )
 from railstop.sensors.gnss_clock import GnssClock, in_shadow
-from railstop.sensors.odometer import Tachometer, creep_factor
+from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sensors.track_circuit import TrackCircuitDetector
 from railstop.streams import RUN_LIMIT as STREAM_LIMIT
 from railstop.streams import SEED_RANGE, RunStreams, Stream, seed_in_range
@@ -168,6 +168,7 @@ class PositionRunSettings:
     gnss: bool = True  # SPEC §2 GNSS time at all (False: every clock free-runs)
     repeaters: bool = True  # SPEC §2 satellite-signal repeaters where the line data has them
     learn: bool = True  # the onboard learner (beyond SPEC §2)
+    accelerometer: bool = True  # the slide compensation's accelerometer (beyond SPEC §2)
     holdover_s: float | None = None  # age of a clock with no time source; None = the line's data
     load_factor: float = 0.0
     telegram_latency_s: float = 0.05  # SPEC typical values: radio latency tens of ms
@@ -507,6 +508,7 @@ def run_position(
         pulses_per_rev=vehicle.positioning.tachometer_pulses_per_rev,
     )
     p_start, p_end, p_braking = _patches(cfg, streams, stops, start)
+    accel_bias = accelerometer_bias_mps2(streams, vehicle.positioning.accelerometer_bias_sd_mps2)
 
     # SPEC §2 clocks. A shadow is a tunnel without a repeater (or any tunnel with --no-repeaters).
     clocks = track.clocks
@@ -631,6 +633,7 @@ def run_position(
             odometer_m=tacho.odometer_m(),
             speed_mps=tacho.speed_mps(motion.speed_mps, creep),
             wsp_active=sliding | slipping,
+            accel_mps2=motion.accel_mps2 + accel_bias if cfg.accelerometer else None,
         )
         still: list[_InFlight] = []
         for fl in in_flight:
