@@ -42,13 +42,11 @@ from railstop.jit import njit, njit_step
 from railstop.link.codec import TrackCircuitOccupancy, layout_of
 from railstop.onboard.positioning import (
     LOG_ROWS,
-    U_CAL_REF,
-    U_DOC_REF,
+    U_CAL_VAR,
     U_ODO,
-    U_REF_COMP,
-    U_REF_ODO,
     U_SIZE,
     UI_SIZE,
+    UNTRUSTED_VAR_M2,
     CircuitDb,
     FixOutcome,
     PositioningUnit,
@@ -217,15 +215,9 @@ def fixes_init_run(
     unit_init_run(
         state, istate, log, belief, fix_var_m2, learn, delay_mean_s, scale_prior_var, delay_prior_var_s2, 0.0
     )
-    if last >= 0:
-        # The unit's reference is that fix, the odometer having counted since: so the filter
-        # knows the distance its scale acted over (not only the distance since the start).
-        counted = (start_m - at_fix) * tach_scale
-        fixed = belief - counted
-        state[U_DOC_REF] = fixed
-        state[U_CAL_REF] = fixed
-        state[U_REF_ODO] = -counted
-        state[U_REF_COMP] = -counted
+    # The start is the SPEC §2 belief, not a fix the filter may learn the scale against: the
+    # first fix in the approach is taken as it is and the learning starts from it.
+    state[U_CAL_VAR] = UNTRUSTED_VAR_M2
     state[FX_START] = belief
     return belief
 

@@ -633,7 +633,9 @@ def run_position(
             odometer_m=tacho.odometer_m(),
             speed_mps=tacho.speed_mps(motion.speed_mps, creep),
             wsp_active=sliding | slipping,
-            accel_mps2=motion.accel_mps2 + accel_bias if cfg.accelerometer else None,
+            # The accelerometer's bridge belongs to the calibration: without the learner the
+            # calibrated position is the document's (no bridge either).
+            accel_mps2=motion.accel_mps2 + accel_bias if cfg.accelerometer and cfg.learn else None,
         )
         still: list[_InFlight] = []
         for fl in in_flight:
