@@ -86,7 +86,6 @@ def run_cmd(
 
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
-    _check_calibration(calibration)
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -175,7 +174,6 @@ def campaign_cmd(
 
     if not (seed_in_range(seed) and seed_in_range(seed + runs - 1)):
         fail(f"--seed: {SEED_RANGE} for every run's seed S + r (got S = {seed}, {runs} runs)")
-    _check_calibration(calibration)
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -224,13 +222,6 @@ def campaign_cmd(
         highlight=False,
         soft_wrap=True,
     )
-
-
-def _check_calibration(calibration: str) -> None:
-    from railstop.sim.line import CALIBRATIONS
-
-    if calibration not in CALIBRATIONS:
-        fail(f"--calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
 
 
 def _operation(path: Path | None, line: Line, trains: int | None, headway_s: float | None) -> Operation:

@@ -232,7 +232,7 @@ def motion_step_1(
     speed until the TASC first brakes). The braking deceleration is limited
     by adhesion, mu g m / m_eff (all axles braked): above it the wheels slide.
     """
-    limit = adhesion_mu * G_MPS2 * static_kg / effective_kg
+    limit = adhesion_limit_1(adhesion_mu, static_kg, effective_kg)
     sliding = brake_decel_mps2 > limit
     brake = min(brake_decel_mps2, limit)
     v_abs = abs(speed_mps)
@@ -252,6 +252,12 @@ def motion_step_1(
             sliding,
         )
     return position_m + (speed_mps * dt_s - 0.5 * decel * dt_s * dt_s), v_new, -decel, False, np.nan, sliding
+
+
+@njit_inline
+def adhesion_limit_1(adhesion_mu: float, static_kg: float, effective_kg: float) -> float:
+    """One run's :func:`adhesion_limit_mps2`: above it the wheels slide."""
+    return adhesion_mu * G_MPS2 * static_kg / effective_kg
 
 
 @njit_inline

@@ -68,7 +68,7 @@ from railstop.errors import SimulationError
 from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
-from railstop.physics.train import G_MPS2
+from railstop.physics.train import adhesion_limit_1
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import run_dwell
@@ -98,6 +98,19 @@ CARRIED_DELAY_SD_S = 0.03
 SLIDE_GAP_S = 2.0
 #: How a train's onboard positioning starts: with the calibration of its earlier trips, or cold.
 CALIBRATIONS = ("carried", "cold")
+
+
+def check_line_settings(*, psc_loss_probability: float, slide_probability: float, calibration: str) -> None:
+    """The line's own settings (a SimulationError naming the field and value): probabilities in
+    [0, 1], a known calibration. LineSimulation and a line campaign's spec both check them."""
+    for name, prob in (
+        ("psc_loss_probability", psc_loss_probability),
+        ("slide_probability", slide_probability),
+    ):
+        if not 0.0 <= prob <= 1.0:
+            raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
+    if calibration not in CALIBRATIONS:
+        raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
 
 
 class TrainAspects:
@@ -137,7 +150,6 @@ class Train:
     play_x: Any = None  # speeds)
     play_v: Any = None
     load_factor: float = 0.5
-    odo_scale: float = 1.0  # odometer metres per true metre: 1 + the diameter error
     patches: list[tuple[float, float]] = field(default_factory=list)  # low adhesion (start, end)
     sliding: bool = False  # braking beyond the adhesion: the WSP acts this step
     slides: int = 0  # slide events: slides that started
@@ -259,17 +271,13 @@ class LineSimulation:
         ``slide_probability``: the chance, per train and station, of a low-adhesion patch where
         the ATO brakes for the station (see :meth:`_place_patches`). ``calibration``: "carried"
         (the odometer scale and delay learned on earlier trips) or "cold" (the learner's prior)."""
-        for name, prob in (
-            ("psc_loss_probability", psc_loss_probability),
-            ("slide_probability", slide_probability),
-        ):
-            if not 0.0 <= prob <= 1.0:
-                raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
-        if calibration not in CALIBRATIONS:
-            raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
+        check_line_settings(
+            psc_loss_probability=psc_loss_probability,
+            slide_probability=slide_probability,
+            calibration=calibration,
+        )
         self.psc_loss = psc_loss_probability
         self.slide_probability = slide_probability
-        self.low_mu = LOW_MU
         self.calibration = calibration
         if line.signalling is None:
             raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
@@ -322,8 +330,6 @@ class LineSimulation:
             err = np.asarray(values["odometer_diameter_error_pct"], dtype=np.float64) / 100.0
         else:
             err = np.full(n, odometer_error_pct / 100.0)
-        for t, e in zip(self.trains, err, strict=True):
-            t.odo_scale = 1.0 + float(e)
         # SPEC §2 tachometer: whole pulses of the wheel, read with the assumed diameter.
         actual = np.full(n, veh.wheel_diameter_m)
         self.tacho = Tachometer.create(
@@ -396,7 +402,7 @@ class LineSimulation:
         )
         self.tacho.advance(np.where(on_line, np.asarray(moved), 0.0), creep)
         for t in self.trains:
-            if t.phase not in ON_LINE:
+            if not on_line[t.index]:
                 continue
             k = int(np.searchsorted(self.circuit_starts, t.x_m, side="right")) - 1
             while t.front_circuit < k:
@@ -499,8 +505,8 @@ class LineSimulation:
             a -= resist  # traction works against the resistance; braking is the ECU's total
         # On a low-adhesion patch the wheels slide when the braking asks more than the adhesion
         # gives; the wheel-slide protection holds the deceleration at it (and the wheel short).
-        mu = self.low_mu if any(s0 <= train.x_m < s1 for s0, s1 in train.patches) else veh.adhesion_mu
-        limit = mu * G_MPS2 * self._static_mass_kg(train) / mass
+        mu = LOW_MU if any(s0 <= train.x_m < s1 for s0, s1 in train.patches) else veh.adhesion_mu
+        limit = adhesion_limit_1(mu, self._static_mass_kg(train), mass)
         sliding = a < -limit and v > 0.0
         if sliding:
             a = -limit

@@ -44,6 +44,16 @@ class LineCampaignSpec:
     slide_probability: float = 0.0
     calibration: str = "carried"
 
+    def __post_init__(self) -> None:
+        from railstop.sim.line import check_line_settings
+
+        # Refused here, in the caller, rather than in every worker's first run.
+        check_line_settings(
+            psc_loss_probability=self.psc_loss_probability,
+            slide_probability=self.slide_probability,
+            calibration=self.calibration,
+        )
+
     def identity(self) -> dict[str, Any]:
         """What decides the numbers (checked on --resume)."""
         return {
