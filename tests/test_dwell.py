@@ -19,6 +19,7 @@ EXE = [sys.executable, "-m", "railstop.cli"]
 CFG = load_doors()
 T = CFG.timing
 SC = CFG.stop_confirm
+LINK = CFG.link
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -71,13 +72,21 @@ def test_in_tolerance_order_and_times_from_data() -> None:
     assert psc <= psd_opening < psd_open <= doors_opening < doors_open
     assert doors_open < doors_closing < doors_locked <= psd_closing < psd_locked <= r.start_enable_s
     # The durations are the data's.
-    assert psc == pytest.approx(T.zero_speed_confirm_s + T.psc_reply_s)
+    # PSC: the request goes up at standstill, the WPCS answers after its processing time, the reply
+    # comes down; each way one poll slot, the airtime and the latency of the medium.
+    assert (
+        T.zero_speed_confirm_s + LINK.wpcs_processing_s
+        < psc
+        < T.zero_speed_confirm_s + LINK.wpcs_processing_s + 0.1
+    )
     assert psd_open - psd_opening == pytest.approx(T.psd_open_s)
     assert doors_open - doors_opening == pytest.approx(T.train_door_open_s)
     assert doors_closing - doors_open == pytest.approx(T.dwell_s)
     assert doors_locked - doors_closing == pytest.approx(T.train_door_close_s + T.train_door_lock_s)
     assert psd_locked - psd_closing == pytest.approx(T.psd_close_s + T.psd_lock_s)
-    assert r.start_enable_s == pytest.approx(psd_locked) and r.dwell_total_s == r.start_enable_s
+    # Start enable: the next status frame after the PSD locked reports it (SPEC §5 fig. 7).
+    assert psd_locked < r.start_enable_s < psd_locked + LINK.exchange_cycle_s + 0.05
+    assert r.dwell_total_s == r.start_enable_s
     # Only the platform side opens; the other side stays closed and held.
     assert set(values(r, "train_doors-L")) == {"closed_locked"}
     assert set(values(r, "DOA-L")) == {0} and set(values(r, "DMC-L")) == {1}
@@ -166,7 +175,12 @@ def test_failed_psd_unit_is_isolated_by_staff() -> None:
     r = dwell(0.0, psd_fail=5)
     assert "PSD R5 jammed" in values(r, "start_blocked")
     jam = first(r, "start_blocked", "PSD R5 jammed")
-    assert r.start_enable_s == pytest.approx(jam + T.staff_isolation_s)
+    # Start enable with the first status frame after the isolation.
+    assert (
+        jam + T.staff_isolation_s
+        < r.start_enable_s
+        < jam + T.staff_isolation_s + LINK.exchange_cycle_s + 0.05
+    )
     assert "isolated" in str(values(r, "PSD")[-1])
 
 
@@ -269,27 +283,106 @@ def test_cli_dwell_bad_input_one_line_exit_2(args: tuple[str, ...], needle: str,
     assert len(lines) == 1 and needle in p.stderr and "Traceback" not in p.stderr, p.stderr
 
 
-def test_a_lost_psc_reply_is_a_timeout_and_all_lost_is_the_fault_path() -> None:
-    """SPEC §5 over a faulty platform link: a PSC attempt whose reply is lost times out as for a
-    train not in position; the next attempt may succeed; with every reply lost the dwell ends in
-    the fault path, and neither the train doors nor the PSD ever open (DESIGN rule 10)."""
-    from railstop.config.doors import load_doors
-    from railstop.sim.dwell import run_dwell
+def _opened(result: DwellResult) -> list[object]:
+    return [
+        e
+        for e in result.timeline
+        if (e.signal.startswith("train_doors") or e.signal == "PSD")
+        and e.value not in ("closed", "closed_locked")
+    ]
 
-    doors = load_doors(None)
-    ok = run_dwell(doors=doors, station="X", platform_side="R", stop_error_m=0.02)
-    one = run_dwell(doors=doors, station="X", platform_side="R", stop_error_m=0.02, psc_lost=frozenset({1}))
+
+def test_a_lost_psc_reply_is_a_timeout_and_all_lost_is_the_fault_path() -> None:
+    """SPEC §5 over a faulty platform link: a PSC attempt whose replies are lost times out as for a
+    train not in position; the next attempt may succeed; with the link dead the dwell ends in
+    the fault path, and neither the train doors nor the PSD ever open (DESIGN rule 10)."""
+    from railstop.sim.dwell import make_door_link
+
+    def with_link(**kw: object) -> DwellResult:
+        return dwell(0.02, link=make_door_link(CFG, **kw))  # type: ignore[arg-type]
+
+    ok = with_link()
+    # The link is down during the first attempt only.
+    one = with_link(outage=(0.0, T.zero_speed_confirm_s + T.psc_timeout_s))
     assert ok.outcome == one.outcome == "start-enable"
     assert (ok.psc_attempts, one.psc_attempts) == (1, 2)
     assert one.start_enable_s is not None and ok.start_enable_s is not None
     assert one.start_enable_s > ok.start_enable_s  # the time-out and the second attempt
-    every = frozenset(range(1, doors.stop_confirm.max_psc_attempts + 1))
-    lost = run_dwell(doors=doors, station="X", platform_side="R", stop_error_m=0.02, psc_lost=every)
-    assert lost.outcome == "fault" and lost.start_enable_s is None and lost.fault
-    opened = [
-        e
-        for e in lost.timeline
-        if (e.signal.startswith("train_doors") or e.signal == "PSD")
-        and e.value not in ("closed", "closed_locked")
-    ]
-    assert opened == []
+    assert one.link is not None and one.link.lost > 0 and ok.link is not None and ok.link.lost == 0
+    for dead in (with_link(outage=(0.0, 3600.0)), with_link(loss_probability=1.0)):
+        assert dead.outcome == "fault" and dead.start_enable_s is None and dead.fault and dead.emergency_brake
+        assert dead.psc_attempts == SC.max_psc_attempts
+        assert _opened(dead) == []
+        assert dead.link is not None and dead.link.status_sent == 0  # the WPCS never heard the train
+
+
+def test_link_lost_with_psc_high_is_the_fault_path() -> None:
+    """[interpretation] of SPEC §5: with PSC high the PSD state reaches the train only over the link;
+    when its status frames stop for the supervision time-out the train reports the fault and brakes,
+    and it never gets start enable."""
+    from railstop.sim.dwell import make_door_link
+
+    cut_s = 12.0  # the doors are open
+    r = dwell(0.02, link=make_door_link(CFG, outage=(cut_s, 3600.0)))
+    assert r.outcome == "fault" and r.fault and r.emergency_brake and r.start_enable_s is None
+    lost = first(r, "link", "lost")
+    assert (
+        cut_s + LINK.supervision_timeout_s
+        <= lost
+        <= cut_s + LINK.supervision_timeout_s + 2 * LINK.exchange_cycle_s
+    )
+    assert first(r, "emergency_brake", 1) == lost and first(r, "PSC", 0) <= lost
+    assert value_at(r, "start_enable", 3600.0) == 0
+
+
+def test_corrupt_frames_are_rejected_counted_and_never_delivered() -> None:
+    """Bit errors on the medium: the safety layer refuses the damaged frames by reason; the dwell
+    goes on with the good ones (SPEC §5 CRC, EN 50159 corruption)."""
+    import numpy as np
+
+    from railstop.link.channel import media_preset
+    from railstop.link.door_link import DoorLink
+
+    noisy = media_preset("transponder").replace(bit_error_rate=3e-4)
+    link = DoorLink(
+        params=noisy, rng=np.random.default_rng(7), train_id=3, timeout_s=LINK.supervision_timeout_s
+    )
+    r = dwell(0.02, link=link)
+    assert r.link is not None
+    assert r.link.rejected.get("corrupt", 0) > 10
+    assert r.link.commands_delivered + r.link.status_delivered + sum(r.link.rejected.values()) <= (
+        r.link.commands_sent + r.link.status_sent
+    )
+    assert r.outcome == "start-enable"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "needle"),
+    [
+        ("supervision_timeout_s = 0.5", "supervision_timeout_s = 0.1", "link.supervision_timeout_s"),
+        ('medium = "transponder"', 'medium = "pigeon"', "link.medium: unknown medium"),
+        ("psc_timeout_s = 1.0", "psc_timeout_s = 0.15", "timing.psc_timeout_s"),
+        ("category = 1", "category = 4", "link.category"),
+    ],
+)
+def test_cli_dwell_bad_door_link_data_one_line_exit_2(
+    old: str, new: str, needle: str, tmp_path: Path
+) -> None:
+    from importlib import resources
+
+    text = (resources.files("railstop.data") / "doors.toml").read_text(encoding="utf-8")
+    assert old in text
+    bad = tmp_path / "doors.toml"
+    bad.write_text(text.replace(old, new), encoding="utf-8")
+    p = run("dwell", "--stop-error-m", "0.1", "--doors", str(bad), cwd=tmp_path)
+    assert p.returncode == 2
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in p.stderr and str(bad) in p.stderr, p.stderr
+
+
+def test_cli_dwell_link_cut_ends_in_the_fault_path(tmp_path: Path) -> None:
+    p = run("dwell", "--stop-error-m", "0.1", "--link-cut-s", "12", "--json", "--db", "d.db", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    d = json.loads(p.stdout)
+    assert d["outcome"] == "fault" and d["emergency_brake"] and d["start_enable_s"] is None
+    assert d["link"]["lost"] > 0 and d["link"]["commands_sent"] > 100

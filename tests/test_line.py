@@ -317,21 +317,21 @@ def test_no_train_waits_for_ever_at_a_signal_it_occupies() -> None:
 
 
 def test_a_faulty_platform_link_never_opens_doors() -> None:
-    """Every PSC reply lost on the platform link: the first train's first dwell ends in the
-    SPEC §5 fault path with its doors closed and the line behind it held; with a third of the
-    replies lost, the dwells retry PSC and every train still gets its start enable."""
-    every = LineSimulation(
-        line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), psc_loss_probability=1.0
-    )
+    """A dead platform door link: the first train's first dwell ends in the SPEC §5 fault path
+    with its doors closed and the line behind it held. A link that loses one frame in ten: the
+    exchange rides it out (frames lost, counted) and every train gets its start enable."""
+    every = LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), door_link_loss=1.0)
     s = every.run(1200.0).summary()
     assert s["dwell_faults"] == 1 and s["stops"] == 1 and s["exited"] == 0
     assert [t.phase for t in every.trains].count("held") == 1
-    some = LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), psc_loss_probability=0.3)
+    assert s["door_link"]["frames"] > 0 and s["door_link"]["lost"] == s["door_link"]["frames"]
+    some = LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=3), door_link_loss=0.1)
     r = some.run(1500.0).summary()
     assert r["dwell_faults"] == 0 and r["exited"] == 3
-    assert isinstance(r["psc_retries"], int) and r["psc_retries"] > 0
-    with pytest.raises(SimulationError, match="psc_loss_probability"):
-        LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), psc_loss_probability=1.5)
+    link = r["door_link"]
+    assert 0.05 * link["frames"] < link["lost"] < 0.15 * link["frames"]
+    with pytest.raises(SimulationError, match="door_link_loss"):
+        LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), door_link_loss=1.5)
 
 
 def test_the_run_is_a_function_of_the_seed() -> None:

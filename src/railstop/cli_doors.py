@@ -158,7 +158,15 @@ def dwell(
         int | None, typer.Option(help="This PSD unit (1 = front) fails to close; staff isolate it.")
     ] = None,
     controller: Annotated[str, typer.Option(help="Controller of the simulated stop.")] = "tasc-pwm",
-    seed: Annotated[int, typer.Option(help="Seed of the simulated stop.")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed of the simulated stop and of the door link.")] = 1,
+    link_cut_s: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            max=3600.0,
+            help="The door link dies this long after the stop, for good (a fault; SPEC §5 fault path).",
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     plot: Annotated[Path | None, typer.Option(help="Write a PNG timeline of the dwell here.")] = None,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the timeline).")] = Path("railstop.db"),
@@ -217,6 +225,9 @@ def dwell(
                 f"--stop-error-m: {error_m:+g} m puts the train off the {st.platform_length_m:g} m platform "
                 f"of {st.name}"
             )
+        from railstop.sim.dwell import make_door_link
+
+        outage = None if link_cut_s is None else (link_cut_s, math.inf)
         result = run_dwell(
             doors=cfg,
             station=st.name,
@@ -225,10 +236,11 @@ def dwell(
             mode=mode,
             obstruct_door=obstruct_door,
             psd_fail=psd_fail,
+            link=make_door_link(cfg, seed=seed, outage=outage),
         )
         key = (
             f"{ln.line.name}|{st.name}|{mode}|{error_m!r}|obstruct={obstruct_door}|psd_fail={psd_fail}"
-            f"|doors={cfg.fingerprint()}"
+            f"|seed={seed}|link_cut={link_cut_s}|doors={cfg.fingerprint()}"
         )
         from railstop.store import open_store
 
@@ -265,5 +277,14 @@ def dwell(
         highlight=False,
         soft_wrap=True,
     )
+    if result.link is not None:
+        c = result.link
+        refused = ", ".join(f"{n} {k}" for k, n in sorted(c.rejected.items())) or "none"
+        out.print(
+            f"door link: {c.commands_sent} door-command / {c.status_sent} psd-status frames sent, "
+            f"{c.lost} lost on the medium, refused by the safety layer: {refused}",
+            highlight=False,
+            soft_wrap=True,
+        )
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)

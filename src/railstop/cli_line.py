@@ -17,10 +17,12 @@ if TYPE_CHECKING:
     from railstop.config.schema import Line
 
 TrainsOpt = Annotated[int | None, typer.Option(min=1, max=200, help="Trains (default: the operation's).")]
-PscLossOpt = Annotated[
-    float,
+DoorLinkLossOpt = Annotated[
+    float | None,
     typer.Option(
-        min=0.0, max=1.0, help="Chance that the platform link loses a PSC reply (a fault; SPEC §5)."
+        min=0.0,
+        max=1.0,
+        help="The platform door link's loss per frame, both ways (default: the medium's; 1 = dead link).",
     ),
 ]
 OdometerErrorOpt = Annotated[
@@ -50,6 +52,11 @@ HeadwayOpt = Annotated[
     typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
 ]
 
+
+def _link_text(link: dict[str, int]) -> str:
+    return f"{link['frames']:,} frames, {link['lost']:,} lost, {link['rejected']:,} refused"
+
+
 line_app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
@@ -66,7 +73,7 @@ def run_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "nominal",
-    psc_loss: PscLossOpt = 0.0,
+    door_link_loss: DoorLinkLossOpt = None,
     odometer_error_pct: OdometerErrorOpt = None,
     slide_probability: SlideOpt = 0.0,
     calibration: CalibrationOpt = "carried",
@@ -97,7 +104,7 @@ def run_cmd(
             operation=op,
             disturbances=dist,
             seed=seed,
-            psc_loss_probability=psc_loss,
+            door_link_loss=door_link_loss,
             odometer_error_pct=odometer_error_pct,
             slide_probability=slide_probability,
             calibration=calibration,
@@ -129,6 +136,7 @@ def run_cmd(
         f"{summary['stops']} station stops by {op.controller}, {summary['stops_within_tolerance']} within "
         f"the PSD tolerance, p99 |error| {summary['stop_error_p99_m']} m, {summary['emergency_brakes']} "
         f"emergency brakes; mean dwell {summary['mean_dwell_s']} s, {summary['dwell_faults']} dwell faults; "
+        f"door link {_link_text(summary['door_link'])}; "
         f"onboard position p99 |error| {summary['position_error_p99_m']} m "
         f"({summary['position_calibration']} calibration, {summary['slide_events']} slides); "
         f"simulated {summary['sim_to_wall']}x faster than real time",
@@ -151,7 +159,7 @@ def campaign_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "standard",
-    psc_loss: PscLossOpt = 0.0,
+    door_link_loss: DoorLinkLossOpt = None,
     odometer_error_pct: OdometerErrorOpt = None,
     slide_probability: SlideOpt = 0.0,
     calibration: CalibrationOpt = "carried",
@@ -186,7 +194,7 @@ def campaign_cmd(
             runs=runs,
             seed=seed,
             duration_s=duration_s,
-            psc_loss_probability=psc_loss,
+            door_link_loss=door_link_loss,
             odometer_error_pct=odometer_error_pct,
             slide_probability=slide_probability,
             calibration=calibration,
@@ -216,7 +224,8 @@ def campaign_cmd(
     console.print(
         f"trains/h {summary['trains_per_hour_mean']} (mean over runs), mean delay "
         f"{summary['mean_delay_s_mean']} s, "
-        f"{summary['dwell_faults']} dwell faults, {summary['skipped_stops']} skipped stops, least separation "
+        f"{summary['dwell_faults']} dwell faults, door link {_link_text(summary['door_link'])}, "
+        f"{summary['skipped_stops']} skipped stops, least separation "
         f"{summary['min_separation_m']} m, onboard position p99 {summary['position_error_p99_m_mean']} m "
         f"(worst run {summary['position_error_p99_m_worst']} m); runs and summary in {out}",
         highlight=False,

@@ -64,6 +64,7 @@ class Stream(IntEnum):
     RADIO_CORRUPT = 12  # bit errors of an attempt: counter 2k corrupted?, 2k + 1 which bit
     CERTIFY = 13  # rare-event certification: counter 0 mixture component, 1 + j cube coordinate j
     ACCELEROMETER = 14  # the odometry's accelerometer: counter 0 its bias
+    DOOR_LINK = 15  # SPEC §5 door link of a dwell: a generator per (seed, train, dwell)
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:

@@ -42,7 +42,6 @@ class DoorTiming(_Model):
     psd_close_s: Seconds
     psd_lock_s: Seconds
     zero_speed_confirm_s: Seconds
-    psc_reply_s: Seconds
     psc_timeout_s: Seconds
     dwell_s: Seconds
     driver_action_s: Seconds
@@ -62,8 +61,6 @@ class DoorTiming(_Model):
             raise FieldProblem(
                 "psd_close_s", f"the PSD must close faster than the train doors ({self.train_door_close_s} s)"
             )
-        if self.psc_reply_s >= self.psc_timeout_s:
-            raise FieldProblem("psc_reply_s", f"must be shorter than psc_timeout_s ({self.psc_timeout_s} s)")
         if self.obstruction_at_s >= self.train_door_close_s:
             raise FieldProblem(
                 "obstruction_at_s", f"must fall inside the closing ({self.train_door_close_s} s)"
@@ -91,6 +88,29 @@ class StopConfirmModel(_Model):
         return self.creep_speed_kmh / KMH_PER_MPS
 
 
+class DoorLinkModel(_Model):
+    """SPEC §5: the train <-> platform door link (DoorCommand up, PsdStatus down) as data."""
+
+    # A preset of railstop/data/media.toml (loop, transponder, radio); checked where it is used.
+    medium: Annotated[str, Field(min_length=1, max_length=64)] = "transponder"
+    # EN 50159 category: 1 closed system (loop, transponder: security by range), 3 open (radio).
+    category: Literal[1, 2, 3] = 1
+    exchange_cycle_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.1
+    max_age_s: Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)] = 0.3
+    supervision_timeout_s: Annotated[float, Field(gt=0.0, le=30.0, allow_inf_nan=False)] = 0.5
+    wpcs_processing_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.05
+
+    @model_validator(mode="after")
+    def _order(self) -> DoorLinkModel:
+        # One lost frame must not trip the supervision: at least two exchange cycles.
+        if self.supervision_timeout_s < 2 * self.exchange_cycle_s:
+            raise FieldProblem(
+                "supervision_timeout_s",
+                f"must be at least two exchange cycles ({2 * self.exchange_cycle_s:g} s)",
+            )
+        return self
+
+
 class DoorLayout(_Model):
     doors_per_side: Annotated[int, Field(ge=1, le=64)]
 
@@ -100,6 +120,17 @@ class DoorsFile(_Model):
     timing: DoorTiming
     stop_confirm: StopConfirmModel
     train: DoorLayout
+    link: DoorLinkModel = DoorLinkModel()
+
+    @model_validator(mode="after")
+    def _psc_window(self) -> DoorsFile:
+        # A PSC request must see at least two exchanges before it times out.
+        cycle = self.link.exchange_cycle_s
+        if self.timing.psc_timeout_s < 2 * cycle:
+            raise FieldProblem(
+                "timing.psc_timeout_s", f"must be at least two link exchange cycles ({2 * cycle:g} s)"
+            )
+        return self
 
     @field_validator("action_table")
     @classmethod
@@ -127,6 +158,7 @@ class DoorsConfig:
         self.timing = file.timing
         self.stop_confirm = file.stop_confirm
         self.doors_per_side = file.train.doors_per_side
+        self.link = file.link
         self.actions = ActionTable(
             tuple(
                 ActionRow(

@@ -38,6 +38,7 @@ class StopInput(StrEnum):
     PSC_TIMEOUT = "psc-timeout"
     PSC_TIMEOUT_LAST = "psc-timeout-last"  # the time-out of the last allowed attempt
     DEPART = "depart"  # start enable given, the train leaves
+    LINK_LOST = "link-lost"  # PSC high, but no valid PSD status from the WPCS within the time-out
 
 
 P = StopPhase
@@ -51,6 +52,11 @@ STOP_TRANSITIONS: Mapping[tuple[StopPhase, StopInput], StopPhase] = MappingProxy
         (P.PSC_WAIT, I.PSC_TIMEOUT_LAST): P.FAULT,  # SPEC §5: 3 attempts -> fault + emergency brake
         (P.CORRECTING, I.STANDSTILL): P.PSC_WAIT,  # after the creep: a new attempt
         (P.CONFIRMED, I.DEPART): P.RUNNING,
+        # SPEC §5: the PSD state is trusted only while PSC is high, and PSC is the live exchange.
+        # [interpretation] A link that falls silent with PSC high is the fault of SPEC §5
+        # (fault reported, emergency brake): the train must not leave on a PSD state it can no
+        # longer see, and nothing may open on a link that is gone.
+        (P.CONFIRMED, I.LINK_LOST): P.FAULT,
     }
 )
 

@@ -6,7 +6,8 @@ A ``World`` is an immutable snapshot; ``step`` advances it by one cycle:
 
 1. one event of the outside world happens (a door finishes its move, an
    obstacle, a jam, a staff isolation, the train stops, the WPCS replies or
-   the PSC request times out, the train moves), then
+   the PSC request times out, the link falls silent with PSC high, the train
+   moves), then
 2. the WPCS scans (SPEC §3: the PSD is master), then
 3. the CPCS scans, seeing the PSD as the WPCS left it.
 
@@ -89,6 +90,7 @@ class EventKind(StrEnum):
     STOP_OUT = "stop-out-of-position"
     PSC_REPLY = "psc-reply"
     PSC_TIMEOUT = "psc-timeout"
+    LINK_LOST = "link-lost"  # PSC high, the WPCS's status frames stop reaching the train
     MOVE = "move"  # traction: depart (start enable) or creep (correction)
 
 
@@ -182,6 +184,9 @@ def events(world: World, model: DoorModel) -> list[Event]:
             out.append(Event(EventKind.PSC_REPLY))
         if (phase, StopInput.PSC_TIMEOUT) in model.stop or (phase, StopInput.PSC_TIMEOUT_LAST) in model.stop:
             out.append(Event(EventKind.PSC_TIMEOUT))
+        # ... and with PSC high the link can fall silent at any moment.
+        if (phase, StopInput.LINK_LOST) in model.stop:
+            out.append(Event(EventKind.LINK_LOST))
         if traction(world, model) is not None:
             out.append(Event(EventKind.MOVE))
     return out
@@ -219,6 +224,8 @@ def apply_event(world: World, event: Event, model: DoorModel) -> tuple[World, st
             return world._replace(stop=_stop_step(world.stop, StopInput.PSC_REPLY, model)), None
         if kind == EventKind.PSC_TIMEOUT:
             return world._replace(stop=_stop_step(world.stop, StopInput.PSC_TIMEOUT, model)), None
+        if kind == EventKind.LINK_LOST:
+            return world._replace(stop=_stop_step(world.stop, StopInput.LINK_LOST, model)), None
         if kind == EventKind.MOVE:
             allowed = traction(world, model)
             if allowed is None:

@@ -6,7 +6,8 @@ precise-stop confirmation (phase and failed attempts), whether the train moves
 and whether it stands in position, for both platform sides. From each state
 the search tries every event the outside world can produce there (each door
 unit finishing its move, obstructed, jamming, isolated by staff; the train
-stopping in or out of position; PSC reply or time-out; traction) under every
+stopping in or out of position; PSC reply or time-out; the link falling
+silent with PSC high; traction) under every
 combination of the external inputs: DOA-L/R, DMC-L/R, DOC, DCC (64), driving
 mode automatic/manual (2), WPCS automatic or switched to manual by the WCC with
 the panel's open/close buttons (1 + 4). No sampling.
@@ -31,6 +32,7 @@ from railstop.sim.door_system import (
     Controls,
     DoorModel,
     Event,
+    EventKind,
     World,
     apply_event,
     emergency_brake,
@@ -156,6 +158,20 @@ def _attempts_brake(
     return None
 
 
+def _link_lost_brake(
+    before: World, c: Controls, ev: Event, after: World, errors: tuple[str, ...], model: DoorModel
+) -> str | None:
+    # SPEC §5: the PSD state counts only while PSC is high; [interpretation] a link lost with
+    # PSC high is the fault (emergency brake), and the train never leaves on it.
+    if ev.kind != EventKind.LINK_LOST:
+        return None
+    if not emergency_brake(after) or start_enabled(after, model) or psc(after):
+        return (
+            f"link lost with PSC high but {after.stop.phase.value}, no emergency brake or start enable kept"
+        )
+    return None
+
+
 def _no_interlock_error(
     before: World, c: Controls, ev: Event, after: World, errors: tuple[str, ...], model: DoorModel
 ) -> str | None:
@@ -194,6 +210,11 @@ INVARIANTS: tuple[Invariant, ...] = (
         name="psc-attempts-brake",
         text="the failed PSC attempts always lead to fault and emergency brake",
         check=_attempts_brake,
+    ),
+    Invariant(
+        name="link-lost-brake",
+        text="a link lost with PSC high ends in fault and emergency brake, never in start enable",
+        check=_link_lost_brake,
     ),
     Invariant(
         name="no-interlock-error",

@@ -7,6 +7,24 @@ selector and buttons in manual mode (SPEC §5), the doors' own motion times,
 an obstacle, a PSD unit that fails to close and the staff who isolate it.
 Every duration comes from ``railstop/data/doors.toml``.
 
+The train and the platform talk over the door link of SPEC §5
+(:class:`~railstop.link.door_link.DoorLink`: codec + EN 50159 safety layer +
+a medium of ``media.toml``, the ``[link]`` section of the door data). From
+the PSC request on, each end sends its telegram every exchange cycle: the
+train a ``door-command`` (its door signals, PSC requested or held), the
+platform, once it has answered, a ``psd-status`` (PSC, PSD closed and locked,
+start enable). So:
+
+* PSC goes high when the WPCS's reply *arrives*: a request whose replies are
+  all lost (or never sent: the WPCS answers only a train its stop sensors see
+  in position) times out like a train out of position (SPEC §5);
+* with PSC high, the train supervises the status frames: none valid for
+  ``supervision_timeout_s`` is a lost link, fault and emergency brake
+  ([interpretation], see ``onboard/stop_confirm.py``);
+* start enable is given when a status frame reports the PSD closed and locked
+  after the train's own doors are (SPEC §5 fig. 7: the PSD state reaches the
+  train over the link, and counts only while PSC is high).
+
 Nothing here reads a clock: time is a number the driver advances from one
 scheduled event to the next, and the result is a timeline of
 ``(t_s, signal, value)`` events.
@@ -19,9 +37,14 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from railstop.config.doors import DoorsConfig
 from railstop.control.doors import DoorInput, DoorSignals, DoorState, Side, summarise
-from railstop.errors import SimulationError
+from railstop.errors import ConfigError, SimulationError
+from railstop.link.channel import media_preset
+from railstop.link.codec import DoorCommand, PsdStatus
+from railstop.link.door_link import DoorLink, DoorLinkCounts
 from railstop.onboard.stop_confirm import StopPhase
 from railstop.sim.door_system import (
     Controls,
@@ -35,6 +58,7 @@ from railstop.sim.door_system import (
     start_enabled,
     step,
 )
+from railstop.streams import Stream, seed_u64
 from railstop.wayside.wpcs import answers_psc
 
 MODES = ("auto", "manual")
@@ -64,6 +88,7 @@ SIGNALS: tuple[str, ...] = (
     "fault",
     "emergency_brake",
     "interlock_error",
+    "link",
 )
 
 
@@ -93,6 +118,7 @@ class DwellResult:
     timeline: tuple[DwellEvent, ...]
     obstruct_door: int | None = None
     psd_fail: int | None = None
+    link: DoorLinkCounts | None = None
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -112,12 +138,48 @@ class DwellResult:
             "outcome": self.outcome,
             "obstruct_door": self.obstruct_door,
             "psd_fail": self.psd_fail,
+            "link": None if self.link is None else self.link.summary(),
             "timeline": [{"t_s": e.t_s, "signal": e.signal, "value": e.value} for e in self.timeline],
         }
 
 
 def model_for(doors: DoorsConfig) -> DoorModel:
     return DoorModel(actions=doors.actions, max_psc_attempts=doors.stop_confirm.max_psc_attempts)
+
+
+def make_door_link(
+    doors: DoorsConfig,
+    *,
+    seed: int = 0,
+    train_id: int = 1,
+    counter: int = 0,
+    loss_probability: float | None = None,
+    outage: tuple[float, float] | None = None,
+) -> DoorLink:
+    """The door link of the door data's ``[link]`` section for one dwell.
+
+    Its random generator is a function of (seed, stream, train, counter) only
+    (DESIGN rule 7): ``counter`` numbers the dwells of one train.
+    ``loss_probability`` overrides the medium's per-frame loss (both ways);
+    ``outage`` = (start_s, end_s) loses every frame sent in between (fault injection).
+    """
+    cfg = doors.link
+    try:
+        params = media_preset(cfg.medium)
+    except ConfigError as exc:  # the bad name is in the door data, not in the media file
+        raise ConfigError(doors.source, "link.medium", exc.message, cfg.medium) from None
+    if loss_probability is not None:
+        params = params.replace(loss_probability=loss_probability)
+    entropy = [int(seed_u64(seed)), int(Stream.DOOR_LINK), int(train_id), int(counter)]
+    return DoorLink(
+        params=params,
+        rng=np.random.default_rng(np.random.SeedSequence(entropy)),
+        train_id=train_id,
+        category=cfg.category,
+        max_age_s=cfg.max_age_s,
+        timeout_s=cfg.supervision_timeout_s,
+        outage=outage,
+    )
 
 
 def run_dwell(
@@ -130,15 +192,15 @@ def run_dwell(
     obstruct_door: int | None = None,
     psd_fail: int | None = None,
     model: DoorModel | None = None,
-    psc_lost: frozenset[int] = frozenset(),
+    link: DoorLink | None = None,
+    seed: int = 0,
 ) -> DwellResult:
     """Simulate one dwell from a train that has just stopped ``stop_error_m`` from its stopping point.
 
     ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
     the platform side that is obstructed while closing (cleared later) / fails
-    to close (isolated by staff later). ``psc_lost``: the PSC attempts (1 = first) whose
-    WPCS reply the link loses: the onboard unit then times out as for a train not in
-    position (SPEC §5: no PSC, no door release).
+    to close (isolated by staff later). ``link``: the door link to use (its
+    time starts at the stop); default the door data's link drawn from ``seed``.
     """
     if mode not in MODES:
         raise SimulationError(f"mode: must be one of {', '.join(MODES)} (got {mode!r})")
@@ -157,7 +219,7 @@ def run_dwell(
         manual=mode == "manual",
         obstruct=None if obstruct_door is None else obstruct_door - 1,
         psd_fail=None if psd_fail is None else psd_fail - 1,
-        psc_lost=psc_lost,
+        link=link if link is not None else make_door_link(doors, seed=seed),
     )
     run.run()
     w = run.world
@@ -175,7 +237,7 @@ def run_dwell(
         final_stop_error_m=round(run.error_m, 6),
         tolerance_m=doors.stop_confirm.tolerance_m,
         in_tolerance=answers_psc(stop_error_m, doors.stop_confirm.tolerance_m),
-        psc_attempts=w.stop.attempts,
+        psc_attempts=run.psc_requests,
         corrections=run.corrections,
         fault=w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault,
         emergency_brake=emergency_brake(w),
@@ -185,6 +247,7 @@ def run_dwell(
         timeline=tuple(run.timeline),
         obstruct_door=obstruct_door,
         psd_fail=psd_fail,
+        link=run.link.counts,
     )
 
 
@@ -211,10 +274,11 @@ class _Dwell:
         manual: bool,
         obstruct: int | None,
         psd_fail: int | None,
-        psc_lost: frozenset[int] = frozenset(),
+        link: DoorLink,
     ) -> None:
         self.cfg = doors
-        self.psc_lost = psc_lost
+        self.link = link
+        self.lcfg = doors.link
         self.timing = doors.timing
         self.sc = doors.stop_confirm
         self.model = model
@@ -231,6 +295,7 @@ class _Dwell:
         self.seq = 0
         self.timeline: list[DwellEvent] = []
         self.last: dict[str, int | float | str] = {}
+        self.last_key: tuple[Any, ...] | None = None
         self.gen: dict[tuple[str, int], int] = {}
         self.speed_mps = 0.0
         self.creep = "-"
@@ -242,6 +307,14 @@ class _Dwell:
         self.done = False
         self.injected: set[str] = set()
         self.interlock_error = "-"
+        # The door link (SPEC §5): the exchange runs while PSC is requested or high.
+        self.exchanging = False
+        self.link_state = "-"
+        self.platform_psc = False  # the WPCS has answered this train's PSC request
+        self.platform_answering = False
+        self.arrivals: set[float] = set()  # "arrive" wake-ups already scheduled
+        self.start_ready = False  # the train's own start conditions hold; waiting for the PSD status
+        self.psc_requests = 0
 
     # -- the loop -------------------------------------------------------------
     def run(self) -> None:
@@ -339,11 +412,104 @@ class _Dwell:
         kind = EventKind.STOP_IN if answers_psc(self.error_m, tol) else EventKind.STOP_OUT
         self._cycle(Event(kind))
 
-    def _on_psc_reply(self) -> None:
-        self._cycle(Event(EventKind.PSC_REPLY))
+    def _on_psc_timeout(self, attempt: int) -> None:
+        w = self.world
+        if w.stop.phase == StopPhase.PSC_WAIT and w.stop.attempts == attempt:
+            self._cycle(Event(EventKind.PSC_TIMEOUT))
 
-    def _on_psc_timeout(self) -> None:
-        self._cycle(Event(EventKind.PSC_TIMEOUT))
+    # -- the door link (SPEC §5) ------------------------------------------------------
+    def _start_exchange(self) -> None:
+        if not self.exchanging:
+            self.exchanging = True
+            self.link_state = "exchange"
+            self._at(0.0, "tick")
+
+    def _command(self) -> DoorCommand:
+        s = self.controls.signals
+        return DoorCommand(
+            train_id=self.link.train_id,
+            doa_l=s.doa_l,
+            doa_r=s.doa_r,
+            dmc_l=s.dmc_l,
+            dmc_r=s.dmc_r,
+            doc=s.doc,
+            dcc=s.dcc,
+            psc=self.world.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED),
+            automatic=not self.manual,
+        )
+
+    def _status(self) -> PsdStatus:
+        wp = self.world.wpcs
+        locked = all(u in self.model.interlocks.locked for u in wp.units)
+        return PsdStatus(
+            train_id=self.link.train_id,
+            psc=self.platform_psc,
+            psd_closed_locked=locked,
+            start_enable=locked and not wp.fault,
+            manual=self.controls.wcc_manual,
+            fault=wp.fault,
+        )
+
+    def _expect_arrival(self) -> None:
+        t = self.link.next_arrival_s()
+        if t is not None and t not in self.arrivals:
+            self.arrivals.add(t)
+            self._at(max(t - self.t_s, 0.0), "arrive", t)
+
+    def _on_tick(self) -> None:
+        """One exchange cycle: the train's command up, the platform's status down."""
+        phase = self.world.stop.phase
+        if phase not in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED):
+            self.exchanging = False
+            self.link_state = "-"
+            return
+        if phase == StopPhase.CONFIRMED and self.link.train_timed_out(self.t_s):
+            self.link_state = "lost"
+            self._cycle(Event(EventKind.LINK_LOST))
+            return
+        self.link.send_command(self._command(), self.t_s)
+        if self.platform_psc:
+            self.link.send_status(self._status(), self.t_s)
+        self._expect_arrival()
+        self._at(self.lcfg.exchange_cycle_s, "tick")
+
+    def _on_arrive(self, t: float) -> None:
+        self.arrivals.discard(t)
+        for r in self.link.deliver(self.t_s):
+            if self.done:
+                break
+            if r.to == "platform" and isinstance(r.telegram, DoorCommand):
+                self._platform_receives(r.telegram)
+            elif r.to == "train" and isinstance(r.telegram, PsdStatus):
+                self._train_receives(r.telegram)
+        self._expect_arrival()
+
+    def _platform_receives(self, cmd: DoorCommand) -> None:
+        if not cmd.psc:
+            self.platform_psc = False
+            return
+        # SPEC §5: the WPCS answers only a train its stop sensors see in position.
+        if (
+            not self.platform_psc
+            and not self.platform_answering
+            and answers_psc(self.error_m, self.sc.tolerance_m)
+        ):
+            self.platform_answering = True
+            self._at(self.lcfg.wpcs_processing_s, "platform_answer")
+
+    def _on_platform_answer(self) -> None:
+        self.platform_answering = False
+        if answers_psc(self.error_m, self.sc.tolerance_m):
+            self.platform_psc = True
+            self.link.send_status(self._status(), self.t_s)
+            self._expect_arrival()
+
+    def _train_receives(self, status: PsdStatus) -> None:
+        w = self.world
+        if status.psc and w.stop.phase == StopPhase.PSC_WAIT:
+            self._cycle(Event(EventKind.PSC_REPLY))  # SPEC §5: the reply makes PSC high
+        elif self.start_ready and status.psc and status.psd_closed_locked and status.start_enable:
+            self._give_start_enable()
 
     def _on_move(self) -> None:
         self._cycle(Event(EventKind.MOVE))
@@ -381,12 +547,11 @@ class _Dwell:
         phase, was = w.stop.phase, before.stop.phase
         if phase != was:
             if phase == StopPhase.PSC_WAIT:
-                # SPEC §5: standstill confirmed -> PSC request; the WPCS answers only a train in position.
-                lost = w.stop.attempts in self.psc_lost  # the link lost this attempt's reply
-                if answers_psc(self.error_m, self.sc.tolerance_m) and not lost:
-                    self._at(t.psc_reply_s, "psc_reply")
-                else:
-                    self._at(t.psc_timeout_s, "psc_timeout")
+                # SPEC §5: standstill confirmed -> PSC request over the link; no reply within
+                # the time-out = not in position.
+                self.psc_requests += 1
+                self._start_exchange()
+                self._at(t.psc_timeout_s, "psc_timeout", w.stop.attempts)
             elif phase == StopPhase.CORRECTING:
                 # SPEC §3 lamps: F = stopped short, move forward; R = passed, reverse.
                 self.lamp = "F" if self.error_m < 0 else "R"
@@ -404,6 +569,8 @@ class _Dwell:
                     self._at(0.0, "signals", {"dmc": False, "doa": True, "doc": True})
             elif phase == StopPhase.FAULT:
                 self.done = True
+            if phase == StopPhase.CORRECTING:
+                self.platform_psc = False  # the train moves away from the PSC it asked for
         if w.moving and not before.moving and phase == StopPhase.CORRECTING:
             distance = min(abs(self.error_m), self.sc.creep_max_m)
             self.corrections += 1
@@ -416,16 +583,19 @@ class _Dwell:
             self._at(0.0, "signals", {"doc": False})
             self._at(t.dwell_s, "dwell_end")
         # Start enable after the doors have closed again (it is also high on arrival,
-        # before anything opened, but the dwell is not over then).
-        if self.closing and self.start_enable_s is None and start_enabled(w, self.model):
-            self.start_enable_s = _r(self.t_s)
-            self.lamp = "S"
-            self.done = True
-            # The door commands are released; in manual the ATC raises DMC again for the run.
-            if self.manual:
-                self.controls = self.controls._replace(signals=self._side_signals(dmc=True, dcc=False))
-            else:
-                self.controls = self.controls._replace(signals=self._side_signals(doa=False, dcc=False))
+        # before anything opened, but the dwell is not over then). The train's side holds
+        # now; the PSD's reaches the train with the next status frame (SPEC §5 fig. 7).
+        self.start_ready = self.closing and self.start_enable_s is None and start_enabled(w, self.model)
+
+    def _give_start_enable(self) -> None:
+        self.start_enable_s = _r(self.t_s)
+        self.lamp = "S"
+        self.done = True
+        # The door commands are released; in manual the ATC raises DMC again for the run.
+        if self.manual:
+            self.controls = self.controls._replace(signals=self._side_signals(dmc=True, dcc=False))
+        else:
+            self.controls = self.controls._replace(signals=self._side_signals(doa=False, dcc=False))
 
     def _platform_doors_open(self) -> bool:
         units = [u for u in self.world.cpcs.side(self.side) if u != DoorState.ISOLATED]
@@ -461,13 +631,31 @@ class _Dwell:
             "train_doors-L": summarise(w.cpcs.left, "L"),
             "train_doors-R": summarise(w.cpcs.right, "R"),
             "start_blocked": blocked,
-            "start_enable": int(start_enabled(w, self.model)),
+            # Given when a status frame reports the PSD closed and locked (SPEC §5 fig. 7).
+            "start_enable": int(self.start_enable_s is not None),
             "fault": int(w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault),
             "emergency_brake": int(emergency_brake(w)),
             "interlock_error": self.interlock_error,
+            "link": self.link_state,
         }
 
     def _log(self) -> None:
+        # Most instants are link frames that change nothing logged: skip the snapshot then.
+        key = (
+            self.world,
+            self.controls,
+            self.lamp,
+            self.creep,
+            self.speed_mps,
+            self.error_m,
+            self.closing,
+            self.start_enable_s,
+            self.interlock_error,
+            self.link_state,
+        )
+        if key == self.last_key:
+            return
+        self.last_key = key
         snap = self._snapshot()
         t = _r(self.t_s)
         for name in SIGNALS:

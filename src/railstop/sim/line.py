@@ -25,9 +25,12 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   confirmation and PSC, the correction creep of an out-of-tolerance stop,
   CPCS/WPCS, train doors and PSD, start enable), the doors standing open
   for the operation's dwell time; departure at start enable and on the next
-  proceed aspect. A dwell that ends in the SPEC §5 fault path (no start
-  enable) keeps the train at the platform with its doors closed, and the
-  line behind it waits (DESIGN rule 10).
+  proceed aspect. The train and the platform talk over the door link of
+  SPEC §5 (``link.door_link``: door-command and psd-status telegrams in
+  EN 50159 safety frames over the transponder medium), one link per train
+  and platform with its own random stream. A dwell that ends in the SPEC §5
+  fault path (no PSC, or the link lost with PSC high: no start enable) keeps
+  the train at the platform, and the line behind it waits (DESIGN rule 10).
 
 - **the onboard position** of every train (SPEC §2, ``onboard.positioning``):
   its odometer (the assumed wheel diameter, so off by the drawn diameter
@@ -38,9 +41,9 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   is sampled every step. The station stop is taken over where the train
   physically is (the wayside's detectors see it).
 
-Not yet (issue 14, later increments): slides between stations, the dwell's
-door and PSD signals crossing a link (the dwell driver passes them as
-values), the link model between the units, line campaigns.
+Not yet: the wayside's occupancy telegrams and signal aspects reach the
+trains as values (no medium between them); slides inside the station-stop
+trajectories.
 """
 
 from __future__ import annotations
@@ -65,13 +68,14 @@ from railstop.control.line_ato import (
 )
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
+from railstop.link.door_link import DoorLinkCounts
 from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
 from railstop.physics.train import adhesion_limit_1
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.clock import SimClock
-from railstop.sim.dwell import run_dwell
+from railstop.sim.dwell import make_door_link, run_dwell
 from railstop.sim.scenario import station_gradient
 from railstop.streams import RunStreams, Stream
 from railstop.wayside.interlocking import FixedBlockInterlocking
@@ -100,17 +104,27 @@ SLIDE_GAP_S = 2.0
 CALIBRATIONS = ("carried", "cold")
 
 
-def check_line_settings(*, psc_loss_probability: float, slide_probability: float, calibration: str) -> None:
+def check_line_settings(*, door_link_loss: float | None, slide_probability: float, calibration: str) -> None:
     """The line's own settings (a SimulationError naming the field and value): probabilities in
     [0, 1], a known calibration. LineSimulation and a line campaign's spec both check them."""
     for name, prob in (
-        ("psc_loss_probability", psc_loss_probability),
+        ("door_link_loss", 0.0 if door_link_loss is None else door_link_loss),
         ("slide_probability", slide_probability),
     ):
         if not 0.0 <= prob <= 1.0:
             raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
     if calibration not in CALIBRATIONS:
         raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
+
+
+def _door_link_totals(dwells: list[DwellRecord]) -> dict[str, int]:
+    """The door links of every dwell: frames sent, lost by the medium, refused by the receivers."""
+    links = [d.link for d in dwells if d.link is not None]
+    return {
+        "frames": sum(c.commands_sent + c.status_sent for c in links),
+        "lost": sum(c.lost for c in links),
+        "rejected": sum(sum(c.rejected.values()) for c in links),
+    }
 
 
 class TrainAspects:
@@ -180,6 +194,7 @@ class DwellRecord:
     dwell_s: float  # standstill to start enable (or to the fault)
     psc_attempts: int
     corrections: int
+    link: DoorLinkCounts | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -231,6 +246,7 @@ class LineResult:
             else None,
             "dwell_faults": int(sum(d.outcome != "start-enable" for d in self.dwells)),
             "psc_retries": int(sum(max(d.psc_attempts - 1, 0) for d in self.dwells)),
+            "door_link": _door_link_totals(self.dwells),
             # Counted, not assumed: the least gap between a train's front and the rear ahead.
             "min_separation_m": round(self.min_separation_m, 2)
             if np.isfinite(self.min_separation_m)
@@ -260,23 +276,23 @@ class LineSimulation:
         seed: int = 1,
         step_s: float = 0.1,
         odometer_error_pct: float | None = None,
-        psc_loss_probability: float = 0.0,
+        door_link_loss: float | None = None,
         slide_probability: float = 0.0,
         calibration: str = "carried",
     ) -> None:
         """``odometer_error_pct``: every train's odometer diameter error (default: each train's
         own draw of the disturbance set's ``odometer_diameter_error_pct``).
-        ``psc_loss_probability``: the chance that the link loses a PSC attempt's reply (SPEC §5,
-        drawn per train, station and attempt): a fault of the platform link.
+        ``door_link_loss``: the door link's loss per frame, both ways (default: the medium's
+        own, ``[link]`` of the door data); 1 is a dead platform link (SPEC §5 fault path).
         ``slide_probability``: the chance, per train and station, of a low-adhesion patch where
         the ATO brakes for the station (see :meth:`_place_patches`). ``calibration``: "carried"
         (the odometer scale and delay learned on earlier trips) or "cold" (the learner's prior)."""
         check_line_settings(
-            psc_loss_probability=psc_loss_probability,
+            door_link_loss=door_link_loss,
             slide_probability=slide_probability,
             calibration=calibration,
         )
-        self.psc_loss = psc_loss_probability
+        self.door_link_loss = door_link_loss
         self.slide_probability = slide_probability
         self.calibration = calibration
         if line.signalling is None:
@@ -607,7 +623,14 @@ class LineSimulation:
             station=st.name,
             platform_side=st.platform_side,
             stop_error_m=train.x_m - st.stop_point_m,
-            psc_lost=self._psc_lost(train, train.next_station, doors.stop_confirm.max_psc_attempts),
+            # SPEC §5: the door telegrams over the train's own link at this platform.
+            link=make_door_link(
+                doors,
+                seed=self.seed,
+                train_id=train.index,
+                counter=train.next_station,
+                loss_probability=self.door_link_loss,
+            ),
         )
         self.dwells.append(
             DwellRecord(
@@ -617,6 +640,7 @@ class LineSimulation:
                 dwell_s=dwell.dwell_total_s,
                 psc_attempts=dwell.psc_attempts,
                 corrections=dwell.corrections,
+                link=dwell.link,
             )
         )
         train.next_station += 1
@@ -628,17 +652,6 @@ class LineSimulation:
         train.x_m = st.stop_point_m + dwell.final_stop_error_m  # after any correction creep
         train.phase = "dwelling"
         train.until_s = arrive + dwell.start_enable_s
-
-    def _psc_lost(self, train: Train, station_index: int, attempts: int) -> frozenset[int]:
-        """The PSC attempts of this dwell whose reply the link loses (train's own stream)."""
-        if self.psc_loss <= 0.0:
-            return frozenset()
-        st = self.train_streams.subset(np.array([train.index]))
-        return frozenset(
-            a
-            for a in range(1, attempts + 1)
-            if float(st.uniform(Stream.RADIO_LOSS, station_index * 16 + a)[0]) < self.psc_loss
-        )
 
     def _doors(self, dwell_s: float) -> DoorsConfig:
         """The door data with the doors standing open for ``dwell_s``."""

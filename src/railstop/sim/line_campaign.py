@@ -39,7 +39,7 @@ class LineCampaignSpec:
     runs: int
     seed: int
     duration_s: float
-    psc_loss_probability: float = 0.0
+    door_link_loss: float | None = None  # None: the medium's own loss per frame
     odometer_error_pct: float | None = None  # None: each train's draw of the disturbance set
     slide_probability: float = 0.0
     calibration: str = "carried"
@@ -49,7 +49,7 @@ class LineCampaignSpec:
 
         # Refused here, in the caller, rather than in every worker's first run.
         check_line_settings(
-            psc_loss_probability=self.psc_loss_probability,
+            door_link_loss=self.door_link_loss,
             slide_probability=self.slide_probability,
             calibration=self.calibration,
         )
@@ -65,7 +65,7 @@ class LineCampaignSpec:
             "runs": self.runs,
             "seed": self.seed,
             "duration_s": self.duration_s,
-            "psc_loss_probability": self.psc_loss_probability,
+            "door_link_loss": self.door_link_loss,
             "odometer_error_pct": self.odometer_error_pct,
             "slide_probability": self.slide_probability,
             "calibration": self.calibration,
@@ -82,7 +82,7 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         operation=spec.operation,
         disturbances=spec.disturbances,
         seed=spec.seed + run,
-        psc_loss_probability=spec.psc_loss_probability,
+        door_link_loss=spec.door_link_loss,
         odometer_error_pct=spec.odometer_error_pct,
         slide_probability=spec.slide_probability,
         calibration=spec.calibration,
@@ -200,6 +200,10 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         "emergency_brakes": int(sum(values("emergency_brakes"))),
         "dwell_faults": int(sum(values("dwell_faults"))),
         "psc_retries": int(sum(values("psc_retries"))),
+        "door_link": {
+            k: int(sum(r["summary"].get("door_link", {}).get(k, 0) for r in rows))
+            for k in ("frames", "lost", "rejected")
+        },
         "skipped_stops": int(sum(values("skipped_stops"))),
         "signals_passed_at_danger": int(sum(values("signals_passed_at_danger"))),
         "min_separation_m": round(min(separation), 2) if separation else None,

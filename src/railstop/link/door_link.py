@@ -1,0 +1,191 @@
+"""The train <-> platform door link of SPEC §5 as frames: codec + EN 50159 layer + medium, both ways.
+
+The train's CPCS / ATC sends :class:`~railstop.link.codec.DoorCommand`
+telegrams (the door signals and the PSC request) to the platform's WPCS; the
+WPCS sends :class:`~railstop.link.codec.PsdStatus` telegrams back (the PSC
+reply, PSD closed and locked, start enable). Each telegram is encoded by the
+codec (type, fixed-point payload, CRC-16), wrapped in a safety frame
+(:mod:`railstop.link.safety`: ids, sequence number, timestamp, CRC-32 or
+MAC) and carried by one direction of a simulated medium
+(:class:`~railstop.link.channel.SimChannel`: poll cycle, latency, loss,
+bursts, bit errors). The receiving end checks the safety frame, then decodes;
+a frame refused by either is dropped and counted by its reason, never
+delivered.
+
+Pure (DESIGN rule 2): time is an argument, randomness comes from the
+generator given, nothing is read from a clock. ``outage`` is fault injection:
+every frame sent inside ``[start_s, end_s)`` is lost, both ways (a dead
+transponder, a cut loop cable).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from railstop.errors import TelegramError
+from railstop.link.channel import ChannelParams, LinkError, SimChannel
+from railstop.link.codec import DoorCommand, PsdStatus, Telegram, decode, encode
+from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+
+__all__ = ["DoorLink", "DoorLinkCounts", "Received"]
+
+PLATFORM_ID = 0x0200  # the station's WPCS
+# Demonstration master key (category 3 only). A deployment loads its keys from its key management.
+_DEMO_MASTER = hashlib.sha256(b"railstop demonstration door link master key").digest()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Received:
+    """A telegram delivered to one end: ``to`` is "platform" or "train"."""
+
+    to: str
+    telegram: Telegram
+    at_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DoorLinkCounts:
+    """What the link did: frames sent and delivered per direction, refusals by reason."""
+
+    commands_sent: int
+    commands_delivered: int
+    status_sent: int
+    status_delivered: int
+    lost: int  # by the medium (loss, bursts, an outage)
+    rejected: dict[str, int]  # by the safety layer or the codec, by reason
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "commands_sent": self.commands_sent,
+            "commands_delivered": self.commands_delivered,
+            "status_sent": self.status_sent,
+            "status_delivered": self.status_delivered,
+            "lost": self.lost,
+            "rejected": dict(self.rejected),
+        }
+
+
+@dataclass(slots=True)
+class _Direction:
+    sender: SafeSender
+    channel: SimChannel
+    receiver: SafeReceiver
+    sent: int = 0
+    outage_lost: int = 0
+
+
+@dataclass(slots=True)
+class DoorLink:
+    """Both directions of one train's door link at one platform.
+
+    ``max_age_s``: the receivers refuse frames older than this (EN 50159
+    delay); ``start_s``: the link comes up then (the receivers' time-outs count
+    from it).
+    """
+
+    params: ChannelParams
+    rng: np.random.Generator
+    train_id: int
+    category: int = 1
+    max_age_s: float = 0.3
+    timeout_s: float = 0.5
+    start_s: float = 0.0
+    outage: tuple[float, float] | None = None
+    up: _Direction = field(init=False)  # train -> platform
+    down: _Direction = field(init=False)  # platform -> train
+    codec_rejected: int = 0
+
+    def __post_init__(self) -> None:
+        start, end = self.outage if self.outage is not None else (0.0, 0.0)
+        if not (math.isfinite(start) and not math.isnan(end) and start <= end):
+            raise LinkError(f"outage: needs a finite start_s <= end_s (inf: for good) (got {self.outage!r})")
+        if not 0 <= int(self.train_id) <= 0xEFFF:
+            raise LinkError(f"train_id: must be in 0..{0xEFFF} (got {self.train_id!r})")
+        train_addr = 0x1000 + int(self.train_id)
+        self.up = self._direction(train_addr, PLATFORM_ID)
+        self.down = self._direction(PLATFORM_ID, train_addr)
+
+    def _direction(self, src: int, dst: int) -> _Direction:
+        key = link_key(_DEMO_MASTER, src, dst) if self.category == 3 else None
+        return _Direction(
+            sender=SafeSender(src, dst, key=key, category=self.category),
+            channel=SimChannel(self.params, self.rng),
+            receiver=SafeReceiver(
+                dst,
+                src,
+                key=key,
+                category=self.category,
+                max_age_s=self.max_age_s,
+                timeout_s=self.timeout_s,
+                start_s=self.start_s,
+            ),
+        )
+
+    def _send(self, d: _Direction, msg: Telegram, now_s: float) -> None:
+        frame = d.sender.wrap(encode(msg), now_s)
+        d.sent += 1
+        if self.outage is not None and self.outage[0] <= now_s < self.outage[1]:
+            d.outage_lost += 1  # fault injection: nothing gets through
+            return
+        d.channel.send(frame, now_s)
+
+    def send_command(self, msg: DoorCommand, now_s: float) -> None:
+        """Train -> platform."""
+        self._send(self.up, msg, now_s)
+
+    def send_status(self, msg: PsdStatus, now_s: float) -> None:
+        """Platform -> train."""
+        self._send(self.down, msg, now_s)
+
+    def next_arrival_s(self) -> float | None:
+        """When the next frame in flight (either way) arrives, or None."""
+        times = [
+            t for t in (self.up.channel.next_arrival_s(), self.down.channel.next_arrival_s()) if t is not None
+        ]
+        return min(times) if times else None
+
+    def deliver(self, now_s: float) -> list[Received]:
+        """The telegrams that have arrived by ``now_s`` and passed the safety layer and the codec."""
+        out: list[Received] = []
+        for to, d in (("platform", self.up), ("train", self.down)):
+            for frame in d.channel.receive(now_s):
+                verdict = d.receiver.accept(frame, now_s)
+                if not isinstance(verdict, Delivered):
+                    continue  # counted by the receiver
+                try:
+                    msg = decode(verdict.payload)
+                except TelegramError:
+                    self.codec_rejected += 1  # a valid safety frame around a bad telegram
+                    continue
+                out.append(Received(to=to, telegram=msg, at_s=now_s))
+        return out
+
+    def train_timed_out(self, now_s: float) -> bool:
+        """No valid status frame has reached the train for longer than ``timeout_s``."""
+        return self.down.receiver.timed_out(now_s)
+
+    def restart_supervision(self, now_s: float) -> None:
+        """Start the train's time-out afresh (PSC just went high: status frames are now due)."""
+        self.down.receiver.last_valid_s = max(self.down.receiver.last_valid_s, now_s)
+
+    @property
+    def counts(self) -> DoorLinkCounts:
+        rejected: dict[str, int] = {}
+        for d in (self.up, self.down):
+            for reason, n in d.receiver.counts.items():
+                if reason != "delivered" and n:
+                    rejected[reason] = rejected.get(reason, 0) + n
+        if self.codec_rejected:
+            rejected["codec"] = self.codec_rejected
+        return DoorLinkCounts(
+            commands_sent=self.up.sent,
+            commands_delivered=self.up.receiver.counts["delivered"],
+            status_sent=self.down.sent,
+            status_delivered=self.down.receiver.counts["delivered"],
+            lost=sum(d.channel.stats.lost + d.outage_lost for d in (self.up, self.down)),
+            rejected=rejected,
+        )
