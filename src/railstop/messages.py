@@ -28,8 +28,49 @@ class SignalAspects:
     proceed: tuple[bool, ...]
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PositionReport:
+    """SPEC §4 report a: the onboard CBTC unit's position (train front, Pp) and speed (Vp)."""
+
+    train_id: int
+    position_m: float
+    speed_mps: float  # >= 0; the sign is in ``direction``
+    direction: str  # "R" (+chainage) or "L"
+    time_s: float  # when the onboard unit took the position
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MovementCommand:
+    """SPEC §4 command b: the movement authority as a distance from the compensated position Pc,
+    the gradient and the speed limit there."""
+
+    train_id: int
+    authority_m: float  # distance from Pc to the end of the authority (>= 0)
+    gradient_permille: float
+    speed_limit_mps: float
+    report_time_s: float  # the report this command answers
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ManualRelease:
+    """SPEC §4 step 5: the operator releases a lost train's protection zone after visual
+    confirmation (it reaches the zone controller only through an authenticated link)."""
+
+    train_id: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OnboardPosition:
+    """The onboard positioning's estimate (SPEC §2) for the train's own units."""
+
+    position_m: float
+    speed_mps: float
+
+
 #: Every message a unit takes or sends.
-Message = CircuitOccupancy | SignalAspects
+Message = (
+    CircuitOccupancy | SignalAspects | PositionReport | MovementCommand | ManualRelease | OnboardPosition
+)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

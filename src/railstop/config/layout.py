@@ -55,6 +55,29 @@ class Signalling(Model):
     blocks_ahead: Annotated[int, Field(ge=1, le=5)] = 1
 
 
+class Cbtc(Model):
+    """SPEC §4 moving-block CBTC: the cycles, the counts and the distances of the zone controller."""
+
+    # SPEC §4: reports and commands run on fixed cycles; the paper gives none, a CBTC heartbeat
+    # is typically 0.5-1 s.
+    report_period_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.5
+    # SPEC §4 Δt: from receiving report a0 to generating command b0 (assumption: 0.2 s).
+    processing_delay_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.2
+    # SPEC §4: position compensation Pc = Pp ± Δt·Vp (false: commands from Pp, for comparison).
+    compensate: bool = True
+    # SPEC §4: 2 or more consecutive missed reports -> the train is lost (its zone is set).
+    missed_reports_lost: Annotated[int, Field(ge=1, le=20)] = 2
+    # SPEC §4: 2 or more consecutive missed commands -> the onboard unit's emergency brake.
+    missed_commands_eb: Annotated[int, Field(ge=1, le=20)] = 2
+    # The authority ends this far behind the rear of the train ahead or a protection zone
+    # (assumption: the braking-curve uncertainty and the radio's uncompensated latency).
+    safety_margin_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] = 20.0
+
+    @property
+    def missed_window_s(self) -> float:
+        return self.missed_reports_lost * self.report_period_s
+
+
 class SpeedLimit(Stretch):
     """A civil speed limit over a stretch of the line."""
 

@@ -13,6 +13,7 @@ from pydantic import Field, field_validator, model_validator
 from railstop.config.base import FieldProblem, FiniteFloat, Fraction, NonNegFloat, PositiveFloat, Stretch
 from railstop.config.base import Model as _Model
 from railstop.config.layout import (
+    Cbtc,
     Segment,
     Signalling,
     SpeedLimit,
@@ -266,6 +267,8 @@ class Line(_Model):
     segments: list[Segment] = Field(default_factory=list)
     signalling: Signalling | None = None
     speed_limits: list[SpeedLimit] = Field(default_factory=list)
+    # SPEC §4 moving-block CBTC over the segments (None: the defaults of config.layout.Cbtc).
+    cbtc: Cbtc = Field(default_factory=Cbtc)
 
     @model_validator(mode="after")
     def _unique(self) -> Line:
