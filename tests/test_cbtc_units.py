@@ -56,7 +56,7 @@ def test_compensated_position_is_pp_plus_or_minus_dt_vp(direction: str) -> None:
     off = zc(Cbtc(report_period_s=0.5, processing_delay_s=0.2, safety_margin_m=20.0, compensate=False))
     x = 2500.0
     c_on, c_off = command_for(on, 1, x, v, 10.0, direction), command_for(off, 1, x, v, 10.0, direction)
-    end = 6000.0 - 20.0 if direction == "R" else 20.0  # the line's end less the margin
+    end = 6000.0 + LENGTH + 1.0 if direction == "R" else -LENGTH - 1.0  # a train's length beyond the end
     sign = 1.0 if direction == "R" else -1.0
     assert c_on.authority_m == pytest.approx(sign * (end - (x + sign * 0.2 * v)))
     assert c_off.authority_m == pytest.approx(sign * (end - x))

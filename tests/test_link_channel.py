@@ -491,8 +491,12 @@ def test_params_reject_unknown_key_and_replace_validates() -> None:
 
 def test_presets_load_with_spec_values() -> None:
     media = load_media()
-    assert set(media) == {"loop", "transponder", "radio"}
+    assert set(media) == {"loop", "transponder", "radio", "cbtc-radio"}
     loop, tp, radio = media["loop"], media["transponder"], media["radio"]
+    # SPEC §4 train radio (assumptions): tens of ms, rarer losses than the TASC radio, no bursts
+    cbtc = media["cbtc-radio"]
+    assert 0.01 <= cbtc.latency_s <= 0.08 and cbtc.loss_probability < radio.loss_probability
+    assert cbtc.burst_bad_fraction == 0.0
     # SPEC §5 table
     assert loop.bit_rate_bps == 2400.0 and 0.2 <= loop.cycle_s <= 0.25
     assert tp.bit_rate_bps == 64000.0 and 0.01 <= tp.cycle_s <= 0.05

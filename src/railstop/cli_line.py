@@ -47,6 +47,17 @@ CalibrationOpt = Annotated[
         help="Onboard positioning at entry: carried (the scale and delay of earlier trips) or cold."
     ),
 ]
+SignallingOpt = Annotated[
+    str,
+    typer.Option(
+        help="fixed-block (signals over the blocks), cbtc (SPEC §4 moving block, minimal protection "
+        "zones) or cbtc-conventional (the same, zones of whole blocks)."
+    ),
+]
+FaultsOpt = Annotated[
+    Path | None,
+    typer.Option(help="Faults TOML: [[radio_outage]] train, start_s, duration_s; [random_outages]."),
+]
 HeadwayOpt = Annotated[
     float | None,
     typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
@@ -77,6 +88,8 @@ def run_cmd(
     odometer_error_pct: OdometerErrorOpt = None,
     slide_probability: SlideOpt = 0.0,
     calibration: CalibrationOpt = "carried",
+    signalling: SignallingOpt = "fixed-block",
+    faults: FaultsOpt = None,
     plot: Annotated[Path | None, typer.Option(help="Write the time-distance diagram (PNG).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     line: LineOpt = None,
@@ -87,6 +100,7 @@ def run_cmd(
     signals, a station stop by ground TASC at every station, dwells; print the summary."""
     from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.faults import load_faults
     from railstop.provenance import footer, inputs_sha256, stamp
     from railstop.sim.line import LineSimulation
     from railstop.streams import SEED_RANGE, seed_in_range
@@ -98,6 +112,7 @@ def run_cmd(
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
         dist = load_disturbances(disturbances)
+        fault_data = load_faults(faults)
         sim = LineSimulation(
             line=ln,
             vehicle=veh,
@@ -108,6 +123,9 @@ def run_cmd(
             odometer_error_pct=odometer_error_pct,
             slide_probability=slide_probability,
             calibration=calibration,
+            signalling=signalling,
+            outages=fault_data.outages(),
+            random_outages=fault_data.random_outages,
         )
         result = sim.run(duration_s)
         summary = result.summary()
@@ -120,7 +138,8 @@ def run_cmd(
                 f"{ln.line.name}: {summary['exited']} of {op.trains} trains through"
                 + (f" ({tph} trains/h)" if tph is not None else "")
                 + f", {summary['stops']} stops by {op.controller} ({disturbances}), "
-                f"{summary['dwell_faults']} dwell faults"
+                f"{summary['dwell_faults']} dwell faults, {signalling}"
+                + (f", {summary['cbtc']['lost_trains']} lost trains" if summary["cbtc"] else "")
             )
             plot = plot_line(result, plot, title=title, footer=footer(prov, seed=seed))
     except RailstopError as exc:
@@ -163,6 +182,8 @@ def campaign_cmd(
     odometer_error_pct: OdometerErrorOpt = None,
     slide_probability: SlideOpt = 0.0,
     calibration: CalibrationOpt = "carried",
+    signalling: SignallingOpt = "fixed-block",
+    faults: FaultsOpt = None,
     workers: Annotated[int, typer.Option(min=1, max=256, help="Processes (default: 1).")] = 1,
     out: Annotated[Path, typer.Option(help="Campaign folder.")] = Path("line-campaign"),
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
@@ -177,6 +198,7 @@ def campaign_cmd(
 
     from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.faults import load_faults
     from railstop.sim.line_campaign import LineCampaignSpec, run_line_campaign
     from railstop.streams import SEED_RANGE, seed_in_range
 
@@ -186,6 +208,7 @@ def campaign_cmd(
         ln = load_line(line)
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
+        fault_data = load_faults(faults)
         spec = LineCampaignSpec(
             line=ln,
             vehicle=veh,
@@ -198,6 +221,9 @@ def campaign_cmd(
             odometer_error_pct=odometer_error_pct,
             slide_probability=slide_probability,
             calibration=calibration,
+            signalling=signalling,
+            outages=tuple(fault_data.outages()),
+            random_outages=fault_data.random_outages,
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume)
     except RailstopError as exc:

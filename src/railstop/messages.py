@@ -60,6 +60,13 @@ class ManualRelease:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class TrainLeft:
+    """A train has left the zone controller's area (the line's end): it is no longer supervised."""
+
+    train_id: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class OnboardPosition:
     """The onboard positioning's estimate (SPEC §2) for the train's own units."""
 
@@ -69,7 +76,13 @@ class OnboardPosition:
 
 #: Every message a unit takes or sends.
 Message = (
-    CircuitOccupancy | SignalAspects | PositionReport | MovementCommand | ManualRelease | OnboardPosition
+    CircuitOccupancy
+    | SignalAspects
+    | PositionReport
+    | MovementCommand
+    | ManualRelease
+    | TrainLeft
+    | OnboardPosition
 )
 
 

@@ -65,6 +65,7 @@ class Stream(IntEnum):
     CERTIFY = 13  # rare-event certification: counter 0 mixture component, 1 + j cube coordinate j
     ACCELEROMETER = 14  # the odometry's accelerometer: counter 0 its bias
     DOOR_LINK = 15  # SPEC §5 door link of a dwell: a generator per (seed, train, dwell)
+    CBTC_RADIO = 16  # SPEC §4 train radio: a generator per (seed, train, direction); counter 0.. faults
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:

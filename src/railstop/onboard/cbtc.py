@@ -51,6 +51,8 @@ class OnboardCbtc:
     response_s: float = 1.0
     overspeed_tolerance_mps: float = 5.0 / 3.6
     start_s: float = 0.0
+    active: bool = True  # reporting (False: starts with its first OnboardPosition)
+    uplink: str = "zc"  # where the reports go: the zone controller, or the radio before it
     name: str = ""
     accepts: tuple[type, ...] = (MovementCommand, OnboardPosition)
     position_m: float = math.nan
@@ -62,6 +64,7 @@ class OnboardCbtc:
     emergency_brake: bool = False
     eb_cause: str | None = None
     commands: int = 0
+    eb_count: int = 0  # emergency brakes applied (each latch counts once)
     foreign_commands: int = 0  # commands for another train: ignored, counted
     _next_report_s: float = 0.0
     _command_since_report: bool = True  # nothing to miss before the first report
@@ -92,6 +95,8 @@ class OnboardCbtc:
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
         if isinstance(message, OnboardPosition):
+            if not self.active:
+                self.start(now_s)  # the first position starts the reports
             self.position_m = message.position_m
             self.speed_mps = message.speed_mps
             if self.speed_mps > self.permitted_mps() + self.overspeed_tolerance_mps:
@@ -115,8 +120,14 @@ class OnboardCbtc:
             return []
         raise InterlockError(f"onboard CBTC: cannot take a {type(message).__name__}")
 
+    def start(self, now_s: float) -> None:
+        """Start reporting now (the first report goes out at once)."""
+        if not self.active:
+            self.active = True
+            self._next_report_s = now_s
+
     def next_deadline_s(self) -> float | None:
-        return self._next_report_s
+        return self._next_report_s if self.active else None
 
     def on_timer(self, now_s: float) -> list[Output]:
         p = self.params
@@ -136,9 +147,10 @@ class OnboardCbtc:
             direction=self.direction,
             time_s=now_s,
         )
-        return [Output(to="zc", message=report)]
+        return [Output(to=self.uplink, message=report)]
 
     def _brake(self, cause: str) -> None:
         if not self.emergency_brake:
             self.emergency_brake = True
             self.eb_cause = cause
+            self.eb_count += 1

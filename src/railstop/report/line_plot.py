@@ -2,8 +2,10 @@
 
 Time runs left to right, chainage upwards (the R direction). Each train is
 one line; where it stands at a platform the line is flat. Stations are
-labelled bands, signals thin lines at their blocks' entries; a stop outside
-the PSD tolerance is a red cross, an emergency brake a red triangle.
+labelled bands, signals thin lines at their blocks' entries (fixed block);
+under CBTC a lost train's protection zone is an orange box over the time it
+stood (SPEC §4). A stop outside the PSD tolerance is a red cross, an
+emergency brake a red triangle.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
+from matplotlib.patches import Rectangle
 
 from railstop.report.figures import write_figure
 from railstop.sim.line import LineResult
@@ -27,8 +30,25 @@ def plot_line(result: LineResult, path: str | Path, *, title: str, footer: str =
     """Write the string-line PNG of ``result`` to ``path``; return the path."""
     fig, ax = plt.subplots(figsize=(13, 7.5), layout="constrained")
     try:
-        for y in result.signal_m:
-            ax.axhline(y, color="0.85", lw=0.6, zorder=0)
+        if result.signalling == "fixed-block":
+            for y in result.signal_m:
+                ax.axhline(y, color="0.85", lw=0.6, zorder=0)
+        # SPEC §4: the protection zones of lost trains, over the time they stood.
+        for i, z in enumerate(result.zones):
+            end_s = min(z.released_s, result.duration_s)
+            ax.add_patch(
+                Rectangle(
+                    (z.set_s / 60.0, z.start_m),
+                    (end_s - z.set_s) / 60.0,
+                    z.end_m - z.start_m,
+                    facecolor="#fdae6b",
+                    edgecolor="#e6550d",
+                    alpha=0.6,
+                    lw=0.8,
+                    zorder=1,
+                    label="protection zone (lost train)" if i == 0 else None,
+                )
+            )
         for name, y in result.station_m:
             ax.axhspan(y - 120.0, y, color="#deebf7", zorder=0)
             ax.text(0.0, y - 60.0, f" {name}", va="center", ha="left", fontsize=8, color="#08519c")

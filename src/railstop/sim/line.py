@@ -48,7 +48,9 @@ trajectories.
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,9 +58,11 @@ import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
 from railstop.config.doors import DoorsConfig, load_doors
+from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
+    LOOKAHEAD_S,
     authority_end_m,
     ceiling_mps,
     demand_mps2,
@@ -68,17 +72,21 @@ from railstop.control.line_ato import (
 )
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
+from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
-from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects
+from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects, TrainLeft
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
 from railstop.physics.train import adhesion_limit_1
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import make_door_link, run_dwell
+from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
 from railstop.sim.scenario import station_gradient
 from railstop.streams import RunStreams, Stream
+from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
+from railstop.wayside.zone_controller import ZoneMode
 
 KMH = 1.0 / 3.6
 #: The train's own ATO plans its braking curves at this share of full service.
@@ -87,6 +95,8 @@ PLANNING_SHARE = 0.7
 #: point, so that it is back at speed when the stop takes it. [interpretation] a driver or ATO
 #: would stop at the approach signal; here the signal stands at the first detector.
 HOLD_BACK_M = 60.0
+#: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
+ENTRY_MARGIN_M = 10.0
 #: The phases of a train on the line (it occupies track).
 ON_LINE = ("running", "stopping", "dwelling", "held")
 #: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
@@ -104,9 +114,27 @@ SLIDE_GAP_S = 2.0
 CALIBRATIONS = ("carried", "cold")
 
 
-def check_line_settings(*, door_link_loss: float | None, slide_probability: float, calibration: str) -> None:
+def check_line_settings(
+    *,
+    door_link_loss: float | None,
+    slide_probability: float,
+    calibration: str,
+    signalling: str = "fixed-block",
+    outages: Sequence[tuple[int, float, float]] = (),
+) -> None:
     """The line's own settings (a SimulationError naming the field and value): probabilities in
-    [0, 1], a known calibration. LineSimulation and a line campaign's spec both check them."""
+    [0, 1], a known calibration and signalling, outages of trains that exist at sensible times.
+    LineSimulation and a line campaign's spec both check them."""
+    if signalling not in SIGNALLING_MODES:
+        raise SimulationError(f"signalling: one of {', '.join(SIGNALLING_MODES)} (got {signalling!r})")
+    for i, (train, start, duration) in enumerate(outages):
+        if (
+            train < 0
+            or not (math.isfinite(start) and start >= 0.0)
+            or not (math.isfinite(duration) and duration > 0.0)
+        ):
+            got = f"{train}, {start}, {duration}"
+            raise SimulationError(f"outages[{i}]: train >= 0, start_s >= 0, duration_s > 0 (got {got})")
     for name, prob in (
         ("door_link_loss", 0.0 if door_link_loss is None else door_link_loss),
         ("slide_probability", slide_probability),
@@ -218,6 +246,9 @@ class LineResult:
     signals_passed_at_danger: int
     slide_events: int = 0  # slides between stations (the WSP acting on a low-adhesion patch)
     calibration: str = "carried"
+    signalling: str = "fixed-block"
+    cbtc: dict[str, Any] | None = None  # the CBTC summary (SPEC §4), with signalling cbtc*
+    zones: list[ZoneRecord] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """The JSON of ``railstop line run``."""
@@ -259,6 +290,8 @@ class LineResult:
             else None,
             "position_calibration": self.calibration,
             "slide_events": self.slide_events,
+            "signalling": self.signalling,
+            "cbtc": self.cbtc,
             "duration_s": self.duration_s,
             "wall_s": round(self.wall_s, 3),
             "sim_to_wall": round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else None,
@@ -279,6 +312,10 @@ class LineSimulation:
         door_link_loss: float | None = None,
         slide_probability: float = 0.0,
         calibration: str = "carried",
+        signalling: str = "fixed-block",
+        outages: Sequence[tuple[int, float, float]] = (),
+        random_outages: RandomOutages | None = None,
+        radio_medium: str = "cbtc-radio",
     ) -> None:
         """``odometer_error_pct``: every train's odometer diameter error (default: each train's
         own draw of the disturbance set's ``odometer_diameter_error_pct``).
@@ -286,12 +323,20 @@ class LineSimulation:
         own, ``[link]`` of the door data); 1 is a dead platform link (SPEC §5 fault path).
         ``slide_probability``: the chance, per train and station, of a low-adhesion patch where
         the ATO brakes for the station (see :meth:`_place_patches`). ``calibration``: "carried"
-        (the odometer scale and delay learned on earlier trips) or "cold" (the learner's prior)."""
+        (the odometer scale and delay learned on earlier trips) or "cold" (the learner's prior).
+        ``signalling``: "fixed-block" (the blocks and signals of the line data), "cbtc" (SPEC §4
+        moving block with the minimal protection zone) or "cbtc-conventional" (the same with the
+        conventional zone: whole blocks and the overlap). ``outages``: (train, start_s,
+        duration_s): that train's CBTC radio is dead then (a fault); ``random_outages``: more,
+        drawn per train from the seed."""
         check_line_settings(
             door_link_loss=door_link_loss,
             slide_probability=slide_probability,
             calibration=calibration,
+            signalling=signalling,
+            outages=outages,
         )
+        self.signalling = signalling
         self.door_link_loss = door_link_loss
         self.slide_probability = slide_probability
         self.calibration = calibration
@@ -320,7 +365,21 @@ class LineSimulation:
         self.receivers = [TrainAspects(f"train-{t.index}", len(self.signal_m)) for t in self.trains]
         for r in self.receivers:
             r.proceed = self.interlocking.aspects
-        self.clock = SimClock([self.interlocking, *self.receivers], step_s=step_s)
+        self.cbtc: CbtcSignalling | None = None
+        self.drawn_outages: list[tuple[int, float, float]] = []
+        units: list[Unit] = [self.interlocking, *self.receivers]
+        if signalling != "fixed-block":
+            self.cbtc = CbtcSignalling(
+                line=line,
+                vehicle=vehicle,
+                mode=ZoneMode.CONVENTIONAL if signalling == "cbtc-conventional" else ZoneMode.MINIMAL,
+                trains=len(self.trains),
+                radio_params=media_preset(radio_medium),
+                seed=seed,
+                outages=outage_windows([*outages, *self._draw_outages(random_outages, seed)]),
+            )
+            units += self.cbtc.units()
+        self.clock = SimClock(units, step_s=step_s)
         self._occupied: set[int] = set()
         self.stops: list[StopRecord] = []
         self.dwells: list[DwellRecord] = []
@@ -496,15 +555,20 @@ class LineSimulation:
         # The ATO knows its position from the onboard positioning (SPEC §2), not the truth.
         here = train.x_onboard_m
         proceed = self.receivers[train.index].proceed
-        auth = authority_end_m(here, self.signal_m, proceed)
         st_next = (
             self.line.stations[train.next_station] if train.next_station < len(self.line.stations) else None
         )
+        if self.cbtc is None:
+            auth = authority_end_m(here, self.signal_m, proceed)
+            # The station can take the train when no signal at stop stands before its stopping point.
+            platform_clear = (
+                st_next is not None and stop_signal_m(here, self.signal_m, proceed) > st_next.stop_point_m
+            )
+        else:
+            # SPEC §4: the movement authority of the zone controller's last command.
+            auth = self.cbtc.authority_end_m(train.index)
+            platform_clear = st_next is not None and auth >= st_next.stop_point_m
         target = auth
-        # The station can take the train when no signal at stop stands before its stopping point.
-        platform_clear = (
-            st_next is not None and stop_signal_m(here, self.signal_m, proceed) > st_next.stop_point_m
-        )
         if st_next is not None and not platform_clear:
             # The platform is not clear: the station stop cannot take the train, so its ATO
             # stops it HOLD_BACK_M before the hand-over point, from where it runs up to speed
@@ -519,6 +583,8 @@ class LineSimulation:
         a = demand_mps2(v, ceiling, self._traction_mps2(v, mass), self.brake_mps2)
         if a > 0.0:
             a -= resist  # traction works against the resistance; braking is the ECU's total
+        if self.cbtc is not None and self.cbtc.emergency_brake(train.index):
+            a = -self.vehicle.brake.emergency_decel_mps2  # SPEC §4: the onboard unit's emergency brake
         # On a low-adhesion patch the wheels slide when the braking asks more than the adhesion
         # gives; the wheel-slide protection holds the deceleration at it (and the wheel short).
         mu = LOW_MU if any(s0 <= train.x_m < s1 for s0, s1 in train.patches) else veh.adhesion_mu
@@ -544,6 +610,8 @@ class LineSimulation:
                 self._stop(train, st_next, now_s - dt + frac * dt)
                 return
         for pos, ok in zip(self.signal_m, proceed, strict=True):
+            if self.cbtc is not None:
+                break  # moving block: the fixed signals are not used
             if train.x_m < pos <= x_new and not ok:
                 # A signal passed at danger: counted (it must not happen) and the train stopped by
                 # its emergency brake there (DESIGN rule 10).
@@ -665,16 +733,16 @@ class LineSimulation:
 
     def plant(self, now_s: float, dt: float) -> list[Output]:
         entry_proceed = self.interlocking.aspects[self.entry_signal]
+        entry_free = True  # CBTC: one train may still enter this step
         before = [t.x_m for t in self.trains]
         speed_before = [t.v_mps for t in self.trains]
         for train in self.trains:
             train.sliding = False  # set by the running train's brakes below
             if train.phase == "waiting":
-                if now_s >= train.request_s and entry_proceed and self._entry_clear():
-                    train.phase = "running"
-                    train.x_m = self.operation.entry_m
-                    train.v_mps = self.operation.entry_speed_kmh * KMH
-                    train.entered_s = now_s
+                if self.cbtc is not None:
+                    entry_free = self._cbtc_entry(train, now_s, entry_free)
+                elif now_s >= train.request_s and entry_proceed and self._entry_clear():
+                    self._enter(train, now_s)
                     entry_proceed = False  # one train per step
             elif train.phase == "running":
                 self._run(train, now_s, dt)
@@ -693,7 +761,81 @@ class LineSimulation:
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
-        return self._occupancy()
+        out = self._occupancy()
+        if self.cbtc is not None:
+            out += self._cbtc_observe(now_s)
+        return out
+
+    def _cbtc_observe(self, now_s: float) -> list[Output]:
+        """Every active onboard unit learns where its train believes it is; a train that has left
+        the line leaves the zone controller's care."""
+        cbtc = self.cbtc
+        if cbtc is None:
+            return []
+        out: list[Output] = []
+        for t in self.trains:
+            if t.phase == "gone":
+                if cbtc.active[t.index]:
+                    cbtc.active[t.index] = False
+                    cbtc.onboard[t.index].active = False
+                    cbtc.on_line[t.index] = False
+                    out.append(Output(to=cbtc.zc.name, message=TrainLeft(train_id=t.index)))
+                continue
+            on = t.phase in ON_LINE
+            out += cbtc.observe(
+                t.index,
+                onboard_m=t.x_onboard_m if on else self.operation.entry_m,
+                speed_mps=t.v_mps if on else 0.0,
+                true_m=t.x_m,
+                on_line=on,
+            )
+        cbtc.check_collisions()
+        cbtc.sweep_zones(now_s)
+        return out
+
+    def _draw_outages(self, spec: RandomOutages | None, seed: int) -> list[tuple[int, float, float]]:
+        """One outage per train with ``spec.probability``: its duration uniform in [min_s, max_s],
+        its start uniform in [60 s, 60 s + within_s] after the train asks to enter (its own stream,
+        so a train's outage does not depend on the others')."""
+        if spec is None or spec.probability <= 0.0:
+            return []
+        streams = RunStreams(seed=seed, run_index=np.array([t.index for t in self.trains]))
+        u = [streams.uniform(Stream.CBTC_RADIO, c) for c in range(3)]
+        out = []
+        for t in self.trains:
+            k = t.index
+            if float(u[0][k]) < spec.probability:
+                start = t.request_s + 60.0 + spec.within_s * float(u[1][k])
+                out.append((k, start, spec.min_s + (spec.max_s - spec.min_s) * float(u[2][k])))
+        self.drawn_outages = out
+        return out
+
+    def _enter(self, train: Train, now_s: float) -> None:
+        train.phase = "running"
+        train.x_m = self.operation.entry_m
+        train.v_mps = self.operation.entry_speed_kmh * KMH
+        train.entered_s = now_s
+
+    def _cbtc_entry(self, train: Train, now_s: float, free: bool) -> bool:
+        """SPEC §4: the train next to enter starts its onboard unit and enters once its authority
+        reaches beyond its braking distance from the entry speed. Returns whether another train
+        may still enter this step."""
+        cbtc = self.cbtc
+        if cbtc is None or not free or now_s < train.request_s:
+            return free
+        if any(t.phase == "waiting" and t.index < train.index for t in self.trains):
+            return free  # not the head of the queue
+        cbtc.activate(train.index)
+        v = self.operation.entry_speed_kmh * KMH
+        need = v * v / (2.0 * self.plan_mps2) + v * LOOKAHEAD_S + ENTRY_MARGIN_M
+        if (
+            not cbtc.emergency_brake(train.index)
+            and cbtc.authority_end_m(train.index) - train.x_onboard_m >= need
+            and self._entry_clear()
+        ):
+            self._enter(train, now_s)
+            return False
+        return False
 
     def _entry_clear(self) -> bool:
         # No train's rear still within the train's own length of the entry point.
@@ -709,6 +851,8 @@ class LineSimulation:
         t0 = time.perf_counter()
         self.clock.deliver(self._occupancy())
         self.clock.run(duration_s, self.plant)
+        if self.cbtc is not None:
+            self.cbtc.finish(self.clock.now_s)
         wall = time.perf_counter() - t0
         return LineResult(
             trains=len(self.trains),
@@ -730,4 +874,7 @@ class LineSimulation:
             signals_passed_at_danger=self.signals_passed_at_danger,
             slide_events=sum(t.slides for t in self.trains),
             calibration=self.calibration,
+            signalling=self.signalling,
+            cbtc=self.cbtc.summary() if self.cbtc is not None else None,
+            zones=list(self.cbtc.zones) if self.cbtc is not None else [],
         )

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
+from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
@@ -43,6 +44,9 @@ class LineCampaignSpec:
     odometer_error_pct: float | None = None  # None: each train's draw of the disturbance set
     slide_probability: float = 0.0
     calibration: str = "carried"
+    signalling: str = "fixed-block"
+    outages: tuple[tuple[int, float, float], ...] = ()
+    random_outages: RandomOutages | None = None
 
     def __post_init__(self) -> None:
         from railstop.sim.line import check_line_settings
@@ -52,6 +56,8 @@ class LineCampaignSpec:
             door_link_loss=self.door_link_loss,
             slide_probability=self.slide_probability,
             calibration=self.calibration,
+            signalling=self.signalling,
+            outages=self.outages,
         )
 
     def identity(self) -> dict[str, Any]:
@@ -69,6 +75,9 @@ class LineCampaignSpec:
             "odometer_error_pct": self.odometer_error_pct,
             "slide_probability": self.slide_probability,
             "calibration": self.calibration,
+            "signalling": self.signalling,
+            "outages": [list(o) for o in self.outages],
+            "random_outages": None if self.random_outages is None else self.random_outages.model_dump(),
         }
 
 
@@ -86,6 +95,9 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         odometer_error_pct=spec.odometer_error_pct,
         slide_probability=spec.slide_probability,
         calibration=spec.calibration,
+        signalling=spec.signalling,
+        outages=spec.outages,
+        random_outages=spec.random_outages,
     )
     result = sim.run(spec.duration_s)
     return {
@@ -209,4 +221,25 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         "min_separation_m": round(min(separation), 2) if separation else None,
         "position_error_p99_m_mean": round(float(np.mean(pos)), 3) if pos else None,
         "position_error_p99_m_worst": round(float(np.max(pos)), 3) if pos else None,
+        "signalling": spec.signalling,
+        "cbtc": _cbtc_totals(rows),
     }
+
+
+def _cbtc_totals(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The CBTC counts summed over the runs (None: fixed-block runs)."""
+    parts = [r["summary"].get("cbtc") for r in rows]
+    cbtc = [p for p in parts if p]
+    if not cbtc:
+        return None
+    keys = (
+        "lost_trains",
+        "auto_releases",
+        "flagged",
+        "authority_overlaps",
+        "collisions",
+        "onboard_emergency_brakes",
+        "zones",
+        "zone_time_s",
+    )
+    return {k: round(sum(float(p.get(k, 0)) for p in cbtc), 1) for k in keys}

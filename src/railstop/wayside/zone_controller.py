@@ -43,7 +43,7 @@ from enum import StrEnum
 
 from railstop.config.layout import Cbtc
 from railstop.errors import InterlockError
-from railstop.messages import ManualRelease, Message, MovementCommand, Output, PositionReport
+from railstop.messages import ManualRelease, Message, MovementCommand, Output, PositionReport, TrainLeft
 
 # The grace after a report's due time before it counts as missed: half a cycle, so that the
 # radio's jitter does not make a report "missed" that is merely late. [interpretation]
@@ -79,6 +79,7 @@ class _Train:
     # The furthest authority end sent, signed by the direction (R: chainage, L: -chainage): any
     # of the commands in flight may be the one the train holds, so the furthest is its stop point.
     furthest_end: float = -math.inf
+    granted_end_m: float = math.nan  # the end of the last authority granted (chainage)
     zone: Zone | None = None
 
 
@@ -86,6 +87,7 @@ class _Train:
 class ZoneCounts:
     reports: int = 0
     rejected_reports: int = 0  # invalid (direction, non-finite values): treated as missed
+    late_reports: int = 0  # from a train that has left the area
     commands: int = 0
     lost: int = 0
     auto_releases: int = 0  # re-detected inside the zone (SPEC §4 step 4)
@@ -110,9 +112,11 @@ class ZoneController:
     gradient_at: Callable[[float], float]
     mode: ZoneMode = ZoneMode.MINIMAL
     name: str = "zc"
-    accepts: tuple[type, ...] = (PositionReport, ManualRelease)
+    downlink: str | None = None  # where commands go (None: straight to "cbtc-<train>")
+    accepts: tuple[type, ...] = (PositionReport, ManualRelease, TrainLeft)
     trains: dict[int, _Train] = field(default_factory=dict)
     counts: ZoneCounts = field(default_factory=ZoneCounts)
+    left: set[int] = field(default_factory=set)  # trains that have left the area
     _pending: list[tuple[float, int, int, PositionReport]] = field(default_factory=list)
     _seq: int = 0
     _seg_starts: list[float] = field(default_factory=list)
@@ -134,6 +138,12 @@ class ZoneController:
         if isinstance(message, ManualRelease):
             self._on_release(message.train_id)
             return []
+        if isinstance(message, TrainLeft):
+            # Out of the area: forgotten (its zone too: nothing of it is left on this line); a
+            # report of it still in flight is ignored when it arrives.
+            self.trains.pop(message.train_id, None)
+            self.left.add(message.train_id)
+            return []
         raise InterlockError(f"zone controller: cannot take a {type(message).__name__}")
 
     def next_deadline_s(self) -> float | None:
@@ -151,10 +161,11 @@ class ZoneController:
                     self._lose(t)
         while self._pending and self._pending[0][0] <= now_s + 1e-9:
             _, _, train_id, report = heapq.heappop(self._pending)
-            cmd = self._command(self.trains[train_id], report)
+            known = self.trains.get(train_id)
+            cmd = self._command(known, report) if known is not None else None  # None: it left meanwhile
             if cmd is not None:
                 self.counts.commands += 1
-                out.append(Output(to=f"cbtc-{train_id}", message=cmd))
+                out.append(Output(to=self.downlink or f"cbtc-{train_id}", message=cmd))
         return out
 
     # ------------------------------------------------------------------ reports
@@ -169,6 +180,9 @@ class ZoneController:
             # An invalid report is no report (DESIGN rule 10): refused, counted, and the train
             # drifts towards lost as it would with the report missing.
             self.counts.rejected_reports += 1
+            return []
+        if r.train_id in self.left:
+            self.counts.late_reports += 1
             return []
         self.counts.reports += 1
         t = self.trains.setdefault(r.train_id, _Train(train_id=r.train_id))
@@ -249,28 +263,35 @@ class ZoneController:
         return [t.zone for t in self.trains.values() if t.zone is not None]
 
     def _obstacle_ahead(self, me: _Train, front_m: float, direction: str) -> float:
-        """The nearest obstacle's near end ahead of ``front_m`` (R: smallest chainage above the
-        train's rear; L: largest below its rear), the line's ends included."""
-        length = self.train_length_m
-        best = self.line_end_m if direction == "R" else 0.0
+        """The near end of the nearest obstacle ahead of the train whose front is at ``front_m``:
+        another train whose front is ahead of it (its last reported occupancy), or a zone that
+        reaches ahead of it (possibly starting behind its front: then the authority is 0); the
+        line's end otherwise."""
+        # [interpretation] The area ends at the line's ends, where trains leave it (to a depot or
+        # the next controller): the authority reaches past the end by a train's length, so that
+        # the whole train can leave.
+        exit_m = self.train_length_m + self.params.safety_margin_m + 1.0
+        best = self.line_end_m + exit_m if direction == "R" else -exit_m
         for o in self.trains.values():
             if o is me:
                 continue
-            spans: list[tuple[float, float]] = []
             if o.zone is not None:
-                spans.append((o.zone.start_m, o.zone.end_m))
-            if o.report is not None and o.status != TrainStatus.UNKNOWN:
-                spans.append(self._occupancy(o.report))
-            for lo, hi in spans:
-                if direction == "R" and hi > front_m - length:
+                lo, hi = o.zone.start_m, o.zone.end_m
+                if direction == "R" and hi > front_m:
                     best = min(best, lo)
-                elif direction == "L" and lo < front_m + length:
+                elif direction == "L" and lo < front_m:
+                    best = max(best, hi)
+            if o.report is not None and o.status != TrainStatus.UNKNOWN:
+                lo, hi = self._occupancy(o.report)
+                if direction == "R" and o.report.position_m > front_m:
+                    best = min(best, lo)
+                elif direction == "L" and o.report.position_m < front_m:
                     best = max(best, hi)
         return best
 
     def _command(self, t: _Train, r: PositionReport) -> MovementCommand | None:
-        if t.report is not r:
-            return None  # a newer report came in meanwhile: it gets its own command
+        # SPEC §4: every report a gets its command b, computed from that report's Pp and Vp (a
+        # newer report, with Δt longer than the cycle, gets its own command in turn).
         p = self.params
         sign = 1.0 if r.direction == "R" else -1.0
         # SPEC §4: Pc = Pp ± Δt·Vp (+ in R, - in L).
@@ -284,6 +305,7 @@ class ZoneController:
             end = obstacle - sign * p.safety_margin_m
         authority = max(sign * (end - pc), 0.0)
         t.furthest_end = max(t.furthest_end, sign * pc + authority)
+        t.granted_end_m = pc + sign * authority
         grad = sign * self.gradient_at(pc)
         return MovementCommand(
             train_id=t.train_id,

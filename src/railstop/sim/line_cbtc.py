@@ -1,0 +1,265 @@
+"""The line under SPEC §4 moving-block CBTC: the zone controller, the trains' onboard units, the radio.
+
+``LineSimulation(signalling="cbtc" | "cbtc-conventional")`` builds one
+:class:`CbtcSignalling`: a :class:`~railstop.wayside.zone_controller.ZoneController`
+("zc"), one :class:`~railstop.onboard.cbtc.OnboardCbtc` per train
+("cbtc-k") and the :class:`~railstop.link.cbtc_radio.CbtcRadio` ("radio")
+between them, all units of the line's clock. Each plant step the driver
+tells every active onboard unit where its train believes it is (the SPEC §2
+onboard position) and reads back what the train may do: its authority's end
+and whether its emergency brake is on.
+
+It also counts, against the true positions, what must never happen:
+**authority overlaps** (an authority end granted beyond the true rear of the
+train ahead, or into another train's protection zone, at the moment it is
+granted) and **collisions** (a front past the true rear of the train ahead).
+Every zone the controller sets is recorded (train, extent, set and release
+times) for the time-distance diagram.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from railstop.config.schema import Line, Vehicle
+from railstop.link.cbtc_radio import CbtcRadio
+from railstop.link.channel import ChannelParams
+from railstop.messages import Message, MovementCommand, OnboardPosition, Output
+from railstop.onboard.cbtc import OnboardCbtc
+from railstop.units import Unit
+from railstop.wayside.zone_controller import ZoneController, ZoneMode
+
+SIGNALLING_MODES = ("fixed-block", "cbtc", "cbtc-conventional")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ZoneRecord:
+    train: int
+    start_m: float
+    end_m: float
+    set_s: float
+    released_s: float  # inf: still set at the end of the run
+
+
+def civil_limit_mps(line: Line, x_m: float) -> float:
+    """The line's own speed limit, or a lower civil limit over ``x_m``."""
+    limit = line.line.speed_limit_kmh
+    for s in line.speed_limits:
+        if s.start_m <= x_m < s.end_m:
+            limit = min(limit, s.limit_kmh)
+    return limit / 3.6
+
+
+def gradient_permille(line: Line, x_m: float) -> float:
+    """The gradient at ``x_m`` (+ uphill in R) where the stations' data give one, else 0 (the
+    line's data carry gradients only in the station zones)."""
+    for st in line.stations:
+        for g in st.gradient:
+            if g.start_m <= x_m < g.end_m:
+                return float(g.permille)
+    return 0.0
+
+
+class _CheckedZc:
+    """The zone controller as the clock sees it, with every command it grants checked against
+    the true world (the driver's bookkeeping; the controller itself is untouched)."""
+
+    accepts: tuple[type, ...]
+
+    def __init__(self, zc: ZoneController, owner: CbtcSignalling) -> None:
+        self.zc = zc
+        self.name = zc.name
+        self.accepts = zc.accepts
+        self.owner = owner
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        return self.zc.handle(message, now_s)
+
+    def next_deadline_s(self) -> float | None:
+        return self.zc.next_deadline_s()
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        before = {t.train_id: t.zone for t in self.zc.trains.values()}
+        outs = self.zc.on_timer(now_s)
+        for t in self.zc.trains.values():
+            if t.zone is not None and before.get(t.train_id) is None:
+                self.owner.zone_set(t.train_id, t.zone.start_m, t.zone.end_m, now_s)
+        for o in outs:
+            if isinstance(o.message, MovementCommand):
+                self.owner.check_grant(o.message, now_s)
+        return outs
+
+
+@dataclass(slots=True)
+class CbtcSignalling:
+    line: Line
+    vehicle: Vehicle
+    mode: ZoneMode
+    trains: int
+    radio_params: ChannelParams
+    seed: int
+    outages: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    zc: ZoneController = field(init=False)
+    radio: CbtcRadio = field(init=False)
+    onboard: list[OnboardCbtc] = field(init=False)
+    active: list[bool] = field(init=False)
+    true_front: list[float] = field(init=False)
+    on_line: list[bool] = field(init=False)
+    authority_overlaps: int = 0
+    collisions: int = 0
+    zones: list[ZoneRecord] = field(default_factory=list)
+    _open_zones: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    _checked: _CheckedZc = field(init=False)
+    _end_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        line, p = self.line, self.line.cbtc
+        sig = line.signalling
+        circuits = {c.id: c for c in line.track.circuits}
+        blocks = (
+            [(circuits[b.circuits[0]].start_m, circuits[b.circuits[-1]].end_m) for b in sig.blocks]
+            if sig is not None
+            else [(s.start_m, s.end_m) for s in line.segments]
+        )
+        end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
+        self.zc = ZoneController(
+            params=p,
+            segments=[(s.start_m, s.end_m) for s in line.segments],
+            blocks=blocks,
+            overlap_m=sig.overlap_m if sig is not None else 0.0,
+            train_length_m=self.vehicle.length_m,
+            line_end_m=end_m,
+            limit_at=lambda x: civil_limit_mps(line, x),
+            gradient_at=lambda x: gradient_permille(line, x),
+            mode=self.mode,
+        )
+        self.radio = CbtcRadio(params=self.radio_params, seed=self.seed, outages=self.outages)
+        brake = self.vehicle.brake
+        self.onboard = [
+            OnboardCbtc(
+                train_id=k,
+                direction="R",
+                params=p,
+                curve_decel_mps2=brake.full_service_mps2,
+                uplink=self.radio.name,
+                active=False,
+            )
+            for k in range(self.trains)
+        ]
+        self.active = [False] * self.trains
+        self.true_front = [math.nan] * self.trains
+        self.on_line = [False] * self.trains
+        self.zc.downlink = self.radio.name
+        self._checked = _CheckedZc(self.zc, self)
+
+    def units(self) -> list[Unit]:
+        return [self._checked, self.radio, *self.onboard]
+
+    # ------------------------------------------------------------------ the driver's side
+
+    def observe(
+        self, k: int, *, onboard_m: float, speed_mps: float, true_m: float, on_line: bool
+    ) -> list[Output]:
+        """The train's true position for the checks, and its onboard position for its unit (once
+        active; delivered by the clock, which then knows the unit's next report)."""
+        self.true_front[k] = true_m
+        self.on_line[k] = on_line
+        if not self.active[k]:
+            return []
+        return [
+            Output(
+                to=self.onboard[k].name, message=OnboardPosition(position_m=onboard_m, speed_mps=speed_mps)
+            )
+        ]
+
+    def activate(self, k: int) -> None:
+        """The train's onboard unit starts (it is next to enter the line): from the next step on
+        it gets its position, and its first report goes out with the first."""
+        self.active[k] = True
+
+    def authority_end_m(self, k: int) -> float:
+        """Where the train's authority ends, on its own chainage (-inf: none)."""
+        end = self.onboard[k].authority_end_m
+        return -math.inf if math.isnan(end) else end
+
+    def emergency_brake(self, k: int) -> bool:
+        return self.onboard[k].emergency_brake
+
+    def check_collisions(self) -> None:
+        fronts = sorted((self.true_front[k], k) for k in range(self.trains) if self.on_line[k])
+        length = self.vehicle.length_m
+        for (f1, _), (f2, _) in zip(fronts, fronts[1:], strict=False):
+            if f1 > f2 - length:
+                self.collisions += 1
+
+    # ------------------------------------------------------------------ the checks
+
+    def check_grant(self, cmd: MovementCommand, now_s: float) -> None:
+        """An authority end granted beyond the true rear of the train ahead, or into another
+        train's zone, is an overlap (counted: it must not happen)."""
+        k = cmd.train_id
+        t = self.zc.trains.get(k)
+        if t is None or t.report is None or cmd.authority_m <= 0.0:
+            return
+        end = t.granted_end_m
+        me = self.true_front[k]
+        length = self.vehicle.length_m
+        for j in range(self.trains):
+            if j == k or not self.on_line[j]:
+                continue
+            rear = self.true_front[j] - length
+            if self.true_front[j] > me and end > rear:
+                self.authority_overlaps += 1
+                return
+        for z in self.zc.zones():
+            if z.train_id != k and z.start_m > me and end > z.start_m:
+                self.authority_overlaps += 1
+                return
+
+    def zone_set(self, train: int, start_m: float, end_m: float, now_s: float) -> None:
+        self._open_zones[train] = (start_m, end_m, now_s)
+
+    def sweep_zones(self, now_s: float) -> None:
+        """Close the records of zones the controller has released."""
+        live = {z.train_id for z in self.zc.zones()}
+        for train in [t for t in self._open_zones if t not in live]:
+            a, b, t0 = self._open_zones.pop(train)
+            self.zones.append(ZoneRecord(train=train, start_m=a, end_m=b, set_s=t0, released_s=now_s))
+
+    def finish(self, now_s: float) -> None:
+        self.sweep_zones(now_s)
+        for train, (a, b, t0) in self._open_zones.items():
+            self.zones.append(ZoneRecord(train=train, start_m=a, end_m=b, set_s=t0, released_s=math.inf))
+        self._open_zones.clear()
+        self._end_s = now_s
+
+    def summary(self) -> dict[str, Any]:
+        c = self.zc.counts
+        r = self.radio.counts
+        return {
+            "mode": self.mode.value,
+            "reports": c.reports,
+            "commands": c.commands,
+            "lost_trains": c.lost,
+            "auto_releases": c.auto_releases,
+            "flagged": c.flagged,
+            "manual_releases": c.manual_releases,
+            "authority_overlaps": self.authority_overlaps,
+            "collisions": self.collisions,
+            "onboard_emergency_brakes": int(sum(u.eb_count for u in self.onboard)),
+            "radio_lost": r.lost,
+            "radio_rejected": int(sum(r.rejected.values())),
+            "zones": len(self.zones),
+            # Zone-seconds: how long zones stood, summed (a zone still set counts to the run's end).
+            "zone_time_s": round(sum(min(z.released_s, self._end_s) - z.set_s for z in self.zones), 1),
+        }
+
+
+def outage_windows(items: Sequence[tuple[int, float, float]]) -> dict[int, list[tuple[float, float]]]:
+    out: dict[int, list[tuple[float, float]]] = {}
+    for train, start, duration in items:
+        out.setdefault(train, []).append((start, start + duration))
+    return out

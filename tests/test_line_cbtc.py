@@ -1,0 +1,160 @@
+"""The line under SPEC §4 CBTC: moving block through the zone controller and the radio, lost
+trains and their protection zones, re-detection, the conventional baseline, faults as data."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from railstop.config import default_line, default_vehicle
+from railstop.config.faults import RandomOutages
+from railstop.config.operation import Operation
+from railstop.errors import SimulationError
+from railstop.sim.line import LineSimulation
+
+LINE = default_line()
+VEHICLE = default_vehicle()
+RAILSTOP = str(Path(sys.executable).with_name("railstop"))
+
+
+def run(
+    signalling: str, trains: int = 4, duration_s: float = 1300.0, **kw: object
+) -> tuple[LineSimulation, dict]:  # type: ignore[type-arg]
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=Operation(trains=trains, headway_s=120.0),
+        signalling=signalling,
+        **kw,  # type: ignore[arg-type]
+    )
+    return sim, sim.run(duration_s).summary()
+
+
+def test_cbtc_runs_the_trains_through_with_nothing_unsafe_counted() -> None:
+    sim, s = run("cbtc")
+    assert s["signalling"] == "cbtc" and s["exited"] == 4 and s["stops"] == s["stops_within_tolerance"] == 16
+    c = s["cbtc"]
+    assert c["reports"] > 1000 and c["commands"] > 1000
+    assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and c["lost_trains"] == 0
+    assert s["signals_passed_at_danger"] == 0 and s["skipped_stops"] == 0
+    # Every train left the zone controller's care at the line's end.
+    assert sim.cbtc is not None and sim.cbtc.zc.trains == {}
+
+
+def test_a_radio_outage_makes_a_lost_train_whose_zone_is_released_when_it_reports_inside() -> None:
+    """SPEC §4: 2 missed reports -> lost, zone; 2 missed commands -> the onboard unit brakes; the
+    radio back, the train reports inside its zone -> released automatically; the train goes on."""
+    sim, s = run("cbtc", outages=[(1, 400.0, 20.0)])
+    c = s["cbtc"]
+    assert c["lost_trains"] == 1 and c["auto_releases"] == 1 and c["flagged"] == 0
+    assert c["onboard_emergency_brakes"] >= 1 and c["authority_overlaps"] == 0 and c["collisions"] == 0
+    (z,) = sim.cbtc.zones if sim.cbtc is not None else []
+    assert z.train == 1 and 400.0 < z.set_s < 402.0 and 420.0 <= z.released_s < 425.0
+    # The zone covers the train where it stopped: from its rear's segment to its authority's end.
+    assert z.start_m % 100.0 == 0.0 and z.end_m % 100.0 == 0.0 and z.end_m - z.start_m >= 200.0
+    assert s["exited"] == 4
+
+
+def test_the_conventional_zone_is_whole_blocks_and_never_smaller() -> None:
+    zones = {}
+    for mode in ("cbtc", "cbtc-conventional"):
+        sim, s = run(mode, trains=2, duration_s=700.0, outages=[(1, 400.0, 20.0)])
+        assert s["cbtc"]["authority_overlaps"] == 0 and s["cbtc"]["collisions"] == 0
+        assert sim.cbtc is not None
+        (zones[mode],) = sim.cbtc.zones
+    m, c = zones["cbtc"], zones["cbtc-conventional"]
+    assert c.start_m <= m.start_m and c.end_m >= m.end_m and (c.end_m - c.start_m) > (m.end_m - m.start_m)
+    block_ends = {circ.end_m for circ in LINE.track.circuits}
+    assert c.end_m in block_ends
+
+
+def test_random_outages_are_a_function_of_the_seed() -> None:
+    spec = RandomOutages(probability=0.5, min_s=5.0, max_s=10.0)
+    a, _ = run("cbtc", trains=6, duration_s=10.0, random_outages=spec)
+    b, _ = run("cbtc", trains=6, duration_s=10.0, random_outages=spec)
+    assert a.drawn_outages == b.drawn_outages and 0 < len(a.drawn_outages) < 6
+    for _, start, duration in a.drawn_outages:
+        assert 5.0 <= duration <= 10.0 and start >= 60.0
+
+
+@pytest.mark.parametrize(
+    ("kw", "needle"),
+    [
+        ({"signalling": "moving"}, "signalling"),
+        ({"signalling": "cbtc", "outages": [(1, -5.0, 10.0)]}, "outages[0]"),
+        ({"signalling": "cbtc", "outages": [(1, 5.0, 0.0)]}, "outages[0]"),
+    ],
+)
+def test_bad_settings_raise_naming_the_field(kw: dict[str, object], needle: str) -> None:
+    with pytest.raises(SimulationError, match=needle.replace("[", r"\[")):
+        LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), **kw)  # type: ignore[arg-type]
+
+
+def test_cli_line_run_cbtc_with_a_faults_file(tmp_path: Path) -> None:
+    faults = tmp_path / "faults.toml"
+    faults.write_text("[[radio_outage]]\ntrain = 0\nstart_s = 200.0\nduration_s = 15.0\n", encoding="utf-8")
+    p = subprocess.run(
+        [
+            RAILSTOP,
+            "line",
+            "run",
+            "--trains",
+            "2",
+            "--duration-s",
+            "600",
+            "--signalling",
+            "cbtc",
+            "--faults",
+            str(faults),
+            "--json",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert p.returncode == 0, p.stderr
+    s = json.loads(p.stdout)
+    assert (
+        s["signalling"] == "cbtc" and s["cbtc"]["lost_trains"] == 1 and s["cbtc"]["authority_overlaps"] == 0
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[[radio_outage]]\ntrain = 0\nstart_s = 1.0\nduration_s = 0.0\n", "radio_outage[0].duration_s"),
+        ("[[radio_outage]]\ntrain = 0\nstart_s = 1.0\nduration_s = 1.0\nwhen = 3\n", "radio_outage[0].when"),
+        ("[random_outages]\nprobability = 0.5\nmin_s = 30.0\nmax_s = 5.0\n", "random_outages.max_s"),
+    ],
+)
+def test_cli_bad_faults_file_one_line_exit_2(text: str, needle: str, tmp_path: Path) -> None:
+    faults = tmp_path / "faults.toml"
+    faults.write_text(text, encoding="utf-8")
+    p = subprocess.run(
+        [
+            RAILSTOP,
+            "line",
+            "run",
+            "--trains",
+            "1",
+            "--duration-s",
+            "10",
+            "--signalling",
+            "cbtc",
+            "--faults",
+            str(faults),
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 2 and len(lines) == 1 and needle in p.stderr and str(faults) in p.stderr, p.stderr
