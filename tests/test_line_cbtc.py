@@ -158,3 +158,35 @@ def test_cli_bad_faults_file_one_line_exit_2(text: str, needle: str, tmp_path: P
     )
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2 and len(lines) == 1 and needle in p.stderr and str(faults) in p.stderr, p.stderr
+
+
+def test_a_train_found_outside_its_zone_waits_for_the_operators_authenticated_release() -> None:
+    """SPEC §4 step 5 in the line's wiring: flagged -> held; the operator's release (category 3
+    frame through the gate) after operator_release_s -> tracked again."""
+    from railstop.link.channel import media_preset
+    from railstop.messages import ManualRelease, PositionReport
+    from railstop.sim.line_cbtc import CbtcSignalling
+    from railstop.wayside.zone_controller import TrainStatus, ZoneMode
+
+    sig = CbtcSignalling(
+        line=LINE,
+        vehicle=VEHICLE,
+        mode=ZoneMode.MINIMAL,
+        trains=2,
+        radio_params=media_preset("cbtc-radio"),
+        seed=1,
+    )
+    zc = sig.zc
+    zc.handle(PositionReport(train_id=0, position_m=2000.0, speed_mps=0.0, direction="R", time_s=0.0), 0.0)
+    zc.on_timer(0.2)
+    zc.on_timer(1.5)  # two reports missed: lost
+    assert zc.trains[0].status == TrainStatus.LOST
+    # It reports again behind its zone (the zone runs ahead to its authority's end): it moved while lost.
+    zc.handle(PositionReport(train_id=0, position_m=1500.0, speed_mps=0.0, direction="R", time_s=2.0), 2.0)
+    assert zc.trains[0].status == TrainStatus.FLAGGED
+    wait = LINE.cbtc.operator_release_s
+    assert sig.operator(10.0) == [] and sig.operator(10.0 + wait - 1.0) == []
+    (out,) = sig.operator(10.0 + wait)
+    assert out.to == "zc" and out.message == ManualRelease(train_id=0) and sig.gate.accepted == 1
+    zc.handle(out.message, 10.0 + wait)
+    assert zc.trains[0].status == TrainStatus.TRACKED and zc.trains[0].zone is None

@@ -36,6 +36,7 @@ from railstop.link.codec import (
     TascSpeed,
     Telegram,
     TrackCircuitOccupancy,
+    ZoneRelease,
     crc16,
     decode,
     describe,
@@ -171,6 +172,8 @@ REFERENCES = [
     ),
     # type 18 | train 9 | detector 4 | decrease = -1 = ff | CRC
     (TascIncreaseDecrease(train_id=9, detector=4, delta=-1), "18 0009 04 ff 5bde"),
+    # type a3 (P = 1: even parity) | train 0012 | operator 0007 | CRC
+    (ZoneRelease(train_id=0x12, operator_id=7), "a3 0012 0007 885e"),
 ]
 
 

@@ -73,6 +73,11 @@ class Cbtc(Model):
     # (assumption: the braking-curve uncertainty and the radio's uncompensated latency).
     safety_margin_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] = 20.0
 
+    # SPEC §4 step 5: a train re-detected outside its zone waits for the operator's release after
+    # visual confirmation; in the line simulation the operator releases it this long after it
+    # was flagged (assumption: staff reach the train and confirm).
+    operator_release_s: Annotated[float, Field(gt=0.0, le=3600.0, allow_inf_nan=False)] = 180.0
+
     @property
     def missed_window_s(self) -> float:
         return self.missed_reports_lost * self.report_period_s

@@ -84,6 +84,7 @@ __all__ = [
     "TascSpeed",
     "Telegram",
     "TrackCircuitOccupancy",
+    "ZoneRelease",
     "crc16",
     "decode",
     "describe",
@@ -374,6 +375,15 @@ class CbtcCommand(Telegram):
     gradient_permille: float
     speed_limit_mps: float
     report_time_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ZoneRelease(Telegram):
+    """SPEC §4 step 5: the operator releases a lost train's protection zone after visual confirmation."""
+
+    TYPE: ClassVar[str] = "zone-release"
+    train_id: int
+    operator_id: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -735,6 +745,19 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     description="speed limit at Pc",
                 ),
                 _time_ms("report_time_s", "time_s of the report this command answers"),
+            ),
+        ),
+        Layout(
+            name="zone-release",
+            code=0xA3,
+            cls=ZoneRelease,
+            medium="radio",
+            description="SPEC §4 step 5: operator -> zone controller, manual release of a lost train's "
+            "protection zone after visual confirmation (always in a category 3 safety frame with the "
+            "operator's own key)",
+            fields=(
+                _TRAIN_ID,
+                Field(name="operator_id", code="H", kind="int", min=0, max=0xFFFF, description="operator"),
             ),
         ),
         Layout(

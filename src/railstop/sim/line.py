@@ -791,7 +791,7 @@ class LineSimulation:
             )
         cbtc.check_collisions()
         cbtc.sweep_zones(now_s)
-        return out
+        return out + cbtc.operator(now_s)
 
     def _draw_outages(self, spec: RandomOutages | None, seed: int) -> list[tuple[int, float, float]]:
         """One outage per train with ``spec.probability``: its duration uniform in [min_s, max_s],

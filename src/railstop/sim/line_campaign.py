@@ -236,10 +236,12 @@ def _cbtc_totals(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
         "lost_trains",
         "auto_releases",
         "flagged",
+        "manual_releases",
         "authority_overlaps",
         "collisions",
         "onboard_emergency_brakes",
         "zones",
         "zone_time_s",
+        "zone_m_s",
     )
     return {k: round(sum(float(p.get(k, 0)) for p in cbtc), 1) for k in keys}

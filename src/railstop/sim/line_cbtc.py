@@ -27,10 +27,11 @@ from typing import Any
 from railstop.config.schema import Line, Vehicle
 from railstop.link.cbtc_radio import CbtcRadio
 from railstop.link.channel import ChannelParams
+from railstop.link.release_link import OperatorConsole, ReleaseGate
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output
 from railstop.onboard.cbtc import OnboardCbtc
 from railstop.units import Unit
-from railstop.wayside.zone_controller import ZoneController, ZoneMode
+from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
 
 SIGNALLING_MODES = ("fixed-block", "cbtc", "cbtc-conventional")
 
@@ -114,6 +115,9 @@ class CbtcSignalling:
     _open_zones: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     _checked: _CheckedZc = field(init=False)
     _end_s: float = 0.0
+    console: OperatorConsole = field(default_factory=OperatorConsole)
+    gate: ReleaseGate = field(default_factory=ReleaseGate)
+    _flagged_at: dict[int, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         line, p = self.line, self.line.cbtc
@@ -222,6 +226,22 @@ class CbtcSignalling:
     def zone_set(self, train: int, start_m: float, end_m: float, now_s: float) -> None:
         self._open_zones[train] = (start_m, end_m, now_s)
 
+    def operator(self, now_s: float) -> list[Output]:
+        """SPEC §4 step 5: the operator releases a flagged train ``operator_release_s`` after it
+        was flagged, through the authenticated release link."""
+        out: list[Output] = []
+        for k, t in self.zc.trains.items():
+            if t.status != TrainStatus.FLAGGED:
+                self._flagged_at.pop(k, None)
+                continue
+            since = self._flagged_at.setdefault(k, now_s)
+            if now_s - since >= self.line.cbtc.operator_release_s:
+                release = self.gate.accept(self.console.release(k, now_s), now_s)
+                if release is not None:
+                    out.append(Output(to=self.zc.name, message=release))
+                self._flagged_at[k] = now_s  # not again at once, whatever came of it
+        return out
+
     def sweep_zones(self, now_s: float) -> None:
         """Close the records of zones the controller has released."""
         live = {z.train_id for z in self.zc.zones()}
@@ -247,6 +267,7 @@ class CbtcSignalling:
             "auto_releases": c.auto_releases,
             "flagged": c.flagged,
             "manual_releases": c.manual_releases,
+            "releases_refused": int(sum(self.gate.rejected.values())),
             "authority_overlaps": self.authority_overlaps,
             "collisions": self.collisions,
             "onboard_emergency_brakes": int(sum(u.eb_count for u in self.onboard)),
@@ -255,6 +276,10 @@ class CbtcSignalling:
             "zones": len(self.zones),
             # Zone-seconds: how long zones stood, summed (a zone still set counts to the run's end).
             "zone_time_s": round(sum(min(z.released_s, self._end_s) - z.set_s for z in self.zones), 1),
+            # The line capacity the zones took: protected length x time (metre-seconds).
+            "zone_m_s": round(
+                sum((z.end_m - z.start_m) * (min(z.released_s, self._end_s) - z.set_s) for z in self.zones), 1
+            ),
         }
 
 

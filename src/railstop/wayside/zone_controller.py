@@ -237,6 +237,9 @@ class ZoneController:
         """SPEC §4 steps 4 and 5: inside the zone -> release and confirm; outside -> keep, flag."""
         zone = t.zone
         lo, hi = self._occupancy(r)
+        # Only the part of the train inside the controlled area counts (a train at the area's
+        # entry stands partly outside it, and so does its zone's cover).
+        lo, hi = max(lo, self.segments[0][0]), min(hi, self.segments[-1][1])
         if t.status == TrainStatus.LOST and zone is not None and zone.start_m <= lo and hi <= zone.end_m:
             t.zone = None
             t.status = TrainStatus.TRACKED
