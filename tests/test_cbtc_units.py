@@ -202,6 +202,7 @@ def test_two_missed_commands_apply_the_emergency_brake_one_does_not() -> None:
     assert not u.emergency_brake
     u.on_timer(2.5)  # the second in a row
     assert u.emergency_brake and u.eb_cause == EB_MISSED_COMMANDS
+    assert u.eb_count == 1 and u.eb_causes == {EB_MISSED_COMMANDS: 1}
     # Latched while moving, even when commands come back ...
     u.handle(cmd(1000.0), 2.6)
     assert u.emergency_brake

@@ -22,7 +22,7 @@ command has arrived since ([interpretation]: the usual release rule).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from railstop.config.layout import Cbtc
 from railstop.errors import InterlockError
@@ -65,6 +65,7 @@ class OnboardCbtc:
     eb_cause: str | None = None
     commands: int = 0
     eb_count: int = 0  # emergency brakes applied (each latch counts once)
+    eb_causes: dict[str, int] = field(default_factory=dict)  # the same, by cause
     foreign_commands: int = 0  # commands for another train: ignored, counted
     _next_report_s: float = 0.0
     _command_since_report: bool = True  # nothing to miss before the first report
@@ -154,3 +155,4 @@ class OnboardCbtc:
             self.emergency_brake = True
             self.eb_cause = cause
             self.eb_count += 1
+            self.eb_causes[cause] = self.eb_causes.get(cause, 0) + 1

@@ -271,6 +271,10 @@ class CbtcSignalling:
             "authority_overlaps": self.authority_overlaps,
             "collisions": self.collisions,
             "onboard_emergency_brakes": int(sum(u.eb_count for u in self.onboard)),
+            "onboard_eb_causes": {
+                cause: sum(u.eb_causes.get(cause, 0) for u in self.onboard)
+                for cause in sorted({c for u in self.onboard for c in u.eb_causes})
+            },
             "radio_lost": r.lost,
             "radio_rejected": int(sum(r.rejected.values())),
             "zones": len(self.zones),
