@@ -190,3 +190,25 @@ def test_a_train_found_outside_its_zone_waits_for_the_operators_authenticated_re
     assert out.to == "zc" and out.message == ManualRelease(train_id=0) and sig.gate.accepted == 1
     zc.handle(out.message, 10.0 + wait)
     assert zc.trains[0].status == TrainStatus.TRACKED and zc.trains[0].zone is None
+
+
+def test_a_zone_controller_restart_loses_every_train_and_redetects_them() -> None:
+    """[interpretation] of SPEC §4 for a restart: every train the controller knew is lost at once
+    (zones from its kept last reports) and re-detected by its next report."""
+    sim, s = run("cbtc", trains=4, duration_s=900.0, zc_restarts=[500.0])
+    c = s["cbtc"]
+    on_line = 4  # at 500 s every train has entered (one every 120 s) and none has left yet
+    assert c["restarts"] == 1 and c["lost_trains"] == on_line == c["auto_releases"]
+    assert c["flagged"] == 0 and c["authority_overlaps"] == 0 and c["collisions"] == 0
+    assert sim.cbtc is not None
+    assert all(500.0 <= z.set_s < 500.2 and z.released_s < 502.0 for z in sim.cbtc.zones)
+
+
+def test_faults_file_with_a_restart(tmp_path: Path) -> None:
+    from railstop.config.faults import load_faults
+
+    f = tmp_path / "f.toml"
+    f.write_text("[[zc_restart]]\nat_s = 900.0\n[[zc_restart]]\nat_s = 100.0\n", encoding="utf-8")
+    assert load_faults(f).restarts() == [100.0, 900.0]
+    with pytest.raises(SimulationError, match=r"zc_restarts\[0\]"):
+        LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), zc_restarts=[float("nan")])

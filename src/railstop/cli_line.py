@@ -56,7 +56,9 @@ SignallingOpt = Annotated[
 ]
 FaultsOpt = Annotated[
     Path | None,
-    typer.Option(help="Faults TOML: [[radio_outage]] train, start_s, duration_s; [random_outages]."),
+    typer.Option(
+        help="Faults TOML: [[radio_outage]] train, start_s, duration_s; [random_outages]; [[zc_restart]] at_s"
+    ),
 ]
 HeadwayOpt = Annotated[
     float | None,
@@ -126,6 +128,7 @@ def run_cmd(
             signalling=signalling,
             outages=fault_data.outages(),
             random_outages=fault_data.random_outages,
+            zc_restarts=fault_data.restarts(),
         )
         result = sim.run(duration_s)
         summary = result.summary()
@@ -224,6 +227,7 @@ def campaign_cmd(
             signalling=signalling,
             outages=tuple(fault_data.outages()),
             random_outages=fault_data.random_outages,
+            zc_restarts=tuple(fault_data.restarts()),
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume)
     except RailstopError as exc:

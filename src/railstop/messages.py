@@ -67,6 +67,11 @@ class TrainLeft:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class ControllerRestart:
+    """Fault injection: the zone controller restarts (its volatile state is gone)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class OnboardPosition:
     """The onboard positioning's estimate (SPEC §2) for the train's own units."""
 
@@ -82,6 +87,7 @@ Message = (
     | MovementCommand
     | ManualRelease
     | TrainLeft
+    | ControllerRestart
     | OnboardPosition
 )
 

@@ -8,6 +8,10 @@
     start_s = 900.0
     duration_s = 20.0
 
+    # The zone controller restarts at 1200 s (every train it knew is lost at once).
+    [[zc_restart]]
+    at_s = 1200.0
+
     # Outages drawn at random: each train, with this chance, loses its radio once, for a
     # duration uniform in [min_s, max_s], at a time uniform in its first ``within_s`` on the line.
     [random_outages]
@@ -35,6 +39,10 @@ class RadioOutage(Model):
     duration_s: Annotated[float, Field(gt=0.0, le=1e5, allow_inf_nan=False)]
 
 
+class ControllerRestartFault(Model):
+    at_s: Annotated[float, Field(ge=0.0, le=1e6, allow_inf_nan=False)]
+
+
 class RandomOutages(Model):
     probability: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
     min_s: Annotated[float, Field(gt=0.0, le=3600.0, allow_inf_nan=False)] = 5.0
@@ -52,6 +60,10 @@ class RandomOutages(Model):
 class Faults(Model):
     radio_outage: list[RadioOutage] = Field(default_factory=list)
     random_outages: RandomOutages = Field(default_factory=RandomOutages)
+    zc_restart: list[ControllerRestartFault] = Field(default_factory=list)
+
+    def restarts(self) -> list[float]:
+        return sorted(r.at_s for r in self.zc_restart)
 
     def outages(self) -> list[tuple[int, float, float]]:
         return [(o.train, o.start_s, o.duration_s) for o in self.radio_outage]

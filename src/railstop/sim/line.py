@@ -74,7 +74,7 @@ from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
-from railstop.messages import CircuitOccupancy, Message, Output, SignalAspects, TrainLeft
+from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Output, SignalAspects, TrainLeft
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.traction import tractive_effort_n
 from railstop.physics.train import adhesion_limit_1
@@ -121,6 +121,7 @@ def check_line_settings(
     calibration: str,
     signalling: str = "fixed-block",
     outages: Sequence[tuple[int, float, float]] = (),
+    zc_restarts: Sequence[float] = (),
 ) -> None:
     """The line's own settings (a SimulationError naming the field and value): probabilities in
     [0, 1], a known calibration and signalling, outages of trains that exist at sensible times.
@@ -135,6 +136,9 @@ def check_line_settings(
         ):
             got = f"{train}, {start}, {duration}"
             raise SimulationError(f"outages[{i}]: train >= 0, start_s >= 0, duration_s > 0 (got {got})")
+    for i, at in enumerate(zc_restarts):
+        if not (math.isfinite(at) and at >= 0.0):
+            raise SimulationError(f"zc_restarts[{i}]: a time >= 0 s (got {at})")
     for name, prob in (
         ("door_link_loss", 0.0 if door_link_loss is None else door_link_loss),
         ("slide_probability", slide_probability),
@@ -315,6 +319,7 @@ class LineSimulation:
         signalling: str = "fixed-block",
         outages: Sequence[tuple[int, float, float]] = (),
         random_outages: RandomOutages | None = None,
+        zc_restarts: Sequence[float] = (),
         radio_medium: str = "cbtc-radio",
     ) -> None:
         """``odometer_error_pct``: every train's odometer diameter error (default: each train's
@@ -328,15 +333,17 @@ class LineSimulation:
         moving block with the minimal protection zone) or "cbtc-conventional" (the same with the
         conventional zone: whole blocks and the overlap). ``outages``: (train, start_s,
         duration_s): that train's CBTC radio is dead then (a fault); ``random_outages``: more,
-        drawn per train from the seed."""
+        drawn per train from the seed; ``zc_restarts``: times the zone controller restarts."""
         check_line_settings(
             door_link_loss=door_link_loss,
             slide_probability=slide_probability,
             calibration=calibration,
             signalling=signalling,
             outages=outages,
+            zc_restarts=zc_restarts,
         )
         self.signalling = signalling
+        self.zc_restarts = sorted(zc_restarts)
         self.door_link_loss = door_link_loss
         self.slide_probability = slide_probability
         self.calibration = calibration
@@ -773,6 +780,9 @@ class LineSimulation:
         if cbtc is None:
             return []
         out: list[Output] = []
+        while self.zc_restarts and now_s >= self.zc_restarts[0]:
+            self.zc_restarts.pop(0)
+            out.append(Output(to=cbtc.zc.name, message=ControllerRestart()))  # a fault (data)
         for t in self.trains:
             if t.phase == "gone":
                 if cbtc.active[t.index]:

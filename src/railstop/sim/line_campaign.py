@@ -47,6 +47,7 @@ class LineCampaignSpec:
     signalling: str = "fixed-block"
     outages: tuple[tuple[int, float, float], ...] = ()
     random_outages: RandomOutages | None = None
+    zc_restarts: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         from railstop.sim.line import check_line_settings
@@ -58,6 +59,7 @@ class LineCampaignSpec:
             calibration=self.calibration,
             signalling=self.signalling,
             outages=self.outages,
+            zc_restarts=self.zc_restarts,
         )
 
     def identity(self) -> dict[str, Any]:
@@ -78,6 +80,7 @@ class LineCampaignSpec:
             "signalling": self.signalling,
             "outages": [list(o) for o in self.outages],
             "random_outages": None if self.random_outages is None else self.random_outages.model_dump(),
+            "zc_restarts": list(self.zc_restarts),
         }
 
 
@@ -98,6 +101,7 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         signalling=spec.signalling,
         outages=spec.outages,
         random_outages=spec.random_outages,
+        zc_restarts=spec.zc_restarts,
     )
     result = sim.run(spec.duration_s)
     return {
@@ -237,6 +241,7 @@ def _cbtc_totals(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
         "auto_releases",
         "flagged",
         "manual_releases",
+        "restarts",
         "authority_overlaps",
         "collisions",
         "onboard_emergency_brakes",

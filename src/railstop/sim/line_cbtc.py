@@ -77,17 +77,26 @@ class _CheckedZc:
         self.owner = owner
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
-        return self.zc.handle(message, now_s)
+        before = self._zones()
+        outs = self.zc.handle(message, now_s)
+        self._note(before, now_s)
+        return outs
 
     def next_deadline_s(self) -> float | None:
         return self.zc.next_deadline_s()
 
-    def on_timer(self, now_s: float) -> list[Output]:
-        before = {t.train_id: t.zone for t in self.zc.trains.values()}
-        outs = self.zc.on_timer(now_s)
+    def _zones(self) -> dict[int, object]:
+        return {t.train_id: t.zone for t in self.zc.trains.values()}
+
+    def _note(self, before: dict[int, object], now_s: float) -> None:
         for t in self.zc.trains.values():
             if t.zone is not None and before.get(t.train_id) is None:
                 self.owner.zone_set(t.train_id, t.zone.start_m, t.zone.end_m, now_s)
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        before = self._zones()
+        outs = self.zc.on_timer(now_s)
+        self._note(before, now_s)
         for o in outs:
             if isinstance(o.message, MovementCommand):
                 self.owner.check_grant(o.message, now_s)
@@ -267,6 +276,7 @@ class CbtcSignalling:
             "auto_releases": c.auto_releases,
             "flagged": c.flagged,
             "manual_releases": c.manual_releases,
+            "restarts": c.restarts,
             "releases_refused": int(sum(self.gate.rejected.values())),
             "authority_overlaps": self.authority_overlaps,
             "collisions": self.collisions,

@@ -43,7 +43,15 @@ from enum import StrEnum
 
 from railstop.config.layout import Cbtc
 from railstop.errors import InterlockError
-from railstop.messages import ManualRelease, Message, MovementCommand, Output, PositionReport, TrainLeft
+from railstop.messages import (
+    ControllerRestart,
+    ManualRelease,
+    Message,
+    MovementCommand,
+    Output,
+    PositionReport,
+    TrainLeft,
+)
 
 # The grace after a report's due time before it counts as missed: half a cycle, so that the
 # radio's jitter does not make a report "missed" that is merely late. [interpretation]
@@ -94,6 +102,7 @@ class ZoneCounts:
     flagged: int = 0  # re-detected outside (SPEC §4 step 5)
     manual_releases: int = 0
     ignored_releases: int = 0  # a manual release for a train with no zone
+    restarts: int = 0
 
 
 @dataclass(slots=True)
@@ -113,7 +122,7 @@ class ZoneController:
     mode: ZoneMode = ZoneMode.MINIMAL
     name: str = "zc"
     downlink: str | None = None  # where commands go (None: straight to "cbtc-<train>")
-    accepts: tuple[type, ...] = (PositionReport, ManualRelease, TrainLeft)
+    accepts: tuple[type, ...] = (PositionReport, ManualRelease, TrainLeft, ControllerRestart)
     trains: dict[int, _Train] = field(default_factory=dict)
     counts: ZoneCounts = field(default_factory=ZoneCounts)
     left: set[int] = field(default_factory=set)  # trains that have left the area
@@ -137,6 +146,9 @@ class ZoneController:
             return self._on_report(message, now_s)
         if isinstance(message, ManualRelease):
             self._on_release(message.train_id)
+            return []
+        if isinstance(message, ControllerRestart):
+            self._restart()
             return []
         if isinstance(message, TrainLeft):
             # Out of the area: forgotten (its zone too: nothing of it is left on this line); a
@@ -248,6 +260,18 @@ class ZoneController:
             t.status = TrainStatus.FLAGGED
             self.counts.flagged += 1
         # FLAGGED stays FLAGGED: only the operator releases it.
+
+    def _restart(self) -> None:
+        """A restart. [interpretation] SPEC §4 says nothing of it; the fail-safe reading: the
+        commands being computed are gone, and no train's position can be trusted any more, so
+        every train it knew (the list, the last reports and the authorities given are kept in
+        non-volatile memory) is lost at once, with the zone of SPEC §4; each is re-detected by
+        its next report as after a radio loss (inside: released; outside: flagged)."""
+        self.counts.restarts += 1
+        self._pending.clear()
+        for t in self.trains.values():
+            if t.status == TrainStatus.TRACKED:
+                self._lose(t)
 
     def _on_release(self, train_id: int) -> None:
         t = self.trains.get(train_id)
