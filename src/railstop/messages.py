@@ -67,6 +67,39 @@ class TrainLeft:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class StopSensorScan:
+    """SPEC §3: one scan of the platform's stop sensors S2 and S1, and the train's standstill."""
+
+    s2: bool
+    s1: bool
+    standstill: bool
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PsdDoorState:
+    """The PSD's doors as the platform sees them: all closed and locked, or not."""
+
+    closed_locked: bool
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SignalOpenSwitch:
+    """SPEC §3: the signal-open switch that lets a train pass the station (skip, out of service)."""
+
+    on: bool
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlatformLamps:
+    """SPEC §3: the lamp lit (F, OK, R, S; None: none), whether the PSD may operate, and whether
+    the PSD state permits departure."""
+
+    lamp: str | None
+    psd_enable: bool
+    departure_permitted: bool
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class ControllerRestart:
     """Fault injection: the zone controller restarts (its volatile state is gone)."""
 
@@ -88,6 +121,10 @@ Message = (
     | ManualRelease
     | TrainLeft
     | ControllerRestart
+    | StopSensorScan
+    | PsdDoorState
+    | SignalOpenSwitch
+    | PlatformLamps
     | OnboardPosition
 )
 

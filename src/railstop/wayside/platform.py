@@ -1,0 +1,127 @@
+"""The platform unit of SPEC §3: stop sensors -> lamps -> PSD relay (fig. 4), a pure unit.
+
+Each scan of the stop sensors S2, S1 (debounced: a sensor's state changes
+only after ``debounce_scans`` equal readings in a row) and the train's
+standstill give the lamp from the **lamp table** of the platform data:
+
+* **F**: stopped short of the sensors (move forward);
+* **OK**: S2 sees the train and S1 does not: the **PSD may operate** (the
+  PSD relay is energised only while OK is lit);
+* **R**: passed both (reverse);
+* **S**: once the PSD has operated with OK and is closed and locked again:
+  departure ready.
+
+No lamp while the train moves. The PSD is the **master**, the train the
+**slave** (SPEC §3 interlock principles): departure is permitted only with
+the PSD closed and locked. The **signal-open switch** lets a train pass the
+station: no lamp, the PSD held closed. A sensor combination that cannot be
+a train front at rest (S1 without S2) lights no lamp and holds the PSD
+closed (DESIGN rule 10), as does any state the unit cannot tell.
+
+Time is not needed (scans come at the sensors' period); nothing is read from
+a clock (DESIGN rule 2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from railstop.errors import InterlockError
+from railstop.messages import (
+    BROADCAST,
+    Message,
+    Output,
+    PlatformLamps,
+    PsdDoorState,
+    SignalOpenSwitch,
+    StopSensorScan,
+)
+
+
+@dataclass(slots=True)
+class _Debounce:
+    """A sensor's stable state: it changes after ``need`` equal raw readings in a row."""
+
+    need: int
+    state: bool = False
+    run: int = 0
+
+    def feed(self, raw: bool) -> bool:
+        if raw == self.state:
+            self.run = 0
+        else:
+            self.run += 1
+            if self.run >= self.need:
+                self.state, self.run = raw, 0
+        return self.state
+
+
+@dataclass(slots=True)
+class PlatformUnit:
+    """``lamp_table``: (s2, s1) -> "F" | "OK" | "R" | "fault" (the platform data's)."""
+
+    lamp_table: Mapping[tuple[bool, bool], str]
+    debounce_scans: int = 3
+    name: str = "platform"
+    accepts: tuple[type, ...] = (StopSensorScan, PsdDoorState, SignalOpenSwitch)
+    s2: _Debounce = field(init=False)
+    s1: _Debounce = field(init=False)
+    standstill: bool = False
+    psd_closed: bool = True
+    psd_operated: bool = False  # the PSD has opened under OK at this stop
+    signal_open: bool = False
+    last: PlatformLamps | None = None
+
+    def __post_init__(self) -> None:
+        if sorted(self.lamp_table) != [(False, False), (False, True), (True, False), (True, True)]:
+            raise InterlockError("platform: the lamp table needs each (s2, s1) combination once")
+        if any(lamp == "OK" and key != (True, False) for key, lamp in self.lamp_table.items()):
+            raise InterlockError("platform: only (s2, s1) = (1, 0) may light OK")
+        self.s2 = _Debounce(self.debounce_scans)
+        self.s1 = _Debounce(self.debounce_scans)
+
+    # ------------------------------------------------------------------ the rule
+
+    def lamps(self) -> PlatformLamps:
+        """What the platform shows now (a pure function of the unit's state)."""
+        departure = self.psd_closed  # SPEC §3: departure only with the PSD closed (PSD master)
+        if self.signal_open:
+            return PlatformLamps(lamp=None, psd_enable=False, departure_permitted=departure)
+        if not self.standstill:
+            return PlatformLamps(lamp=None, psd_enable=False, departure_permitted=departure)
+        lamp = self.lamp_table[(self.s2.state, self.s1.state)]
+        if lamp == "OK" and self.psd_operated and self.psd_closed:
+            return PlatformLamps(lamp="S", psd_enable=False, departure_permitted=departure)
+        if lamp == "fault":
+            return PlatformLamps(lamp=None, psd_enable=False, departure_permitted=departure)
+        return PlatformLamps(lamp=lamp, psd_enable=lamp == "OK", departure_permitted=departure)
+
+    # ------------------------------------------------------------------ the contract
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        if isinstance(message, StopSensorScan):
+            self.s2.feed(message.s2)
+            self.s1.feed(message.s1)
+            if not message.standstill:
+                self.psd_operated = False  # a new stop (or a correction) starts afresh
+            self.standstill = message.standstill
+        elif isinstance(message, PsdDoorState):
+            if not message.closed_locked and self.last is not None and self.last.psd_enable:
+                self.psd_operated = True
+            self.psd_closed = message.closed_locked
+        elif isinstance(message, SignalOpenSwitch):
+            self.signal_open = message.on
+        else:
+            raise InterlockError(f"platform: cannot take a {type(message).__name__}")
+        now = self.lamps()
+        if now == self.last:
+            return []
+        self.last = now
+        return [Output(to=BROADCAST, message=now)]
+
+    def next_deadline_s(self) -> float | None:
+        return None
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        return []
