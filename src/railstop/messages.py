@@ -100,6 +100,30 @@ class PlatformLamps:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class SpeedCode:
+    """SPEC §3: the speed limit an ATS point gives (held until the next point) or the ATC speed
+    code the pick-up coil receives (the ADU's indicated speed)."""
+
+    limit_mps: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrainSpeed:
+    """The train's speed as its own speedometer measures it."""
+
+    speed_mps: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SupervisionState:
+    """SPEC §3 speed supervision: the overspeed alarm, the emergency brake and its cause."""
+
+    alarm: bool
+    emergency_brake: bool
+    cause: str | None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class ControllerRestart:
     """Fault injection: the zone controller restarts (its volatile state is gone)."""
 
@@ -121,6 +145,9 @@ Message = (
     | ManualRelease
     | TrainLeft
     | ControllerRestart
+    | SpeedCode
+    | TrainSpeed
+    | SupervisionState
     | StopSensorScan
     | PsdDoorState
     | SignalOpenSwitch

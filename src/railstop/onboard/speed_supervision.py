@@ -1,0 +1,110 @@
+"""ATS and ATC speed supervision of manually driven trains (SPEC §3), a pure unit on the train.
+
+* **ATS** (intermittent): each wayside point gives a speed limit, held until
+  the next point; over the limit for **more than 3 s** -> emergency brake,
+  whatever the signal aspect (SPEC §3: it stops a driver who is unconscious
+  or cannot see in fog or snow).
+* **ATC** (continuous): the speed code picked up from the track is the ADU's
+  indicated speed; actual above indicated -> **3 s grace, then the alarm**;
+  the driver must service-brake below it in the grace. If the speed is still
+  above it when the grace ends, the emergency brake (SPEC §3 ATC option 1:
+  "even if the emergency brake is applied after 3 s, the train stops within
+  the station"). Above the **permitted** speed (the indicated speed plus
+  ``permitted_margin_mps``, [interpretation]: the source names a permitted
+  speed above the indicated one without a value) the brake applies at once.
+
+The emergency brake is latched to standstill (DESIGN rule 10). No limit
+received yet: the most restrictive, 0 (a train must not run unsupervised).
+The grace is timed by ``next_deadline_s`` / ``on_timer`` (DESIGN rule 2).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from railstop.errors import InterlockError
+from railstop.messages import BROADCAST, Message, Output, SpeedCode, SupervisionState, TrainSpeed
+
+EB_OVERSPEED_GRACE = "overspeed-3s"  # over the limit / indicated speed for longer than the grace
+EB_PERMITTED = "over-permitted"  # ATC: above the permitted speed
+MODES = ("ats", "atc")
+
+
+@dataclass(slots=True)
+class SpeedSupervision:
+    mode: str
+    grace_s: float = 3.0  # SPEC §3
+    permitted_margin_mps: float = 5.0 / 3.6  # ATC only ([interpretation], see the module)
+    name: str = "speed-supervision"
+    accepts: tuple[type, ...] = (SpeedCode, TrainSpeed)
+    limit_mps: float = 0.0
+    speed_mps: float = 0.0
+    over_since_s: float = math.nan  # when the speed went above the limit (NaN: it is not)
+    alarm: bool = False
+    emergency_brake: bool = False
+    cause: str | None = None
+    last: SupervisionState | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise InterlockError(
+                f"speed supervision: mode must be one of {', '.join(MODES)} (got {self.mode!r})"
+            )
+        if not (math.isfinite(self.grace_s) and self.grace_s >= 0.0):
+            raise InterlockError(f"speed supervision: grace_s must be >= 0 (got {self.grace_s})")
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        if isinstance(message, SpeedCode):
+            # An invalid limit is no limit: the most restrictive (DESIGN rule 10).
+            ok = math.isfinite(message.limit_mps) and message.limit_mps >= 0.0
+            self.limit_mps = message.limit_mps if ok else 0.0
+        elif isinstance(message, TrainSpeed):
+            self.speed_mps = message.speed_mps if math.isfinite(message.speed_mps) else math.inf
+        else:
+            raise InterlockError(f"speed supervision: cannot take a {type(message).__name__}")
+        self._judge(now_s)
+        return self._changed()
+
+    def next_deadline_s(self) -> float | None:
+        if math.isnan(self.over_since_s) or self.emergency_brake:
+            return None
+        return self.over_since_s + self.grace_s
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        self._judge(now_s)
+        return self._changed()
+
+    # ------------------------------------------------------------------ the rules
+
+    def _judge(self, now_s: float) -> None:
+        v, limit = self.speed_mps, self.limit_mps
+        if self.emergency_brake:
+            if v <= 0.0:  # latched to standstill
+                self.emergency_brake, self.cause = False, None
+                self.over_since_s = math.nan
+            return
+        if v > limit:
+            if math.isnan(self.over_since_s):
+                self.over_since_s = now_s
+            if self.mode == "atc" and v > limit + self.permitted_margin_mps:
+                self._brake(EB_PERMITTED)
+                return
+            # SPEC §3: the grace ends -> ATS: emergency brake; ATC: the alarm, and the brake.
+            if now_s - self.over_since_s >= self.grace_s - 1e-9:
+                self.alarm = self.mode == "atc"
+                self._brake(EB_OVERSPEED_GRACE)
+        else:
+            self.over_since_s = math.nan
+            self.alarm = False
+
+    def _brake(self, cause: str) -> None:
+        self.emergency_brake = True
+        self.cause = cause
+
+    def _changed(self) -> list[Output]:
+        now = SupervisionState(alarm=self.alarm, emergency_brake=self.emergency_brake, cause=self.cause)
+        if now == self.last:
+            return []
+        self.last = now
+        return [Output(to=BROADCAST, message=now)]
