@@ -24,6 +24,7 @@ from railstop.cli_doors import doors_app, dwell
 from railstop.cli_line import line_app
 from railstop.cli_progress import Reporter, on_interrupt, run_program
 from railstop.cli_telegram import telegram_app
+from railstop.cli_zones import zones_app
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
 from railstop.controllers import CONTROLLERS
@@ -99,6 +100,7 @@ app.add_typer(doors_app, name="doors")
 app.command()(dwell)
 app.add_typer(telegram_app, name="telegram")
 app.add_typer(line_app, name="line")
+app.add_typer(zones_app, name="zones")
 
 FormOpt = Annotated[
     int | None,

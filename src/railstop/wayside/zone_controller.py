@@ -291,9 +291,9 @@ class ZoneController:
 
     def _obstacle_ahead(self, me: _Train, front_m: float, direction: str) -> float:
         """The near end of the nearest obstacle ahead of the train whose front is at ``front_m``:
-        another train whose front is ahead of it (its last reported occupancy), or a zone that
-        reaches ahead of it (possibly starting behind its front: then the authority is 0); the
-        line's end otherwise."""
+        another train whose front is ahead of it (its last reported occupancy), or the zone of a
+        lost train ahead of it that reaches ahead of it (possibly starting behind its front: then
+        the authority is 0); the area's exit otherwise."""
         # [interpretation] The area ends at the line's ends, where trains leave it (to a depot or
         # the next controller): the authority reaches past the end by a train's length, so that
         # the whole train can leave.
@@ -302,7 +302,12 @@ class ZoneController:
         for o in self.trains.values():
             if o is me:
                 continue
-            if o.zone is not None:
+            # A zone is in the way only of the trains behind its owner: a train ahead of a lost
+            # train runs away from it, even where the zone's rounding reaches past its front.
+            behind_owner = o.report is None or (
+                o.report.position_m > front_m if direction == "R" else o.report.position_m < front_m
+            )
+            if o.zone is not None and behind_owner:
                 lo, hi = o.zone.start_m, o.zone.end_m
                 if direction == "R" and hi > front_m:
                     best = min(best, lo)
