@@ -252,3 +252,18 @@ def test_permitted_speed_stops_within_the_distance() -> None:
         v = permitted_speed_mps(d, 0.7, 1.0)
         assert v * 1.0 + v * v / (2 * 0.7) == pytest.approx(d)
     assert permitted_speed_mps(0.0, 0.7, 1.0) == 0.0
+
+
+def test_the_commands_gradient_enters_the_braking_curve() -> None:
+    """SPEC §4: the gradient at Pc is part of the command; downhill the train may run slower."""
+    flat, down = onboard(), onboard()
+    for u, grad in ((flat, 0.0), (down, -30.0)):
+        u.handle(OnboardPosition(position_m=0.0, speed_mps=0.0), 0.0)
+        u.handle(
+            MovementCommand(
+                train_id=1, authority_m=200.0, gradient_permille=grad, speed_limit_mps=30.0, report_time_s=0.0
+            ),
+            0.1,
+        )
+    assert down.permitted_mps() == pytest.approx(permitted_speed_mps(200.0, 0.7 - 9.81 * 0.03, 1.0))
+    assert down.permitted_mps() < flat.permitted_mps()

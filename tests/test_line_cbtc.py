@@ -212,3 +212,15 @@ def test_faults_file_with_a_restart(tmp_path: Path) -> None:
     assert load_faults(f).restarts() == [100.0, 900.0]
     with pytest.raises(SimulationError, match=r"zc_restarts\[0\]"):
         LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), zc_restarts=[float("nan")])
+
+
+def test_radio_bursts_from_the_faults_data_make_lost_trains_and_nothing_unsafe() -> None:
+    """Gilbert-Elliott bursts on every train's radio: reports lost in runs, trains lost and
+    re-detected, never an authority overlap or a collision."""
+    bursts = {"burst_enter_probability": 0.003, "burst_exit_probability": 0.3, "burst_loss_probability": 1.0}
+    _, s = run("cbtc", trains=3, duration_s=1200.0, radio_changes=bursts)
+    c = s["cbtc"]
+    assert c["radio_lost"] > 50 and c["lost_trains"] > 0 and c["auto_releases"] > 0
+    assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and s["exited"] >= 1
+    with pytest.raises(Exception, match="burst_exit_probability"):
+        run("cbtc", trains=1, duration_s=1.0, radio_changes={"burst_exit_probability": 2.0})

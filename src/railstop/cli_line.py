@@ -129,6 +129,7 @@ def run_cmd(
             outages=fault_data.outages(),
             random_outages=fault_data.random_outages,
             zc_restarts=fault_data.restarts(),
+            radio_changes=fault_data.radio.changes(),
         )
         result = sim.run(duration_s)
         summary = result.summary()
@@ -228,6 +229,7 @@ def campaign_cmd(
             outages=tuple(fault_data.outages()),
             random_outages=fault_data.random_outages,
             zc_restarts=tuple(fault_data.restarts()),
+            radio_changes=fault_data.radio.changes(),
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume)
     except RailstopError as exc:

@@ -8,6 +8,12 @@
     start_s = 900.0
     duration_s = 20.0
 
+    # Every train's radio: fades in bursts (Gilbert-Elliott: enter, leave, loss while bad).
+    [radio]
+    burst_enter_probability = 0.01
+    burst_exit_probability = 0.3
+    burst_loss_probability = 0.8
+
     # The zone controller restarts at 1200 s (every train it knew is lost at once).
     [[zc_restart]]
     at_s = 1200.0
@@ -39,6 +45,19 @@ class RadioOutage(Model):
     duration_s: Annotated[float, Field(gt=0.0, le=1e5, allow_inf_nan=False)]
 
 
+class RadioFaults(Model):
+    """Changes to the CBTC radio medium of every train (``cbtc-radio`` of media.toml): loss per
+    frame and Gilbert-Elliott bursts (railstop.link.channel)."""
+
+    loss_probability: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = None
+    burst_enter_probability: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = None
+    burst_exit_probability: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = None
+    burst_loss_probability: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = None
+
+    def changes(self) -> dict[str, float]:
+        return {k: v for k, v in self.model_dump().items() if v is not None}
+
+
 class ControllerRestartFault(Model):
     at_s: Annotated[float, Field(ge=0.0, le=1e6, allow_inf_nan=False)]
 
@@ -61,6 +80,7 @@ class Faults(Model):
     radio_outage: list[RadioOutage] = Field(default_factory=list)
     random_outages: RandomOutages = Field(default_factory=RandomOutages)
     zc_restart: list[ControllerRestartFault] = Field(default_factory=list)
+    radio: RadioFaults = Field(default_factory=RadioFaults)
 
     def restarts(self) -> list[float]:
         return sorted(r.at_s for r in self.zc_restart)

@@ -10,7 +10,8 @@ the command arrives plus the distance) and supervises the train against it:
 * **2 consecutive missed commands -> emergency brake** (SPEC §4): a cycle
   with no command since the previous report counts as one missed;
 * **overspeed**: faster than the braking curve to the authority's end (full
-  service ``curve_decel_mps2`` after ``response_s``) or than the speed limit,
+  service ``curve_decel_mps2`` after ``response_s``, less the command's
+  downhill gradient or plus its uphill one) or than the speed limit,
   each with ``overspeed_tolerance_mps`` -> emergency brake (DESIGN rule 10;
   the supervision SPEC §4 implies but does not spell out);
 * no command yet: no authority (end = where the train is).
@@ -28,6 +29,7 @@ from railstop.config.layout import Cbtc
 from railstop.errors import InterlockError
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
 
+G_MPS2 = 9.81
 EB_MISSED_COMMANDS = "missed-commands"
 EB_OVERSPEED = "overspeed"
 
@@ -89,7 +91,12 @@ class OnboardCbtc:
         return max(self.sign * (self.authority_end_m - self.position_m), 0.0)
 
     def permitted_mps(self) -> float:
-        curve = permitted_speed_mps(self.distance_to_end_m(), self.curve_decel_mps2, self.response_s)
+        # SPEC §4: the command's gradient enters the braking curve (+ uphill helps the brake, -
+        # downhill works against it); never below a tenth of the curve's deceleration.
+        decel = max(
+            self.curve_decel_mps2 + G_MPS2 * self.gradient_permille / 1000.0, 0.1 * self.curve_decel_mps2
+        )
+        curve = permitted_speed_mps(self.distance_to_end_m(), decel, self.response_s)
         return min(curve, self.speed_limit_mps)
 
     # ------------------------------------------------------------------ the contract

@@ -321,6 +321,7 @@ class LineSimulation:
         random_outages: RandomOutages | None = None,
         zc_restarts: Sequence[float] = (),
         radio_medium: str = "cbtc-radio",
+        radio_changes: dict[str, float] | None = None,
     ) -> None:
         """``odometer_error_pct``: every train's odometer diameter error (default: each train's
         own draw of the disturbance set's ``odometer_diameter_error_pct``).
@@ -333,7 +334,8 @@ class LineSimulation:
         moving block with the minimal protection zone) or "cbtc-conventional" (the same with the
         conventional zone: whole blocks and the overlap). ``outages``: (train, start_s,
         duration_s): that train's CBTC radio is dead then (a fault); ``random_outages``: more,
-        drawn per train from the seed; ``zc_restarts``: times the zone controller restarts."""
+        drawn per train from the seed; ``zc_restarts``: times the zone controller restarts;
+        ``radio_changes``: the radio medium's values changed (loss, bursts; a fault)."""
         check_line_settings(
             door_link_loss=door_link_loss,
             slide_probability=slide_probability,
@@ -381,7 +383,7 @@ class LineSimulation:
                 vehicle=vehicle,
                 mode=ZoneMode.CONVENTIONAL if signalling == "cbtc-conventional" else ZoneMode.MINIMAL,
                 trains=len(self.trains),
-                radio_params=media_preset(radio_medium),
+                radio_params=media_preset(radio_medium).replace(**(radio_changes or {})),
                 seed=seed,
                 outages=outage_windows([*outages, *self._draw_outages(random_outages, seed)]),
             )

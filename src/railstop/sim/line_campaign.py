@@ -48,6 +48,7 @@ class LineCampaignSpec:
     outages: tuple[tuple[int, float, float], ...] = ()
     random_outages: RandomOutages | None = None
     zc_restarts: tuple[float, ...] = ()
+    radio_changes: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         from railstop.sim.line import check_line_settings
@@ -81,6 +82,7 @@ class LineCampaignSpec:
             "outages": [list(o) for o in self.outages],
             "random_outages": None if self.random_outages is None else self.random_outages.model_dump(),
             "zc_restarts": list(self.zc_restarts),
+            "radio_changes": dict(self.radio_changes or {}),
         }
 
 
@@ -102,6 +104,7 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         outages=spec.outages,
         random_outages=spec.random_outages,
         zc_restarts=spec.zc_restarts,
+        radio_changes=spec.radio_changes,
     )
     result = sim.run(spec.duration_s)
     return {

@@ -663,7 +663,13 @@ def _no_auto_release_outside(before: Snapshot, step: Step, after: Snapshot, mode
             lo, hi = max(lo, 0.0), min(hi, model.line_end_m)
             inside = b.zone.start_m - _EPS <= lo and hi <= b.zone.end_m + _EPS
         auto = b.status == TrainStatus.LOST and reported and inside
-        if b.zone is not None and a.zone != b.zone and not manual and not auto:
+        # A zone may grow (a flagged train silent again, [interpretation]); never shrink or go.
+        kept = (
+            a.zone is not None
+            and b.zone is not None
+            and (a.zone.start_m <= b.zone.start_m + _EPS and a.zone.end_m >= b.zone.end_m - _EPS)
+        )
+        if b.zone is not None and not kept and not manual and not auto:
             where = f"at {act.to_m:g} m" if act is not None and reported else "without a report"
             return (
                 f"T{b.train}'s zone {b.zone.start_m:g}-{b.zone.end_m:g} m ({b.status.value}) "
@@ -672,7 +678,7 @@ def _no_auto_release_outside(before: Snapshot, step: Step, after: Snapshot, mode
         if b.status == TrainStatus.FLAGGED and a.status != TrainStatus.FLAGGED and not manual:
             return f"flagged T{b.train} became {a.status.value} without a manual release"
         outside = b.status == TrainStatus.LOST and reported and not inside and not manual
-        if outside and act is not None and (a.status != TrainStatus.FLAGGED or a.zone != b.zone):
+        if outside and act is not None and (a.status != TrainStatus.FLAGGED or not kept):
             return (
                 f"T{b.train} re-detected at {act.to_m:g} m outside its zone but {a.status.value} "
                 f"with zone {a.zone}"

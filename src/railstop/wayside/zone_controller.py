@@ -70,6 +70,10 @@ class TrainStatus(StrEnum):
     FLAGGED = "flagged"  # re-detected outside its zone: zone kept, held, manual release needed
 
 
+#: The trains whose reports the controller supervises (a flagged train is re-zoned when silent).
+_SUPERVISED = (TrainStatus.TRACKED, TrainStatus.FLAGGED)
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Zone:
     train_id: int
@@ -103,6 +107,7 @@ class ZoneCounts:
     manual_releases: int = 0
     ignored_releases: int = 0  # a manual release for a train with no zone
     restarts: int = 0
+    rezoned: int = 0  # a flagged train silent again: its zone grown over its last report
 
 
 @dataclass(slots=True)
@@ -160,14 +165,21 @@ class ZoneController:
 
     def next_deadline_s(self) -> float | None:
         times = [self._pending[0][0]] if self._pending else []
-        times += [self._due_s(t) for t in self.trains.values() if t.status == TrainStatus.TRACKED]
+        lost_after = self.params.missed_reports_lost
+        times += [
+            self._due_s(t)
+            for t in self.trains.values()
+            if t.status in _SUPERVISED and t.missed < lost_after  # (a re-zoned flagged train waits)
+        ]
         return min(times) if times else None
 
     def on_timer(self, now_s: float) -> list[Output]:
         out: list[Output] = []
         # Supervision first: a train lost now gets its zone before any command is computed.
         for t in self.trains.values():
-            while t.status == TrainStatus.TRACKED and now_s >= self._due_s(t) - 1e-9:
+            while t.status in _SUPERVISED and t.missed < self.params.missed_reports_lost:
+                if now_s < self._due_s(t) - 1e-9:
+                    break
                 t.missed += 1
                 if t.missed >= self.params.missed_reports_lost:
                     self._lose(t)
@@ -221,9 +233,16 @@ class ZoneController:
     def _lose(self, t: _Train) -> None:
         if t.report is None:  # pragma: no cover - a tracked train has reported
             return
+        lo, hi = self._occupancy(t.report)
+        if t.status == TrainStatus.FLAGGED and t.zone is not None:
+            # Flagged (held, waiting for the operator) and silent again: its zone grows to take in
+            # where it last reported, so that it still covers every place the train can be.
+            # [interpretation] SPEC §4 does not say; this keeps the zone rule of a lost train.
+            self.counts.rezoned += 1
+            t.zone = self._cover(t.train_id, min(lo, t.zone.start_m), max(hi, t.zone.end_m))
+            return
         t.status = TrainStatus.LOST
         self.counts.lost += 1
-        lo, hi = self._occupancy(t.report)
         # From the occupancy end to the forward stop point: the furthest authority it was given.
         if t.report.direction == "R":
             hi = max(hi, t.furthest_end)
