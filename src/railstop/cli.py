@@ -22,6 +22,7 @@ from typer.core import TyperCommand, TyperGroup
 from railstop.cli_common import LineOpt, OperationOpt, VehicleOpt, fail, out, print_error, styled
 from railstop.cli_doors import doors_app, dwell
 from railstop.cli_line import line_app
+from railstop.cli_platform import platform_app
 from railstop.cli_progress import Reporter, on_interrupt, run_program
 from railstop.cli_telegram import telegram_app
 from railstop.cli_zones import zones_app
@@ -101,6 +102,7 @@ app.command()(dwell)
 app.add_typer(telegram_app, name="telegram")
 app.add_typer(line_app, name="line")
 app.add_typer(zones_app, name="zones")
+app.add_typer(platform_app, name="platform")
 
 FormOpt = Annotated[
     int | None,

@@ -1,7 +1,6 @@
 """The platform unit of SPEC §3: stop sensors -> lamps -> PSD relay (fig. 4), a pure unit.
 
-Each scan of the stop sensors S2, S1 (debounced: a sensor's state changes
-only after ``debounce_scans`` equal readings in a row) and the train's
+Each scan of the stop sensors S2, S1 (debounced, see ``PlatformUnit``) and the train's
 standstill give the lamp from the **lamp table** of the platform data:
 
 * **F**: stopped short of the sensors (move forward);
@@ -41,20 +40,26 @@ from railstop.messages import (
 
 @dataclass(slots=True)
 class _Debounce:
-    """A sensor's stable state: it changes after ``need`` equal raw readings in a row."""
+    """A sensor at a stand: unsettled (None) from the stop until ``need`` equal readings in a row,
+    then that reading, which changes only after ``need`` opposite readings in a row."""
 
     need: int
-    state: bool = False
-    run: int = 0
+    state: bool | None = None
+    trues: int = 0
+    falses: int = 0
 
-    def feed(self, raw: bool) -> bool:
-        if raw == self.state:
-            self.run = 0
+    def feed(self, raw: bool) -> None:
+        if raw:
+            self.trues, self.falses = self.trues + 1, 0
+            if self.trues >= self.need:
+                self.state = True
         else:
-            self.run += 1
-            if self.run >= self.need:
-                self.state, self.run = raw, 0
-        return self.state
+            self.trues, self.falses = 0, self.falses + 1
+            if self.falses >= self.need:
+                self.state = False
+
+    def reset(self) -> None:
+        self.state, self.trues, self.falses = None, 0, 0
 
 
 @dataclass(slots=True)
@@ -78,6 +83,11 @@ class PlatformUnit:
             raise InterlockError("platform: the lamp table needs each (s2, s1) combination once")
         if any(lamp == "OK" and key != (True, False) for key, lamp in self.lamp_table.items()):
             raise InterlockError("platform: only (s2, s1) = (1, 0) may light OK")
+        # [interpretation] A missed scan reads "no train", so an overrun train whose S1 misses
+        # would look like one in the window. A sensor's reading counts only once it has read
+        # the same ``debounce_scans`` times in a row since the train stopped: fewer misses in a
+        # row than that cannot light OK (``sim.platform_verify`` checks it); until both sensors
+        # have settled, no lamp and no PSD.
         self.s2 = _Debounce(self.debounce_scans)
         self.s1 = _Debounce(self.debounce_scans)
 
@@ -90,7 +100,10 @@ class PlatformUnit:
             return PlatformLamps(lamp=None, psd_enable=False, departure_permitted=departure)
         if not self.standstill:
             return PlatformLamps(lamp=None, psd_enable=False, departure_permitted=departure)
-        lamp = self.lamp_table[(self.s2.state, self.s1.state)]
+        s2, s1 = self.s2.state, self.s1.state
+        if s2 is None or s1 is None:  # not settled since the stop: nothing yet
+            return PlatformLamps(lamp=None, psd_enable=False, departure_permitted=departure)
+        lamp = self.lamp_table[(s2, s1)]
         if lamp == "OK" and self.psd_operated and self.psd_closed:
             return PlatformLamps(lamp="S", psd_enable=False, departure_permitted=departure)
         if lamp == "fault":
@@ -101,10 +114,14 @@ class PlatformUnit:
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
         if isinstance(message, StopSensorScan):
-            self.s2.feed(message.s2)
-            self.s1.feed(message.s1)
-            if not message.standstill:
-                self.psd_operated = False  # a new stop (or a correction) starts afresh
+            if message.standstill:
+                self.s2.feed(message.s2)
+                self.s1.feed(message.s1)
+            else:
+                # Moving: a new stop (or a correction) starts afresh.
+                self.s2.reset()
+                self.s1.reset()
+                self.psd_operated = False
             self.standstill = message.standstill
         elif isinstance(message, PsdDoorState):
             if not message.closed_locked and self.last is not None and self.last.psd_enable:
