@@ -95,4 +95,4 @@ def test_cli_platform_verify_exit_0_and_1(tmp_path: object) -> None:
         text=True,
         timeout=300,
     )
-    assert bad.returncode == 1 and "VIOLATION relay-only-on-ok" in bad.stdout
+    assert bad.returncode == 1 and "relay-only-on-ok: PSD relay energised" in bad.stdout

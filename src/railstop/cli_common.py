@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, NoReturn
 
@@ -43,3 +44,37 @@ OperationOpt = Annotated[
     Path | None,
     typer.Option("--operation", help="Operation TOML file: trains, headway, dwells (default: embedded)."),
 ]
+
+
+def print_verification(
+    *,
+    title: str,
+    rows: Sequence[tuple[str, str, int]],
+    examples: Sequence[tuple[str, str, Sequence[str]]],
+    states: int,
+    transitions: int,
+    violations: int,
+    seconds: float,
+    notes: Sequence[str] = (),
+) -> None:
+    """What every ``... verify`` command prints: the invariants with their violations, the first
+    counterexample of each with its trace, notes, and the totals line."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("invariant")
+    table.add_column("what it checks")
+    table.add_column("violations", justify="right")
+    for name, text, n in rows:
+        table.add_row(name, text, styled(str(n), "bold red") if n else "0")
+    out.print(table)
+    for name, message, trace in examples:
+        out.print(Text.assemble(styled(name, "bold red"), f": {message}; trace:"), highlight=False)
+        for line in trace:
+            out.print(f"  {line}", highlight=False, soft_wrap=True)
+    for note in notes:
+        out.print(note, highlight=False, soft_wrap=True)
+    out.print(
+        f"states: {states}  transitions: {transitions}  violations: {violations}  ({seconds:.1f} s)",
+        highlight=False,
+    )

@@ -8,9 +8,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.text import Text
 
-from railstop.cli_common import fail, out, styled
+from railstop.cli_common import fail, out, print_verification, styled
 from railstop.errors import RailstopError
 
 doors_app = typer.Typer(
@@ -96,7 +95,6 @@ def verify_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Explore every reachable state of CPCS + WPCS + PSC under every input; exit 1 on a violation."""
-    from rich.table import Table
 
     from railstop.config.doors import load_doors
     from railstop.sim.doors_verify import INVARIANTS, verify
@@ -117,24 +115,14 @@ def verify_cmd(
             highlight=False,
             soft_wrap=True,
         )
-        table = Table(title="invariants")
-        table.add_column("invariant")
-        table.add_column("what it checks")
-        table.add_column("violations", justify="right")
-        for inv in INVARIANTS:
-            n = result.counts[inv.name]
-            table.add_row(inv.name, inv.text, styled(str(n), "bold red") if n else "0")
-        out.print(table)
-        for v in result.examples:
-            out.print(
-                Text.assemble(styled(v.invariant, "bold red"), f": {v.message}; trace:"), highlight=False
-            )
-            for line in v.trace:
-                out.print(f"  {line}", highlight=False, soft_wrap=True)
-        out.print(
-            f"states: {result.states}  transitions: {result.transitions}  "
-            f"violations: {result.violations}  ({result.elapsed_s:.1f} s)",
-            highlight=False,
+        print_verification(
+            title="invariants",
+            rows=[(inv.name, inv.text, result.counts[inv.name]) for inv in INVARIANTS],
+            examples=[(v.invariant, v.message, v.trace) for v in result.examples],
+            states=result.states,
+            transitions=result.transitions,
+            violations=result.violations,
+            seconds=result.elapsed_s,
         )
     if result.violations:
         raise typer.Exit(1)

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli_common import fail, out
+from railstop.cli_common import fail, out, print_verification
 from railstop.errors import RailstopError
 
 platform_app = typer.Typer(
@@ -33,8 +33,6 @@ def verify_cmd(
     ] = None,
 ) -> None:
     """Every reachable state of the real platform unit under every event; exit 1 on a violation."""
-    from rich.table import Table
-
     from railstop.config.platform import load_platform
     from railstop.sim.platform_verify import INVARIANTS, verify
     from railstop.wayside.platform import PlatformUnit
@@ -53,19 +51,14 @@ def verify_cmd(
         highlight=False,
         soft_wrap=True,
     )
-    table = Table(title="invariants")
-    for col in ("invariant", "what it checks", "violations"):
-        table.add_column(col, justify="right" if col == "violations" else "left")
-    for inv in INVARIANTS:
-        table.add_row(inv.name, inv.text, str(result.counts[inv.name]))
-    out.print(table)
-    for ex in result.examples:
-        out.print(f"VIOLATION {ex.invariant}: {ex.message}", highlight=False, soft_wrap=True)
-        out.print("  trace: " + " -> ".join(ex.trace), highlight=False, soft_wrap=True)
-    out.print(
-        f"states: {result.states}  transitions: {result.transitions}  violations: {result.violations}  "
-        f"({result.seconds:.1f} s)",
-        highlight=False,
+    print_verification(
+        title="invariants",
+        rows=[(inv.name, inv.text, result.counts[inv.name]) for inv in INVARIANTS],
+        examples=[(ex.invariant, ex.message, ex.trace) for ex in result.examples],
+        states=result.states,
+        transitions=result.transitions,
+        violations=result.violations,
+        seconds=result.seconds,
     )
     if result.violations:
         raise typer.Exit(1)

@@ -6,9 +6,8 @@ import json
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.text import Text
 
-from railstop.cli_common import fail, out, styled
+from railstop.cli_common import fail, out, print_verification
 
 if TYPE_CHECKING:
     from railstop.sim.zones_verify import VerifyResult
@@ -72,7 +71,6 @@ def verify_cmd(
 
 
 def _print_result(result: VerifyResult) -> None:
-    from rich.table import Table
 
     from railstop.sim.zones_verify import INVARIANTS
 
@@ -86,22 +84,14 @@ def _print_result(result: VerifyResult) -> None:
         highlight=False,
         soft_wrap=True,
     )
-    table = Table(title=f"invariants ({result.mode.value} zones)")
-    table.add_column("invariant")
-    table.add_column("what it checks")
-    table.add_column("violations", justify="right")
-    for inv in INVARIANTS:
-        n = result.counts.get(inv.name, 0)
-        table.add_row(inv.name, inv.text, styled(str(n), "bold red") if n else "0")
-    out.print(table)
-    for v in result.examples:
-        out.print(Text.assemble(styled(v.invariant, "bold red"), f": {v.message}; trace:"), highlight=False)
-        for line in v.trace:
-            out.print(f"  {line}", highlight=False, soft_wrap=True)
     seen = ", ".join(f"{k} {n}" for k, n in result.coverage.items() if not k.startswith("status-"))
-    out.print(f"seen (transitions): {seen or 'nothing'}", highlight=False, soft_wrap=True)
-    out.print(
-        f"states: {result.states}  transitions: {result.transitions}  "
-        f"violations: {result.violations}  ({result.elapsed_s:.1f} s)",
-        highlight=False,
+    print_verification(
+        title=f"invariants ({result.mode.value} zones)",
+        rows=[(inv.name, inv.text, result.counts.get(inv.name, 0)) for inv in INVARIANTS],
+        examples=[(v.invariant, v.message, v.trace) for v in result.examples],
+        states=result.states,
+        transitions=result.transitions,
+        violations=result.violations,
+        seconds=result.elapsed_s,
+        notes=[f"seen (transitions): {seen or 'nothing'}"],
     )
