@@ -15,6 +15,7 @@ from railstop.errors import RailstopError
 if TYPE_CHECKING:
     from railstop.config.operation import Operation
     from railstop.config.schema import Line
+    from railstop.sim.line import LineSettings
 
 TrainsOpt = Annotated[int | None, typer.Option(min=1, max=200, help="Trains (default: the operation's).")]
 DoorLinkLossOpt = Annotated[
@@ -102,7 +103,6 @@ def run_cmd(
     signals, a station stop by ground TASC at every station, dwells; print the summary."""
     from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
-    from railstop.config.faults import load_faults
     from railstop.provenance import footer, inputs_sha256, stamp
     from railstop.sim.line import LineSimulation
     from railstop.streams import SEED_RANGE, seed_in_range
@@ -114,22 +114,15 @@ def run_cmd(
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
         dist = load_disturbances(disturbances)
-        fault_data = load_faults(faults)
         sim = LineSimulation(
             line=ln,
             vehicle=veh,
             operation=op,
             disturbances=dist,
             seed=seed,
-            door_link_loss=door_link_loss,
-            odometer_error_pct=odometer_error_pct,
-            slide_probability=slide_probability,
-            calibration=calibration,
-            signalling=signalling,
-            outages=fault_data.outages(),
-            random_outages=fault_data.random_outages,
-            zc_restarts=fault_data.restarts(),
-            radio_changes=fault_data.radio.changes(),
+            settings=_settings(
+                door_link_loss, odometer_error_pct, slide_probability, calibration, signalling, faults
+            ),
         )
         result = sim.run(duration_s)
         summary = result.summary()
@@ -202,7 +195,6 @@ def campaign_cmd(
 
     from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
-    from railstop.config.faults import load_faults
     from railstop.sim.line_campaign import LineCampaignSpec, run_line_campaign
     from railstop.streams import SEED_RANGE, seed_in_range
 
@@ -212,7 +204,6 @@ def campaign_cmd(
         ln = load_line(line)
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
-        fault_data = load_faults(faults)
         spec = LineCampaignSpec(
             line=ln,
             vehicle=veh,
@@ -221,15 +212,9 @@ def campaign_cmd(
             runs=runs,
             seed=seed,
             duration_s=duration_s,
-            door_link_loss=door_link_loss,
-            odometer_error_pct=odometer_error_pct,
-            slide_probability=slide_probability,
-            calibration=calibration,
-            signalling=signalling,
-            outages=tuple(fault_data.outages()),
-            random_outages=fault_data.random_outages,
-            zc_restarts=tuple(fault_data.restarts()),
-            radio_changes=fault_data.radio.changes(),
+            settings=_settings(
+                door_link_loss, odometer_error_pct, slide_probability, calibration, signalling, faults
+            ),
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume)
     except RailstopError as exc:
@@ -262,6 +247,32 @@ def campaign_cmd(
         f"(worst run {summary['position_error_p99_m_worst']} m); runs and summary in {out}",
         highlight=False,
         soft_wrap=True,
+    )
+
+
+def _settings(
+    door_link_loss: float | None,
+    odometer_error_pct: float | None,
+    slide_probability: float,
+    calibration: str,
+    signalling: str,
+    faults: Path | None,
+) -> LineSettings:
+    """The options and the faults file of ``line run`` and ``line campaign`` as the run's settings."""
+    from railstop.config.faults import load_faults
+    from railstop.sim.line import LineSettings
+
+    fault_data = load_faults(faults)
+    return LineSettings(
+        door_link_loss=door_link_loss,
+        odometer_error_pct=odometer_error_pct,
+        slide_probability=slide_probability,
+        calibration=calibration,
+        signalling=signalling,
+        outages=tuple(fault_data.outages()),
+        random_outages=fault_data.random_outages,
+        zc_restarts=tuple(fault_data.restarts()),
+        radio_changes=fault_data.radio.changes(),
     )
 
 

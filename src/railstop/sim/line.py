@@ -50,8 +50,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -72,7 +72,7 @@ from railstop.control.line_ato import (
 )
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
-from railstop.link.channel import media_preset
+from railstop.link.channel import ChannelParams, media_preset
 from railstop.link.door_link import DoorLinkCounts
 from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Output, SignalAspects, TrainLeft
 from railstop.onboard.positioning import PositioningUnit
@@ -114,39 +114,85 @@ SLIDE_GAP_S = 2.0
 CALIBRATIONS = ("carried", "cold")
 
 
-def check_line_settings(
-    *,
-    door_link_loss: float | None,
-    slide_probability: float,
-    calibration: str,
-    signalling: str = "fixed-block",
-    outages: Sequence[tuple[int, float, float]] = (),
-    zc_restarts: Sequence[float] = (),
-) -> None:
-    """The line's own settings (a SimulationError naming the field and value): probabilities in
-    [0, 1], a known calibration and signalling, outages of trains that exist at sensible times.
-    LineSimulation and a line campaign's spec both check them."""
-    if signalling not in SIGNALLING_MODES:
-        raise SimulationError(f"signalling: one of {', '.join(SIGNALLING_MODES)} (got {signalling!r})")
-    for i, (train, start, duration) in enumerate(outages):
-        if (
-            train < 0
-            or not (math.isfinite(start) and start >= 0.0)
-            or not (math.isfinite(duration) and duration > 0.0)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LineSettings:
+    """The line run's own settings, checked once here (a SimulationError naming the field and
+    value), for a run and for a campaign's spec alike.
+
+    ``odometer_error_pct``: every train's odometer diameter error (default: each train's own
+    draw of the disturbance set's ``odometer_diameter_error_pct``). ``door_link_loss``: the door
+    link's loss per frame, both ways (default: the medium's own, ``[link]`` of the door data); 1
+    is a dead platform link (SPEC §5 fault path). ``slide_probability``: the chance, per train and
+    station, of a low-adhesion patch where the ATO brakes for the station. ``calibration``:
+    "carried" (the odometer scale and delay learned on earlier trips) or "cold" (the learner's
+    prior). ``signalling``: "fixed-block" (the blocks and signals of the line data), "cbtc"
+    (SPEC §4 moving block with the minimal protection zone) or "cbtc-conventional" (the same with
+    the conventional zone: whole blocks and the overlap). ``outages``: (train, start_s,
+    duration_s): that train's CBTC radio is dead then (a fault); ``random_outages``: more, drawn
+    per train from the seed; ``zc_restarts``: times the zone controller restarts;
+    ``radio_medium`` / ``radio_changes``: the CBTC radio's medium and its values changed (loss,
+    bursts; a fault).
+    """
+
+    odometer_error_pct: float | None = None
+    door_link_loss: float | None = None
+    slide_probability: float = 0.0
+    calibration: str = "carried"
+    signalling: str = "fixed-block"
+    outages: tuple[tuple[int, float, float], ...] = ()
+    random_outages: RandomOutages | None = None
+    zc_restarts: tuple[float, ...] = ()
+    radio_medium: str = "cbtc-radio"
+    radio_changes: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Sequences given as lists are kept as tuples (the settings are a value).
+        object.__setattr__(self, "outages", tuple(tuple(o) for o in self.outages))
+        object.__setattr__(self, "zc_restarts", tuple(self.zc_restarts))
+        object.__setattr__(self, "radio_changes", dict(self.radio_changes))
+        if self.signalling not in SIGNALLING_MODES:
+            raise SimulationError(
+                f"signalling: one of {', '.join(SIGNALLING_MODES)} (got {self.signalling!r})"
+            )
+        for i, (train, start, duration) in enumerate(self.outages):
+            if (
+                train < 0
+                or not (math.isfinite(start) and start >= 0.0)
+                or not (math.isfinite(duration) and duration > 0.0)
+            ):
+                got = f"{train}, {start}, {duration}"
+                raise SimulationError(f"outages[{i}]: train >= 0, start_s >= 0, duration_s > 0 (got {got})")
+        for i, at in enumerate(self.zc_restarts):
+            if not (math.isfinite(at) and at >= 0.0):
+                raise SimulationError(f"zc_restarts[{i}]: a time >= 0 s (got {at})")
+        for name, prob in (
+            ("door_link_loss", 0.0 if self.door_link_loss is None else self.door_link_loss),
+            ("slide_probability", self.slide_probability),
         ):
-            got = f"{train}, {start}, {duration}"
-            raise SimulationError(f"outages[{i}]: train >= 0, start_s >= 0, duration_s > 0 (got {got})")
-    for i, at in enumerate(zc_restarts):
-        if not (math.isfinite(at) and at >= 0.0):
-            raise SimulationError(f"zc_restarts[{i}]: a time >= 0 s (got {at})")
-    for name, prob in (
-        ("door_link_loss", 0.0 if door_link_loss is None else door_link_loss),
-        ("slide_probability", slide_probability),
-    ):
-        if not 0.0 <= prob <= 1.0:
-            raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
-    if calibration not in CALIBRATIONS:
-        raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {calibration!r})")
+            if not 0.0 <= prob <= 1.0:
+                raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
+        if self.calibration not in CALIBRATIONS:
+            raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {self.calibration!r})")
+        self.radio_params()  # an unknown medium or a bad change is refused now, not in a worker
+
+    def radio_params(self) -> ChannelParams:
+        """The CBTC radio's medium with the changes of the faults."""
+        return media_preset(self.radio_medium).replace(**self.radio_changes)
+
+    def identity(self) -> dict[str, Any]:
+        """JSON-ready, for a campaign's identity (checked on --resume)."""
+        return {
+            "door_link_loss": self.door_link_loss,
+            "odometer_error_pct": self.odometer_error_pct,
+            "slide_probability": self.slide_probability,
+            "calibration": self.calibration,
+            "signalling": self.signalling,
+            "outages": [list(o) for o in self.outages],
+            "random_outages": None if self.random_outages is None else self.random_outages.model_dump(),
+            "zc_restarts": list(self.zc_restarts),
+            "radio_medium": self.radio_medium,
+            "radio_changes": dict(self.radio_changes),
+        }
 
 
 def _door_link_totals(dwells: list[DwellRecord]) -> dict[str, int]:
@@ -312,43 +358,18 @@ class LineSimulation:
         disturbances: DisturbanceSet | None = None,
         seed: int = 1,
         step_s: float = 0.1,
-        odometer_error_pct: float | None = None,
-        door_link_loss: float | None = None,
-        slide_probability: float = 0.0,
-        calibration: str = "carried",
-        signalling: str = "fixed-block",
-        outages: Sequence[tuple[int, float, float]] = (),
-        random_outages: RandomOutages | None = None,
-        zc_restarts: Sequence[float] = (),
-        radio_medium: str = "cbtc-radio",
-        radio_changes: dict[str, float] | None = None,
+        settings: LineSettings | None = None,
+        **changes: Any,
     ) -> None:
-        """``odometer_error_pct``: every train's odometer diameter error (default: each train's
-        own draw of the disturbance set's ``odometer_diameter_error_pct``).
-        ``door_link_loss``: the door link's loss per frame, both ways (default: the medium's
-        own, ``[link]`` of the door data); 1 is a dead platform link (SPEC §5 fault path).
-        ``slide_probability``: the chance, per train and station, of a low-adhesion patch where
-        the ATO brakes for the station (see :meth:`_place_patches`). ``calibration``: "carried"
-        (the odometer scale and delay learned on earlier trips) or "cold" (the learner's prior).
-        ``signalling``: "fixed-block" (the blocks and signals of the line data), "cbtc" (SPEC §4
-        moving block with the minimal protection zone) or "cbtc-conventional" (the same with the
-        conventional zone: whole blocks and the overlap). ``outages``: (train, start_s,
-        duration_s): that train's CBTC radio is dead then (a fault); ``random_outages``: more,
-        drawn per train from the seed; ``zc_restarts``: times the zone controller restarts;
-        ``radio_changes``: the radio medium's values changed (loss, bursts; a fault)."""
-        check_line_settings(
-            door_link_loss=door_link_loss,
-            slide_probability=slide_probability,
-            calibration=calibration,
-            signalling=signalling,
-            outages=outages,
-            zc_restarts=zc_restarts,
-        )
-        self.signalling = signalling
-        self.zc_restarts = sorted(zc_restarts)
-        self.door_link_loss = door_link_loss
-        self.slide_probability = slide_probability
-        self.calibration = calibration
+        """``settings``: the run's own settings (:class:`LineSettings`); ``changes``: fields of
+        it given directly (``door_link_loss=1.0``), over ``settings``."""
+        cfg = replace(settings or LineSettings(), **changes)
+        self.settings = cfg
+        self.signalling = cfg.signalling
+        self.zc_restarts = sorted(cfg.zc_restarts)
+        self.door_link_loss = cfg.door_link_loss
+        self.slide_probability = cfg.slide_probability
+        self.calibration = cfg.calibration
         if line.signalling is None:
             raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
         if vehicle.traction is None:
@@ -377,15 +398,15 @@ class LineSimulation:
         self.cbtc: CbtcSignalling | None = None
         self.drawn_outages: list[tuple[int, float, float]] = []
         units: list[Unit] = [self.interlocking, *self.receivers]
-        if signalling != "fixed-block":
+        if cfg.signalling != "fixed-block":
             self.cbtc = CbtcSignalling(
                 line=line,
                 vehicle=vehicle,
-                mode=ZoneMode.CONVENTIONAL if signalling == "cbtc-conventional" else ZoneMode.MINIMAL,
+                mode=ZoneMode.CONVENTIONAL if cfg.signalling == "cbtc-conventional" else ZoneMode.MINIMAL,
                 trains=len(self.trains),
-                radio_params=media_preset(radio_medium).replace(**(radio_changes or {})),
+                radio_params=cfg.radio_params(),
                 seed=seed,
-                outages=outage_windows([*outages, *self._draw_outages(random_outages, seed)]),
+                outages=outage_windows([*cfg.outages, *self._draw_outages(cfg.random_outages, seed)]),
             )
             units += self.cbtc.units()
         self.clock = SimClock(units, step_s=step_s)
@@ -397,7 +418,7 @@ class LineSimulation:
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
         self.skipped_stops = 0
         self.signals_passed_at_danger = 0
-        self._init_positioning(odometer_error_pct)
+        self._init_positioning(cfg.odometer_error_pct)
 
     # ------------------------------------------------------------------ onboard position (SPEC §2)
 

@@ -15,17 +15,17 @@ import json
 import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
-from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
+from railstop.sim.line import LineSettings
 
 RUNS_FILE = "runs.jsonl"
 SPEC_FILE = "campaign.json"
@@ -40,28 +40,7 @@ class LineCampaignSpec:
     runs: int
     seed: int
     duration_s: float
-    door_link_loss: float | None = None  # None: the medium's own loss per frame
-    odometer_error_pct: float | None = None  # None: each train's draw of the disturbance set
-    slide_probability: float = 0.0
-    calibration: str = "carried"
-    signalling: str = "fixed-block"
-    outages: tuple[tuple[int, float, float], ...] = ()
-    random_outages: RandomOutages | None = None
-    zc_restarts: tuple[float, ...] = ()
-    radio_changes: dict[str, float] | None = None
-
-    def __post_init__(self) -> None:
-        from railstop.sim.line import check_line_settings
-
-        # Refused here, in the caller, rather than in every worker's first run.
-        check_line_settings(
-            door_link_loss=self.door_link_loss,
-            slide_probability=self.slide_probability,
-            calibration=self.calibration,
-            signalling=self.signalling,
-            outages=self.outages,
-            zc_restarts=self.zc_restarts,
-        )
+    settings: LineSettings = field(default_factory=LineSettings)  # checked when it is made
 
     def identity(self) -> dict[str, Any]:
         """What decides the numbers (checked on --resume)."""
@@ -74,21 +53,13 @@ class LineCampaignSpec:
             "runs": self.runs,
             "seed": self.seed,
             "duration_s": self.duration_s,
-            "door_link_loss": self.door_link_loss,
-            "odometer_error_pct": self.odometer_error_pct,
-            "slide_probability": self.slide_probability,
-            "calibration": self.calibration,
-            "signalling": self.signalling,
-            "outages": [list(o) for o in self.outages],
-            "random_outages": None if self.random_outages is None else self.random_outages.model_dump(),
-            "zc_restarts": list(self.zc_restarts),
-            "radio_changes": dict(self.radio_changes or {}),
+            **self.settings.identity(),
         }
 
 
 def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
     """One line run of the campaign: its summary and its stops (JSON-ready)."""
-    from railstop.sim.line import LineSimulation
+    from railstop.sim.line import LineSimulation  # the worker's import (the caller needs only the settings)
 
     sim = LineSimulation(
         line=spec.line,
@@ -96,15 +67,7 @@ def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
         operation=spec.operation,
         disturbances=spec.disturbances,
         seed=spec.seed + run,
-        door_link_loss=spec.door_link_loss,
-        odometer_error_pct=spec.odometer_error_pct,
-        slide_probability=spec.slide_probability,
-        calibration=spec.calibration,
-        signalling=spec.signalling,
-        outages=spec.outages,
-        random_outages=spec.random_outages,
-        zc_restarts=spec.zc_restarts,
-        radio_changes=spec.radio_changes,
+        settings=spec.settings,
     )
     result = sim.run(spec.duration_s)
     return {
@@ -228,7 +191,7 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
         "min_separation_m": round(min(separation), 2) if separation else None,
         "position_error_p99_m_mean": round(float(np.mean(pos)), 3) if pos else None,
         "position_error_p99_m_worst": round(float(np.max(pos)), 3) if pos else None,
-        "signalling": spec.signalling,
+        "signalling": spec.settings.signalling,
         "cbtc": _cbtc_totals(rows),
     }
 
