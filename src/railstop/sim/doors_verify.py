@@ -41,18 +41,9 @@ from railstop.sim.door_system import (
     scan_units,
     start_enabled,
 )
+from railstop.sim.invariants import Invariant, Violation
 
 CheckFn = Callable[[World, Controls, Event, World, tuple[str, ...], DoorModel], "str | None"]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Invariant:
-    name: str
-    text: str
-    check: CheckFn
-    # False: the check does not read the inputs, so it runs once for all the input
-    # combinations that lead from one state to the same next state (and counts them all).
-    per_input: bool = False
 
 
 def _units(world: World) -> list[tuple[str, Side, int, DoorState]]:
@@ -179,7 +170,7 @@ def _no_interlock_error(
     return errors[0] if errors else None
 
 
-INVARIANTS: tuple[Invariant, ...] = (
+INVARIANTS: tuple[Invariant[CheckFn], ...] = (
     Invariant(
         name="closed-while-moving",
         text="no train door or PSD door open while speed > 0",
@@ -242,13 +233,6 @@ def all_controls() -> tuple[Controls, ...]:
                     )
                 )
     return tuple(out)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Violation:
-    invariant: str
-    message: str
-    trace: tuple[str, ...]  # the path from an initial state, one line per cycle
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -322,7 +306,7 @@ def verify(
     model: DoorModel,
     *,
     doors_per_side: int = 1,
-    invariants: Sequence[Invariant] = INVARIANTS,
+    invariants: Sequence[Invariant[CheckFn]] = INVARIANTS,
     max_states: int = 2_000_000,
     stop_on_violation: bool = False,
 ) -> VerifyResult:
@@ -389,7 +373,7 @@ def _result(
     doors_per_side: int,
     counts: dict[str, int],
     examples: dict[str, Violation],
-    invariants: Sequence[Invariant],
+    invariants: Sequence[Invariant[CheckFn]],
     start: float,
 ) -> VerifyResult:
     return VerifyResult(

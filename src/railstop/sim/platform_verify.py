@@ -36,6 +36,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from railstop.messages import PsdDoorState, SignalOpenSwitch, StopSensorScan
+from railstop.sim.invariants import Invariant, Violation
 from railstop.wayside.platform import PlatformUnit
 
 PLACES = ("approach", "short", "window", "over", "gone")
@@ -74,13 +75,6 @@ class Step:
 Check = Callable[[Step], "str | None"]
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Invariant:
-    name: str
-    text: str
-    check: Check
-
-
 def _relay_only_on_ok(s: Step) -> str | None:
     # SPEC §3: the PSD operates only while OK is lit, and OK means the front between S2 and S1.
     # Judged at the scans: the platform knows the train only by them (between two scans it
@@ -104,7 +98,7 @@ def _no_lamp_while_moving(s: Step) -> str | None:
     return None
 
 
-INVARIANTS: tuple[Invariant, ...] = (
+INVARIANTS: tuple[Invariant[Check], ...] = (
     Invariant(
         name="relay-only-on-ok",
         text="after a scan the PSD relay is energised only with OK lit, the train at a stand, its front "
@@ -122,13 +116,6 @@ INVARIANTS: tuple[Invariant, ...] = (
         check=_no_lamp_while_moving,
     ),
 )
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Violation:
-    invariant: str
-    message: str
-    trace: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -197,7 +184,7 @@ def verify(
     unit_factory: Callable[[], PlatformUnit],
     *,
     max_dropouts: int = 2,
-    invariants: Sequence[Invariant] = INVARIANTS,
+    invariants: Sequence[Invariant[Check]] = INVARIANTS,
     max_states: int = 500_000,
 ) -> VerifyResult:
     """Search every state from a train approaching an empty platform."""

@@ -62,6 +62,7 @@ from typing import TypeVar
 from railstop.config.layout import Cbtc
 from railstop.messages import ManualRelease, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
+from railstop.sim.invariants import Invariant, Violation
 from railstop.wayside.zone_controller import TrainStatus, Zone, ZoneController, ZoneMode
 
 _EPS = 1e-6
@@ -609,13 +610,6 @@ def describe_choice(choice: Choice, before: Snapshot, t_s: float) -> str:
 CheckFn = Callable[[Snapshot, Step, Snapshot, ZoneModel], "str | None"]
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Invariant:
-    name: str
-    text: str
-    check: CheckFn
-
-
 def _authority_clear(before: Snapshot, step: Step, after: Snapshot, model: ZoneModel) -> str | None:
     # SPEC §4: the authority ends behind the train ahead; *following* trains may not enter a
     # protection zone. [interpretation] An authority already inside a zone set since (the
@@ -723,7 +717,7 @@ def _lost_train_zone(before: Snapshot, step: Step, after: Snapshot, model: ZoneM
     return None
 
 
-INVARIANTS: tuple[Invariant, ...] = (
+INVARIANTS: tuple[Invariant[CheckFn], ...] = (
     Invariant(
         name="authority-clear",
         text="no authority reaches into the zone of a lost train ahead or beyond the last reported rear "
@@ -749,13 +743,6 @@ INVARIANTS: tuple[Invariant, ...] = (
 
 
 # ---------------------------------------------------------------------- the search
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Violation:
-    invariant: str
-    message: str
-    trace: tuple[str, ...]  # from the initial state: a state line, a cycle line, ..., "-> state"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -838,7 +825,7 @@ def verify(
     model: ZoneModel | None = None,
     *,
     mode: ZoneMode = ZoneMode.MINIMAL,
-    invariants: Sequence[Invariant] = INVARIANTS,
+    invariants: Sequence[Invariant[CheckFn]] = INVARIANTS,
     stop_on_violation: bool = False,
     controller_factory: ControllerFactory = ZoneController,
     onboard_factory: OnboardFactory = OnboardCbtc,

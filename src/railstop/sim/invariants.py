@@ -1,0 +1,31 @@
+"""What the exhaustive checks share (``doors verify``, ``zones verify``, ``platform verify``):
+an invariant as data and a violation with its trace."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+C = TypeVar("C")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Invariant(Generic[C]):
+    """A named rule with its text and its check (a plain function; its arguments are the
+    verifier's own: a transition, the model...)."""
+
+    name: str
+    text: str
+    check: C
+    # False: the check does not read the inputs, so a verifier over input combinations may run it
+    # once for all the combinations that lead from one state to the same next state.
+    per_input: bool = False
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Violation:
+    """The first counterexample of an invariant: why, and the path to it from an initial state."""
+
+    invariant: str
+    message: str
+    trace: tuple[str, ...]
