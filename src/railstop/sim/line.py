@@ -365,11 +365,7 @@ class LineSimulation:
         it given directly (``door_link_loss=1.0``), over ``settings``."""
         cfg = replace(settings or LineSettings(), **changes)
         self.settings = cfg
-        self.signalling = cfg.signalling
-        self.zc_restarts = sorted(cfg.zc_restarts)
-        self.door_link_loss = cfg.door_link_loss
-        self.slide_probability = cfg.slide_probability
-        self.calibration = cfg.calibration
+        self._restarts_due = sorted(cfg.zc_restarts)  # the zone-controller restarts still to come
         if line.signalling is None:
             raise SimulationError(f"line {line.line.name!r} has no [signalling]: the trains need blocks")
         if vehicle.traction is None:
@@ -463,7 +459,7 @@ class LineSimulation:
             nominal_delay_s=det.delay_mean_s,
             start_sd_m=self.operation.entry_position_sd_m,
         )
-        if self.calibration == "carried":
+        if self.settings.calibration == "carried":
             # [interpretation] a train in service keeps the scale and delay it learned on its
             # earlier trips (non-volatile, as wheel-diameter calibration is kept): it enters with
             # them, each off by what one trip leaves (CARRIED_SCALE_SD, CARRIED_DELAY_SD_S).
@@ -481,13 +477,13 @@ class LineSimulation:
         """Low-adhesion patches (wet leaves, ``LOW_MU``) where the ATO brakes for a station: with
         ``slide_probability`` per train and station, one 30-80 m patch ending 0-100 m before the
         hand-over point (the ATO's braking down to the TASC entry speed), drawn per train."""
-        if self.slide_probability <= 0.0:
+        if self.settings.slide_probability <= 0.0:
             return
         for t in self.trains:
             st = self.train_streams.subset(np.array([t.index]))
             for k, station in enumerate(self.line.stations):
                 u = [float(st.uniform(Stream.ADHESION, 3 * k + j)[0]) for j in range(3)]
-                if u[0] >= self.slide_probability:
+                if u[0] >= self.settings.slide_probability:
                     continue
                 end = handover_m(self.first_detector_m[k], station.tasc.entry_speed_kmh * KMH) - 100.0 * u[1]
                 t.patches.append((end - 30.0 - 50.0 * u[2], end))
@@ -727,7 +723,7 @@ class LineSimulation:
                 seed=self.seed,
                 train_id=train.index,
                 counter=train.next_station,
-                loss_probability=self.door_link_loss,
+                loss_probability=self.settings.door_link_loss,
             ),
         )
         self.dwells.append(
@@ -803,8 +799,8 @@ class LineSimulation:
         if cbtc is None:
             return []
         out: list[Output] = []
-        while self.zc_restarts and now_s >= self.zc_restarts[0]:
-            self.zc_restarts.pop(0)
+        while self._restarts_due and now_s >= self._restarts_due[0]:
+            self._restarts_due.pop(0)
             out.append(Output(to=cbtc.zc.name, message=ControllerRestart()))  # a fault (data)
         for t in self.trains:
             if t.phase == "gone":
@@ -906,8 +902,8 @@ class LineSimulation:
             skipped_stops=self.skipped_stops,
             signals_passed_at_danger=self.signals_passed_at_danger,
             slide_events=sum(t.slides for t in self.trains),
-            calibration=self.calibration,
-            signalling=self.signalling,
+            calibration=self.settings.calibration,
+            signalling=self.settings.signalling,
             cbtc=self.cbtc.summary() if self.cbtc is not None else None,
             zones=list(self.cbtc.zones) if self.cbtc is not None else [],
         )
