@@ -78,10 +78,6 @@ class Cbtc(Model):
     # was flagged (assumption: staff reach the train and confirm).
     operator_release_s: Annotated[float, Field(gt=0.0, le=3600.0, allow_inf_nan=False)] = 180.0
 
-    @property
-    def missed_window_s(self) -> float:
-        return self.missed_reports_lost * self.report_period_s
-
 
 class SpeedLimit(Stretch):
     """A civil speed limit over a stretch of the line."""

@@ -168,10 +168,6 @@ class DoorLink:
         """No valid status frame has reached the train for longer than ``timeout_s``."""
         return self.down.receiver.timed_out(now_s)
 
-    def restart_supervision(self, now_s: float) -> None:
-        """Start the train's time-out afresh (PSC just went high: status frames are now due)."""
-        self.down.receiver.last_valid_s = max(self.down.receiver.last_valid_s, now_s)
-
     @property
     def counts(self) -> DoorLinkCounts:
         rejected: dict[str, int] = {}
