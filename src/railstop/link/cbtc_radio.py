@@ -27,11 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from railstop.errors import TelegramError
 from railstop.link.channel import ChannelParams, SimChannel
-from railstop.link.codec import CbtcCommand, CbtcReport, decode, encode
-from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
+from railstop.link.safe_channel import SafeChannel
+from railstop.link.safety import SafeReceiver, SafeSender, link_key
 from railstop.messages import Message, MovementCommand, Output, PositionReport
+from railstop.streams import Stream, seed_u64
 
 __all__ = ["CbtcRadio", "RadioCounts"]
 
@@ -41,21 +42,14 @@ _TRAIN_BASE = 0x2000
 _DEMO_MASTER = hashlib.sha256(b"railstop demonstration CBTC radio master key").digest()
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RadioCounts:
-    reports_sent: int = 0
-    reports_delivered: int = 0
-    commands_sent: int = 0
-    commands_delivered: int = 0
-    lost: int = 0  # by the medium or an outage
-    rejected: dict[str, int] = field(default_factory=dict)  # by the safety layer / codec, by reason
-
-
-@dataclass(slots=True)
-class _End:
-    sender: SafeSender
-    channel: SimChannel
-    receiver: SafeReceiver
+    reports_sent: int
+    reports_delivered: int
+    commands_sent: int
+    commands_delivered: int
+    lost: int  # by the medium or an outage
+    rejected: dict[str, int]  # by the safety layer / codec, by reason
 
 
 @dataclass(slots=True)
@@ -69,12 +63,14 @@ class CbtcRadio:
     zc_name: str = "zc"
     name: str = "radio"
     accepts: tuple[type, ...] = (PositionReport, MovementCommand)
-    counts: RadioCounts = field(default_factory=RadioCounts)
-    _links: dict[tuple[int, str], _End] = field(default_factory=dict)
+    reports_delivered: int = 0
+    commands_delivered: int = 0
+    unexpected: int = 0  # a telegram of the wrong type for its direction
+    _links: dict[tuple[int, str], SafeChannel] = field(default_factory=dict)
     _arrivals: list[tuple[float, int, str]] = field(default_factory=list)
     _scheduled: dict[tuple[int, str], float] = field(default_factory=dict)  # the live heap entry
 
-    def _end(self, train_id: int, direction: str) -> _End:
+    def _end(self, train_id: int, direction: str) -> SafeChannel:
         key = (train_id, direction)
         end = self._links.get(key)
         if end is None:
@@ -82,49 +78,52 @@ class CbtcRadio:
             src, dst = (train_addr, ZC_ADDRESS) if direction == "up" else (ZC_ADDRESS, train_addr)
             k = link_key(_DEMO_MASTER, src, dst)
             entropy = [
-                int(self.seed) & 0xFFFF_FFFF_FFFF_FFFF,
-                16,
+                int(seed_u64(self.seed)),
+                int(Stream.CBTC_RADIO),
                 int(train_id),
-                0 if direction == "up" else 1,
+                int(direction == "down"),
             ]
-            end = _End(
+            end = SafeChannel(
                 sender=SafeSender(src, dst, key=k, category=3),
                 channel=SimChannel(self.params, np.random.default_rng(np.random.SeedSequence(entropy))),
                 receiver=SafeReceiver(dst, src, key=k, category=3, max_age_s=self.max_age_s, timeout_s=1e9),
+                outages=tuple(self.outages.get(train_id, ())),
             )
             self._links[key] = end
         return end
 
-    def _dead(self, train_id: int, now_s: float) -> bool:
-        return any(a <= now_s < b for a, b in self.outages.get(train_id, ()))
+    @property
+    def counts(self) -> RadioCounts:
+        rejected: dict[str, int] = {}
+        for end in self._links.values():
+            for reason, n in end.rejected.items():
+                rejected[reason] = rejected.get(reason, 0) + n
+        if self.unexpected:
+            rejected["unexpected-type"] = self.unexpected
+        ends = self._links.items()
+        return RadioCounts(
+            reports_sent=sum(e.sent for (_, d), e in ends if d == "up"),
+            reports_delivered=self.reports_delivered,
+            commands_sent=sum(e.sent for (_, d), e in ends if d == "down"),
+            commands_delivered=self.commands_delivered,
+            lost=sum(e.lost for e in self._links.values()),
+            rejected=rejected,
+        )
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
-        try:
-            if isinstance(message, PositionReport):
-                self.counts.reports_sent += 1
-                direction, payload = "up", encode(CbtcReport(**_fields(message)))
-            elif isinstance(message, MovementCommand):
-                self.counts.commands_sent += 1
-                direction, payload = "down", encode(CbtcCommand(**_fields(message)))
-            else:
-                return []
-        except TelegramError as exc:
-            # A value the telegram cannot carry: nothing is sent (the receiver sees a missed
-            # report or command, which its supervision handles); counted by reason.
-            self._reject(f"encode-{exc.reason}")
+        tele: Telegram
+        if isinstance(message, PositionReport):
+            direction, tele = "up", CbtcReport(**_fields(message))
+        elif isinstance(message, MovementCommand):
+            direction, tele = "down", CbtcCommand(**_fields(message))
+        else:
             return []
         end = self._end(message.train_id, direction)
-        frame = end.sender.wrap(payload, now_s)
-        if self._dead(message.train_id, now_s):
-            self.counts.lost += 1
-            return []
-        lost_before = end.channel.stats.lost
-        end.channel.send(frame, now_s)
-        self.counts.lost += end.channel.stats.lost - lost_before
-        self._schedule(message.train_id, direction, end)
+        if end.send(tele, now_s):
+            self._schedule(message.train_id, direction, end)
         return []
 
-    def _schedule(self, train_id: int, direction: str, end: _End) -> None:
+    def _schedule(self, train_id: int, direction: str, end: SafeChannel) -> None:
         arrival = end.channel.next_arrival_s()
         key = (train_id, direction)
         if arrival is not None and arrival < self._scheduled.get(key, float("inf")):
@@ -142,29 +141,17 @@ class CbtcRadio:
                 continue  # superseded by an earlier arrival on the same link
             del self._scheduled[(train_id, direction)]
             end = self._links[(train_id, direction)]
-            for frame in end.channel.receive(now_s):
-                verdict = end.receiver.accept(frame, now_s)
-                if not isinstance(verdict, Delivered):
-                    self._reject(verdict.reason)
-                    continue
-                try:
-                    tele = decode(verdict.payload)
-                except TelegramError as exc:
-                    self._reject(f"codec-{exc.reason}")
-                    continue
+            for tele in end.receive(now_s):
                 if isinstance(tele, CbtcReport) and direction == "up":
-                    self.counts.reports_delivered += 1
+                    self.reports_delivered += 1
                     out.append(Output(to=self.zc_name, message=PositionReport(**_fields(tele))))
                 elif isinstance(tele, CbtcCommand) and direction == "down":
-                    self.counts.commands_delivered += 1
+                    self.commands_delivered += 1
                     out.append(Output(to=f"cbtc-{tele.train_id}", message=MovementCommand(**_fields(tele))))
                 else:
-                    self._reject("unexpected-type")
+                    self.unexpected += 1
             self._schedule(train_id, direction, end)
         return out
-
-    def _reject(self, reason: str) -> None:
-        self.counts.rejected[reason] = self.counts.rejected.get(reason, 0) + 1
 
 
 def _fields(obj: object) -> dict[str, Any]:

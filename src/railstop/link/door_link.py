@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railstop.errors import TelegramError
 from railstop.link.channel import ChannelParams, LinkError, SimChannel
-from railstop.link.codec import DoorCommand, PsdStatus, Telegram, decode, encode
-from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+from railstop.link.codec import DoorCommand, PsdStatus, Telegram
+from railstop.link.safe_channel import SafeChannel
+from railstop.link.safety import SafeReceiver, SafeSender, link_key
 
 __all__ = ["DoorLink", "DoorLinkCounts", "Received"]
 
@@ -70,15 +70,6 @@ class DoorLinkCounts:
 
 
 @dataclass(slots=True)
-class _Direction:
-    sender: SafeSender
-    channel: SimChannel
-    receiver: SafeReceiver
-    sent: int = 0
-    outage_lost: int = 0
-
-
-@dataclass(slots=True)
 class DoorLink:
     """Both directions of one train's door link at one platform.
 
@@ -95,9 +86,8 @@ class DoorLink:
     timeout_s: float = 0.5
     start_s: float = 0.0
     outage: tuple[float, float] | None = None
-    up: _Direction = field(init=False)  # train -> platform
-    down: _Direction = field(init=False)  # platform -> train
-    codec_rejected: int = 0
+    up: SafeChannel = field(init=False)  # train -> platform
+    down: SafeChannel = field(init=False)  # platform -> train
 
     def __post_init__(self) -> None:
         start, end = self.outage if self.outage is not None else (0.0, 0.0)
@@ -109,9 +99,9 @@ class DoorLink:
         self.up = self._direction(train_addr, PLATFORM_ID)
         self.down = self._direction(PLATFORM_ID, train_addr)
 
-    def _direction(self, src: int, dst: int) -> _Direction:
+    def _direction(self, src: int, dst: int) -> SafeChannel:
         key = link_key(_DEMO_MASTER, src, dst) if self.category == 3 else None
-        return _Direction(
+        return SafeChannel(
             sender=SafeSender(src, dst, key=key, category=self.category),
             channel=SimChannel(self.params, self.rng),
             receiver=SafeReceiver(
@@ -123,46 +113,29 @@ class DoorLink:
                 timeout_s=self.timeout_s,
                 start_s=self.start_s,
             ),
+            outages=() if self.outage is None else (self.outage,),
         )
-
-    def _send(self, d: _Direction, msg: Telegram, now_s: float) -> None:
-        frame = d.sender.wrap(encode(msg), now_s)
-        d.sent += 1
-        if self.outage is not None and self.outage[0] <= now_s < self.outage[1]:
-            d.outage_lost += 1  # fault injection: nothing gets through
-            return
-        d.channel.send(frame, now_s)
 
     def send_command(self, msg: DoorCommand, now_s: float) -> None:
         """Train -> platform."""
-        self._send(self.up, msg, now_s)
+        self.up.send(msg, now_s)
 
     def send_status(self, msg: PsdStatus, now_s: float) -> None:
         """Platform -> train."""
-        self._send(self.down, msg, now_s)
+        self.down.send(msg, now_s)
 
     def next_arrival_s(self) -> float | None:
         """When the next frame in flight (either way) arrives, or None."""
-        times = [
-            t for t in (self.up.channel.next_arrival_s(), self.down.channel.next_arrival_s()) if t is not None
-        ]
+        times = [t for t in (self.up.next_arrival_s(), self.down.next_arrival_s()) if t is not None]
         return min(times) if times else None
 
     def deliver(self, now_s: float) -> list[Received]:
         """The telegrams that have arrived by ``now_s`` and passed the safety layer and the codec."""
-        out: list[Received] = []
-        for to, d in (("platform", self.up), ("train", self.down)):
-            for frame in d.channel.receive(now_s):
-                verdict = d.receiver.accept(frame, now_s)
-                if not isinstance(verdict, Delivered):
-                    continue  # counted by the receiver
-                try:
-                    msg = decode(verdict.payload)
-                except TelegramError:
-                    self.codec_rejected += 1  # a valid safety frame around a bad telegram
-                    continue
-                out.append(Received(to=to, telegram=msg, at_s=now_s))
-        return out
+        return [
+            Received(to=to, telegram=msg, at_s=now_s)
+            for to, d in (("platform", self.up), ("train", self.down))
+            for msg in d.receive(now_s)
+        ]
 
     def train_timed_out(self, now_s: float) -> bool:
         """No valid status frame has reached the train for longer than ``timeout_s``."""
@@ -172,16 +145,13 @@ class DoorLink:
     def counts(self) -> DoorLinkCounts:
         rejected: dict[str, int] = {}
         for d in (self.up, self.down):
-            for reason, n in d.receiver.counts.items():
-                if reason != "delivered" and n:
-                    rejected[reason] = rejected.get(reason, 0) + n
-        if self.codec_rejected:
-            rejected["codec"] = self.codec_rejected
+            for reason, n in d.rejected.items():
+                rejected[reason] = rejected.get(reason, 0) + n
         return DoorLinkCounts(
             commands_sent=self.up.sent,
-            commands_delivered=self.up.receiver.counts["delivered"],
+            commands_delivered=self.up.delivered,
             status_sent=self.down.sent,
-            status_delivered=self.down.receiver.counts["delivered"],
-            lost=sum(d.channel.stats.lost + d.outage_lost for d in (self.up, self.down)),
+            status_delivered=self.down.delivered,
+            lost=self.up.lost + self.down.lost,
             rejected=rejected,
         )
