@@ -566,7 +566,7 @@ def test_campaign_beyond_disk_memory_or_run_numbers_is_refused_at_once(
 def test_campaign_whose_summary_exceeds_memory_is_refused(
     tmp_path: Path, line: Line, vehicle: Vehicle, standard: DisturbanceSet, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """On a machine of 1 GB, 10 million runs (1.2 GB of summary working set) are refused."""
+    """On a machine of 1 GB, 10 million runs (1.5 GB of summary working set) are refused."""
     monkeypatch.setattr(campaign_module, "_physical_memory", lambda: 10**9)
     spec = CampaignSpec(
         line=line,
@@ -577,7 +577,7 @@ def test_campaign_whose_summary_exceeds_memory_is_refused(
         seed=1,
         disturbances=standard,
     )
-    with pytest.raises(RailstopError, match=r"10,000,000 runs need about 1\.2 GB of memory.*has 1\.0 GB"):
+    with pytest.raises(RailstopError, match=r"10,000,000 runs need about 1\.5 GB of memory.*has 1\.0 GB"):
         run_campaign(spec, tmp_path / "big")
     assert not (tmp_path / "big").exists()
     campaign_module.check_capacity(replace(spec, runs=10**6), tmp_path / "big")  # 120 MB: fine

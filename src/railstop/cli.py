@@ -250,6 +250,14 @@ def stop(
         else f"{result.commands} commands received (form {result.form}: "
         f"{FORM_NAMES[SignalForm(result.form)]})"
     )
+    if result.driver_level is not None:
+        # SPEC §3: the driver's own stop, the lamps' corrections and whether the PSD may operate.
+        lamp = result.lamp or "no lamp"
+        what = (
+            f"{result.driver_level} driver: first stop {result.first_stop_error_m:+.3f} m, "
+            f"{result.restops} re-stop(s), lamp {lamp}"
+            + ("" if result.lamp == "OK" else " (PSD held closed)")
+        )
     if result.switch_over_s is not None:
         what += (
             f", ECU input switched over to the onboard unit {result.switch_over_s} s after the first detector"
@@ -562,7 +570,7 @@ def _run_one_campaign(
 def _fmt(key: str, value: object) -> str:
     if value is None:
         return "-"
-    if key.startswith("within"):
+    if key.startswith(("within", "first_within")) or key in ("restopped", "aligned"):
         return f"{100.0 * float(value):.2f}%"  # type: ignore[arg-type]
     if key == "overrun_ci95_upper":
         return f"{float(value):.2e}"  # type: ignore[arg-type]
@@ -606,14 +614,31 @@ def _summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
         ("max_abs_m", "max|e|"),
         ("overruns", f">+{tol}"),
         ("overrun_ci95_upper", f"P>+{tol} ≤"),
+        *(
+            # SPEC §3 manual driving: the driver's own stop, the corrections, the alignment.
+            (
+                ("first_within_0_50", "1st ±0.50"),
+                ("first_past_platform_end", "1st>end"),
+                ("restopped", "re-stop"),
+                ("aligned", "OK lit"),
+            )
+            if any("aligned" in r for r in rows)
+            else ()
+        ),
         ("emergency_brakes", "EB"),
         ("p99_max_jerk_mps3", "jerk99"),
         ("mean_stop_time_s", "time"),
         ("runs_per_s", "runs/s"),
     )
     caption = (
-        f"within bands: share of runs; PSD: the station's tolerance; errors in m (+ = overrun); P>+{tol} ≤: "
-        "95 % Clopper-Pearson upper bound on the overrun probability; EB: runs stopped by the "
+        (
+            "1st ±0.50: driver's first stop within ±0.50 m; 1st>end: first stops past the platform end; "
+            "re-stop: runs the driver corrected after an F / R lamp; OK lit: runs that ended aligned; "
+            if any("aligned" in r for r in rows)
+            else ""
+        )
+        + "within bands: share of runs; PSD: the station's tolerance; errors in m (+ = overrun); "
+        f"P>+{tol} ≤: 95 % Clopper-Pearson upper bound on the overrun probability; EB: runs stopped by the "
         "emergency brake (supervision); jerk99: p99 of max jerk m/s³; "
         "time: mean stop time s"
     )

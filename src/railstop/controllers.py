@@ -7,7 +7,10 @@ without loading the compiled model).
   14); config 3 PWM superimposed at the zero crossing;
 - the conventional onboard ATO the ground TASC replaces (SPEC §1 "Problem"),
   positioned at station transponders, and the same ATO positioned by SPEC §2
-  track-circuit corrections.
+  track-circuit corrections;
+- SPEC §3 manual driving: a human driver (onboard.driver) under ATS with the
+  station's code points, under ATC with option 1 or option 2 of the home
+  block, or with no station codes (unaided), stopping by the platform lamps.
 """
 
 from __future__ import annotations
@@ -19,6 +22,14 @@ TASC_SWITCHED_PWM = "tasc-switched-pwm"
 ATO = "ato"
 ATO_CORRECTED = "ato-corrected"
 
+DRIVER_ATS = "driver-ats"
+DRIVER_ATC1 = "driver-atc1"
+DRIVER_ATC2 = "driver-atc2"
+DRIVER_UNAIDED = "driver-unaided"
+
 TASC_CONTROLLERS: tuple[str, ...] = (TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_SWITCHED_PWM, TASC_PWM)
 ATO_CONTROLLERS: tuple[str, ...] = (ATO, ATO_CORRECTED)
-CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS)
+DRIVER_CONTROLLERS: tuple[str, ...] = (DRIVER_ATS, DRIVER_ATC1, DRIVER_ATC2, DRIVER_UNAIDED)
+#: Controllers without a wayside TASC unit and its radio link.
+ONBOARD_CONTROLLERS: tuple[str, ...] = (*ATO_CONTROLLERS, *DRIVER_CONTROLLERS)
+CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS, *DRIVER_CONTROLLERS)

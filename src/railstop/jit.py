@@ -53,6 +53,8 @@ JIT_MODULES: tuple[str, ...] = (
     "wayside/tasc_unit.py",
     "onboard/tasc_receiver.py",
     "onboard/ato.py",
+    "onboard/speed_supervision.py",
+    "onboard/driver.py",
     "sim/kernel.py",
 )
 

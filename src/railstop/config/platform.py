@@ -8,18 +8,22 @@ else.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
-from railstop.config.base import Model
+from railstop.config.base import FieldProblem, Model
 from railstop.config.loader import data_text, read_toml, validate
 
 DEFAULT_PLATFORM = "platform.toml"
 
 Bit = Literal[0, 1]
 Lamp = Literal["F", "OK", "R", "fault"]
+#: The lamps as numbers (the stop kernel's LAMP_*; 0: no lamp, 5: S).
+LAMP_CODES: dict[str, int] = {"F": 1, "OK": 2, "R": 3, "fault": 4, "S": 5}
+LAMP_NAMES: dict[int, str] = {v: k for k, v in LAMP_CODES.items()}
 
 
 class StopSensors(Model):
@@ -37,9 +41,54 @@ class LampRow(Model):
     lamp: Lamp
 
 
+class ApproachCode(Model):
+    """A speed code from a point on, held until the next one (SPEC §3)."""
+
+    after_home_m: Annotated[float, Field(ge=0.0, le=2000.0, allow_inf_nan=False)]
+    limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
+
+
+class ApproachMode(Model):
+    codes: list[ApproachCode] = Field(default_factory=list)
+
+    @field_validator("codes")
+    @classmethod
+    def _ordered(cls, codes: list[ApproachCode]) -> list[ApproachCode]:
+        points = [c.after_home_m for c in codes]
+        if points != sorted(points) or len(set(points)) != len(points):
+            raise ValueError(f"codes must be in running order, one per point (after_home_m {points})")
+        return codes
+
+
+class Approach(Model):
+    """The approach of a manually driven train (SPEC §3 figs. 3 and 5), from the home signal."""
+
+    home_to_s2_m: Annotated[float, Field(gt=0.0, le=2000.0, allow_inf_nan=False)] = 204.25
+    approach_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] = 70.0
+    atc_permitted_margin_kmh: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 5.0
+    grace_s: Annotated[float, Field(ge=0.0, le=30.0, allow_inf_nan=False)] = 3.0
+    ats: ApproachMode = Field(default_factory=ApproachMode)
+    atc1: ApproachMode = Field(default_factory=ApproachMode)
+    atc2: ApproachMode = Field(default_factory=ApproachMode)
+    unaided: ApproachMode = Field(default_factory=ApproachMode)
+
+    @model_validator(mode="after")
+    def _before_sensors(self) -> Approach:
+        for mode in ("ats", "atc1", "atc2", "unaided"):
+            for code in getattr(self, mode).codes:
+                if code.after_home_m >= self.home_to_s2_m:
+                    raise FieldProblem(
+                        mode,
+                        f"a code point at {code.after_home_m:g} m is not before the stop sensors "
+                        f"({self.home_to_s2_m:g} m from the home signal)",
+                    )
+        return self
+
+
 class PlatformFile(Model):
     sensors: StopSensors = Field(default_factory=StopSensors)
     lamp_table: list[LampRow]
+    approach: Approach = Field(default_factory=Approach)
 
     @field_validator("lamp_table")
     @classmethod
@@ -56,6 +105,11 @@ class PlatformFile(Model):
 
     def lamps(self) -> dict[tuple[bool, bool], str]:
         return {(bool(r.s2), bool(r.s1)): r.lamp for r in self.lamp_table}
+
+
+@functools.cache
+def default_platform() -> PlatformFile:
+    return load_platform()[0]
 
 
 def load_platform(path: str | Path | None = None) -> tuple[PlatformFile, str]:

@@ -24,11 +24,15 @@ EB_NONE = 0
 EB_TIMEOUT = 1  # onboard: no braking telegram for supervision_timeout_s inside the zone
 EB_ONBOARD_GUARD = 2  # onboard: overrun guard on the train's own odometry
 EB_WAYSIDE_GUARD = 3  # wayside: overrun guard on the Doppler / passage measurements, by telegram
+EB_OVERSPEED = 4  # SPEC §3 ATS / ATC: over the limit or indicated speed for longer than the grace
+EB_PERMITTED_SPEED = 5  # SPEC §3 ATC: above the permitted speed
 
 EB_CAUSES: dict[int, str] = {
     EB_TIMEOUT: "telegram-timeout",
     EB_ONBOARD_GUARD: "onboard-overrun-guard",
     EB_WAYSIDE_GUARD: "wayside-overrun-guard",
+    EB_OVERSPEED: "overspeed-3s",
+    EB_PERMITTED_SPEED: "over-permitted",
 }
 
 

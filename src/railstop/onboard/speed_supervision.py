@@ -21,14 +21,59 @@ The grace is timed by ``next_deadline_s`` / ``on_timer`` (DESIGN rule 2).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.control.supervision import EB_CAUSES, EB_OVERSPEED, EB_PERMITTED_SPEED
 from railstop.errors import InterlockError
+from railstop.jit import njit_inline
 from railstop.messages import BROADCAST, Message, Output, SpeedCode, SupervisionState, TrainSpeed
 
-EB_OVERSPEED_GRACE = "overspeed-3s"  # over the limit / indicated speed for longer than the grace
-EB_PERMITTED = "over-permitted"  # ATC: above the permitted speed
+EB_OVERSPEED_GRACE = EB_CAUSES[EB_OVERSPEED]  # over the limit / indicated speed for longer than the grace
+EB_PERMITTED = EB_CAUSES[EB_PERMITTED_SPEED]  # ATC: above the permitted speed
 MODES = ("ats", "atc")
+
+# --------------------------------------------------------------------------
+# Compiled scalar core (railstop.jit): the rules, shared by the unit below and the stop kernel.
+
+SV_OVER_SINCE = 0  # when the speed went above the limit (NaN: it is not)
+SV_ALARM = 1
+SV_EB = 2  # the cause code (control.supervision EB_*; 0: no emergency brake)
+SV_SIZE = 3
+
+
+@njit_inline
+def supervision_init_1(sv: np.ndarray) -> None:
+    sv[SV_OVER_SINCE] = np.nan
+    sv[SV_ALARM] = 0.0
+    sv[SV_EB] = 0.0
+
+
+@njit_inline
+def supervise_1(
+    sv: np.ndarray, atc: bool, grace_s: float, margin_mps: float, v: float, limit: float, now: float
+) -> None:
+    """One judgement at ``now`` of speed ``v`` against the limit / indicated speed ``limit``."""
+    if sv[SV_EB] > 0.0:
+        if v <= 0.0:  # DESIGN rule 10: latched to standstill
+            supervision_init_1(sv)
+        return
+    if v > limit:
+        if np.isnan(sv[SV_OVER_SINCE]):
+            sv[SV_OVER_SINCE] = now
+        # SPEC §3 ATC: above the permitted speed the brake applies at once ([interpretation]).
+        if atc and v > limit + margin_mps:
+            sv[SV_EB] = EB_PERMITTED_SPEED
+            return
+        # SPEC §3: the grace ends -> ATS: emergency brake; ATC: the alarm, and the brake.
+        if now - sv[SV_OVER_SINCE] >= grace_s - 1e-9:
+            sv[SV_ALARM] = 1.0 if atc else 0.0
+            sv[SV_EB] = EB_OVERSPEED
+    else:
+        sv[SV_OVER_SINCE] = np.nan
+        sv[SV_ALARM] = 0.0
 
 
 @dataclass(slots=True)
@@ -40,11 +85,8 @@ class SpeedSupervision:
     accepts: tuple[type, ...] = (SpeedCode, TrainSpeed)
     limit_mps: float = 0.0
     speed_mps: float = 0.0
-    over_since_s: float = math.nan  # when the speed went above the limit (NaN: it is not)
-    alarm: bool = False
-    emergency_brake: bool = False
-    cause: str | None = None
     last: SupervisionState | None = None
+    _sv: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -53,6 +95,25 @@ class SpeedSupervision:
             )
         if not (math.isfinite(self.grace_s) and self.grace_s >= 0.0):
             raise InterlockError(f"speed supervision: grace_s must be >= 0 (got {self.grace_s})")
+        self._sv = np.empty(SV_SIZE)
+        supervision_init_1(self._sv)
+
+    @property
+    def over_since_s(self) -> float:
+        """When the speed went above the limit (NaN: it is not)."""
+        return float(self._sv[SV_OVER_SINCE])
+
+    @property
+    def alarm(self) -> bool:
+        return bool(self._sv[SV_ALARM] > 0.0)
+
+    @property
+    def emergency_brake(self) -> bool:
+        return bool(self._sv[SV_EB] > 0.0)
+
+    @property
+    def cause(self) -> str | None:
+        return EB_CAUSES.get(int(self._sv[SV_EB]))
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
         if isinstance(message, SpeedCode):
@@ -78,29 +139,15 @@ class SpeedSupervision:
     # ------------------------------------------------------------------ the rules
 
     def _judge(self, now_s: float) -> None:
-        v, limit = self.speed_mps, self.limit_mps
-        if self.emergency_brake:
-            if v <= 0.0:  # latched to standstill
-                self.emergency_brake, self.cause = False, None
-                self.over_since_s = math.nan
-            return
-        if v > limit:
-            if math.isnan(self.over_since_s):
-                self.over_since_s = now_s
-            if self.mode == "atc" and v > limit + self.permitted_margin_mps:
-                self._brake(EB_PERMITTED)
-                return
-            # SPEC §3: the grace ends -> ATS: emergency brake; ATC: the alarm, and the brake.
-            if now_s - self.over_since_s >= self.grace_s - 1e-9:
-                self.alarm = self.mode == "atc"
-                self._brake(EB_OVERSPEED_GRACE)
-        else:
-            self.over_since_s = math.nan
-            self.alarm = False
-
-    def _brake(self, cause: str) -> None:
-        self.emergency_brake = True
-        self.cause = cause
+        supervise_1(
+            self._sv,
+            self.mode == "atc",
+            self.grace_s,
+            self.permitted_margin_mps,
+            self.speed_mps,
+            self.limit_mps,
+            now_s,
+        )
 
     def _changed(self) -> list[Output]:
         now = SupervisionState(alarm=self.alarm, emergency_brake=self.emergency_brake, cause=self.cause)

@@ -128,6 +128,7 @@ def summary_stats(
     emergency_brake: Sequence[int] | np.ndarray | None = None,
     platform_end_m: float | None = None,
     low_adhesion: Sequence[bool] | np.ndarray | None = None,
+    manual: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """The summary statistics of one controller's campaign, from its result columns.
 
@@ -154,6 +155,12 @@ def summary_stats(
     the runs that met none, ``overruns_no_low_adhesion`` with its bound
     ``overrun_ci95_upper_no_low_adhesion`` (no stop law answers for a patch
     whose adhesion cannot give the braking the distance left needs).
+
+    With ``manual`` (SPEC §3 driver controllers: the error at the first standstill, the F / R
+    corrections and the lamp at the end, per run): ``first_within_0_35`` and ``first_within_0_50``
+    (the driver's own stop), ``first_past_platform_end`` (count; with ``platform_end_m``),
+    ``restopped`` (share of runs with a correction), ``mean_restops``, ``aligned`` (share that
+    ended with OK lit: the PSD may operate) and ``not_aligned`` (count).
     """
     if not (math.isfinite(tolerance_m) and tolerance_m > 0.0):
         raise RailstopError(f"summary_stats: tolerance_m must be a positive number (got {tolerance_m})")
@@ -204,7 +211,36 @@ def summary_stats(
         "slid": int(np.count_nonzero(has_slid)),
         **_fail_safe_stats(error, ok & (abs_error <= tolerance_m), emergency_brake, platform_end_m),
         **_adhesion_stats(error > tolerance_m, low_adhesion),
+        **_manual_stats(manual, n, platform_end_m),
     }
+
+
+def _manual_stats(
+    manual: tuple[np.ndarray, np.ndarray, np.ndarray] | None, n: int, platform_end_m: float | None
+) -> dict[str, Any]:
+    """SPEC §3: the driver's first stop, the corrections and the alignment (see summary_stats)."""
+    if manual is None:
+        return {}
+    from railstop.config.platform import LAMP_CODES
+
+    first, restops, lamp = (np.asarray(a).ravel() for a in manual)
+    for name, a in (("first_stop_error_m", first), ("restops", restops), ("lamp", lamp)):
+        if a.size != n:
+            raise RailstopError(f"summary_stats: {name}: {a.size} values for {n} stop errors")
+    first_abs = np.abs(np.asarray(first, dtype=np.float64))
+    out: dict[str, Any] = {
+        "first_within_0_35": float(np.count_nonzero(first_abs <= 0.35) / n) if n else math.nan,
+        "first_within_0_50": float(np.count_nonzero(first_abs <= 0.50) / n) if n else math.nan,
+        "restopped": float(np.count_nonzero(restops > 0) / n) if n else math.nan,
+        "mean_restops": float(np.mean(restops)) if n else math.nan,
+        "aligned": float(np.count_nonzero(lamp == LAMP_CODES["OK"]) / n) if n else math.nan,
+        "not_aligned": int(np.count_nonzero(lamp != LAMP_CODES["OK"])),
+    }
+    if platform_end_m is not None:
+        out["first_past_platform_end"] = int(
+            np.count_nonzero(np.asarray(first, dtype=np.float64) > platform_end_m)
+        )
+    return out
 
 
 def _adhesion_stats(overrun: np.ndarray, low_adhesion: Sequence[bool] | np.ndarray | None) -> dict[str, Any]:

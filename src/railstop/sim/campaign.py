@@ -43,6 +43,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from railstop.config.disturbances import PARAMETERS, DisturbanceSet, draw_scenario
+from railstop.config.driver import DriverFile
+from railstop.config.platform import PlatformFile
 from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, stamp
@@ -63,9 +65,9 @@ DEFAULT_CHUNK = 10_000
 BLOCK_RUNS = 1_000
 # 2: chunks carry the campaign's identity and run range in their Parquet metadata.
 MANIFEST_VERSION = 2
-# Bytes per run of the summary's working set: five result columns (26 B) plus the
+# Bytes per run of the summary's working set: eight result columns (50 B) plus the
 # temporaries of the masks, the absolute errors and the percentile's partition copies.
-SUMMARY_BYTES_PER_RUN = 120
+SUMMARY_BYTES_PER_RUN = 150
 # Bytes per value on disk, uncompressed: the chunks and runs.parquet each hold every column.
 DISK_BYTES_PER_VALUE = 8
 # The stop model's version: a campaign is resumed (and a run replayed) only by the model that
@@ -83,7 +85,9 @@ DISK_BYTES_PER_VALUE = 8
 # step. Form 6 runs without an initial brake step are unchanged.
 # 7: the wayside identifies the brake response (dead time, lag) from its radar after the first
 # braking command and plans with it (control.brake_ident); two result columns for it.
-MODEL_VERSION = 7
+# 8: the human driver controllers of SPEC §3 (four result columns: first stop error, re-stops,
+# lamp, driver level); the other controllers' numbers are unchanged.
+MODEL_VERSION = 8
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -158,8 +162,13 @@ def simulate_runs(
     form: int | None = None,
     record: bool = False,
     track: Track | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
+    incapacitated: bool = False,
 ) -> tuple[BatchResult, dict[str, np.ndarray]]:
     """Runs ``first_run .. first_run + n - 1`` of a campaign: the drawn values and the batch result.
+
+    ``driver``, ``platform``, ``incapacitated``: the driver controllers' (``run_batch``).
 
     ``track``: the line's track circuits (needed by ``ato-corrected``).
     """
@@ -174,6 +183,9 @@ def simulate_runs(
         form=None if form is None else SignalForm(form),
         record=record,
         track=track,
+        driver=driver,
+        platform=platform,
+        incapacitated=incapacitated,
     )
     return result, drawn
 
@@ -201,6 +213,11 @@ def _chunk_table(first_run: int, result: BatchResult, drawn: dict[str, np.ndarra
             result.brake_lag_identified_s, mask=np.isnan(result.brake_lag_identified_s)
         ),
         "detectors_filled": result.detectors_filled,
+        # SPEC §3 manual driving (other controllers: the same error, no re-stop, no lamp, level -1).
+        "first_stop_error_m": result.first_stop_error_m,
+        "restops": result.restops.astype(np.int64),
+        "lamp": result.lamp.astype(np.int64),
+        "driver_level": result.driver_level.astype(np.int64),
     }
     for name, values in drawn.items():
         cols[name] = np.asarray(values)
@@ -534,6 +551,9 @@ SUMMARY_COLUMNS = (
     "slid",
     "emergency_brake",
     "low_adhesion",  # drawn with every run (draw_scenario)
+    "first_stop_error_m",
+    "restops",
+    "lamp",
 )
 
 
@@ -573,6 +593,9 @@ def summarise(table: pa.Table, *, tolerance_m: float, platform_end_m: float | No
         emergency_brake=col("emergency_brake") if "emergency_brake" in table.column_names else None,
         platform_end_m=platform_end_m,
         low_adhesion=col("low_adhesion") if "low_adhesion" in table.column_names else None,
+        manual=(col("first_stop_error_m"), col("restops"), col("lamp"))
+        if "lamp" in table.column_names and bool(np.any(col("lamp") > 0))
+        else None,
     )
     return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}
 

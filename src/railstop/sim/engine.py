@@ -20,8 +20,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.config.driver import DriverFile
+from railstop.config.platform import PlatformFile
 from railstop.config.schema import Station, Track, Vehicle
-from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, TASC_CONTROLLERS
+from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, ONBOARD_CONTROLLERS, TASC_CONTROLLERS
 from railstop.errors import SimulationError
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
@@ -31,7 +33,15 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-__all__ = ["ATO_CONTROLLERS", "CONTROLLERS", "TASC_CONTROLLERS", "BatchResult", "Trace", "run_batch"]
+__all__ = [
+    "ATO_CONTROLLERS",
+    "CONTROLLERS",
+    "ONBOARD_CONTROLLERS",
+    "TASC_CONTROLLERS",
+    "BatchResult",
+    "Trace",
+    "run_batch",
+]
 
 DT_S = 0.01
 MAX_TIME_S = 150.0
@@ -55,6 +65,13 @@ class Trace:
     # 1 in transfer, 2 the onboard unit's; -1 without a switching unit).
     own_demand_mps2: FloatArray
     switch: IntArray
+    # SPEC §3 driver controllers (NaN otherwise): the held limit / indicated speed (m/s), the
+    # driver's action (onboard.driver ACT_*), the supervision (0 quiet, 1 alarm, 2 emergency
+    # brake) and the lamp at a stand (config.platform LAMP_CODES; 0 none).
+    limit_mps: FloatArray
+    driver_action: FloatArray
+    supervision: FloatArray
+    lamp: FloatArray
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -77,6 +94,12 @@ class BatchResult:
     brake_lag_identified_s: FloatArray
     detectors_filled: IntArray  # passages the wayside filled in from its radar (missed detectors)
     detector_passages_s: FloatArray  # (n, D) true passage times (NaN if never)
+    # SPEC §3 driver controllers: the error at the first standstill, the F / R corrections and
+    # the lamp at the end (LAMP_CODES; OK: the PSD may operate). The others: the error, 0, 0.
+    first_stop_error_m: FloatArray
+    restops: IntArray
+    lamp: IntArray
+    driver_level: IntArray  # the driver's skill level (its index in the driver data; -1: none)
     trace: Trace | None = None
     commands: list[dict[str, Any]] = field(default_factory=list)
     # The detailed stop's braking-telegram frames: sent, delivered and rejected by reason.
@@ -95,21 +118,29 @@ def run_batch(
     dt_s: float = DT_S,
     max_time_s: float = MAX_TIME_S,
     track: Track | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
+    incapacitated: bool = False,
 ) -> BatchResult:
     """Simulate ``scenario.n`` stops at ``station`` (runs ``streams.run_index``); see the module docstring.
 
-    ``track``: the line's track circuits (``ato-corrected`` needs them).
+    ``track``: the line's track circuits (``ato-corrected`` needs them); ``driver``,
+    ``platform``, ``incapacitated``: the driver controllers' (``KernelModel.create``).
     """
     from railstop.sim.kernel import (
         RES_EB,
         RES_EB_T,
         RES_ERROR,
         RES_FILLED,
+        RES_FIRST_ERROR,
         RES_ID_DELAY,
         RES_ID_LAG,
+        RES_LAMP,
+        RES_LEVEL,
         RES_MAX_JERK,
         RES_NOTCH_CHANGES,
         RES_RECEIVED,
+        RES_RESTOPS,
         RES_SENT,
         RES_SLID,
         RES_STOP_TIME,
@@ -134,6 +165,9 @@ def run_batch(
         dt_s=dt_s,
         max_time_s=max_time_s,
         track=track,
+        driver=driver,
+        platform=platform,
+        incapacitated=incapacitated,
     )
     res, passages, rec = run_kernel(
         model, scenario, seed=streams.seed, first_run=first, record=record and n == 1
@@ -144,7 +178,7 @@ def run_batch(
     if rec is not None:
         trace = _trace(rec.trace)
         commands = _commands(rec.commands, model.form, rec.sends)
-        if controller not in ATO_CONTROLLERS:
+        if controller not in ONBOARD_CONTROLLERS:
             frames = check_byte_link(rec, station, model.form, dt_s)
     return BatchResult(
         stop_error_m=res[:, RES_ERROR].copy(),
@@ -161,6 +195,10 @@ def run_batch(
         brake_lag_identified_s=res[:, RES_ID_LAG].copy(),
         detectors_filled=res[:, RES_FILLED].astype(np.int64),
         detector_passages_s=passages,
+        first_stop_error_m=res[:, RES_FIRST_ERROR].copy(),
+        restops=res[:, RES_RESTOPS].astype(np.int64),
+        lamp=res[:, RES_LAMP].astype(np.int64),
+        driver_level=res[:, RES_LEVEL].astype(np.int64),
         trace=trace,
         commands=commands,
         link_frames=frames,
@@ -170,11 +208,15 @@ def run_batch(
 def _trace(tr: FloatArray) -> Trace:
     from railstop.sim.kernel import (
         TR_ACCEL,
+        TR_ACTION,
         TR_BRAKE,
         TR_DEMAND,
         TR_DUTY,
+        TR_LAMP,
+        TR_LIMIT,
         TR_NOTCH,
         TR_OWN,
+        TR_SUPERVISION,
         TR_SWITCH,
         TR_T,
         TR_TARGET,
@@ -197,6 +239,10 @@ def _trace(tr: FloatArray) -> Trace:
         duty=col(TR_DUTY),
         own_demand_mps2=col(TR_OWN),
         switch=np.nan_to_num(tr[:, TR_SWITCH : TR_SWITCH + 1], nan=-1.0).astype(np.int64),
+        limit_mps=col(TR_LIMIT),
+        driver_action=col(TR_ACTION),
+        supervision=col(TR_SUPERVISION),
+        lamp=col(TR_LAMP),
     )
 
 

@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.config.driver import LEVEL_PARAMETERS, LV_PARAMS, LV_WIDTH, DriverFile
+from railstop.config.platform import PlatformFile
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
 from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
@@ -48,7 +50,34 @@ from railstop.onboard.ato import (
     ato_output_1,
     ato_params,
 )
+from railstop.onboard.driver import (
+    ACT_CREEP_FORWARD,
+    ACT_DONE,
+    ACT_REVERSE,
+    ACT_WAIT,
+    DR_LEVEL,
+    DR_REACTION,
+    DR_SIZE,
+    DV_ACTION,
+    DV_REQUIRED,
+    DV_SIZE,
+    RS_CREEP_ACCEL,
+    RS_CREEP_DECEL,
+    RS_CREEP_SPEED,
+    RS_EB_RESET,
+    RS_JUDGEMENT_FLOOR,
+    RS_MAX,
+    RS_REVERSE_SETUP,
+    creep_position_1,
+    creep_time_1,
+    driver_draw_1,
+    driver_init_1,
+    driver_look_1,
+    driver_output_1,
+    restop_judgement_1,
+)
 from railstop.onboard.positioning import LOG_ROWS
+from railstop.onboard.speed_supervision import SV_ALARM, SV_EB, SV_SIZE, supervise_1, supervision_init_1
 from railstop.onboard.tasc_receiver import (
     CFG_BRAKE_CONTROLLER,
     CFG_PWM,
@@ -144,9 +173,20 @@ from railstop.wayside.tasc_unit import (
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-# Controller codes of the kernel: the TASC configurations' codes (CFG_*), then the onboard ATOs.
+# Controller codes of the kernel: the TASC configurations' codes (CFG_*), then the onboard ATOs,
+# then the human drivers of SPEC §3 (ATS, ATC option 1, ATC option 2, no station codes).
 CTRL_ATO = 8
 CTRL_ATO_CORRECTED = 9
+CTRL_DRIVER_ATS = 10
+CTRL_DRIVER_ATC1 = 11
+CTRL_DRIVER_ATC2 = 12
+CTRL_DRIVER_UNAIDED = 13
+
+# Platform lamps at a stand (SPEC §3; config.platform LAMP_CODES).
+LAMP_F = 1
+LAMP_OK = 2
+LAMP_R = 3
+LAMP_FAULT = 4
 
 # Scenario columns (one row per run): what the disturbance draw decides.
 SC_ENTRY_SPEED = 0
@@ -221,7 +261,17 @@ KP_MAX_AGE = 21
 KP_QUANT_AGE = 22  # form 4: counts per second of the passage age
 KP_IN_FLIGHT = 23  # frames that can be in the air at once (max age / repeat period + 2)
 KP_INITIAL_NOTCH = 24  # TASC trains: the initial brake step of the train's own control (0: none)
-KP_SIZE = 25
+# SPEC §3 manual driving (the driver controllers):
+KP_HOME = 25  # the home signal's chainage
+KP_APPROACH_LIMIT = 26  # m/s, before the first code point
+KP_GRACE = 27
+KP_ATC = 28  # 1: ATC supervision (indicated / permitted speed), 0: ATS
+KP_ATC_MARGIN = 29  # m/s: permitted = indicated + this
+KP_INCAPACITATED = 30  # 1: the driver never brakes (the supervision check)
+KP_SENSOR_SPACING = 31  # stop sensors S2, S1
+KP_SENSOR_NOISE = 32
+KP_START_BEFORE_HOME = 33  # a driver's run starts at least this far before the home signal
+KP_SIZE = 34
 
 # Results per run.
 RES_ERROR = 0  # front at rest minus stopping point (+ = overrun)
@@ -243,7 +293,12 @@ RES_EB_T = 13  # when it was applied (NaN: never)
 RES_ID_DELAY = 14  # the brake response the wayside identified: equivalent dead time (NaN: none)
 RES_ID_LAG = 15  # ... and build-up lag
 RES_FILLED = 16  # detector passages the wayside filled in from its radar
-RES_SIZE = 17
+# SPEC §3 manual driving (the other controllers: first = final error, no re-stops, no lamp).
+RES_FIRST_ERROR = 17  # the stop error at the first standstill
+RES_RESTOPS = 18  # F / R corrections
+RES_LAMP = 19  # the lamp at the end (LAMP_*; 0: none)
+RES_LEVEL = 20  # the driver's skill level (its row in the driver data; -1: no driver)
+RES_SIZE = 21
 
 # Trace columns (recording).
 TR_T = 0
@@ -257,7 +312,13 @@ TR_NOTCH = 7
 TR_DUTY = 8
 TR_OWN = 9  # TASC trains: the train's own brake demand (its ATO's; NaN for the ATO controllers)
 TR_SWITCH = 10  # config 2: the changeover switches' position (SWITCH_*; NaN otherwise)
-TR_SIZE = 11
+# The driver controllers (NaN otherwise): the held limit / indicated speed, the driver's action
+# (onboard.driver ACT_*), the supervision (0 quiet, 1 alarm, 2 emergency brake), the lamp at a stand.
+TR_LIMIT = 11
+TR_ACTION = 12
+TR_SUPERVISION = 13
+TR_LAMP = 14
+TR_SIZE = 15
 
 # Link attempt log columns (recording): what the byte-level checker replays.
 LA_STEP = 0
@@ -286,12 +347,24 @@ _STREAMS = np.array(
         Stream.RADIO_CORRUPT,
         Stream.TC_BOUNDARY,
         Stream.TC_DELAY,
+        Stream.DRIVER,
+        Stream.STOP_SENSORS,
     ],
     dtype=np.int64,
 )
-_K_JITTER, _K_MISS, _K_DOPPLER, _K_LOSS, _K_LATENCY, _K_CYCLE, _K_CORRUPT, _K_TC_BOUNDARY, _K_TC_DELAY = (
-    range(9)
-)
+(
+    _K_JITTER,
+    _K_MISS,
+    _K_DOPPLER,
+    _K_LOSS,
+    _K_LATENCY,
+    _K_CYCLE,
+    _K_CORRUPT,
+    _K_TC_BOUNDARY,
+    _K_TC_DELAY,
+    _K_DRIVER,
+    _K_STOP_SENSORS,
+) = range(11)
 
 # SPEC §2 positioning parameters of ``ato-corrected`` (FixesLine as a vector).
 FP_DELAY_MEAN = 0
@@ -355,6 +428,76 @@ def _own_command_1(
     return np.nan, table[line_notch(notch)]
 
 
+@njit_inline
+def _stand_lamp_1(
+    x: float, stop_point: float, kp: np.ndarray, lamp_table: np.ndarray, key: np.uint64, stand: int
+) -> int:
+    """SPEC §3: the lamp for a train front at rest at ``x``: S2 and S1 (symmetric about the
+    stopping point, sensors.stop_sensors) each see the front, off by the sensor's noise; the
+    platform data's lamp table decides (wayside.platform; its debounce settles on this reading).
+    [interpretation] a scan's dropout is left to the platform verification: over a stand of
+    seconds the debounced reading is the settled one."""
+    half = 0.5 * kp[KP_SENSOR_SPACING]
+    noise = kp[KP_SENSOR_NOISE]
+    s2 = x + noise * key_normal(key, 2 * stand) >= stop_point - half
+    s1 = x + noise * key_normal(key, 2 * stand + 1) >= stop_point + half
+    return int(lamp_table[2 * int(s2) + int(s1)])
+
+
+@njit_step
+def _record_move(
+    trace: np.ndarray,
+    rows: int,
+    dt: float,
+    t0: float,
+    x0: float,
+    move: float,
+    wait: float,
+    duration: float,
+    rs: np.ndarray,
+    limit: float,
+    lamp: int,
+) -> int:
+    """Record a correction of the detailed stop: a wait at the stand, then the move at walking pace."""
+    total = wait + duration
+    n = int(np.ceil(total / dt))
+    forward = move > 0.0
+    for i in range(1, n + 1):
+        if rows >= trace.shape[0]:
+            return rows
+        tau = min(i * dt, total)
+        moving = tau > wait
+        gone = (
+            creep_position_1(
+                abs(move), rs[RS_CREEP_SPEED], rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL], tau - wait
+            )
+            if moving
+            else 0.0
+        )
+        speed = 0.0
+        if moving:
+            ahead = creep_position_1(
+                abs(move),
+                rs[RS_CREEP_SPEED],
+                rs[RS_CREEP_ACCEL],
+                rs[RS_CREEP_DECEL],
+                min(tau - wait + dt, duration),
+            )
+            speed = (ahead - gone) / dt
+        for j in range(TR_SIZE):
+            trace[rows, j] = np.nan
+        trace[rows, TR_T] = t0 + tau
+        trace[rows, TR_X] = x0 + (gone if forward else -gone)
+        trace[rows, TR_V] = speed if forward else -speed
+        trace[rows, TR_NOTCH] = 0.0
+        trace[rows, TR_LIMIT] = limit
+        trace[rows, TR_ACTION] = (ACT_CREEP_FORWARD if forward else ACT_REVERSE) if moving else ACT_WAIT
+        trace[rows, TR_SUPERVISION] = 0.0
+        trace[rows, TR_LAMP] = lamp if not moving else 0.0
+        rows += 1
+    return rows
+
+
 @njit_step
 def _simulate_run(
     row: int,
@@ -389,6 +532,14 @@ def _simulate_run(
     flog: np.ndarray,
     fbound: np.ndarray,
     fdelay: np.ndarray,
+    levels: np.ndarray,
+    rs: np.ndarray,
+    code_pos: np.ndarray,
+    code_lim: np.ndarray,
+    lamp_table: np.ndarray,
+    dr: np.ndarray,
+    dv: np.ndarray,
+    sv: np.ndarray,
     ring: np.ndarray,
     dbuf: np.ndarray,
     tach: np.ndarray,
@@ -422,7 +573,9 @@ def _simulate_run(
     dt = kp[KP_DT]
     steps = int(kp[KP_STEPS])
     controller = int(kp[KP_CONTROLLER])
-    is_ato = controller >= CTRL_ATO
+    is_driver = controller >= CTRL_DRIVER_ATS
+    is_ato = controller >= CTRL_ATO and not is_driver
+    onboard_only = is_ato or is_driver  # no wayside unit, no link
     stop_point = kp[KP_STOP]
     grad = (bp, gv, ge)
     k_jitter = stream_key(keys0[_K_JITTER], run)
@@ -440,6 +593,9 @@ def _simulate_run(
     believed = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
     entry = sc[SC_ENTRY_SPEED]
     x = det_pos[0] - max(20.0, entry * 1.5)
+    if is_driver:
+        # [interpretation] a driver's run starts far enough before the home signal to meet its codes.
+        x = min(x, kp[KP_HOME] - kp[KP_START_BEFORE_HOME])
     v = entry
     accel = 0.0
     stopped = False
@@ -462,8 +618,20 @@ def _simulate_run(
 
     # The units of this controller: the ATO, or the wayside unit and the receiver (both own the
     # one modulator state).
+    k_driver = stream_key(keys0[_K_DRIVER], run)
+    atc = kp[KP_ATC] > 0.0
+    incapacitated = kp[KP_INCAPACITATED] > 0.0
+    eb_cause = 0.0
+    eb_t = np.nan
+    limit_now = kp[KP_APPROACH_LIMIT]
+    code_next = 0
     if is_ato:
         ato_init_1(at, mod)
+    elif is_driver:
+        # SPEC §3: the run's driver and the train's ATS / ATC supervision.
+        driver_draw_1(dr, levels, k_driver)
+        driver_init_1(dv)
+        supervision_init_1(sv)
     else:
         wayside_init_1(ws, wp, wh_v, wh_e, pass_t, pass_x)
         receiver_init_1(rx, mod, rh_v, rh_e)
@@ -524,7 +692,7 @@ def _simulate_run(
     jitter = sc[SC_JITTER]
     cycle = kp[KP_CYCLE]
 
-    has_doppler = kp[KP_HAS_DOPPLER] > 0.0 and not is_ato
+    has_doppler = kp[KP_HAS_DOPPLER] > 0.0 and not onboard_only
     noise = sc[SC_DOPPLER_NOISE]
     reach = kp[KP_DOPPLER_REACH]
     radar_range = kp[KP_DOPPLER_RANGE]
@@ -566,6 +734,37 @@ def _simulate_run(
             notch = ato_output_1(at, ap, mod, table, ext, grad, k, tach_v)
             duty = np.nan
             braking = at[AT_BRAKING] > 0.0
+        elif is_driver:
+            # SPEC §3: the code held since the last point (ATS) / picked up here (ATC).
+            while code_next < code_pos.size and x >= code_pos[code_next]:
+                limit_now = code_lim[code_next]
+                code_next += 1
+            # The supervision judges the speedometer's speed (the tachometer's).
+            supervise_1(sv, atc, kp[KP_GRACE], kp[KP_ATC_MARGIN], tach_v, limit_now, t)
+            eb = sv[SV_EB] > 0.0
+            if eb and eb_cause == 0.0:
+                eb_cause = sv[SV_EB]
+                eb_t = t
+            driver_look_1(
+                dv,
+                dr,
+                table,
+                k_driver,
+                t,
+                x,
+                tach_v,
+                accel,
+                stop_point,
+                rs[RS_JUDGEMENT_FLOOR],
+                code_pos,
+                code_lim,
+                limit_now,
+                incapacitated,
+                wp[WP_INITIAL_DELAY],
+            )
+            notch, holding = driver_output_1(dv, t)
+            duty = np.nan
+            braking = not holding or eb
         else:
             # Wayside unit -> link -> onboard receiver.
             w_passed, w_det, w_pass_s = wayside_passage_1(
@@ -737,7 +936,7 @@ def _simulate_run(
         mu = sc[SC_LOW_MU] if in_patch else sc[SC_MU]
         x0 = x
         v0 = v
-        hold = not braking
+        hold = not braking and not eb
         x, v, accel, now_stopped, st, sliding = motion_step_1(
             x,
             v,
@@ -774,7 +973,9 @@ def _simulate_run(
         revs = (x - x0) * creep_1(sliding, ssr) / (np.pi * wheel)
         odometer = revs * np.pi * assumed
         odo_step = odometer
-        if is_ato:
+        if is_driver:
+            pass  # the driver judges by eye (driver_look_1); his speedometer is the tachometer
+        elif is_ato:
             ato_odometer_1(at, odometer)
             if corrected_positioning:
                 corrected, calibrated = fixes_step_run(
@@ -833,6 +1034,8 @@ def _simulate_run(
             trace[k, TR_V] = v
             if is_ato:
                 trace[k, TR_TARGET] = at[AT_TARGET] if at[AT_ACTIVE] > 0.0 else np.nan
+            elif is_driver:
+                trace[k, TR_TARGET] = dv[DV_REQUIRED]
             else:
                 trace[k, TR_TARGET] = rx[RX_TARGET] if rx[RX_ACTIVE] > 0.0 else np.nan
             trace[k, TR_DEMAND] = demand
@@ -842,28 +1045,87 @@ def _simulate_run(
             trace[k, TR_DUTY] = duty
             trace[k, TR_OWN] = own_demand
             trace[k, TR_SWITCH] = switch_pos if switch_pos >= 0 else np.nan
+            if is_driver:
+                trace[k, TR_LIMIT] = limit_now
+                trace[k, TR_ACTION] = dv[DV_ACTION]
+                trace[k, TR_SUPERVISION] = 2.0 if eb else sv[SV_ALARM]
+                trace[k, TR_LAMP] = 0.0
+            else:
+                for j in (TR_LIMIT, TR_ACTION, TR_SUPERVISION, TR_LAMP):
+                    trace[k, j] = np.nan
         if stopped:
             break
+    rows = k + 1
+    first_error = x - stop_point
+    restops = 0
+    lamp = 0
+    if is_driver and stopped:
+        # SPEC §3 lamps at the stand, and the driver's corrections (F: forward, R: reverse).
+        k_sensors = stream_key(keys0[_K_STOP_SENSORS], run)
+        lamp = _stand_lamp_1(x, stop_point, kp, lamp_table, k_sensors, 0)
+        t_end = stop_time
+        setup = rs[RS_EB_RESET] if eb_cause > 0.0 else 0.0
+        while lamp in (LAMP_F, LAMP_R) and restops < int(rs[RS_MAX]) and not incapacitated:
+            wait = dr[DR_REACTION] + setup + (rs[RS_REVERSE_SETUP] if lamp == LAMP_R else 0.0)
+            setup = 0.0
+            judged = abs(restop_judgement_1(rs, k_driver, restops, stop_point - x))
+            move = judged if lamp == LAMP_F else -judged
+            duration = creep_time_1(judged, rs[RS_CREEP_SPEED], rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL])
+            if record:
+                rows = _record_move(
+                    trace,
+                    rows,
+                    dt,
+                    t_end,
+                    x,
+                    move,
+                    wait,
+                    duration,
+                    rs,
+                    limit_now,
+                    lamp,
+                )
+            x += move
+            t_end += wait + duration
+            restops += 1
+            lamp = _stand_lamp_1(x, stop_point, kp, lamp_table, k_sensors, restops)
+        stop_time = t_end
+        if record and rows < trace.shape[0]:
+            for j in range(TR_SIZE):
+                trace[rows, j] = trace[rows - 1, j]
+            trace[rows, TR_T] = t_end
+            trace[rows, TR_X] = x
+            trace[rows, TR_ACTION] = ACT_DONE
+            trace[rows, TR_LAMP] = lamp
+            rows += 1
     res[RES_ERROR] = x - stop_point
     res[RES_STOP_TIME] = stop_time - passages[0] if stopped else np.nan
     res[RES_MAX_JERK] = max_jerk
     res[RES_NOTCH_CHANGES] = notch_changes
-    res[RES_SENT] = 0.0 if is_ato else ws[WS_SENT]
-    res[RES_RECEIVED] = 0.0 if is_ato else rx[RX_RECEIVED]
+    res[RES_SENT] = 0.0 if onboard_only else ws[WS_SENT]
+    res[RES_RECEIVED] = 0.0 if onboard_only else rx[RX_RECEIVED]
     res[RES_STOPPED] = stopped
     res[RES_SLID] = slid
     res[RES_MISS_TRIALS] = miss_trials
     res[RES_MISSES] = misses
     res[RES_LOSS_TRIALS] = attempt
     res[RES_LOSSES] = losses
-    res[RES_EB] = 0.0 if is_ato else rx[RX_EB]
-    res[RES_EB_T] = np.nan if is_ato else rx[RX_EB_T] - passages[0]
-    identified = not is_ato and np.isfinite(ws[WS_ID_GAIN])
+    if is_driver:
+        res[RES_EB] = eb_cause
+        res[RES_EB_T] = eb_t - passages[0]
+    else:
+        res[RES_EB] = 0.0 if is_ato else rx[RX_EB]
+        res[RES_EB_T] = np.nan if is_ato else rx[RX_EB_T] - passages[0]
+    identified = not onboard_only and np.isfinite(ws[WS_ID_GAIN])
     res[RES_ID_DELAY] = ws[WS_DELAY] if identified else np.nan
     res[RES_ID_LAG] = ws[WS_LAG] if identified else np.nan
-    res[RES_FILLED] = 0.0 if is_ato else ws[WS_FILLED]
+    res[RES_FILLED] = 0.0 if onboard_only else ws[WS_FILLED]
+    res[RES_FIRST_ERROR] = first_error
+    res[RES_RESTOPS] = restops
+    res[RES_LAMP] = lamp
+    res[RES_LEVEL] = dr[DR_LEVEL] if is_driver else -1.0
     if record:
-        counters[RC_STEPS] = k + 1
+        counters[RC_STEPS] = rows
         counters[RC_COMMANDS] = n_cmd
         counters[RC_ATTEMPTS] = n_att
         counters[RC_DELIVERIES] = n_del
@@ -897,6 +1159,11 @@ def simulate_block(
     db_ids: np.ndarray,
     db_starts: np.ndarray,
     db_sd: np.ndarray,
+    levels: np.ndarray,
+    rs: np.ndarray,
+    code_pos: np.ndarray,
+    code_lim: np.ndarray,
+    lamp_table: np.ndarray,
     log_len: int,
     window: int,
     tach_window: int,
@@ -940,6 +1207,9 @@ def simulate_block(
     flog = np.empty((LOG_ROWS, log_len))
     fbound = np.empty(tc_starts.size)
     fdelay = np.empty(tc_starts.size)
+    dr = np.empty(DR_SIZE)
+    dv = np.empty(DV_SIZE)
+    sv = np.empty(SV_SIZE)
     for r in range(sc.shape[0]):
         rec = record and r == 0
         _simulate_run(
@@ -975,6 +1245,14 @@ def simulate_block(
             flog,
             fbound,
             fdelay,
+            levels,
+            rs,
+            code_pos,
+            code_lim,
+            lamp_table,
+            dr,
+            dv,
+            sv,
             ring,
             dbuf,
             tach,
@@ -1010,7 +1288,23 @@ def simulate_block(
 # --------------------------------------------------------------------------
 # The Python side: pack data into arrays, call the kernel, unpack.
 
-CONTROLLER_CODES: dict[str, int] = {**CONFIG_CODES, "ato": CTRL_ATO, "ato-corrected": CTRL_ATO_CORRECTED}
+CONTROLLER_CODES: dict[str, int] = {
+    **CONFIG_CODES,
+    "ato": CTRL_ATO,
+    "ato-corrected": CTRL_ATO_CORRECTED,
+    "driver-ats": CTRL_DRIVER_ATS,
+    "driver-atc1": CTRL_DRIVER_ATC1,
+    "driver-atc2": CTRL_DRIVER_ATC2,
+    "driver-unaided": CTRL_DRIVER_UNAIDED,
+}
+# Each driver controller's approach (config.platform Approach) and supervision.
+_DRIVER_MODES: dict[str, tuple[str, bool]] = {
+    "driver-ats": ("ats", False),
+    "driver-atc1": ("atc1", True),
+    "driver-atc2": ("atc2", True),
+    "driver-unaided": ("unaided", False),
+}
+START_BEFORE_HOME_M = 300.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -1043,6 +1337,12 @@ class KernelModel:
     db_starts: FloatArray
     db_sd: FloatArray
     log_len: int
+    # SPEC §3 manual driving (one-row placeholders for the other controllers).
+    levels: FloatArray
+    rs: FloatArray
+    code_pos: FloatArray
+    code_lim: FloatArray
+    lamp_table: FloatArray
 
     @classmethod
     def create(
@@ -1055,7 +1355,12 @@ class KernelModel:
         dt_s: float,
         max_time_s: float,
         track: Track | None = None,
+        driver: DriverFile | None = None,
+        platform: PlatformFile | None = None,
+        incapacitated: bool = False,
     ) -> KernelModel:
+        """``driver``, ``platform``: the driver controllers' data (None: the embedded defaults);
+        ``incapacitated``: their driver never brakes (the supervision check of SPEC §3)."""
         if controller not in CONTROLLER_CODES:
             raise SimulationError(
                 f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLER_CODES)}"
@@ -1180,7 +1485,9 @@ class KernelModel:
                 "db_sd": fl.db_sd_m,
                 "log_len": fl.log_len,
             }
+        manual: dict[str, Any] = _manual_arrays(kp, controller, station, driver, platform, incapacitated)
         return cls(
+            **manual,
             kp=kp,
             table=np.concatenate(([0.0], np.asarray(brake.notch_decel_mps2, dtype=np.float64))),
             pwm_duty=np.asarray(brake.pwm_duty, dtype=np.float64),
@@ -1201,6 +1508,56 @@ class KernelModel:
             fp=fp,
             **positioning,
         )
+
+
+def _manual_arrays(
+    kp: FloatArray,
+    controller: str,
+    station: Station,
+    driver: DriverFile | None,
+    platform: PlatformFile | None,
+    incapacitated: bool,
+) -> dict[str, FloatArray]:
+    """The driver controllers' arrays (SPEC §3), and their kernel parameters set in ``kp``."""
+    if controller not in _DRIVER_MODES:
+        return {
+            "levels": np.zeros((1, LV_PARAMS + LV_WIDTH * len(LEVEL_PARAMETERS))),
+            "rs": np.zeros(RS_EB_RESET + 1),
+            "code_pos": np.zeros(0),
+            "code_lim": np.zeros(0),
+            "lamp_table": np.zeros(4),
+        }
+    from railstop.config.driver import default_driver, driver_arrays
+    from railstop.config.platform import LAMP_CODES, default_platform
+
+    driver = default_driver() if driver is None else driver
+    platform = default_platform() if platform is None else platform
+    mode, atc = _DRIVER_MODES[controller]
+    approach = platform.approach
+    sensors = platform.sensors
+    # SPEC §3 fig. 3: the stopping point is midway between S2 and S1, home_to_s2_m beyond the home signal.
+    home = station.stop_point_m - 0.5 * sensors.spacing_m - approach.home_to_s2_m
+    codes = getattr(approach, mode).codes
+    kp[KP_HOME] = home
+    kp[KP_APPROACH_LIMIT] = approach.approach_limit_kmh / 3.6
+    kp[KP_GRACE] = approach.grace_s
+    kp[KP_ATC] = atc
+    kp[KP_ATC_MARGIN] = approach.atc_permitted_margin_kmh / 3.6
+    kp[KP_INCAPACITATED] = incapacitated
+    kp[KP_SENSOR_SPACING] = sensors.spacing_m
+    kp[KP_SENSOR_NOISE] = sensors.noise_sd_m
+    kp[KP_START_BEFORE_HOME] = START_BEFORE_HOME_M
+    levels, rs = driver_arrays(driver)
+    lamps = platform.lamps()
+    return {
+        "levels": levels,
+        "rs": rs,
+        "code_pos": np.array([home + c.after_home_m for c in codes], dtype=np.float64),
+        "code_lim": np.array([c.limit_kmh / 3.6 for c in codes], dtype=np.float64),
+        "lamp_table": np.array(
+            [LAMP_CODES[lamps[(s2, s1)]] for s2 in (False, True) for s1 in (False, True)], dtype=np.float64
+        ),
+    }
 
 
 def _quantization(form: SignalForm) -> tuple[FloatArray, FloatArray, float]:
@@ -1261,6 +1618,8 @@ def run_kernel(
     n = scenario.n
     steps = int(model.kp[KP_STEPS])
     rows = steps if record else 1
+    if record and model.controller in _DRIVER_MODES:
+        rows *= 2  # room for the re-stops after the first standstill
     trace = np.full((rows, TR_SIZE), np.nan)
     cmds = np.zeros((rows, CR_SIZE + 1))
     sends = np.zeros((rows, TEL_SIZE))
@@ -1297,6 +1656,11 @@ def run_kernel(
         model.db_ids,
         model.db_starts,
         model.db_sd,
+        model.levels,
+        model.rs,
+        model.code_pos,
+        model.code_lim,
+        model.lamp_table,
         model.log_len,
         model.window,
         model.tach_window,

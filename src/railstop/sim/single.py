@@ -50,6 +50,12 @@ class StopResult:
     brake_delay_identified_s: float | None = None
     brake_lag_identified_s: float | None = None
     detectors_filled: int = 0
+    # SPEC §3 driver controllers: the error at the first standstill, the F / R corrections, the
+    # lamp at the end (OK: the PSD may operate; None: no lamp) and the driver's skill level.
+    first_stop_error_m: float | None = None
+    restops: int = 0
+    lamp: str | None = None
+    driver_level: str | None = None
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
     psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
@@ -86,6 +92,22 @@ def _switch_over_s(batch: BatchResult) -> float | None:
         return None
     over = np.flatnonzero(trace.switch[:, 0] == SWITCH_ONBOARD)
     return round(float(trace.t_s[over[0], 0]) - first, 3) if over.size else None
+
+
+def _manual_outcome(batch: BatchResult) -> dict[str, Any]:
+    """SPEC §3: what a driver controller's stop adds to the result (nothing for the others)."""
+    from railstop.config.driver import default_driver
+    from railstop.config.platform import LAMP_NAMES
+
+    level = int(batch.driver_level[0])
+    if level < 0:
+        return {}
+    return {
+        "first_stop_error_m": round(float(batch.first_stop_error_m[0]), 6),
+        "restops": int(batch.restops[0]),
+        "lamp": LAMP_NAMES.get(int(batch.lamp[0])),
+        "driver_level": list(default_driver().levels)[level],
+    }
 
 
 def run_stop(
@@ -150,6 +172,7 @@ def run_stop(
         brake_delay_identified_s=_finite_or_none(batch.brake_delay_identified_s[0]),
         brake_lag_identified_s=_finite_or_none(batch.brake_lag_identified_s[0]),
         detectors_filled=int(batch.detectors_filled[0]),
+        **_manual_outcome(batch),
         controller=controller,
         station=station.name,
         line=line.line.name,
