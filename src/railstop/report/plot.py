@@ -115,6 +115,11 @@ def _speed_panel(
     at_rest = abs(float(trace.speed_mps[-1, run])) < _REST_MPS
 
     ax.plot(x, v_kmh, color="tab:blue", lw=1.8, label="speed")
+    limit_kmh = trace.limit_mps[:, run] * KMH_PER_MPS
+    if np.isfinite(limit_kmh).any():
+        # SPEC §3 driver controllers: the held ATS code / the ATC indicated speed.
+        ax.step(x, limit_kmh, where="post", color="tab:orange", ls="-.", lw=1.5, label="speed code (ADU)")
+        v_kmh = np.where(np.isfinite(limit_kmh), np.maximum(v_kmh, np.nan_to_num(limit_kmh)), v_kmh)
     band = ax.axvspan(
         -tolerance_m, tolerance_m, color="tab:green", alpha=0.25, label=f"PSD tolerance ±{tolerance_m:g} m"
     )
@@ -140,6 +145,7 @@ def _speed_panel(
             ha="right" if crowded else "left",
             fontsize=9,
         )
+    v_kmh = trace.speed_mps[:, run] * KMH_PER_MPS
     ax.plot(
         [final_x],
         [v_kmh[-1]],
@@ -161,7 +167,8 @@ def _speed_panel(
         arrowprops={"arrowstyle": "->", "color": "tab:red", "lw": 1.0},
     )
     ax.set_xlim(lo - 0.02 * span, hi + 0.06 * span)
-    ax.set_ylim(0.0, max(float(np.max(v_kmh)), 1.0) * 1.12)
+    top_kmh = np.nanmax(np.concatenate([v_kmh, limit_kmh[np.isfinite(limit_kmh)]]))
+    ax.set_ylim(0.0, max(float(top_kmh), 1.0) * 1.12)
     ax.set_xlabel("distance to the stopping point (m)")
     ax.set_ylabel("speed (km/h)")
     ax.set_title(f"{station_name}: speed over distance", fontsize=11)
@@ -189,6 +196,55 @@ def _stop_zoom(inset: Axes, x: np.ndarray, v_kmh: np.ndarray, final_x: float, to
     inset.grid(True, alpha=0.4)
 
 
+# SPEC §3 driver actions (onboard.driver ACT_*): name and colour of the band under the curves.
+_ACTIONS = {
+    0: ("holds speed", "0.75"),
+    1: ("coasts", "0.9"),
+    2: ("brakes", "tab:blue"),
+    3: ("creeps forward", "tab:green"),
+    4: ("reverses", "tab:red"),
+    5: ("waits at the stand", "gold"),
+}
+
+
+def _driver_timeline(ax: Axes, trace: Trace, run: int) -> None:
+    """The driver's actions as a band at the foot of the axes, the lamps lit at each stand and
+    the supervision's alarm / emergency brake (SPEC §3)."""
+    from railstop.config.platform import LAMP_NAMES
+
+    t = trace.t_s[:, run]
+    action = trace.driver_action[:, run]
+    foot = blended_transform_factory(ax.transData, ax.transAxes)
+    shown: set[int] = set()
+    start = 0
+    for i in range(1, t.size + 1):
+        if i < t.size and action[i] == action[start]:
+            continue
+        code = int(action[start]) if np.isfinite(action[start]) else -1
+        if code in _ACTIONS:
+            name, colour = _ACTIONS[code]
+            ax.axvspan(
+                t[start],
+                t[min(i, t.size - 1)],
+                ymin=0.0,
+                ymax=0.04,
+                color=colour,
+                alpha=0.8,
+                label=f"driver {name}" if code not in shown else None,
+            )
+            shown.add(code)
+        start = i
+    lamp = trace.lamp[:, run]
+    for i in np.flatnonzero(np.isfinite(lamp) & (lamp > 0)):
+        if i > 0 and lamp[i - 1] == lamp[i]:
+            continue
+        name = LAMP_NAMES.get(int(lamp[i]), "?")
+        ax.text(t[i], 0.06, f"lamp {name}", transform=foot, fontsize=8, rotation=90, va="bottom", ha="right")
+    eb = np.flatnonzero(trace.supervision[:, run] == 2.0)
+    if eb.size:
+        ax.axvline(t[eb[0]], color="tab:red", lw=2.0, label="emergency brake (supervision)")
+
+
 def _decel_panel(
     ax: Axes,
     trace: Trace,
@@ -203,6 +259,7 @@ def _decel_panel(
     brake = trace.brake_decel_mps2[:, run]
     total = -trace.accel_mps2[:, run]
 
+    driver = bool(np.isfinite(trace.driver_action[:, run]).any())
     # The target is drawn wide and underneath: the demand often equals it exactly.
     ax.step(
         t,
@@ -212,8 +269,10 @@ def _decel_panel(
         lw=3.5,
         alpha=0.7,
         zorder=1,
-        label="commanded (target)",
+        label="needed, as the driver judges" if driver else "commanded (target)",
     )
+    if driver:
+        _driver_timeline(ax, trace, run)
     ax.plot(t, demand, color="tab:purple", lw=1.2, ls="--", zorder=3, label="ECU demand")
     ax.plot(t, brake, color="tab:blue", lw=1.4, label="brake deceleration")
     ax.plot(t, total, color="tab:red", lw=1.0, alpha=0.8, label="train deceleration (−accel)")
