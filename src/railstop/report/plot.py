@@ -235,11 +235,11 @@ def _driver_timeline(ax: Axes, trace: Trace, run: int) -> None:
             shown.add(code)
         start = i
     lamp = trace.lamp[:, run]
-    for i in np.flatnonzero(np.isfinite(lamp) & (lamp > 0)):
-        if i > 0 and lamp[i - 1] == lamp[i]:
+    for j in np.flatnonzero(np.isfinite(lamp) & (lamp > 0)):
+        if j > 0 and lamp[j - 1] == lamp[j]:
             continue
-        name = LAMP_NAMES.get(int(lamp[i]), "?")
-        ax.text(t[i], 0.06, f"lamp {name}", transform=foot, fontsize=8, rotation=90, va="bottom", ha="right")
+        name = LAMP_NAMES.get(int(lamp[j]), "?")
+        ax.text(t[j], 0.06, f"lamp {name}", transform=foot, fontsize=8, rotation=90, va="bottom", ha="right")
     eb = np.flatnonzero(trace.supervision[:, run] == 2.0)
     if eb.size:
         ax.axvline(t[eb[0]], color="tab:red", lw=2.0, label="emergency brake (supervision)")
