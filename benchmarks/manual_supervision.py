@@ -39,7 +39,7 @@ def main() -> None:
     station = line.station(args.station)
     standard = load_disturbances("standard")
     platform = default_platform()
-    home = station.stop_point_m - 0.5 * platform.sensors.spacing_m - platform.approach.home_to_s2_m
+    home = platform.home_signal_m(station.stop_point_m)
     end = station.platform_end - station.stop_point_m
     print(
         f"{args.runs:,} runs per mode at {station.name}, standard set, seed {args.seed}; a driver who "

@@ -43,8 +43,7 @@ def runs(controller: str, n: int = 400, first: int = 0, **kw: object) -> BatchRe
 
 
 def home_signal() -> float:
-    p = default_platform()
-    return STATION.stop_point_m - 0.5 * p.sensors.spacing_m - p.approach.home_to_s2_m
+    return default_platform().home_signal_m(STATION.stop_point_m)
 
 
 # ----------------------------------------------------------------------------- data

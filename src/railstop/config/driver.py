@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, field_validator, model_validator
 
-from railstop.config.base import FieldProblem, Model, PositiveFloat
+from railstop.config.base import FieldProblem, Model
 from railstop.config.disturbances import Distribution
 from railstop.config.loader import data_text, read_toml, validate
 
@@ -35,6 +35,7 @@ LEVEL_PARAMETERS: tuple[str, ...] = (
     "brake_start_fraction",
     "code_margin_kmh",
 )
+MAX_LEVELS = 8
 # Per parameter: a lower bound every draw must respect (the driver must act, look, brake).
 _FLOOR = {
     "reaction_s": 0.0,
@@ -110,9 +111,6 @@ class DriverFile(Model):
         return levels
 
 
-MAX_LEVELS = 8
-
-
 def bounds(d: Distribution) -> tuple[float, float]:
     """The range of a draw (a normal without clip is unbounded)."""
     if d.fixed is not None:
@@ -172,4 +170,4 @@ def driver_arrays(driver: DriverFile) -> tuple[NDArray[np.float64], NDArray[np.f
     return table, restop
 
 
-__all__ = ["DriverFile", "Level", "PositiveFloat", "Restop", "default_driver", "driver_arrays", "load_driver"]
+__all__ = ["DriverFile", "Level", "Restop", "default_driver", "driver_arrays", "load_driver"]

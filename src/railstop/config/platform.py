@@ -103,6 +103,14 @@ class PlatformFile(Model):
                 )
         return rows
 
+    def home_signal_m(self, stop_point_m: float) -> float:
+        """The home signal's chainage for a stopping point: SPEC §3 fig. 3 puts S2
+        ``approach.home_to_s2_m`` beyond it (S2 from sensors.stop_sensors ``sensor_positions``)."""
+        from railstop.sensors.stop_sensors import sensor_positions
+
+        s2, _ = sensor_positions(stop_point_m, self.sensors.spacing_m)
+        return s2 - self.approach.home_to_s2_m
+
     def lamps(self) -> dict[tuple[bool, bool], str]:
         return {(bool(r.s2), bool(r.s1)): r.lamp for r in self.lamp_table}
 

@@ -266,24 +266,33 @@ def driver_output_1(dv: np.ndarray, t: float) -> tuple[int, bool]:
 
 
 @njit_inline
-def creep_time_1(distance: float, speed: float, accel: float, decel: float) -> float:
-    """Time of a move of ``distance`` (> 0) at walking pace: accelerate, creep, brake (a trapezoid,
-    or a triangle when the move is too short to reach the creep speed)."""
-    d_ramps = speed * speed * (0.5 / accel + 0.5 / decel)
-    if distance >= d_ramps:
-        return speed / accel + speed / decel + (distance - d_ramps) / speed
-    peak = np.sqrt(2.0 * distance / (1.0 / accel + 1.0 / decel))
-    return peak / accel + peak / decel
+def _creep_peak_1(distance: float, rs: np.ndarray) -> float:
+    """The top speed of a move of ``distance``: the creep speed, or less if the move is too short."""
+    speed, accel, decel = rs[RS_CREEP_SPEED], rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
+    if distance >= speed * speed * (0.5 / accel + 0.5 / decel):
+        return speed
+    return np.sqrt(2.0 * distance / (1.0 / accel + 1.0 / decel))
 
 
 @njit_inline
-def creep_position_1(distance: float, speed: float, accel: float, decel: float, tau: float) -> float:
+def creep_time_1(distance: float, rs: np.ndarray) -> float:
+    """Time of a move of ``distance`` (> 0) at walking pace (the re-stop parameters ``rs``):
+    accelerate, creep, brake (a trapezoid, or a triangle when the move is too short to reach the
+    creep speed)."""
+    accel, decel = rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
+    peak = _creep_peak_1(distance, rs)
+    ramps = 0.5 * peak * peak * (1.0 / accel + 1.0 / decel)
+    return peak / accel + peak / decel + (distance - ramps) / peak
+
+
+@njit_inline
+def creep_position_1(distance: float, rs: np.ndarray, tau: float) -> float:
     """How far a move of ``distance`` has gone ``tau`` after it started (same profile as creep_time_1)."""
-    total = creep_time_1(distance, speed, accel, decel)
+    total = creep_time_1(distance, rs)
     if tau >= total:
         return distance
-    d_ramps = speed * speed * (0.5 / accel + 0.5 / decel)
-    peak = speed if distance >= d_ramps else np.sqrt(2.0 * distance / (1.0 / accel + 1.0 / decel))
+    accel, decel = rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
+    peak = _creep_peak_1(distance, rs)
     t_up = peak / accel
     t_down = peak / decel
     if tau <= t_up:

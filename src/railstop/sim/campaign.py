@@ -583,6 +583,8 @@ def summarise(table: pa.Table, *, tolerance_m: float, platform_end_m: float | No
     def col(name: str) -> np.ndarray:
         return table.column(name).to_numpy()
 
+    # SPEC §3: the driver columns are summarised where a run had a lamp (a driver controller).
+    lamp = col("lamp") if "lamp" in table.column_names else None
     stats = summary_stats(
         col("stop_error_m"),
         col("max_jerk_mps3"),
@@ -593,8 +595,8 @@ def summarise(table: pa.Table, *, tolerance_m: float, platform_end_m: float | No
         emergency_brake=col("emergency_brake") if "emergency_brake" in table.column_names else None,
         platform_end_m=platform_end_m,
         low_adhesion=col("low_adhesion") if "low_adhesion" in table.column_names else None,
-        manual=(col("first_stop_error_m"), col("restops"), col("lamp"))
-        if "lamp" in table.column_names and bool(np.any(col("lamp") > 0))
+        manual=(col("first_stop_error_m"), col("restops"), lamp)
+        if lamp is not None and bool(np.any(lamp > 0))
         else None,
     )
     return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in stats.items()}

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.driver import LEVEL_PARAMETERS, LV_PARAMS, LV_WIDTH, DriverFile
-from railstop.config.platform import PlatformFile
+from railstop.config.platform import LAMP_CODES, PlatformFile
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
 from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
@@ -61,9 +61,6 @@ from railstop.onboard.driver import (
     DV_ACTION,
     DV_REQUIRED,
     DV_SIZE,
-    RS_CREEP_ACCEL,
-    RS_CREEP_DECEL,
-    RS_CREEP_SPEED,
     RS_EB_RESET,
     RS_JUDGEMENT_FLOOR,
     RS_MAX,
@@ -182,11 +179,9 @@ CTRL_DRIVER_ATC1 = 11
 CTRL_DRIVER_ATC2 = 12
 CTRL_DRIVER_UNAIDED = 13
 
-# Platform lamps at a stand (SPEC §3; config.platform LAMP_CODES).
-LAMP_F = 1
-LAMP_OK = 2
-LAMP_R = 3
-LAMP_FAULT = 4
+# The lamps the driver corrects for at a stand (SPEC §3).
+LAMP_F = LAMP_CODES["F"]
+LAMP_R = LAMP_CODES["R"]
 
 # Scenario columns (one row per run): what the disturbance draw decides.
 SC_ENTRY_SPEED = 0
@@ -268,10 +263,11 @@ KP_GRACE = 27
 KP_ATC = 28  # 1: ATC supervision (indicated / permitted speed), 0: ATS
 KP_ATC_MARGIN = 29  # m/s: permitted = indicated + this
 KP_INCAPACITATED = 30  # 1: the driver never brakes (the supervision check)
-KP_SENSOR_SPACING = 31  # stop sensors S2, S1
-KP_SENSOR_NOISE = 32
-KP_START_BEFORE_HOME = 33  # a driver's run starts at least this far before the home signal
-KP_SIZE = 34
+KP_S2 = 31  # the stop sensors' chainages (sensors.stop_sensors sensor_positions) ...
+KP_S1 = 32
+KP_SENSOR_NOISE = 33  # ... and their noise
+KP_START_BEFORE_HOME = 34  # a driver's run starts at least this far before the home signal
+KP_SIZE = 35
 
 # Results per run.
 RES_ERROR = 0  # front at rest minus stopping point (+ = overrun)
@@ -429,18 +425,15 @@ def _own_command_1(
 
 
 @njit_inline
-def _stand_lamp_1(
-    x: float, stop_point: float, kp: np.ndarray, lamp_table: np.ndarray, key: np.uint64, stand: int
-) -> int:
-    """SPEC §3: the lamp for a train front at rest at ``x``: S2 and S1 (symmetric about the
-    stopping point, sensors.stop_sensors) each see the front, off by the sensor's noise; the
-    platform data's lamp table decides (wayside.platform; its debounce settles on this reading).
+def _stand_lamp_1(x: float, kp: np.ndarray, lamp_table: np.ndarray, key: np.uint64, stand: int) -> int:
+    """SPEC §3: the lamp for a train front at rest at ``x``: S2 and S1 (sensors.stop_sensors)
+    each see the front, off by the sensor's noise; the platform data's lamp table decides
+    (wayside.platform; its debounce settles on this reading).
     [interpretation] a scan's dropout is left to the platform verification: over a stand of
     seconds the debounced reading is the settled one."""
-    half = 0.5 * kp[KP_SENSOR_SPACING]
     noise = kp[KP_SENSOR_NOISE]
-    s2 = x + noise * key_normal(key, 2 * stand) >= stop_point - half
-    s1 = x + noise * key_normal(key, 2 * stand + 1) >= stop_point + half
+    s2 = x + noise * key_normal(key, 2 * stand) >= kp[KP_S2]
+    s1 = x + noise * key_normal(key, 2 * stand + 1) >= kp[KP_S1]
     return int(lamp_table[2 * int(s2) + int(s1)])
 
 
@@ -467,23 +460,10 @@ def _record_move(
             return rows
         tau = min(i * dt, total)
         moving = tau > wait
-        gone = (
-            creep_position_1(
-                abs(move), rs[RS_CREEP_SPEED], rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL], tau - wait
-            )
-            if moving
-            else 0.0
-        )
+        gone = creep_position_1(abs(move), rs, tau - wait) if moving else 0.0
         speed = 0.0
         if moving:
-            ahead = creep_position_1(
-                abs(move),
-                rs[RS_CREEP_SPEED],
-                rs[RS_CREEP_ACCEL],
-                rs[RS_CREEP_DECEL],
-                min(tau - wait + dt, duration),
-            )
-            speed = (ahead - gone) / dt
+            speed = (creep_position_1(abs(move), rs, min(tau - wait + dt, duration)) - gone) / dt
         for j in range(TR_SIZE):
             trace[rows, j] = np.nan
         trace[rows, TR_T] = t0 + tau
@@ -936,7 +916,7 @@ def _simulate_run(
         mu = sc[SC_LOW_MU] if in_patch else sc[SC_MU]
         x0 = x
         v0 = v
-        hold = not braking and not eb
+        hold = not braking
         x, v, accel, now_stopped, st, sliding = motion_step_1(
             x,
             v,
@@ -973,9 +953,7 @@ def _simulate_run(
         revs = (x - x0) * creep_1(sliding, ssr) / (np.pi * wheel)
         odometer = revs * np.pi * assumed
         odo_step = odometer
-        if is_driver:
-            pass  # the driver judges by eye (driver_look_1); his speedometer is the tachometer
-        elif is_ato:
+        if is_ato:
             ato_odometer_1(at, odometer)
             if corrected_positioning:
                 corrected, calibrated = fixes_step_run(
@@ -1009,7 +987,7 @@ def _simulate_run(
             elif passage_1(transponders, transponder_next, x0, x):
                 ato_fix_1(at, stop_point - transponders[transponder_next])
                 transponder_next += 1
-        else:
+        elif not is_driver:  # a driver judges by eye (driver_look_1); his speedometer is the tachometer
             # The train's own ATP resets its odometer at the transponders; at the first one (the
             # zone's start) its brake controller applies the initial brake step.
             if passage_1(transponders, transponder_next, x0, x):
@@ -1062,7 +1040,7 @@ def _simulate_run(
     if is_driver and stopped:
         # SPEC §3 lamps at the stand, and the driver's corrections (F: forward, R: reverse).
         k_sensors = stream_key(keys0[_K_STOP_SENSORS], run)
-        lamp = _stand_lamp_1(x, stop_point, kp, lamp_table, k_sensors, 0)
+        lamp = _stand_lamp_1(x, kp, lamp_table, k_sensors, 0)
         t_end = stop_time
         setup = rs[RS_EB_RESET] if eb_cause > 0.0 else 0.0
         while lamp in (LAMP_F, LAMP_R) and restops < int(rs[RS_MAX]) and not incapacitated:
@@ -1070,7 +1048,7 @@ def _simulate_run(
             setup = 0.0
             judged = abs(restop_judgement_1(rs, k_driver, restops, stop_point - x))
             move = judged if lamp == LAMP_F else -judged
-            duration = creep_time_1(judged, rs[RS_CREEP_SPEED], rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL])
+            duration = creep_time_1(judged, rs)
             if record:
                 rows = _record_move(
                     trace,
@@ -1088,7 +1066,7 @@ def _simulate_run(
             x += move
             t_end += wait + duration
             restops += 1
-            lamp = _stand_lamp_1(x, stop_point, kp, lamp_table, k_sensors, restops)
+            lamp = _stand_lamp_1(x, kp, lamp_table, k_sensors, restops)
         stop_time = t_end
         if record and rows < trace.shape[0]:
             for j in range(TR_SIZE):
@@ -1528,15 +1506,14 @@ def _manual_arrays(
             "lamp_table": np.zeros(4),
         }
     from railstop.config.driver import default_driver, driver_arrays
-    from railstop.config.platform import LAMP_CODES, default_platform
+    from railstop.config.platform import default_platform
+    from railstop.sensors.stop_sensors import sensor_positions
 
     driver = default_driver() if driver is None else driver
     platform = default_platform() if platform is None else platform
     mode, atc = _DRIVER_MODES[controller]
     approach = platform.approach
-    sensors = platform.sensors
-    # SPEC §3 fig. 3: the stopping point is midway between S2 and S1, home_to_s2_m beyond the home signal.
-    home = station.stop_point_m - 0.5 * sensors.spacing_m - approach.home_to_s2_m
+    home = platform.home_signal_m(station.stop_point_m)
     codes = getattr(approach, mode).codes
     kp[KP_HOME] = home
     kp[KP_APPROACH_LIMIT] = approach.approach_limit_kmh / 3.6
@@ -1544,8 +1521,8 @@ def _manual_arrays(
     kp[KP_ATC] = atc
     kp[KP_ATC_MARGIN] = approach.atc_permitted_margin_kmh / 3.6
     kp[KP_INCAPACITATED] = incapacitated
-    kp[KP_SENSOR_SPACING] = sensors.spacing_m
-    kp[KP_SENSOR_NOISE] = sensors.noise_sd_m
+    kp[KP_S2], kp[KP_S1] = sensor_positions(station.stop_point_m, platform.sensors.spacing_m)
+    kp[KP_SENSOR_NOISE] = platform.sensors.noise_sd_m
     kp[KP_START_BEFORE_HOME] = START_BEFORE_HOME_M
     levels, rs = driver_arrays(driver)
     lamps = platform.lamps()
