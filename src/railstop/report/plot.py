@@ -25,6 +25,7 @@ from matplotlib.axes import Axes
 from matplotlib.transforms import blended_transform_factory
 
 from railstop.errors import RailstopError
+from railstop.onboard.driver import ACT_BRAKE, ACT_COAST, ACT_CREEP_FORWARD, ACT_HOLD, ACT_REVERSE, ACT_WAIT
 from railstop.report.figures import write_figure
 from railstop.sim.engine import Trace
 
@@ -119,7 +120,6 @@ def _speed_panel(
     if np.isfinite(limit_kmh).any():
         # SPEC §3 driver controllers: the held ATS code / the ATC indicated speed.
         ax.step(x, limit_kmh, where="post", color="tab:orange", ls="-.", lw=1.5, label="speed code (ADU)")
-        v_kmh = np.where(np.isfinite(limit_kmh), np.maximum(v_kmh, np.nan_to_num(limit_kmh)), v_kmh)
     band = ax.axvspan(
         -tolerance_m, tolerance_m, color="tab:green", alpha=0.25, label=f"PSD tolerance ±{tolerance_m:g} m"
     )
@@ -145,7 +145,6 @@ def _speed_panel(
             ha="right" if crowded else "left",
             fontsize=9,
         )
-    v_kmh = trace.speed_mps[:, run] * KMH_PER_MPS
     ax.plot(
         [final_x],
         [v_kmh[-1]],
@@ -196,20 +195,20 @@ def _stop_zoom(inset: Axes, x: np.ndarray, v_kmh: np.ndarray, final_x: float, to
     inset.grid(True, alpha=0.4)
 
 
-# SPEC §3 driver actions (onboard.driver ACT_*): name and colour of the band under the curves.
+# SPEC §3 driver actions: name and colour of the band under the curves.
 _ACTIONS = {
-    0: ("holds speed", "0.75"),
-    1: ("coasts", "0.9"),
-    2: ("brakes", "tab:blue"),
-    3: ("creeps forward", "tab:green"),
-    4: ("reverses", "tab:red"),
-    5: ("waits at the stand", "gold"),
+    ACT_HOLD: ("holds speed", "0.75"),
+    ACT_COAST: ("coasts", "0.9"),
+    ACT_BRAKE: ("brakes", "tab:blue"),
+    ACT_CREEP_FORWARD: ("creeps forward", "tab:green"),
+    ACT_REVERSE: ("reverses", "tab:red"),
+    ACT_WAIT: ("waits at the stand", "gold"),
 }
 
 
 def _driver_timeline(ax: Axes, trace: Trace, run: int) -> None:
     """The driver's actions as a band at the foot of the axes, the lamps lit at each stand and
-    the supervision's alarm / emergency brake (SPEC §3)."""
+    the supervision's emergency brake (SPEC §3)."""
     from railstop.config.platform import LAMP_NAMES
 
     t = trace.t_s[:, run]
