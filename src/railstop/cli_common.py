@@ -6,11 +6,14 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
 from rich.text import Text
+
+if TYPE_CHECKING:
+    from railstop.sim.invariants import Invariant, Verification
 
 # Markup is off: names, traces and messages come from user data and are printed literally
 # (a station "[A]" stays "[A]"); styled output is built from rich Text objects (styled()).
@@ -49,12 +52,8 @@ OperationOpt = Annotated[
 def print_verification(
     *,
     title: str,
-    rows: Sequence[tuple[str, str, int]],
-    examples: Sequence[tuple[str, str, Sequence[str]]],
-    states: int,
-    transitions: int,
-    violations: int,
-    seconds: float,
+    invariants: Sequence[Invariant[Any]],
+    result: Verification,
     notes: Sequence[str] = (),
 ) -> None:
     """What every ``... verify`` command prints: the invariants with their violations, the first
@@ -65,16 +64,18 @@ def print_verification(
     table.add_column("invariant")
     table.add_column("what it checks")
     table.add_column("violations", justify="right")
-    for name, text, n in rows:
-        table.add_row(name, text, styled(str(n), "bold red") if n else "0")
+    for inv in invariants:
+        n = result.counts.get(inv.name, 0)
+        table.add_row(inv.name, inv.text, styled(str(n), "bold red") if n else "0")
     out.print(table)
-    for name, message, trace in examples:
-        out.print(Text.assemble(styled(name, "bold red"), f": {message}; trace:"), highlight=False)
-        for line in trace:
+    for ex in result.examples:
+        out.print(Text.assemble(styled(ex.invariant, "bold red"), f": {ex.message}; trace:"), highlight=False)
+        for line in ex.trace:
             out.print(f"  {line}", highlight=False, soft_wrap=True)
     for note in notes:
         out.print(note, highlight=False, soft_wrap=True)
     out.print(
-        f"states: {states}  transitions: {transitions}  violations: {violations}  ({seconds:.1f} s)",
+        f"states: {result.states}  transitions: {result.transitions}  violations: {result.violations}  "
+        f"({result.elapsed_s:.1f} s)",
         highlight=False,
     )

@@ -115,15 +115,7 @@ def verify_cmd(
             highlight=False,
             soft_wrap=True,
         )
-        print_verification(
-            title="invariants",
-            rows=[(inv.name, inv.text, result.counts[inv.name]) for inv in INVARIANTS],
-            examples=[(v.invariant, v.message, v.trace) for v in result.examples],
-            states=result.states,
-            transitions=result.transitions,
-            violations=result.violations,
-            seconds=result.elapsed_s,
-        )
+        print_verification(title="invariants", invariants=INVARIANTS, result=result)
     if result.violations:
         raise typer.Exit(1)
 

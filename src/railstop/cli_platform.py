@@ -51,14 +51,6 @@ def verify_cmd(
         highlight=False,
         soft_wrap=True,
     )
-    print_verification(
-        title="invariants",
-        rows=[(inv.name, inv.text, result.counts[inv.name]) for inv in INVARIANTS],
-        examples=[(ex.invariant, ex.message, ex.trace) for ex in result.examples],
-        states=result.states,
-        transitions=result.transitions,
-        violations=result.violations,
-        seconds=result.seconds,
-    )
+    print_verification(title="invariants", invariants=INVARIANTS, result=result)
     if result.violations:
         raise typer.Exit(1)

@@ -87,11 +87,7 @@ def _print_result(result: VerifyResult) -> None:
     seen = ", ".join(f"{k} {n}" for k, n in result.coverage.items() if not k.startswith("status-"))
     print_verification(
         title=f"invariants ({result.mode.value} zones)",
-        rows=[(inv.name, inv.text, result.counts.get(inv.name, 0)) for inv in INVARIANTS],
-        examples=[(v.invariant, v.message, v.trace) for v in result.examples],
-        states=result.states,
-        transitions=result.transitions,
-        violations=result.violations,
-        seconds=result.elapsed_s,
+        invariants=INVARIANTS,
+        result=result,
         notes=[f"seen (transitions): {seen or 'nothing'}"],
     )

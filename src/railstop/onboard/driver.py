@@ -223,8 +223,8 @@ def driver_look_1(
         dv[DV_BRAKING] = 1.0
     # Learn the brake's effectiveness from the deceleration felt (a settled notch, still moving).
     if notch > 0 and t - dv[DV_NOTCH_T] >= _SETTLE_S and v > 1.0:
-        felt = -accel / table[notch]
-        dv[DV_GAIN] += _GAIN_RATE * (min(max(felt, 0.5), 1.5) - dv[DV_GAIN])
+        ratio = -accel / table[notch]
+        dv[DV_GAIN] += _GAIN_RATE * (min(max(ratio, 0.5), 1.5) - dv[DV_GAIN])
     hold = False
     if need < _COAST_FRACTION * planned:
         choice = 0

@@ -3,8 +3,9 @@ an invariant as data and a violation with its trace."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Generic, Protocol, TypeVar
 
 C = TypeVar("C")
 
@@ -29,3 +30,21 @@ class Violation:
     invariant: str
     message: str
     trace: tuple[str, ...]
+
+
+class Verification(Protocol):
+    """What every exhaustive check returns: the size of the search, the violating transitions
+    per invariant, the first counterexample of each, and how long it took."""
+
+    @property
+    def states(self) -> int: ...
+    @property
+    def transitions(self) -> int: ...
+    @property
+    def violations(self) -> int: ...
+    @property
+    def counts(self) -> Mapping[str, int]: ...
+    @property
+    def examples(self) -> Sequence[Violation]: ...
+    @property
+    def elapsed_s(self) -> float: ...

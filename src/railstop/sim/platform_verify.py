@@ -126,7 +126,7 @@ class VerifyResult:
     counts: dict[str, int]
     examples: tuple[Violation, ...]
     lamps_seen: tuple[str, ...]
-    seconds: float
+    elapsed_s: float
 
 
 def _snapshot(u: PlatformUnit) -> tuple[object, ...]:
@@ -313,5 +313,5 @@ def verify(
         counts=counts,
         examples=tuple(examples.values()),
         lamps_seen=tuple(sorted(lamps)),
-        seconds=round(time.perf_counter() - start_t, 2),
+        elapsed_s=round(time.perf_counter() - start_t, 2),
     )
