@@ -35,6 +35,7 @@ from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
 from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES, external_params
+from railstop.controllers import DRIVER_ATC1, DRIVER_ATC2, DRIVER_ATS, DRIVER_UNAIDED
 from railstop.errors import RailstopError, SimulationError
 from railstop.jit import njit, njit_inline, njit_step
 from railstop.link.channel import airtime_s, media_preset
@@ -1270,17 +1271,17 @@ CONTROLLER_CODES: dict[str, int] = {
     **CONFIG_CODES,
     "ato": CTRL_ATO,
     "ato-corrected": CTRL_ATO_CORRECTED,
-    "driver-ats": CTRL_DRIVER_ATS,
-    "driver-atc1": CTRL_DRIVER_ATC1,
-    "driver-atc2": CTRL_DRIVER_ATC2,
-    "driver-unaided": CTRL_DRIVER_UNAIDED,
+    DRIVER_ATS: CTRL_DRIVER_ATS,
+    DRIVER_ATC1: CTRL_DRIVER_ATC1,
+    DRIVER_ATC2: CTRL_DRIVER_ATC2,
+    DRIVER_UNAIDED: CTRL_DRIVER_UNAIDED,
 }
-# Each driver controller's approach (config.platform Approach) and supervision.
+# Each driver controller's approach (config.platform Approach) and supervision (True: ATC).
 _DRIVER_MODES: dict[str, tuple[str, bool]] = {
-    "driver-ats": ("ats", False),
-    "driver-atc1": ("atc1", True),
-    "driver-atc2": ("atc2", True),
-    "driver-unaided": ("unaided", False),
+    DRIVER_ATS: ("ats", False),
+    DRIVER_ATC1: ("atc1", True),
+    DRIVER_ATC2: ("atc2", True),
+    DRIVER_UNAIDED: ("unaided", False),
 }
 START_BEFORE_HOME_M = 300.0
 
