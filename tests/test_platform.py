@@ -52,9 +52,20 @@ def test_s1_without_s2_is_a_sensor_fault_no_lamp_psd_held() -> None:
 def test_debounce_keeps_a_single_s1_dropout_from_lighting_ok_for_an_overrun() -> None:
     for debounce, expect in ((3, "R"), (1, "OK")):
         u = unit(debounce)
-        scan(u, True, True, n=5)
-        lamp = scan(u, True, False, n=1)  # one scan where S1 missed the train
+        scan(u, True, False, n=1)  # the first scan after the stop: S1 missed the train
+        lamp = scan(u, True, True, n=5)
         assert lamp.lamp == expect
+
+
+def test_the_lamp_holds_at_a_stand_once_the_sensors_have_settled() -> None:
+    """A train at a stand does not move: a front standing within a sensor's noise of S1 must not
+    flip OK to R (dropping the relay and the PSD in front of open train doors); moving resets."""
+    u = unit()
+    assert scan(u, True, False).lamp == "OK"
+    assert scan(u, True, True, n=10).lamp == "OK"
+    assert scan(u, False, False, n=10).lamp == "OK"
+    scan(u, True, True, standstill=False, n=1)
+    assert scan(u, True, True).lamp == "R"
 
 
 def test_signal_open_switch_passes_the_train_with_the_psd_held() -> None:

@@ -19,7 +19,18 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from railstop.cli_common import LineOpt, OperationOpt, VehicleOpt, fail, out, print_error, styled
+from railstop.cli_common import (
+    DriverOpt,
+    LineOpt,
+    OperationOpt,
+    PlatformOpt,
+    VehicleOpt,
+    fail,
+    load_manual_data,
+    out,
+    print_error,
+    styled,
+)
 from railstop.cli_doors import doors_app, dwell
 from railstop.cli_line import line_app
 from railstop.cli_platform import platform_app
@@ -28,15 +39,19 @@ from railstop.cli_telegram import telegram_app
 from railstop.cli_zones import zones_app
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
-from railstop.controllers import CONTROLLERS
+from railstop.controllers import CONTROLLERS, DRIVER_CONTROLLERS
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
     from rich.console import RenderableType
     from typer._click import Command, Context
 
+    from railstop.config.driver import DriverFile
+    from railstop.config.platform import PlatformFile
     from railstop.config.schema import Line, Station, Vehicle
+    from railstop.sim.dwell import DwellEvent
     from railstop.sim.engine import BatchResult
+    from railstop.sim.platform_dwell import PlatformDwellResult
     from railstop.sim.single import StopResult
     from railstop.store.db import StopRecord
 
@@ -196,6 +211,8 @@ def stop(
     ] = False,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
 ) -> None:
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
     from railstop.config.disturbances import load_disturbances
@@ -220,6 +237,7 @@ def stop(
         ln, veh = load_checked(line, vehicle)
         st = ln.station(station)
         dist = None if disturbances is None else load_disturbances(disturbances)
+        drv, plat = load_manual_data(driver, platform, [controller])
         result, batch = run_stop(
             line=ln,
             station=st,
@@ -232,15 +250,25 @@ def stop(
             disturbances=dist,
             run=run,
             tolerance_m=_tolerance(tolerance_m),
+            driver=drv,
+            platform=plat,
         )
+        dwell = _driver_dwell(result, batch, st, plat)
         if not no_db:
             _save(db, stop_record(result, line=ln, station=st, vehicle=veh))
+            if dwell is not None:
+                # SPEC §3: the lamp and PSD timeline of the stop and its dwell.
+                from railstop.store import open_store
+
+                with open_store(db) as store:
+                    store.save_dwell(key=f"{result.run_key}|platform-dwell", station=st.name, events=dwell[1])
         if plot is not None:
             plot = _plot(plot, result, batch, st)
     except RailstopError as exc:
         fail(str(exc))
     if as_json:
-        print(json.dumps(result.summary()))
+        extra = {} if dwell is None else {"platform_dwell": _dwell_json(dwell[0])}
+        print(json.dumps({**result.summary(), **extra}))
         if not result.stopped:
             raise typer.Exit(1)
         return
@@ -308,8 +336,34 @@ def stop(
         wayside.append(f"{result.detectors_filled} missed detector passage(s) filled in from the Doppler")
     if wayside:
         out.print("wayside: " + "; ".join(wayside), highlight=False, soft_wrap=True)
+    if dwell is not None:
+        from railstop.sim.platform_dwell import dwell_sentence
+
+        saved = "" if no_db else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
+        out.print(f"dwell: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)
+
+
+def _driver_dwell(
+    result: StopResult, batch: BatchResult, station: Station, platform: PlatformFile | None
+) -> tuple[PlatformDwellResult, list[DwellEvent]] | None:
+    """SPEC §3: a driver stop that came to rest goes on into its dwell (None for the others)."""
+    if result.driver_level is None or not result.stopped:
+        return None
+    from railstop.config.doors import load_doors
+    from railstop.config.platform import default_platform
+    from railstop.sim.platform_dwell import dwell_after_stop
+
+    return dwell_after_stop(
+        result, batch, station=station, platform=platform or default_platform(), doors=load_doors(None)
+    )
+
+
+def _dwell_json(dwell: PlatformDwellResult) -> dict[str, object]:
+    summary = dwell.summary()
+    summary.pop("timeline")
+    return summary
 
 
 def _save(db: Path, record: StopRecord) -> None:
@@ -516,22 +570,28 @@ def _run_one_campaign(
     scheduler: str | None = None,
     tolerance_m: float | None = None,
     form: int | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
     from railstop.store import open_store
 
+    spec_controller = _controller(controller)
     spec = CampaignSpec(
         line=ln,
         vehicle=veh,
         station=ln.station(station).name,
-        controller=_controller(controller),
+        controller=spec_controller,
         runs=runs,
         seed=seed,
         disturbances=load_disturbances(disturbances),
         chunk_size=chunk_size,
         tolerance_m=tolerance_m,
         form=form,
+        # Only a driver controller reads them: the other campaigns keep their identity.
+        driver=driver if spec_controller in DRIVER_CONTROLLERS else None,
+        platform=platform if spec_controller in DRIVER_CONTROLLERS else None,
     )
     n_workers = workers or os.cpu_count() or 1
 
@@ -682,12 +742,15 @@ def campaign(
     form: FormOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
 ) -> None:
     """Monte Carlo campaign: many stops of one controller under a disturbance set."""
     from railstop.config.plausibility import load_checked
 
     try:
         ln, veh = load_checked(line, vehicle)
+        drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
         target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())
         row = _run_one_campaign(
@@ -706,6 +769,8 @@ def campaign(
             scheduler=scheduler,
             tolerance_m=_tolerance(tolerance_m),
             form=form,
+            driver=drv,
+            platform=plat,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -740,8 +805,11 @@ def _compare(
     db: Path,
     tolerance_m: float | None = None,
     form: int | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
 ) -> list[dict[str, object]]:
-    """Every controller on identical draws (same seed, same disturbance set)."""
+    """Every controller on identical draws (same seed, same disturbance set); ``driver`` and
+    ``platform`` go to the driver controllers."""
     return [
         _run_one_campaign(
             ln=ln,
@@ -759,6 +827,8 @@ def _compare(
             db=db,
             tolerance_m=tolerance_m,
             form=form,
+            driver=driver,
+            platform=platform,
         )
         for ctrl in CONTROLLERS
     ]
@@ -785,12 +855,15 @@ def compare(
     form: FormOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
 ) -> None:
     """Run every controller on identical disturbance draws and print one table."""
     from railstop.config.plausibility import load_checked
 
     try:
         ln, veh = load_checked(line, vehicle)
+        drv, plat = load_manual_data(driver, platform)
         st = ln.station(station)
         target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())
         rows = _compare(
@@ -808,6 +881,8 @@ def compare(
             db=db,
             tolerance_m=_tolerance(tolerance_m),
             form=form,
+            driver=drv,
+            platform=plat,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -965,18 +1040,29 @@ def report(
     ] = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
 ) -> None:
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
     from railstop.config import load_line, load_vehicle
     from railstop.report.campaign_report import write_report
-    from railstop.sim.campaign import replay_profile
+    from railstop.sim.campaign import read_manifest, replay_profile
 
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
+        drv, plat = load_manual_data(driver, platform)
 
         def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
-            return replay_profile(campaign_dir, run, ln, veh)
+            manual = read_manifest(campaign_dir).get("manual_data_sha256") is not None
+            return replay_profile(
+                campaign_dir,
+                run,
+                ln,
+                veh,
+                driver=drv if manual else None,
+                platform=plat if manual else None,
+            )
 
         with Reporter(f"report {directory}", unit="figures") as status:
             path = write_report(

@@ -12,7 +12,11 @@ import typer
 from rich.console import Console
 from rich.text import Text
 
+from railstop.errors import RailstopError
+
 if TYPE_CHECKING:
+    from railstop.config.driver import DriverFile
+    from railstop.config.platform import PlatformFile
     from railstop.sim.invariants import Invariant, Verification
 
 # Markup is off: names, traces and messages come from user data and are printed literally
@@ -42,6 +46,16 @@ def fail(message: str) -> NoReturn:
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
+]
+DriverOpt = Annotated[
+    Path | None,
+    typer.Option("--driver", help="Driver TOML file for the driver-* controllers (default: embedded)."),
+]
+PlatformOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--platform", help="Platform TOML file: stop sensors, lamps, camera, approach (default: embedded)."
+    ),
 ]
 OperationOpt = Annotated[
     Path | None,
@@ -78,4 +92,27 @@ def print_verification(
         f"states: {result.states}  transitions: {result.transitions}  violations: {result.violations}  "
         f"({result.elapsed_s:.1f} s)",
         highlight=False,
+    )
+
+
+def load_manual_data(
+    driver: Path | None, platform: Path | None, controllers: Sequence[str] = ()
+) -> tuple[DriverFile | None, PlatformFile | None]:
+    """The ``--driver`` / ``--platform`` files (None where not given). ``controllers``: the ones the
+    command runs; the files are refused when none of them is a driver controller (they would
+    change nothing, which a user would not expect)."""
+    from railstop.config.driver import load_driver
+    from railstop.config.platform import load_platform
+    from railstop.controllers import DRIVER_CONTROLLERS
+
+    if controllers and not any(c in DRIVER_CONTROLLERS for c in controllers):
+        for option, value in (("--driver", driver), ("--platform", platform)):
+            if value is not None:
+                raise RailstopError(
+                    f"{option}: only the driver controllers ({', '.join(DRIVER_CONTROLLERS)}) use it "
+                    f"(got --controller {controllers[0]})"
+                )
+    return (
+        None if driver is None else load_driver(driver)[0],
+        None if platform is None else load_platform(platform)[0],
     )

@@ -100,6 +100,23 @@ class PlatformLamps:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class DoorCameraFrame:
+    """SPEC §3: one frame of the platform's CCD camera, as its image processing classified the
+    train doors' shape: open (True), closed (False), or unreadable / lost (None)."""
+
+    doors_open: bool | None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PsdCommand:
+    """SPEC §3: what the PSD control tells the PSD doors (open or close) and whether it still
+    knows the train doors' shape (``camera_ok`` False: the camera is lost, the PSD is held)."""
+
+    open: bool
+    camera_ok: bool
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SpeedCode:
     """SPEC §3: the speed limit an ATS point gives (held until the next point) or the ATC speed
     code the pick-up coil receives (the ADU's indicated speed)."""
@@ -152,6 +169,8 @@ Message = (
     | PsdDoorState
     | SignalOpenSwitch
     | PlatformLamps
+    | DoorCameraFrame
+    | PsdCommand
     | OnboardPosition
 )
 

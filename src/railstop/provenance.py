@@ -21,6 +21,15 @@ def inputs_sha256(*parts: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def overrides_sha256(*models: Any) -> str | None:
+    """The SHA-256 of data files given in place of embedded ones (pydantic models, None where the
+    embedded file is used); None when every one is embedded, so that results on the embedded data
+    keep their keys and identities."""
+    if all(m is None for m in models):
+        return None
+    return inputs_sha256(*(None if m is None else m.model_dump(mode="json") for m in models))
+
+
 def manifest_sha256(manifest: dict[str, Any]) -> str:
     """A campaign's identity: the SHA-256 of its manifest as sorted JSON (chunk files carry it)."""
     return hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()

@@ -68,6 +68,7 @@ class Stream(IntEnum):
     CBTC_RADIO = 16  # SPEC §4 train radio: a generator per (seed, train, direction); counter 0.. faults
     DRIVER = 17  # SPEC §3 the human driver of a run: counter 0 level, 1.. parameters, looks, re-stops
     STOP_SENSORS = 18  # SPEC §3 platform stop sensors at a stand: counter 2k S2, 2k + 1 S1 of stand k
+    PLATFORM_DWELL = 19  # SPEC §3 a manual line's dwell: a generator per (seed, dwell); sensors, camera
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:

@@ -35,6 +35,18 @@ class StopSensors(Model):
     debounce_scans: Annotated[int, Field(ge=1, le=100)] = 3
 
 
+class DoorCamera(Model):
+    """SPEC §3: the CCD camera that shows the PSD control the train doors' shape (open / closed)."""
+
+    frame_period_s: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.1
+    processing_delay_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.3
+    open_fraction: Annotated[float, Field(gt=0.0, lt=1.0, allow_inf_nan=False)] = 0.3
+    misread_probability: Annotated[float, Field(ge=0.0, lt=0.5, allow_inf_nan=False)] = 0.01
+    lost_frame_probability: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.001
+    confirm_frames: Annotated[int, Field(ge=1, le=100)] = 3
+    lost_limit_frames: Annotated[int, Field(ge=1, le=1000)] = 10
+
+
 class LampRow(Model):
     s2: Bit
     s1: Bit
@@ -87,6 +99,7 @@ class Approach(Model):
 
 class PlatformFile(Model):
     sensors: StopSensors = Field(default_factory=StopSensors)
+    camera: DoorCamera = Field(default_factory=DoorCamera)
     lamp_table: list[LampRow]
     approach: Approach = Field(default_factory=Approach)
 

@@ -8,6 +8,7 @@ corrections with the platform lamp that asked for them (F / R, SPEC §3).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -21,7 +22,7 @@ from matplotlib.patches import Patch
 
 from railstop.errors import RailstopError
 from railstop.report.figures import write_figure
-from railstop.sim.dwell import DwellResult
+from railstop.sim.dwell import DwellEvent, DwellResult
 
 _DPI = 120
 
@@ -36,13 +37,16 @@ _STATE_COLOURS: dict[str, str] = {
     "obstructed": "#d62728",
     "jammed": "#a50f15",
     "isolated": "#9467bd",
+    "lost": "#d62728",
 }
 _ABNORMAL = ("obstructed", "jammed", "isolated")
+# SPEC §3 platform lamps.
+_LAMP_COLOURS: dict[str, str] = {"F": "#ffd92f", "R": "#fc8d62", "OK": "#2ca02c", "S": "#6baed6"}
 _BINARY_COLOUR = "#1f77b4"
 
 
-def _series(result: DwellResult, signal: str) -> list[tuple[float, int | float | str]]:
-    return [(e.t_s, e.value) for e in result.timeline if e.signal == signal]
+def _series(timeline: Sequence[DwellEvent], signal: str) -> list[tuple[float, int | float | str]]:
+    return [(e.t_s, e.value) for e in timeline if e.signal == signal]
 
 
 def _segments(
@@ -67,12 +71,8 @@ def _state_colour(value: str) -> str:
 def plot_dwell(result: DwellResult, path: str | Path, *, footer: str = "") -> Path:
     """Write the timeline PNG of ``result`` to ``path``; return the path. ``footer``: where the
     plot comes from (``railstop.provenance.footer``), small at the bottom."""
-    out = Path(path)
-    if not out.parent.is_dir():
-        raise RailstopError(f"{out}: directory {str(out.parent)!r} does not exist")
     side = result.platform_side
     other = "L" if side == "R" else "R"
-    end_s = max(result.dwell_total_s, 1.0) * 1.03 + 0.5
     lanes: list[tuple[str, str, str]] = [
         # (label, signal, kind)
         (f"DMC-{side}", f"DMC-{side}", "binary"),
@@ -90,37 +90,83 @@ def plot_dwell(result: DwellResult, path: str | Path, *, footer: str = "") -> Pa
         ("creep (lamp)", "creep", "creep"),
         ("emergency brake", "emergency_brake", "binary"),
     ]
+    outcome = (
+        f"start enable at {result.start_enable_s:g} s"
+        if result.start_enable_s is not None
+        else ("FAULT + emergency brake" if result.fault else result.outcome)
+    )
+    title = (
+        f"Dwell at {result.station} ({result.mode} mode, platform side {side}): {outcome}\n"
+        f"stop error {result.stop_error_m:+.2f} m (tolerance ±{result.tolerance_m:g} m), "
+        f"{result.psc_attempts} PSC attempt(s), {result.corrections} correction(s)"
+    )
+    timeline = result.timeline
+    marks: list[tuple[float, str]] = []
+    psc = [t for t, v in _series(timeline, "PSC") if v == 1]
+    if psc:
+        marks.append((psc[0], "PSC"))
+    dcc = [t for t, v in _series(timeline, "DCC") if v == 1]
+    if dcc:
+        marks.append((dcc[0], "close"))
+    if result.start_enable_s is not None:
+        marks.append((result.start_enable_s, "start enable"))
+    eb = [t for t, v in _series(timeline, "emergency_brake") if v == 1]
+    if eb:
+        marks.append((eb[0], "emergency brake"))
+    return plot_timeline(
+        timeline,
+        lanes,
+        path,
+        title=title,
+        marks=marks,
+        start_s=0.0,
+        end_s=max(result.dwell_total_s, 1.0) * 1.03 + 0.5,
+        xlabel="time since the train stopped (s)",
+        footer=footer,
+    )
+
+
+def plot_timeline(
+    timeline: Sequence[DwellEvent],
+    lanes: Sequence[tuple[str, str, str]],
+    path: str | Path,
+    *,
+    title: str,
+    marks: Sequence[tuple[float, str]],
+    start_s: float,
+    end_s: float,
+    xlabel: str,
+    footer: str = "",
+) -> Path:
+    """One lane per signal over time (``lanes``: label, signal, kind ``binary`` | ``state`` |
+    ``creep`` | ``lamp``), dashed lines at the ``marks`` (time, name); return the path written."""
+    out = Path(path)
+    if not out.parent.is_dir():
+        raise RailstopError(f"{out}: directory {str(out.parent)!r} does not exist")
     height_in = 1.2 + 0.42 * len(lanes)
     fig, ax = plt.subplots(figsize=(12.0, height_in), dpi=_DPI, layout="constrained")
     try:
         for row, (_label, signal, kind) in enumerate(lanes):
             y = len(lanes) - 1 - row
-            _lane(ax, y, _segments(_series(result, signal), end_s), kind, end_s)
+            _lane(ax, y, _segments(_series(timeline, signal), end_s), kind, end_s - start_s)
         ax.set_yticks(range(len(lanes)))
         ax.set_yticklabels([lane[0] for lane in reversed(lanes)], fontsize=9)
-        ax.set_ylim(-0.6, len(lanes) + 0.3)  # head-room for the milestone names
-        ax.set_xlim(0.0, end_s)
-        ax.set_xlabel("time since the train stopped (s)")
+        ax.set_ylim(-0.6, len(lanes) + 0.55)  # head-room for the milestone names
+        ax.set_xlim(start_s, end_s)
+        ax.set_xlabel(xlabel)
         ax.grid(True, axis="x", alpha=0.35)
         for y in range(len(lanes)):
             ax.axhline(y - 0.5, color="0.9", lw=0.6, zorder=0)
-        _milestones(ax, result, len(lanes), end_s)
+        _milestones(ax, sorted(marks), len(lanes), start_s, end_s)
+        # The legend names the colours the picture uses.
+        seen = {str(e.value).split(" ")[0] for e in timeline if any(e.signal == sig for _, sig, _ in lanes)}
+        states = {k: c for k, c in _STATE_COLOURS.items() if k in seen}
+        states |= {f"lamp {k}": c for k, c in _LAMP_COLOURS.items() if k in seen}
         handles = [Patch(color=_BINARY_COLOUR, label="signal high")] + [
-            Patch(color=c, label=s.replace("_", " ")) for s, c in _STATE_COLOURS.items()
+            Patch(color=c, label=s.replace("_", " ")) for s, c in states.items()
         ]
         fig.legend(handles=handles, loc="outside lower center", ncol=9, fontsize=8, frameon=False)
-        outcome = (
-            f"start enable at {result.start_enable_s:g} s"
-            if result.start_enable_s is not None
-            else ("FAULT + emergency brake" if result.fault else result.outcome)
-        )
-        fig.suptitle(
-            f"Dwell at {result.station} ({result.mode} mode, platform side {side}): {outcome}\n"
-            f"stop error {result.stop_error_m:+.2f} m (tolerance ±{result.tolerance_m:g} m), "
-            f"{result.psc_attempts} PSC attempt(s), {result.corrections} correction(s)",
-            fontsize=11,
-            fontweight="bold",
-        )
+        fig.suptitle(title, fontsize=11, fontweight="bold")
         if footer:
             fig.text(0.005, 0.002, footer, fontsize=7, color="0.4", ha="left", va="bottom")
         out = write_figure(fig, out, _DPI)
@@ -130,7 +176,7 @@ def plot_dwell(result: DwellResult, path: str | Path, *, footer: str = "") -> Pa
 
 
 def _lane(
-    ax: Axes, y: int, segments: list[tuple[float, float, int | float | str]], kind: str, end_s: float
+    ax: Axes, y: int, segments: list[tuple[float, float, int | float | str]], kind: str, span_s: float
 ) -> None:
     h = 0.62
     for t0, t1, v in segments:
@@ -147,6 +193,12 @@ def _lane(
                 ax.text((t0 + t1) / 2, y, v, ha="center", va="center", fontsize=8, fontweight="bold")
             else:
                 ax.plot([t0, t1], [y - h / 2, y - h / 2], color="#17becf", lw=1.0)
+        elif kind == "lamp":
+            if isinstance(v, str) and v in _LAMP_COLOURS:
+                ax.broken_barh([(t0, t1 - t0)], (y - h / 2, h), color=_LAMP_COLOURS[v])
+                ax.text((t0 + t1) / 2, y, v, ha="center", va="center", fontsize=8, fontweight="bold")
+            else:
+                ax.plot([t0, t1], [y - h / 2, y - h / 2], color="0.5", lw=1.0)
         else:
             text = str(v)
             ax.broken_barh(
@@ -154,34 +206,22 @@ def _lane(
             )
             # A label where the bar is wide enough for it (about 0.9 % of the axis per character).
             short = text.replace("_", " ")
-            if (t1 - t0) > 0.009 * end_s * max(len(short), 4):
+            if (t1 - t0) > 0.009 * span_s * max(len(short), 4):
                 ax.text((t0 + t1) / 2, y, short, ha="center", va="center", fontsize=7, clip_on=True)
 
 
-def _milestones(ax: Axes, result: DwellResult, n_lanes: int, end_s: float) -> None:
-    """Dashed lines at PSC high, doors open, close command and start enable."""
-    marks: list[tuple[float, str]] = []
-    psc = [t for t, v in _series(result, "PSC") if v == 1]
-    if psc:
-        marks.append((psc[0], "PSC"))
-    dcc = [t for t, v in _series(result, "DCC") if v == 1]
-    if dcc:
-        marks.append((dcc[0], "close"))
-    if result.start_enable_s is not None:
-        marks.append((result.start_enable_s, "start enable"))
-    eb = [t for t, v in _series(result, "emergency_brake") if v == 1]
-    if eb:
-        marks.append((eb[0], "emergency brake"))
-    marks.sort()
+def _milestones(ax: Axes, marks: list[tuple[float, str]], n_lanes: int, start_s: float, end_s: float) -> None:
+    """Dashed lines at the marks, named at the top."""
+    span = end_s - start_s
     level = 0
     for i, (t, label) in enumerate(marks):
         ax.axvline(t, color="0.3", ls="--", lw=0.9, zorder=3)
-        right = t > 0.8 * end_s  # near the right edge: name left of the line
+        right = t > start_s + 0.8 * span  # near the right edge: name left of the line
         # Names of marks close together go on alternate heights so they do not overlap.
-        level = 1 - level if i and t - marks[i - 1][0] < 0.2 * end_s else 0
+        level = (level + 1) % 3 if i and t - marks[i - 1][0] < 0.2 * span else 0
         ax.text(
             t,
-            n_lanes - 0.42 + 0.32 * level,
+            n_lanes - 0.42 + 0.3 * level,
             f"{label} {t:g} s " if right else f" {label} {t:g} s",
             fontsize=8,
             va="bottom",
@@ -189,3 +229,46 @@ def _milestones(ax: Axes, result: DwellResult, n_lanes: int, end_s: float) -> No
             color="0.15",
             bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85},
         )
+
+
+def plot_platform_dwell(
+    timeline: Sequence[DwellEvent], path: str | Path, *, title: str, xlabel: str, footer: str = ""
+) -> Path:
+    """The lamp and PSD timeline of a manually driven train (SPEC §3): the lamps at its stands, the
+    PSD relay, the driver, the train doors, the camera, the PSD and the departure permission."""
+    lanes: list[tuple[str, str, str]] = [
+        ("lamp", "lamp", "lamp"),
+        ("PSD relay", "psd_relay", "binary"),
+        ("driver", "driver", "state"),
+        ("train doors", "train_doors", "state"),
+        ("camera sees", "camera", "state"),
+        ("PSD", "PSD", "state"),
+        ("departure permitted", "departure_permitted", "binary"),
+        ("moving", "moving", "binary"),
+        ("signal-open switch", "signal_open", "binary"),
+    ]
+    if not timeline:
+        raise RailstopError("the timeline is empty: nothing to plot")
+    times = [e.t_s for e in timeline]
+    start, last = min(times), max(times)
+    marks = [(e.t_s, f"stand {float(e.value):+.2f} m") for e in timeline if e.signal == "stand_error_m"]
+    for signal, value, name, which in (
+        ("train_doors", "open", "doors open", 0),
+        ("PSD", "open", "PSD open", 0),
+        ("moving", 1, "depart", -1),  # the last start: the earlier ones are corrections
+    ):
+        hit = [t for t, v in _series(timeline, signal) if v == value]
+        if hit:
+            marks.append((hit[which], name))
+    span = max(last - start, 1.0)
+    return plot_timeline(
+        timeline,
+        lanes,
+        path,
+        title=title,
+        marks=marks,
+        start_s=start - 0.02 * span,
+        end_s=last + 0.03 * span + 0.5,
+        xlabel=xlabel,
+        footer=footer,
+    )

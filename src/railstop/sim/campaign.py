@@ -47,7 +47,7 @@ from railstop.config.driver import DriverFile
 from railstop.config.platform import PlatformFile
 from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
-from railstop.provenance import inputs_sha256, manifest_sha256, stamp
+from railstop.provenance import inputs_sha256, manifest_sha256, overrides_sha256, stamp
 from railstop.report.campaign_report import RESULT_COLUMNS, summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
 from railstop.sim.executor import blocks, describe, execute
@@ -106,6 +106,9 @@ class CampaignSpec:
     # The PSD tolerance of the summary (None: the station's psd_tolerance_m). Not in the
     # manifest: it does not change a run, so a resume may summarise with another one.
     tolerance_m: float | None = None
+    # The driver controllers' data given in place of the embedded files (None: embedded).
+    driver: DriverFile | None = None
+    platform: PlatformFile | None = None
 
     def tolerance(self) -> float:
         return (
@@ -114,7 +117,7 @@ class CampaignSpec:
 
     def manifest(self) -> dict[str, Any]:
         st = self.line.station(self.station)
-        return {
+        out: dict[str, Any] = {
             "kind": "railstop-campaign",
             "version": MANIFEST_VERSION,
             "model_version": MODEL_VERSION,
@@ -132,6 +135,10 @@ class CampaignSpec:
             # The data the numbers come from: a resume must use the same.
             "data_sha256": _data_hash(self.line, self.vehicle),
         }
+        manual = overrides_sha256(self.driver, self.platform)
+        if manual is not None:  # only then: a campaign on the embedded data keeps its identity
+            out["manual_data_sha256"] = manual
+        return out
 
     def identity(self) -> str:
         """The campaign's identity: the SHA-256 of its manifest (every chunk file carries it)."""
@@ -250,6 +257,8 @@ def simulate_block(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
         n=end - first,
         form=spec.form,
         track=spec.line.track,
+        driver=spec.driver,
+        platform=spec.platform,
     )
     return _chunk_table(first, result, drawn)
 
@@ -615,8 +624,17 @@ def read_manifest(out: Path) -> dict[str, Any]:
     return data
 
 
-def spec_from_manifest(manifest: dict[str, Any], line: Line, vehicle: Vehicle, source: str) -> CampaignSpec:
-    """The campaign a manifest describes, with the line and vehicle data it was run on."""
+def spec_from_manifest(
+    manifest: dict[str, Any],
+    line: Line,
+    vehicle: Vehicle,
+    source: str,
+    *,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
+) -> CampaignSpec:
+    """The campaign a manifest describes, with the line, vehicle (and driver, platform) data it was
+    run on."""
     if manifest.get("model_version") != MODEL_VERSION:
         raise RailstopError(
             f"{source}: the campaign was made by stop model version {manifest.get('model_version', 1)}; "
@@ -626,6 +644,11 @@ def spec_from_manifest(manifest: dict[str, Any], line: Line, vehicle: Vehicle, s
         raise RailstopError(
             f"{source}: the campaign was run on other line or vehicle data than given "
             "(pass the same --line / --vehicle files)"
+        )
+    if manifest.get("manual_data_sha256") != overrides_sha256(driver, platform):
+        raise RailstopError(
+            f"{source}: the campaign was run on other driver or platform data than given "
+            "(pass the same --driver / --platform files)"
         )
     dist = manifest["disturbances"]
     return CampaignSpec(
@@ -638,12 +661,24 @@ def spec_from_manifest(manifest: dict[str, Any], line: Line, vehicle: Vehicle, s
         disturbances=DisturbanceSet.from_dict(dist["set"], name=str(dist["name"]), source=source),
         chunk_size=int(manifest["chunk_size"]),
         form=int(manifest["form"]),
+        driver=driver,
+        platform=platform,
     )
 
 
-def replay_profile(out: Path, run: int, line: Line, vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray]:
+def replay_profile(
+    out: Path,
+    run: int,
+    line: Line,
+    vehicle: Vehicle,
+    *,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Run ``run`` of the campaign in ``out`` again with recording: (distance to the stop m, speed km/h)."""
-    spec = spec_from_manifest(read_manifest(out), line, vehicle, str(Path(out) / MANIFEST))
+    spec = spec_from_manifest(
+        read_manifest(out), line, vehicle, str(Path(out) / MANIFEST), driver=driver, platform=platform
+    )
     station = line.station(spec.station)
     result, _ = simulate_runs(
         station=station,
@@ -656,6 +691,8 @@ def replay_profile(out: Path, run: int, line: Line, vehicle: Vehicle) -> tuple[n
         form=spec.form,
         record=True,
         track=line.track,
+        driver=spec.driver,
+        platform=spec.platform,
     )
     if result.trace is None:
         raise RailstopError("replay recorded no trace")

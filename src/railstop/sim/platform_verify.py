@@ -12,9 +12,13 @@ real :class:`~railstop.wayside.platform.PlatformUnit`:
   (a dropout reads "no train"), at most ``max_dropouts`` scans in a row per
   sensor: the debounce is meant to ride out fewer than ``debounce_scans``;
 * the train doors open and close at a stand (the zero-velocity relay keeps
-  them shut while moving); the PSD follows them (SPEC §3: the camera sees
-  the doors) but may open only while the relay is energised, and closes at
-  any time;
+  them shut while moving);
+* the CCD camera shows them to the real PSD control
+  (:class:`~railstop.wayside.platform.PsdFollower`) frame by frame: as they
+  are, misread (at most ``max_misreads`` frames in a row: the control is
+  meant to ride out fewer than ``confirm_frames``), or unreadable (without
+  bound: a camera may be lost for good); the PSD opens and closes as the
+  control commands;
 * the signal-open switch goes on and off.
 
 Invariants (data, each a plain function; the tests hand the search a broken
@@ -23,7 +27,12 @@ lamp table or unit and watch each one fail):
 * ``relay-only-on-ok``: after a scan, the PSD relay is energised only with
   OK lit, the train at a stand and its front truly in the window;
 * ``departure-psd-closed``: departure is never permitted with the PSD open;
-* ``no-lamp-while-moving``: no lamp once a scan has seen the train move.
+* ``no-lamp-while-moving``: no lamp once a scan has seen the train move;
+* ``psd-command-only-on-ok``: after a scan, the PSD control commands the PSD
+  open only with OK lit, the train at a stand and its front in the window;
+* ``psd-not-closed-on-open-doors``: the PSD control never turns an open command
+  into a close while the train doors are open and the relay is energised (a
+  misread frame, or a lost camera, must not shut the PSD on passengers).
 """
 
 from __future__ import annotations
@@ -33,11 +42,12 @@ import itertools
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any, NamedTuple
 
-from railstop.messages import PsdDoorState, SignalOpenSwitch, StopSensorScan
+from railstop.messages import DoorCameraFrame, PsdDoorState, SignalOpenSwitch, StopSensorScan
 from railstop.sim.invariants import Invariant, Violation
-from railstop.wayside.platform import PlatformUnit
+from railstop.wayside.platform import PlatformUnit, PsdFollower
 
 PLACES = ("approach", "short", "window", "over", "gone")
 #: What each sensor truly sees for a front in each place: (S2, S1).
@@ -50,8 +60,9 @@ TRUTH: Mapping[str, tuple[bool, bool]] = {
 }
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class State:
+class State(NamedTuple):
+    """A state of the search (a named tuple: the search makes millions of them)."""
+
     place: str
     moving: bool
     train_doors_open: bool
@@ -59,7 +70,9 @@ class State:
     drop_s2: int  # the sensor's dropouts in a row so far
     drop_s1: int
     scanned_moving: bool  # a scan has seen the train move since it started
+    misreads: int  # the camera's misread frames in a row so far
     unit: tuple[object, ...]  # the platform unit's state
+    follower: tuple[object, ...]  # the PSD control's state
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -70,6 +83,8 @@ class Step:
     lamp: str | None
     psd_enable: bool
     departure_permitted: bool
+    command_before: bool  # the PSD control's command: open (True) before and after the event
+    command_after: bool
 
 
 Check = Callable[[Step], "str | None"]
@@ -98,6 +113,22 @@ def _no_lamp_while_moving(s: Step) -> str | None:
     return None
 
 
+def _psd_command_only_on_ok(s: Step) -> str | None:
+    # SPEC §3: the PSD operates only while OK is lit (fig. 4: sensors -> lamps -> PSD relay).
+    a = s.after
+    if s.event.startswith("scan") and s.command_after and (s.lamp != "OK" or a.moving or a.place != "window"):
+        return f"PSD commanded open with lamp {s.lamp}, the front {a.place}, moving={a.moving}"
+    return None
+
+
+def _psd_not_closed_on_open_doors(s: Step) -> str | None:
+    # SPEC §3: the PSD follows the train doors; [interpretation] DESIGN rule 10: an unsure camera
+    # holds the PSD where it is rather than shut it on passengers in an open train door.
+    if s.command_before and not s.command_after and s.after.train_doors_open and s.psd_enable:
+        return "PSD commanded closed with the train doors open and OK lit"
+    return None
+
+
 INVARIANTS: tuple[Invariant[Check], ...] = (
     Invariant(
         name="relay-only-on-ok",
@@ -114,6 +145,18 @@ INVARIANTS: tuple[Invariant[Check], ...] = (
         name="no-lamp-while-moving",
         text="no lamp once a scan has seen the train move",
         check=_no_lamp_while_moving,
+    ),
+    Invariant(
+        name="psd-command-only-on-ok",
+        text="after a scan the PSD control commands the PSD open only with OK lit, the train at a stand, "
+        "its front between S2 and S1",
+        check=_psd_command_only_on_ok,
+    ),
+    Invariant(
+        name="psd-not-closed-on-open-doors",
+        text="the PSD control never closes an open PSD while the train doors are open and OK is lit "
+        "(fewer misread camera frames in a row than it confirms; lost frames without bound)",
+        check=_psd_not_closed_on_open_doors,
     ),
 )
 
@@ -145,10 +188,23 @@ def _snapshot(u: PlatformUnit) -> tuple[object, ...]:
     )
 
 
+def _follower_snapshot(f: PsdFollower) -> tuple[object, ...]:
+    # Capped like the unit's counts: a run beyond the confirmation, a loss beyond the limit tell
+    # nothing more.
+    return (
+        f.relay,
+        f.shape,
+        f.run_shape,
+        min(f.run, f.confirm_frames),
+        min(f.lost, f.lost_limit_frames),
+        f.command,
+    )
+
+
 def _copy(u: PlatformUnit) -> PlatformUnit:
     c = copy.copy(u)
-    c.s2 = copy.copy(u.s2)
-    c.s1 = copy.copy(u.s1)
+    c.s2 = replace(u.s2)  # the debouncers are the unit's only mutable parts
+    c.s1 = replace(u.s1)
     return c
 
 
@@ -171,7 +227,7 @@ def _moves(state: State) -> list[tuple[str, dict[str, object]]]:
                 )
             else:
                 out.append((f"stop {place}", {"place": place, "moving": False}))
-    else:
+    elif not state.moving:
         if not state.train_doors_open:
             out.append(("start", {"moving": True, "scanned_moving": False}))
             out.append(("train doors open", {"train_doors_open": True}))
@@ -183,13 +239,21 @@ def _moves(state: State) -> list[tuple[str, dict[str, object]]]:
 def verify(
     unit_factory: Callable[[], PlatformUnit],
     *,
+    follower_factory: Callable[[], PsdFollower] = PsdFollower,
     max_dropouts: int = 2,
+    max_misreads: int | None = None,
     invariants: Sequence[Invariant[Check]] = INVARIANTS,
-    max_states: int = 500_000,
+    max_states: int = 2_000_000,
+    stop_when_all_violated: bool = False,
 ) -> VerifyResult:
-    """Search every state from a train approaching an empty platform."""
+    """Search every state from a train approaching an empty platform. ``max_misreads``: misread
+    camera frames in a row (default: one fewer than the PSD control confirms).
+    ``stop_when_all_violated``: end the search once every invariant has a counterexample (a
+    broken unit's check needs no more)."""
     start_t = time.perf_counter()
     unit0 = unit_factory()
+    follower0 = follower_factory()
+    misreads_allowed = follower0.confirm_frames - 1 if max_misreads is None else max_misreads
     first = State(
         place="approach",
         moving=True,
@@ -198,9 +262,11 @@ def verify(
         drop_s2=0,
         drop_s1=0,
         scanned_moving=False,
+        misreads=0,
         unit=_snapshot(unit0),
+        follower=_follower_snapshot(follower0),
     )
-    units: dict[State, PlatformUnit] = {first: unit0}
+    units: dict[State, tuple[PlatformUnit, PsdFollower]] = {first: (unit0, follower0)}
     parent: dict[State, tuple[State, str] | None] = {first: None}
     queue: deque[State] = deque([first])
     counts = {inv.name: 0 for inv in invariants}
@@ -217,15 +283,25 @@ def verify(
             cur = prev
         return tuple(reversed(steps))
 
+    def changed(st: State, **change: Any) -> State:
+        return st._replace(**change)
+
     while queue:
+        if stop_when_all_violated and all(counts.values()):
+            break
         st = queue.popleft()
-        base = units[st]
-        candidates: list[tuple[str, State, PlatformUnit]] = []
-        # 1. a physical event (the next scan tells the unit).
+        base, base_f = units[st]
+        candidates: list[tuple[str, State, PlatformUnit, PsdFollower]] = []
+        # 1. a physical event (the next scan tells the unit). [interpretation] The train doors take
+        # seconds to move and the camera takes a frame every 0.1 s: each door state is seen long
+        # enough for the PSD control to confirm it before the doors change again (unless the camera
+        # is lost, when nothing is confirmed).
+        settled = base_f.shape == st.train_doors_open or not base_f.camera_ok()
         for label, change in _moves(st):
-            u = _copy(base)
-            nxt = State(**{**{f: getattr(st, f) for f in State.__dataclass_fields__}, **change})
-            candidates.append((label, nxt, u))
+            if "doors" in label and not settled:
+                continue
+            # The unit learns of it by the next scan, the control by the next frame: both unchanged.
+            candidates.append((label, changed(st, **change), base, base_f))
         # 2. a scan, with every allowed dropout (a miss reads "no train").
         truth = TRUTH[st.place]
         for d2, d1 in itertools.product((False, True), repeat=2):
@@ -239,49 +315,37 @@ def verify(
                 StopSensorScan(s2=truth[0] and not d2, s1=truth[1] and not d1, standstill=not st.moving), 0.0
             )
             what = "scan" + (" (S2 missed)" if d2 else "") + (" (S1 missed)" if d1 else "")
-            candidates.append(
-                (
-                    what,
-                    State(
-                        **{
-                            **{f: getattr(st, f) for f in State.__dataclass_fields__},
-                            "drop_s2": n2,
-                            "drop_s1": n1,
-                            "scanned_moving": st.scanned_moving or st.moving,
-                        }
-                    ),
-                    u,
-                )
-            )
-        # 3. the PSD follows the train doors (camera), opening only on the relay.
-        if not st.psd_open and st.train_doors_open and base.lamps().psd_enable:
+            nxt = changed(st, drop_s2=n2, drop_s1=n1, scanned_moving=st.scanned_moving or st.moving)
+            candidates.append((what, nxt, u, base_f))
+        # 3. a camera frame: the doors as they are, misread, or unreadable.
+        frames: list[tuple[str, bool | None, int]] = [("camera frame", st.train_doors_open, 0)]
+        if st.misreads < misreads_allowed:
+            frames.append(("camera frame (misread)", not st.train_doors_open, st.misreads + 1))
+        frames.append(("camera frame (unreadable)", None, st.misreads))
+        for label, seen, misreads in frames:
+            f = copy.copy(base_f)
+            f.handle(DoorCameraFrame(doors_open=seen), 0.0)
+            candidates.append((label, changed(st, misreads=misreads), base, f))
+        # 4. the PSD doors do what the PSD control commands.
+        if base_f.command.open != st.psd_open:
             u = _copy(base)
-            u.handle(PsdDoorState(closed_locked=False), 0.0)
-            candidates.append(
-                (
-                    "PSD opens",
-                    State(**{**{f: getattr(st, f) for f in State.__dataclass_fields__}, "psd_open": True}),
-                    u,
-                )
-            )
-        if st.psd_open and not st.train_doors_open:
-            u = _copy(base)
-            u.handle(PsdDoorState(closed_locked=True), 0.0)
-            candidates.append(
-                (
-                    "PSD closes",
-                    State(**{**{f: getattr(st, f) for f in State.__dataclass_fields__}, "psd_open": False}),
-                    u,
-                )
-            )
-        # 4. the signal-open switch.
+            u.handle(PsdDoorState(closed_locked=not base_f.command.open), 0.0)
+            label = "PSD opens" if base_f.command.open else "PSD closes"
+            candidates.append((label, changed(st, psd_open=base_f.command.open), u, base_f))
+        # 5. the signal-open switch.
         u = _copy(base)
         u.handle(SignalOpenSwitch(on=not base.signal_open), 0.0)
-        candidates.append((f"signal-open switch {'off' if base.signal_open else 'on'}", st, u))
-        for label, nxt, u in candidates:
+        candidates.append((f"signal-open switch {'off' if base.signal_open else 'on'}", st, u, base_f))
+        for label, nxt, u, f in candidates:
             transitions += 1
-            nxt = State(**{**{f: getattr(nxt, f) for f in State.__dataclass_fields__}, "unit": _snapshot(u)})
             lamps_now = u.lamps()
+            if lamps_now.psd_enable != f.relay:
+                # The PSD relay, as the platform unit now drives it. Objects are shared between
+                # states until something changes them: copy before.
+                if f is base_f:
+                    f = copy.copy(base_f)
+                f.handle(lamps_now, 0.0)
+            nxt = changed(nxt, unit=_snapshot(u), follower=_follower_snapshot(f))
             if lamps_now.lamp:
                 lamps.add(lamps_now.lamp)
             step = Step(
@@ -291,6 +355,8 @@ def verify(
                 lamp=lamps_now.lamp,
                 psd_enable=lamps_now.psd_enable,
                 departure_permitted=lamps_now.departure_permitted,
+                command_before=base_f.command.open,
+                command_after=f.command.open,
             )
             for inv in invariants:
                 why = inv.check(step)
@@ -304,7 +370,7 @@ def verify(
                 if len(parent) >= max_states:
                     raise RuntimeError(f"more than {max_states} states")
                 parent[nxt] = (st, label)
-                units[nxt] = u
+                units[nxt] = (u, f)
                 queue.append(nxt)
     return VerifyResult(
         states=len(parent),

@@ -8,9 +8,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
+from railstop.config.driver import DriverFile
+from railstop.config.platform import PlatformFile
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.supervision import eb_cause_name
-from railstop.provenance import inputs_sha256
+from railstop.provenance import inputs_sha256, overrides_sha256
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
@@ -56,6 +58,8 @@ class StopResult:
     restops: int = 0
     lamp: str | None = None
     driver_level: str | None = None
+    # The SHA-256 of driver / platform data given in place of the embedded files (None: embedded).
+    manual_data_sha256: str | None = None
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
     psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
@@ -74,6 +78,8 @@ class StopResult:
     @property
     def run_key(self) -> str:
         key = f"stop|{self.line}|{self.station}|{self.controller}|seed={self.seed}|form={self.form}"
+        if self.manual_data_sha256 is not None:
+            key += f"|manual-data={self.manual_data_sha256[:16]}"
         if self.disturbances is not None:
             return f"{key}|disturbances={self.disturbances}|run={self.run}"
         return f"{key}|load={self.load_factor:g}|gain={self.brake_gain:g}"
@@ -94,7 +100,7 @@ def _switch_over_s(batch: BatchResult) -> float | None:
     return round(float(trace.t_s[over[0], 0]) - first, 3) if over.size else None
 
 
-def _manual_outcome(batch: BatchResult) -> dict[str, Any]:
+def _manual_outcome(batch: BatchResult, driver: DriverFile | None) -> dict[str, Any]:
     """SPEC §3: what a driver controller's stop adds to the result (nothing for the others)."""
     from railstop.config.driver import default_driver
     from railstop.config.platform import LAMP_NAMES
@@ -106,7 +112,7 @@ def _manual_outcome(batch: BatchResult) -> dict[str, Any]:
         "first_stop_error_m": round(float(batch.first_stop_error_m[0]), 6),
         "restops": int(batch.restops[0]),
         "lamp": LAMP_NAMES.get(int(batch.lamp[0])),
-        "driver_level": list(default_driver().levels)[level],
+        "driver_level": list((driver or default_driver()).levels)[level],
     }
 
 
@@ -123,12 +129,15 @@ def run_stop(
     disturbances: DisturbanceSet | None = None,
     run: int = 0,
     tolerance_m: float | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
 ) -> tuple[StopResult, BatchResult]:
     """One detailed stop.
 
     Without ``disturbances``: nominal (exact sensors, ideal link) with the load
     and brake gain given. With them: run ``run`` of the campaign of that seed,
-    drawn and simulated by the very code the campaign uses.
+    drawn and simulated by the very code the campaign uses. ``driver``, ``platform``: the
+    driver controllers' data (None: the embedded files).
     """
     if disturbances is None:
         scenario = Scenario.nominal(station, vehicle, load_factor=load_factor, brake_gain=brake_gain)
@@ -141,6 +150,8 @@ def run_stop(
             form=form,
             record=True,
             track=line.track,
+            driver=driver,
+            platform=platform,
         )
     else:
         from railstop.sim.campaign import simulate_runs
@@ -156,23 +167,28 @@ def run_stop(
             form=None if form is None else int(form),
             record=True,
             track=line.track,
+            driver=driver,
+            platform=platform,
         )
         load_factor = float(drawn["load_factor"][0])
         brake_gain = float(drawn["brake_gain"][0])
     stop_time = float(batch.stop_time_s[0])
     tol = station.psd_tolerance_m if tolerance_m is None else tolerance_m
     error = round(float(batch.stop_error_m[0]), 6)
+    manual = overrides_sha256(driver, platform)
     inputs = inputs_sha256(
         line.model_dump(mode="json"),
         vehicle.model_dump(mode="json"),
         None if disturbances is None else disturbances.to_dict(),
+        *([] if manual is None else [manual]),
     )
     result = StopResult(
+        manual_data_sha256=manual,
         switch_over_s=_switch_over_s(batch),
         brake_delay_identified_s=_finite_or_none(batch.brake_delay_identified_s[0]),
         brake_lag_identified_s=_finite_or_none(batch.brake_lag_identified_s[0]),
         detectors_filled=int(batch.detectors_filled[0]),
-        **_manual_outcome(batch),
+        **_manual_outcome(batch, driver),
         controller=controller,
         station=station.name,
         line=line.line.name,

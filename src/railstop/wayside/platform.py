@@ -29,9 +29,11 @@ from dataclasses import dataclass, field
 from railstop.errors import InterlockError
 from railstop.messages import (
     BROADCAST,
+    DoorCameraFrame,
     Message,
     Output,
     PlatformLamps,
+    PsdCommand,
     PsdDoorState,
     SignalOpenSwitch,
     StopSensorScan,
@@ -115,8 +117,14 @@ class PlatformUnit:
     def handle(self, message: Message, now_s: float) -> list[Output]:
         if isinstance(message, StopSensorScan):
             if message.standstill:
-                self.s2.feed(message.s2)
-                self.s1.feed(message.s1)
+                # [interpretation] A train at a stand does not move: once both sensors have settled
+                # after the stop, the lamp holds until the train moves again. Later readings at the
+                # stand are noise or dropouts (a front standing within a sensor's noise of it would
+                # otherwise flip OK and F / R, drop the relay and shut the PSD in front of open
+                # train doors).
+                if self.s2.state is None or self.s1.state is None:
+                    self.s2.feed(message.s2)
+                    self.s1.feed(message.s1)
             else:
                 # Moving: a new stop (or a correction) starts afresh.
                 self.s2.reset()
@@ -135,6 +143,79 @@ class PlatformUnit:
         if now == self.last:
             return []
         self.last = now
+        return [Output(to=BROADCAST, message=now)]
+
+    def next_deadline_s(self) -> float | None:
+        return None
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        return []
+
+
+@dataclass(slots=True)
+class PsdFollower:
+    """SPEC §3 fig. 4: the PSD control. The PSD follows the train doors as the CCD camera sees
+    them, and only while the platform unit's PSD relay is energised (OK lit).
+
+    * A shape (open / closed) counts once ``confirm_frames`` readable frames in a row show it, so
+      a misread frame cannot move the PSD; unreadable frames neither confirm nor break a run.
+    * The PSD is told to open only with the relay energised and the doors confirmed open; it is
+      told to close when the relay drops or the doors are confirmed closed.
+    * ``lost_limit_frames`` unreadable frames in a row: the camera is lost and the doors' shape
+      unknown. [interpretation] (DESIGN rule 10) a closed PSD then stays closed and an open one
+      stays open (closing it could shut passengers between the PSD and an open train door);
+      departure needs the PSD closed (the platform unit), so the train is held until the camera
+      sees again or staff close the PSD by hand. The relay dropping still closes it (SPEC §3).
+    """
+
+    confirm_frames: int = 3
+    lost_limit_frames: int = 10
+    name: str = "psd-control"
+    accepts: tuple[type, ...] = (PlatformLamps, DoorCameraFrame)
+    relay: bool = False
+    shape: bool | None = None  # the confirmed shape: True open, False closed, None not known
+    run_shape: bool | None = None  # the shape of the current run of equal frames
+    run: int = 0
+    lost: int = 0
+    command: PsdCommand = field(default_factory=lambda: PsdCommand(open=False, camera_ok=True))
+
+    def __post_init__(self) -> None:
+        if self.confirm_frames < 1 or self.lost_limit_frames < 1:
+            raise InterlockError("psd-control: confirm_frames and lost_limit_frames must be at least 1")
+
+    def camera_ok(self) -> bool:
+        return self.lost < self.lost_limit_frames
+
+    def decide(self) -> PsdCommand:
+        """The command now (a pure function of the state)."""
+        ok = self.camera_ok()
+        if not self.relay:
+            return PsdCommand(open=False, camera_ok=ok)  # SPEC §3: only while OK is lit
+        if not ok or self.shape is None:
+            return PsdCommand(open=self.command.open, camera_ok=ok)  # unknown: held where it is
+        return PsdCommand(open=self.shape, camera_ok=ok)
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        if isinstance(message, PlatformLamps):
+            self.relay = message.psd_enable
+        elif isinstance(message, DoorCameraFrame):
+            seen = message.doors_open
+            if seen is None:
+                self.lost += 1
+                if not self.camera_ok():
+                    self.shape, self.run_shape, self.run = None, None, 0
+            else:
+                self.lost = 0
+                self.run = self.run + 1 if seen == self.run_shape else 1
+                self.run_shape = seen
+                if self.run >= self.confirm_frames:
+                    self.shape = seen
+        else:
+            raise InterlockError(f"psd-control: cannot take a {type(message).__name__}")
+        now = self.decide()
+        if now == self.command:
+            return []
+        self.command = now
         return [Output(to=BROADCAST, message=now)]
 
     def next_deadline_s(self) -> float | None:
