@@ -435,3 +435,38 @@ def test_a_line_campaign_refuses_to_mix_settings(tmp_path: Path) -> None:
     assert p.returncode == 2 and "already there" in p.stderr + p.stdout
     q = _campaign(out, "--runs", "2", "--resume")
     assert q.returncode == 2 and "other settings" in q.stderr + q.stdout
+
+
+def test_a_line_campaign_runs_on_a_dask_cluster_with_the_same_rows(tmp_path: Path) -> None:
+    """--scheduler: the runs go to a real Dask scheduler over loopback TCP; the rows are the same
+    as run here, whoever computed them."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=1,
+        threads_per_worker=2,
+        processes=False,
+        protocol="tcp://",
+        host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:
+        dask = _campaign(tmp_path / "dask", "--runs", "2", "--scheduler", cluster.scheduler_address, "--json")
+    assert dask.returncode == 0, dask.stderr
+    here = _campaign(tmp_path / "here", "--runs", "2", "--json")
+    assert here.returncode == 0, here.stderr
+
+    def rows(folder: str) -> list[dict[str, object]]:
+        text = (tmp_path / folder / "runs.jsonl").read_text(encoding="utf-8")
+        out = sorted((json.loads(line) for line in text.splitlines()), key=lambda r: int(r["run"]))
+        for row in out:  # the wall-clock figures are the machine's, not the run's
+            row["summary"].pop("wall_s")
+            row["summary"].pop("sim_to_wall")
+        return out
+
+    assert rows("dask") == rows("here")
+    assert json.loads(dask.stdout)["stations"] == json.loads(here.stdout)["stations"]
+
+
+def test_a_line_campaign_with_no_scheduler_there_fails_cleanly(tmp_path: Path) -> None:
+    p = _campaign(tmp_path / "c", "--runs", "1", "--scheduler", "tcp://127.0.0.1:9")
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and "127.0.0.1:9" in p.stderr

@@ -24,6 +24,7 @@ from railstop.cli_common import (
     LineOpt,
     OperationOpt,
     PlatformOpt,
+    SchedulerOpt,
     VehicleOpt,
     fail,
     load_manual_data,
@@ -545,10 +546,6 @@ DisturbancesOpt = Annotated[
 ]
 WorkersOpt = Annotated[
     int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
-]
-SchedulerOpt = Annotated[
-    str | None,
-    typer.Option(help="Run the chunks on the Dask scheduler at this address (tcp://HOST:PORT)."),
 ]
 ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
 

@@ -57,6 +57,10 @@ PlatformOpt = Annotated[
         "--platform", help="Platform TOML file: stop sensors, lamps, camera, approach (default: embedded)."
     ),
 ]
+SchedulerOpt = Annotated[
+    str | None,
+    typer.Option(help="Run the chunks on the Dask scheduler at this address (tcp://HOST:PORT)."),
+]
 OperationOpt = Annotated[
     Path | None,
     typer.Option("--operation", help="Operation TOML file: trains, headway, dwells (default: embedded)."),

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli_common import LineOpt, OperationOpt, VehicleOpt, fail
+from railstop.cli_common import LineOpt, OperationOpt, SchedulerOpt, VehicleOpt, fail
 from railstop.cli_common import out as console
 from railstop.errors import RailstopError
 
@@ -182,6 +182,7 @@ def campaign_cmd(
     signalling: SignallingOpt = "fixed-block",
     faults: FaultsOpt = None,
     workers: Annotated[int, typer.Option(min=1, max=256, help="Processes (default: 1).")] = 1,
+    scheduler: SchedulerOpt = None,
     out: Annotated[Path, typer.Option(help="Campaign folder.")] = Path("line-campaign"),
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
@@ -216,7 +217,7 @@ def campaign_cmd(
                 door_link_loss, odometer_error_pct, slide_probability, calibration, signalling, faults
             ),
         )
-        summary = run_line_campaign(spec, out, workers=workers, resume=resume)
+        summary = run_line_campaign(spec, out, workers=workers, resume=resume, scheduler=scheduler)
     except RailstopError as exc:
         fail(str(exc))
     if as_json:

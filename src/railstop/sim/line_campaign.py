@@ -11,10 +11,10 @@ The summary pools the stops of every run per station.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +25,7 @@ from railstop.config.disturbances import DisturbanceSet
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
+from railstop.sim.executor import execute
 from railstop.sim.line import LineSettings
 
 RUNS_FILE = "runs.jsonl"
@@ -103,8 +104,10 @@ def run_line_campaign(
     workers: int = 1,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
-    """Run the campaign into ``out`` (created); return its summary (also ``out/summary.json``)."""
+    """Run the campaign into ``out`` (created); return its summary (also ``out/summary.json``).
+    ``workers`` > 1: that many processes; ``scheduler``: the Dask scheduler at that address."""
     out = Path(out)
     ident = spec.identity()
     spec_path = out / SPEC_FILE
@@ -118,26 +121,23 @@ def run_line_campaign(
         spec_path.write_text(json.dumps(ident, sort_keys=True), encoding="utf-8")
     done = _read_done(out)
     todo = [r for r in range(spec.runs) if r not in done]
+    # Each run is a pure function of the spec and its index: in this process, in processes, or
+    # on a Dask cluster (sim.executor); each row is on disk before the next is taken.
+    rows = execute(
+        functools.partial(run_one, spec),
+        todo,
+        workers=workers,
+        scheduler=scheduler,
+        processes=scheduler is None and workers > 1,
+    )
     with (out / RUNS_FILE).open("a", encoding="utf-8") as sink:
-        if workers <= 1:
-            for r in todo:
-                row = run_one(spec, r)
-                sink.write(json.dumps(row) + "\n")
-                sink.flush()
-                done[r] = row
-                if progress:
-                    progress(len(done), spec.runs)
-        else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                futures = [pool.submit(run_one, spec, r) for r in todo]
-                for f in as_completed(futures):
-                    row = f.result()
-                    sink.write(json.dumps(row) + "\n")
-                    sink.flush()
-                    os.fsync(sink.fileno())
-                    done[int(row["run"])] = row
-                    if progress:
-                        progress(len(done), spec.runs)
+        for _, row in rows:
+            sink.write(json.dumps(row) + "\n")
+            sink.flush()
+            os.fsync(sink.fileno())
+            done[int(row["run"])] = row
+            if progress:
+                progress(len(done), spec.runs)
     summary = summarise(spec, [done[r] for r in sorted(done)])
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
     return summary
