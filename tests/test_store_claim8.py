@@ -5,14 +5,14 @@ Claim 8: the stopping point, the detector positions and the braking data
 computed command, with what went on the air (the telegram type and its
 decoded fields). Real SQLite files in ``tmp_path``; files of schema version 1
 are migrated on opening, files of a newer version refused. The PostgreSQL
-tests run when ``RAILSTOP_TEST_POSTGRES_URL`` names a database they may empty.
+tests run on a real server (``conftest.postgres_url``: a throwaway cluster of
+the machine's PostgreSQL, or ``RAILSTOP_TEST_POSTGRES_URL``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import sqlite3
 import subprocess
 import sys
@@ -447,18 +447,15 @@ def test_railstop_stop_writes_the_station_and_the_telegrams(tmp_path: Path) -> N
 # ------------------------------------------------------------------ PostgreSQL
 
 
-PG_URL = os.environ.get("RAILSTOP_TEST_POSTGRES_URL", "")
-needs_pg = pytest.mark.skipif(
-    not PG_URL, reason="set RAILSTOP_TEST_POSTGRES_URL to a PostgreSQL database the tests may empty"
-)
 _PG_TABLES = ("commands", "stop_results", "runs", "stations", "campaigns", "dwell_events", "schema_info")
 
 
 @pytest.fixture
-def pg() -> Iterator[str]:
+def pg(postgres_url: str) -> Iterator[str]:
+    """A real PostgreSQL database (conftest.postgres_url), emptied before and after."""
     from sqlalchemy import create_engine, text
 
-    engine = create_engine(PG_URL)
+    engine = create_engine(postgres_url.replace("postgresql://", "postgresql+psycopg://", 1))
 
     def empty() -> None:
         with engine.begin() as con:
@@ -467,13 +464,12 @@ def pg() -> Iterator[str]:
 
     empty()
     try:
-        yield PG_URL
+        yield postgres_url
     finally:
         empty()
         engine.dispose()
 
 
-@needs_pg
 def test_postgresql_station_and_telegrams(pg: str) -> None:
     record, _ = _stop(form=2)
     with open_store(pg) as store:
@@ -488,11 +484,10 @@ def test_postgresql_station_and_telegrams(pg: str) -> None:
         assert store.runs()[0]["parameters"]["brake"]["notch_decel_mps2"] == VEHICLE.brake.notch_decel_mps2
 
 
-@needs_pg
 def test_postgresql_migration_of_schema_version_1(pg: str) -> None:
     from sqlalchemy import create_engine, text
 
-    engine = create_engine(pg)
+    engine = create_engine(pg.replace("postgresql://", "postgresql+psycopg://", 1))
     with engine.begin() as con:
         for statement in (OLD_LAYOUT.format(id="SERIAL") + OLD_ROWS).split(";"):
             if statement.strip():

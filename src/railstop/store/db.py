@@ -596,6 +596,9 @@ def open_store(path: str | Path) -> Store:
             url = make_url(path)
         except ArgumentError:
             raise RailstopError(f"{path}: not a valid database URL") from None
+        if url.drivername == "postgresql":
+            # The driver railstop installs (psycopg 3), not SQLAlchemy's default (psycopg2).
+            url = url.set(drivername="postgresql+psycopg")
         # Never echo a password into logs or terminals.
         label = url.render_as_string(hide_password=True)
         db = url.database
