@@ -34,6 +34,7 @@ from railstop.cli_common import (
 )
 from railstop.cli_doors import doors_app, dwell
 from railstop.cli_line import line_app
+from railstop.cli_office import office_app
 from railstop.cli_platform import platform_app
 from railstop.cli_progress import Reporter, on_interrupt, run_program
 from railstop.cli_telegram import telegram_app
@@ -119,6 +120,7 @@ app.add_typer(telegram_app, name="telegram")
 app.add_typer(line_app, name="line")
 app.add_typer(zones_app, name="zones")
 app.add_typer(platform_app, name="platform")
+app.add_typer(office_app, name="office")
 
 FormOpt = Annotated[
     int | None,

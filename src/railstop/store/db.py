@@ -130,7 +130,8 @@ _STATION_JSON = ("detector_positions_m", "detectors_before_stop_m", "tasc")
 
 # 1: runs, commands (the CR_* columns only), stop_results, campaigns, dwell_events; no schema_info.
 # 2: stations; commands.emergency, telegram_type, telegram_json; schema_info.
-SCHEMA_VERSION = 2
+# 3: office_reports (the management office's log of what the wayside sent).
+SCHEMA_VERSION = 3
 
 _RUN_FIELDS: tuple[str, ...] = (
     "run_key",
@@ -347,6 +348,27 @@ class DwellEventRow(_Base):
     value: Mapped[str] = mapped_column(Text)
 
 
+class OfficeReportRow(_Base):
+    """One report the management office received from the wayside (SPEC §1 claims 7, 20).
+
+    The key (sender_id, session, seq) is the sender's numbering: a report sent again (its
+    acknowledgement lost, the office restarted) is kept once. ``data_json`` is the report's data
+    as sent; ``sent_s`` the sender's time, ``received_utc`` the office's.
+    """
+
+    __tablename__ = "office_reports"
+    __table_args__ = (UniqueConstraint("sender_id", "session", "seq", name="uq_office_reports_sender"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sender_id: Mapped[int] = mapped_column(Integer, index=True)
+    session: Mapped[int] = mapped_column(BigInteger)
+    seq: Mapped[int] = mapped_column(BigInteger)
+    kind: Mapped[str] = mapped_column(String(40), index=True)
+    sent_s: Mapped[float] = mapped_column(Float)
+    data_json: Mapped[str] = mapped_column(Text)
+    received_utc: Mapped[str] = mapped_column(String(40))
+
+
 # -- the store ----------------------------------------------------------------
 
 
@@ -506,6 +528,67 @@ class Store:
                 select(DwellEventRow.dwell_key).where(DwellEventRow.seq == 0).order_by(DwellEventRow.id)
             ).all()
             return [r[0] for r in rows]
+
+    def save_office_report(
+        self, *, sender_id: int, session: int, seq: int, kind: str, sent_s: float, data: Any
+    ) -> bool:
+        """Keep one report of the management office; False if it was already there (idempotent:
+        the same (sender, session, seq) again changes nothing, whoever sent it twice)."""
+        src = f"office report {sender_id}/{session}/{seq}"
+        values = {
+            "sender_id": _value(src, "sender_id", sender_id, int, False),
+            "session": _value(src, "session", session, int, False),
+            "seq": _value(src, "seq", seq, int, False),
+            "kind": _value(src, "kind", kind, str, False),
+            "sent_s": _value(src, "sent_s", sent_s, float, False),
+            "data_json": json.dumps(_json_data(src, "data", data), sort_keys=True),
+            "received_utc": _utc_now(),
+        }
+        key = (
+            OfficeReportRow.sender_id == values["sender_id"],
+            OfficeReportRow.session == values["session"],
+            OfficeReportRow.seq == values["seq"],
+        )
+        for attempt in range(2):
+            try:
+                with self._session() as session_, session_.begin():
+                    if session_.scalar(select(OfficeReportRow.id).where(*key)) is not None:
+                        return False
+                    session_.add(OfficeReportRow(**values))
+                    return True
+            except IntegrityError as exc:  # another writer kept it between our look and our insert
+                if attempt == 1:
+                    raise RailstopError(f"{self._label}: cannot save {src}: {_one_line(exc)}") from None
+            except SQLAlchemyError as exc:
+                raise RailstopError(f"{self._label}: cannot save {src}: {_one_line(exc)}") from None
+        return False
+
+    def office_reports(
+        self, *, kind: str | None = None, after_id: int = 0, limit: int = 10_000
+    ) -> list[dict[str, Any]]:
+        """The office's reports in the order received (``id`` > ``after_id``), ``data`` decoded."""
+        with self._reading() as session:
+            q = select(OfficeReportRow).where(OfficeReportRow.id > after_id).order_by(OfficeReportRow.id)
+            if kind is not None:
+                q = q.where(OfficeReportRow.kind == kind)
+            rows = session.scalars(q.limit(limit)).all()
+            return [
+                {
+                    "id": r.id,
+                    "sender_id": r.sender_id,
+                    "session": r.session,
+                    "seq": r.seq,
+                    "kind": r.kind,
+                    "sent_s": r.sent_s,
+                    "data": json.loads(r.data_json),
+                    "received_utc": r.received_utc,
+                }
+                for r in rows
+            ]
+
+    def office_report_count(self) -> int:
+        with self._reading() as session:
+            return int(session.scalar(select(func.count()).select_from(OfficeReportRow)) or 0)
 
     # -- reading ------------------------------------------------------------
     def runs(self) -> list[dict[str, Any]]:

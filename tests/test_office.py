@@ -1,0 +1,247 @@
+"""The management office link and service (SPEC §1 claims 7, 20; issue 17 item 2).
+
+The link ends are pure (``link.office_link``): tested with times as numbers.
+The service is tested end to end: ``railstop office serve`` as a real process
+on a loopback UDP port, a real client sending reports, the office killed with
+SIGKILL in the middle and started again, and the database (a real SQLite file
+and a real PostgreSQL server) holding every report exactly once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from railstop.link.office_link import (
+    OfficeInbox,
+    OfficeLinkError,
+    OfficeOutbox,
+)
+from railstop.link.safety import link_key
+from railstop.store import open_store
+
+KEY = bytes(range(32))
+OFFICE = 900
+
+
+def ends(sender: int = 7, *, session: int = 11) -> tuple[OfficeOutbox, OfficeInbox]:
+    out = OfficeOutbox(own_id=sender, office_id=OFFICE, master_key=KEY, session=session)
+    inbox = OfficeInbox(own_id=OFFICE, master_key=KEY, senders=(sender,), session=99)
+    return out, inbox
+
+
+# ------------------------------------------------------------------ the pure link
+
+
+def test_a_report_goes_through_and_its_acknowledgement_clears_it() -> None:
+    out, inbox = ends()
+    seq, frame = out.submit("stop-result", {"station": "Riverside", "error_m": 0.012}, 10.0)
+    report, ack, reason = inbox.on_frame(frame, 10.01)
+    assert reason is None and report is not None and ack is not None
+    assert (report.sender_id, report.session, report.seq, report.kind) == (7, 11, seq, "stop-result")
+    assert report.data == {"station": "Riverside", "error_m": 0.012}
+    assert out.pending and out.on_frame(ack, 10.02) == seq and not out.pending
+
+
+def test_an_unacknowledged_report_is_sent_again_as_a_new_frame_and_accepted_again() -> None:
+    out, inbox = ends()
+    _, first = out.submit("tasc-command", {"v": 1}, 0.0)
+    assert out.due(0.5) == []  # not yet
+    (again,) = out.due(1.0)  # resend_s
+    assert again != first  # a new safety frame: not a replay
+    r1, _, _ = inbox.on_frame(first, 1.0)
+    r2, ack2, reason = inbox.on_frame(again, 1.0)
+    # The office takes both (the store keeps one) and acknowledges both.
+    assert r1 is not None and r2 is not None and (r1.session, r1.seq) == (r2.session, r2.seq)
+    assert reason is None and ack2 is not None
+    out.on_frame(ack2, 1.1)
+    assert not out.pending and out.counts["resent"] == 1
+
+
+def test_a_replayed_frame_is_rejected() -> None:
+    out, inbox = ends()
+    _, frame = out.submit("dwell-event", {"s": "PSC"}, 0.0)
+    assert inbox.on_frame(frame, 0.0)[0] is not None
+    assert inbox.on_frame(frame, 0.1) == (None, None, "repeated")
+
+
+def test_a_tampered_or_foreign_frame_is_rejected_with_its_reason() -> None:
+    out, inbox = ends()
+    _, frame = out.submit("zone-event", {"train": 3}, 0.0)
+    bad = bytearray(frame)
+    bad[len(bad) // 2] ^= 0x01
+    assert inbox.on_frame(bytes(bad), 0.0)[2] == "bad_mac"
+    stranger = OfficeOutbox(own_id=8, office_id=OFFICE, master_key=KEY, session=1)
+    assert inbox.on_frame(stranger.submit("zone-event", {}, 0.0)[1], 0.0)[2] == "unknown_sender"
+    wrong_key = OfficeOutbox(own_id=7, office_id=OFFICE, master_key=bytes(32), session=1)
+    assert inbox.on_frame(wrong_key.submit("zone-event", {}, 0.0)[1], 0.0)[2] == "bad_mac"
+    assert inbox.counts["bad_mac"] == 2 and inbox.counts["accepted"] == 0
+
+
+def test_a_forged_acknowledgement_does_not_clear_a_report() -> None:
+    out, inbox = ends()
+    seq, frame = out.submit("stop-result", {}, 0.0)
+    _, ack, _ = inbox.on_frame(frame, 0.0)
+    assert ack is not None
+    forged = bytearray(ack)
+    forged[-1] ^= 0xFF
+    assert out.on_frame(bytes(forged), 0.0) is None and seq in out.pending
+    # An acknowledgement of another session (a former run of this sender) clears nothing either.
+    other, _ = ends(session=12)
+    _, frame2 = other.submit("stop-result", {}, 0.0)
+    inbox2 = OfficeInbox(own_id=OFFICE, master_key=KEY, senders=(7,), session=98)
+    _, ack2, _ = inbox2.on_frame(frame2, 0.0)
+    assert ack2 is not None and out.on_frame(ack2, 0.0) is None and seq in out.pending
+
+
+def test_a_restarted_sender_is_followed_and_an_old_session_replay_is_stale() -> None:
+    out, inbox = ends(session=1)
+    for i in range(3):
+        inbox.on_frame(out.submit("train-state", {"i": i}, float(i))[1], float(i))
+    old_frame = out.submit("train-state", {"i": 3}, 3.0)[1]
+    inbox.on_frame(old_frame, 3.0)
+    # The sender restarts: its safety sequence numbers start at 1 again, a new session.
+    restarted = OfficeOutbox(own_id=7, office_id=OFFICE, master_key=KEY, session=2)
+    report, ack, reason = inbox.on_frame(restarted.submit("train-state", {"i": 0}, 4.0)[1], 4.0)
+    assert reason is None and report is not None and report.session == 2 and ack is not None
+    # Someone replays the old session's frame later: refused (stale), the new session stays.
+    assert inbox.on_frame(old_frame, 20.0)[2] == "stale"
+    assert inbox.on_frame(restarted.submit("train-state", {"i": 1}, 20.0)[1], 20.0)[0] is not None
+
+
+def test_a_restarted_office_is_followed_by_the_senders() -> None:
+    out, inbox = ends()
+    for t in (0.0, 0.1):
+        _, ack, _ = inbox.on_frame(out.submit("stop-result", {}, t)[1], t)
+        assert ack is not None and out.on_frame(ack, t) is not None
+    seq, frame = out.submit("stop-result", {}, 0.2)
+    restarted = OfficeInbox(own_id=OFFICE, master_key=KEY, senders=(7,), session=100)
+    _, ack, _ = restarted.on_frame(frame, 0.2)  # its acknowledgements start at 1 again
+    assert ack is not None and out.on_frame(ack, 0.3) == seq and not out.pending
+
+
+def test_reports_the_link_cannot_carry_are_refused_whole() -> None:
+    out, _ = ends()
+    with pytest.raises(OfficeLinkError, match="one of"):
+        out.submit("gossip", {}, 0.0)
+    with pytest.raises(OfficeLinkError, match="at most 255"):
+        out.submit("stop-result", {"x": "y" * 300}, 0.0)
+    with pytest.raises(OfficeLinkError, match="not plain JSON"):
+        out.submit("stop-result", {"x": float("nan")}, 0.0)
+    assert not out.pending and out.next_seq == 1
+
+
+def test_direction_keys_differ() -> None:
+    assert link_key(KEY, 7, OFFICE) != link_key(KEY, OFFICE, 7)
+
+
+# ------------------------------------------------------------------ the store
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def db(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    if request.param == "sqlite":
+        yield str(tmp_path / "office.db")
+        return
+    url: str = request.getfixturevalue("postgres_url")
+    from sqlalchemy import create_engine, text
+
+    engine = create_engine(url.replace("postgresql://", "postgresql+psycopg://", 1))
+    with engine.begin() as con:
+        for table in ("office_reports", "commands", "stop_results", "runs", "stations", "campaigns"):
+            con.execute(text(f"DROP TABLE IF EXISTS {table} CASCADE"))
+        con.execute(text("DROP TABLE IF EXISTS dwell_events, schema_info CASCADE"))
+    engine.dispose()
+    yield url
+
+
+def test_the_store_keeps_a_report_once(db: str) -> None:
+    with open_store(db) as store:
+        kw = {"sender_id": 7, "session": 5, "seq": 1, "kind": "stop-result", "sent_s": 1.5}
+        assert store.save_office_report(**kw, data={"error_m": 0.01}) is True
+        assert store.save_office_report(**kw, data={"error_m": 0.01}) is False
+        assert store.save_office_report(**{**kw, "seq": 2}, data={}) is True
+        assert store.save_office_report(**{**kw, "session": 6}, data={}) is True
+        rows = store.office_reports()
+        assert [(r["session"], r["seq"]) for r in rows] == [(5, 1), (5, 2), (6, 1)]
+        assert rows[0]["data"] == {"error_m": 0.01} and store.office_report_count() == 3
+        assert [r["seq"] for r in store.office_reports(after_id=rows[0]["id"])] == [2, 1]
+
+
+# ------------------------------------------------------------------ end to end
+
+
+def _start_office(db: str, port: int = 0) -> tuple[subprocess.Popen[str], int]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", db, "--port", str(port),
+         "--key-hex", KEY.hex(), "--senders", "1-20"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    line = proc.stderr.readline()
+    assert "office listening on 127.0.0.1:" in line, line + proc.stderr.read()
+    return proc, int(line.split("127.0.0.1:")[1].split()[0])
+
+
+def test_killing_the_office_mid_run_loses_no_report(db: str) -> None:
+    """200 reports at 100 per second; SIGKILL of the office after the first 60 are acknowledged,
+    a new office on the same port 1 s later: every report stored exactly once."""
+    from railstop.link.office_link import LinkTimes
+    from railstop.link.udp import EpochClock
+    from railstop.live.office import OfficeClient
+
+    proc, port = _start_office(db)
+    n = 200
+
+    async def client() -> tuple[bool, int, dict[str, int]]:
+        nonlocal proc
+        clock = EpochClock(0.0)
+        times = LinkTimes(resend_s=0.3)
+        async with OfficeClient(
+            own_id=7, office=("127.0.0.1", port), master_key=KEY, clock=clock, times=times
+        ) as office:
+            killed = False
+            for i in range(n):
+                office.report("stop-result", {"i": i, "station": "Riverside", "error_m": 0.001 * i})
+                await asyncio.sleep(0.01)
+                if not killed and office.outbox.counts["acknowledged"] >= 60:
+                    os.kill(proc.pid, signal.SIGKILL)
+                    proc.wait(timeout=10)
+                    killed = True
+                    kill_at = i
+            assert killed
+            await asyncio.sleep(1.0)
+            proc, again = _start_office(db, port)
+            assert again == port
+            drained = await office.drain(timeout_s=30.0)
+            return drained, kill_at, dict(office.outbox.counts)
+
+    try:
+        drained, kill_at, counts = asyncio.run(client())
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+    assert drained, counts
+    assert counts["resent"] > 0 and kill_at < n - 1  # the kill did fall in the middle
+    with open_store(db) as store:
+        rows = store.office_reports()
+    assert sorted(r["data"]["i"] for r in rows) == list(range(n))
+    assert len({(r["session"], r["seq"]) for r in rows}) == n == len(rows)
+    assert proc.returncode == 0 and '"stored"' in out
+
+
+def test_office_serve_refuses_bad_options_in_one_line(tmp_path: Path) -> None:
+    for args in (["--key-hex", "abc"], ["--key-hex", "00" * 8], ["--key-hex", KEY.hex(), "--senders", "9-x"]):
+        p = subprocess.run(
+            [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "o.db"), *args],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (args, p.stderr)
+        assert "Traceback" not in p.stderr
