@@ -165,10 +165,11 @@ def db(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
 def test_the_store_keeps_a_report_once(db: str) -> None:
     with open_store(db) as store:
         kw = {"sender_id": 7, "session": 5, "seq": 1, "kind": "stop-result", "sent_s": 1.5}
-        assert store.save_office_report(**kw, data={"error_m": 0.01}) is True
-        assert store.save_office_report(**kw, data={"error_m": 0.01}) is False
-        assert store.save_office_report(**{**kw, "seq": 2}, data={}) is True
-        assert store.save_office_report(**{**kw, "session": 6}, data={}) is True
+        first = store.save_office_report(**kw, data={"error_m": 0.01})
+        assert first is not None and first["data"] == {"error_m": 0.01}
+        assert store.save_office_report(**kw, data={"error_m": 0.01}) is None
+        assert store.save_office_report(**{**kw, "seq": 2}, data={}) is not None
+        assert store.save_office_report(**{**kw, "session": 6}, data={}) is not None
         rows = store.office_reports()
         assert [(r["session"], r["seq"]) for r in rows] == [(5, 1), (5, 2), (6, 1)]
         assert rows[0]["data"] == {"error_m": 0.01} and store.office_report_count() == 3

@@ -7,11 +7,11 @@ import json
 import os
 import signal
 import sys
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from railstop.cli_common import fail
+from railstop.cli_common import LineOpt, fail
 from railstop.errors import RailstopError
 
 office_app = typer.Typer(
@@ -65,16 +65,27 @@ def serve_cmd(
         str | None, typer.Option("--key-hex", help=f"The link's master key in hex (or set {KEY_ENV}).")
     ] = None,
     senders: Annotated[str, typer.Option(help="The wayside units' ids it accepts.")] = "1-899",
+    http_port: Annotated[
+        int | None,
+        typer.Option("--http-port", min=0, max=65535, help="Also serve the control-room page (0: any port)."),
+    ] = None,
+    line: LineOpt = None,
 ) -> None:
-    """Receive, store and acknowledge the wayside's reports until stopped (SIGTERM, Ctrl-C)."""
+    """Receive, store and acknowledge the wayside's reports until stopped (SIGTERM, Ctrl-C); with
+    --http-port, serve the control-room page too."""
+    from railstop.config import load_line
     from railstop.link.udp import EpochClock
     from railstop.live.office import serve_office
 
     try:
         key = master_key(key_hex)
         ids = sender_ids(senders)
+        ln = load_line(line)
     except RailstopError as exc:
         fail(str(exc))
+    stations = [{"name": st.name, "chainage_m": st.stop_point_m} for st in ln.stations]
+    length = ln.line.length_m or max(st.stop_point_m for st in ln.stations) + 500.0
+    line_data = {"name": ln.line.name, "length_m": length, "stations": stations}
 
     async def main() -> dict[str, object]:
         stop = asyncio.Event()
@@ -85,15 +96,22 @@ def serve_cmd(
         def ready(addr: tuple[str, int]) -> None:
             print(f"office listening on {addr[0]}:{addr[1]} (database {db})", file=sys.stderr, flush=True)
 
-        stats = await serve_office(
-            db=db,
-            local=(host, port),
-            master_key=key,
-            senders=ids,
-            clock=EpochClock(0.0),
-            stop=stop,
-            on_ready=ready,
-        )
+        page = None if http_port is None else await _start_page(host, http_port, ln.line.name, line_data)
+        try:
+            stats = await serve_office(
+                db=db,
+                local=(host, port),
+                master_key=key,
+                senders=ids,
+                clock=EpochClock(0.0),
+                stop=stop,
+                on_ready=ready,
+                on_report=None if page is None else page.broadcast.publish,
+                on_store=None if page is None else page.stores.append,
+            )
+        finally:
+            if page is not None:
+                await page.close()
         return {"stored": stats.stored, "duplicates": stats.duplicates, "rejected": stats.rejected}
 
     try:
@@ -101,3 +119,39 @@ def serve_cmd(
     except RailstopError as exc:
         fail(str(exc))
     print(json.dumps(result))
+
+
+class _Page:
+    """The control-room page running beside the office (uvicorn in the office's event loop)."""
+
+    def __init__(self, server: Any, task: asyncio.Task[None], broadcast: Any, stores: list[Any]) -> None:
+        self.server, self.task, self.broadcast, self.stores = server, task, broadcast, stores
+
+    async def close(self) -> None:
+        self.server.should_exit = True
+        await self.task
+
+
+async def _start_page(host: str, port: int, name: str, line_data: dict[str, Any]) -> _Page:
+    import uvicorn
+
+    from railstop.live.page import Broadcast, make_app
+
+    broadcast = Broadcast()
+    stores: list[Any] = []  # the office's open store, once it is open
+
+    def history(after: int) -> list[dict[str, Any]]:
+        return stores[0].office_reports(after_id=after) if stores else []
+
+    app = make_app(
+        history=history, broadcast=broadcast, title=f"railstop control room: {name}", line=line_data
+    )
+    server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="off"))
+    task = asyncio.create_task(server.serve())
+    while not server.started and not task.done():
+        await asyncio.sleep(0.02)
+    if task.done():
+        raise RailstopError(f"--http-port: cannot serve the control-room page on {host}:{port}")
+    bound = server.servers[0].sockets[0].getsockname()
+    print(f"control-room page at http://{bound[0]}:{bound[1]}/", file=sys.stderr, flush=True)
+    return _Page(server, task, broadcast, stores)

@@ -23,7 +23,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from railstop.link.office_link import LinkTimes, OfficeInbox, OfficeOutbox, Report
+from railstop.link.office_link import LinkTimes, OfficeInbox, OfficeOutbox
 from railstop.link.udp import Address, EpochClock, UdpEndpoint, open_endpoint
 from railstop.store import open_store
 
@@ -51,14 +51,16 @@ async def serve_office(
     clock: EpochClock,
     stop: asyncio.Event,
     on_ready: Callable[[Address], None] | None = None,
-    on_report: Callable[[Report, bool], None] | None = None,
+    on_report: Callable[[dict[str, Any]], None] | None = None,
+    on_store: Callable[[Any], None] | None = None,
     office_id: int = OFFICE_ID,
     times: LinkTimes | None = None,
 ) -> OfficeStats:
     """Receive, store and acknowledge reports until ``stop`` is set; return the counts.
 
-    ``on_report(report, new)`` is called after each report is stored (``new`` False: it was
-    already there), e.g. to push it to the control-room page.
+    ``on_report(row)`` is called with each report newly stored (as ``Store.office_reports``
+    gives it), e.g. to push it to the control-room page; ``on_store(store)`` once the database
+    is open (the page reads its history from it).
     """
     inbox = OfficeInbox(
         own_id=office_id,
@@ -69,6 +71,8 @@ async def serve_office(
     )
     stats = OfficeStats()
     with open_store(db) as store:
+        if on_store is not None:
+            on_store(store)
         async with await open_endpoint(local) as ep:
             if on_ready is not None:
                 on_ready(ep.local_address)
@@ -92,13 +96,13 @@ async def serve_office(
                     sent_s=report.sent_s,
                     data=dict(report.data),
                 )
-                if new:
+                if new is not None:
                     stats.stored += 1
                 else:
                     stats.duplicates += 1
                 ep.send(ack, addr)
-                if on_report is not None:
-                    on_report(report, new)
+                if new is not None and on_report is not None:
+                    on_report(new)
     return stats
 
 

@@ -531,9 +531,10 @@ class Store:
 
     def save_office_report(
         self, *, sender_id: int, session: int, seq: int, kind: str, sent_s: float, data: Any
-    ) -> bool:
-        """Keep one report of the management office; False if it was already there (idempotent:
-        the same (sender, session, seq) again changes nothing, whoever sent it twice)."""
+    ) -> dict[str, Any] | None:
+        """Keep one report of the management office; return it as ``office_reports`` gives it, or
+        None if it was already there (idempotent: the same (sender, session, seq) again changes
+        nothing, whoever sent it twice)."""
         src = f"office report {sender_id}/{session}/{seq}"
         values = {
             "sender_id": _value(src, "sender_id", sender_id, int, False),
@@ -553,15 +554,17 @@ class Store:
             try:
                 with self._session() as session_, session_.begin():
                     if session_.scalar(select(OfficeReportRow.id).where(*key)) is not None:
-                        return False
-                    session_.add(OfficeReportRow(**values))
-                    return True
+                        return None
+                    row = OfficeReportRow(**values)
+                    session_.add(row)
+                    session_.flush()
+                    return _office_dict(row)
             except IntegrityError as exc:  # another writer kept it between our look and our insert
                 if attempt == 1:
                     raise RailstopError(f"{self._label}: cannot save {src}: {_one_line(exc)}") from None
             except SQLAlchemyError as exc:
                 raise RailstopError(f"{self._label}: cannot save {src}: {_one_line(exc)}") from None
-        return False
+        return None
 
     def office_reports(
         self, *, kind: str | None = None, after_id: int = 0, limit: int = 10_000
@@ -571,20 +574,7 @@ class Store:
             q = select(OfficeReportRow).where(OfficeReportRow.id > after_id).order_by(OfficeReportRow.id)
             if kind is not None:
                 q = q.where(OfficeReportRow.kind == kind)
-            rows = session.scalars(q.limit(limit)).all()
-            return [
-                {
-                    "id": r.id,
-                    "sender_id": r.sender_id,
-                    "session": r.session,
-                    "seq": r.seq,
-                    "kind": r.kind,
-                    "sent_s": r.sent_s,
-                    "data": json.loads(r.data_json),
-                    "received_utc": r.received_utc,
-                }
-                for r in rows
-            ]
+            return [_office_dict(r) for r in session.scalars(q.limit(limit)).all()]
 
     def office_report_count(self) -> int:
         with self._reading() as session:
@@ -909,6 +899,19 @@ def _dwell_row(key: str, station: str, seq: int, event: Any) -> dict[str, Any]:
         "t_s": _value(src, "t_s", t_s, float, False),
         "signal": _value(src, "signal", signal, str, False),
         "value": json.dumps(value.item() if isinstance(value, np.generic) else value),
+    }
+
+
+def _office_dict(r: OfficeReportRow) -> dict[str, Any]:
+    return {
+        "id": r.id,
+        "sender_id": r.sender_id,
+        "session": r.session,
+        "seq": r.seq,
+        "kind": r.kind,
+        "sent_s": r.sent_s,
+        "data": json.loads(r.data_json),
+        "received_utc": r.received_utc,
     }
 
 

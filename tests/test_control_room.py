@@ -1,0 +1,146 @@
+"""The control-room page in a real browser (issue 17 item 4): Debian's chromium driven by Playwright.
+
+``railstop office serve --http-port 0`` runs as a real process; a wayside
+sender in this test sends reports over real UDP through the category-3
+office link; headless Chromium shows the page. The page must show a train
+and follow it as it moves, and show a station's last stop. The time from a
+report's sending to its appearance on the page is measured and printed (a
+figure, not a timed assertion).
+
+Chromium is Debian's ``/usr/bin/chromium`` (never ``playwright install``).
+Without it the test is skipped, unless ``RAILSTOP_REQUIRE_BROWSER`` is set
+(CI sets it: there a missing browser is a failure).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from railstop.link.office_link import OfficeOutbox
+
+KEY = bytes(range(32))
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = pytest.mark.skipif(
+    CHROMIUM is None and not os.environ.get("RAILSTOP_REQUIRE_BROWSER"),
+    reason="no chromium on this machine (Debian package chromium)",
+)
+# As root and on a closed network: no sandbox, no background connections (they are refused here).
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+class Sender:
+    """A wayside unit's end of the office link over a plain UDP socket (synchronous, for this test)."""
+
+    def __init__(self, port: int) -> None:
+        self.outbox = OfficeOutbox(own_id=3, office_id=900, master_key=KEY, session=int(time.time()))
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.settimeout(0.2)
+        self.addr = ("127.0.0.1", port)
+
+    def send(self, kind: str, data: dict[str, object]) -> float:
+        """Send one report until acknowledged; return when it was first sent (monotonic)."""
+        sent = time.monotonic()
+        _, frame = self.outbox.submit(kind, data, time.time())
+        self.sock.sendto(frame, self.addr)
+        deadline = sent + 20.0
+        while self.outbox.pending and time.monotonic() < deadline:
+            try:
+                self.outbox.on_frame(self.sock.recv(2048), time.time())
+            except TimeoutError:
+                for again in self.outbox.due(time.time()):
+                    self.sock.sendto(again, self.addr)
+        assert not self.outbox.pending, "the office did not acknowledge"
+        return sent
+
+
+@pytest.fixture
+def office(tmp_path: Path) -> Iterator[tuple[str, int]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "office.db"),
+         "--port", "0", "--http-port", "0", "--key-hex", KEY.hex(), "--senders", "1-10"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    lines = [proc.stderr.readline(), proc.stderr.readline()]
+    url = next(ln.split(" at ")[1].strip() for ln in lines if ln.startswith("control-room page at"))
+    port = next(
+        int(ln.split("127.0.0.1:")[1].split()[0]) for ln in lines if ln.startswith("office listening")
+    )
+    try:
+        yield url, port
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+
+
+def test_the_page_shows_trains_moving_and_the_last_stops(office: tuple[str, int], tmp_path: Path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    url, port = office
+    sender = Sender(port)
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 720})
+            page.goto(url)
+            page.wait_for_selector("#status.ok", timeout=15_000)
+            latencies = []
+            for position in (1200.0, 1500.0, 1800.0):
+                sent = sender.send("train-state", {"train": 4, "position_m": position, "speed_mps": 12.0})
+                page.wait_for_selector(
+                    f'g.train[data-train="4"][data-position="{position:.1f}"]', timeout=10_000
+                )
+                latencies.append(time.monotonic() - sent)
+            sent = sender.send(
+                "stop-result",
+                {"station": "Hillcrest", "train": 4, "controller": "tasc-pwm", "error_m": 0.042, "lamp": "-",
+                 "doors": "PSC", "within": True},
+            )  # fmt: skip
+            row = page.wait_for_selector('#stops tr[data-station="Hillcrest"]', timeout=10_000)
+            latencies.append(time.monotonic() - sent)
+            assert row is not None and "0.042" in row.inner_text() and "tasc-pwm" in row.inner_text()
+            # One marker per train, however many reports: the page follows the train.
+            assert page.locator("g.train").count() == 1
+            assert page.locator("#log div").count() == 4
+            page.screenshot(path=str(tmp_path / "control-room.png"))
+        finally:
+            browser.close()
+    print(f"report-to-page latency: {', '.join(f'{x * 1000:.0f} ms' for x in latencies)}")
+    assert (tmp_path / "control-room.png").stat().st_size > 10_000
+
+
+def test_a_page_opened_late_gets_the_history(office: tuple[str, int]) -> None:
+    from playwright.sync_api import sync_playwright
+
+    url, port = office
+    sender = Sender(port)
+    for i in range(3):
+        sender.send("stop-result", {"station": "Museum", "train": i, "error_m": 0.01 * i, "within": True})
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page()
+            page.goto(url)
+            page.wait_for_selector("#status.ok", timeout=15_000)
+            assert page.locator("#log div").count() == 3
+            assert "0.020" in page.locator('#stops tr[data-station="Museum"]').inner_text()
+        finally:
+            browser.close()
