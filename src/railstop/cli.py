@@ -34,6 +34,7 @@ from railstop.cli_common import (
 )
 from railstop.cli_doors import doors_app, dwell
 from railstop.cli_line import line_app
+from railstop.cli_live import live_app
 from railstop.cli_office import office_app
 from railstop.cli_platform import platform_app
 from railstop.cli_progress import Reporter, on_interrupt, run_program
@@ -121,6 +122,7 @@ app.add_typer(line_app, name="line")
 app.add_typer(zones_app, name="zones")
 app.add_typer(platform_app, name="platform")
 app.add_typer(office_app, name="office")
+app.add_typer(live_app, name="live")
 
 FormOpt = Annotated[
     int | None,

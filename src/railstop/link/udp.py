@@ -305,6 +305,10 @@ class UdpEndpoint:
                 return None
         return self._queue.popleft()
 
+    def take(self) -> tuple[bytes, Address] | None:
+        """The oldest queued frame and its sender, or None at once when none is queued."""
+        return self._queue.popleft() if self._queue else None
+
     def close(self) -> None:
         if self._transport is not None:
             self._transport.close()

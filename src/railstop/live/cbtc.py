@@ -1,0 +1,427 @@
+"""The CBTC line live (issue 17 item 1): the zone controller and the trains as processes over UDP.
+
+Two kinds of process, each a :class:`~railstop.live.clock.WallClock` driving
+the same pure units as the line simulation (``wayside.zone_controller``,
+``onboard.cbtc``); only the clock and the transport differ:
+
+* **zone controller** (:func:`run_zone_controller`): the SPEC §4 controller.
+  Reports arrive as UDP datagrams (``cbtc-report`` codec frames in EN 50159
+  category-3 safety frames, a key per train and direction), commands leave
+  the same way to the address each train reports from.
+* **trains** (:func:`run_trains`): every train's onboard CBTC unit and the
+  plant that moves the trains (one process for all trains): a train runs
+  under its authority and its speed limit, stops at each station for the
+  dwell, brakes at the emergency rate while its unit's emergency brake is
+  applied; at the line's end it starts again from the first station once
+  the start of the line is clear.
+
+Both report to the management office (``live.office``): the trains their
+state every ``state_period_s`` (position, speed, emergency brake and cause),
+the zone controller every change of its protection zones.
+
+Fail safe (DESIGN rule 10): a zone controller process that dies stops
+answering; each train's unit counts its missed commands and applies the
+emergency brake at the second (SPEC §4). A zone controller that starts (or
+starts again) knows no train: it answers none until every train the operation
+runs has reported ([interpretation]: it cannot grant an authority past a train
+it has not heard from), then serves them all; a train in emergency brake is
+released at standstill by a fresh command.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from railstop.config.schema import Line, Vehicle
+from railstop.link.codec import CbtcCommand, CbtcReport, TelegramError, decode, encode
+from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+from railstop.link.udp import Address, open_endpoint
+from railstop.live.clock import TimeBase, WallClock
+from railstop.live.office import OfficeClient
+from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
+from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
+from railstop.sim.line_cbtc import civil_limit_mps, gradient_permille
+from railstop.wayside.zone_controller import ZoneController, ZoneMode
+
+ZC_ID = 0x0300  # the zone controller's safety-layer id (as link.cbtc_radio)
+TRAIN_BASE = 0x2000  # train k's id is TRAIN_BASE + k
+STEP_S = 0.05  # the plant step (simulated seconds)
+MAX_AGE_S = 1.0  # a radio frame older than this is stale
+
+
+def _fields(obj: object) -> dict[str, Any]:
+    return {f.name: getattr(obj, f.name) for f in fields(obj)}  # type: ignore[arg-type]
+
+
+@dataclass
+class RadioCounts:
+    sent: int = 0
+    delivered: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+
+
+class UdpRadio:
+    """The train radio as a unit at one end of real sockets: messages handed to it become frames to
+    send (``outgoing``); frames received become messages (``ingest``). Pure: the driver sends."""
+
+    def __init__(self, *, own_id: int, master_key: bytes, name: str = "radio") -> None:
+        self.name = name
+        self.accepts: tuple[type, ...] = (PositionReport, MovementCommand)
+        self.own_id = own_id
+        self.master_key = master_key
+        self.outgoing: list[tuple[bytes, int]] = []  # (frame, peer id)
+        self._tx: dict[int, SafeSender] = {}
+        self._rx: dict[int, SafeReceiver] = {}
+        self.counts = RadioCounts()
+
+    def _sender(self, peer: int) -> SafeSender:
+        if peer not in self._tx:
+            self._tx[peer] = SafeSender(
+                self.own_id, peer, key=link_key(self.master_key, self.own_id, peer), category=3
+            )
+        return self._tx[peer]
+
+    def _receiver(self, peer: int, now_s: float) -> SafeReceiver:
+        if peer not in self._rx:
+            self._rx[peer] = SafeReceiver(
+                self.own_id,
+                peer,
+                key=link_key(self.master_key, peer, self.own_id),
+                category=3,
+                max_age_s=MAX_AGE_S,
+                timeout_s=1e9,
+                start_s=now_s,
+                future_tolerance_s=0.2,
+            )
+        return self._rx[peer]
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        if isinstance(message, PositionReport):
+            peer, frame = ZC_ID, encode(CbtcReport(**_fields(message)))
+        elif isinstance(message, MovementCommand):
+            peer, frame = TRAIN_BASE + message.train_id, encode(CbtcCommand(**_fields(message)))
+        else:
+            return []
+        self.outgoing.append((self._sender(peer).wrap(frame, now_s), peer))
+        self.counts.sent += 1
+        return []
+
+    def next_deadline_s(self) -> float | None:
+        return None
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        return []
+
+    def ingest(self, frame: bytes, now_s: float, *, to: Callable[[int], str]) -> list[Output]:
+        """A received frame: the message it carries for the unit ``to(train_id)`` names, or nothing
+        (refused frames are counted by reason)."""
+        peer = int.from_bytes(frame[1:3], "big") if len(frame) >= 3 else -1
+        if peer != ZC_ID and not TRAIN_BASE <= peer < TRAIN_BASE + 0x1000:
+            self.counts.reject("unknown_peer")
+            return []
+        got = self._receiver(peer, now_s).accept(frame, now_s)
+        if not isinstance(got, Delivered):
+            self.counts.reject(got.reason)
+            return []
+        try:
+            tele = decode(got.payload)
+        except TelegramError as exc:
+            self.counts.reject(f"telegram-{exc.reason}")
+            return []
+        self.counts.delivered += 1
+        if isinstance(tele, CbtcReport):
+            return [Output(to=to(tele.train_id), message=PositionReport(**_fields(tele)))]
+        if isinstance(tele, CbtcCommand):
+            return [Output(to=to(tele.train_id), message=MovementCommand(**_fields(tele)))]
+        self.counts.reject("unexpected-type")
+        return []
+
+
+# ---------------------------------------------------------------------- the zone controller
+
+
+async def run_zone_controller(
+    *,
+    line: Line,
+    vehicle: Vehicle,
+    trains: int,
+    local: Address,
+    base: TimeBase,
+    master_key: bytes,
+    stop: asyncio.Event,
+    office: OfficeClient | None = None,
+    on_ready: Callable[[Address], None] | None = None,
+) -> dict[str, Any]:
+    """Serve the trains until ``stop``; return the counts."""
+    p = line.cbtc
+    sig = line.signalling
+    circuits = {c.id: c for c in line.track.circuits}
+    blocks = (
+        [(circuits[b.circuits[0]].start_m, circuits[b.circuits[-1]].end_m) for b in sig.blocks]
+        if sig is not None
+        else [(s.start_m, s.end_m) for s in line.segments]
+    )
+    end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
+    radio = UdpRadio(own_id=ZC_ID, master_key=master_key)
+    zc = ZoneController(
+        params=p,
+        segments=[(s.start_m, s.end_m) for s in line.segments],
+        blocks=blocks,
+        overlap_m=sig.overlap_m if sig is not None else 0.0,
+        train_length_m=vehicle.length_m,
+        line_end_m=end_m,
+        limit_at=lambda x: civil_limit_mps(line, x),
+        gradient_at=lambda x: gradient_permille(line, x),
+        mode=ZoneMode.MINIMAL,
+    )
+    zc.downlink = radio.name
+    clock = WallClock([zc, radio], step_s=STEP_S, base=base)
+    addresses: dict[int, Address] = {}
+    heard: set[int] = set()
+    zones_seen: dict[int, tuple[float, float]] = {}
+    held = 0
+    async with await open_endpoint(local) as ep:
+        if on_ready is not None:
+            on_ready(ep.local_address)
+
+        def poll(now_s: float) -> list[Output]:
+            out: list[Output] = []
+            while (got := ep.take()) is not None:
+                frame, addr = got
+                msgs = radio.ingest(frame, now_s, to=lambda _k: zc.name)
+                for m in msgs:
+                    assert isinstance(m.message, PositionReport)
+                    addresses[m.message.train_id] = addr
+                    heard.add(m.message.train_id)
+                out.extend(msgs)
+            return out
+
+        def plant(now_s: float, step_s: float) -> list[Output]:
+            nonlocal held
+            # Fail safe: no command leaves before every train of the operation has reported.
+            ready = len(heard) >= trains
+            for frame, peer in radio.outgoing:
+                addr = addresses.get(peer - TRAIN_BASE)
+                if not ready:
+                    held += 1
+                elif addr is not None:
+                    ep.send(frame, addr)
+            radio.outgoing.clear()
+            if office is not None:
+                _report_zones(zc, zones_seen, office, now_s)
+            return []
+
+        await clock.run_live(plant, poll, stop)
+    c = zc.counts
+    return {
+        "reports": c.reports,
+        "commands": c.commands,
+        "lost_trains": c.lost,
+        "commands_held_at_start": held,
+        "late_steps": clock.late_steps,
+        "steps": clock.steps,
+        "radio": {"delivered": radio.counts.delivered, "rejected": radio.counts.rejected},
+    }
+
+
+def _report_zones(
+    zc: ZoneController, seen: dict[int, tuple[float, float]], office: OfficeClient, now_s: float
+) -> None:
+    now = {z.train_id: (z.start_m, z.end_m) for z in zc.zones()}
+    for train, (a, b) in now.items():
+        if seen.get(train) != (a, b):
+            office.report(
+                "zone-event", {"train": train, "start_m": a, "end_m": b, "active": True, "t_s": now_s}
+            )
+    for train in [t for t in seen if t not in now]:
+        a, b = seen[train]
+        office.report("zone-event", {"train": train, "start_m": a, "end_m": b, "active": False, "t_s": now_s})
+    seen.clear()
+    seen.update(now)
+
+
+# ---------------------------------------------------------------------- the trains
+
+
+@dataclass
+class _TrainState:
+    k: int
+    unit: OnboardCbtc
+    x_m: float
+    v_mps: float = 0.0
+    next_station: int = 0
+    dwell_until_s: float = -math.inf
+    last_state_s: float = -math.inf
+    eb_reported: bool = False
+    stopped_at: int | None = None  # the station it has just stopped at (reported once)
+
+
+async def run_trains(
+    *,
+    line: Line,
+    vehicle: Vehicle,
+    trains: int,
+    spacing_m: float,
+    zc: Address,
+    base: TimeBase,
+    master_key: bytes,
+    stop: asyncio.Event,
+    dwell_s: float = 20.0,
+    office: OfficeClient | None = None,
+    state_period_s: float = 1.0,
+) -> dict[str, Any]:
+    """Run every train until ``stop``; return the counts (emergency brakes by cause, ...)."""
+    p = line.cbtc
+    brake = vehicle.brake
+    radio = UdpRadio(own_id=TRAIN_BASE, master_key=master_key)
+    order = sorted(range(len(line.stations)), key=lambda i: line.stations[i].stop_point_m)
+    stations = [line.stations[i].stop_point_m for i in order]
+    end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
+    # Train k starts spacing_m behind train k - 1, the first 300 m before the line's end, none
+    # closer to the line's start than its length.
+    fleet = []
+    for k in range(trains):
+        x = end_m - 300.0 - k * spacing_m
+        if x < vehicle.length_m + 10.0:
+            raise ValueError(f"{trains} trains {spacing_m:g} m apart do not fit on the {end_m:g} m line")
+        unit = OnboardCbtc(
+            train_id=k, direction="R", params=p, curve_decel_mps2=brake.full_service_mps2, uplink=radio.name
+        )
+        unit.position_m = x
+        ahead = next((i for i, st in enumerate(stations) if st > x + 1.0), len(stations))
+        fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
+    # Each train talks to the zone controller with its own safety-layer id.
+    radios = {
+        k: UdpRadio(own_id=TRAIN_BASE + k, master_key=master_key, name=f"radio-{k}") for k in range(trains)
+    }
+    for t in fleet:
+        t.unit.uplink = radios[t.k].name
+    clock = WallClock([*(t.unit for t in fleet), *radios.values()], step_s=STEP_S, base=base)
+    ebs: dict[str, int] = {}
+    eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
+    async with await open_endpoint(
+        ("127.0.0.1" if zc[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0)
+    ) as ep:
+
+        def poll(now_s: float) -> list[Output]:
+            out: list[Output] = []
+            while (got := ep.take()) is not None:
+                frame, _ = got
+                dst = int.from_bytes(frame[3:5], "big") if len(frame) >= 5 else -1
+                r = radios.get(dst - TRAIN_BASE)
+                if r is None:
+                    radio.counts.reject("wrong_destination")
+                    continue
+                out.extend(r.ingest(frame, now_s, to=lambda k: f"cbtc-{k}"))
+            return out
+
+        def plant(now_s: float, step_s: float) -> list[Output]:
+            out: list[Output] = []
+            for r in radios.values():
+                for frame, _ in r.outgoing:
+                    ep.send(frame, zc)
+                r.outgoing.clear()
+            for t in fleet:
+                _move(t, now_s, step_s, vehicle, stations, end_m, dwell_s, fleet)
+                out.append(
+                    Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
+                )
+                if t.unit.emergency_brake and not t.eb_reported:
+                    cause = t.unit.eb_cause or "?"
+                    ebs[cause] = ebs.get(cause, 0) + 1
+                    eb_times.append({"train": t.k, "t_s": round(now_s, 3), "cause": cause})
+                t.eb_reported = t.unit.emergency_brake
+                if t.stopped_at is not None and office is not None:
+                    st = line.stations[order[t.stopped_at]]
+                    office.report(
+                        "stop-result",
+                        {
+                            "station": st.name,
+                            "train": t.k,
+                            # Not a TASC stop: the live plant is a point mass stopping where it aims.
+                            "controller": "live plant",
+                            "error_m": round(t.x_m - st.stop_point_m, 3),
+                            "within": abs(t.x_m - st.stop_point_m) <= st.psd_tolerance_m,
+                            "t_s": round(now_s, 2),
+                        },
+                    )
+                t.stopped_at = None
+                if office is not None and now_s - t.last_state_s >= state_period_s:
+                    t.last_state_s = now_s
+                    state = {
+                        "train": t.k,
+                        "position_m": round(t.x_m, 1),
+                        "speed_mps": round(t.v_mps, 2),
+                        "emergency_brake": t.unit.emergency_brake,
+                        "cause": t.unit.eb_cause,
+                        "t_s": round(now_s, 2),
+                    }
+                    office.report("train-state", state)
+            return out
+
+        await clock.run_live(plant, poll, stop)
+    return {
+        "emergency_brakes": ebs,
+        "emergency_brake_times": eb_times,
+        "late_steps": clock.late_steps,
+        "steps": clock.steps,
+        "commands": sum(t.unit.commands for t in fleet),
+        "radio_rejected": {k: v for r in radios.values() for k, v in r.counts.rejected.items()},
+    }
+
+
+def _move(
+    t: _TrainState,
+    now_s: float,
+    step_s: float,
+    vehicle: Vehicle,
+    stations: list[float],
+    end_m: float,
+    dwell_s: float,
+    fleet: list[_TrainState],
+) -> None:
+    """One plant step of a train: the driving the ATO would do under the onboard unit's limits."""
+    unit = t.unit
+    brake = vehicle.brake
+    if _turn(t, now_s, stations, fleet):
+        return
+    if unit.emergency_brake:
+        t.v_mps = max(0.0, t.v_mps - brake.emergency_decel_mps2 * step_s)
+    elif now_s < t.dwell_until_s:
+        t.v_mps = 0.0
+    else:
+        target = unit.permitted_mps()
+        if t.next_station < len(stations):
+            to_stop = stations[t.next_station] - t.x_m
+            target = min(target, permitted_speed_mps(max(to_stop, 0.0), brake.full_service_mps2 * 0.8, 0.5))
+            if to_stop <= 0.05 and t.v_mps < 0.3:
+                t.v_mps = 0.0
+                t.dwell_until_s = now_s + dwell_s
+                t.stopped_at = t.next_station
+                t.next_station += 1
+                return
+        target = max(0.0, target - 0.3)
+        max_accel = vehicle.traction.max_accel_mps2 if vehicle.traction is not None else 1.0
+        accel = max_accel if t.v_mps < target else -brake.full_service_mps2
+        t.v_mps = (
+            min(target, t.v_mps + accel * step_s) if accel > 0 else max(target, t.v_mps + accel * step_s)
+        )
+    t.x_m += t.v_mps * step_s
+
+
+def _turn(t: _TrainState, now_s: float, stations: list[float], fleet: list[_TrainState]) -> bool:
+    """After its dwell at the last station a train leaves service there and comes back into service
+    200 m before the first station once that stretch is clear (the line has one direction)."""
+    if t.next_station < len(stations) or now_s < t.dwell_until_s or t.unit.emergency_brake:
+        return False
+    start = stations[0] - 200.0
+    if all(o is t or not (start - 400.0 < o.x_m < stations[0] + 200.0) for o in fleet):
+        t.x_m, t.v_mps, t.next_station = start, 0.0, 0
+    return True

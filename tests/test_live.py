@@ -1,0 +1,126 @@
+"""The CBTC line live (issue 17 item 1): office, zone controller and trains as real processes over
+UDP on loopback, on the wall clock (scale 1).
+
+The zone controller is killed with SIGKILL while the trains run: each train's
+onboard unit must apply the emergency brake on its second missed command
+(SPEC §4); a new zone controller process restores service (the trains run
+again); the office keeps every report the trains sent, before and after.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from railstop.config import default_line
+from railstop.store import open_store
+
+KEY = os.urandom(32).hex()
+EXE = [sys.executable, "-m", "railstop.cli"]
+ENV = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY}
+TRAINS = 3
+
+
+class Procs:
+    def __init__(self) -> None:
+        self.all: list[subprocess.Popen[str]] = []
+
+    def start(self, *args: str) -> tuple[subprocess.Popen[str], str]:
+        p = subprocess.Popen(
+            [*EXE, *args], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        self.all.append(p)
+        assert p.stderr is not None
+        return p, p.stderr.readline().strip()
+
+    def stop(self, p: subprocess.Popen[str]) -> dict[str, object]:
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=30)
+        assert p.returncode == 0, err
+        return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.fixture
+def procs() -> Iterator[Procs]:
+    ps = Procs()
+    try:
+        yield ps
+    finally:
+        for p in ps.all:
+            if p.poll() is None:
+                p.kill()
+                p.communicate(timeout=30)
+
+
+def _states(db: str) -> list[dict[str, object]]:
+    with open_store(db) as store:
+        return [r["data"] for r in store.office_reports(kind="train-state")]
+
+
+def test_killing_the_zone_controller_brakes_every_train_and_a_restart_restores_service(
+    procs: Procs, tmp_path: Path
+) -> None:
+    db = str(tmp_path / "office.db")
+    epoch = repr(time.time())
+    common = ["--epoch", epoch, "--scale", "1"]
+    office, line = procs.start("office", "serve", "--db", db, "--port", "0")
+    office_addr = line.split(" on ")[1].split()[0]
+    zc, line = procs.start(
+        "live", "zc", "--port", "0", "--trains", str(TRAINS), "--office", office_addr, *common
+    )
+    zc_port = line.split("127.0.0.1:")[1].split()[0]
+    trains, _ = procs.start(
+        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(TRAINS), "--spacing-m", "800",
+        "--office", office_addr, *common,
+    )  # fmt: skip
+    time.sleep(8.0)
+    moving = [s for s in _states(db) if float(s["speed_mps"]) > 1.0]  # type: ignore[arg-type]
+    assert {s["train"] for s in moving} == set(range(TRAINS)), "every train runs under the controller"
+
+    os.kill(zc.pid, signal.SIGKILL)
+    killed_s = time.time() - float(epoch)  # on the run's clock (scale 1)
+    zc.communicate(timeout=30)
+    time.sleep(4.0)
+    zc2, line = procs.start(
+        "live", "zc", "--port", zc_port, "--trains", str(TRAINS), "--office", office_addr, *common
+    )
+    assert line.startswith("zone controller on"), line
+    time.sleep(10.0)
+    restarted_s = killed_s + 4.0
+
+    fleet = procs.stop(trains)
+    zc_counts = procs.stop(zc2)
+    office_counts = procs.stop(office)
+
+    # SPEC §4: every train braked on its second missed command, about two periods after the kill.
+    period = default_line().cbtc.report_period_s
+    brakes = [b for b in fleet["emergency_brake_times"] if b["t_s"] > killed_s]  # type: ignore[index,union-attr]
+    assert {b["train"] for b in brakes} == set(range(TRAINS))
+    assert all(b["cause"] == "missed-commands" for b in brakes)
+    delays = [b["t_s"] - killed_s for b in brakes]
+    assert max(delays) <= (default_line().cbtc.missed_commands_eb + 1) * period + 0.2, delays
+    print(
+        f"kill -9 of the zone controller -> emergency brake after {', '.join(f'{d:.2f} s' for d in delays)}"
+    )
+
+    # The restarted controller serves the trains again: they run after it, without emergency brake.
+    states = _states(db)
+    after = [s for s in states if float(s["t_s"]) > restarted_s + 3.0]  # type: ignore[arg-type]
+    assert {s["train"] for s in after if float(s["speed_mps"]) > 1.0 and not s["emergency_brake"]} == set(  # type: ignore[arg-type]
+        range(TRAINS)
+    )
+    assert zc_counts["commands"] > 0
+
+    # Nothing lost: every state report the trains sent is in the office's database, once.
+    link = fleet["office_link"]
+    assert link["drained"] is True and link["pending"] == 0  # type: ignore[index]
+    assert len(states) == link["submitted"]  # type: ignore[index]
+    assert office_counts["stored"] == len(states)
