@@ -14,6 +14,7 @@ Without it the test is skipped, unless ``RAILSTOP_REQUIRE_BROWSER`` is set
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -144,3 +145,100 @@ def test_a_page_opened_late_gets_the_history(office: tuple[str, int]) -> None:
             assert "0.020" in page.locator('#stops tr[data-station="Museum"]').inner_text()
         finally:
             browser.close()
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credential(tmp_path: Path) -> None:
+    """The live line: a train's radio dies, the zone controller sets its protection zone, the page
+    shows it; a wrong credential is refused; the right one sends the authenticated release and the
+    controller clears the zone; every operator action is in the database."""
+    from playwright.sync_api import sync_playwright
+
+    from railstop.live.operators import add_operator
+
+    ops = tmp_path / "operators.toml"
+    add_operator(ops, "alice", "correct horse battery")
+    db = str(tmp_path / "office.db")
+    env = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
+    exe = [sys.executable, "-m", "railstop.cli"]
+    zc_port = _free_udp_port()
+    epoch = ["--epoch", repr(time.time()), "--scale", "1"]
+    procs: list[subprocess.Popen[str]] = []
+
+    def start(*args: str) -> list[str]:
+        p = subprocess.Popen(
+            [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        procs.append(p)
+        assert p.stderr is not None
+        return [p.stderr.readline().strip() for _ in range(2 if args[0] == "office" else 1)]
+
+    try:
+        lines = start("office", "serve", "--db", db, "--port", "0", "--http-port", "0", "--zc",
+                      f"127.0.0.1:{zc_port}", "--operators", str(ops))  # fmt: skip
+        url = next(x.split(" at ")[1] for x in lines if x.startswith("control-room page"))
+        office = next(x.split(" on ")[1].split()[0] for x in lines if x.startswith("office listening"))
+        start("live", "zc", "--port", str(zc_port), "--trains", "3", "--office", office, *epoch)
+        start("live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "3", "--spacing-m", "800",
+              "--office", office, "--outage-train", "1", *epoch)  # fmt: skip
+        trains = procs[2]
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1280, "height": 900})
+                page.goto(url)
+                page.wait_for_selector("#status.ok", timeout=15_000)
+                page.wait_for_function("document.querySelectorAll('g.train').length === 3", timeout=15_000)
+                assert page.locator("#no-zones").is_visible()
+                trains.send_signal(signal.SIGUSR1)  # train 1's radio dies
+                page.wait_for_selector('#zones-table tr[data-train="1"]', timeout=15_000)
+                page.wait_for_selector('g.train[data-train="1"][data-radio="dead"]', timeout=15_000)
+                zone_png = tmp_path / "zone.png"
+                page.screenshot(path=str(zone_png))
+                if os.environ.get("RAILSTOP_SCREENSHOT_DIR"):  # how docs/control-room.png is made
+                    shutil.copy(zone_png, Path(os.environ["RAILSTOP_SCREENSHOT_DIR"]) / "control-room.png")
+
+                def release(credential: str) -> str:
+                    page.click('#zones-table tr[data-train="1"] button.release')
+                    page.check("#release-confirm")
+                    page.fill("#release-operator", "alice")
+                    page.fill("#release-credential", credential)
+                    page.click("#release-send")
+                    page.wait_for_function("document.getElementById('release-result').textContent !== ''")
+                    text = page.inner_text("#release-result")
+                    page.evaluate("document.getElementById('release-result').textContent = ''")
+                    return text
+
+                assert release("wrong guess").startswith("refused")
+                assert page.locator('#zones-table tr[data-train="1"]').count() == 1  # still protected
+                assert "sent to the zone controller" in release("correct horse battery")
+                # The controller clears the zone: its zone-event says so (while the radio stays
+                # dead it protects the train again once it misses its reports: that is right).
+                page.wait_for_function(
+                    "[...document.querySelectorAll('#log div[data-kind=\"zone-event\"]')]"
+                    ".some(d => d.textContent.includes('\"active\":false'))",
+                    timeout=10_000,
+                )
+                trains.send_signal(signal.SIGUSR1)  # the radio comes back
+            finally:
+                browser.close()
+        assert zone_png.stat().st_size > 10_000
+    finally:
+        results = []
+        for p in reversed(procs):
+            p.send_signal(signal.SIGTERM)
+            out, _ = p.communicate(timeout=30)
+            results.append(out)
+    zc_counts = json.loads(results[1].strip().splitlines()[-1])
+    assert zc_counts["manual_releases"] >= 1 and zc_counts["lost_trains"] >= 1
+    from railstop.store import open_store
+
+    with open_store(db) as store:
+        actions = [r["data"] for r in store.office_reports(kind="operator-action")]
+    assert [a["result"].split(":")[0] for a in actions] == ["refused", "sent to the zone controller"]
+    assert all(a["operator"] == "alice" and a["train"] == 1 for a in actions)

@@ -139,6 +139,10 @@ def trains_cmd(
     scale: ScaleOpt = 1.0,
     key_hex: KeyOpt = None,
     office: OfficeOpt = None,
+    outage_train: Annotated[
+        int | None,
+        typer.Option(help="SIGUSR1 kills this train's radio, the next one restores it (fault injection)."),
+    ] = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -156,7 +160,18 @@ def trains_cmd(
     base = TimeBase(time.time() if epoch is None else epoch, scale)
     print(f"trains running (pid {os.getpid()})", file=sys.stderr, flush=True)
 
+    dead: set[int] = set()
+
+    def toggle() -> None:
+        assert outage_train is not None
+        dead.symmetric_difference_update({outage_train})
+        state = "dead" if outage_train in dead else "restored"
+        print(f"radio of train {outage_train} {state}", file=sys.stderr, flush=True)
+
     async def run(stop: asyncio.Event) -> object:
+        if outage_train is not None:
+            asyncio.get_running_loop().add_signal_handler(signal.SIGUSR1, toggle)
+
         async def fleet(client: object) -> object:
             return await run_trains(
                 line=ln,
@@ -168,6 +183,7 @@ def trains_cmd(
                 master_key=key,
                 stop=stop,
                 office=client,  # type: ignore[arg-type]
+                outage=dead,
             )
 
         return await _with_office(office, 801, key, fleet)

@@ -7,6 +7,7 @@ import json
 import os
 import signal
 import sys
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -69,10 +70,16 @@ def serve_cmd(
         int | None,
         typer.Option("--http-port", min=0, max=65535, help="Also serve the control-room page (0: any port)."),
     ] = None,
+    zc: Annotated[
+        str | None, typer.Option(help="The zone controller's UDP address HOST:PORT, for manual releases.")
+    ] = None,
+    operators: Annotated[
+        Path | None, typer.Option(help="Operators file (railstop office add-operator) for manual releases.")
+    ] = None,
     line: LineOpt = None,
 ) -> None:
     """Receive, store and acknowledge the wayside's reports until stopped (SIGTERM, Ctrl-C); with
-    --http-port, serve the control-room page too."""
+    --http-port, serve the control-room page too (with --zc and --operators: its zone release)."""
     from railstop.config import load_line
     from railstop.link.udp import EpochClock
     from railstop.live.office import serve_office
@@ -81,6 +88,14 @@ def serve_cmd(
         key = master_key(key_hex)
         ids = sender_ids(senders)
         ln = load_line(line)
+        if (zc is None) != (operators is None):
+            raise RailstopError("--zc and --operators: the manual release needs both")
+        release_to = None
+        if zc is not None and operators is not None:
+            from railstop.cli_live import _address
+            from railstop.live.operators import load_operators
+
+            release_to = (_address(zc, "--zc"), load_operators(operators))
     except RailstopError as exc:
         fail(str(exc))
     stations = [{"name": st.name, "chainage_m": st.stop_point_m} for st in ln.stations]
@@ -96,7 +111,11 @@ def serve_cmd(
         def ready(addr: tuple[str, int]) -> None:
             print(f"office listening on {addr[0]}:{addr[1]} (database {db})", file=sys.stderr, flush=True)
 
-        page = None if http_port is None else await _start_page(host, http_port, ln.line.name, line_data)
+        page = (
+            None
+            if http_port is None
+            else await _start_page(host, http_port, ln.line.name, line_data, key, release_to)
+        )
         try:
             stats = await serve_office(
                 db=db,
@@ -132,7 +151,14 @@ class _Page:
         await self.task
 
 
-async def _start_page(host: str, port: int, name: str, line_data: dict[str, Any]) -> _Page:
+async def _start_page(
+    host: str,
+    port: int,
+    name: str,
+    line_data: dict[str, Any],
+    key: bytes,
+    release_to: tuple[tuple[str, int], dict[str, str]] | None,
+) -> _Page:
     import uvicorn
 
     from railstop.live.page import Broadcast, make_app
@@ -143,8 +169,13 @@ async def _start_page(host: str, port: int, name: str, line_data: dict[str, Any]
     def history(after: int) -> list[dict[str, Any]]:
         return stores[0].office_reports(after_id=after) if stores else []
 
+    release = None if release_to is None else _release_handler(release_to, key, stores, broadcast)
     app = make_app(
-        history=history, broadcast=broadcast, title=f"railstop control room: {name}", line=line_data
+        history=history,
+        broadcast=broadcast,
+        title=f"railstop control room: {name}",
+        line=line_data,
+        release=release,
     )
     server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="off"))
     task = asyncio.create_task(server.serve())
@@ -155,3 +186,73 @@ async def _start_page(host: str, port: int, name: str, line_data: dict[str, Any]
     bound = server.servers[0].sockets[0].getsockname()
     print(f"control-room page at http://{bound[0]}:{bound[1]}/", file=sys.stderr, flush=True)
     return _Page(server, task, broadcast, stores)
+
+
+def _release_handler(
+    release_to: tuple[tuple[str, int], dict[str, str]], key: bytes, stores: list[Any], broadcast: Any
+) -> Any:
+    """SPEC §4 step 5: the page's release, checked against the operators file, logged in the
+    database (kind ``operator-action``, with its outcome) and sent to the zone controller as an
+    authenticated ``zone-release`` telegram (``link.release_link``)."""
+    import socket
+    import time
+
+    from railstop.link.release_link import OperatorConsole, release_key
+    from railstop.live.office import OFFICE_ID, new_session
+    from railstop.live.operators import check
+    from railstop.live.page import ReleaseRequest
+
+    zc, operators = release_to
+    console = OperatorConsole(key=release_key(key))
+    # [interpretation] The release link's sequence numbers go on across office restarts: they
+    # start at the tenths of seconds since 2026 (the zone controller refuses a number it has
+    # had); 2**32 of them last until 2039.
+    console.sender.next_seq = int((time.time() - 1_767_225_600.0) * 10.0)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    session = new_session()
+    actions = iter(range(1, 1 << 62))
+
+    async def log(data: dict[str, Any]) -> None:
+        if not stores:
+            return
+        row = await asyncio.to_thread(
+            stores[0].save_office_report,
+            sender_id=OFFICE_ID,
+            session=session,
+            seq=next(actions),
+            kind="operator-action",
+            sent_s=time.time(),
+            data=data,
+        )
+        if row is not None:
+            broadcast.publish(row)
+
+    async def release(request: ReleaseRequest) -> tuple[int, str]:
+        ok = await asyncio.to_thread(check, operators, request.operator, request.credential)
+        action = {"operator": request.operator, "action": "zone-release", "train": request.train}
+        if not ok:
+            await log({**action, "result": "refused: unknown operator or wrong credential"})
+            return 403, "refused: unknown operator or wrong credential"
+        sock.sendto(console.release(request.train, time.time()), zc)
+        await log({**action, "result": "sent to the zone controller"})
+        return 200, f"release of train {request.train}'s zone sent to the zone controller"
+
+    return release
+
+
+@office_app.command("add-operator")
+def add_operator_cmd(
+    file: Annotated[Path, typer.Argument(help="The operators file (created if missing).")],
+    name: Annotated[str, typer.Argument(help="The operator's name.")],
+    credential: Annotated[
+        str, typer.Option(prompt=True, hide_input=True, confirmation_prompt=True, help="The credential.")
+    ],
+) -> None:
+    """Add an operator (or change one's credential); only a salted PBKDF2 hash is written."""
+    from railstop.live.operators import add_operator
+
+    try:
+        add_operator(file, name, credential)
+    except RailstopError as exc:
+        fail(str(exc))
+    print(f"operator {name} written to {file}")

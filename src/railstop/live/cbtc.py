@@ -32,12 +32,14 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 from railstop.config.schema import Line, Vehicle
 from railstop.link.codec import CbtcCommand, CbtcReport, TelegramError, decode, encode
+from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
@@ -182,6 +184,7 @@ async def run_zone_controller(
         mode=ZoneMode.MINIMAL,
     )
     zc.downlink = radio.name
+    gate = ReleaseGate(key=release_key(master_key))
     clock = WallClock([zc, radio], step_s=STEP_S, base=base)
     addresses: dict[int, Address] = {}
     heard: set[int] = set()
@@ -195,6 +198,13 @@ async def run_zone_controller(
             out: list[Output] = []
             while (got := ep.take()) is not None:
                 frame, addr = got
+                if frame[1:3] == OPERATOR_ADDRESS.to_bytes(2, "big"):
+                    # SPEC §4 step 5: the operator's release, only through the authenticated link
+                    # (its timestamps are Unix time, the control room's clock).
+                    release = gate.accept(frame, time.time())
+                    if release is not None:
+                        out.append(Output(to=zc.name, message=release))
+                    continue
                 msgs = radio.ingest(frame, now_s, to=lambda _k: zc.name)
                 for m in msgs:
                     assert isinstance(m.message, PositionReport)
@@ -228,6 +238,8 @@ async def run_zone_controller(
         "late_steps": clock.late_steps,
         "steps": clock.steps,
         "radio": {"delivered": radio.counts.delivered, "rejected": radio.counts.rejected},
+        "manual_releases": c.manual_releases,
+        "releases_refused": gate.rejected,
     }
 
 
@@ -242,7 +254,9 @@ def _report_zones(
             )
     for train in [t for t in seen if t not in now]:
         a, b = seen[train]
-        office.report("zone-event", {"train": train, "start_m": a, "end_m": b, "active": False, "t_s": now_s})
+        office.report(
+            "zone-event", {"train": train, "start_m": a, "end_m": b, "active": False, "t_s": round(now_s, 2)}
+        )
     seen.clear()
     seen.update(now)
 
@@ -276,8 +290,13 @@ async def run_trains(
     dwell_s: float = 20.0,
     office: OfficeClient | None = None,
     state_period_s: float = 1.0,
+    outage: set[int] | None = None,
 ) -> dict[str, Any]:
-    """Run every train until ``stop``; return the counts (emergency brakes by cause, ...)."""
+    """Run every train until ``stop``; return the counts (emergency brakes by cause, ...).
+
+    ``outage``: the trains whose radio is dead now (fault injection; the caller may change the set
+    while the trains run): every frame to or from them is lost."""
+    dead = outage if outage is not None else set()
     p = line.cbtc
     brake = vehicle.brake
     radio = UdpRadio(own_id=TRAIN_BASE, master_key=master_key)
@@ -319,14 +338,17 @@ async def run_trains(
                 if r is None:
                     radio.counts.reject("wrong_destination")
                     continue
+                if dst - TRAIN_BASE in dead:
+                    continue  # the train's radio is dead: lost
                 out.extend(r.ingest(frame, now_s, to=lambda k: f"cbtc-{k}"))
             return out
 
         def plant(now_s: float, step_s: float) -> list[Output]:
             out: list[Output] = []
-            for r in radios.values():
+            for k, r in radios.items():
                 for frame, _ in r.outgoing:
-                    ep.send(frame, zc)
+                    if k not in dead:
+                        ep.send(frame, zc)
                 r.outgoing.clear()
             for t in fleet:
                 _move(t, now_s, step_s, vehicle, stations, end_m, dwell_s, fleet)
@@ -361,6 +383,7 @@ async def run_trains(
                         "speed_mps": round(t.v_mps, 2),
                         "emergency_brake": t.unit.emergency_brake,
                         "cause": t.unit.eb_cause,
+                        "radio": "dead" if t.k in dead else "ok",
                         "t_s": round(now_s, 2),
                     }
                     office.report("train-state", state)

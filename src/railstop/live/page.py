@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib import resources
 from typing import Any
 
 from fastapi import FastAPI, Query
-from fastapi.responses import HTMLResponse, StreamingResponse
+from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
+from pydantic import BaseModel, Field
 
 HISTORY = 200  # reports a page gets when it connects
 QUEUE = 1000  # reports a page may lag behind before its oldest are dropped
@@ -58,21 +59,46 @@ def _sse(event: dict[str, Any]) -> bytes:
     return f"id: {event['id']}\nevent: report\ndata: {json.dumps(event, separators=(',', ':'))}\n\n".encode()
 
 
+class ReleaseRequest(BaseModel):
+    """SPEC §4 step 5: an operator releases a train's protection zone after visual confirmation."""
+
+    train: int = Field(ge=0, le=4095)
+    operator: str = Field(min_length=1, max_length=40)
+    credential: str = Field(min_length=1, max_length=200)
+    confirmed: bool  # the page's confirmation: the operator has seen the train
+
+
+#: ``release(request) -> (HTTP status, message)``: checks the credential, logs, sends.
+Release = Callable[[ReleaseRequest], Awaitable[tuple[int, str]]]
+
+
 def make_app(
     *,
     history: Callable[[int], list[dict[str, Any]]],
     broadcast: Broadcast,
     title: str,
     line: dict[str, Any],
+    release: Release | None = None,
 ) -> FastAPI:
     """The page's app. ``history(after_id)``: the stored reports after that id (oldest first);
-    ``line``: what the page draws the line from (``length_m``, ``stations``: name, chainage_m)."""
+    ``line``: what the page draws the line from (``length_m``, ``stations``: name, chainage_m);
+    ``release``: the manual zone release (None: the page offers none)."""
     app = FastAPI(title=title, docs_url=None, redoc_url=None, openapi_url=None)
+
+    @app.post("/api/release")
+    async def release_zone(request: ReleaseRequest) -> JSONResponse:
+        if release is None:
+            return JSONResponse({"message": "this office has no zone controller link"}, status_code=503)
+        if not request.confirmed:
+            return JSONResponse({"message": "the release needs the operator's confirmation"}, status_code=400)
+        status, message = await release(request)
+        return JSONResponse({"message": message}, status_code=status)
+
     page = resources.files("railstop.live").joinpath("static/control_room.html").read_text(encoding="utf-8")
 
     @app.get("/", response_class=HTMLResponse)
     async def index() -> str:
-        return page.replace("{{title}}", title)
+        return page.replace("{{title}}", title).replace("{{release}}", "1" if release is not None else "0")
 
     @app.get("/api/line")
     async def line_data() -> dict[str, Any]:
