@@ -124,3 +124,27 @@ def test_killing_the_zone_controller_brakes_every_train_and_a_restart_restores_s
     assert link["drained"] is True and link["pending"] == 0  # type: ignore[index]
     assert len(states) == link["submitted"]  # type: ignore[index]
     assert office_counts["stored"] == len(states)
+
+
+def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Path) -> None:
+    """``railstop live run`` end to end: train 1's radio dead from 9 s to 13 s: it brakes on its
+    missed commands, the controller sets its zone and, when it reports again from inside the zone,
+    releases it (SPEC §4 steps 1-4)."""
+    p = subprocess.run(
+        [*EXE, "live", "run", "--trains", "3", "--duration-s", "20", "--http-port", "0", "--spacing-m", "800",
+         "--db", str(tmp_path / "live.db"), "--outage", "1:9:4"],
+        capture_output=True, text=True, timeout=120, env=ENV,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    first, last = p.stdout.strip().splitlines()[0], p.stdout.strip().splitlines()[-1]
+    assert first.startswith("control-room page at http://127.0.0.1:")
+    out = json.loads(last)
+    zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
+    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 1 and zc["flagged"] == 0
+    assert fleet["emergency_brakes"] == {"missed-commands": 1}
+    assert [b["train"] for b in fleet["emergency_brake_times"]] == [1]
+    assert office["stored"] == fleet["office_link"]["submitted"] + zc["office_link"]["submitted"]
+    assert "radio of train 1 dead" in p.stderr and "radio of train 1 restored" in p.stderr
+    with open_store(str(tmp_path / "live.db")) as store:
+        zones = [r["data"] for r in store.office_reports(kind="zone-event")]
+    assert [(z["train"], z["active"]) for z in zones] == [(1, True), (1, False)]

@@ -49,6 +49,17 @@ def _address(text: str, option: str) -> tuple[str, int]:
     return host, int(port)
 
 
+def _outage(text: str, trains: int) -> tuple[int, float, float]:
+    try:
+        train_s, start_s, duration_s = text.split(":")
+        train, start, duration = int(train_s), float(start_s), float(duration_s)
+    except ValueError:
+        raise RailstopError(f"--outage: TRAIN:START_S:DURATION_S expected (got {text!r})") from None
+    if not 0 <= train < trains or start < 0.0 or duration <= 0.0:
+        raise RailstopError(f"--outage: a train 0..{trains - 1}, a start >= 0, a duration > 0 (got {text!r})")
+    return train, start, duration
+
+
 def _serve(coro_factory: object) -> None:
     """Run a live process until SIGTERM / SIGINT; print its counts as one JSON line."""
 
@@ -59,10 +70,15 @@ def _serve(coro_factory: object) -> None:
             loop.add_signal_handler(sig, stop.set)
         return await coro_factory(stop)  # type: ignore[operator]
 
+    started = time.monotonic()
     try:
         result = asyncio.run(main())
     except (RailstopError, ValueError) as exc:
         fail(str(exc))
+    if isinstance(result, dict):
+        # What the process cost: its CPU seconds (user + system) over its wall seconds.
+        result["cpu_s"] = round(time.process_time(), 2)
+        result["wall_s"] = round(time.monotonic() - started, 2)
     print(json.dumps(result), flush=True)
 
 
@@ -143,6 +159,7 @@ def trains_cmd(
         int | None,
         typer.Option(help="SIGUSR1 kills this train's radio, the next one restores it (fault injection)."),
     ] = None,
+    outage: OutageOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -155,6 +172,7 @@ def trains_cmd(
         key = master_key(key_hex)
         ln, veh = load_line(line), load_vehicle(vehicle)
         zc_addr = _address(zc, "--zc")
+        windows = [_outage(o, trains) for o in outage or []]
     except RailstopError as exc:
         fail(str(exc))
     base = TimeBase(time.time() if epoch is None else epoch, scale)
@@ -168,9 +186,17 @@ def trains_cmd(
         state = "dead" if outage_train in dead else "restored"
         print(f"radio of train {outage_train} {state}", file=sys.stderr, flush=True)
 
+    def set_radio(train: int, dead_now: bool) -> None:
+        (dead.add if dead_now else dead.discard)(train)
+        print(f"radio of train {train} {'dead' if dead_now else 'restored'}", file=sys.stderr, flush=True)
+
     async def run(stop: asyncio.Event) -> object:
+        loop = asyncio.get_running_loop()
         if outage_train is not None:
-            asyncio.get_running_loop().add_signal_handler(signal.SIGUSR1, toggle)
+            loop.add_signal_handler(signal.SIGUSR1, toggle)
+        for train, start_s, duration_s in windows:  # simulated seconds since the run's epoch
+            loop.call_later(max(base.wall_until(start_s), 0.0), set_radio, train, True)
+            loop.call_later(max(base.wall_until(start_s + duration_s), 0.0), set_radio, train, False)
 
         async def fleet(client: object) -> object:
             return await run_trains(
@@ -191,6 +217,100 @@ def trains_cmd(
     _serve(run)
 
 
+def _free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _run_line(
+    *,
+    trains: int,
+    duration_s: float,
+    scale: float,
+    db: str,
+    http_port: int,
+    spacing_m: float,
+    operators: str | None,
+    outages: list[str],
+) -> dict[str, object]:
+    """Office (with its page), zone controller and trains as three processes for ``duration_s``
+    wall seconds; their counts, one object per process."""
+    import threading
+
+    key = os.urandom(32).hex()
+    epoch = time.time()
+    env = {**os.environ, KEY_ENV: key}
+    exe = [sys.executable, "-m", "railstop.cli"]
+    common = ["--epoch", repr(epoch), "--scale", repr(scale)]
+    procs: list[subprocess.Popen[str]] = []
+    zc_port = _free_udp_port()
+
+    def start(args: list[str], lines: int = 1) -> tuple[subprocess.Popen[str], list[str]]:
+        proc = subprocess.Popen(
+            [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        procs.append(proc)
+        assert proc.stderr is not None
+        first = [proc.stderr.readline().strip() for _ in range(lines)]
+        # The rest of its stderr is passed on (and never fills a pipe that nobody reads).
+        err = proc.stderr
+        threading.Thread(target=lambda: [print(x, end="", file=sys.stderr) for x in err], daemon=True).start()
+        return proc, first
+
+    results: dict[str, object] = {}
+    try:
+        office_args = ["office", "serve", "--db", db, "--port", "0", "--http-port", str(http_port)]
+        if operators is not None:
+            office_args += ["--zc", f"127.0.0.1:{zc_port}", "--operators", operators]
+        _, lines = start(office_args, lines=2)
+        page = next((x for x in lines if x.startswith("control-room page")), "")
+        listening = next((x for x in lines if x.startswith("office listening")), "")
+        if not page or not listening:
+            raise RailstopError(f"the office did not start: {' '.join(lines)}")
+        office_addr = listening.split(" on ")[1].split()[0]
+        zc, (zc_line,) = start(
+            ["live", "zc", "--port", str(zc_port), "--trains", str(trains), "--office", office_addr, *common]
+        )
+        if not zc_line.startswith("zone controller on"):
+            raise RailstopError(f"the zone controller did not start: {zc_line}")
+        outage_args = [a for o in outages for a in ("--outage", o)]
+        tr, _ = start(
+            ["live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m",
+             str(spacing_m), "--office", office_addr, *outage_args, *common]
+        )  # fmt: skip
+        print(
+            f"{page} (open it in a browser); office {office_addr}, zone controller 127.0.0.1:{zc_port} "
+            f"(pid {zc.pid}), trains (pid {tr.pid}); running {duration_s:g} s",
+            flush=True,
+        )
+        time.sleep(duration_s)
+    except RailstopError as exc:
+        for p in procs:
+            p.kill()
+        fail(str(exc))
+    finally:
+        # The trains first, the office last: it stores what the others report as they stop.
+        for role, p in reversed(list(zip(("office", "zone_controller", "trains"), procs, strict=False))):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+            out, _ = p.communicate(timeout=30)
+            text = out.strip().splitlines()[-1] if out.strip() else ""
+            results[role] = json.loads(text) if text.startswith("{") else text
+    return results
+
+
+OperatorsOpt = Annotated[
+    str | None, typer.Option(help="Operators file (railstop office add-operator): the page's zone release.")
+]
+OutageOpt = Annotated[
+    list[str] | None,
+    typer.Option("--outage", help="TRAIN:START_S:DURATION_S: that train's radio dead then (repeatable)."),
+]
+
+
 @live_app.command("run")
 def run_cmd(
     trains: TrainsOpt = 4,
@@ -203,53 +323,49 @@ def run_cmd(
     spacing_m: Annotated[
         float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")
     ] = 600.0,
+    operators: OperatorsOpt = None,
+    outage: OutageOpt = None,
 ) -> None:
     """Office (with its page), zone controller and trains as three processes for --duration-s."""
-    key = os.urandom(32).hex()
-    epoch = time.time()
-    env = {**os.environ, KEY_ENV: key}
-    exe = [sys.executable, "-m", "railstop.cli"]
-    common = ["--epoch", repr(epoch), "--scale", repr(scale)]
-    procs: list[subprocess.Popen[str]] = []
-
-    def start(args: list[str]) -> tuple[subprocess.Popen[str], str]:
-        proc = subprocess.Popen(
-            [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
-        procs.append(proc)
-        assert proc.stderr is not None
-        return proc, proc.stderr.readline().strip()
-
-    try:
-        office, line1 = start(["office", "serve", "--db", db, "--port", "0", "--http-port", str(http_port)])
-        assert office.stderr is not None
-        line2 = office.stderr.readline().strip()
-        page = next((x for x in (line1, line2) if x.startswith("control-room page")), "")
-        listening = next((x for x in (line1, line2) if x.startswith("office listening")), "")
-        if not page or not listening:
-            raise RailstopError(f"the office did not start: {line1} {line2} {office.stderr.read()}")
-        office_addr = listening.split(" on ")[1].split()[0]
-        zc, zc_line = start(
-            ["live", "zc", "--port", "0", "--trains", str(trains), "--office", office_addr, *common]
-        )
-        if not zc_line.startswith("zone controller on"):
-            raise RailstopError(f"the zone controller did not start: {zc_line}")
-        zc_addr = zc_line.split(" on ")[1].split()[0]
-        tr, _ = start(["live", "trains", "--zc", zc_addr, "--trains", str(trains), "--spacing-m",
-                             str(spacing_m), "--office", office_addr, *common])  # fmt: skip
-        print(f"{page}; office {office_addr}, zone controller {zc_addr} (pid {zc.pid}), trains pid {tr.pid}",
-              flush=True)  # fmt: skip
-        time.sleep(duration_s)
-    except RailstopError as exc:
-        for p in procs:
-            p.kill()
-        fail(str(exc))
-    finally:
-        results: dict[str, object] = {}
-        # The trains first, the office last: it stores what the others report as they stop.
-        for role, p in reversed(list(zip(("office", "zone_controller", "trains"), procs, strict=False))):
-            p.send_signal(signal.SIGTERM)
-            out, _ = p.communicate(timeout=30)
-            text = out.strip().splitlines()[-1] if out.strip() else ""
-            results[role] = json.loads(text) if text.startswith("{") else text
+    results = _run_line(
+        trains=trains,
+        duration_s=duration_s,
+        scale=scale,
+        db=db,
+        http_port=http_port,
+        spacing_m=spacing_m,
+        operators=operators,
+        outages=list(outage or []),
+    )
     print(json.dumps(results))
+
+
+@live_app.command("demo")
+def demo_cmd(
+    http_port: Annotated[int, typer.Option(min=0, max=65535, help="The control-room page's port.")] = 8080,
+    db: Annotated[str, typer.Option(help="The office's database.")] = "railstop-live.db",
+    operators: OperatorsOpt = None,
+) -> None:
+    """Two minutes of six trains with a radio outage of train 2 from 30 s to 50 s: its protection
+    zone, its re-detection; prints where to open the page, then what happened."""
+    results = _run_line(
+        trains=6,
+        duration_s=120.0,
+        scale=1.0,
+        db=db,
+        http_port=http_port,
+        spacing_m=600.0,
+        operators=operators,
+        outages=["2:30:20"],
+    )
+    zc = results.get("zone_controller")
+    fleet = results.get("trains")
+    office = results.get("office")
+    if not (isinstance(zc, dict) and isinstance(fleet, dict) and isinstance(office, dict)):
+        fail(f"a process did not finish cleanly: {json.dumps(results)}")
+    print(
+        f"zone controller: {zc['reports']} reports, {zc['commands']} commands, {zc['lost_trains']} train(s) "
+        f"lost, {zc['auto_releases']} re-detected inside their zone (released), {zc['flagged']} outside "
+        f"(flagged), {zc['manual_releases']} manual release(s); trains: emergency brakes "
+        f"{fleet['emergency_brakes'] or 'none'}; office: {office['stored']} reports stored in {db}"
+    )

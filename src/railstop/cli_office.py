@@ -7,6 +7,7 @@ import json
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -133,10 +134,13 @@ def serve_cmd(
                 await page.close()
         return {"stored": stats.stored, "duplicates": stats.duplicates, "rejected": stats.rejected}
 
+    started = time.monotonic()
     try:
         result = asyncio.run(main())
     except RailstopError as exc:
         fail(str(exc))
+    result["cpu_s"] = round(time.process_time(), 2)
+    result["wall_s"] = round(time.monotonic() - started, 2)
     print(json.dumps(result))
 
 

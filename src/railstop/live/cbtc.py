@@ -234,6 +234,8 @@ async def run_zone_controller(
         "reports": c.reports,
         "commands": c.commands,
         "lost_trains": c.lost,
+        "auto_releases": c.auto_releases,
+        "flagged": c.flagged,
         "commands_held_at_start": held,
         "late_steps": clock.late_steps,
         "steps": clock.steps,
@@ -250,7 +252,8 @@ def _report_zones(
     for train, (a, b) in now.items():
         if seen.get(train) != (a, b):
             office.report(
-                "zone-event", {"train": train, "start_m": a, "end_m": b, "active": True, "t_s": now_s}
+                "zone-event",
+                {"train": train, "start_m": a, "end_m": b, "active": True, "t_s": round(now_s, 2)},
             )
     for train in [t for t in seen if t not in now]:
         a, b = seen[train]

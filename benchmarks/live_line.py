@@ -1,0 +1,66 @@
+"""The live CBTC line on the wall clock, measured: are the cycles on time, what does each process cost?
+
+    python benchmarks/live_line.py [--trains 20] [--minutes 10] [--spacing-m 250]
+
+Runs ``railstop live run`` (office, zone controller, trains: three processes
+over UDP on loopback, scale 1) and prints per process its plant steps, the
+steps that started more than one step late (a process that could not keep
+up), its CPU seconds and its share of one core; for the zone controller the
+reports and commands against the cycles due (trains x duration / report
+period), the trains lost; for the trains their emergency brakes; for the
+office the reports stored against those sent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from railstop.config import default_line
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trains", type=int, default=20)
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--spacing-m", type=float, default=250.0)
+    args = ap.parse_args()
+    duration = args.minutes * 60.0
+    with tempfile.TemporaryDirectory() as tmp:
+        db = str(Path(tmp) / "live.db")
+        argv = [sys.executable, "-m", "railstop.cli", "live", "run", "--trains", str(args.trains)]
+        argv += ["--duration-s", str(duration), "--http-port", "0", "--spacing-m", str(args.spacing_m)]
+        p = subprocess.run([*argv, "--db", db], capture_output=True, text=True, check=False)
+    if p.returncode != 0:
+        sys.exit(f"live run failed: {p.stderr.strip()}")
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    period = default_line().cbtc.report_period_s
+    print(f"{args.trains} trains live for {args.minutes:g} min at x1 (report period {period:g} s)")
+    print(f"{'process':16s} {'steps':>8s} {'late':>6s} {'CPU s':>8s} {'wall s':>8s} {'CPU share':>10s}")
+    for role in ("zone_controller", "trains", "office"):
+        r = out[role]
+        steps = r.get("steps", "-")
+        late = r.get("late_steps", "-")
+        share = r["cpu_s"] / r["wall_s"] if r.get("wall_s") else float("nan")
+        print(f"{role:16s} {steps!s:>8s} {late!s:>6s} {r['cpu_s']:8.2f} {r['wall_s']:8.1f} {share:10.1%}")
+    zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
+    due = args.trains * duration / period
+    print(
+        f"zone controller: {zc['reports']:,} reports and {zc['commands']:,} commands for about {due:,.0f} "
+        f"cycles due, {zc['lost_trains']} train(s) lost, {zc['commands_held_at_start']} command(s) held "
+        f"until every train had reported"
+    )
+    ebs = fleet["emergency_brakes"] or "none"
+    print(f"trains: emergency brakes {ebs}; radio frames rejected {fleet['radio_rejected'] or 'none'}")
+    sent = fleet["office_link"]["submitted"] + zc["office_link"]["submitted"]
+    print(
+        f"office: {office['stored']:,} reports stored of {sent:,} sent, {office['duplicates']} duplicate(s)"
+    )
+
+
+if __name__ == "__main__":
+    main()
