@@ -143,6 +143,8 @@ def test_a_page_opened_late_gets_the_history(office: tuple[str, int]) -> None:
             page.wait_for_selector("#status.ok", timeout=15_000)
             assert page.locator("#log div").count() == 3
             assert "0.020" in page.locator('#stops tr[data-station="Museum"]').inner_text()
+            # The accuracy chart has a dot per stop, green inside the PSD tolerance.
+            assert page.locator("#accuracy circle.stop-dot").count() == 3
         finally:
             browser.close()
 

@@ -46,7 +46,7 @@ from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
-from railstop.sim.line_cbtc import civil_limit_mps, gradient_permille
+from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
 ZC_ID = 0x0300  # the zone controller's safety-layer id (as link.cbtc_radio)
@@ -162,27 +162,8 @@ async def run_zone_controller(
     on_ready: Callable[[Address], None] | None = None,
 ) -> dict[str, Any]:
     """Serve the trains until ``stop``; return the counts."""
-    p = line.cbtc
-    sig = line.signalling
-    circuits = {c.id: c for c in line.track.circuits}
-    blocks = (
-        [(circuits[b.circuits[0]].start_m, circuits[b.circuits[-1]].end_m) for b in sig.blocks]
-        if sig is not None
-        else [(s.start_m, s.end_m) for s in line.segments]
-    )
-    end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
     radio = UdpRadio(own_id=ZC_ID, master_key=master_key)
-    zc = ZoneController(
-        params=p,
-        segments=[(s.start_m, s.end_m) for s in line.segments],
-        blocks=blocks,
-        overlap_m=sig.overlap_m if sig is not None else 0.0,
-        train_length_m=vehicle.length_m,
-        line_end_m=end_m,
-        limit_at=lambda x: civil_limit_mps(line, x),
-        gradient_at=lambda x: gradient_permille(line, x),
-        mode=ZoneMode.MINIMAL,
-    )
+    zc = make_zone_controller(line, vehicle, ZoneMode.MINIMAL)
     zc.downlink = radio.name
     gate = ReleaseGate(key=release_key(master_key))
     clock = WallClock([zc, radio], step_s=STEP_S, base=base)

@@ -103,6 +103,30 @@ class _CheckedZc:
         return outs
 
 
+def make_zone_controller(line: Line, vehicle: Vehicle, mode: ZoneMode) -> ZoneController:
+    """The line's zone controller (SPEC §4): its segments, its fixed blocks (for the conventional
+    zones), civil limits and gradients from the line data; the same in the line simulation and live."""
+    sig = line.signalling
+    circuits = {c.id: c for c in line.track.circuits}
+    blocks = (
+        [(circuits[b.circuits[0]].start_m, circuits[b.circuits[-1]].end_m) for b in sig.blocks]
+        if sig is not None
+        else [(s.start_m, s.end_m) for s in line.segments]
+    )
+    end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
+    return ZoneController(
+        params=line.cbtc,
+        segments=[(s.start_m, s.end_m) for s in line.segments],
+        blocks=blocks,
+        overlap_m=sig.overlap_m if sig is not None else 0.0,
+        train_length_m=vehicle.length_m,
+        line_end_m=end_m,
+        limit_at=lambda x: civil_limit_mps(line, x),
+        gradient_at=lambda x: gradient_permille(line, x),
+        mode=mode,
+    )
+
+
 @dataclass(slots=True)
 class CbtcSignalling:
     line: Line
@@ -129,26 +153,8 @@ class CbtcSignalling:
     _flagged_at: dict[int, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        line, p = self.line, self.line.cbtc
-        sig = line.signalling
-        circuits = {c.id: c for c in line.track.circuits}
-        blocks = (
-            [(circuits[b.circuits[0]].start_m, circuits[b.circuits[-1]].end_m) for b in sig.blocks]
-            if sig is not None
-            else [(s.start_m, s.end_m) for s in line.segments]
-        )
-        end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
-        self.zc = ZoneController(
-            params=p,
-            segments=[(s.start_m, s.end_m) for s in line.segments],
-            blocks=blocks,
-            overlap_m=sig.overlap_m if sig is not None else 0.0,
-            train_length_m=self.vehicle.length_m,
-            line_end_m=end_m,
-            limit_at=lambda x: civil_limit_mps(line, x),
-            gradient_at=lambda x: gradient_permille(line, x),
-            mode=self.mode,
-        )
+        p = self.line.cbtc
+        self.zc = make_zone_controller(self.line, self.vehicle, self.mode)
         self.radio = CbtcRadio(params=self.radio_params, seed=self.seed, outages=self.outages)
         brake = self.vehicle.brake
         self.onboard = [
