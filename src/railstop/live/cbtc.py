@@ -169,7 +169,7 @@ async def run_zone_controller(
     clock = WallClock([zc, radio], step_s=STEP_S, base=base)
     addresses: dict[int, Address] = {}
     heard: set[int] = set()
-    zones_seen: dict[int, tuple[float, float]] = {}
+    zones_seen: dict[int, tuple[float, float, str]] = {}
     held = 0
     async with await open_endpoint(local) as ep:
         if on_ready is not None:
@@ -227,17 +227,18 @@ async def run_zone_controller(
 
 
 def _report_zones(
-    zc: ZoneController, seen: dict[int, tuple[float, float]], office: OfficeClient, now_s: float
+    zc: ZoneController, seen: dict[int, tuple[float, float, str]], office: OfficeClient, now_s: float
 ) -> None:
-    now = {z.train_id: (z.start_m, z.end_m) for z in zc.zones()}
-    for train, (a, b) in now.items():
-        if seen.get(train) != (a, b):
+    now = {z.train_id: (z.start_m, z.end_m, zc.trains[z.train_id].status.value) for z in zc.zones()}
+    for train, (a, b, status) in now.items():
+        if seen.get(train) != (a, b, status):
             office.report(
                 "zone-event",
-                {"train": train, "start_m": a, "end_m": b, "active": True, "t_s": round(now_s, 2)},
-            )
+                {"train": train, "start_m": a, "end_m": b, "active": True, "status": status,
+                 "t_s": round(now_s, 2)},
+            )  # fmt: skip
     for train in [t for t in seen if t not in now]:
-        a, b = seen[train]
+        a, b, _ = seen[train]
         office.report(
             "zone-event", {"train": train, "start_m": a, "end_m": b, "active": False, "t_s": round(now_s, 2)}
         )
@@ -259,6 +260,9 @@ class _TrainState:
     last_state_s: float = -math.inf
     eb_reported: bool = False
     stopped_at: int | None = None  # the station it has just stopped at (reported once)
+    restricted_at_s: float | None = None  # restricted mode (radio dead): may start moving then
+    restricted_left_m: float = 400.0
+    restricted_moving: bool = False
 
 
 async def run_trains(
@@ -335,7 +339,7 @@ async def run_trains(
                         ep.send(frame, zc)
                 r.outgoing.clear()
             for t in fleet:
-                _move(t, now_s, step_s, vehicle, stations, end_m, dwell_s, fleet)
+                _move(t, now_s, step_s, vehicle, stations, end_m, dwell_s, fleet, t.k in dead)
                 out.append(
                     Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
                 )
@@ -393,13 +397,16 @@ def _move(
     end_m: float,
     dwell_s: float,
     fleet: list[_TrainState],
+    radio_dead: bool = False,
 ) -> None:
     """One plant step of a train: the driving the ATO would do under the onboard unit's limits."""
     unit = t.unit
     brake = vehicle.brake
     if _turn(t, now_s, stations, fleet):
         return
-    if unit.emergency_brake:
+    if _restricted(t, now_s, step_s, radio_dead, fleet, vehicle):
+        pass
+    elif unit.emergency_brake:
         t.v_mps = max(0.0, t.v_mps - brake.emergency_decel_mps2 * step_s)
     elif now_s < t.dwell_until_s:
         t.v_mps = 0.0
@@ -421,6 +428,53 @@ def _move(
             min(target, t.v_mps + accel * step_s) if accel > 0 else max(target, t.v_mps + accel * step_s)
         )
     t.x_m += t.v_mps * step_s
+
+
+RESTRICTED_AFTER_S = 20.0  # at a stand with a dead radio, the driver asks and gets leave after this
+RESTRICTED_MPS = 15.0 / 3.6  # on sight, ATP cut out
+RESTRICTED_M = 400.0  # at most this far (to the next place where he can call in)
+SIGHT_M = 150.0  # he stops this far behind the train ahead (he can see it)
+
+
+def _restricted(
+    t: _TrainState, now_s: float, step_s: float, dead: bool, fleet: list[_TrainState], vehicle: Vehicle
+) -> bool:
+    """A train whose radio is dead drives on in restricted mode: at a stand after its emergency
+    brake it waits ``RESTRICTED_AFTER_S``, then its driver, with the ATP cut out, moves it on sight
+    at 15 km/h for up to ``RESTRICTED_M``, stopping ``SIGHT_M`` behind the train ahead; when the
+    radio comes back he stops and cuts the ATP in again. [interpretation] SPEC §4 says only that a
+    lost train may move while lost (so that it is re-detected outside its zone and held for the
+    operator); this is the usual degraded mode that moves it. Returns whether it drove the train."""
+    brake = vehicle.brake
+    if not dead:
+        t.restricted_at_s, t.restricted_left_m = None, RESTRICTED_M
+        if t.v_mps > 0.0 and t.restricted_moving:
+            t.v_mps = max(0.0, t.v_mps - brake.full_service_mps2 * step_s)  # he stops: ATP back in
+            t.x_m += t.v_mps * step_s
+            t.restricted_moving = t.v_mps > 0.0
+            return True
+        return False
+    if not t.unit.emergency_brake:
+        return False
+    if t.restricted_at_s is None:
+        if t.v_mps > 0.0:
+            return False  # still braking
+        t.restricted_at_s = now_s + RESTRICTED_AFTER_S
+    if now_s < t.restricted_at_s or t.restricted_left_m <= 0.0:
+        t.v_mps = max(0.0, t.v_mps - brake.full_service_mps2 * step_s)
+        t.x_m += t.v_mps * step_s
+        return True
+    ahead = min((o.x_m - vehicle.length_m for o in fleet if o.x_m > t.x_m), default=math.inf)
+    room = min(t.restricted_left_m, ahead - SIGHT_M - t.x_m)
+    target = min(RESTRICTED_MPS, permitted_speed_mps(max(room, 0.0), brake.full_service_mps2 * 0.5, 0.5))
+    accel = 0.3 if t.v_mps < target else -brake.full_service_mps2
+    t.v_mps = max(
+        0.0, min(target, t.v_mps + accel * step_s) if accel > 0 else max(target, t.v_mps + accel * step_s)
+    )
+    t.x_m += t.v_mps * step_s
+    t.restricted_left_m -= t.v_mps * step_s
+    t.restricted_moving = t.v_mps > 0.0
+    return True
 
 
 def _turn(t: _TrainState, now_s: float, stations: list[float], fleet: list[_TrainState]) -> bool:
