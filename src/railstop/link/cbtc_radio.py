@@ -34,10 +34,11 @@ from railstop.link.safety import SafeReceiver, SafeSender, link_key
 from railstop.messages import Message, MovementCommand, Output, PositionReport
 from railstop.streams import Stream, seed_u64
 
-__all__ = ["CbtcRadio", "RadioCounts"]
+__all__ = ["MAX_AGE_S", "TRAIN_BASE", "ZC_ADDRESS", "CbtcRadio", "RadioCounts", "to_message", "to_telegram"]
 
-ZC_ADDRESS = 0x0300
-_TRAIN_BASE = 0x2000
+ZC_ADDRESS = 0x0300  # the zone controller's safety-layer id
+TRAIN_BASE = 0x2000  # train k's safety-layer id is TRAIN_BASE + k
+MAX_AGE_S = 1.0  # a radio frame older than this is stale
 # Demonstration master key. A deployment loads its link keys from its key management.
 _DEMO_MASTER = hashlib.sha256(b"railstop demonstration CBTC radio master key").digest()
 
@@ -58,7 +59,7 @@ class CbtcRadio:
 
     params: ChannelParams
     seed: int
-    max_age_s: float = 1.0
+    max_age_s: float = MAX_AGE_S
     outages: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
     zc_name: str = "zc"
     name: str = "radio"
@@ -74,7 +75,7 @@ class CbtcRadio:
         key = (train_id, direction)
         end = self._links.get(key)
         if end is None:
-            train_addr = _TRAIN_BASE + train_id
+            train_addr = TRAIN_BASE + train_id
             src, dst = (train_addr, ZC_ADDRESS) if direction == "up" else (ZC_ADDRESS, train_addr)
             k = link_key(_DEMO_MASTER, src, dst)
             entropy = [
@@ -111,13 +112,10 @@ class CbtcRadio:
         )
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
-        tele: Telegram
-        if isinstance(message, PositionReport):
-            direction, tele = "up", CbtcReport(**_fields(message))
-        elif isinstance(message, MovementCommand):
-            direction, tele = "down", CbtcCommand(**_fields(message))
-        else:
+        tele = to_telegram(message)
+        if tele is None or not isinstance(message, PositionReport | MovementCommand):
             return []
+        direction = "up" if isinstance(tele, CbtcReport) else "down"
         end = self._end(message.train_id, direction)
         if end.send(tele, now_s):
             self._schedule(message.train_id, direction, end)
@@ -142,16 +140,35 @@ class CbtcRadio:
             del self._scheduled[(train_id, direction)]
             end = self._links[(train_id, direction)]
             for tele in end.receive(now_s):
-                if isinstance(tele, CbtcReport) and direction == "up":
+                msg = to_message(tele)
+                if isinstance(msg, PositionReport) and direction == "up":
                     self.reports_delivered += 1
-                    out.append(Output(to=self.zc_name, message=PositionReport(**_fields(tele))))
-                elif isinstance(tele, CbtcCommand) and direction == "down":
+                    out.append(Output(to=self.zc_name, message=msg))
+                elif isinstance(msg, MovementCommand) and direction == "down":
                     self.commands_delivered += 1
-                    out.append(Output(to=f"cbtc-{tele.train_id}", message=MovementCommand(**_fields(tele))))
+                    out.append(Output(to=f"cbtc-{msg.train_id}", message=msg))
                 else:
                     self.unexpected += 1
             self._schedule(train_id, direction, end)
         return out
+
+
+def to_telegram(message: Message) -> CbtcReport | CbtcCommand | None:
+    """The codec telegram of a SPEC §4 report (up) or command (down); None for any other message."""
+    if isinstance(message, PositionReport):
+        return CbtcReport(**_fields(message))
+    if isinstance(message, MovementCommand):
+        return CbtcCommand(**_fields(message))
+    return None
+
+
+def to_message(tele: Telegram) -> PositionReport | MovementCommand | None:
+    """The message a received ``cbtc-report`` / ``cbtc-command`` carries; None for another telegram."""
+    if isinstance(tele, CbtcReport):
+        return PositionReport(**_fields(tele))
+    if isinstance(tele, CbtcCommand):
+        return MovementCommand(**_fields(tele))
+    return None
 
 
 def _fields(obj: object) -> dict[str, Any]:

@@ -41,7 +41,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from railstop.errors import RailstopError
-from railstop.link.safety import MAX_PAYLOAD_BYTES, Delivered, Rejected, SafeReceiver, SafeSender, link_key
+from railstop.link.safety import (
+    MAX_PAYLOAD_BYTES,
+    Delivered,
+    Rejected,
+    SafeReceiver,
+    SafeSender,
+    frame_ids,
+    link_key,
+)
 
 #: What the wayside reports (SPEC §1 claims 7, 20; SPEC §4, §5 events for the control room).
 KINDS = ("tasc-command", "stop-result", "dwell-event", "zone-event", "operator-action", "train-state")
@@ -220,7 +228,8 @@ class OfficeInbox:
 
     def on_frame(self, frame: bytes, now_s: float) -> tuple[Report | None, bytes | None, str | None]:
         """(the report, the acknowledgement frame to send back, None) or (None, None, the reason)."""
-        src = int.from_bytes(frame[1:3], "big") if len(frame) >= 3 else -1
+        ids = frame_ids(frame)
+        src = -1 if ids is None else ids[0]
         rx = self._rx.get(src)
         if rx is None:
             self.counts["unknown_sender"] += 1

@@ -101,6 +101,7 @@ __all__ = [
     "Rejected",
     "SafeReceiver",
     "SafeSender",
+    "frame_ids",
     "frame_size",
     "hkdf_sha256",
     "link_key",
@@ -224,6 +225,16 @@ def _safety_code(category: int, key: bytes | None, data: bytes) -> bytes:
     if category == 3:
         return hmac.new(key or b"", data, hashlib.sha256).digest()[:MAC_BYTES]
     return zlib.crc32(data).to_bytes(CRC_BYTES, "big")
+
+
+def frame_ids(frame: bytes) -> tuple[int, int] | None:
+    """(source id, destination id) as a frame's header states them, None if it is too short to
+    hold them. Not checked: only to pick the receiver that will check the frame (its safety code
+    first, then these very ids)."""
+    if len(frame) < 5:
+        return None
+    _, src, dst = struct.unpack_from(">BHH", frame)
+    return int(src), int(dst)
 
 
 class SafeSender:

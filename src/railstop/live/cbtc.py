@@ -33,14 +33,15 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from typing import Any
 
 from railstop.config.schema import Line, Vehicle
-from railstop.link.codec import CbtcCommand, CbtcReport, TelegramError, decode, encode
+from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
+from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
-from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_ids, link_key
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
@@ -49,14 +50,7 @@ from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
 from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
-ZC_ID = 0x0300  # the zone controller's safety-layer id (as link.cbtc_radio)
-TRAIN_BASE = 0x2000  # train k's id is TRAIN_BASE + k
 STEP_S = 0.05  # the plant step (simulated seconds)
-MAX_AGE_S = 1.0  # a radio frame older than this is stale
-
-
-def _fields(obj: object) -> dict[str, Any]:
-    return {f.name: getattr(obj, f.name) for f in fields(obj)}  # type: ignore[arg-type]
 
 
 @dataclass
@@ -105,13 +99,11 @@ class UdpRadio:
         return self._rx[peer]
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
-        if isinstance(message, PositionReport):
-            peer, frame = ZC_ID, encode(CbtcReport(**_fields(message)))
-        elif isinstance(message, MovementCommand):
-            peer, frame = TRAIN_BASE + message.train_id, encode(CbtcCommand(**_fields(message)))
-        else:
+        tele = to_telegram(message)
+        if tele is None:
             return []
-        self.outgoing.append((self._sender(peer).wrap(frame, now_s), peer))
+        peer = ZC_ADDRESS if isinstance(message, PositionReport) else TRAIN_BASE + tele.train_id
+        self.outgoing.append((self._sender(peer).wrap(encode(tele), now_s), peer))
         self.counts.sent += 1
         return []
 
@@ -124,8 +116,9 @@ class UdpRadio:
     def ingest(self, frame: bytes, now_s: float, *, to: Callable[[int], str]) -> list[Output]:
         """A received frame: the message it carries for the unit ``to(train_id)`` names, or nothing
         (refused frames are counted by reason)."""
-        peer = int.from_bytes(frame[1:3], "big") if len(frame) >= 3 else -1
-        if peer != ZC_ID and not TRAIN_BASE <= peer < TRAIN_BASE + 0x1000:
+        ids = frame_ids(frame)
+        peer = -1 if ids is None else ids[0]
+        if peer != ZC_ADDRESS and not TRAIN_BASE <= peer < TRAIN_BASE + 0x1000:
             self.counts.reject("unknown_peer")
             return []
         got = self._receiver(peer, now_s).accept(frame, now_s)
@@ -137,13 +130,12 @@ class UdpRadio:
         except TelegramError as exc:
             self.counts.reject(f"telegram-{exc.reason}")
             return []
+        msg = to_message(tele)
+        if msg is None:
+            self.counts.reject("unexpected-type")
+            return []
         self.counts.delivered += 1
-        if isinstance(tele, CbtcReport):
-            return [Output(to=to(tele.train_id), message=PositionReport(**_fields(tele)))]
-        if isinstance(tele, CbtcCommand):
-            return [Output(to=to(tele.train_id), message=MovementCommand(**_fields(tele)))]
-        self.counts.reject("unexpected-type")
-        return []
+        return [Output(to=to(msg.train_id), message=msg)]
 
 
 # ---------------------------------------------------------------------- the zone controller
@@ -162,7 +154,7 @@ async def run_zone_controller(
     on_ready: Callable[[Address], None] | None = None,
 ) -> dict[str, Any]:
     """Serve the trains until ``stop``; return the counts."""
-    radio = UdpRadio(own_id=ZC_ID, master_key=master_key)
+    radio = UdpRadio(own_id=ZC_ADDRESS, master_key=master_key)
     zc = make_zone_controller(line, vehicle, ZoneMode.MINIMAL)
     zc.downlink = radio.name
     gate = ReleaseGate(key=release_key(master_key))
@@ -179,7 +171,7 @@ async def run_zone_controller(
             out: list[Output] = []
             while (got := ep.take()) is not None:
                 frame, addr = got
-                if frame[1:3] == OPERATOR_ADDRESS.to_bytes(2, "big"):
+                if (frame_ids(frame) or (-1, -1))[0] == OPERATOR_ADDRESS:
                     # SPEC §4 step 5: the operator's release, only through the authenticated link
                     # (its timestamps are Unix time, the control room's clock).
                     release = gate.accept(frame, time.time())
@@ -287,44 +279,47 @@ async def run_trains(
     dead = outage if outage is not None else set()
     p = line.cbtc
     brake = vehicle.brake
-    radio = UdpRadio(own_id=TRAIN_BASE, master_key=master_key)
     order = sorted(range(len(line.stations)), key=lambda i: line.stations[i].stop_point_m)
     stations = [line.stations[i].stop_point_m for i in order]
     end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
     # Train k starts spacing_m behind train k - 1, the first 300 m before the line's end, none
     # closer to the line's start than its length.
+    # Each train talks to the zone controller with its own safety-layer id.
+    radios = {
+        k: UdpRadio(own_id=TRAIN_BASE + k, master_key=master_key, name=f"radio-{k}") for k in range(trains)
+    }
     fleet = []
     for k in range(trains):
         x = end_m - 300.0 - k * spacing_m
         if x < vehicle.length_m + 10.0:
             raise ValueError(f"{trains} trains {spacing_m:g} m apart do not fit on the {end_m:g} m line")
         unit = OnboardCbtc(
-            train_id=k, direction="R", params=p, curve_decel_mps2=brake.full_service_mps2, uplink=radio.name
+            train_id=k,
+            direction="R",
+            params=p,
+            curve_decel_mps2=brake.full_service_mps2,
+            uplink=radios[k].name,
         )
         unit.position_m = x
         ahead = next((i for i, st in enumerate(stations) if st > x + 1.0), len(stations))
         fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
-    # Each train talks to the zone controller with its own safety-layer id.
-    radios = {
-        k: UdpRadio(own_id=TRAIN_BASE + k, master_key=master_key, name=f"radio-{k}") for k in range(trains)
-    }
-    for t in fleet:
-        t.unit.uplink = radios[t.k].name
     clock = WallClock([*(t.unit for t in fleet), *radios.values()], step_s=STEP_S, base=base)
     ebs: dict[str, int] = {}
     eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
+    misdirected = 0  # frames for no train of this process
     async with await open_endpoint(
         ("127.0.0.1" if zc[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0)
     ) as ep:
 
         def poll(now_s: float) -> list[Output]:
+            nonlocal misdirected
             out: list[Output] = []
             while (got := ep.take()) is not None:
                 frame, _ = got
-                dst = int.from_bytes(frame[3:5], "big") if len(frame) >= 5 else -1
+                dst = (frame_ids(frame) or (-1, -1))[1]
                 r = radios.get(dst - TRAIN_BASE)
                 if r is None:
-                    radio.counts.reject("wrong_destination")
+                    misdirected += 1
                     continue
                 if dst - TRAIN_BASE in dead:
                     continue  # the train's radio is dead: lost
@@ -339,7 +334,7 @@ async def run_trains(
                         ep.send(frame, zc)
                 r.outgoing.clear()
             for t in fleet:
-                _move(t, now_s, step_s, vehicle, stations, end_m, dwell_s, fleet, t.k in dead)
+                _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, t.k in dead)
                 out.append(
                     Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
                 )
@@ -384,8 +379,17 @@ async def run_trains(
         "late_steps": clock.late_steps,
         "steps": clock.steps,
         "commands": sum(t.unit.commands for t in fleet),
-        "radio_rejected": {k: v for r in radios.values() for k, v in r.counts.rejected.items()},
+        "radio_rejected": _rejected(radios.values(), misdirected),
     }
+
+
+def _rejected(radios: Iterable[UdpRadio], misdirected: int) -> dict[str, int]:
+    """The frames the trains' radios refused, by reason, summed over the trains."""
+    out: dict[str, int] = {"wrong_destination": misdirected} if misdirected else {}
+    for r in radios:
+        for reason, n in r.counts.rejected.items():
+            out[reason] = out.get(reason, 0) + n
+    return out
 
 
 def _move(
@@ -394,7 +398,6 @@ def _move(
     step_s: float,
     vehicle: Vehicle,
     stations: list[float],
-    end_m: float,
     dwell_s: float,
     fleet: list[_TrainState],
     radio_dead: bool = False,
