@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -17,6 +18,7 @@ from railstop.errors import RailstopError
 if TYPE_CHECKING:
     from railstop.config.driver import DriverFile
     from railstop.config.platform import PlatformFile
+    from railstop.config.schema import Station
     from railstop.sim.invariants import Invariant, Verification
 
 # Markup is off: names, traces and messages come from user data and are printed literally
@@ -120,3 +122,26 @@ def load_manual_data(
         None if driver is None else load_driver(driver)[0],
         None if platform is None else load_platform(platform)[0],
     )
+
+
+def stop_error_option(text: str | None) -> float | None:
+    """``--stop-error-m`` (a stand this far from the stopping point, + = past it) as a finite
+    number, None when not given; anything else exits with a one-line error."""
+    if text is None:
+        return None
+    try:
+        error_m = float(text)
+    except ValueError:
+        fail(f"--stop-error-m: not a number (got {text!r})")
+    if not math.isfinite(error_m):
+        fail(f"--stop-error-m: must be a finite number (got {text!r})")
+    return error_m
+
+
+def stand_on_platform(error_m: float, station: Station) -> None:
+    """A stand the dwell can start from: the train at the platform, or a one-line error."""
+    if abs(error_m) >= station.platform_length_m:
+        fail(
+            f"--stop-error-m: {error_m:+g} m puts the train off the {station.platform_length_m:g} m "
+            f"platform of {station.name}"
+        )

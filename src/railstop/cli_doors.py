@@ -9,7 +9,14 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli_common import fail, out, print_verification, styled
+from railstop.cli_common import (
+    fail,
+    out,
+    print_verification,
+    stand_on_platform,
+    stop_error_option,
+    styled,
+)
 from railstop.errors import RailstopError
 
 doors_app = typer.Typer(
@@ -170,14 +177,7 @@ def dwell(
         fail(f"--mode: must be one of {', '.join(MODES)} (got {mode!r})")
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
-    error_m: float | None = None
-    if stop_error_m is not None:
-        try:
-            error_m = float(stop_error_m)
-        except ValueError:
-            fail(f"--stop-error-m: not a number (got {stop_error_m!r})")
-        if not math.isfinite(error_m):
-            fail(f"--stop-error-m: must be a finite number (got {stop_error_m!r})")
+    error_m = stop_error_option(stop_error_m)
     try:
         ln = load_line(line)
         st = ln.station(station)
@@ -200,11 +200,7 @@ def dwell(
                 fail(f"the simulated stop at {st.name} did not come to rest")
             error_m = float(stop.stop_error_m)
             source = f"simulated stop ({controller}, seed {seed})"
-        if abs(error_m) >= st.platform_length_m:
-            fail(
-                f"--stop-error-m: {error_m:+g} m puts the train off the {st.platform_length_m:g} m platform "
-                f"of {st.name}"
-            )
+        stand_on_platform(error_m, st)
         from railstop.sim.dwell import make_door_link
 
         outage = None if link_cut_s is None else (link_cut_s, math.inf)

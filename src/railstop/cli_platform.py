@@ -4,7 +4,6 @@ interlock checked exhaustively, and a dwell with its lamp and PSD timeline."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Annotated
 
@@ -19,6 +18,8 @@ from railstop.cli_common import (
     load_manual_data,
     out,
     print_verification,
+    stand_on_platform,
+    stop_error_option,
 )
 from railstop.cli_doors import DoorsOpt
 from railstop.errors import RailstopError
@@ -152,14 +153,7 @@ def dwell_cmd(
         fail(f"--controller: one of the driver controllers {names} (got {controller!r})")
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
-    error_m: float | None = None
-    if stop_error_m is not None:
-        try:
-            error_m = float(stop_error_m)
-        except ValueError:
-            fail(f"--stop-error-m: not a number (got {stop_error_m!r})")
-        if not math.isfinite(error_m):
-            fail(f"--stop-error-m: must be a finite number (got {stop_error_m!r})")
+    error_m = stop_error_option(stop_error_m)
     try:
         ln = load_line(line)
         st = ln.station(station)
@@ -202,11 +196,7 @@ def dwell_cmd(
             key = f"{stop.run_key}|platform-dwell{variant}"
             xlabel = "time since the train passed 300 m before the home signal (s)"
         else:
-            if abs(error_m) >= st.platform_length_m:
-                fail(
-                    f"--stop-error-m: {error_m:+g} m puts the train off the {st.platform_length_m:g} m "
-                    f"platform of {st.name}"
-                )
+            stand_on_platform(error_m, st)
             result = run_platform_dwell(
                 platform=data,
                 doors=cfg,
