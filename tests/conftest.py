@@ -8,6 +8,9 @@ PostgreSQL binaries (``initdb``, ``pg_ctl``; Debian puts them in
 loopback port, stopped and removed at the end of the session. As root it runs
 them as the ``postgres`` user (PostgreSQL refuses to run as root). Without
 the binaries the tests that need it are skipped with the reason.
+
+``empty_postgres``: that server's database with none of the store's tables,
+before the test and after it.
 """
 
 from __future__ import annotations
@@ -108,3 +111,26 @@ def postgres_url() -> Iterator[str]:
         with contextlib.suppress(subprocess.SubprocessError, OSError):
             run(str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "-w", "stop")
         shutil.rmtree(top, ignore_errors=True)
+
+
+@pytest.fixture
+def empty_postgres(postgres_url: str) -> Iterator[str]:
+    from sqlalchemy import create_engine, text
+
+    from railstop.store.db import _Base
+
+    engine = create_engine(postgres_url.replace("postgresql://", "postgresql+psycopg://", 1))
+
+    def empty() -> None:
+        # Every table the store knows (a test may have made older layouts of them): CASCADE, so
+        # that no foreign key of an old layout stands in the way.
+        with engine.begin() as con:
+            for table in _Base.metadata.tables:
+                con.execute(text(f"DROP TABLE IF EXISTS {table} CASCADE"))
+
+    empty()
+    try:
+        yield postgres_url
+    finally:
+        empty()
+        engine.dispose()

@@ -150,16 +150,7 @@ def db(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
     if request.param == "sqlite":
         yield str(tmp_path / "office.db")
         return
-    url: str = request.getfixturevalue("postgres_url")
-    from sqlalchemy import create_engine, text
-
-    engine = create_engine(url.replace("postgresql://", "postgresql+psycopg://", 1))
-    with engine.begin() as con:
-        for table in ("office_reports", "commands", "stop_results", "runs", "stations", "campaigns"):
-            con.execute(text(f"DROP TABLE IF EXISTS {table} CASCADE"))
-        con.execute(text("DROP TABLE IF EXISTS dwell_events, schema_info CASCADE"))
-    engine.dispose()
-    yield url
+    yield request.getfixturevalue("empty_postgres")
 
 
 def test_the_store_keeps_a_report_once(db: str) -> None:

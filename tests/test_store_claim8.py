@@ -16,7 +16,6 @@ import json
 import sqlite3
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -447,27 +446,10 @@ def test_railstop_stop_writes_the_station_and_the_telegrams(tmp_path: Path) -> N
 # ------------------------------------------------------------------ PostgreSQL
 
 
-_PG_TABLES = ("commands", "stop_results", "runs", "stations", "campaigns", "dwell_events", "schema_info")
-
-
 @pytest.fixture
-def pg(postgres_url: str) -> Iterator[str]:
-    """A real PostgreSQL database (conftest.postgres_url), emptied before and after."""
-    from sqlalchemy import create_engine, text
-
-    engine = create_engine(postgres_url.replace("postgresql://", "postgresql+psycopg://", 1))
-
-    def empty() -> None:
-        with engine.begin() as con:
-            for table in _PG_TABLES:
-                con.execute(text(f"DROP TABLE IF EXISTS {table} CASCADE"))
-
-    empty()
-    try:
-        yield postgres_url
-    finally:
-        empty()
-        engine.dispose()
+def pg(empty_postgres: str) -> str:
+    """A real PostgreSQL database with no tables (conftest), emptied again afterwards."""
+    return empty_postgres
 
 
 def test_postgresql_station_and_telegrams(pg: str) -> None:
