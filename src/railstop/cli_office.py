@@ -199,7 +199,6 @@ def _release_handler(
     database (kind ``operator-action``, with its outcome) and sent to the zone controller as an
     authenticated ``zone-release`` telegram (``link.release_link``)."""
     import socket
-    import time
 
     from railstop.link.release_link import OperatorConsole, release_key
     from railstop.live.office import OFFICE_ID, new_session

@@ -101,18 +101,11 @@ def plot_dwell(result: DwellResult, path: str | Path, *, footer: str = "") -> Pa
         f"{result.psc_attempts} PSC attempt(s), {result.corrections} correction(s)"
     )
     timeline = result.timeline
-    marks: list[tuple[float, str]] = []
-    psc = [t for t, v in _series(timeline, "PSC") if v == 1]
-    if psc:
-        marks.append((psc[0], "PSC"))
-    dcc = [t for t, v in _series(timeline, "DCC") if v == 1]
-    if dcc:
-        marks.append((dcc[0], "close"))
+    marks = _marks(
+        timeline, (("PSC", 1, "PSC", 0), ("DCC", 1, "close", 0), ("emergency_brake", 1, "emergency brake", 0))
+    )
     if result.start_enable_s is not None:
         marks.append((result.start_enable_s, "start enable"))
-    eb = [t for t, v in _series(timeline, "emergency_brake") if v == 1]
-    if eb:
-        marks.append((eb[0], "emergency brake"))
     return plot_timeline(
         timeline,
         lanes,
@@ -210,6 +203,19 @@ def _lane(
                 ax.text((t0 + t1) / 2, y, short, ha="center", va="center", fontsize=7, clip_on=True)
 
 
+def _marks(
+    timeline: Sequence[DwellEvent], specs: Sequence[tuple[str, int | str, str, int]]
+) -> list[tuple[float, str]]:
+    """(time, name) where ``signal`` took ``value``: per (signal, value, name, which), the first
+    time (``which`` 0) or the last (-1); nothing where it never did."""
+    out = []
+    for signal, value, name, which in specs:
+        hit = [t for t, v in _series(timeline, signal) if v == value]
+        if hit:
+            out.append((hit[which], name))
+    return out
+
+
 def _milestones(ax: Axes, marks: list[tuple[float, str]], n_lanes: int, start_s: float, end_s: float) -> None:
     """Dashed lines at the marks, named at the top."""
     span = end_s - start_s
@@ -252,14 +258,14 @@ def plot_platform_dwell(
     times = [e.t_s for e in timeline]
     start, last = min(times), max(times)
     marks = [(e.t_s, f"stand {float(e.value):+.2f} m") for e in timeline if e.signal == "stand_error_m"]
-    for signal, value, name, which in (
-        ("train_doors", "open", "doors open", 0),
-        ("PSD", "open", "PSD open", 0),
-        ("moving", 1, "depart", -1),  # the last start: the earlier ones are corrections
-    ):
-        hit = [t for t, v in _series(timeline, signal) if v == value]
-        if hit:
-            marks.append((hit[which], name))
+    marks += _marks(
+        timeline,
+        (
+            ("train_doors", "open", "doors open", 0),
+            ("PSD", "open", "PSD open", 0),
+            ("moving", 1, "depart", -1),  # the last start: the earlier ones are corrections
+        ),
+    )
     span = max(last - start, 1.0)
     return plot_timeline(
         timeline,

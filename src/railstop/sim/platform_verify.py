@@ -208,9 +208,9 @@ def _copy(u: PlatformUnit) -> PlatformUnit:
     return c
 
 
-def _moves(state: State) -> list[tuple[str, dict[str, object]]]:
+def _moves(state: State) -> list[tuple[str, dict[str, Any]]]:
     """The physical events possible now (the unit learns of them by its inputs)."""
-    out: list[tuple[str, dict[str, object]]] = []
+    out: list[tuple[str, dict[str, Any]]] = []
     if state.moving and state.scanned_moving:
         # [interpretation] a move between two of the places takes far longer than a scan (50 ms):
         # the platform sees every move at least once.
@@ -283,9 +283,6 @@ def verify(
             cur = prev
         return tuple(reversed(steps))
 
-    def changed(st: State, **change: Any) -> State:
-        return st._replace(**change)
-
     while queue:
         if stop_when_all_violated and all(counts.values()):
             break
@@ -301,7 +298,7 @@ def verify(
             if "doors" in label and not settled:
                 continue
             # The unit learns of it by the next scan, the control by the next frame: both unchanged.
-            candidates.append((label, changed(st, **change), base, base_f))
+            candidates.append((label, st._replace(**change), base, base_f))
         # 2. a scan, with every allowed dropout (a miss reads "no train").
         truth = TRUTH[st.place]
         for d2, d1 in itertools.product((False, True), repeat=2):
@@ -315,7 +312,7 @@ def verify(
                 StopSensorScan(s2=truth[0] and not d2, s1=truth[1] and not d1, standstill=not st.moving), 0.0
             )
             what = "scan" + (" (S2 missed)" if d2 else "") + (" (S1 missed)" if d1 else "")
-            nxt = changed(st, drop_s2=n2, drop_s1=n1, scanned_moving=st.scanned_moving or st.moving)
+            nxt = st._replace(drop_s2=n2, drop_s1=n1, scanned_moving=st.scanned_moving or st.moving)
             candidates.append((what, nxt, u, base_f))
         # 3. a camera frame: the doors as they are, misread, or unreadable.
         frames: list[tuple[str, bool | None, int]] = [("camera frame", st.train_doors_open, 0)]
@@ -325,13 +322,13 @@ def verify(
         for label, seen, misreads in frames:
             f = copy.copy(base_f)
             f.handle(DoorCameraFrame(doors_open=seen), 0.0)
-            candidates.append((label, changed(st, misreads=misreads), base, f))
+            candidates.append((label, st._replace(misreads=misreads), base, f))
         # 4. the PSD doors do what the PSD control commands.
         if base_f.command.open != st.psd_open:
             u = _copy(base)
             u.handle(PsdDoorState(closed_locked=not base_f.command.open), 0.0)
             label = "PSD opens" if base_f.command.open else "PSD closes"
-            candidates.append((label, changed(st, psd_open=base_f.command.open), u, base_f))
+            candidates.append((label, st._replace(psd_open=base_f.command.open), u, base_f))
         # 5. the signal-open switch.
         u = _copy(base)
         u.handle(SignalOpenSwitch(on=not base.signal_open), 0.0)
@@ -345,7 +342,7 @@ def verify(
                 if f is base_f:
                     f = copy.copy(base_f)
                 f.handle(lamps_now, 0.0)
-            nxt = changed(nxt, unit=_snapshot(u), follower=_follower_snapshot(f))
+            nxt = nxt._replace(unit=_snapshot(u), follower=_follower_snapshot(f))
             if lamps_now.lamp:
                 lamps.add(lamps_now.lamp)
             step = Step(
