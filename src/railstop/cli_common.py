@@ -124,6 +124,14 @@ def load_manual_data(
     )
 
 
+def address_option(text: str, option: str) -> tuple[str, int]:
+    """A ``HOST:PORT`` option as (host, port), or a RailstopError naming the option."""
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise RailstopError(f"{option}: HOST:PORT expected (got {text!r})")
+    return host, int(port)
+
+
 def stop_error_option(text: str | None) -> float | None:
     """``--stop-error-m`` (a stand this far from the stopping point, + = past it) as a finite
     number, None when not given; anything else exits with a one-line error."""

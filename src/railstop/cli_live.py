@@ -17,13 +17,19 @@ import signal
 import subprocess
 import sys
 import time
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli_common import LineOpt, VehicleOpt, fail
+from railstop.cli_common import LineOpt, VehicleOpt, address_option, fail
 from railstop.cli_office import KEY_ENV, master_key
 from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from railstop.config.schema import Line, Vehicle
+    from railstop.live.clock import TimeBase
 
 live_app = typer.Typer(
     add_completion=False,
@@ -42,11 +48,17 @@ OfficeOpt = Annotated[str | None, typer.Option(help="The office's UDP address HO
 TrainsOpt = Annotated[int, typer.Option(min=1, max=60, help="Trains on the line.")]
 
 
-def _address(text: str, option: str) -> tuple[str, int]:
-    host, _, port = text.rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise RailstopError(f"{option}: HOST:PORT expected (got {text!r})")
-    return host, int(port)
+def _process_setup(
+    key_hex: str | None, line: Path | None, vehicle: Path | None, epoch: float | None, scale: float
+) -> tuple[bytes, Line, Vehicle, TimeBase]:
+    """What every live process loads first: the key, the line and vehicle data, the time base (the
+    run's epoch, or now). Raises RailstopError with the one-line message."""
+    from railstop.config import load_line, load_vehicle
+    from railstop.live.clock import TimeBase
+
+    key = master_key(key_hex)
+    ln, veh = load_line(line), load_vehicle(vehicle)
+    return key, ln, veh, TimeBase(time.time() if epoch is None else epoch, scale)
 
 
 def _outage(text: str, trains: int) -> tuple[int, float, float]:
@@ -90,7 +102,7 @@ async def _with_office(office: str | None, own_id: int, key: bytes, run: object)
 
     if office is None:
         return await run(None)  # type: ignore[operator]
-    address = _address(office, "--office")
+    address = address_option(office, "--office")
     async with OfficeClient(own_id=own_id, office=address, master_key=key, clock=EpochClock(0.0)) as client:
         result = await run(client)  # type: ignore[operator]
         drained = await client.drain(timeout_s=5.0)
@@ -111,16 +123,12 @@ def zc_cmd(
     vehicle: VehicleOpt = None,
 ) -> None:
     """The SPEC §4 zone controller as a live process."""
-    from railstop.config import load_line, load_vehicle
     from railstop.live.cbtc import run_zone_controller
-    from railstop.live.clock import TimeBase
 
     try:
-        key = master_key(key_hex)
-        ln, veh = load_line(line), load_vehicle(vehicle)
+        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
     except RailstopError as exc:
         fail(str(exc))
-    base = TimeBase(time.time() if epoch is None else epoch, scale)
 
     def ready(addr: tuple[str, int]) -> None:
         print(f"zone controller on {addr[0]}:{addr[1]} (pid {os.getpid()})", file=sys.stderr, flush=True)
@@ -164,31 +172,25 @@ def trains_cmd(
     vehicle: VehicleOpt = None,
 ) -> None:
     """Every train's onboard CBTC unit and the plant that moves the trains, as one live process."""
-    from railstop.config import load_line, load_vehicle
     from railstop.live.cbtc import run_trains
-    from railstop.live.clock import TimeBase
 
     try:
-        key = master_key(key_hex)
-        ln, veh = load_line(line), load_vehicle(vehicle)
-        zc_addr = _address(zc, "--zc")
+        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        zc_addr = address_option(zc, "--zc")
         windows = [_outage(o, trains) for o in outage or []]
     except RailstopError as exc:
         fail(str(exc))
-    base = TimeBase(time.time() if epoch is None else epoch, scale)
     print(f"trains running (pid {os.getpid()})", file=sys.stderr, flush=True)
 
     dead: set[int] = set()
 
-    def toggle() -> None:
-        assert outage_train is not None
-        dead.symmetric_difference_update({outage_train})
-        state = "dead" if outage_train in dead else "restored"
-        print(f"radio of train {outage_train} {state}", file=sys.stderr, flush=True)
-
     def set_radio(train: int, dead_now: bool) -> None:
         (dead.add if dead_now else dead.discard)(train)
         print(f"radio of train {train} {'dead' if dead_now else 'restored'}", file=sys.stderr, flush=True)
+
+    def toggle() -> None:
+        assert outage_train is not None  # the handler is set only with --outage-train
+        set_radio(outage_train, outage_train not in dead)
 
     async def run(stop: asyncio.Event) -> object:
         loop = asyncio.get_running_loop()

@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import typer
 
-from railstop.cli_common import LineOpt, fail
+from railstop.cli_common import LineOpt, address_option, fail
 from railstop.errors import RailstopError
 
 office_app = typer.Typer(
@@ -93,10 +93,9 @@ def serve_cmd(
             raise RailstopError("--zc and --operators: the manual release needs both")
         release_to = None
         if zc is not None and operators is not None:
-            from railstop.cli_live import _address
             from railstop.live.operators import load_operators
 
-            release_to = (_address(zc, "--zc"), load_operators(operators))
+            release_to = (address_option(zc, "--zc"), load_operators(operators))
     except RailstopError as exc:
         fail(str(exc))
     stations = [{"name": st.name, "chainage_m": st.stop_point_m} for st in ln.stations]

@@ -320,6 +320,12 @@ class UdpEndpoint:
         self.close()
 
 
+def local_for(remote: Address) -> Address:
+    """Where to bind to reach ``remote``: loopback for a peer on loopback, any address otherwise;
+    any free port."""
+    return ("127.0.0.1" if remote[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0)
+
+
 async def open_endpoint(
     local: Address,
     remote: Address | None = None,

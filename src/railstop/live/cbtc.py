@@ -42,7 +42,7 @@ from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_messa
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_ids, link_key
-from railstop.link.udp import Address, open_endpoint
+from railstop.link.udp import Address, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
@@ -307,9 +307,7 @@ async def run_trains(
     ebs: dict[str, int] = {}
     eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
     misdirected = 0  # frames for no train of this process
-    async with await open_endpoint(
-        ("127.0.0.1" if zc[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0)
-    ) as ep:
+    async with await open_endpoint(local_for(zc)) as ep:
 
         def poll(now_s: float) -> list[Output]:
             nonlocal misdirected

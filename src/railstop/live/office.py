@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from railstop.link.office_link import LinkTimes, OfficeInbox, OfficeOutbox
-from railstop.link.udp import Address, EpochClock, UdpEndpoint, open_endpoint
+from railstop.link.udp import Address, EpochClock, UdpEndpoint, local_for, open_endpoint
 from railstop.store import open_store
 
 OFFICE_ID = 900  # the office's id on the safety layer
@@ -134,8 +134,7 @@ class OfficeClient:
         self._task: asyncio.Task[None] | None = None
 
     async def __aenter__(self) -> OfficeClient:
-        loopback = self.office[0] in ("127.0.0.1", "localhost")
-        self._ep = await open_endpoint(("127.0.0.1" if loopback else "0.0.0.0", 0))
+        self._ep = await open_endpoint(local_for(self.office))
         self._task = asyncio.create_task(self._run())
         return self
 
