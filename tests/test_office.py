@@ -165,6 +165,9 @@ def test_the_store_keeps_a_report_once(db: str) -> None:
         assert [(r["session"], r["seq"]) for r in rows] == [(5, 1), (5, 2), (6, 1)]
         assert rows[0]["data"] == {"error_m": 0.01} and store.office_report_count() == 3
         assert [r["seq"] for r in store.office_reports(after_id=rows[0]["id"])] == [2, 1]
+        # The last n, in the order received (what a page opened late is sent first).
+        last_two = store.office_reports(limit=2, latest=True)
+        assert [(r["session"], r["seq"]) for r in last_two] == [(5, 2), (6, 1)]
 
 
 # ------------------------------------------------------------------ end to end

@@ -169,8 +169,8 @@ async def _start_page(
     broadcast = Broadcast()
     stores: list[Any] = []  # the office's open store, once it is open
 
-    def history(after: int) -> list[dict[str, Any]]:
-        return stores[0].office_reports(after_id=after) if stores else []
+    def history(after: int, n: int) -> list[dict[str, Any]]:
+        return stores[0].office_reports(after_id=after, limit=n, latest=True) if stores else []
 
     release = None if release_to is None else _release_handler(release_to, key, stores, broadcast)
     app = make_app(

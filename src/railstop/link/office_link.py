@@ -183,7 +183,7 @@ class OfficeOutbox:
     def due(self, now_s: float) -> list[bytes]:
         """The frames of the reports to send again now (oldest first)."""
         out = []
-        for seq, (payload, last) in sorted(self.pending.items()):
+        for seq, (payload, last) in self.pending.items():  # inserted in sequence order
             if now_s - last >= self.times.resend_s:
                 self.pending[seq] = (payload, now_s)
                 out.append(self._sender.wrap(payload, now_s))

@@ -26,6 +26,7 @@ from pydantic import BaseModel, Field
 
 HISTORY = 200  # reports a page gets when it connects
 QUEUE = 1000  # reports a page may lag behind before its oldest are dropped
+REPORTS_PAGE = 10_000  # GET /api/reports: at most this many after the id asked for (the latest)
 
 
 class Broadcast:
@@ -74,13 +75,14 @@ Release = Callable[[ReleaseRequest], Awaitable[tuple[int, str]]]
 
 def make_app(
     *,
-    history: Callable[[int], list[dict[str, Any]]],
+    history: Callable[[int, int], list[dict[str, Any]]],
     broadcast: Broadcast,
     title: str,
     line: dict[str, Any],
     release: Release | None = None,
 ) -> FastAPI:
-    """The page's app. ``history(after_id)``: the stored reports after that id (oldest first);
+    """The page's app. ``history(after_id, n)``: the last ``n`` stored reports after that id (oldest
+    first);
     ``line``: what the page draws the line from (``length_m``, ``stations``: name, chainage_m);
     ``release``: the manual zone release (None: the page offers none)."""
     app = FastAPI(title=title, docs_url=None, redoc_url=None, openapi_url=None)
@@ -106,7 +108,7 @@ def make_app(
 
     @app.get("/api/reports")
     async def reports(after: int = Query(0, ge=0)) -> list[dict[str, Any]]:
-        return await asyncio.to_thread(history, after)
+        return await asyncio.to_thread(history, after, REPORTS_PAGE)
 
     @app.get("/events")
     async def events() -> StreamingResponse:
@@ -114,9 +116,9 @@ def make_app(
 
         async def stream() -> AsyncIterator[bytes]:
             try:
-                past = await asyncio.to_thread(history, 0)
+                past = await asyncio.to_thread(history, 0, HISTORY)
                 last = 0
-                for event in past[-HISTORY:]:
+                for event in past:
                     last = event["id"]
                     yield _sse(event)
                 yield b"event: ready\ndata: {}\n\n"

@@ -567,14 +567,17 @@ class Store:
         return None
 
     def office_reports(
-        self, *, kind: str | None = None, after_id: int = 0, limit: int = 10_000
+        self, *, kind: str | None = None, after_id: int = 0, limit: int = 10_000, latest: bool = False
     ) -> list[dict[str, Any]]:
-        """The office's reports in the order received (``id`` > ``after_id``), ``data`` decoded."""
+        """The office's reports in the order received (``id`` > ``after_id``), ``data`` decoded: the
+        first ``limit`` of them, or with ``latest`` the last ``limit``."""
         with self._reading() as session:
-            q = select(OfficeReportRow).where(OfficeReportRow.id > after_id).order_by(OfficeReportRow.id)
+            q = select(OfficeReportRow).where(OfficeReportRow.id > after_id)
             if kind is not None:
                 q = q.where(OfficeReportRow.kind == kind)
-            return [_office_dict(r) for r in session.scalars(q.limit(limit)).all()]
+            order = OfficeReportRow.id.desc() if latest else OfficeReportRow.id
+            rows = [_office_dict(r) for r in session.scalars(q.order_by(order).limit(limit)).all()]
+            return rows[::-1] if latest else rows
 
     def office_report_count(self) -> int:
         with self._reading() as session:
