@@ -17,7 +17,6 @@ link ends they drive are pure.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import secrets
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -132,6 +131,7 @@ class OfficeClient:
         )
         self._ep: UdpEndpoint | None = None
         self._task: asyncio.Task[None] | None = None
+        self._closing = False
 
     async def __aenter__(self) -> OfficeClient:
         self._ep = await open_endpoint(local_for(self.office))
@@ -139,12 +139,14 @@ class OfficeClient:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+        # The loop ends on the flag (and the closed endpoint) as well as on the cancellation: a
+        # cancellation that meets a wait_for just completing can be lost, and the task must end.
+        self._closing = True
         if self._ep is not None:
             self._ep.close()
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.wait({self._task}, timeout=2.0)
 
     def report(self, kind: str, data: Mapping[str, Any]) -> int:
         """Queue one report and send it at once; its sequence number."""
@@ -168,8 +170,10 @@ class OfficeClient:
     async def _run(self) -> None:
         assert self._ep is not None
         ep = self._ep
-        while True:
+        while not self._closing and not ep.closed:
             got = await ep.recv(timeout_s=self.tick_s)
+            if self._closing:
+                break
             now = self.clock.now_s()
             if got is not None:
                 self.outbox.on_frame(got[0], now)
