@@ -548,3 +548,65 @@ def receiver_supervise_1(
             _apply_eb_1(rx, EB_ONBOARD_GUARD, now_s)
             return True
     return False
+
+
+@njit_inline
+def receiver_cycle_1(
+    rx: FloatArray,
+    rp: FloatArray,
+    mod: FloatArray,
+    tach: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    taus: FloatArray,
+    table: FloatArray,
+    pwm_duty: FloatArray,
+    pwm_decel: FloatArray,
+    det_to_stop: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    telegram: FloatArray,
+    now_s: float,
+    k: int,
+    new: bool,
+    copy: bool,
+    speed_mps: float,
+    odometer_m: float,
+    own_notch: int,
+    own_duty: float,
+) -> tuple[int, float, bool, int]:
+    """One step of the onboard unit (SPEC §1 configurations): a new telegram (``new``, in
+    ``telegram``) or a copy of the one it has (``copy``, a life sign), the tachometer's speed and
+    the odometer's last step in; (notch, duty, emergency brake, switch position) out for the
+    brake ECU. Notch -1: a PWM train (the duty holds the command); duty NaN: a step train; switch
+    -1: no switching unit. The train's own command (``own_notch``, ``own_duty``) passes as its
+    configuration says. The stop model and the live train run this same step."""
+    if copy:
+        receiver_alive_1(rx, now_s)
+    elif new:
+        receiver_receive_1(
+            rx, rp, mod, tach, hist_v, hist_e, taus, table, pwm_duty, pwm_decel, det_to_stop, ext, grad,
+            telegram, now_s,
+        )  # fmt: skip
+    receiver_observe_1(rx, rp, tach, speed_mps, now_s)
+    # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
+    eb = receiver_supervise_1(rx, rp, now_s, odometer_m, speed_mps)
+    config = int(rp[RP_CONFIG])
+    switch_pos = receiver_switch_1(rx, rp) if config in (CFG_STEP, CFG_SWITCHED_PWM) else -1
+    if config in (CFG_PWM, CFG_SWITCHED_PWM):
+        # Config 3 superimposes on the train's duty; config 2 switches between the two.
+        onboard = receiver_pwm_output_1(rx, rp, k, own_duty)
+        if config == CFG_PWM or switch_pos == SWITCH_ONBOARD:
+            return -1, onboard, eb, switch_pos
+        if switch_pos == SWITCH_TRAIN:
+            return -1, own_duty, eb, switch_pos
+        return -1, 0.0, eb, switch_pos  # contacts in transfer: the ECU input is open
+    onboard_notch = receiver_step_output_1(rx, rp, mod, table, k, speed_mps)
+    if config == CFG_BRAKE_CONTROLLER:
+        # Config 1: the brake controller follows the onboard unit once it has a command.
+        return (onboard_notch if rx[RX_ACTIVE] > 0.0 else own_notch), np.nan, eb, switch_pos
+    if switch_pos == SWITCH_ONBOARD:
+        return onboard_notch, np.nan, eb, switch_pos
+    if switch_pos == SWITCH_TRAIN:
+        return own_notch, np.nan, eb, switch_pos
+    return 0, np.nan, eb, switch_pos  # contacts in transfer: wires a, b, c open (000)

@@ -77,9 +77,7 @@ from railstop.onboard.driver import (
 from railstop.onboard.positioning import LOG_ROWS
 from railstop.onboard.speed_supervision import SV_ALARM, SV_EB, SV_SIZE, supervise_1, supervision_init_1
 from railstop.onboard.tasc_receiver import (
-    CFG_BRAKE_CONTROLLER,
     CFG_PWM,
-    CFG_STEP,
     CFG_SWITCHED_PWM,
     CONFIG_CODES,
     RP_CONFIG,
@@ -90,18 +88,10 @@ from railstop.onboard.tasc_receiver import (
     RX_RECEIVED,
     RX_SIZE,
     RX_TARGET,
-    SWITCH_ONBOARD,
-    SWITCH_TRAIN,
-    receiver_alive_1,
+    receiver_cycle_1,
     receiver_fix_1,
     receiver_init_1,
-    receiver_observe_1,
     receiver_params,
-    receiver_pwm_output_1,
-    receiver_receive_1,
-    receiver_step_output_1,
-    receiver_supervise_1,
-    receiver_switch_1,
     receiver_window,
 )
 from railstop.physics.brake import actuator_step_1, decel_to_pwm_1, line_notch, pwm_to_decel_1
@@ -154,18 +144,13 @@ from railstop.wayside.tasc_unit import (
     WP_STOP,
     WS_DELAY,
     WS_FILLED,
-    WS_ID_AT,
     WS_ID_GAIN,
     WS_LAG,
     WS_SENT,
     WS_SIZE,
     SignalForm,
-    wayside_command_1,
-    wayside_identify_1,
     wayside_init_1,
-    wayside_modulate_1,
-    wayside_observe_1,
-    wayside_passage_1,
+    wayside_step_1,
 )
 
 FloatArray = NDArray[np.float64]
@@ -622,7 +607,6 @@ def _simulate_run(
     corrected_positioning = controller == CTRL_ATO_CORRECTED
     config = int(rp[RP_CONFIG])
     pwm_train = config in (CFG_PWM, CFG_SWITCHED_PWM)
-    switched = config in (CFG_STEP, CFG_SWITCHED_PWM)
     own_duty = np.nan
     own_demand = np.nan
     own_for = -1  # the own notch own_duty and own_demand were computed for (-1: none yet)
@@ -748,39 +732,10 @@ def _simulate_run(
             braking = not holding or eb
         else:
             # Wayside unit -> link -> onboard receiver.
-            w_passed, w_det, w_pass_s = wayside_passage_1(
-                ws, wp, pass_x, det_pos, t, passed, det_idx, pass_s, doppler
-            )
-            due = wayside_observe_1(
-                ws, wp, dbuf, pass_t, pass_x, det_pos, t, w_passed, w_det, w_pass_s, doppler
-            )
-            if t >= ws[WS_ID_AT]:  # the brake response, once after the first braking command
-                wayside_identify_1(ws, wp, dbuf, wh_v, wh_e, det_to_stop, ext, grad, taus, t)
-            if due:
-                due = wayside_command_1(
-                    ws,
-                    wp,
-                    dbuf,
-                    pass_t,
-                    pass_x,
-                    wh_v,
-                    wh_e,
-                    taus,
-                    weights,
-                    det_to_stop,
-                    table,
-                    pwm_duty,
-                    pwm_decel,
-                    ext,
-                    grad,
-                    t,
-                    w_passed,
-                    tele,
-                    crow,
-                )
-            else:
-                # Forms 7, 8: the wayside's own notch modulation between commands.
-                due = wayside_modulate_1(ws, wp, table, t, doppler, tele, crow)
+            due = wayside_step_1(
+                ws, wp, dbuf, pass_t, pass_x, det_pos, wh_v, wh_e, taus, weights, det_to_stop, table,
+                pwm_duty, pwm_decel, ext, grad, t, passed, det_idx, pass_s, doppler, tele, crow,
+            )  # fmt: skip
             if due:
                 # A newer telegram replaces the one not yet delivered (the wayside sends only its latest).
                 _quantize(tele, pending, quant, carried, int(wp[WP_FORM]), kp[KP_QUANT_AGE])
@@ -842,58 +797,18 @@ def _simulate_run(
                     fl_seq[m] = fl_seq[j]
                     m += 1
             n_fl = m
-            if delivered and applied_id == pending_id:
-                receiver_alive_1(rx, t)  # a copy of the command the train has: a life sign
-            elif delivered:
+            copy = delivered and applied_id == pending_id  # a copy of the command the train has
+            new = delivered and not copy
+            if new:
                 applied_id = pending_id
                 first_rx_s = min(first_rx_s, t)
-                receiver_receive_1(
-                    rx,
-                    rp,
-                    mod,
-                    tach,
-                    rh_v,
-                    rh_e,
-                    taus,
-                    table,
-                    pwm_duty,
-                    pwm_decel,
-                    det_to_stop,
-                    ext,
-                    grad,
-                    pending,
-                    t,
-                )
-            receiver_observe_1(rx, rp, tach, tach_v, t)
-            # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
-            eb = receiver_supervise_1(rx, rp, t, odo_step, tach_v)
             if own_notch != own_for:
                 own_duty, own_demand = _own_command_1(own_notch, pwm_train, table, pwm_duty, pwm_decel)
                 own_for = own_notch
-            if switched:
-                switch_pos = receiver_switch_1(rx, rp)
-            if pwm_train:
-                notch = -1
-                # Config 3 superimposes on the train's duty; config 2 switches between the two.
-                onboard = receiver_pwm_output_1(rx, rp, k, own_duty)
-                if config == CFG_PWM or switch_pos == SWITCH_ONBOARD:
-                    duty = onboard
-                elif switch_pos == SWITCH_TRAIN:
-                    duty = own_duty
-                else:
-                    duty = 0.0  # contacts in transfer: the ECU input is open
-            else:
-                duty = np.nan
-                onboard_notch = receiver_step_output_1(rx, rp, mod, table, k, tach_v)
-                if config == CFG_BRAKE_CONTROLLER:
-                    # Config 1: the brake controller follows the onboard unit once it has a command.
-                    notch = onboard_notch if rx[RX_ACTIVE] > 0.0 else own_notch
-                elif switch_pos == SWITCH_ONBOARD:
-                    notch = onboard_notch
-                elif switch_pos == SWITCH_TRAIN:
-                    notch = own_notch
-                else:
-                    notch = 0  # contacts in transfer: wires a, b, c open (000)
+            notch, duty, eb, switch_pos = receiver_cycle_1(
+                rx, rp, mod, tach, rh_v, rh_e, taus, table, pwm_duty, pwm_decel, det_to_stop, ext, grad,
+                pending, t, k, new, copy, tach_v, odo_step, own_notch, own_duty,
+            )  # fmt: skip
             braking = np.isfinite(rx[RX_FIRST_RX]) or eb or own_notch > 0
         # Onboard -> ECU (step code through the brake line, or PWM) -> actuator -> brakes.
         if notch >= 0:

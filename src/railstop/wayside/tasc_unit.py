@@ -729,3 +729,67 @@ def wayside_command_1(
     record[CR_EFFECT] = effect
     record[CR_EMERGENCY] = ws[WS_EMERGENCY]
     return send
+
+
+@njit_inline
+def wayside_step_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    dbuf: FloatArray,
+    pass_t: FloatArray,
+    pass_x: FloatArray,
+    det_pos: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    taus: FloatArray,
+    weights: FloatArray,
+    det_to_stop: FloatArray,
+    table: FloatArray,
+    pwm_duty: FloatArray,
+    pwm_decel: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    now_s: float,
+    passed: bool,
+    detector: int,
+    passage_s: float,
+    doppler_mps: float,
+    tele: FloatArray,
+    record: FloatArray,
+) -> bool:
+    """One step of the wayside TASC unit (SPEC §1): the detectors' report of this step
+    (``passed``, ``detector``, ``passage_s``) and the radar's sample in, True when a telegram is
+    due (in ``tele``, its record in ``record``). The stop model and the live station run this
+    same step; only what carries the sensors and the telegram differs."""
+    w_passed, w_det, w_pass_s = wayside_passage_1(
+        ws, wp, pass_x, det_pos, now_s, passed, detector, passage_s, doppler_mps
+    )
+    due = wayside_observe_1(
+        ws, wp, dbuf, pass_t, pass_x, det_pos, now_s, w_passed, w_det, w_pass_s, doppler_mps
+    )
+    if now_s >= ws[WS_ID_AT]:  # the brake response, once after the first braking command
+        wayside_identify_1(ws, wp, dbuf, hist_v, hist_e, det_to_stop, ext, grad, taus, now_s)
+    if due:
+        return wayside_command_1(
+            ws,
+            wp,
+            dbuf,
+            pass_t,
+            pass_x,
+            hist_v,
+            hist_e,
+            taus,
+            weights,
+            det_to_stop,
+            table,
+            pwm_duty,
+            pwm_decel,
+            ext,
+            grad,
+            now_s,
+            w_passed,
+            tele,
+            record,
+        )
+    # Forms 7, 8: the wayside's own notch modulation between commands.
+    return wayside_modulate_1(ws, wp, table, now_s, doppler_mps, tele, record)
