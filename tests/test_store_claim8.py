@@ -28,7 +28,7 @@ from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.controllers import TASC_PWM
 from railstop.errors import RailstopError, SimulationError
 from railstop.link.codec import quantize
-from railstop.sim.engine import _commands
+from railstop.sim.engine import command_records
 from railstop.sim.single import run_stop, station_record, stop_record
 from railstop.store import SCHEMA_VERSION, SENT_FIELDS, STATION_FIELDS, StopRecord, open_store
 from railstop.wayside.tasc_unit import (
@@ -306,7 +306,7 @@ def test_commands_map_the_emergency_flag_and_the_telegram() -> None:
     sends[1, [j for j in range(TEL_SIZE) if j not in (TEL_DETECTOR, TEL_EMERGENCY, TEL_NOTCH, TEL_DELTA)]] = (
         np.nan
     )
-    out = _commands(rows, SignalForm.DISTANCE, sends)
+    out = command_records(rows, SignalForm.DISTANCE, sends)
     assert [c["emergency"] for c in out] == [False, True]
     assert [c["telegram_type"] for c in out] == ["tasc-distance", "tasc-emergency-stop"]
     assert out[0]["telegram"]["distance_m"] == 123.457  # the wire's resolution: 1 mm
@@ -315,7 +315,7 @@ def test_commands_map_the_emergency_flag_and_the_telegram() -> None:
     assert out[1]["telegram"] == {"train_id": 1, "detector": 1}
     assert set(SENT_FIELDS) <= set(out[0])
     with pytest.raises(SimulationError, match="2 command records but 1 telegrams"):
-        _commands(rows, SignalForm.DISTANCE, sends[:1])
+        command_records(rows, SignalForm.DISTANCE, sends[:1])
 
 
 # ------------------------------------------------------------------ bad input: one line each

@@ -206,3 +206,31 @@ def test_unknown_medium_is_a_clear_error() -> None:
     bad = st.model_copy(update={"tasc": st.tasc.model_copy(update={"medium": "carrier-pigeon"})})
     with pytest.raises(SimulationError, match=r"tasc\.medium.*carrier-pigeon"):
         run_stop(line=LINE, station=bad, vehicle=VEHICLE, controller="tasc-pwm", seed=1)
+
+
+def test_form_4_passage_just_after_the_measurement_goes_on_the_air_as_age_zero() -> None:
+    """Regression: the stop model time-stamps a passage within its step (plus the sensor's jitter)
+    while the wayside computes at the step's start, so a form-4 command could report a passage a
+    few ms after its measurement: a negative age the codec cannot carry (the detailed stop of the
+    standard set's run 3 failed with out_of_range). The age is carried as 0, the same in the
+    campaign's quantisation and on the wire."""
+    rng = np.random.default_rng(4)
+    tele = _random_telegrams(SignalForm.SPEED, 20, rng)
+    tele = replace(tele, passage_s=tele.measured_s + rng.uniform(0.0, 0.012, 20))
+    q = quantize_telegrams(tele)
+    np.testing.assert_array_equal(q.passage_s[q.emergency == 0], q.measured_s[q.emergency == 0])
+    for row in range(20):
+        back = from_message(decode(encode(to_message(q, row))), SignalForm.SPEED)
+        for name in FIELDS:
+            np.testing.assert_array_equal(getattr(back, name)[0], getattr(q, name)[row], err_msg=name)
+    station = LINE.stations[0]
+    dist = load_disturbances("standard")
+    single, _ = run_stop(
+        line=LINE, station=station, vehicle=VEHICLE, controller="tasc-brake-controller", seed=1,
+        disturbances=dist, run=3, form=SignalForm.SPEED,
+    )  # fmt: skip
+    batch, _ = simulate_runs(
+        station=station, vehicle=VEHICLE, controller="tasc-brake-controller", disturbances=dist, seed=1,
+        first_run=3, n=1, form=int(SignalForm.SPEED),
+    )  # fmt: skip
+    assert single.stop_error_m == round(float(batch.stop_error_m[0]), 6)

@@ -177,7 +177,7 @@ def run_batch(
     frames: dict[str, int] = {}
     if rec is not None:
         trace = _trace(rec.trace)
-        commands = _commands(rec.commands, model.form, rec.sends)
+        commands = command_records(rec.commands, model.form, rec.sends)
         if controller not in ONBOARD_CONTROLLERS:
             frames = check_byte_link(rec, station, model.form, dt_s)
     return BatchResult(
@@ -246,7 +246,7 @@ def _trace(tr: FloatArray) -> Trace:
     )
 
 
-def _commands(rows: FloatArray, form: SignalForm, sends: FloatArray) -> list[dict[str, Any]]:
+def command_records(rows: FloatArray, form: SignalForm, sends: FloatArray) -> list[dict[str, Any]]:
     """The command records of the detailed stop (SPEC §1 claims 8, 20), as the database stores them.
 
     ``rows`` are the wayside unit's command records (``CR_*``, and the step each was sent in),
@@ -280,7 +280,7 @@ def _commands(rows: FloatArray, form: SignalForm, sends: FloatArray) -> list[dic
         raise SimulationError(f"{len(rows)} command records but {len(sends)} telegrams recorded")
     out = []
     for r, sent in zip(rows, sends, strict=True):
-        message = decode(encode(to_message(_telegram(sent, form), 0)))  # at the wire's resolution
+        message = decode(encode(to_message(telegram_of(sent, form), 0)))  # at the wire's resolution
         out.append(
             {
                 "run": 0,
@@ -309,7 +309,7 @@ def _commands(rows: FloatArray, form: SignalForm, sends: FloatArray) -> list[dic
     return out
 
 
-def _telegram(row: FloatArray, form: SignalForm) -> TascTelegrams:
+def telegram_of(row: FloatArray, form: SignalForm) -> TascTelegrams:
     """One kernel telegram vector as a one-run telegram array (the codec's input)."""
     values: dict[str, Any] = {}
     for j, name in enumerate(TEL_FIELDS):
@@ -351,7 +351,7 @@ def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -
             pending = rec.sends[sends[k]]
             # The command's message, checked once to carry exactly the kernel's telegram: every
             # copy on the air is then checked against the message.
-            payload = encode(to_message(_telegram(pending, form), 0))
+            payload = encode(to_message(telegram_of(pending, form), 0))
             message = decode(payload)  # at the wire's resolution
             _check_fields(from_message(message, form), pending, now)
             link.drop_genuine()

@@ -362,7 +362,7 @@ FP_SIZE = 9
 
 
 @njit_step
-def _quantize(
+def quantize_telegram_1(
     tele: np.ndarray, out: np.ndarray, quant: np.ndarray, carried: np.ndarray, form: int, quant_age: float
 ) -> None:
     """What the train can receive: carried fields at the codec's resolution, the rest NaN (0 for
@@ -391,14 +391,17 @@ def _quantize(
             out[j] = tele[j]
     if form == 4:
         measured = np.rint(tele[TEL_MEASURED] * quant[TEL_MEASURED]) / quant[TEL_MEASURED]
-        age = np.rint((tele[TEL_MEASURED] - tele[TEL_PASSAGE]) * quant_age) / quant_age
+        # [interpretation] The passage is never after the measurement that reports it: the step's
+        # passage is time-stamped within the step (and the sensor's jitter) while the wayside
+        # computes at the step's start; the codec's age field is unsigned (tasc_link agrees).
+        age = max(0.0, np.rint((tele[TEL_MEASURED] - tele[TEL_PASSAGE]) * quant_age) / quant_age)
         out[TEL_MEASURED] = measured
         out[TEL_SPEED] = np.rint(tele[TEL_SPEED] * quant[TEL_SPEED]) / quant[TEL_SPEED]
         out[TEL_PASSAGE] = measured - age
 
 
 @njit_inline
-def _own_command_1(
+def own_command_1(
     notch: int, pwm_train: bool, table: FloatArray, pwm_duty: FloatArray, pwm_decel: FloatArray
 ) -> tuple[float, float]:
     """The train's own brake command (SPEC §1; tasc.initial_brake_notch) as (duty, deceleration
@@ -738,7 +741,7 @@ def _simulate_run(
             )  # fmt: skip
             if due:
                 # A newer telegram replaces the one not yet delivered (the wayside sends only its latest).
-                _quantize(tele, pending, quant, carried, int(wp[WP_FORM]), kp[KP_QUANT_AGE])
+                quantize_telegram_1(tele, pending, quant, carried, int(wp[WP_FORM]), kp[KP_QUANT_AGE])
                 pending_id += 1
                 n_fl = 0
                 next_try_s = -np.inf
@@ -803,7 +806,7 @@ def _simulate_run(
                 applied_id = pending_id
                 first_rx_s = min(first_rx_s, t)
             if own_notch != own_for:
-                own_duty, own_demand = _own_command_1(own_notch, pwm_train, table, pwm_duty, pwm_decel)
+                own_duty, own_demand = own_command_1(own_notch, pwm_train, table, pwm_duty, pwm_decel)
                 own_for = own_notch
             notch, duty, eb, switch_pos = receiver_cycle_1(
                 rx, rp, mod, tach, rh_v, rh_e, taus, table, pwm_duty, pwm_decel, det_to_stop, ext, grad,

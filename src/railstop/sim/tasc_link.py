@@ -103,7 +103,8 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     if form == SignalForm.SPEED:
         # Form 4 carries the passage as its age at the measurement time.
         measured = quantize(kind, "measured_s", tele.measured_s)
-        age = quantize(kind, "passage_age_s", tele.measured_s - tele.passage_s)
+        # Never negative (the kernel's quantize_telegram_1 gives the reason): the age is unsigned.
+        age = np.maximum(quantize(kind, "passage_age_s", tele.measured_s - tele.passage_s), 0.0)
         changes["measured_s"] = measured
         changes["speed_mps"] = quantize(kind, "speed_mps", tele.speed_mps)
         changes["distance_m"] = quantize(kind, "distance_m", tele.distance_m)
