@@ -84,6 +84,7 @@ import hmac
 import math
 import struct
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from railstop.errors import RailstopError
@@ -374,3 +375,58 @@ class SafeReceiver:
         """
         elapsed_ms = round(_check_time("now_s", now_s) * 1000.0) - round(self.last_valid_s * 1000.0)
         return elapsed_ms > round(self.timeout_s * 1000.0)
+
+
+class SafePeers:
+    """Category-3 links of one party with any number of peers over a shared transport (one socket):
+    ``wrap(payload, peer, now_s)`` gives the frame for ``peer`` (its own sequence and key per
+    direction), ``accept(frame, now_s)`` checks a received frame with the receiver of the peer it
+    names and gives (peer, payload), or the reason it was refused (counted in ``rejected``).
+    ``peers(id)`` says which senders may be heard (any other is refused as ``unknown_peer``)."""
+
+    def __init__(
+        self, own_id: int, master_key: bytes, *, max_age_s: float, peers: Callable[[int], bool]
+    ) -> None:
+        self.own_id = own_id
+        self.master_key = master_key
+        self.max_age_s = max_age_s
+        self.known = peers
+        self._tx: dict[int, SafeSender] = {}
+        self._rx: dict[int, SafeReceiver] = {}
+        self.sent = 0
+        self.delivered = 0
+        self.rejected: dict[str, int] = {}
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+
+    def wrap(self, payload: bytes, peer: int, now_s: float) -> bytes:
+        if peer not in self._tx:
+            key = link_key(self.master_key, self.own_id, peer)
+            self._tx[peer] = SafeSender(self.own_id, peer, key=key, category=3)
+        self.sent += 1
+        return self._tx[peer].wrap(payload, now_s)
+
+    def accept(self, frame: bytes, now_s: float) -> tuple[int, bytes] | None:
+        ids = frame_ids(frame)
+        peer = -1 if ids is None else ids[0]
+        if not self.known(peer):
+            self.reject("unknown_peer")
+            return None
+        if peer not in self._rx:
+            self._rx[peer] = SafeReceiver(
+                self.own_id,
+                peer,
+                key=link_key(self.master_key, peer, self.own_id),
+                category=3,
+                max_age_s=self.max_age_s,
+                timeout_s=1e9,  # the units above supervise their peers' silence
+                start_s=now_s,
+                future_tolerance_s=0.2,
+            )
+        got = self._rx[peer].accept(frame, now_s)
+        if not isinstance(got, Delivered):
+            self.reject(got.reason)
+            return None
+        self.delivered += 1
+        return peer, got.payload

@@ -34,14 +34,14 @@ import asyncio
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from railstop.config.schema import Line, Vehicle
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
-from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_ids, link_key
+from railstop.link.safety import SafePeers, frame_ids
 from railstop.link.udp import Address, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
@@ -53,16 +53,6 @@ from railstop.wayside.zone_controller import ZoneController, ZoneMode
 STEP_S = 0.05  # the plant step (simulated seconds)
 
 
-@dataclass
-class RadioCounts:
-    sent: int = 0
-    delivered: int = 0
-    rejected: dict[str, int] = field(default_factory=dict)
-
-    def reject(self, reason: str) -> None:
-        self.rejected[reason] = self.rejected.get(reason, 0) + 1
-
-
 class UdpRadio:
     """The train radio as a unit at one end of real sockets: messages handed to it become frames to
     send (``outgoing``); frames received become messages (``ingest``). Pure: the driver sends."""
@@ -71,40 +61,20 @@ class UdpRadio:
         self.name = name
         self.accepts: tuple[type, ...] = (PositionReport, MovementCommand)
         self.own_id = own_id
-        self.master_key = master_key
         self.outgoing: list[tuple[bytes, int]] = []  # (frame, peer id)
-        self._tx: dict[int, SafeSender] = {}
-        self._rx: dict[int, SafeReceiver] = {}
-        self.counts = RadioCounts()
-
-    def _sender(self, peer: int) -> SafeSender:
-        if peer not in self._tx:
-            self._tx[peer] = SafeSender(
-                self.own_id, peer, key=link_key(self.master_key, self.own_id, peer), category=3
-            )
-        return self._tx[peer]
-
-    def _receiver(self, peer: int, now_s: float) -> SafeReceiver:
-        if peer not in self._rx:
-            self._rx[peer] = SafeReceiver(
-                self.own_id,
-                peer,
-                key=link_key(self.master_key, peer, self.own_id),
-                category=3,
-                max_age_s=MAX_AGE_S,
-                timeout_s=1e9,
-                start_s=now_s,
-                future_tolerance_s=0.2,
-            )
-        return self._rx[peer]
+        self.links = SafePeers(
+            own_id,
+            master_key,
+            max_age_s=MAX_AGE_S,
+            peers=lambda p: p == ZC_ADDRESS or TRAIN_BASE <= p < TRAIN_BASE + 0x1000,
+        )
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
         tele = to_telegram(message)
         if tele is None:
             return []
         peer = ZC_ADDRESS if isinstance(message, PositionReport) else TRAIN_BASE + tele.train_id
-        self.outgoing.append((self._sender(peer).wrap(encode(tele), now_s), peer))
-        self.counts.sent += 1
+        self.outgoing.append((self.links.wrap(encode(tele), peer, now_s), peer))
         return []
 
     def next_deadline_s(self) -> float | None:
@@ -116,25 +86,18 @@ class UdpRadio:
     def ingest(self, frame: bytes, now_s: float, *, to: Callable[[int], str]) -> list[Output]:
         """A received frame: the message it carries for the unit ``to(train_id)`` names, or nothing
         (refused frames are counted by reason)."""
-        ids = frame_ids(frame)
-        peer = -1 if ids is None else ids[0]
-        if peer != ZC_ADDRESS and not TRAIN_BASE <= peer < TRAIN_BASE + 0x1000:
-            self.counts.reject("unknown_peer")
-            return []
-        got = self._receiver(peer, now_s).accept(frame, now_s)
-        if not isinstance(got, Delivered):
-            self.counts.reject(got.reason)
+        got = self.links.accept(frame, now_s)
+        if got is None:
             return []
         try:
-            tele = decode(got.payload)
+            tele = decode(got[1])
         except TelegramError as exc:
-            self.counts.reject(f"telegram-{exc.reason}")
+            self.links.reject(f"telegram-{exc.reason}")
             return []
         msg = to_message(tele)
         if msg is None:
-            self.counts.reject("unexpected-type")
+            self.links.reject("unexpected-type")
             return []
-        self.counts.delivered += 1
         return [Output(to=to(msg.train_id), message=msg)]
 
 
@@ -212,7 +175,7 @@ async def run_zone_controller(
         "commands_held_at_start": held,
         "late_steps": clock.late_steps,
         "steps": clock.steps,
-        "radio": {"delivered": radio.counts.delivered, "rejected": radio.counts.rejected},
+        "radio": {"delivered": radio.links.delivered, "rejected": radio.links.rejected},
         "manual_releases": c.manual_releases,
         "releases_refused": gate.rejected,
     }
@@ -385,7 +348,7 @@ def _rejected(radios: Iterable[UdpRadio], misdirected: int) -> dict[str, int]:
     """The frames the trains' radios refused, by reason, summed over the trains."""
     out: dict[str, int] = {"wrong_destination": misdirected} if misdirected else {}
     for r in radios:
-        for reason, n in r.counts.rejected.items():
+        for reason, n in r.links.rejected.items():
             out[reason] = out.get(reason, 0) + n
     return out
 

@@ -1,0 +1,558 @@
+"""Ground TASC live (issue 17 item 1): the stations' wayside units and the trains' onboard units as
+processes over UDP, running the stop model's own compiled steps.
+
+SPEC §1: wheel detectors and a Doppler radar measure the train; the wayside
+TASC unit computes the braking it needs and radios it to the train, whose
+onboard unit drives the brakes (the configuration of the operation). Here:
+
+* **the stations process** (:func:`run_stations`) holds every station's
+  wayside unit (:class:`WaysideTasc`). Its sensors' readings arrive from the
+  plant as frames (the detectors and the radar are wired to the wayside; the
+  frames stand for the wiring), one reading per 10 ms step (the radar's sample
+  period); each reading runs one ``wayside_step_1`` (the stop kernel's wayside
+  step). A due telegram is quantised as the kernel quantises it, encoded by
+  the codec, wrapped in an EN 50159 category-3 frame and sent to the train;
+  the latest telegram is repeated every ``repeat_period_s`` (the train's life
+  sign) until the train stands. Every command goes to the office with its
+  inputs (SPEC §1 claims 7, 20).
+* **the train side** (:class:`TascStop`, in the trains process) holds a
+  train's onboard unit and the stop model's plant from the hand-over point to
+  standstill: each 10 ms step the telegrams received run ``receiver_cycle_1``
+  (the kernel's onboard step: the configuration's output, the telegram
+  time-out and the overrun guard), then the ECU, the actuator (dead time, jerk
+  limit, lag) and the train's motion (``actuator_step_1``, ``motion_step_1``),
+  then the detectors and the radar read the train.
+
+Only the clock and the transport differ from the stop model: the link's delay
+is the processes' real one (plus the plant's batching of five readings per
+50 ms step), and its losses are real ones (none on loopback). The train's
+vehicle and sensors are one draw of the operation's disturbance set per stop
+(load, brake gain and response, wheel, adhesion, detector jitter and misses,
+radar noise), as in the line simulation.
+
+Fail safe (DESIGN rule 10): a stations process that dies stops the telegrams;
+the onboard unit's supervision applies the emergency brake after
+``supervision_timeout_s`` (SPEC §1; ``onboard.tasc_receiver``), and a train
+entering a zone whose wayside is silent gets the same once it is past the
+detector by which the wayside must have spoken.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.config.disturbances import DisturbanceSet, draw_scenario
+from railstop.config.schema import Line, Station, Vehicle
+from railstop.control.notch import MOD_SIZE
+from railstop.control.supervision import eb_cause_name
+from railstop.control.tasc import HISTORY, SAMPLES
+from railstop.link.codec import TelegramError, decode, encode
+from railstop.link.safety import SafePeers, frame_ids
+from railstop.link.udp import Address, open_endpoint
+from railstop.live.clock import TimeBase, WallClock
+from railstop.live.office import OfficeClient
+from railstop.onboard.tasc_receiver import (
+    CFG_PWM,
+    CFG_SWITCHED_PWM,
+    RP_CONFIG,
+    RX_EB,
+    RX_FIRST_RX,
+    RX_SIZE,
+    receiver_cycle_1,
+    receiver_fix_1,
+    receiver_init_1,
+)
+from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
+from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
+from railstop.sensors.wayside import crossing_time_1, passage_1
+from railstop.sim.engine import command_records, telegram_of
+from railstop.sim.kernel import (
+    KP_CRUSH,
+    KP_DAVIS_A,
+    KP_DAVIS_B,
+    KP_DAVIS_C,
+    KP_DOPPLER_RANGE,
+    KP_DOPPLER_REACH,
+    KP_EMERGENCY,
+    KP_HAS_DOPPLER,
+    KP_INITIAL_NOTCH,
+    KP_JERK,
+    KP_LENGTH,
+    KP_QUANT_AGE,
+    KP_REPEAT,
+    KP_ROTATING,
+    KP_SLIDE_SLIP,
+    KP_STOP,
+    KP_TARE,
+    SC_BRAKE_GAIN,
+    SC_DEAD_TIME,
+    SC_DOPPLER_NOISE,
+    SC_LOAD,
+    SC_LOW_END,
+    SC_LOW_MU,
+    SC_LOW_START,
+    SC_MISS,
+    SC_MU,
+    SC_ODO_ERROR,
+    SC_SENSOR_JITTER,
+    SC_TAU,
+    SC_WEIGHING_ERROR,
+    SC_WHEEL_D,
+    KernelModel,
+    own_command_1,
+    quantize_telegram_1,
+    scenario_arrays,
+)
+from railstop.sim.tasc_link import from_message, to_message
+from railstop.streams import RunStreams
+from railstop.wayside.tasc_unit import (
+    CR_SIZE,
+    TEL_FIELDS,
+    TEL_SIZE,
+    WP_FORM,
+    WS_SIZE,
+    SignalForm,
+    wayside_init_1,
+    wayside_step_1,
+)
+
+FloatArray = NDArray[np.float64]
+
+STATION_BASE = 0x0100  # station i's wayside TASC unit: STATION_BASE + i (as tasc_link's WAYSIDE_ID)
+SENSORS_ID = 0x0280  # the trackside detectors and radars (the plant that reads them)
+TRAIN_TASC_BASE = 0x4000  # train k's onboard TASC unit: TRAIN_TASC_BASE + k
+#: The stop model's step (the radar's sample period, SPEC §1: 10 ms).
+TASC_DT_S = 0.01
+#: Runs of the disturbance draw per train (as the line simulation): run = train x 100 + visit.
+RUNS_PER_TRAIN = 100
+#: One reading on the sensor wire: time, radar speed (NaN: none), detector passed, detector index,
+#: passage time. A frame carries the train, the station, whether the train stands, the readings.
+_READING = struct.Struct(">d d B b d")
+_SENSOR_HEAD = struct.Struct(">H H B B")
+
+
+@dataclass(frozen=True, slots=True)
+class Reading:
+    """What the station's sensors read at ``t_s``: the radar's speed (NaN: out of range / none)
+    and a detector's passage found in the step before (``passed``, ``detector``, ``passage_s``)."""
+
+    t_s: float
+    doppler_mps: float
+    passed: bool
+    detector: int
+    passage_s: float
+
+
+def pack_readings(train: int, station: int, stands: bool, readings: list[Reading]) -> bytes:
+    out = [_SENSOR_HEAD.pack(train, station, int(stands), len(readings))]
+    out += [_READING.pack(r.t_s, r.doppler_mps, int(r.passed), r.detector, r.passage_s) for r in readings]
+    return b"".join(out)
+
+
+def unpack_readings(payload: bytes) -> tuple[int, int, bool, list[Reading]]:
+    """(train, station, stands, readings); ValueError for a payload of the wrong shape."""
+    if len(payload) < _SENSOR_HEAD.size:
+        raise ValueError("short sensor frame")
+    train, station, stands, n = _SENSOR_HEAD.unpack_from(payload)
+    if len(payload) != _SENSOR_HEAD.size + n * _READING.size:
+        raise ValueError("sensor frame length does not match its count")
+    readings = []
+    for j in range(n):
+        t, dop, passed, det, pass_s = _READING.unpack_from(payload, _SENSOR_HEAD.size + j * _READING.size)
+        readings.append(Reading(t, dop, bool(passed), det, pass_s))
+    return train, station, bool(stands), readings
+
+
+@dataclass(frozen=True, slots=True)
+class StationTasc:
+    """A station's stop model for one onboard configuration: the kernel's arrays (both ends build
+    the same from the line, vehicle and controller) and the station's gradient."""
+
+    index: int
+    station: Station
+    model: KernelModel
+    grad: tuple[FloatArray, FloatArray, FloatArray]
+
+    @classmethod
+    def create(cls, index: int, station: Station, vehicle: Vehicle, controller: str) -> StationTasc:
+        from railstop.sim.scenario import Scenario
+
+        model = KernelModel.create(
+            station=station,
+            vehicle=vehicle,
+            controller=controller,
+            form=None,
+            dt_s=TASC_DT_S,
+            max_time_s=300.0,
+        )
+        _, bp, gv, ge = scenario_arrays(Scenario.nominal(station, vehicle))
+        return cls(index=index, station=station, model=model, grad=(bp, gv[0], ge[0]))
+
+    @property
+    def first_detector_m(self) -> float:
+        return float(self.model.det_pos[0])
+
+
+def station_models(line: Line, vehicle: Vehicle, controller: str) -> list[StationTasc]:
+    """Every station's stop model (the line's order). ValueError: a station's radar does not sample
+    at the stop model's step."""
+    return [StationTasc.create(i, st, vehicle, controller) for i, st in enumerate(line.stations)]
+
+
+# ---------------------------------------------------------------------- the wayside
+
+
+@dataclass
+class _Session:
+    train: int
+    ws: FloatArray
+    dbuf: FloatArray
+    pass_t: FloatArray
+    pass_x: FloatArray
+    wh_v: FloatArray
+    wh_e: FloatArray
+    taus: FloatArray
+    weights: FloatArray
+    tele: FloatArray
+    crow: FloatArray
+    pending: FloatArray
+    payload: bytes | None = None
+    last_sent_s: float = -math.inf
+    last_reading_s: float = -math.inf
+    commands: int = 0
+
+
+class WaysideTasc:
+    """The wayside TASC unit of one station (SPEC §1), serving the train in its zone: readings in,
+    telegram payloads out (``due``), each command's record for the office (``records``)."""
+
+    def __init__(self, st: StationTasc) -> None:
+        self.st = st
+        self.session: _Session | None = None
+        self.due: list[tuple[int, bytes]] = []  # (train, payload) to send now
+        self.records: list[dict[str, Any]] = []
+        self.stops_served = 0
+
+    def _begin(self, train: int) -> _Session:
+        m = self.st.model
+        s = _Session(
+            train=train,
+            ws=np.empty(WS_SIZE),
+            dbuf=np.zeros(m.window),
+            pass_t=np.empty(3),
+            pass_x=np.empty(3),
+            wh_v=np.empty(HISTORY),
+            wh_e=np.empty(HISTORY),
+            taus=np.empty(SAMPLES),
+            weights=np.empty(SAMPLES),
+            tele=np.empty(TEL_SIZE),
+            crow=np.empty(CR_SIZE),
+            pending=np.full(TEL_SIZE, np.nan),
+        )
+        wayside_init_1(s.ws, m.wp, s.wh_v, s.wh_e, s.pass_t, s.pass_x)
+        return s
+
+    def read(self, train: int, stands: bool, readings: list[Reading]) -> None:
+        """The sensors' readings of ``train`` (in time order); a train that stands ends the stop."""
+        s = self.session
+        if s is None or s.train != train:
+            s = self.session = self._begin(train)  # a new train in the zone: a new stop
+        m = self.st.model
+        form = int(m.wp[WP_FORM])
+        for r in readings:
+            if r.t_s <= s.last_reading_s:
+                continue  # a reading it already has (a frame sent twice)
+            s.last_reading_s = r.t_s
+            due = wayside_step_1(
+                s.ws, m.wp, s.dbuf, s.pass_t, s.pass_x, m.det_pos, s.wh_v, s.wh_e, s.taus, s.weights,
+                m.det_to_stop, m.table, m.pwm_duty, m.pwm_decel, m.ext, self.st.grad, r.t_s, r.passed,
+                r.detector, r.passage_s, r.doppler_mps, s.tele, s.crow,
+            )  # fmt: skip
+            if not due:
+                continue
+            quantize_telegram_1(s.tele, s.pending, m.quant, m.carried, form, m.kp[KP_QUANT_AGE])
+            row = telegram_of(s.pending, SignalForm(form))
+            try:
+                s.payload = encode(to_message(row, 0, train_id=train))
+            except TelegramError:
+                continue  # a value the telegram cannot carry: nothing is sent (the train's supervision)
+            s.commands += 1
+            record = command_records(np.append(s.crow, 0.0)[None, :], SignalForm(form), s.pending[None, :])[0]
+            record.pop("run")
+            self.records.append({"station": self.st.station.name, "train": train, **record})
+            self.due.append((train, s.payload))
+            s.last_sent_s = r.t_s
+        if stands:
+            self.session = None
+            self.stops_served += 1
+
+    def repeat(self, now_s: float) -> None:
+        """The cyclic repeat of the latest telegram (the train's life sign), until the train stands."""
+        s = self.session
+        if s is None or s.payload is None:
+            return
+        if now_s - s.last_sent_s >= float(self.st.model.kp[KP_REPEAT]) - 1e-9:
+            self.due.append((s.train, s.payload))
+            s.last_sent_s = now_s
+
+
+async def run_stations(
+    *,
+    line: Line,
+    vehicle: Vehicle,
+    controller: str,
+    local: Address,
+    base: TimeBase,
+    master_key: bytes,
+    stop: asyncio.Event,
+    office: OfficeClient | None = None,
+    on_ready: Callable[[Address], None] | None = None,
+) -> dict[str, Any]:
+    """Every station's wayside TASC unit, serving the trains until ``stop``; return the counts."""
+    stations = [WaysideTasc(st) for st in station_models(line, vehicle, controller)]
+    links = {
+        w.st.index: SafePeers(
+            STATION_BASE + w.st.index,
+            master_key,
+            max_age_s=line.stations[w.st.index].tasc.max_telegram_age_s,
+            peers=lambda p: p == SENSORS_ID,
+        )
+        for w in stations
+    }
+    refused: dict[str, int] = {}
+    plants: dict[int, Address] = {}  # where each train's readings come from (its telegrams go there)
+    clock = WallClock([], step_s=TASC_DT_S, base=base)
+    async with await open_endpoint(local) as ep:
+        if on_ready is not None:
+            on_ready(ep.local_address)
+
+        def poll(now_s: float) -> list[Any]:
+            while (got := ep.take()) is not None:
+                frame, addr = got
+                dst = (frame_ids(frame) or (-1, -1))[1] - STATION_BASE
+                if dst not in links:
+                    refused["wrong_destination"] = refused.get("wrong_destination", 0) + 1
+                    continue
+                accepted = links[dst].accept(frame, now_s)
+                if accepted is None:
+                    continue
+                try:
+                    train, station, stands, readings = unpack_readings(accepted[1])
+                except ValueError:
+                    refused["bad_readings"] = refused.get("bad_readings", 0) + 1
+                    continue
+                if station != dst:
+                    refused["wrong_station"] = refused.get("wrong_station", 0) + 1
+                    continue
+                plants[train] = addr
+                stations[dst].read(train, stands, readings)
+            return []
+
+        def plant(now_s: float, step_s: float) -> list[Any]:
+            for w in stations:
+                w.repeat(now_s)
+                for train, payload in w.due:
+                    addr = plants.get(train)
+                    if addr is not None:
+                        ep.send(links[w.st.index].wrap(payload, TRAIN_TASC_BASE + train, now_s), addr)
+                w.due.clear()
+                if office is not None:
+                    for rec in w.records:
+                        office.report("tasc-command", rec)
+                w.records.clear()
+            return []
+
+        await clock.run_live(plant, poll, stop)
+    for lk in links.values():
+        for reason, n in lk.rejected.items():
+            refused[reason] = refused.get(reason, 0) + n
+    return {
+        "stops_served": sum(w.stops_served for w in stations),
+        "commands": sum(lk.sent for lk in links.values()),
+        "readings_frames": sum(lk.delivered for lk in links.values()),
+        "refused": refused,
+        "late_steps": clock.late_steps,
+        "steps": clock.steps,
+    }
+
+
+# ---------------------------------------------------------------------- the train
+
+
+@dataclass
+class TascStop:
+    """A train's stop under ground TASC (SPEC §1) from the hand-over point to standstill: its
+    onboard unit and the stop model's plant, one ``step`` per 10 ms."""
+
+    st: StationTasc
+    train: int
+    sc: FloatArray
+    x_m: float
+    v_mps: float
+    rng: np.random.Generator
+    t0_s: float
+    rx: FloatArray = field(init=False)
+    out: list[Reading] = field(default_factory=list)
+    inbox: list[bytes] = field(default_factory=list)  # telegram payloads received, oldest first
+    stopped: bool = False
+    eb: bool = False
+    max_jerk: float = 0.0
+    commands: int = 0
+    refused: int = 0
+
+    def __post_init__(self) -> None:
+        m, sc, kp = self.st.model, self.sc, self.st.model.kp
+        self.rx = np.empty(RX_SIZE)
+        self.mod = np.empty(MOD_SIZE)
+        self.rh_v, self.rh_e = np.empty(HISTORY), np.empty(HISTORY)
+        receiver_init_1(self.rx, self.mod, self.rh_v, self.rh_e)
+        self.tach = np.zeros(m.tach_window)
+        self.taus = np.empty(SAMPLES)
+        self.pending = np.full(TEL_SIZE, np.nan)
+        self.last_payload: bytes | None = None
+        static = kp[KP_TARE] + sc[SC_LOAD] * kp[KP_CRUSH]
+        rotating = kp[KP_TARE] * kp[KP_ROTATING]
+        self.static, self.effective = static, static + rotating
+        self.believed = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
+        self.tach_scale = (sc[SC_WHEEL_D] * (1.0 + sc[SC_ODO_ERROR])) / sc[SC_WHEEL_D]
+        self.delay_steps = int(np.rint(sc[SC_DEAD_TIME] / TASC_DT_S))
+        self.ring = np.zeros(self.delay_steps + 1)
+        self.limited = self.output = self.accel = self.prev_accel = 0.0
+        self.lag_alpha = 1.0 - math.exp(-TASC_DT_S / sc[SC_TAU])
+        self.sliding = self.prev_counted = False
+        self.odo_step = 0.0
+        self.own_notch, self.own_for = 0, -1
+        self.own_duty = math.nan
+        self.k = 0
+        self.transponder_next = int(np.searchsorted(m.transponders, self.x_m, side="right"))
+        self.sensor_next = int(np.searchsorted(m.det_pos, self.x_m, side="right"))
+        self.passed, self.det_idx, self.pass_s = False, 0, math.nan
+        self.stop_time_s = math.nan
+
+    def deliver(self, payload: bytes) -> None:
+        self.inbox.append(payload)
+
+    def _doppler(self) -> float:
+        kp = self.st.model.kp
+        if kp[KP_HAS_DOPPLER] == 0.0:
+            return math.nan
+        if kp[KP_DOPPLER_REACH] - self.x_m > kp[KP_DOPPLER_RANGE]:
+            return 0.0  # out of the radar's range (the stop model's convention)
+        noise = self.sc[SC_DOPPLER_NOISE]
+        return self.v_mps * (1.0 + noise * self.rng.standard_normal()) if noise > 0.0 else self.v_mps
+
+    def step(self, t_s: float, extra_eb: bool = False) -> None:
+        """One 10 ms step at ``t_s``: the reading of the sensors (queued in ``out``), the onboard
+        unit, the brakes, the motion. ``extra_eb``: another unit (CBTC) applies the emergency brake."""
+        m, kp, sc = self.st.model, self.st.model.kp, self.sc
+        self.out.append(Reading(t_s, self._doppler(), self.passed, self.det_idx, self.pass_s))
+        self.passed = False
+        tach_v = self.v_mps * creep_1(self.sliding, kp[KP_SLIDE_SLIP]) * self.tach_scale
+        new = copy = False
+        for payload in self.inbox:
+            if payload == self.last_payload:
+                copy = True  # a cyclic repeat of the telegram it has: a life sign
+                continue
+            try:
+                row = from_message(decode(payload), m.form)
+            except TelegramError:
+                self.refused += 1
+                continue
+            for j, name in enumerate(TEL_FIELDS):
+                self.pending[j] = float(getattr(row, name)[0])
+            self.last_payload, new = payload, True
+            self.commands += 1
+        self.inbox.clear()
+        pwm_train = int(m.rp[RP_CONFIG]) in (CFG_PWM, CFG_SWITCHED_PWM)
+        if self.own_notch != self.own_for:
+            self.own_duty, _ = own_command_1(self.own_notch, pwm_train, m.table, m.pwm_duty, m.pwm_decel)
+            self.own_for = self.own_notch
+        notch, duty, eb, _ = receiver_cycle_1(
+            self.rx, m.rp, self.mod, self.tach, self.rh_v, self.rh_e, self.taus, m.table, m.pwm_duty,
+            m.pwm_decel, m.det_to_stop, m.ext, self.st.grad, self.pending, t_s, self.k, new, copy and not new,
+            tach_v, self.odo_step, self.own_notch, self.own_duty,
+        )  # fmt: skip
+        self.eb = eb or extra_eb
+        braking = math.isfinite(self.rx[RX_FIRST_RX]) or self.eb or self.own_notch > 0
+        demand = m.table[line_notch(notch)] if notch >= 0 else pwm_to_decel_1(duty, m.pwm_duty, m.pwm_decel)
+        if self.eb:
+            demand = kp[KP_EMERGENCY]  # wire e: the emergency brake, whatever the service command
+        self.limited, self.output = actuator_step_1(
+            self.ring, self.k, self.delay_steps, demand, self.limited, self.output, self.lag_alpha,
+            kp[KP_JERK] * TASC_DT_S, kp[KP_EMERGENCY],
+        )  # fmt: skip
+        brake_decel = self.output * sc[SC_BRAKE_GAIN] * self.believed / self.effective
+        mu = sc[SC_LOW_MU] if sc[SC_LOW_START] <= self.x_m < sc[SC_LOW_END] else sc[SC_MU]
+        x0, v0 = self.x_m, self.v_mps
+        hold = not braking
+        self.x_m, self.v_mps, self.accel, stopped, st, self.sliding = motion_step_1(
+            x0, v0, self.stopped, brake_decel, mean_gradient_1(x0, kp[KP_LENGTH], *self.st.grad), mu, hold,
+            self.static, self.effective, kp[KP_DAVIS_A], kp[KP_DAVIS_B], kp[KP_DAVIS_C], t_s, TASC_DT_S,
+        )  # fmt: skip
+        counted = not hold and not stopped
+        if counted and self.prev_counted:
+            self.max_jerk = max(self.max_jerk, abs(self.accel - self.prev_accel) / TASC_DT_S)
+        self.prev_accel, self.prev_counted = self.accel, counted
+        if stopped and not self.stopped:
+            self.stop_time_s = st
+        self.stopped = stopped
+        creep = creep_1(self.sliding, kp[KP_SLIDE_SLIP])
+        self.odo_step = (self.x_m - x0) * creep * self.tach_scale
+        # The train's own ATP resets its odometer at the transponders; at the first one its brake
+        # controller applies the initial brake step (SPEC §1, as the stop model).
+        if passage_1(m.transponders, self.transponder_next, x0, self.x_m):
+            receiver_fix_1(self.rx, m.rp, m.transponders[self.transponder_next])
+            self.transponder_next += 1
+            self.own_notch = int(kp[KP_INITIAL_NOTCH])
+        if passage_1(m.det_pos, self.sensor_next, x0, self.x_m):
+            self.det_idx = self.sensor_next
+            jitter = sc[SC_SENSOR_JITTER] * self.rng.standard_normal()
+            self.pass_s = t_s + crossing_time_1(x0, v0, self.accel, m.det_pos[self.det_idx]) + jitter
+            self.passed = self.rng.uniform() >= sc[SC_MISS]
+            self.sensor_next += 1
+        self.k += 1
+
+    @property
+    def error_m(self) -> float:
+        return self.x_m - float(self.st.model.kp[KP_STOP])
+
+    def result(self) -> dict[str, Any]:
+        """The stop as the office stores it."""
+        st = self.st.station
+        cause = eb_cause_name(int(self.rx[RX_EB])) if self.rx[RX_EB] > 0.0 else None
+        return {
+            "station": st.name,
+            "train": self.train,
+            "controller": self.st.model.controller,
+            "error_m": round(self.error_m, 3),
+            "within": abs(self.error_m) <= st.psd_tolerance_m and self.stopped,
+            "emergency_brake": cause if cause is not None else ("cbtc" if self.eb else None),
+            "max_jerk_mps3": round(self.max_jerk, 2),
+            "commands": self.commands,
+            "stop_time_s": round(self.stop_time_s - self.t0_s, 2)
+            if math.isfinite(self.stop_time_s)
+            else None,
+        }
+
+
+def draw_stop(
+    dist: DisturbanceSet, st: StationTasc, vehicle: Vehicle, *, seed: int, train: int, visit: int
+) -> tuple[FloatArray, np.random.Generator]:
+    """The train's vehicle and sensors for one stop: a draw of the disturbance set (the line
+    simulation's run numbering: train x 100 + visit) and the random stream of its sensors."""
+    run = train * RUNS_PER_TRAIN + visit % RUNS_PER_TRAIN
+    streams = RunStreams.for_runs(seed, run, 1)
+    from railstop.sim.scenario import station_gradient
+
+    scenario, _ = draw_scenario(dist, st.station, vehicle, streams)
+    scenario = scenario.with_values(gradient=station_gradient(st.station, 1))
+    sc, _, _, _ = scenario_arrays(scenario)
+    return sc[0], np.random.default_rng([seed, train, visit])
