@@ -28,12 +28,14 @@ def main() -> None:
     ap.add_argument("--trains", type=int, default=20)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--spacing-m", type=float, default=250.0)
+    ap.add_argument("--no-tasc", action="store_true", help="point-mass stops (no stations process)")
     args = ap.parse_args()
     duration = args.minutes * 60.0
     with tempfile.TemporaryDirectory() as tmp:
         db = str(Path(tmp) / "live.db")
         argv = [sys.executable, "-m", "railstop.cli", "live", "run", "--trains", str(args.trains)]
         argv += ["--duration-s", str(duration), "--http-port", "0", "--spacing-m", str(args.spacing_m)]
+        argv += ["--no-tasc"] if args.no_tasc else []
         p = subprocess.run([*argv, "--db", db], capture_output=True, text=True, check=False)
     if p.returncode != 0:
         sys.exit(f"live run failed: {p.stderr.strip()}")
@@ -41,7 +43,9 @@ def main() -> None:
     period = default_line().cbtc.report_period_s
     print(f"{args.trains} trains live for {args.minutes:g} min at x1 (report period {period:g} s)")
     print(f"{'process':16s} {'steps':>8s} {'late':>6s} {'CPU s':>8s} {'wall s':>8s} {'CPU share':>10s}")
-    for role in ("zone_controller", "trains", "office"):
+    for role in ("zone_controller", "stations", "trains", "office"):
+        if role not in out:
+            continue
         r = out[role]
         steps = r.get("steps", "-")
         late = r.get("late_steps", "-")
@@ -56,7 +60,17 @@ def main() -> None:
     )
     ebs = fleet["emergency_brakes"] or "none"
     print(f"trains: emergency brakes {ebs}; radio frames rejected {fleet['radio_rejected'] or 'none'}")
-    sent = fleet["office_link"]["submitted"] + zc["office_link"]["submitted"]
+    tasc = fleet.get("tasc")
+    if tasc:
+        print(
+            f"station stops by ground TASC: {tasc['stops']}, {tasc['within_tolerance']} within the stations' "
+            f"tolerance, |error| p99 {tasc['abs_error_p99_m']} m, max {tasc['abs_error_max_m']} m, emergency "
+            f"brakes {tasc['emergency_brakes'] or 'none'}; telegrams delivered "
+            f"{tasc['telegrams_delivered']:,}, refused {tasc['telegrams_refused'] or 'none'}"
+        )
+    sent = sum(
+        out[r]["office_link"]["submitted"] for r in ("zone_controller", "stations", "trains") if r in out
+    )
     print(
         f"office: {office['stored']:,} reports stored of {sent:,} sent, {office['duplicates']} duplicate(s)"
     )

@@ -151,13 +151,14 @@ def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Pa
 
 
 def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path) -> None:
-    """Train 1's radio dead for 100 s (scale 4): it brakes, stands, then its driver moves it on
+    """Train 1's radio dead for 100 s (scale 4; point-mass stops, no stations process): it brakes,
+    stands, then its driver moves it on
     sight at 15 km/h with the ATP cut out; the zone controller keeps its zone all the while and,
     when the radio comes back and the train reports from inside the zone, releases it."""
     db = tmp_path / "live.db"
     p = subprocess.run(
         [*EXE, "live", "run", "--trains", "3", "--duration-s", "40", "--scale", "4", "--http-port", "0",
-         "--spacing-m", "400", "--db", str(db), "--outage", "1:10:100"],
+         "--spacing-m", "400", "--db", str(db), "--outage", "1:10:100", "--no-tasc"],
         capture_output=True, text=True, timeout=180, env=ENV,
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
@@ -176,3 +177,73 @@ def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path
     assert zone_on["active"] and not zone_off["active"] and zone_on["status"] == "lost"
     assert float(zone_off["t_s"]) > max(float(s["t_s"]) for s in lost)  # type: ignore[arg-type]
     assert zone_on["start_m"] <= stand and furthest <= zone_on["end_m"]
+
+
+def _reports(db: str, kind: str) -> list[dict[str, object]]:
+    with open_store(db) as store:
+        return [r["data"] for r in store.office_reports(kind=kind)]
+
+
+def _wait_for(db: str, kind: str, ok: object, timeout_s: float) -> dict[str, object]:
+    end = time.time() + timeout_s
+    while time.time() < end:
+        hits = [r for r in _reports(db, kind) if ok(r)]  # type: ignore[operator]
+        if hits:
+            return hits[0]
+        time.sleep(0.25)
+    raise AssertionError(f"no {kind} report as expected within {timeout_s} s")
+
+
+def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_tasc(
+    procs: Procs, tmp_path: Path
+) -> None:
+    """Ground TASC live: the stations process (every station's wayside TASC unit) is killed with
+    SIGKILL while a train is in its station stop. The train's onboard unit gets no telegram and
+    applies the emergency brake after the supervision time-out (SPEC §1, DESIGN rule 10); a new
+    stations process serves the next stop, which ends within tolerance without emergency brake."""
+    from railstop.control.supervision import EB_TIMEOUT, eb_cause_name
+
+    db = str(tmp_path / "office.db")
+    scale = 3.0
+    epoch = time.time()
+    common = ["--epoch", repr(epoch), "--scale", str(scale)]
+    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
+    office_addr = line.split(" on ")[1].split()[0]
+    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "3", "--office", office_addr, *common)
+    zc_port = line.split("127.0.0.1:")[1].split()[0]
+    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
+    assert line.startswith("stations on"), line
+    st_port = line.split("127.0.0.1:")[1].split()[0]
+    trains, _ = procs.start(
+        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "3", "--spacing-m", "1100",
+        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
+    )  # fmt: skip
+    first = _wait_for(db, "tasc-command", lambda r: True, 60.0)
+    os.kill(stations.pid, signal.SIGKILL)
+    killed_s = (time.time() - epoch) * scale
+    stations.communicate(timeout=30)
+    braked = _wait_for(db, "stop-result", lambda r: r["train"] == first["tr"], 30.0)
+    stations2, line = procs.start("live", "stations", "--port", st_port, "--office", office_addr, *common)
+    assert line.startswith("stations on"), line
+    restarted_s = (time.time() - epoch) * scale
+    after = _wait_for(
+        db, "stop-result", lambda r: float(r["t_s"]) > restarted_s and r["controller"] == "tasc-pwm", 60.0
+    )
+    fleet = procs.stop(trains)
+    served = procs.stop(stations2)
+    procs.stop(zc)
+
+    # The stopping train braked on the telegram time-out, within the time-out (and one repeat
+    # period: the last telegram it had may be that old) of the kill.
+    tasc = default_line().stations[0].tasc
+    assert braked["emergency_brake"] == eb_cause_name(EB_TIMEOUT)
+    delay = float(braked["eb_t_s"]) - killed_s  # type: ignore[arg-type]
+    assert 0.0 < delay <= tasc.supervision_timeout_s + tasc.repeat_period_s + 0.2, delay
+    print(f"kill -9 of the stations -> emergency brake (telegram time-out) after {delay:.2f} s")
+    # The restarted stations served the next stop: within tolerance, no emergency brake.
+    assert after["emergency_brake"] is None and after["within"] is True, after
+    assert served["stops_served"] >= 1 and served["commands"] >= 1
+    assert fleet["tasc"]["emergency_brakes"] == {eb_cause_name(EB_TIMEOUT): 1}  # type: ignore[index]
+    # Every command the new stations process reported is in the office's database.
+    commands = [r for r in _reports(db, "tasc-command") if float(r["t"]) > restarted_s]  # type: ignore[arg-type]
+    assert len(commands) == served["office_link"]["submitted"]  # type: ignore[index]

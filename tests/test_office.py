@@ -132,10 +132,39 @@ def test_reports_the_link_cannot_carry_are_refused_whole() -> None:
     with pytest.raises(OfficeLinkError, match="one of"):
         out.submit("gossip", {}, 0.0)
     with pytest.raises(OfficeLinkError, match="at most 255"):
-        out.submit("stop-result", {"x": "y" * 300}, 0.0)
+        out.submit("stop-result", {"x": os.urandom(200).hex()}, 0.0)  # does not deflate below 255
     with pytest.raises(OfficeLinkError, match="not plain JSON"):
         out.submit("stop-result", {"x": float("nan")}, 0.0)
     assert not out.pending and out.next_seq == 1
+
+
+def test_a_tasc_command_with_its_inputs_fits_deflated_and_a_bomb_is_refused() -> None:
+    """A station's command record (its inputs, the command, the telegram on the air) is about 280
+    bytes of JSON: deflated it fits the 255-byte frame. A frame whose payload would inflate beyond
+    4 KiB is refused as malformed, not inflated."""
+    import json
+    import zlib
+
+    from railstop.config import default_line, default_vehicle
+    from railstop.link.safety import SafeSender
+    from railstop.live.tasc import StationTasc, wired_stop
+
+    line, vehicle = default_line(), default_vehicle()
+    _, wayside = wired_stop(StationTasc.create(0, line.stations[0], vehicle, "tasc-pwm"), vehicle)
+    out, inbox = ends()
+    for rec in wayside.records:
+        rec = {**rec, "t": rec["t"] + 259_200.0, "tr": 59}  # three days into a run, train 59
+        envelope = {"e": 2**32 - 1, "q": 1, "k": "tasc-command", "t": 1.8e9 + 0.123, "d": rec}
+        assert len(json.dumps(envelope, separators=(",", ":"))) > 255  # too long as plain JSON
+        _, frame = out.submit("tasc-command", rec, 1.8e9)
+        report, _, reason = inbox.on_frame(frame, 1.8e9)
+        assert reason is None and report is not None and report.data == rec
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    bomb = packer.compress(b'{"e":1,"k":"stop-result","d":{"x":"' + b"y" * 10_000 + b'"}}') + packer.flush()
+    assert len(bomb) < 255
+    forged = SafeSender(7, OFFICE, key=link_key(KEY, 7, OFFICE), category=3).wrap(bomb, 5.0)
+    _, fresh = ends()
+    assert fresh.on_frame(forged, 5.0) == (None, None, "malformed")
 
 
 def test_direction_keys_differ() -> None:

@@ -152,6 +152,62 @@ def zc_cmd(
     _serve(run)
 
 
+TascControllerOpt = Annotated[
+    str, typer.Option("--controller", help="The trains' onboard TASC configuration (SPEC §1).")
+]
+
+
+def _tasc_controller(controller: str) -> str:
+    from railstop.onboard.tasc_receiver import CONFIG_CODES
+
+    if controller not in CONFIG_CODES:
+        raise RailstopError(f"--controller: one of {', '.join(CONFIG_CODES)} (got {controller!r})")
+    return controller
+
+
+@live_app.command("stations")
+def stations_cmd(
+    port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the stations.")] = 7720,
+    controller: TascControllerOpt = "tasc-pwm",
+    epoch: EpochOpt = None,
+    scale: ScaleOpt = 1.0,
+    key_hex: KeyOpt = None,
+    office: OfficeOpt = None,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """Every station's wayside TASC unit (SPEC §1) as a live process: sensor readings in, braking
+    telegrams out, every command to the office."""
+    from railstop.live.tasc import run_stations
+
+    try:
+        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        ctrl = _tasc_controller(controller)
+    except RailstopError as exc:
+        fail(str(exc))
+
+    def ready(addr: tuple[str, int]) -> None:
+        print(f"stations on {addr[0]}:{addr[1]} (pid {os.getpid()})", file=sys.stderr, flush=True)
+
+    async def run(stop: asyncio.Event) -> object:
+        async def stations(client: object) -> object:
+            return await run_stations(
+                line=ln,
+                vehicle=veh,
+                controller=ctrl,
+                local=("127.0.0.1", port),
+                base=base,
+                master_key=key,
+                stop=stop,
+                office=client,  # type: ignore[arg-type]
+                on_ready=ready,
+            )
+
+        return await _with_office(office, 802, key, stations)
+
+    _serve(run)
+
+
 @live_app.command("trains")
 def trains_cmd(
     zc: Annotated[str, typer.Option(help="The zone controller's UDP address HOST:PORT.")] = "127.0.0.1:7710",
@@ -168,16 +224,41 @@ def trains_cmd(
         typer.Option(help="SIGUSR1 kills this train's radio, the next one restores it (fault injection)."),
     ] = None,
     outage: OutageOpt = None,
+    stations: Annotated[
+        str | None,
+        typer.Option(
+            help="The stations' UDP address HOST:PORT: stop by ground TASC (none: point-mass stops)."
+        ),
+    ] = None,
+    controller: TascControllerOpt = "tasc-pwm",
+    seed: Annotated[int, typer.Option(help="Seed of the trains' disturbance draws (one per stop).")] = 1,
+    disturbances: Annotated[
+        str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
+    ] = "standard",
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
-    """Every train's onboard CBTC unit and the plant that moves the trains, as one live process."""
+    """Every train's onboard units (CBTC, and TASC with --stations) and the plant that moves the
+    trains, as one live process."""
+    from railstop.config.disturbances import load_disturbances
     from railstop.live.cbtc import run_trains
+    from railstop.live.tasc import LiveTasc
 
     try:
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         zc_addr = address_option(zc, "--zc")
         windows = [_outage(o, trains) for o in outage or []]
+        tasc = None
+        if stations is not None:
+            tasc = LiveTasc(
+                line=ln,
+                vehicle=veh,
+                controller=_tasc_controller(controller),
+                stations=address_option(stations, "--stations"),
+                master_key=key,
+                dist=load_disturbances(disturbances),
+                seed=seed,
+            )
     except RailstopError as exc:
         fail(str(exc))
     print(f"trains running (pid {os.getpid()})", file=sys.stderr, flush=True)
@@ -212,6 +293,7 @@ def trains_cmd(
                 stop=stop,
                 office=client,  # type: ignore[arg-type]
                 outage=dead,
+                tasc=tasc,
             )
 
         return await _with_office(office, 801, key, fleet)
@@ -237,9 +319,11 @@ def _run_line(
     spacing_m: float,
     operators: str | None,
     outages: list[str],
+    controller: str | None = "tasc-pwm",
 ) -> dict[str, object]:
-    """Office (with its page), zone controller and trains as three processes for ``duration_s``
-    wall seconds; their counts, one object per process."""
+    """Office (with its page), zone controller, stations (with ``controller``; None: no ground
+    TASC, point-mass stops) and trains as processes for ``duration_s`` wall seconds; their counts,
+    one object per process."""
     import threading
 
     key = os.urandom(32).hex()
@@ -250,11 +334,18 @@ def _run_line(
     procs: list[subprocess.Popen[str]] = []
     zc_port = _free_udp_port()
 
-    def start(args: list[str], lines: int = 1) -> tuple[subprocess.Popen[str], list[str]]:
+    def launch(args: list[str]) -> subprocess.Popen[str]:
         proc = subprocess.Popen(
             [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
         procs.append(proc)
+        return proc
+
+    def start(
+        args: list[str], lines: int = 1, proc: subprocess.Popen[str] | None = None
+    ) -> tuple[subprocess.Popen[str], list[str]]:
+        """Start a process (or take one launched already) and read its first stderr lines."""
+        proc = launch(args) if proc is None else proc
         assert proc.stderr is not None
         first = [proc.stderr.readline().strip() for _ in range(lines)]
         # The rest of its stderr is passed on (and never fills a pipe that nobody reads).
@@ -279,13 +370,28 @@ def _run_line(
         if not zc_line.startswith("zone controller on"):
             raise RailstopError(f"the zone controller did not start: {zc_line}")
         outage_args = [a for o in outages for a in ("--outage", o)]
-        tr, _ = start(
+        tasc_args: list[str] = []
+        if controller is not None:
+            st_port = _free_udp_port()
+            # The stations and the trains load their compiled steps at the same time.
+            stations_proc = launch(
+                ["live", "stations", "--port", str(st_port), "--controller", controller, "--office",
+                 office_addr, *common]
+            )  # fmt: skip
+            tasc_args = ["--stations", f"127.0.0.1:{st_port}", "--controller", controller]
+        tr = launch(
             ["live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m",
-             str(spacing_m), "--office", office_addr, *outage_args, *common]
+             str(spacing_m), "--office", office_addr, *outage_args, *tasc_args, *common]
         )  # fmt: skip
+        if controller is not None:
+            _, (st_line,) = start([], proc=stations_proc)
+            if not st_line.startswith("stations on"):
+                raise RailstopError(f"the stations did not start: {st_line}")
+        start([], proc=tr)
         print(
             f"{page} (open it in a browser); office {office_addr}, zone controller 127.0.0.1:{zc_port} "
-            f"(pid {zc.pid}), trains (pid {tr.pid}); running {duration_s:g} s",
+            f"(pid {zc.pid}), {'stations (pid ' + str(procs[2].pid) + '), ' if controller else ''}trains "
+            f"(pid {tr.pid}); running {duration_s:g} s",
             flush=True,
         )
         time.sleep(duration_s)
@@ -295,7 +401,12 @@ def _run_line(
         fail(str(exc))
     finally:
         # The trains first, the office last: it stores what the others report as they stop.
-        for role, p in reversed(list(zip(("office", "zone_controller", "trains"), procs, strict=False))):
+        # (The zone controller right after the trains: it would take trains that stopped reporting
+        # for lost ones.)
+        roles = ("office", "zone_controller", *(("stations",) if controller else ()), "trains")
+        by_role = dict(zip(roles, procs, strict=False))
+        order = [r for r in ("trains", "zone_controller", "stations", "office") if r in by_role]
+        for role, p in ((r, by_role[r]) for r in order):
             if p.poll() is None:
                 p.send_signal(signal.SIGTERM)
             out, _ = p.communicate(timeout=30)
@@ -327,8 +438,16 @@ def run_cmd(
     ] = 600.0,
     operators: OperatorsOpt = None,
     outage: OutageOpt = None,
+    controller: TascControllerOpt = "tasc-pwm",
+    tasc: Annotated[
+        bool, typer.Option("--tasc/--no-tasc", help="Stop by ground TASC (a stations process).")
+    ] = True,
 ) -> None:
-    """Office (with its page), zone controller and trains as three processes for --duration-s."""
+    """Office (with its page), zone controller, stations and trains as processes for --duration-s."""
+    try:
+        ctrl = _tasc_controller(controller) if tasc else None
+    except RailstopError as exc:
+        fail(str(exc))
     results = _run_line(
         trains=trains,
         duration_s=duration_s,
@@ -338,6 +457,7 @@ def run_cmd(
         spacing_m=spacing_m,
         operators=operators,
         outages=list(outage or []),
+        controller=ctrl,
     )
     print(json.dumps(results))
 
@@ -371,3 +491,10 @@ def demo_cmd(
         f"(flagged), {zc['manual_releases']} manual release(s); trains: emergency brakes "
         f"{fleet['emergency_brakes'] or 'none'}; office: {office['stored']} reports stored in {db}"
     )
+    t = fleet.get("tasc")
+    if isinstance(t, dict):
+        print(
+            f"station stops by ground TASC (tasc-pwm): {t['stops']}, {t['within_tolerance']} within the "
+            f"stations' tolerance, |error| p99 {t['abs_error_p99_m']} m, max {t['abs_error_max_m']} m; "
+            f"emergency brakes {t['emergency_brakes'] or 'none'}"
+        )

@@ -42,11 +42,13 @@ from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_messa
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
 from railstop.link.safety import SafePeers, frame_ids
-from railstop.link.udp import Address, local_for, open_endpoint
+from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
+from railstop.live.tasc import LiveTasc, TascStop
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
+from railstop.sim.line import HOLD_BACK_M
 from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
@@ -218,6 +220,8 @@ class _TrainState:
     restricted_at_s: float | None = None  # restricted mode (radio dead): may start moving then
     restricted_left_m: float = 400.0
     restricted_moving: bool = False
+    tasc: TascStop | None = None  # the station stop under ground TASC in progress
+    visits: int = 0  # station stops begun (the disturbance draw of each)
 
 
 async def run_trains(
@@ -234,11 +238,14 @@ async def run_trains(
     office: OfficeClient | None = None,
     state_period_s: float = 1.0,
     outage: set[int] | None = None,
+    tasc: LiveTasc | None = None,
 ) -> dict[str, Any]:
     """Run every train until ``stop``; return the counts (emergency brakes by cause, ...).
 
     ``outage``: the trains whose radio is dead now (fault injection; the caller may change the set
-    while the trains run): every frame to or from them is lost."""
+    while the trains run): every frame to or from them is lost. ``tasc``: the stations process
+    (``live.tasc.run_stations``) stops the trains by ground TASC (without it the plant stops them
+    where they aim, a point mass)."""
     dead = outage if outage is not None else set()
     p = line.cbtc
     brake = vehicle.brake
@@ -277,6 +284,9 @@ async def run_trains(
             out: list[Output] = []
             while (got := ep.take()) is not None:
                 frame, _ = got
+                if tasc is not None and tasc.accepts(frame):
+                    tasc.ingest(frame, now_s)  # a braking telegram from a station
+                    continue
                 dst = (frame_ids(frame) or (-1, -1))[1]
                 r = radios.get(dst - TRAIN_BASE)
                 if r is None:
@@ -295,7 +305,8 @@ async def run_trains(
                         ep.send(frame, zc)
                 r.outgoing.clear()
             for t in fleet:
-                _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, t.k in dead)
+                if tasc is None or not _tasc_step(t, tasc, ep, now_s, step_s, order, dwell_s, office):
+                    _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, t.k in dead, tasc, order)
                 out.append(
                     Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
                 )
@@ -341,6 +352,7 @@ async def run_trains(
         "steps": clock.steps,
         "commands": sum(t.unit.commands for t in fleet),
         "radio_rejected": _rejected(radios.values(), misdirected),
+        "tasc": None if tasc is None else tasc.counts(),
     }
 
 
@@ -362,36 +374,108 @@ def _move(
     dwell_s: float,
     fleet: list[_TrainState],
     radio_dead: bool = False,
+    tasc: LiveTasc | None = None,
+    order: list[int] | None = None,
 ) -> None:
-    """One plant step of a train: the driving the ATO would do under the onboard unit's limits."""
+    """One plant step of a train: the driving the ATO would do under the onboard unit's limits.
+    With ground TASC it runs at the station's entry speed to the hand-over point, where the stop
+    is taken over (``_tasc_step``); short of an authority there, it stops where it aims."""
     unit = t.unit
     brake = vehicle.brake
-    if _turn(t, now_s, stations, fleet):
+    # Back into service 200 m before the first station; with ground TASC, 150 m before its
+    # hand-over point (so that its stop is a TASC stop).
+    reentry = stations[0] - 200.0
+    if tasc is not None and order is not None:
+        reentry = min(reentry, tasc.handover_m(order[0], tasc.entry_mps(order[0])) - 150.0)
+    if _turn(t, now_s, stations, fleet, reentry):
         return
     if _restricted(t, now_s, step_s, radio_dead, fleet, vehicle):
-        pass
-    elif unit.emergency_brake:
+        return  # it moved the train (once)
+    if unit.emergency_brake:
         t.v_mps = max(0.0, t.v_mps - brake.emergency_decel_mps2 * step_s)
     elif now_s < t.dwell_until_s:
         t.v_mps = 0.0
     else:
         target = unit.permitted_mps()
+        permitted = target
         if t.next_station < len(stations):
             to_stop = stations[t.next_station] - t.x_m
-            target = min(target, permitted_speed_mps(max(to_stop, 0.0), brake.full_service_mps2 * 0.8, 0.5))
+            plan = brake.full_service_mps2 * 0.8
+            to_handover, entry, waiting = -1.0, 0.0, False
+            if tasc is not None and order is not None:
+                station = order[t.next_station]
+                entry = tasc.entry_mps(station)
+                to_handover = tasc.handover_m(station, entry) - t.x_m
+                if unit.distance_to_end_m() < to_stop:
+                    # The platform is not free (the authority ends short of the stopping point): wait
+                    # HOLD_BACK_M before the hand-over point, as the line simulation's trains do.
+                    to_handover -= HOLD_BACK_M
+                    entry, waiting = 0.0, True
+            if to_handover > 0.0:
+                # The station's entry speed at the hand-over point (SPEC §1: the TASC zone's speed).
+                target = min(target, math.sqrt(entry * entry + 2.0 * plan * to_handover))
+            elif waiting and to_handover > -HOLD_BACK_M:
+                target = 0.0  # waiting for the platform
+            else:
+                target = min(target, permitted_speed_mps(max(to_stop, 0.0), plan, 0.5))
             if to_stop <= 0.05 and t.v_mps < 0.3:
                 t.v_mps = 0.0
                 t.dwell_until_s = now_s + dwell_s
                 t.stopped_at = t.next_station
                 t.next_station += 1
                 return
+        creep = t.next_station < len(stations) and stations[t.next_station] - t.x_m > 0.05 and target > 0.0
         target = max(0.0, target - 0.3)
+        if creep:
+            target = max(target, min(0.2, permitted))  # the last centimetres: creep, do not stall
         max_accel = vehicle.traction.max_accel_mps2 if vehicle.traction is not None else 1.0
         accel = max_accel if t.v_mps < target else -brake.full_service_mps2
         t.v_mps = (
             min(target, t.v_mps + accel * step_s) if accel > 0 else max(target, t.v_mps + accel * step_s)
         )
     t.x_m += t.v_mps * step_s
+
+
+def _tasc_step(
+    t: _TrainState,
+    tasc: LiveTasc,
+    ep: UdpEndpoint,
+    now_s: float,
+    step_s: float,
+    order: list[int],
+    dwell_s: float,
+    office: OfficeClient | None,
+) -> bool:
+    """Ground TASC drives the train from the station's hand-over point to standstill (SPEC §1):
+    the stop starts there once the train's CBTC authority reaches the stopping point; its readings
+    go to the stations process, its telegrams come back. Returns whether it drove the train."""
+    stop = t.tasc
+    if stop is None:
+        if (
+            t.next_station >= len(order)
+            or now_s < t.dwell_until_s
+            or t.unit.emergency_brake
+            or t.x_m < tasc.handover_m(order[t.next_station], t.v_mps)
+            or t.x_m >= tasc.models[order[t.next_station]].first_detector_m  # inside the zone already
+            or t.unit.distance_to_end_m() < tasc.models[order[t.next_station]].station.stop_point_m - t.x_m
+        ):
+            return False
+        stop = t.tasc = tasc.begin(t.k, order[t.next_station], t.visits, t.x_m, t.v_mps, now_s)
+        t.visits += 1
+    for frame in tasc.advance(stop, now_s, step_s, t.unit.emergency_brake):
+        ep.send(frame, tasc.address)
+    t.x_m, t.v_mps = stop.x_m, stop.v_mps
+    if stop.stopped:
+        # [interpretation] A stop that ended in an emergency brake short of or past the platform
+        # dwells where it stands and goes on: the recovery (driver, operator) is not modelled.
+        t.tasc = None
+        t.dwell_until_s = now_s + dwell_s
+        t.next_station += 1
+        result = {**stop.result(), "t_s": round(now_s, 2)}
+        tasc.results.append(result)
+        if office is not None:
+            office.report("stop-result", result)
+    return True
 
 
 RESTRICTED_AFTER_S = 20.0  # at a stand with a dead radio, the driver asks and gets leave after this
@@ -441,12 +525,14 @@ def _restricted(
     return True
 
 
-def _turn(t: _TrainState, now_s: float, stations: list[float], fleet: list[_TrainState]) -> bool:
+def _turn(
+    t: _TrainState, now_s: float, stations: list[float], fleet: list[_TrainState], reentry_m: float
+) -> bool:
     """After its dwell at the last station a train leaves service there and comes back into service
-    200 m before the first station once that stretch is clear (the line has one direction)."""
+    at ``reentry_m`` once that stretch is clear (the line has one direction)."""
     if t.next_station < len(stations) or now_s < t.dwell_until_s or t.unit.emergency_brake:
         return False
-    start = stations[0] - 200.0
+    start = reentry_m
     if all(o is t or not (start - 400.0 < o.x_m < stations[0] + 200.0) for o in fleet):
         t.x_m, t.v_mps, t.next_station = start, 0.0, 0
     return True

@@ -64,6 +64,7 @@ from railstop.onboard.tasc_receiver import (
     CFG_SWITCHED_PWM,
     RP_CONFIG,
     RX_EB,
+    RX_EB_T,
     RX_FIRST_RX,
     RX_SIZE,
     receiver_cycle_1,
@@ -285,9 +286,9 @@ class WaysideTasc:
             except TelegramError:
                 continue  # a value the telegram cannot carry: nothing is sent (the train's supervision)
             s.commands += 1
-            record = command_records(np.append(s.crow, 0.0)[None, :], SignalForm(form), s.pending[None, :])[0]
-            record.pop("run")
-            self.records.append({"station": self.st.station.name, "train": train, **record})
+            self.records.append(
+                office_record(self.st.station.name, train, s.crow, s.pending, form, s.payload)
+            )
             self.due.append((train, s.payload))
             s.last_sent_s = r.t_s
         if stands:
@@ -304,6 +305,48 @@ class WaysideTasc:
             s.last_sent_s = now_s
 
 
+#: A command's fields in the office's record (SPEC §1 claims 7, 20) and the stop model's names:
+#: when it was computed, from which detector's passage (``age``: how long before), the distance to
+#: the stop, the radar's speed, the measured and required deceleration, the correction gain, the
+#: command, its notch / step, when it takes effect (``eff``: how long after), the emergency-stop
+#: flag.
+OFFICE_COMMAND_FIELDS: dict[str, str] = {
+    "t": "t_s",
+    "det": "detector",
+    "age": "passage_s",
+    "dist": "distance_m",
+    "v": "speed_mps",
+    "a_meas": "measured_decel_mps2",
+    "a_req": "required_decel_mps2",
+    "gain": "gain",
+    "a_cmd": "command_decel_mps2",
+    "notch": "notch",
+    "delta": "delta",
+    "eff": "effect_s",
+    "eb": "emergency",
+}
+
+
+def office_record(
+    station: str, train: int, crow: FloatArray, pending: FloatArray, form: int, payload: bytes
+) -> dict[str, Any]:
+    """A command as the office stores it (SPEC §1 claims 7, 20): the station (``st``) and train
+    (``tr``), the command's inputs and what the unit computed (:data:`OFFICE_COMMAND_FIELDS`, at
+    millimetre / millisecond resolution) and the telegram as it went on the air (``air``: the codec
+    frame in hex). Short names: the office link carries at most 255 bytes a report."""
+    rec = command_records(np.append(crow, 0.0)[None, :], SignalForm(form), pending[None, :])[0]
+    out: dict[str, Any] = {"st": station, "tr": train}
+    rec["passage_s"] = rec["t_s"] - rec["passage_s"]
+    rec["effect_s"] -= rec["t_s"]
+    for short, name in OFFICE_COMMAND_FIELDS.items():
+        v = rec[name]
+        if isinstance(v, float):
+            v = round(v, 3) if math.isfinite(v) else None
+        out[short] = v
+    out["air"] = payload.hex()
+    return out
+
+
 async def run_stations(
     *,
     line: Line,
@@ -317,7 +360,9 @@ async def run_stations(
     on_ready: Callable[[Address], None] | None = None,
 ) -> dict[str, Any]:
     """Every station's wayside TASC unit, serving the trains until ``stop``; return the counts."""
-    stations = [WaysideTasc(st) for st in station_models(line, vehicle, controller)]
+    models = station_models(line, vehicle, controller)
+    wired_stop(models[0], vehicle)  # the compiled steps loaded before the clock starts
+    stations = [WaysideTasc(st) for st in models]
     links = {
         w.st.index: SafePeers(
             STATION_BASE + w.st.index,
@@ -329,6 +374,7 @@ async def run_stations(
     }
     refused: dict[str, int] = {}
     plants: dict[int, Address] = {}  # where each train's readings come from (its telegrams go there)
+    commands = 0
     clock = WallClock([], step_s=TASC_DT_S, base=base)
     async with await open_endpoint(local) as ep:
         if on_ready is not None:
@@ -357,6 +403,7 @@ async def run_stations(
             return []
 
         def plant(now_s: float, step_s: float) -> list[Any]:
+            nonlocal commands
             for w in stations:
                 w.repeat(now_s)
                 for train, payload in w.due:
@@ -364,6 +411,7 @@ async def run_stations(
                     if addr is not None:
                         ep.send(links[w.st.index].wrap(payload, TRAIN_TASC_BASE + train, now_s), addr)
                 w.due.clear()
+                commands += len(w.records)
                 if office is not None:
                     for rec in w.records:
                         office.report("tasc-command", rec)
@@ -376,7 +424,8 @@ async def run_stations(
             refused[reason] = refused.get(reason, 0) + n
     return {
         "stops_served": sum(w.stops_served for w in stations),
-        "commands": sum(lk.sent for lk in links.values()),
+        "commands": commands,
+        "frames_sent": sum(lk.sent for lk in links.values()),
         "readings_frames": sum(lk.delivered for lk in links.values()),
         "refused": refused,
         "late_steps": clock.late_steps,
@@ -535,8 +584,9 @@ class TascStop:
             "error_m": round(self.error_m, 3),
             "within": abs(self.error_m) <= st.psd_tolerance_m and self.stopped,
             "emergency_brake": cause if cause is not None else ("cbtc" if self.eb else None),
-            "max_jerk_mps3": round(self.max_jerk, 2),
-            "commands": self.commands,
+            # when the onboard unit applied it (on the run's clock)
+            "eb_t_s": round(float(self.rx[RX_EB_T]), 2) if cause is not None else None,
+            "jerk_mps3": round(self.max_jerk, 2),
             "stop_time_s": round(self.stop_time_s - self.t0_s, 2)
             if math.isfinite(self.stop_time_s)
             else None,
@@ -556,3 +606,166 @@ def draw_stop(
     scenario = scenario.with_values(gradient=station_gradient(st.station, 1))
     sc, _, _, _ = scenario_arrays(scenario)
     return sc[0], np.random.default_rng([seed, train, visit])
+
+
+def wired_stop(
+    st: StationTasc,
+    vehicle: Vehicle,
+    *,
+    delay_steps: int = 0,
+    silent_after_s: float = math.inf,
+    until_s: float = 300.0,
+) -> tuple[TascStop, WaysideTasc]:
+    """One nominal stop (the station's entry speed, from its hand-over point) with the wayside and
+    the train wired directly in this process: every telegram arrives ``delay_steps`` steps after
+    it was sent, none after ``silent_after_s`` (the wayside died). The live units' check against
+    the stop kernel, and their warm-up (the compiled steps loaded before a live clock starts)."""
+    from railstop.control.line_ato import handover_m
+    from railstop.sim.scenario import Scenario
+
+    sc, _, _, _ = scenario_arrays(Scenario.nominal(st.station, vehicle))
+    v = float(sc[0][0])
+    x = handover_m(st.first_detector_m, v)
+    wayside = WaysideTasc(st)
+    train = TascStop(st=st, train=2, sc=sc[0], x_m=x, v_mps=v, rng=np.random.default_rng(0), t0_s=0.0)
+    air: list[tuple[float, bytes]] = []
+    t = 0.0
+    while not train.stopped and t < until_s:
+        train.step(t)
+        if t < silent_after_s:
+            wayside.read(train.train, train.stopped, train.out)
+            wayside.repeat(t)
+            air += [(t + delay_steps * TASC_DT_S, p) for _, p in wayside.due]
+        train.out.clear()
+        wayside.due.clear()
+        for _, payload in [a for a in air if a[0] <= t + 1e-9]:
+            train.deliver(payload)
+        air = [a for a in air if a[0] > t + 1e-9]
+        t += TASC_DT_S
+    return train, wayside
+
+
+# ---------------------------------------------------------------------- the trains process's side
+
+
+class LiveTasc:
+    """The trains process's side of ground TASC: every station's stop model, the link to the
+    stations process (readings out, telegrams in, category 3 both ways) and the stops in progress.
+    The plant (``live.cbtc.run_trains``) hands a train over at the station's hand-over point
+    (:meth:`begin`), steps it (:meth:`advance`) and takes it back at standstill."""
+
+    def __init__(
+        self,
+        *,
+        line: Line,
+        vehicle: Vehicle,
+        controller: str,
+        stations: Address,
+        master_key: bytes,
+        dist: DisturbanceSet,
+        seed: int,
+    ) -> None:
+        self.models = station_models(line, vehicle, controller)
+        wired_stop(self.models[0], vehicle)  # the compiled steps loaded before the clock starts
+        self.vehicle = vehicle
+        self.address = stations
+        self.master_key = master_key
+        self.dist = dist
+        self.seed = seed
+        n = len(self.models)
+        self.sensors = SafePeers(
+            SENSORS_ID, master_key, max_age_s=1.0, peers=lambda p: False
+        )  # sends only: the readings
+        self._rx: dict[int, SafePeers] = {}
+        self._is_station = lambda p: STATION_BASE <= p < STATION_BASE + n
+        self.active: dict[int, TascStop] = {}
+        self.unexpected = 0  # telegrams for a train not stopping at that station
+        self.results: list[dict[str, Any]] = []  # every stop, as reported
+
+    def accepts(self, frame: bytes) -> bool:
+        """Whether ``frame`` comes from a station (for :meth:`ingest`)."""
+        ids = frame_ids(frame)
+        return ids is not None and self._is_station(ids[0])
+
+    def _links(self, train: int) -> SafePeers:
+        if train not in self._rx:
+            self._rx[train] = SafePeers(
+                TRAIN_TASC_BASE + train,
+                self.master_key,
+                max_age_s=max(m.station.tasc.max_telegram_age_s for m in self.models),
+                peers=self._is_station,
+            )
+        return self._rx[train]
+
+    def ingest(self, frame: bytes, now_s: float) -> None:
+        """A telegram from a station: checked, and handed to the train's stop at that station."""
+        ids = frame_ids(frame)
+        if ids is None:
+            return
+        train = ids[1] - TRAIN_TASC_BASE
+        got = self._links(train).accept(frame, now_s)
+        if got is None:
+            return
+        stop = self.active.get(train)
+        if stop is None or stop.st.index != got[0] - STATION_BASE:
+            self.unexpected += 1
+            return
+        stop.deliver(got[1])
+
+    def handover_m(self, station: int, speed_mps: float) -> float:
+        from railstop.control.line_ato import handover_m
+
+        return handover_m(self.models[station].first_detector_m, speed_mps)
+
+    def entry_mps(self, station: int) -> float:
+        return float(self.models[station].station.tasc.entry_speed_kmh) / 3.6
+
+    def begin(self, train: int, station: int, visit: int, x_m: float, v_mps: float, now_s: float) -> TascStop:
+        st = self.models[station]
+        sc, rng = draw_stop(self.dist, st, self.vehicle, seed=self.seed, train=train, visit=visit)
+        stop = TascStop(st=st, train=train, sc=sc, x_m=x_m, v_mps=v_mps, rng=rng, t0_s=now_s)
+        self.active[train] = stop
+        return stop
+
+    def advance(self, stop: TascStop, now_s: float, step_s: float, extra_eb: bool) -> list[bytes]:
+        """Step the stop from ``now_s`` over ``step_s`` (whole 10 ms steps); the frames of the
+        readings to send to the station (ended, at standstill, with a last frame that says so)."""
+        n = max(1, round(step_s / TASC_DT_S))
+        for j in range(n):
+            if stop.stopped:
+                break
+            stop.step(now_s + j * TASC_DT_S, extra_eb)
+        payload = pack_readings(stop.train, stop.st.index, stop.stopped, stop.out)
+        stop.out.clear()
+        if stop.stopped:
+            self.active.pop(stop.train, None)
+        return [self.sensors.wrap(payload, STATION_BASE + stop.st.index, now_s)]
+
+    def counts(self) -> dict[str, Any]:
+        refused: dict[str, int] = {}
+        for lk in self._rx.values():
+            for reason, k in lk.rejected.items():
+                refused[reason] = refused.get(reason, 0) + k
+        return {
+            "telegrams_delivered": sum(lk.delivered for lk in self._rx.values()),
+            "telegrams_refused": refused,
+            "telegrams_unexpected": self.unexpected,
+            "readings_frames": self.sensors.sent,
+            **stop_summary(self.results),
+        }
+
+
+def stop_summary(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """The stops' figures: how many, within tolerance, |error| p99 and max, emergency brakes."""
+    errors = np.array([abs(r["error_m"]) for r in results])
+    ebs: dict[str, int] = {}
+    for r in results:
+        if r["emergency_brake"] is not None:
+            ebs[r["emergency_brake"]] = ebs.get(r["emergency_brake"], 0) + 1
+    return {
+        "stops": len(results),
+        "within_tolerance": sum(bool(r["within"]) for r in results),
+        "abs_error_p99_m": round(float(np.percentile(errors, 99)), 3) if errors.size else None,
+        "abs_error_max_m": round(float(errors.max()), 3) if errors.size else None,
+        "emergency_brakes": ebs,
+    }
