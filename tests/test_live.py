@@ -150,33 +150,58 @@ def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Pa
     assert [(z["train"], z["active"]) for z in zones] == [(1, True), (1, False)]
 
 
-def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path) -> None:
-    """Train 1's radio dead for 100 s (scale 4; point-mass stops, no stations process): it brakes,
-    stands, then its driver moves it on
-    sight at 15 km/h with the ATP cut out; the zone controller keeps its zone all the while and,
-    when the radio comes back and the train reports from inside the zone, releases it."""
+def _restricted_run(
+    tmp_path: Path, outage: str
+) -> tuple[dict[str, object], list[dict[str, object]], list[dict[str, object]]]:
     db = tmp_path / "live.db"
     p = subprocess.run(
         [*EXE, "live", "run", "--trains", "3", "--duration-s", "40", "--scale", "4", "--http-port", "0",
-         "--spacing-m", "400", "--db", str(db), "--outage", "1:10:100", "--no-tasc"],
+         "--spacing-m", "400", "--db", str(db), "--outage", outage, "--no-tasc"],
         capture_output=True, text=True, timeout=180, env=ENV,
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
     zc = json.loads(p.stdout.strip().splitlines()[-1])["zone_controller"]
-    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 1
     with open_store(str(db)) as store:
         zones = [r["data"] for r in store.office_reports(kind="zone-event")]
         states = [r["data"] for r in store.office_reports(kind="train-state") if r["data"]["train"] == 1]
-    (zone_on, zone_off) = zones
     lost = [s for s in states if s["radio"] == "dead"]
     stand = min(float(s["position_m"]) for s in lost if float(s["t_s"]) > 30.0)  # type: ignore[arg-type]
     furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
     assert furthest - stand > 50.0, "it moved while lost"
     assert max(float(s["speed_mps"]) for s in lost if float(s["t_s"]) > 40.0) <= 15.0 / 3.6 + 0.01  # type: ignore[arg-type]
+    # It moved at the speed it reported (not faster), and no more than the 400 m of restricted mode.
+    assert furthest - stand <= 400.0 + 1.0
+    return zc, zones, lost
+
+
+def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path) -> None:
+    """Train 1's radio dead from 15 s to 95 s (scale 4; point-mass stops, no stations process): it
+    brakes, stands, then its driver moves it on sight at 15 km/h with the ATP cut out; the zone
+    controller keeps its zone all the while and, when the radio comes back and the train reports
+    from inside the zone, releases it (SPEC §4 step 4)."""
+    zc, zones, lost = _restricted_run(tmp_path, "1:15:80")
+    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 1 and zc["flagged"] == 0
+    (zone_on, zone_off) = zones
+    stand = min(float(s["position_m"]) for s in lost if float(s["t_s"]) > 30.0)  # type: ignore[arg-type]
+    furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
     # The zone stood while it moved, and covered where it went.
     assert zone_on["active"] and not zone_off["active"] and zone_on["status"] == "lost"
     assert float(zone_off["t_s"]) > max(float(s["t_s"]) for s in lost)  # type: ignore[arg-type]
     assert zone_on["start_m"] <= stand and furthest <= zone_on["end_m"]
+
+
+def test_a_lost_train_that_left_its_zone_is_flagged_and_its_zone_kept(tmp_path: Path) -> None:
+    """The same with the radio dead until 115 s: in restricted mode the train runs its 400 m and
+    leaves its zone. Re-detected outside it, it is flagged for the operator and the zone is kept
+    (SPEC §4: an operator releases it after visual confirmation; fail safe, DESIGN rule 10)."""
+    zc, zones, lost = _restricted_run(tmp_path, "1:15:100")
+    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 0 and zc["flagged"] == 1
+    assert [(z["train"], z["active"], z["status"]) for z in zones] == [
+        (1, True, "lost"),
+        (1, True, "flagged"),
+    ]
+    furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
+    assert furthest > float(zones[0]["end_m"])  # type: ignore[arg-type]
 
 
 def _reports(db: str, kind: str) -> list[dict[str, object]]:

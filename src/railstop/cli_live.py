@@ -327,10 +327,8 @@ def _run_line(
     import threading
 
     key = os.urandom(32).hex()
-    epoch = time.time()
     env = {**os.environ, KEY_ENV: key}
     exe = [sys.executable, "-m", "railstop.cli"]
-    common = ["--epoch", repr(epoch), "--scale", repr(scale)]
     procs: list[subprocess.Popen[str]] = []
     zc_port = _free_udp_port()
 
@@ -364,6 +362,8 @@ def _run_line(
         if not page or not listening:
             raise RailstopError(f"the office did not start: {' '.join(lines)}")
         office_addr = listening.split(" on ")[1].split()[0]
+        # The run's time base starts now: the office (which keeps Unix time) is up.
+        common = ["--epoch", repr(time.time()), "--scale", repr(scale)]
         zc, (zc_line,) = start(
             ["live", "zc", "--port", str(zc_port), "--trains", str(trains), "--office", office_addr, *common]
         )
@@ -401,13 +401,18 @@ def _run_line(
         fail(str(exc))
     finally:
         # The trains first, the office last: it stores what the others report as they stop.
-        # (The zone controller right after the trains: it would take trains that stopped reporting
-        # for lost ones.)
+        # The line's processes stop together (one alone would see its peers fall silent: lost
+        # trains, missed commands), then the office, which stores what they report as they stop.
         roles = ("office", "zone_controller", *(("stations",) if controller else ()), "trains")
         by_role = dict(zip(roles, procs, strict=False))
-        order = [r for r in ("trains", "zone_controller", "stations", "office") if r in by_role]
-        for role, p in ((r, by_role[r]) for r in order):
-            if p.poll() is None:
+        for role in ("trains", "zone_controller", "stations"):
+            if role in by_role and by_role[role].poll() is None:
+                by_role[role].send_signal(signal.SIGTERM)
+        for role in ("trains", "zone_controller", "stations", "office"):
+            if role not in by_role:
+                continue
+            p = by_role[role]
+            if role == "office" and p.poll() is None:
                 p.send_signal(signal.SIGTERM)
             out, _ = p.communicate(timeout=30)
             text = out.strip().splitlines()[-1] if out.strip() else ""

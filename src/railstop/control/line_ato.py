@@ -31,6 +31,10 @@ KMH = 1.0 / 3.6
 
 #: Resolution of the static profile (m).
 PROFILE_DX_M = 1.0
+#: A train the station cannot take yet (platform not clear) waits this far before the hand-over
+#: point, so that it is back at speed when the stop takes it. [interpretation] a driver or ATO
+#: would stop at the approach signal; here the signal stands at the first detector.
+HOLD_BACK_M = 60.0
 #: The ATO stops this far before a signal at stop, by its onboard position: more than that
 #: position's error (SPEC §2 corrections through jointless circuits: p99 about 4 m, worst about
 #: 7 m on the default line) so that the true front stays behind the signal. A front past it

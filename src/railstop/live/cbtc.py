@@ -35,9 +35,10 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from railstop.config.schema import Line, Vehicle
+from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, static_profile
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
@@ -45,12 +46,13 @@ from railstop.link.safety import SafePeers, frame_ids
 from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
-from railstop.live.tasc import LiveTasc, TascStop
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
-from railstop.sim.line import HOLD_BACK_M
 from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
+
+if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
+    from railstop.live.tasc import FloatArray, LiveTasc, TascStop
 
 STEP_S = 0.05  # the plant step (simulated seconds)
 
@@ -273,6 +275,7 @@ async def run_trains(
         unit.position_m = x
         ahead = next((i for i, st in enumerate(stations) if st > x + 1.0), len(stations))
         fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
+    profile = static_profile(line, end_m, brake.full_service_mps2 * 0.8)
     clock = WallClock([*(t.unit for t in fleet), *radios.values()], step_s=STEP_S, base=base)
     ebs: dict[str, int] = {}
     eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
@@ -306,7 +309,8 @@ async def run_trains(
                 r.outgoing.clear()
             for t in fleet:
                 if tasc is None or not _tasc_step(t, tasc, ep, now_s, step_s, order, dwell_s, office):
-                    _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, t.k in dead, tasc, order)
+                    dead_now = t.k in dead
+                    _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, dead_now, tasc, order, profile)
                 out.append(
                     Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
                 )
@@ -376,6 +380,7 @@ def _move(
     radio_dead: bool = False,
     tasc: LiveTasc | None = None,
     order: list[int] | None = None,
+    profile: FloatArray | None = None,
 ) -> None:
     """One plant step of a train: the driving the ATO would do under the onboard unit's limits.
     With ground TASC it runs at the station's entry speed to the hand-over point, where the stop
@@ -396,7 +401,13 @@ def _move(
     elif now_s < t.dwell_until_s:
         t.v_mps = 0.0
     else:
+        # The line's static profile (civil limits, each approached on a braking curve), read here
+        # and LOOKAHEAD_S ahead as the line simulation's ATO reads it: the zone controller's
+        # command carries only the limit where the train is.
         target = unit.permitted_mps()
+        if profile is not None:
+            ahead = t.x_m + t.v_mps * LOOKAHEAD_S
+            target = min(target, profile_at(profile, t.x_m), profile_at(profile, ahead))
         permitted = target
         if t.next_station < len(stations):
             to_stop = stations[t.next_station] - t.x_m

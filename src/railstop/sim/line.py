@@ -62,6 +62,7 @@ from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
+    HOLD_BACK_M,
     LOOKAHEAD_S,
     authority_end_m,
     ceiling_mps,
@@ -91,10 +92,6 @@ from railstop.wayside.zone_controller import ZoneMode
 KMH = 1.0 / 3.6
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
-#: A train the station cannot take yet (platform not clear) waits this far before the hand-over
-#: point, so that it is back at speed when the stop takes it. [interpretation] a driver or ATO
-#: would stop at the approach signal; here the signal stands at the first detector.
-HOLD_BACK_M = 60.0
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
 ENTRY_MARGIN_M = 10.0
 #: The phases of a train on the line (it occupies track).
