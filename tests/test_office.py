@@ -65,6 +65,27 @@ def test_an_unacknowledged_report_is_sent_again_as_a_new_frame_and_accepted_agai
     assert not out.pending and out.counts["resent"] == 1
 
 
+def test_resending_is_bounded_to_a_window_of_the_oldest_reports() -> None:
+    """1,000 reports gathered while the office was down: each resend sends the oldest 64 due, not
+    all 1,000; as the office acknowledges them, the next oldest follow; nothing is skipped."""
+    out, inbox = ends()
+    for i in range(1000):
+        out.submit("train-state", {"i": i}, 0.0)
+    window = out.times.resend_window
+    stored: list[int] = []
+    t = 1.0
+    while out.pending:
+        frames = out.due(t)
+        assert 0 < len(frames) <= window
+        for frame in frames:
+            report, ack, _ = inbox.on_frame(frame, t)
+            assert report is not None and ack is not None
+            stored.append(report.data["i"])
+            out.on_frame(ack, t)
+        t += 0.1
+    assert stored == list(range(1000))  # the oldest first, each once
+
+
 def test_a_replayed_frame_is_rejected() -> None:
     out, inbox = ends()
     _, frame = out.submit("dwell-event", {"s": "PSC"}, 0.0)

@@ -80,6 +80,9 @@ class LinkTimes:
     resend_s: float = 1.0  # a report not acknowledged is sent again after this
     max_age_s: float = 5.0  # safety layer: a frame older than this is refused (stale)
     future_tolerance_s: float = 0.5
+    #: At most this many reports are sent again at once (the oldest first): a sender that has
+    #: gathered thousands while the office was down does not burst them all every resend_s.
+    resend_window: int = 64
 
 
 #: A payload inflates to at most this many bytes (a frame that would inflate further is refused).
@@ -196,9 +199,11 @@ class OfficeOutbox:
         return seq, self._sender.wrap(payload, now_s)
 
     def due(self, now_s: float) -> list[bytes]:
-        """The frames of the reports to send again now (oldest first)."""
-        out = []
+        """The frames of the reports to send again now: the oldest due, at most ``resend_window``."""
+        out: list[bytes] = []
         for seq, (payload, last) in self.pending.items():  # inserted in sequence order
+            if len(out) >= self.times.resend_window:
+                break
             if now_s - last >= self.times.resend_s:
                 self.pending[seq] = (payload, now_s)
                 out.append(self._sender.wrap(payload, now_s))
