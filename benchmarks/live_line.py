@@ -42,15 +42,22 @@ def main() -> None:
     out = json.loads(p.stdout.strip().splitlines()[-1])
     period = default_line().cbtc.report_period_s
     print(f"{args.trains} trains live for {args.minutes:g} min at x1 (report period {period:g} s)")
-    print(f"{'process':16s} {'steps':>8s} {'late':>6s} {'CPU s':>8s} {'wall s':>8s} {'CPU share':>10s}")
+    print(
+        f"{'process':16s} {'steps':>8s} {'late':>6s} {'latest ms':>10s} {'CPU s':>8s} {'wall s':>8s} "
+        f"{'CPU share':>10s}"
+    )
     for role in ("zone_controller", "stations", "trains", "office"):
         if role not in out:
             continue
         r = out[role]
         steps = r.get("steps", "-")
         late = r.get("late_steps", "-")
+        latest = r.get("late_max_ms", "-")  # how late its latest step started
         share = r["cpu_s"] / r["wall_s"] if r.get("wall_s") else float("nan")
-        print(f"{role:16s} {steps!s:>8s} {late!s:>6s} {r['cpu_s']:8.2f} {r['wall_s']:8.1f} {share:10.1%}")
+        print(
+            f"{role:16s} {steps!s:>8s} {late!s:>6s} {latest!s:>10s} {r['cpu_s']:8.2f} {r['wall_s']:8.1f} "
+            f"{share:10.1%}"
+        )
     zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
     due = args.trains * duration / period
     print(
@@ -67,6 +74,11 @@ def main() -> None:
             f"tolerance, |error| p99 {tasc['abs_error_p99_m']} m, max {tasc['abs_error_max_m']} m, emergency "
             f"brakes {tasc['emergency_brakes'] or 'none'}; telegrams delivered "
             f"{tasc['telegrams_delivered']:,}, refused {tasc['telegrams_refused'] or 'none'}"
+        )
+        st = out.get("stations", {})
+        print(
+            f"age on delivery (ms, median / p99 / max): braking telegrams {tasc.get('telegram_age_ms')}, "
+            f"sensor readings {st.get('readings_age_ms') if isinstance(st, dict) else None}"
         )
     sent = sum(
         out[r]["office_link"]["submitted"] for r in ("zone_controller", "stations", "trains") if r in out

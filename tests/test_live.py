@@ -272,3 +272,28 @@ def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_t
     # Every command the new stations process reported is in the office's database.
     commands = [r for r in _reports(db, "tasc-command") if float(r["t"]) > restarted_s]  # type: ignore[arg-type]
     assert len(commands) == served["office_link"]["submitted"]  # type: ignore[index]
+
+
+def test_the_wall_clock_counts_a_step_that_started_late_and_how_late() -> None:
+    """A plant step that blocks 60 ms on a 10 ms clock: the next step starts about 50 ms late; it is
+    counted, and the latest start is measured (the benchmark prints both)."""
+    import asyncio
+
+    from railstop.live.clock import TimeBase, WallClock
+
+    clock = WallClock([], step_s=0.01, base=TimeBase(time.time(), 1.0))
+    blocked = []
+
+    def plant(now_s: float, step_s: float) -> list[object]:
+        if clock.steps == 5 and not blocked:
+            blocked.append(now_s)
+            time.sleep(0.06)
+        return []
+
+    async def run() -> None:
+        stop = asyncio.Event()
+        await clock.run_live(plant, lambda now_s: [], stop, until_s=clock.now_s + 0.2)  # type: ignore[arg-type]
+
+    asyncio.run(run())
+    assert clock.late_steps >= 1
+    assert 0.04 <= clock.late_max_s <= 0.2

@@ -407,7 +407,7 @@ class SafePeers:
         self.sent += 1
         return self._tx[peer].wrap(payload, now_s)
 
-    def accept(self, frame: bytes, now_s: float) -> tuple[int, bytes] | None:
+    def accept(self, frame: bytes, now_s: float) -> tuple[int, Delivered] | None:
         ids = frame_ids(frame)
         peer = -1 if ids is None else ids[0]
         if not self.known(peer):
@@ -429,4 +429,4 @@ class SafePeers:
             self.reject(got.reason)
             return None
         self.delivered += 1
-        return peer, got.payload
+        return peer, got

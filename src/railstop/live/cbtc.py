@@ -94,7 +94,7 @@ class UdpRadio:
         if got is None:
             return []
         try:
-            tele = decode(got[1])
+            tele = decode(got[1].payload)
         except TelegramError as exc:
             self.links.reject(f"telegram-{exc.reason}")
             return []
@@ -178,6 +178,7 @@ async def run_zone_controller(
         "flagged": c.flagged,
         "commands_held_at_start": held,
         "late_steps": clock.late_steps,
+        "late_max_ms": round(clock.late_max_s * 1000.0, 1),
         "steps": clock.steps,
         "radio": {"delivered": radio.links.delivered, "rejected": radio.links.rejected},
         "manual_releases": c.manual_releases,
@@ -353,6 +354,7 @@ async def run_trains(
         "emergency_brakes": ebs,
         "emergency_brake_times": eb_times,
         "late_steps": clock.late_steps,
+        "late_max_ms": round(clock.late_max_s * 1000.0, 1),
         "steps": clock.steps,
         "commands": sum(t.unit.commands for t in fleet),
         "radio_rejected": _rejected(radios.values(), misdirected),

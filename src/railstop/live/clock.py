@@ -49,6 +49,7 @@ class WallClock(SimClock):
         super().__init__(units, step_s=step_s, start_s=base.now_s())
         self.base = base
         self.late_steps = 0
+        self.late_max_s = 0.0  # the latest a step started (simulated seconds after its time)
         self.steps = 0
 
     async def run_live(
@@ -68,8 +69,10 @@ class WallClock(SimClock):
                     break
                 except TimeoutError:
                     pass
-            elif -wait * self.base.scale > self.step_s:
-                self.late_steps += 1
+            else:
+                self.late_max_s = max(self.late_max_s, -wait * self.base.scale)
+                if -wait * self.base.scale > self.step_s:
+                    self.late_steps += 1
             self._fire_until(t_next)
             self.now_s = t_next
             # What arrived on the sockets since the last step, at the time it is taken.

@@ -373,6 +373,7 @@ async def run_stations(
         for w in stations
     }
     refused: dict[str, int] = {}
+    ages: list[float] = []  # each reading frame's age on delivery
     plants: dict[int, Address] = {}  # where each train's readings come from (its telegrams go there)
     commands = 0
     clock = WallClock([], step_s=TASC_DT_S, base=base)
@@ -390,8 +391,9 @@ async def run_stations(
                 accepted = links[dst].accept(frame, now_s)
                 if accepted is None:
                     continue
+                ages.append(now_s - accepted[1].sent_s)
                 try:
-                    train, station, stands, readings = unpack_readings(accepted[1])
+                    train, station, stands, readings = unpack_readings(accepted[1].payload)
                 except ValueError:
                     refused["bad_readings"] = refused.get("bad_readings", 0) + 1
                     continue
@@ -427,8 +429,10 @@ async def run_stations(
         "commands": commands,
         "frames_sent": sum(lk.sent for lk in links.values()),
         "readings_frames": sum(lk.delivered for lk in links.values()),
+        "readings_age_ms": age_summary(ages),
         "refused": refused,
         "late_steps": clock.late_steps,
+        "late_max_ms": round(clock.late_max_s * 1000.0, 1),
         "steps": clock.steps,
     }
 
@@ -681,6 +685,7 @@ class LiveTasc:
         self.active: dict[int, TascStop] = {}
         self.unexpected = 0  # telegrams for a train not stopping at that station
         self.results: list[dict[str, Any]] = []  # every stop, as reported
+        self.ages: list[float] = []  # each telegram's age on delivery (s, the run's clock)
 
     def accepts(self, frame: bytes) -> bool:
         """Whether ``frame`` comes from a station (for :meth:`ingest`)."""
@@ -706,11 +711,12 @@ class LiveTasc:
         got = self._links(train).accept(frame, now_s)
         if got is None:
             return
+        self.ages.append(now_s - got[1].sent_s)
         stop = self.active.get(train)
         if stop is None or stop.st.index != got[0] - STATION_BASE:
             self.unexpected += 1
             return
-        stop.deliver(got[1])
+        stop.deliver(got[1].payload)
 
     def handover_m(self, station: int, speed_mps: float) -> float:
         from railstop.control.line_ato import handover_m
@@ -751,8 +757,21 @@ class LiveTasc:
             "telegrams_refused": refused,
             "telegrams_unexpected": self.unexpected,
             "readings_frames": self.sensors.sent,
+            "telegram_age_ms": age_summary(self.ages),
             **stop_summary(self.results),
         }
+
+
+def age_summary(ages: list[float]) -> dict[str, float] | None:
+    """How old frames were when delivered (ms on the run's clock): median, p99, max."""
+    if not ages:
+        return None
+    a = np.array(ages) * 1000.0
+    return {
+        "p50": round(float(np.median(a)), 1),
+        "p99": round(float(np.percentile(a, 99)), 1),
+        "max": round(float(a.max()), 1),
+    }
 
 
 def stop_summary(results: list[dict[str, Any]]) -> dict[str, Any]:
