@@ -512,7 +512,10 @@ class TascStop:
         new = copy = False
         for payload in self.inbox:
             if payload == self.last_payload:
-                copy = True  # a cyclic repeat of the telegram it has: a life sign
+                # A cyclic repeat of the telegram it has: a life sign. [interpretation] The codec
+                # telegram carries no command number; a new command equal to the last one on the
+                # wire tells the unit nothing new, so it is taken as a repeat too.
+                copy = True
                 continue
             try:
                 row = from_message(decode(payload), m.form)
