@@ -224,8 +224,9 @@ def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_t
 ) -> None:
     """Ground TASC live: the stations process (every station's wayside TASC unit) is killed with
     SIGKILL while a train is in its station stop. The train's onboard unit gets no telegram and
-    applies the emergency brake after the supervision time-out (SPEC §1, DESIGN rule 10); a new
-    stations process serves the next stop, which ends within tolerance without emergency brake."""
+    applies the emergency brake after the supervision time-out (SPEC §1, DESIGN rule 10) and,
+    short of the platform, is driven onto it after the brake's reset; a new stations process
+    serves the next stop, which ends within tolerance without emergency brake."""
     from railstop.control.supervision import EB_TIMEOUT, eb_cause_name
 
     db = str(tmp_path / "office.db")
@@ -254,6 +255,18 @@ def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_t
     after = _wait_for(
         db, "stop-result", lambda r: float(r["t_s"]) > restarted_s and r["controller"] == "tasc-pwm", 60.0
     )
+    # The braked train stood short of the platform; it was driven onto it afterwards.
+    recovered = _wait_for(
+        db,
+        "stop-result",
+        lambda r: (
+            r["train"] == first["tr"]
+            and r["station"] == braked["station"]
+            and r["controller"] == "live plant"
+        ),
+        30.0,
+    )
+    assert recovered["within"] is True and float(recovered["t_s"]) > float(braked["t_s"]) + 10.0  # type: ignore[arg-type]
     fleet = procs.stop(trains)
     served = procs.stop(stations2)
     procs.stop(zc)

@@ -479,18 +479,24 @@ def _tasc_step(
         ep.send(frame, tasc.address)
     t.x_m, t.v_mps = stop.x_m, stop.v_mps
     if stop.stopped:
-        # [interpretation] A stop that ended in an emergency brake short of or past the platform
-        # dwells where it stands and goes on: the recovery (driver, operator) is not modelled.
         t.tasc = None
-        t.dwell_until_s = now_s + dwell_s
-        t.next_station += 1
         result = {**stop.result(), "t_s": round(now_s, 2)}
+        if result["emergency_brake"] is not None and stop.error_m < -stop.st.station.psd_tolerance_m:
+            # [interpretation] Short of the platform after an emergency brake: the train stands
+            # EB_RESET_S (the brake is reset at standstill), then is driven onto the platform under
+            # the plant's control (its stop reported as a point-mass stop); SPEC §1 says nothing
+            # of the recovery. Past the platform it dwells where it stands.
+            t.dwell_until_s = now_s + EB_RESET_S
+        else:
+            t.dwell_until_s = now_s + dwell_s
+            t.next_station += 1
         tasc.results.append(result)
         if office is not None:
             office.report("stop-result", result)
     return True
 
 
+EB_RESET_S = 10.0  # after a TASC emergency stop short of the platform, the train stands this long
 RESTRICTED_AFTER_S = 20.0  # at a stand with a dead radio, the driver asks and gets leave after this
 RESTRICTED_MPS = 15.0 / 3.6  # on sight, ATP cut out
 RESTRICTED_M = 400.0  # at most this far (to the next place where he can call in)
