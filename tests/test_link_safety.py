@@ -288,6 +288,30 @@ def test_reason_repeated_and_out_of_order(category: int) -> None:
 
 
 @CATS
+def test_a_restarted_sender_is_followed_and_a_replay_still_refused(category: int) -> None:
+    """A restarted sender begins again at sequence number 1, later in time: the receiver follows the
+    new session at once (not after the new numbers pass the old ones). Frames of the old session
+    replayed afterwards keep their old timestamps and stay refused."""
+    sender, receiver = make_pair(category)
+    old = [sender.wrap(bytes([i]), 10.0 + 0.1 * i) for i in range(100)]
+    for i, frame in enumerate(old):
+        assert isinstance(receiver.accept(frame, 10.0 + 0.1 * i), Delivered)
+    again = SafeSender(A, B, key=key_for(category), category=category)  # the restarted sender
+    first = receiver.accept(again.wrap(b"new", 25.0), 25.0)
+    assert isinstance(first, Delivered) and first.seq == 1 and first.payload == b"new"
+    assert receiver.restarts == 1
+    assert isinstance(receiver.accept(again.wrap(b"next", 25.1), 25.1), Delivered)
+    # A replay of the old session (valid code, its old timestamp) is refused, whatever its number.
+    assert receiver.accept(old[99], 25.2) == Rejected(reason="stale")  # seq 100, above the new 2
+    assert receiver.accept(old[0], 25.2) == Rejected(reason="repeated")  # seq 1: delivered (new session)
+    # Within a session a frame overtaken by a later one stays out of order (its time is earlier).
+    late = again.wrap(b"late", 25.2)
+    assert isinstance(receiver.accept(again.wrap(b"on time", 25.3), 25.3), Delivered)
+    assert receiver.accept(late, 25.3) == Rejected(reason="out_of_order")
+    assert receiver.restarts == 1
+
+
+@CATS
 def test_reason_stale(category: int) -> None:
     sender, receiver = make_pair(category, max_age_s=0.2)
     assert receiver.accept(sender.wrap(b"a", 10.0), 10.201) == Rejected(reason="stale")

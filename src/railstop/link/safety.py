@@ -67,6 +67,14 @@ a rejected frame never changes the receiver's state, only its counters):
 
 Sequence before time: a replayed old frame is reported as the replay it is.
 
+A restarted sender begins again at sequence number 1. A frame with a lower
+sequence number than the last delivered but a *later* timestamp, fresh and
+with a valid safety code, can only come from a new session of the peer
+(within a session sequence and timestamp rise together; a replay keeps its
+old timestamp): the receiver follows it from there (``restarts`` counts
+them) instead of refusing the restarted peer until its numbers pass the old
+ones.
+
 Assumptions (documented, not checked): the sender's and the receiver's
 clocks are synchronised (GNSS time, SPEC §2) to well within
 ``future_tolerance_s``; the timestamp is the sender's time in ms modulo
@@ -318,6 +326,8 @@ class SafeReceiver:
         self._seen = 0  # bit k set: last_seq - k was delivered (k < SEQ_WINDOW)
         self.last_valid_s = _check_time("start_s", start_s)
         self.deletions = 0
+        self.restarts = 0  # new sessions of the peer followed (a restarted sender)
+        self._last_sent_ms = -math.inf  # the sending time of the last frame delivered
         self.counts: dict[str, int] = dict.fromkeys((*REASONS, "delivered"), 0)
 
     def _reject(self, reason: str) -> Rejected:
@@ -349,13 +359,21 @@ class SafeReceiver:
             return self._reject("wrong_source")
         if dst != self.own_id:
             return self._reject("wrong_destination")
-        if seq <= self.last_seq:
-            back = self.last_seq - seq
-            seen = back < SEQ_WINDOW and self._seen >> back & 1
-            return self._reject("repeated" if seen else "out_of_order")
         now_ms = round(now * 1000.0)
         age_ms = (now_ms - ts_ms + (1 << 31)) % _TS_MOD - (1 << 31)  # signed, wrap-safe
-        if age_ms > self._max_age_ms or -age_ms > self._future_ms:
+        fresh = not (age_ms > self._max_age_ms or -age_ms > self._future_ms)
+        if seq <= self.last_seq:
+            if fresh and now_ms - age_ms > self._last_sent_ms:
+                # The peer restarted: within one session sequence and timestamp rise together, so
+                # a lower sequence number with a later timestamp is a new session (a replay keeps
+                # its old timestamp: refused below as repeated, or as stale). Followed from here.
+                self.restarts += 1
+                self.last_seq, self._seen = seq - 1, 0
+            else:
+                back = self.last_seq - seq
+                seen = back < SEQ_WINDOW and self._seen >> back & 1
+                return self._reject("repeated" if seen else "out_of_order")
+        if not fresh:
             return self._reject("stale")
         gap = seq - self.last_seq - 1
         shift = seq - self.last_seq
@@ -363,6 +381,7 @@ class SafeReceiver:
         self.last_seq = seq
         self.deletions += gap
         self.last_valid_s = now
+        self._last_sent_ms = now_ms - age_ms
         self.counts["delivered"] += 1
         return Delivered(payload=body[HEADER_BYTES:], seq=seq, sent_s=(now_ms - age_ms) / 1000.0, gap=gap)
 
