@@ -837,6 +837,66 @@ add(
 add("telegram-types-unknown-option", "telegram", "types", "--json", needles=("--json",))
 
 # --------------------------------------------------------------------------
+# railstop live: the processes refuse bad options before they start
+
+LIVE_KEY = ("--key-hex", "00112233445566778899aabbccddeeff")
+add(
+    "live-stations-controller",
+    "live",
+    "stations",
+    *LIVE_KEY,
+    "--controller",
+    "ato",
+    needles=("--controller", "ato"),
+)
+add(
+    "live-trains-stations-address",
+    "live",
+    "trains",
+    *LIVE_KEY,
+    "--stations",
+    "nonsense",
+    needles=("--stations", "nonsense"),
+)
+add(
+    "live-trains-disturbances",
+    "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--disturbances", "nosuch",
+    needles=("nosuch",),
+)  # fmt: skip
+add(
+    "live-trains-controller",
+    "live",
+    "trains",
+    *LIVE_KEY,
+    "--stations",
+    "127.0.0.1:9",
+    "--controller",
+    "driver-ats",
+    needles=("--controller", "driver-ats"),
+)
+add(
+    "live-trains-outage",
+    "live",
+    "trains",
+    *LIVE_KEY,
+    "--trains",
+    "2",
+    "--outage",
+    "9:1:1",
+    needles=("--outage", "9:1:1"),
+)
+add(
+    "live-run-controller",
+    "live",
+    "run",
+    "--controller",
+    "foo",
+    "--duration-s",
+    "1",
+    needles=("--controller", "foo"),
+)
+
+# --------------------------------------------------------------------------
 # python -m railstop.link.udp
 
 KEY = "00112233445566778899aabbccddeeff"
