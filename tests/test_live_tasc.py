@@ -69,6 +69,21 @@ def test_a_silent_wayside_brings_the_emergency_brake_after_the_supervision_time_
     assert silent_at - repeat + timeout - 1e-6 <= eb_t <= silent_at + timeout + TASC_DT_S + 1e-6
 
 
+def test_a_wayside_whose_readings_stop_falls_silent_and_the_train_is_braked() -> None:
+    """The sensors' readings stop reaching the wayside in mid-stop (wiring cut): the wayside does not
+    keep repeating its last command as a life sign; after supervision_timeout_s without readings it
+    ends the stop and falls silent, and the train's supervision applies the emergency brake."""
+    st = StationTasc.create(0, LINE.stations[0], VEHICLE, "tasc-pwm")
+    full, _ = wired_stop(st, VEHICLE)
+    cut = 0.5 * float(full.stop_time_s)
+    train, wayside = wired_stop(st, VEHICLE, readings_lost_after_s=cut)
+    assert wayside.sensors_lost == 1 and wayside.session is None
+    assert train.result()["emergency_brake"] == eb_cause_name(EB_TIMEOUT)
+    timeout = LINE.stations[0].tasc.supervision_timeout_s
+    # Silent one time-out after the last reading; the train brakes one time-out after the last repeat.
+    assert cut + timeout <= float(train.rx[RX_EB_T]) <= cut + 2 * timeout + 0.05
+
+
 def test_a_train_entering_a_zone_whose_wayside_is_dead_is_braked() -> None:
     st = StationTasc.create(1, LINE.stations[1], VEHICLE, "tasc-brake-controller")
     train, wayside = wired_stop(st, VEHICLE, silent_after_s=0.0)

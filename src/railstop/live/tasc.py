@@ -241,6 +241,7 @@ class WaysideTasc:
         self.due: list[tuple[int, bytes]] = []  # (train, payload) to send now
         self.records: list[dict[str, Any]] = []
         self.stops_served = 0
+        self.sensors_lost = 0  # stops ended because their readings stopped
 
     def _begin(self, train: int) -> _Session:
         m = self.st.model
@@ -296,9 +297,20 @@ class WaysideTasc:
             self.stops_served += 1
 
     def repeat(self, now_s: float) -> None:
-        """The cyclic repeat of the latest telegram (the train's life sign), until the train stands."""
+        """The cyclic repeat of the latest telegram (the train's life sign), until the train stands.
+
+        Fail safe (DESIGN rule 10) [interpretation]: a repeat vouches for a train the unit still
+        measures. Once its readings have stopped for ``supervision_timeout_s`` (the sensors' wiring
+        cut, or the train gone without saying it stands), it ends the stop and falls silent, so the
+        train's own supervision brakes it instead of trusting an old command."""
         s = self.session
-        if s is None or s.payload is None:
+        if s is None:
+            return
+        if now_s - s.last_reading_s > self.st.station.tasc.supervision_timeout_s:
+            self.session = None
+            self.sensors_lost += 1
+            return
+        if s.payload is None:
             return
         if now_s - s.last_sent_s >= float(self.st.model.kp[KP_REPEAT]) - 1e-9:
             self.due.append((s.train, s.payload))
@@ -426,6 +438,7 @@ async def run_stations(
             refused[reason] = refused.get(reason, 0) + n
     return {
         "stops_served": sum(w.stops_served for w in stations),
+        "stops_ended_readings_lost": sum(w.sensors_lost for w in stations),
         "commands": commands,
         "frames_sent": sum(lk.sent for lk in links.values()),
         "readings_frames": sum(lk.delivered for lk in links.values()),
@@ -621,11 +634,13 @@ def wired_stop(
     *,
     delay_steps: int = 0,
     silent_after_s: float = math.inf,
+    readings_lost_after_s: float = math.inf,
     until_s: float = 300.0,
 ) -> tuple[TascStop, WaysideTasc]:
     """One nominal stop (the station's entry speed, from its hand-over point) with the wayside and
     the train wired directly in this process: every telegram arrives ``delay_steps`` steps after
-    it was sent, none after ``silent_after_s`` (the wayside died). The live units' check against
+    it was sent, none after ``silent_after_s`` (the wayside died); no reading reaches the wayside
+    after ``readings_lost_after_s`` (the sensors' wiring cut). The live units' check against
     the stop kernel, and their warm-up (the compiled steps loaded before a live clock starts)."""
     from railstop.control.line_ato import handover_m
     from railstop.sim.scenario import Scenario
@@ -640,7 +655,8 @@ def wired_stop(
     while not train.stopped and t < until_s:
         train.step(t)
         if t < silent_after_s:
-            wayside.read(train.train, train.stopped, train.out)
+            if t < readings_lost_after_s:
+                wayside.read(train.train, train.stopped, train.out)
             wayside.repeat(t)
             air += [(t + delay_steps * TASC_DT_S, p) for _, p in wayside.due]
         train.out.clear()
