@@ -896,6 +896,28 @@ add(
     needles=("--controller", "foo"),
 )
 
+add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
+add(
+    "office-reports-kind",
+    "office",
+    "reports",
+    "--db",
+    "x.db",
+    "--kind",
+    "gossip",
+    needles=("--kind", "gossip"),
+)
+add("office-reports-last", "office", "reports", "--db", "x.db", "--last", "0", needles=("--last",))
+add(
+    "office-reports-not-a-db",
+    "office",
+    "reports",
+    "--db",
+    "x.db",
+    files={"x.db": "not a database"},
+    needles=("x.db",),
+)
+
 # --------------------------------------------------------------------------
 # python -m railstop.link.udp
 

@@ -290,3 +290,50 @@ def test_office_serve_refuses_bad_options_in_one_line(tmp_path: Path) -> None:
         )  # fmt: skip
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (args, p.stderr)
         assert "Traceback" not in p.stderr
+
+
+def test_office_reports_lists_what_is_stored_and_sums_up_the_stops(tmp_path: Path) -> None:
+    """``railstop office reports``: the latest reports of a kind (table, or JSON lines with
+    --json), and per station and controller the stops among them."""
+    import json
+
+    db = tmp_path / "office.db"
+
+    def stop(station: str, error: float, eb: str | None = None) -> dict[str, object]:
+        within = abs(error) <= 0.35
+        return {
+            "station": station,
+            "controller": "tasc-pwm",
+            "error_m": error,
+            "within": within,
+            "emergency_brake": eb,
+        }
+
+    stops = [stop("Museum", -0.02), stop("Museum", -3.5, "telegram-timeout"), stop("Harbour", 0.027)]
+    with open_store(str(db)) as store:
+        for seq, data in enumerate(stops, start=1):
+            store.save_office_report(
+                sender_id=801, session=5, seq=seq, kind="stop-result", sent_s=1.0, data=data
+            )
+        command = {"st": "Museum", "a_cmd": 0.4}
+        store.save_office_report(
+            sender_id=802, session=6, seq=1, kind="tasc-command", sent_s=1.0, data=command
+        )
+    cli = [sys.executable, "-m", "railstop.cli", "office", "reports", "--db", str(db)]
+    wide = {**os.environ, "COLUMNS": "200"}
+
+    def run(*args: str) -> str:
+        p = subprocess.run([*cli, *args], capture_output=True, text=True, timeout=60, env=wide)
+        assert p.returncode == 0, p.stderr
+        return p.stdout
+
+    assert [json.loads(line)["data"] for line in run("--kind", "stop-result", "--json").splitlines()] == stops
+    out = run("--last", "2")
+    assert "2 of 4 reports" in out and "tasc-command" in out
+    assert (
+        "Harbour (tasc-pwm): 1 stop(s), 1 within tolerance, |error| max 0.027 m, 0 emergency brake(s)" in out
+    )
+    out = run("--kind", "stop-result")
+    assert (
+        "Museum (tasc-pwm): 2 stop(s), 1 within tolerance, |error| max 3.500 m, 1 emergency brake(s)" in out
+    )

@@ -258,3 +258,63 @@ def add_operator_cmd(
     except RailstopError as exc:
         fail(str(exc))
     print(f"operator {name} written to {file}")
+
+
+@office_app.command("reports")
+def reports_cmd(
+    db: Annotated[str, typer.Option(help="The office's database (SQLite file or PostgreSQL URL).")],
+    kind: Annotated[str | None, typer.Option(help="Only reports of this kind.")] = None,
+    last: Annotated[int, typer.Option(min=1, max=1_000_000, help="The latest this many reports.")] = 20,
+    as_json: Annotated[bool, typer.Option("--json", help="One JSON object per report (JSON lines).")] = False,
+) -> None:
+    """The reports the office has stored, latest last (SPEC §1 claim 20: the history of the
+    commands, with their inputs), and a summary of the station stops among them."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from railstop.link.office_link import KINDS
+    from railstop.store import open_store
+
+    if kind is not None and kind not in KINDS:
+        fail(f"--kind: one of {', '.join(KINDS)} (got {kind!r})")
+    if not db.startswith(("sqlite:", "postgresql")) and not Path(db).is_file():
+        fail(f"--db: {db}: no such database file")
+    try:
+        with open_store(db) as store:
+            rows = store.office_reports(kind=kind, limit=last, latest=True)
+            total = store.office_report_count()
+    except RailstopError as exc:
+        fail(str(exc))
+    if as_json:
+        for r in rows:
+            print(json.dumps(r, sort_keys=True))
+        return
+    table = Table(title=f"{len(rows)} of {total} reports in {db}", title_justify="left")
+    for col in ("id", "received (UTC)", "sender", "kind"):
+        table.add_column(col, no_wrap=True)
+    table.add_column("data", overflow="fold")
+    for r in rows:
+        data = json.dumps(r["data"], separators=(", ", ": "))
+        received = r["received_utc"][11:19]  # the day is in --json
+        table.add_row(str(r["id"]), received, str(r["sender_id"]), r["kind"], data)
+    console = Console()
+    console.print(table)
+    for line in stop_summary_lines([r["data"] for r in rows if r["kind"] == "stop-result"]):
+        console.print(line, highlight=False)
+
+
+def stop_summary_lines(stops: list[dict[str, Any]]) -> list[str]:
+    """Per station and controller: stops, within tolerance, |error| max, emergency brakes."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for s in stops:
+        groups.setdefault((str(s.get("station")), str(s.get("controller"))), []).append(s)
+    out = []
+    for (station, controller), items in sorted(groups.items()):
+        within = sum(bool(s.get("within")) for s in items)
+        worst = max(abs(float(s.get("error_m", 0.0))) for s in items)
+        ebs = sum(s.get("emergency_brake") is not None for s in items)
+        out.append(
+            f"{station} ({controller}): {len(items)} stop(s), {within} within tolerance, "
+            f"|error| max {worst:.3f} m, {ebs} emergency brake(s)"
+        )
+    return out
