@@ -310,3 +310,39 @@ def test_the_wall_clock_counts_a_step_that_started_late_and_how_late() -> None:
     asyncio.run(run())
     assert clock.late_steps >= 1
     assert 0.04 <= clock.late_max_s <= 0.2
+
+
+def test_killing_the_trains_process_loses_every_train_and_silences_the_stations(
+    procs: Procs, tmp_path: Path
+) -> None:
+    """The trains' process (every onboard unit and the plant) is killed with SIGKILL while a train is
+    in its station stop: the zone controller takes every train for lost and protects each with a
+    zone (SPEC §4), and the station serving the stop, its readings gone, ends the stop and falls
+    silent instead of repeating its last command (DESIGN rule 10)."""
+    db = str(tmp_path / "office.db")
+    scale = 3.0
+    epoch = time.time()
+    common = ["--epoch", repr(epoch), "--scale", str(scale)]
+    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
+    office_addr = line.split(" on ")[1].split()[0]
+    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "3", "--office", office_addr, *common)
+    zc_port = line.split("127.0.0.1:")[1].split()[0]
+    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
+    st_port = line.split("127.0.0.1:")[1].split()[0]
+    trains, _ = procs.start(
+        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "3", "--spacing-m", "1100",
+        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
+    )  # fmt: skip
+    _wait_for(db, "tasc-command", lambda r: True, 60.0)
+    os.kill(trains.pid, signal.SIGKILL)
+    trains.communicate(timeout=30)
+    zones = _wait_for(
+        db, "zone-event", lambda r: len({z["train"] for z in _reports(db, "zone-event")}) == 3, 30.0
+    )
+    assert zones["active"] is True
+    time.sleep(1.0)
+    zc_counts = procs.stop(zc)
+    served = procs.stop(stations)
+    assert zc_counts["lost_trains"] == 3
+    assert {z["train"] for z in _reports(db, "zone-event") if z["active"]} == {0, 1, 2}
+    assert served["stops_ended_readings_lost"] == 1 and served["stops_served"] == 0
