@@ -896,6 +896,11 @@ add(
     needles=("--controller", "foo"),
 )
 
+add(
+    "live-trains-tasc-loss",
+    "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--tasc-loss", "1.5",
+    needles=("--tasc-loss",),
+)  # fmt: skip
 add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
 add(
     "office-reports-kind",

@@ -108,3 +108,27 @@ def test_sensor_frames_round_trip_and_refuse_a_bad_length() -> None:
     assert np.isnan(back[1].doppler_mps) and back[1].passage_s == 12.347
     with pytest.raises(ValueError):
         unpack_readings(pack_readings(7, 3, True, readings)[:-1])
+
+
+@pytest.mark.parametrize("loss", [0.0, 1.0])
+def test_injected_telegram_loss_drops_frames_before_the_safety_layer(loss: float) -> None:
+    """``live trains --tasc-loss``: a frame lost on the air never reaches the train's stop; it is
+    counted as injected, not as refused by the safety layer."""
+    from railstop.config.disturbances import load_disturbances
+    from railstop.link.safety import SafePeers
+    from railstop.live.tasc import STATION_BASE, TRAIN_TASC_BASE, LiveTasc
+
+    key = bytes(range(32))
+    side = LiveTasc(
+        line=LINE, vehicle=VEHICLE, controller="tasc-pwm", stations=("127.0.0.1", 9), master_key=key,
+        dist=load_disturbances("nominal"), seed=1, loss=loss,
+    )  # fmt: skip
+    st = side.models[0]
+    stop = side.begin(0, 0, 0, st.first_detector_m - 30.0, 16.0, 0.0)
+    station = SafePeers(STATION_BASE, key, max_age_s=1.0, peers=lambda p: False)
+    for i in range(10):
+        side.ingest(station.wrap(b"payload", TRAIN_TASC_BASE, 0.01 * i), 0.01 * i)
+    counts = side.counts()
+    assert counts["telegrams_lost_injected"] == (10 if loss else 0)
+    assert len(stop.inbox) == (0 if loss else 10)
+    assert counts["telegrams_refused"] == {}

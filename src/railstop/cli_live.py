@@ -235,6 +235,10 @@ def trains_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
     ] = "standard",
+    tasc_loss: Annotated[
+        float,
+        typer.Option(min=0.0, max=1.0, help="Fault injection: the share of braking telegram frames lost."),
+    ] = 0.0,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -258,6 +262,7 @@ def trains_cmd(
                 master_key=key,
                 dist=load_disturbances(disturbances),
                 seed=seed,
+                loss=tasc_loss,
             )
     except RailstopError as exc:
         fail(str(exc))

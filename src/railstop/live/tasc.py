@@ -687,7 +687,15 @@ class LiveTasc:
         master_key: bytes,
         dist: DisturbanceSet,
         seed: int,
+        loss: float = 0.0,
     ) -> None:
+        """``loss``: fault injection, each braking telegram frame is lost with this probability
+        (drawn from the seed; the link on loopback loses none)."""
+        if not 0.0 <= loss <= 1.0:
+            raise ValueError(f"--tasc-loss: a probability in [0, 1] (got {loss})")
+        self.loss = loss
+        self._loss_rng = np.random.default_rng([seed, 0x7A5C])
+        self.injected_losses = 0
         self.models = station_models(line, vehicle, controller)
         wired_stop(self.models[0], vehicle)  # the compiled steps loaded before the clock starts
         self.vehicle = vehicle
@@ -725,6 +733,9 @@ class LiveTasc:
         """A telegram from a station: checked, and handed to the train's stop at that station."""
         ids = frame_ids(frame)
         if ids is None:
+            return
+        if self.loss > 0.0 and self._loss_rng.uniform() < self.loss:
+            self.injected_losses += 1  # lost on the air (fault injection)
             return
         train = ids[1] - TRAIN_TASC_BASE
         got = self._links(train).accept(frame, now_s)
@@ -775,6 +786,7 @@ class LiveTasc:
             "telegrams_delivered": sum(lk.delivered for lk in self._rx.values()),
             "telegrams_refused": refused,
             "telegrams_unexpected": self.unexpected,
+            "telegrams_lost_injected": self.injected_losses,
             "readings_frames": self.sensors.sent,
             "telegram_age_ms": age_summary(self.ages),
             **stop_summary(self.results),
