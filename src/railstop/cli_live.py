@@ -325,10 +325,11 @@ def _run_line(
     operators: str | None,
     outages: list[str],
     controller: str | None = "tasc-pwm",
+    tasc_loss: float = 0.0,
 ) -> dict[str, object]:
     """Office (with its page), zone controller, stations (with ``controller``; None: no ground
     TASC, point-mass stops) and trains as processes for ``duration_s`` wall seconds; their counts,
-    one object per process."""
+    one object per process. ``tasc_loss``: the braking telegrams' injected loss."""
     import threading
 
     key = os.urandom(32).hex()
@@ -384,6 +385,7 @@ def _run_line(
                  office_addr, *common]
             )  # fmt: skip
             tasc_args = ["--stations", f"127.0.0.1:{st_port}", "--controller", controller]
+            tasc_args += ["--tasc-loss", repr(tasc_loss)]
         tr = launch(
             ["live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m",
              str(spacing_m), "--office", office_addr, *outage_args, *tasc_args, *common]
@@ -452,6 +454,10 @@ def run_cmd(
     tasc: Annotated[
         bool, typer.Option("--tasc/--no-tasc", help="Stop by ground TASC (a stations process).")
     ] = True,
+    tasc_loss: Annotated[
+        float,
+        typer.Option(min=0.0, max=1.0, help="Fault injection: the share of braking telegram frames lost."),
+    ] = 0.0,
 ) -> None:
     """Office (with its page), zone controller, stations and trains as processes for --duration-s."""
     try:
@@ -468,6 +474,7 @@ def run_cmd(
         operators=operators,
         outages=list(outage or []),
         controller=ctrl,
+        tasc_loss=tasc_loss,
     )
     print(json.dumps(results))
 
