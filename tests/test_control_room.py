@@ -200,6 +200,7 @@ def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credentia
                 trains.send_signal(signal.SIGUSR1)  # train 1's radio dies
                 page.wait_for_selector('#zones-table tr[data-train="1"]', timeout=15_000)
                 page.wait_for_selector('g.train[data-train="1"][data-radio="dead"]', timeout=15_000)
+                assert page.inner_text('#zones-table tr[data-train="1"] td.zone-status') == "lost"
                 zone_png = tmp_path / "zone.png"
                 page.screenshot(path=str(zone_png))
                 if os.environ.get("RAILSTOP_SCREENSHOT_DIR"):  # how docs/control-room.png is made
