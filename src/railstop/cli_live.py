@@ -17,7 +17,7 @@ import signal
 import subprocess
 import sys
 import time
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -111,6 +111,20 @@ async def _with_office(office: str | None, own_id: int, key: bytes, run: object)
         return result
 
 
+def _serve_listener(label: str, office: str | None, own_id: int, key: bytes, start: Any) -> None:
+    """Serve a live process that listens on a UDP port (zone controller, stations): it says where
+    on stderr once bound (``<label> on HOST:PORT``), reports to the office as ``own_id``, and prints
+    its counts when stopped. ``start(stop, office_client, on_ready)`` is its coroutine."""
+
+    def ready(addr: tuple[str, int]) -> None:
+        print(f"{label} on {addr[0]}:{addr[1]} (pid {os.getpid()})", file=sys.stderr, flush=True)
+
+    async def run(stop: asyncio.Event) -> object:
+        return await _with_office(office, own_id, key, lambda client: start(stop, client, ready))
+
+    _serve(run)
+
+
 @live_app.command("zc")
 def zc_cmd(
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the zone controller.")] = 7710,
@@ -130,26 +144,13 @@ def zc_cmd(
     except RailstopError as exc:
         fail(str(exc))
 
-    def ready(addr: tuple[str, int]) -> None:
-        print(f"zone controller on {addr[0]}:{addr[1]} (pid {os.getpid()})", file=sys.stderr, flush=True)
-
-    async def run(stop: asyncio.Event) -> object:
-        async def zone_controller(client: object) -> object:
-            return await run_zone_controller(
-                line=ln,
-                vehicle=veh,
-                trains=trains,
-                local=("127.0.0.1", port),
-                base=base,
-                master_key=key,
-                stop=stop,
-                office=client,  # type: ignore[arg-type]
-                on_ready=ready,
-            )
-
-        return await _with_office(office, 800, key, zone_controller)
-
-    _serve(run)
+    _serve_listener(
+        "zone controller", office, 800, key,
+        lambda stop, client, ready: run_zone_controller(
+            line=ln, vehicle=veh, trains=trains, local=("127.0.0.1", port), base=base, master_key=key,
+            stop=stop, office=client, on_ready=ready,
+        ),
+    )  # fmt: skip
 
 
 TascControllerOpt = Annotated[
@@ -186,26 +187,13 @@ def stations_cmd(
     except RailstopError as exc:
         fail(str(exc))
 
-    def ready(addr: tuple[str, int]) -> None:
-        print(f"stations on {addr[0]}:{addr[1]} (pid {os.getpid()})", file=sys.stderr, flush=True)
-
-    async def run(stop: asyncio.Event) -> object:
-        async def stations(client: object) -> object:
-            return await run_stations(
-                line=ln,
-                vehicle=veh,
-                controller=ctrl,
-                local=("127.0.0.1", port),
-                base=base,
-                master_key=key,
-                stop=stop,
-                office=client,  # type: ignore[arg-type]
-                on_ready=ready,
-            )
-
-        return await _with_office(office, 802, key, stations)
-
-    _serve(run)
+    _serve_listener(
+        "stations", office, 802, key,
+        lambda stop, client, ready: run_stations(
+            line=ln, vehicle=veh, controller=ctrl, local=("127.0.0.1", port), base=base, master_key=key,
+            stop=stop, office=client, on_ready=ready,
+        ),
+    )  # fmt: skip
 
 
 @live_app.command("trains")
