@@ -416,13 +416,16 @@ def _plot(path: Path, result: StopResult, batch: BatchResult, station: Station) 
 def compile_model(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Compile the stop model once into the on-disk cache, so that later commands start at once."""
+    """Compile the stop model (and the live TASC units' steps) once into the on-disk cache, so that later
+    commands start at once."""
     import time
 
+    from railstop.live.tasc import warm_up as warm_up_live
     from railstop.sim.kernel import warm_up
 
     t0 = time.perf_counter()
     info = warm_up()
+    warm_up_live()  # the live TASC units' steps (the same compiled functions, other signatures)
     info["seconds"] = round(time.perf_counter() - t0, 2)
     if as_json:
         print(json.dumps(info))

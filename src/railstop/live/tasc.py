@@ -668,6 +668,15 @@ def wired_stop(
     return train, wayside
 
 
+def warm_up() -> None:
+    """Load (or compile into the cache) the live units' compiled steps: one wired stop on the
+    embedded line (``railstop compile`` runs it, so that a live process starts on time)."""
+    from railstop.config import default_line, default_vehicle
+
+    line, vehicle = default_line(), default_vehicle()
+    wired_stop(StationTasc.create(0, line.stations[0], vehicle, "tasc-pwm"), vehicle)
+
+
 # ---------------------------------------------------------------------- the trains process's side
 
 
