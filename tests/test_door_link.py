@@ -21,9 +21,16 @@ CMD = DoorCommand(
     dcc=False,
     psc=True,
     automatic=True,
+    doors_locked=0xFFFFFF,
 )
 STATUS = PsdStatus(
-    train_id=7, psc=True, psd_closed_locked=False, start_enable=False, manual=False, fault=False
+    train_id=7,
+    psc=True,
+    psd_closed_locked=False,
+    start_enable=False,
+    manual=False,
+    fault=False,
+    psd_open=0b101,
 )
 
 

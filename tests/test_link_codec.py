@@ -129,7 +129,8 @@ REFERENCES = [
         CbtcReport(train_id=7, position_m=1200.5, speed_mps=16.667, direction="L", time_s=3600.25),
         "21 0007 00125174 411b 01 0036ef7a eb58",
     ),
-    # type 41 | train 0102 | DOA-R (bit 1), DOC (4), PSC (6), automatic (7) = 1101 0010 = d2 | CRC
+    # type 41 | train 0102 | DOA-R (bit 1), DOC (4), PSC (6), automatic (7) = 1101 0010 = d2
+    # | train doors 2..24 closed and locked, door 1 not = 00fffffe | CRC
     (
         DoorCommand(
             train_id=0x0102,
@@ -141,8 +142,9 @@ REFERENCES = [
             dcc=False,
             psc=True,
             automatic=True,
+            doors_locked=0xFFFFFE,
         ),
-        "41 0102 d2 2685",
+        "41 0102 d2 00fffffe 0230",
     ),
     # type b1 | circuit 107 = 0000006b | -0.5 s = -5000 x 0.1 ms = ffffec78 | CRC
     (TrackCircuitOccupancy(circuit_id=107, gnss_time_s=-0.5), "b1 0000006b ffffec78 6342"),
@@ -474,7 +476,13 @@ def test_encode_out_of_range_names_field_and_value(msg: Telegram, field: str) ->
         (TascRequiredDecel(train_id=True, detector=0, required_mps2=0.5), "train_id"),
         (
             PsdStatus(
-                train_id=1, psc=1, psd_closed_locked=False, start_enable=False, manual=False, fault=False
+                train_id=1,
+                psc=1,
+                psd_closed_locked=False,
+                start_enable=False,
+                manual=False,
+                fault=False,
+                psd_open=0,
             ),
             "psc",
         ),  # type: ignore[arg-type]
@@ -513,7 +521,8 @@ def test_encode_unknown_class() -> None:
         ("18 0001 00 02", "bad_value", "delta"),
         ("18 0001 00 80", "bad_value", "delta"),
         ("21 0001 00000000 0000 02 00000000", "bad_value", "direction"),
-        ("42 0001 20", "bad_value", "status"),  # bit 5 undefined
+        ("42 0001 20 00000000", "bad_value", "status"),  # bit 5 undefined
+        ("42 0001 00 01000000", "out_of_range", "psd_open"),  # a 25th unit
     ],
 )
 def test_decode_field_errors(body: str, why: str, field: str) -> None:
@@ -630,6 +639,7 @@ def test_describe_lists_every_field_with_units() -> None:
         "dcc",
         "psc",
         "automatic",
+        "doors_locked",
     ]
 
 
@@ -695,6 +705,7 @@ def test_from_fields_parses_what_it_is_given(layout: Layout, data: st.DataObject
                 "start_enable": "0",
                 "manual": "0",
                 "fault": "0",
+                "psd_open": "0",
             },
             "bad_value",
             "psc='maybe'",

@@ -14,7 +14,7 @@ door"); only the durations differ, and they are data too.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from types import MappingProxyType
@@ -97,6 +97,30 @@ LOCKED_STATES: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.ISOLATED})
 # Which column of the action table a door reads: "closed" for these, "open" otherwise.
 # An isolated unit reads neither: the controller gives it no command.
 _TABLE_CLOSED: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.CLOSED})
+
+
+def door_mask(units: Sequence[DoorState], states: frozenset[DoorState]) -> int:
+    """The door link's mask of ``units`` (bit i: unit i + 1, front first) that are in ``states``."""
+    return sum(1 << i for i, u in enumerate(units) if u in states)
+
+
+def units_from_link(n: int, *, open_mask: int, all_locked: bool) -> tuple[DoorState, ...]:
+    """``n`` door units as the far end of the door link knows them (SPEC §5: it sees only what the
+    link carries): the units of ``open_mask`` fully open; the others closed and locked if
+    ``all_locked`` says every unit is, else ``CLOSING``.
+
+    [interpretation] The link carries one bit per unit and one for all, not each unit's full
+    state. ``CLOSING`` stands for every state between open and locked: it lets no door open
+    opposite it and counts as not locked, so the far end's interlocks are never looser than they
+    would be with the full state (a train door opens only opposite an open PSD unit; start enable
+    needs every unit locked)."""
+    out = []
+    for i in range(n):
+        if open_mask & (1 << i):
+            out.append(DS.OPEN)
+        else:
+            out.append(DS.CLOSED_LOCKED if all_locked else DS.CLOSING)
+    return tuple(out)
 
 
 def door_next(

@@ -409,11 +409,13 @@ class DoorCommand(Telegram):
     dcc: bool
     psc: bool
     automatic: bool
+    doors_locked: int  # bit i: train door i + 1 facing the platform (front first) closed and locked
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PsdStatus(Telegram):
-    """SPEC §5: platform (WPCS) -> train: PSC reply, PSD closed and locked, start enable."""
+    """SPEC §5: platform (WPCS) -> train: PSC reply, PSD closed and locked, start enable, and which
+    PSD units are fully open (a train door opens only opposite one)."""
 
     TYPE: ClassVar[str] = "psd-status"
     train_id: int
@@ -422,6 +424,7 @@ class PsdStatus(Telegram):
     start_enable: bool
     manual: bool
     fault: bool
+    psd_open: int  # bit i: PSD unit i + 1 (front first) fully open
 
 
 # Fields shared by several types.
@@ -435,6 +438,24 @@ _DETECTOR = Field(
     description="index of the last detector passed, 0 = first (SPEC §1 embodiment: 5)",
 )
 _MS_MAX = 0xFFFF_FFFF / 1000  # u32 milliseconds: 49.7 days of sender time
+
+
+#: Doors a mask of the door link can name: one bit per door facing the platform, front first.
+MAX_DOOR_UNITS = 24
+
+
+def _door_mask(name: str, what: str, state: str) -> Field:
+    # SPEC §5: the WPCS receives the state of the train doors facing the platform; the train
+    # trusts the PSD state only from the link (while PSC is high). [interpretation] The paper
+    # gives no layout: one bit per door, 24 doors a side (a 6-car train, 4 doors a car).
+    return Field(
+        name=name,
+        code="I",
+        kind="int",
+        min=0,
+        max=(1 << MAX_DOOR_UNITS) - 1,
+        description=f"bit i: {what} i + 1 facing the platform (front first) {state}",
+    )
 
 
 def _time_ms(name: str, description: str) -> Field:
@@ -805,6 +826,7 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     description="bit 0 DOA-L, 1 DOA-R, 2 DMC-L, 3 DMC-R, 4 DOC, 5 DCC, "
                     "6 PSC request, 7 driving mode (1 automatic, 0 manual)",
                 ),
+                _door_mask("doors_locked", "train door", "closed and locked"),
             ),
         ),
         Layout(
@@ -825,6 +847,7 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     description="bit 0 PSC reply, 1 PSD closed and locked, 2 start enable, "
                     "3 WPCS in manual (WCC), 4 PSD fault; bits 5-7 must be 0",
                 ),
+                _door_mask("psd_open", "PSD unit", "fully open"),
             ),
         ),
     )

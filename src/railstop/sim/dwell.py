@@ -40,7 +40,15 @@ from typing import Any
 import numpy as np
 
 from railstop.config.doors import DoorsConfig
-from railstop.control.doors import DoorInput, DoorSignals, DoorState, Side, summarise
+from railstop.control.doors import (
+    LOCKED_STATES,
+    DoorInput,
+    DoorSignals,
+    DoorState,
+    Side,
+    door_mask,
+    summarise,
+)
 from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.codec import DoorCommand, PsdStatus
@@ -436,6 +444,7 @@ class _Dwell:
             dcc=s.dcc,
             psc=self.world.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED),
             automatic=not self.manual,
+            doors_locked=door_mask(self.world.cpcs.side(self.side), LOCKED_STATES),
         )
 
     def _status(self) -> PsdStatus:
@@ -448,6 +457,7 @@ class _Dwell:
             start_enable=locked and not wp.fault,
             manual=self.controls.wcc_manual,
             fault=wp.fault,
+            psd_open=door_mask(wp.units, frozenset({DoorState.OPEN})),
         )
 
     def _expect_arrival(self) -> None:
