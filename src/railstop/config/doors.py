@@ -15,7 +15,7 @@ from pydantic import Field, field_validator, model_validator
 
 from railstop.config.loader import data_text, read_toml, validate
 from railstop.config.schema import FieldProblem, _Model
-from railstop.control.doors import Action, ActionRow, ActionTable
+from railstop.control.doors import Action, ActionRow, ActionTable, DoorState
 
 DEFAULT_DOORS = "doors.toml"
 KMH_PER_MPS = 3.6
@@ -49,6 +49,17 @@ class DoorTiming(_Model):
     obstruction_clear_s: Seconds
     psd_jam_at_s: Seconds
     staff_isolation_s: Seconds
+
+    def motion_s(self, state: DoorState, *, psd: bool) -> float | None:
+        """How long the motion a door unit has just begun lasts: opening, closing, or locking once
+        closed (None: ``state`` is not a motion)."""
+        if state == DoorState.OPENING:
+            return self.psd_open_s if psd else self.train_door_open_s
+        if state == DoorState.CLOSING:
+            return self.psd_close_s if psd else self.train_door_close_s
+        if state == DoorState.CLOSED:
+            return self.psd_lock_s if psd else self.train_door_lock_s
+        return None
 
     @model_validator(mode="after")
     def _order(self) -> DoorTiming:
@@ -112,7 +123,9 @@ class DoorLinkModel(_Model):
 
 
 class DoorLayout(_Model):
-    doors_per_side: Annotated[int, Field(ge=1, le=64)]
+    # The door link's telegrams name each door facing the platform by one bit, 24 at most
+    # (link.codec.MAX_DOOR_UNITS: a 6-car train with 4 doors a car).
+    doors_per_side: Annotated[int, Field(ge=1, le=24)]
 
 
 class DoorsFile(_Model):

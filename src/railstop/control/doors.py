@@ -104,22 +104,20 @@ def door_mask(units: Sequence[DoorState], states: frozenset[DoorState]) -> int:
     return sum(1 << i for i, u in enumerate(units) if u in states)
 
 
-def units_from_link(n: int, *, open_mask: int, all_locked: bool) -> tuple[DoorState, ...]:
+def units_from_link(n: int, *, locked_mask: int, open_mask: int = 0) -> tuple[DoorState, ...]:
     """``n`` door units as the far end of the door link knows them (SPEC §5: it sees only what the
-    link carries): the units of ``open_mask`` fully open; the others closed and locked if
-    ``all_locked`` says every unit is, else ``CLOSING``.
+    link carries): fully open (``open_mask``), closed and locked (``locked_mask``), else
+    ``CLOSING``.
 
-    [interpretation] The link carries one bit per unit and one for all, not each unit's full
-    state. ``CLOSING`` stands for every state between open and locked: it lets no door open
-    opposite it and counts as not locked, so the far end's interlocks are never looser than they
-    would be with the full state (a train door opens only opposite an open PSD unit; start enable
-    needs every unit locked)."""
+    [interpretation] The link carries a bit or two per unit, not its full state. ``CLOSING``
+    stands for every state between open and locked: it lets no door open opposite it and counts
+    as not locked, so the far end's interlocks are never looser than they would be with the full
+    state (a train door opens only opposite an open PSD unit; the PSD closes only after every
+    train door is locked; start enable needs every unit locked)."""
     out = []
     for i in range(n):
-        if open_mask & (1 << i):
-            out.append(DS.OPEN)
-        else:
-            out.append(DS.CLOSED_LOCKED if all_locked else DS.CLOSING)
+        bit = 1 << i
+        out.append(DS.OPEN if open_mask & bit else DS.CLOSED_LOCKED if locked_mask & bit else DS.CLOSING)
     return tuple(out)
 
 

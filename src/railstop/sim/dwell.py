@@ -383,13 +383,9 @@ class _Dwell:
             gen = self.gen.get(key, 0) + 1
             self.gen[key] = gen
             psd = group == "psd"
-            durations = {
-                DoorState.OPENING: t.psd_open_s if psd else t.train_door_open_s,
-                DoorState.CLOSING: t.psd_close_s if psd else t.train_door_close_s,
-                DoorState.CLOSED: t.psd_lock_s if psd else t.train_door_lock_s,
-            }
-            if u1 in durations:
-                self._at(durations[u1], "door", group, i, gen, DoorInput.DONE)
+            motion = t.motion_s(u1, psd=psd)
+            if motion is not None:
+                self._at(motion, "door", group, i, gen, DoorInput.DONE)
             on_platform = psd or group == "train-" + self.side.value
             # The abnormal cases: an obstacle in a closing train door, a PSD unit that jams.
             if not psd and on_platform and i == self.obstruct:

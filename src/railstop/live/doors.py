@@ -1,0 +1,581 @@
+"""The station dwell live (issue 17, SPEC §5): the WPCS at the station, the train's ATC / CPCS on the
+train, the door link between them as frames.
+
+The same pure units as the dwell simulation (``sim/dwell.py``) and the door
+verifier, split where the link splits them:
+
+* :class:`PlatformDoors` (the stations process, one per station): the WPCS
+  (``wayside.wpcs``) and the PSD units' own motion. It answers a train's PSC
+  request only when the platform's stop sensors see that train standing
+  inside the stop tolerance (SPEC §5: the transponder talks only inside the
+  precise-stop zone; SPEC §3: the stop sensors), after ``wpcs_processing_s``.
+  With PSC high, every ``door-command`` it receives runs one WPCS scan with
+  the train's door signals, driving mode and locked train doors, and is
+  answered by a ``psd-status`` (PSC, PSD closed and locked, start enable, WCC
+  manual, fault, the open PSD units). The WCC (the control room) can switch
+  it to manual and press the platform panel's open / close buttons (SPEC §5).
+* :class:`TrainDoors` (the trains process, one per dwell): precise-stop
+  confirmation (``onboard.stop_confirm``), the CPCS (``onboard.cpcs``), the
+  ATC's door sequence of automatic operation (SPEC §5: with PSC, DMC released
+  and DOA, DOC given for the platform side; doors open, the dwell, then DMC
+  and DCC), the train doors' motion, the position correction creep, and start
+  enable when a status frame reports the PSD closed and locked after the
+  train's own doors are (SPEC §5 fig. 7).
+
+Each end knows the other's doors only from the telegrams' bits
+(``control.doors.units_from_link``). Both ends are pure: time is an argument,
+frames are what the caller sends and delivers.
+
+Fail safe (DESIGN rule 10): no reply to a PSC request is a train out of
+position (position correction, then after the last attempt the SPEC §5
+fault: emergency brake); with PSC high, no valid status for
+``supervision_timeout_s`` is a lost link (fault, emergency brake, doors held
+as the CPCS's safe state holds them); the WPCS drops a train whose commands
+have stopped and holds the PSD as it is (no exchange, no command: SPEC §5).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+from typing import Any
+
+from railstop.config.doors import DoorsConfig
+from railstop.control.doors import (
+    LOCKED_STATES,
+    DoorInput,
+    DoorSignals,
+    DoorState,
+    Side,
+    door_mask,
+    summarise,
+    units_from_link,
+)
+from railstop.errors import InterlockError
+from railstop.link.codec import DoorCommand, PsdStatus
+from railstop.onboard import cpcs, stop_confirm
+from railstop.onboard.cpcs import CpcsState, PsdReport
+from railstop.onboard.stop_confirm import StopConfirmState, StopInput, StopPhase
+from railstop.sim.door_system import DoorModel
+from railstop.wayside import wpcs
+from railstop.wayside.wpcs import TrainReport, WpcsState, answers_psc
+
+PLATFORM_BASE = 0x0200  # station i's WPCS: PLATFORM_BASE + i (as door_link's PLATFORM_ID for station 0)
+TRAIN_DOORS_BASE = 0x4800  # train k's door end (ATC / CPCS): TRAIN_DOORS_BASE + k
+#: A stop-sensor reading on the platform's wiring: train, station, the train's stop error (NaN: no
+#: train standing in the platform).
+_STOP_SENSED = struct.Struct(">H H d")
+#: A stop-sensor reading older than this does not put a train in position.
+SENSED_FRESH_S = 1.0
+_OPEN = frozenset({DoorState.OPEN})
+
+
+def pack_stop_sensed(train: int, station: int, error_m: float) -> bytes:
+    return _STOP_SENSED.pack(train, station, error_m)
+
+
+def unpack_stop_sensed(payload: bytes) -> tuple[int, int, float]:
+    """(train, station, error_m); ValueError for a payload of the wrong shape."""
+    if len(payload) != _STOP_SENSED.size:
+        raise ValueError("stop-sensor frame of the wrong length")
+    train, station, error_m = _STOP_SENSED.unpack(payload)
+    return train, station, error_m
+
+
+class DoorMotion:
+    """The door units' own motion (the plant): a unit that begins opening, closing or locking
+    finishes after the door data's time, unless it has moved on since (a stale completion)."""
+
+    def __init__(self, doors: DoorsConfig, *, psd: bool) -> None:
+        self.timing = doors.timing
+        self.psd = psd
+        self._gen: dict[Hashable, int] = {}
+        self._pending: list[tuple[float, Hashable, int]] = []
+
+    def follow(self, key: Hashable, before: DoorState, after: DoorState, now_s: float) -> None:
+        if before == after:
+            return
+        gen = self._gen.get(key, 0) + 1
+        self._gen[key] = gen
+        motion = self.timing.motion_s(after, psd=self.psd)
+        if motion is not None:
+            self._pending.append((now_s + motion, key, gen))
+
+    def due(self, now_s: float) -> list[Hashable]:
+        """The units whose motion has finished by ``now_s`` (in the order they finished)."""
+        done = sorted(p for p in self._pending if p[0] <= now_s + 1e-9)
+        if not done:
+            return []
+        self._pending = [p for p in self._pending if p[0] > now_s + 1e-9]
+        return [key for _, key, gen in done if self._gen.get(key) == gen]
+
+
+def _signals(cmd: DoorCommand) -> DoorSignals:
+    return DoorSignals(
+        doa_l=cmd.doa_l, doa_r=cmd.doa_r, dmc_l=cmd.dmc_l, dmc_r=cmd.dmc_r, doc=cmd.doc, dcc=cmd.dcc
+    )
+
+
+# ---------------------------------------------------------------------- the platform
+
+
+class PlatformDoors:
+    """One station's WPCS and PSD (SPEC §5), serving the train standing at its platform."""
+
+    def __init__(self, *, index: int, name: str, side: Side, doors: DoorsConfig, model: DoorModel) -> None:
+        self.index = index
+        self.name = name
+        self.doors = doors
+        self.model = model
+        self.state = WpcsState.closed(side, doors.doors_per_side)
+        self.motion = DoorMotion(doors, psd=True)
+        self.train: int | None = None  # the train PSC is high with
+        self.asking: int | None = None  # the train whose PSC request is being answered
+        self.answer_at_s = math.inf
+        self.sensed: dict[int, tuple[float, float]] = {}  # train -> (stop error, when read)
+        self.last_cmd: DoorCommand | None = None
+        self.last_cmd_s = -math.inf
+        self.wcc_manual = False
+        self.panel_open = False
+        self.panel_close = False
+        self.due: list[tuple[int, PsdStatus]] = []  # (train, status) to send now
+        self.events: list[dict[str, Any]] = []  # for the office
+        self.was_open = False
+        self.counts = {"psc_answered": 0, "psc_refused": 0, "links_lost": 0, "commands": 0, "other_train": 0}
+
+    # -- inputs ---------------------------------------------------------------------
+    def sense(self, train: int, error_m: float, now_s: float) -> None:
+        """The stop sensors' reading of ``train`` (NaN: not standing in the platform)."""
+        self.sensed[train] = (error_m, now_s)
+
+    def in_position(self, train: int, now_s: float) -> bool:
+        got = self.sensed.get(train)
+        if got is None or now_s - got[1] > SENSED_FRESH_S or not math.isfinite(got[0]):
+            return False
+        return answers_psc(got[0], self.doors.stop_confirm.tolerance_m)
+
+    def receive(self, cmd: DoorCommand, now_s: float) -> None:
+        """A ``door-command`` from a train."""
+        self.counts["commands"] += 1
+        if self.train is not None and cmd.train_id != self.train:
+            self.counts["other_train"] += 1  # PSC is high with another train: not this one's turn
+            return
+        if not cmd.psc:
+            if self.train == cmd.train_id:
+                self._end("psc-off", now_s)  # the train departs or moves to correct its stop
+            if self.asking == cmd.train_id:
+                self.asking, self.answer_at_s = None, math.inf
+            return
+        self.last_cmd, self.last_cmd_s = cmd, now_s
+        if self.train is None:
+            # SPEC §5: the WPCS answers only a train its stop sensors see in position.
+            if self.asking is None:
+                if self.in_position(cmd.train_id, now_s):
+                    self.asking = cmd.train_id
+                    self.answer_at_s = now_s + self.doors.link.wpcs_processing_s
+                else:
+                    self.counts["psc_refused"] += 1
+            return
+        self._scan(now_s)
+        self.due.append((cmd.train_id, self.status()))
+
+    def wcc(self, *, manual: bool, panel_open: bool, panel_close: bool, now_s: float) -> None:
+        """SPEC §5: the WCC switches the WPCS to manual (the platform panel's open / close buttons
+        then stand for DOC and DCC) or back to automatic."""
+        if manual != self.wcc_manual:
+            self._event("wcc-manual" if manual else "wcc-auto", now_s)
+        self.wcc_manual = manual
+        self.panel_open, self.panel_close = manual and panel_open, manual and panel_close
+        if self.train is not None:
+            self._scan(now_s)
+
+    def tick(self, now_s: float) -> None:
+        """The WPCS's own cycle: its PSC answer, the PSD's motion, the supervision of the train."""
+        if self.asking is not None and now_s >= self.answer_at_s:
+            train, self.asking, self.answer_at_s = self.asking, None, math.inf
+            if self.train is None and self.in_position(train, now_s):
+                self.train = train
+                self.counts["psc_answered"] += 1
+                self._event("psc", now_s)
+                self._scan(now_s)
+                self.due.append((train, self.status()))
+        for unit in self.motion.due(now_s):
+            assert isinstance(unit, int)
+            before = self.state
+            try:
+                self.state = wpcs.door_event(self.state, unit, DoorInput.DONE, self.model.doors)
+            except InterlockError as exc:
+                self.state = wpcs.safe(self.state)
+                self._event("fault", now_s, error=str(exc))
+            self._follow(before, now_s)
+            self._scan(now_s)
+        if self.train is not None and now_s - self.last_cmd_s > self.doors.link.supervision_timeout_s:
+            # The train's commands have stopped with PSC high: no exchange, the PSD held as it is.
+            self.counts["links_lost"] += 1
+            self._end("link-lost", now_s)
+
+    # -- the unit -------------------------------------------------------------------
+    def status(self) -> PsdStatus:
+        units = self.state.units
+        locked = all(u in LOCKED_STATES for u in units)
+        return PsdStatus(
+            train_id=self.train if self.train is not None else 0,
+            psc=self.train is not None,
+            psd_closed_locked=locked,
+            start_enable=locked and not self.state.fault,
+            manual=self.wcc_manual,
+            fault=self.state.fault,
+            psd_open=door_mask(units, _OPEN),
+        )
+
+    def _scan(self, now_s: float) -> None:
+        cmd = self.last_cmd
+        if self.train is None or cmd is None:
+            return
+        n = len(self.state.units)
+        train = TrainReport(
+            signals=_signals(cmd),
+            manual=not cmd.automatic,
+            doors=units_from_link(n, locked_mask=cmd.doors_locked),
+        )
+        before = self.state
+        try:
+            self.state = wpcs.scan(
+                self.state,
+                train,
+                wcc_manual=self.wcc_manual,
+                panel_open=self.panel_open,
+                panel_close=self.panel_close,
+                actions=self.model.actions,
+                interlocks=self.model.interlocks,
+                doors=self.model.doors,
+            )
+        except InterlockError as exc:
+            self.state = wpcs.safe(self.state)  # DESIGN rule 7: nothing opens, the train is told
+            self._event("fault", now_s, error=str(exc))
+        self._follow(before, now_s)
+
+    def _follow(self, before: WpcsState, now_s: float) -> None:
+        for i, (u0, u1) in enumerate(zip(before.units, self.state.units, strict=True)):
+            self.motion.follow(i, u0, u1, now_s)
+        units = [u for u in self.state.units if u != DoorState.ISOLATED]
+        if units and all(u == DoorState.OPEN for u in units) and not self.was_open:
+            self.was_open = True
+            self._event("psd-open", now_s)
+        elif self.was_open and all(u in LOCKED_STATES for u in self.state.units):
+            self.was_open = False
+            self._event("psd-locked", now_s)
+
+    def _end(self, why: str, now_s: float) -> None:
+        self._event(why, now_s)
+        self.train = None
+        self.last_cmd = None
+
+    def _event(self, what: str, now_s: float, **more: Any) -> None:
+        self.events.append(
+            {
+                "st": self.name,
+                "tr": self.train if self.train is not None else self.asking,
+                "ev": what,
+                "psd": summarise(self.state.units),
+                "wcc": "manual" if self.wcc_manual else "auto",
+                "t_s": round(now_s, 2),
+                **more,
+            }
+        )
+
+
+# ---------------------------------------------------------------------- the train
+
+
+@dataclass
+class TrainDoors:
+    """A train's dwell at one station (SPEC §5) in automatic operation, from the moment its wheels
+    stop to start enable (or the fault): ``step`` each plant step; the ``door-command`` telegrams
+    to send are queued in ``due``, the ``psd-status`` telegrams received go to ``receive``."""
+
+    train: int
+    station: int
+    station_name: str
+    side: Side
+    error_m: float  # the stop error (+ = overrun); the correction creep changes it
+    doors: DoorsConfig
+    model: DoorModel
+    t0_s: float
+    stop: StopConfirmState = field(default_factory=StopConfirmState)
+    cpcs: CpcsState = field(init=False)
+    signals: DoorSignals = field(default_factory=DoorSignals)
+    due: list[DoorCommand] = field(default_factory=list)
+    moving: bool = False
+    done: bool = False
+    start_enable_s: float | None = None
+    fault: str | None = None
+    corrections: int = 0
+    psc_requests: int = 0
+    events: list[tuple[float, str]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.cpcs = CpcsState.closed(self.doors.doors_per_side)
+        self.motion = DoorMotion(self.doors, psd=False)
+        self.t = self.doors.timing
+        self.link = self.doors.link
+        self.standstill_at_s = self.t0_s + self.t.zero_speed_confirm_s
+        self.psc_deadline_s = math.inf
+        self.next_cmd_s = math.inf
+        self.status: PsdStatus | None = None
+        self.status_s = -math.inf
+        self.doors_open = False
+        self.dwell_end_s = math.inf
+        self.closing = False
+        self.creep_left_m = 0.0
+        self.creep_dir = 0.0
+        self.settle_end_s = math.inf
+
+    # -- inputs -------------------------------------------------------------------------
+    def receive(self, status: PsdStatus, now_s: float) -> None:
+        if status.train_id != self.train or not status.psc:
+            return
+        self.status, self.status_s = status, now_s
+        if self.stop.phase == StopPhase.PSC_WAIT:
+            self._stop_input(StopInput.PSC_REPLY, now_s)  # SPEC §5: the reply makes PSC high
+            if self.stop.phase == StopPhase.CONFIRMED:
+                # SPEC §5: with PSC the ATC releases DMC on the platform side and gives DOA, DOC.
+                self.signals = self.signals.with_side(self.side, dmc=False, doa=True)._replace(doc=True)
+        self._scan(now_s)
+
+    @property
+    def emergency_brake(self) -> bool:
+        return self.stop.phase == StopPhase.FAULT or self.cpcs.fault
+
+    @property
+    def creep_mps(self) -> float:
+        """The correction creep's speed (signed, + = forward), 0 when the train stands."""
+        return self.creep_dir * self.doors.stop_confirm.creep_speed_mps if self.creep_left_m > 0.0 else 0.0
+
+    # -- the cycle ----------------------------------------------------------------------
+    def step(self, now_s: float, step_s: float) -> float:
+        """One plant step; returns how far the train moved (the correction creep, + = forward)."""
+        if self.done:
+            return 0.0
+        moved = 0.0
+        if self.creep_left_m > 0.0:
+            d = min(self.creep_left_m, self.doors.stop_confirm.creep_speed_mps * step_s)
+            self.creep_left_m -= d
+            moved = self.creep_dir * d
+            self.error_m += moved
+            if self.creep_left_m <= 0.0:
+                self.settle_end_s = now_s + self.doors.stop_confirm.creep_settle_s
+        if now_s >= self.settle_end_s:
+            self.settle_end_s = math.inf
+            self.moving = False
+            self.standstill_at_s = now_s + self.t.zero_speed_confirm_s
+        if now_s >= self.standstill_at_s:
+            self.standstill_at_s = math.inf
+            self._stop_input(StopInput.STANDSTILL, now_s)
+        phase = self.stop.phase
+        if phase == StopPhase.PSC_WAIT and now_s >= self.psc_deadline_s:
+            self._stop_input(StopInput.PSC_TIMEOUT, now_s)  # no reply: not in position
+        elif phase == StopPhase.CONFIRMED and now_s - self.status_s > self.link.supervision_timeout_s:
+            self._stop_input(StopInput.LINK_LOST, now_s)
+        for key in self.motion.due(now_s):
+            assert isinstance(key, tuple)
+            side, unit = key
+            before = self.cpcs
+            try:
+                self.cpcs = cpcs.door_event(self.cpcs, side, unit, DoorInput.DONE, self.model.doors)
+            except InterlockError as exc:
+                self.cpcs = cpcs.safe(self.cpcs)
+                self._fail(str(exc), now_s)
+            self._follow(before, now_s)
+        if now_s >= self.dwell_end_s:
+            self.dwell_end_s = math.inf
+            self.closing = True
+            self.signals = self.signals.with_side(self.side, dmc=True)._replace(dcc=True)  # SPEC §5: close
+            self._note(now_s, "close")
+        self._scan(now_s)
+        self._react(now_s)
+        if self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) and now_s >= self.next_cmd_s:
+            self.due.append(self.command())
+            self.next_cmd_s = now_s + self.link.exchange_cycle_s - 1e-9
+        return moved
+
+    def command(self, *, psc: bool | None = None) -> DoorCommand:
+        s = self.signals
+        return DoorCommand(
+            train_id=self.train,
+            doa_l=s.doa_l,
+            doa_r=s.doa_r,
+            dmc_l=s.dmc_l,
+            dmc_r=s.dmc_r,
+            doc=s.doc,
+            dcc=s.dcc,
+            psc=self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) if psc is None else psc,
+            automatic=True,
+            doors_locked=door_mask(self.cpcs.side(self.side), LOCKED_STATES),
+        )
+
+    # -- inside -------------------------------------------------------------------------
+    def _psd(self, now_s: float) -> PsdReport | None:
+        """SPEC §5: the PSD state reaches the train only over the link, and only while PSC is high."""
+        st = self.status
+        if self.stop.phase != StopPhase.CONFIRMED or st is None:
+            return None
+        n = len(self.cpcs.side(self.side))
+        units = units_from_link(
+            n, open_mask=st.psd_open, locked_mask=(1 << n) - 1 if st.psd_closed_locked else 0
+        )
+        return PsdReport(side=self.side, units=units, fault=st.fault)
+
+    def _scan(self, now_s: float) -> None:
+        before = self.cpcs
+        try:
+            self.cpcs = cpcs.scan(
+                self.cpcs,
+                self.signals,
+                manual=False,
+                zero_speed=not self.moving,
+                psd=self._psd(now_s),
+                actions=self.model.actions,
+                interlocks=self.model.interlocks,
+                doors=self.model.doors,
+            )
+        except InterlockError as exc:
+            self.cpcs = cpcs.safe(self.cpcs)  # doors held closed, emergency brake
+            self._fail(str(exc), now_s)
+        self._follow(before, now_s)
+
+    def _follow(self, before: CpcsState, now_s: float) -> None:
+        for side in (Side.L, Side.R):
+            for i, (u0, u1) in enumerate(zip(before.side(side), self.cpcs.side(side), strict=True)):
+                self.motion.follow((side, i), u0, u1, now_s)
+
+    def _stop_input(self, inp: StopInput, now_s: float) -> None:
+        was = self.stop.phase
+        try:
+            self.stop = stop_confirm.step(
+                self.stop, inp, max_attempts=self.model.max_psc_attempts, table=self.model.stop
+            )
+        except InterlockError as exc:
+            self.stop = stop_confirm.safe(self.stop)
+            self._fail(str(exc), now_s)
+            return
+        phase = self.stop.phase
+        if phase == was:
+            return
+        if phase == StopPhase.FAULT:
+            # SPEC §5: the attempts used up (or the link lost with PSC high): fault, emergency brake.
+            self._fail(f"stop confirmation: {inp.value} in phase {was.value}", now_s)
+            return
+        self._note(now_s, phase.value)
+        if phase == StopPhase.PSC_WAIT:
+            # SPEC §5: standstill confirmed -> PSC request; no reply within the time-out = not in
+            # position.
+            self.psc_requests += 1
+            self.psc_deadline_s = now_s + self.t.psc_timeout_s
+            self.next_cmd_s = now_s
+        elif phase == StopPhase.CORRECTING:
+            # SPEC §3 lamps F / R: a short creep towards the stopping point, at most creep_max_m.
+            self.due.append(self.command(psc=False))
+            self.corrections += 1
+            self.moving = True
+            self.creep_dir = -1.0 if self.error_m > 0.0 else 1.0
+            self.creep_left_m = max(min(abs(self.error_m), self.doors.stop_confirm.creep_max_m), 1e-6)
+
+    def _react(self, now_s: float) -> None:
+        if self.done or self.stop.phase != StopPhase.CONFIRMED:
+            return
+        units = [u for u in self.cpcs.side(self.side) if u != DoorState.ISOLATED]
+        if not self.doors_open and units and all(u == DoorState.OPEN for u in units):
+            # Doors open: the ATC drops DOC; the dwell runs.
+            self.doors_open = True
+            self.signals = self.signals._replace(doc=False)
+            self.dwell_end_s = now_s + self.t.dwell_s
+            self._note(now_s, "doors-open")
+        st = self.status
+        ready = self.closing and cpcs.start_enabled(
+            self.cpcs, self._psd(now_s), psc=True, emergency_brake=self.emergency_brake,
+            interlocks=self.model.interlocks,
+        )  # fmt: skip
+        if ready and st is not None and st.psd_closed_locked and st.start_enable:
+            # SPEC §5 fig. 7: start enable; the door commands are released, PSC dropped.
+            self.start_enable_s = now_s
+            self.signals = self.signals.with_side(self.side, doa=False)._replace(dcc=False)
+            self._stop_input(StopInput.DEPART, now_s)
+            self.due.append(self.command(psc=False))
+            self.done = True
+            self._note(now_s, "start-enable")
+
+    def _fail(self, why: str, now_s: float) -> None:
+        if self.fault is None:
+            self.fault = why
+            self.done = True
+            self._note(now_s, "fault")
+
+    def _note(self, now_s: float, what: str) -> None:
+        self.events.append((round(now_s - self.t0_s, 2), what))
+
+    def result(self) -> dict[str, Any]:
+        """The dwell as the office stores it."""
+        return {
+            "station": self.station_name,
+            "train": self.train,
+            "outcome": "start-enable"
+            if self.start_enable_s is not None
+            else "fault"
+            if self.fault
+            else "running",
+            "psc_requests": self.psc_requests,
+            "corrections": self.corrections,
+            "error_m": round(self.error_m, 3),
+            "dwell_s": None if self.start_enable_s is None else round(self.start_enable_s - self.t0_s, 2),
+            "fault": self.fault,
+        }
+
+
+def wired_dwell(
+    doors: DoorsConfig,
+    *,
+    error_m: float,
+    side: Side = Side.R,
+    step_s: float = 0.05,
+    platform_silent_after_s: float = math.inf,
+    wcc: tuple[tuple[float, bool, bool, bool], ...] = (),
+    until_s: float = 600.0,
+) -> tuple[TrainDoors, PlatformDoors]:
+    """One dwell with the train's end and the platform's wired directly in this process, each
+    frame delivered at the next step (the live units' check against the dwell simulation): the
+    platform falls silent after ``platform_silent_after_s`` (its process died); ``wcc``: the WCC's
+    actions, each (at_s, manual, panel_open, panel_close)."""
+    from railstop.sim.dwell import model_for
+
+    model = model_for(doors)
+    platform = PlatformDoors(index=0, name="P", side=side, doors=doors, model=model)
+    train = TrainDoors(
+        train=1, station=0, station_name="P", side=side, error_m=error_m, doors=doors, model=model, t0_s=0.0
+    )
+    actions = sorted(wcc)
+    up: list[DoorCommand] = []
+    down: list[PsdStatus] = []
+    t = 0.0
+    while (not train.done or up) and t < until_s:  # the train's last frame (PSC off) delivered too
+        for status in down:
+            train.receive(status, t)
+        down = []
+        train.step(t, step_s)
+        alive = t < platform_silent_after_s
+        if alive:
+            while actions and actions[0][0] <= t:
+                _, manual, panel_open, panel_close = actions.pop(0)
+                platform.wcc(manual=manual, panel_open=panel_open, panel_close=panel_close, now_s=t)
+            platform.sense(train.train, math.nan if train.moving else train.error_m, t)
+            for cmd in up:
+                platform.receive(cmd, t)
+            platform.tick(t)
+            down = [s for _, s in platform.due]
+        platform.due.clear()
+        up = list(train.due)
+        train.due.clear()
+        t = round(t + step_s, 9)
+    return train, platform

@@ -1,0 +1,128 @@
+"""The station dwell live (SPEC §5): the WPCS's end and the train's end of the door link, wired in
+one process, against the dwell simulation and through their fail-safe paths."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from railstop.config.doors import load_doors
+from railstop.control.doors import LOCKED_STATES, DoorState, Side
+from railstop.link.codec import decode, encode
+from railstop.live.doors import PlatformDoors, TrainDoors, pack_stop_sensed, unpack_stop_sensed, wired_dwell
+from railstop.sim.dwell import model_for, run_dwell
+
+DOORS = load_doors()
+CYCLE = DOORS.link.exchange_cycle_s
+
+
+@pytest.mark.parametrize("error_m", [0.0, 0.3, -0.34, 0.8, -1.2])
+def test_wired_dwell_follows_the_dwell_simulation(error_m: float) -> None:
+    """Same PSC requests, corrections and outcome as ``run_dwell``; start enable later only by the
+    link's exchange cycles (each change of the door signals waits for the next command frame)."""
+    train, platform = wired_dwell(DOORS, error_m=error_m, step_s=0.01)
+    sim = run_dwell(doors=DOORS, station="P", platform_side="R", stop_error_m=error_m)
+    assert train.result()["outcome"] == sim.outcome == "start-enable"
+    assert train.psc_requests == sim.psc_attempts
+    assert train.corrections == sim.corrections
+    assert sim.start_enable_s is not None and train.start_enable_s is not None
+    assert sim.start_enable_s <= train.start_enable_s <= sim.start_enable_s + 4 * CYCLE
+    assert abs(train.error_m) <= DOORS.stop_confirm.tolerance_m
+    # The PSD opened and closed again, and the platform let the train go.
+    assert [e["ev"] for e in platform.events] == ["psc", "psd-open", "psd-locked", "psc-off"]
+    assert all(u in LOCKED_STATES for u in platform.state.units)
+    assert platform.train is None
+
+
+def test_train_out_of_reach_is_never_answered_and_brakes() -> None:
+    """SPEC §5: no PSC reply after the last attempt: fault and emergency brake."""
+    train, platform = wired_dwell(DOORS, error_m=30.0)
+    assert train.fault is not None and train.emergency_brake
+    assert train.psc_requests == DOORS.stop_confirm.max_psc_attempts
+    assert train.corrections == DOORS.stop_confirm.max_psc_attempts - 1
+    assert platform.counts["psc_answered"] == 0 and platform.counts["psc_refused"] > 0
+    assert all(u == DoorState.CLOSED_LOCKED for u in platform.state.units)
+
+
+def test_platform_dead_before_the_stop_brakes_the_train() -> None:
+    train, _ = wired_dwell(DOORS, error_m=0.0, platform_silent_after_s=0.0)
+    assert train.fault is not None and train.emergency_brake
+    assert train.psc_requests == DOORS.stop_confirm.max_psc_attempts
+
+
+def test_platform_dead_with_doors_open_is_a_lost_link() -> None:
+    """PSC high, the status frames stop: the train's supervision reports the fault and brakes
+    within ``supervision_timeout_s`` plus a step; no start enable on a PSD it cannot see."""
+    train, platform = wired_dwell(DOORS, error_m=0.0, platform_silent_after_s=10.0, step_s=0.01)
+    assert train.fault is not None and "link-lost" in train.fault
+    assert train.start_enable_s is None and train.emergency_brake
+    t_fault = next(t for t, what in train.events if what == "fault")
+    assert 10.0 < t_fault <= 10.0 + DOORS.link.supervision_timeout_s + 0.02
+    assert platform.train == 1  # the dead platform never let go (it ran no more)
+
+
+def test_train_silent_platform_drops_it_and_holds_the_psd() -> None:
+    model = model_for(DOORS)
+    platform = PlatformDoors(index=0, name="P", side=Side.R, doors=DOORS, model=model)
+    train = TrainDoors(
+        train=4, station=0, station_name="P", side=Side.R, error_m=0.0, doors=DOORS, model=model, t0_s=0.0
+    )
+    t = 0.0
+    while t < 8.0:  # until the doors are open
+        train.step(t, 0.01)
+        platform.sense(4, 0.0, t)
+        for cmd in train.due:
+            platform.receive(cmd, t)
+        train.due.clear()
+        platform.tick(t)
+        for _, status in platform.due:
+            train.receive(status, t)
+        platform.due.clear()
+        t = round(t + 0.01, 9)
+    assert all(u == DoorState.OPEN for u in platform.state.units)
+    while t < 10.0:  # the train's process is gone: only the platform runs
+        platform.tick(t)
+        t = round(t + 0.01, 9)
+    assert platform.train is None and platform.counts["links_lost"] == 1
+    assert platform.events[-1]["ev"] == "link-lost"
+    # No exchange, no command (SPEC §5): the PSD is held as it is, for the staff.
+    assert all(u == DoorState.OPEN for u in platform.state.units)
+
+
+def test_wcc_manual_holds_the_psd_until_the_panel_opens_it() -> None:
+    """SPEC §5: the WCC switches the WPCS to manual; the ATC's DOC no longer opens the PSD, the
+    panel's open button does; the PSD closes on the panel's close button only."""
+    held, _ = wired_dwell(DOORS, error_m=0.0, wcc=((0.0, True, False, False),), until_s=60.0)
+    assert held.start_enable_s is None and held.fault is None  # standing, doors closed
+    assert all(u in LOCKED_STATES for u in held.cpcs.side(Side.R))
+    train, platform = wired_dwell(
+        DOORS,
+        error_m=0.0,
+        wcc=((0.0, True, False, False), (10.0, True, True, False), (40.0, True, False, True)),
+    )
+    assert train.start_enable_s is not None and train.start_enable_s > 40.0
+    events = [e["ev"] for e in platform.events]
+    assert events[:3] == ["wcc-manual", "psc", "psd-open"]
+    assert "psd-locked" in events
+
+
+def test_wcc_back_to_automatic() -> None:
+    train, platform = wired_dwell(
+        DOORS, error_m=0.0, wcc=((0.0, True, False, False), (5.0, False, False, False))
+    )
+    assert train.start_enable_s is not None
+    assert [e["ev"] for e in platform.events][:2] == ["wcc-manual", "psc"]
+    assert "wcc-auto" in [e["ev"] for e in platform.events]
+
+
+def test_status_and_command_travel_through_the_codec() -> None:
+    train, platform = wired_dwell(DOORS, error_m=0.0)
+    cmd = train.command()
+    assert decode(encode(cmd)) == cmd
+    status = platform.status()
+    assert decode(encode(status)) == status
+    assert unpack_stop_sensed(pack_stop_sensed(3, 2, -0.125)) == (3, 2, -0.125)
+    with pytest.raises(ValueError):
+        unpack_stop_sensed(b"\x00" * 3)
+    assert math.isnan(unpack_stop_sensed(pack_stop_sensed(3, 2, math.nan))[2])
