@@ -36,6 +36,7 @@ from railstop.link.codec import (
     TascSpeed,
     Telegram,
     TrackCircuitOccupancy,
+    WccCommand,
     ZoneRelease,
     crc16,
     decode,
@@ -176,6 +177,12 @@ REFERENCES = [
     (TascIncreaseDecrease(train_id=9, detector=4, delta=-1), "18 0009 04 ff 5bde"),
     # type a3 (P = 1: even parity) | train 0012 | operator 0007 | CRC
     (ZoneRelease(train_id=0x12, operator_id=7), "a3 0012 0007 885e"),
+    # type c3 (group 4 number 3 = 100 0011, P = 1: even parity) | station 0002
+    # | manual (bit 0), panel open (bit 1) = 03 | operator 0007 | CRC
+    (
+        WccCommand(station=2, manual=True, panel_open=True, panel_close=False, operator_id=7),
+        "c3 0002 03 0007 ba1f",
+    ),
 ]
 
 

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import hashlib
 
-from railstop.link.release_link import OperatorConsole, ReleaseGate, release_key
+from railstop.link.codec import WccCommand
+from railstop.link.release_link import (
+    WCC_ADDRESS,
+    OperatorConsole,
+    ReleaseGate,
+    WccGate,
+    release_key,
+    wcc_key,
+)
 from railstop.messages import ManualRelease
 
 
@@ -33,3 +41,35 @@ def test_a_stale_or_damaged_release_is_refused() -> None:
     assert gate.accept(bytes(damaged), 61.0) is None
     assert gate.rejected == {"stale": 1, "bad_mac": 1}
     assert gate.accept(console.release(3, 62.0), 62.0) == ManualRelease(train_id=3)
+
+
+def _wcc_console(master: bytes | None = None) -> OperatorConsole:
+    return OperatorConsole(key=wcc_key() if master is None else wcc_key(master), to=WCC_ADDRESS)
+
+
+def test_a_genuine_wcc_command_is_delivered_once() -> None:
+    console, gate = _wcc_console(), WccGate()
+    frame = console.wcc(2, manual=True, panel_open=False, panel_close=True, now_s=5.0)
+    got = gate.accept(frame, 5.1)
+    assert got == WccCommand(station=2, manual=True, panel_open=False, panel_close=True, operator_id=1)
+    assert gate.accept(frame, 5.2) is None  # a replay
+    assert gate.rejected == {"repeated": 1} and gate.accepted == 1
+
+
+def test_a_forged_or_misdirected_wcc_command_is_refused() -> None:
+    gate = WccGate()
+    forged = _wcc_console(hashlib.sha256(b"not the key").digest())
+    assert gate.accept(forged.wcc(0, manual=True, panel_open=True, panel_close=False, now_s=1.0), 1.0) is None
+    # A zone release sent to the stations' input: the release link's key, not the WCC's.
+    assert gate.accept(OperatorConsole().release(3, 2.0), 2.0) is None
+    assert gate.accepted == 0 and sum(gate.rejected.values()) == 2
+
+
+def test_a_wcc_command_that_makes_no_sense_changes_nothing() -> None:
+    """Fail safe: a panel button outside manual mode, or both buttons at once, is refused."""
+    console, gate = _wcc_console(), WccGate()
+    assert (
+        gate.accept(console.wcc(1, manual=False, panel_open=True, panel_close=False, now_s=1.0), 1.0) is None
+    )
+    assert gate.accept(console.wcc(1, manual=True, panel_open=True, panel_close=True, now_s=2.0), 2.0) is None
+    assert gate.rejected == {"inconsistent": 2} and gate.accepted == 0

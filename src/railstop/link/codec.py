@@ -84,6 +84,7 @@ __all__ = [
     "TascSpeed",
     "Telegram",
     "TrackCircuitOccupancy",
+    "WccCommand",
     "ZoneRelease",
     "crc16",
     "decode",
@@ -383,6 +384,19 @@ class ZoneRelease(Telegram):
 
     TYPE: ClassVar[str] = "zone-release"
     train_id: int
+    operator_id: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WccCommand(Telegram):
+    """SPEC §5: the WCC switches a station's WPCS to manual (and presses the platform panel's open
+    or close button) or back to automatic."""
+
+    TYPE: ClassVar[str] = "wcc-command"
+    station: int
+    manual: bool
+    panel_open: bool
+    panel_close: bool
     operator_id: int
 
 
@@ -827,6 +841,35 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     "6 PSC request, 7 driving mode (1 automatic, 0 manual)",
                 ),
                 _door_mask("doors_locked", "train door", "closed and locked"),
+            ),
+        ),
+        Layout(
+            name="wcc-command",
+            code=0xC3,
+            cls=WccCommand,
+            medium="radio",
+            description="SPEC §5: WCC (control room) -> a station's WPCS, manual mode and the platform "
+            "panel's buttons (always in a category 3 safety frame with the operator's own key)",
+            fields=(
+                Field(
+                    name="station",
+                    code="H",
+                    kind="int",
+                    min=0,
+                    max=0xFFFF,
+                    description="the station's number on the line (0 = first in the line data)",
+                ),
+                Field(
+                    name="mode",
+                    code="B",
+                    kind="flags",
+                    min=0,
+                    max=0x07,
+                    bits=("manual", "panel_open", "panel_close"),
+                    description="bit 0 WPCS in manual, 1 panel open button, 2 panel close button "
+                    "(1 and 2 only with 0, never both); bits 3-7 must be 0",
+                ),
+                Field(name="operator_id", code="H", kind="int", min=0, max=0xFFFF, description="operator"),
             ),
         ),
         Layout(

@@ -1,4 +1,5 @@
-"""The operator's manual release of a protection zone (SPEC §4 step 5), authenticated.
+"""The operator's commands, authenticated: the manual release of a protection zone (SPEC §4 step 5)
+and the WCC's switch of a station's WPCS to manual (SPEC §5).
 
 A released zone lets trains into track where a lost train may stand, so the
 release travels only as a ``zone-release`` telegram in an EN 50159
@@ -7,7 +8,9 @@ MAC, a sequence number, a timestamp): the :class:`ReleaseGate` in front of
 the zone controller delivers a :class:`~railstop.messages.ManualRelease`
 only for a frame that passes; a frame with a wrong key, replayed, stale or
 damaged is refused and counted by its reason (DESIGN rule 10: nothing is
-released on a doubtful command).
+released on a doubtful command). The WCC's ``wcc-command`` travels the same
+way to the stations' WPCS input (:class:`WccGate`): a doubtful one changes
+nothing.
 """
 
 from __future__ import annotations
@@ -16,14 +19,15 @@ import hashlib
 from dataclasses import dataclass, field
 
 from railstop.errors import TelegramError
-from railstop.link.codec import ZoneRelease, decode, encode
+from railstop.link.codec import Telegram, WccCommand, ZoneRelease, decode, encode
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
 from railstop.messages import ManualRelease
 
-__all__ = ["OPERATOR_ADDRESS", "OperatorConsole", "ReleaseGate", "release_key"]
+__all__ = ["OPERATOR_ADDRESS", "OperatorConsole", "ReleaseGate", "WccGate", "release_key", "wcc_key"]
 
 OPERATOR_ADDRESS = 0x0400  # the control room's operator console
 ZC_RELEASE_ADDRESS = 0x0301  # the zone controller's release input
+WCC_ADDRESS = 0x0302  # the stations' WPCS input from the WCC
 # Demonstration master key of the release link (its own, not the radio's). A deployment loads it
 # from its key management.
 _DEMO_MASTER = hashlib.sha256(b"railstop demonstration zone release master key").digest()
@@ -34,27 +38,45 @@ def release_key(master: bytes = _DEMO_MASTER) -> bytes:
     return link_key(master, OPERATOR_ADDRESS, ZC_RELEASE_ADDRESS)
 
 
+def wcc_key(master: bytes = _DEMO_MASTER) -> bytes:
+    """The key of the operator -> stations (WCC) direction."""
+    return link_key(master, OPERATOR_ADDRESS, WCC_ADDRESS)
+
+
 @dataclass(slots=True)
 class OperatorConsole:
-    """The sending end: ``release(train, now_s)`` gives the frame to send."""
+    """The sending end: ``release(train, now_s)`` (to the zone controller) or ``wcc(...)`` (to the
+    stations, with ``to=WCC_ADDRESS`` and its key) gives the frame to send."""
 
     operator_id: int = 1
     key: bytes = field(default_factory=release_key)
+    to: int = ZC_RELEASE_ADDRESS
     sender: SafeSender = field(init=False)
 
     def __post_init__(self) -> None:
-        self.sender = SafeSender(OPERATOR_ADDRESS, ZC_RELEASE_ADDRESS, key=self.key, category=3)
+        self.sender = SafeSender(OPERATOR_ADDRESS, self.to, key=self.key, category=3)
 
     def release(self, train_id: int, now_s: float) -> bytes:
         return self.sender.wrap(encode(ZoneRelease(train_id=train_id, operator_id=self.operator_id)), now_s)
 
+    def wcc(self, station: int, *, manual: bool, panel_open: bool, panel_close: bool, now_s: float) -> bytes:
+        tele = WccCommand(
+            station=station,
+            manual=manual,
+            panel_open=panel_open,
+            panel_close=panel_close,
+            operator_id=self.operator_id,
+        )
+        return self.sender.wrap(encode(tele), now_s)
+
 
 @dataclass(slots=True)
-class ReleaseGate:
-    """The zone controller's end: ``accept(frame, now_s)`` -> a ManualRelease, or None (refused,
-    counted in ``rejected`` by reason)."""
+class _Gate:
+    """A receiving end of the operator's link: the telegram of a frame that passes the safety layer
+    and the codec and is of the expected type, or None (refused, counted in ``rejected``)."""
 
-    key: bytes = field(default_factory=release_key)
+    key: bytes
+    own: int
     max_age_s: float = 5.0
     receiver: SafeReceiver = field(init=False)
     rejected: dict[str, int] = field(default_factory=dict)
@@ -62,15 +84,15 @@ class ReleaseGate:
 
     def __post_init__(self) -> None:
         self.receiver = SafeReceiver(
-            ZC_RELEASE_ADDRESS,
+            self.own,
             OPERATOR_ADDRESS,
             key=self.key,
             category=3,
             max_age_s=self.max_age_s,
-            timeout_s=1e9,  # releases are rare: no supervision of their cycle
+            timeout_s=1e9,  # operator commands are rare: no supervision of their cycle
         )
 
-    def accept(self, frame: bytes, now_s: float) -> ManualRelease | None:
+    def take(self, frame: bytes, now_s: float, expect: type[Telegram]) -> Telegram | None:
         verdict = self.receiver.accept(frame, now_s)
         if not isinstance(verdict, Delivered):
             self._reject(verdict.reason)
@@ -80,11 +102,49 @@ class ReleaseGate:
         except TelegramError as exc:
             self._reject(f"codec-{exc.reason}")
             return None
-        if not isinstance(tele, ZoneRelease):
+        if not isinstance(tele, expect):
             self._reject("unexpected-type")
             return None
         self.accepted += 1
-        return ManualRelease(train_id=tele.train_id)
+        return tele
 
     def _reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
+
+
+class ReleaseGate(_Gate):
+    """The zone controller's end: ``accept(frame, now_s)`` -> a ManualRelease, or None."""
+
+    __slots__ = ()
+
+    def __init__(self, key: bytes | None = None, max_age_s: float = 5.0) -> None:
+        super().__init__(
+            key=release_key() if key is None else key, own=ZC_RELEASE_ADDRESS, max_age_s=max_age_s
+        )
+
+    def accept(self, frame: bytes, now_s: float) -> ManualRelease | None:
+        tele = self.take(frame, now_s, ZoneRelease)
+        return None if not isinstance(tele, ZoneRelease) else ManualRelease(train_id=tele.train_id)
+
+
+class WccGate(_Gate):
+    """The stations' end of the WCC link: ``accept(frame, now_s)`` -> a WccCommand, or None. A
+    command that presses a panel button outside manual mode, or both at once, is refused
+    (``inconsistent``): it changes nothing."""
+
+    __slots__ = ()
+
+    def __init__(self, key: bytes | None = None, max_age_s: float = 5.0) -> None:
+        super().__init__(key=wcc_key() if key is None else key, own=WCC_ADDRESS, max_age_s=max_age_s)
+
+    def accept(self, frame: bytes, now_s: float) -> WccCommand | None:
+        tele = self.take(frame, now_s, WccCommand)
+        if not isinstance(tele, WccCommand):
+            return None
+        if ((tele.panel_open or tele.panel_close) and not tele.manual) or (
+            tele.panel_open and tele.panel_close
+        ):
+            self.accepted -= 1
+            self._reject("inconsistent")
+            return None
+        return tele
