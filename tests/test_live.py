@@ -283,9 +283,11 @@ def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_t
     assert after["emergency_brake"] is None and after["within"] is True, after
     assert served["stops_served"] >= 1 and served["commands"] >= 1
     assert fleet["tasc"]["emergency_brakes"] == {eb_cause_name(EB_TIMEOUT): 1}  # type: ignore[index]
-    # Every command the new stations process reported is in the office's database.
+    # Every report of the new stations process (its commands and its platforms' dwell events) is
+    # in the office's database.
     commands = [r for r in _reports(db, "tasc-command") if float(r["t"]) > restarted_s]  # type: ignore[arg-type]
-    assert len(commands) == served["office_link"]["submitted"]  # type: ignore[index]
+    events = [r for r in _reports(db, "dwell-event") if float(r["t_s"]) > restarted_s]  # type: ignore[arg-type]
+    assert commands and len(commands) + len(events) == served["office_link"]["submitted"]  # type: ignore[index]
 
 
 def test_the_wall_clock_counts_a_step_that_started_late_and_how_late() -> None:

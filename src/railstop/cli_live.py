@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from railstop.cli_common import LineOpt, VehicleOpt, address_option, fail
+from railstop.cli_doors import DoorsOpt
 from railstop.cli_office import KEY_ENV, master_key
 from railstop.errors import RailstopError
 
@@ -176,14 +177,18 @@ def stations_cmd(
     office: OfficeOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    doors: DoorsOpt = None,
 ) -> None:
-    """Every station's wayside TASC unit (SPEC §1) as a live process: sensor readings in, braking
-    telegrams out, every command to the office."""
+    """Every station's wayside units as a live process: the TASC unit (SPEC §1: sensor readings in,
+    braking telegrams out, every command to the office) and the platform's WPCS (SPEC §5: the door
+    link with the train standing there, the WCC's commands)."""
+    from railstop.config.doors import load_doors
     from railstop.live.tasc import run_stations
 
     try:
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         ctrl = _tasc_controller(controller)
+        door_data = load_doors(doors)
     except RailstopError as exc:
         fail(str(exc))
 
@@ -191,7 +196,7 @@ def stations_cmd(
         "stations", office, 802, key,
         lambda stop, client, ready: run_stations(
             line=ln, vehicle=veh, controller=ctrl, local=("127.0.0.1", port), base=base, master_key=key,
-            stop=stop, office=client, on_ready=ready,
+            stop=stop, office=client, on_ready=ready, doors=door_data,
         ),
     )  # fmt: skip
 
@@ -229,19 +234,28 @@ def trains_cmd(
     ] = 0.0,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    doors: DoorsOpt = None,
 ) -> None:
-    """Every train's onboard units (CBTC, and TASC with --stations) and the plant that moves the
-    trains, as one live process."""
+    """Every train's onboard units (CBTC; with --stations ground TASC and the dwell over the door
+    link with the platforms' WPCS) and the plant that moves the trains, as one live process."""
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.doors import load_doors
     from railstop.live.cbtc import run_trains
+    from railstop.live.doors import LiveDoors
     from railstop.live.tasc import LiveTasc
 
     try:
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         zc_addr = address_option(zc, "--zc")
         windows = [_outage(o, trains) for o in outage or []]
-        tasc = None
+        tasc = door_link = None
         if stations is not None:
+            door_link = LiveDoors(
+                line=ln,
+                doors=load_doors(doors),
+                stations=address_option(stations, "--stations"),
+                master_key=key,
+            )
             tasc = LiveTasc(
                 line=ln,
                 vehicle=veh,
@@ -287,6 +301,7 @@ def trains_cmd(
                 office=client,  # type: ignore[arg-type]
                 outage=dead,
                 tasc=tasc,
+                doors=door_link,
             )
 
         return await _with_office(office, 801, key, fleet)

@@ -55,7 +55,15 @@ from railstop.link.safety import (
 )
 
 #: What the wayside reports (SPEC §1 claims 7, 20; SPEC §4, §5 events for the control room).
-KINDS = ("tasc-command", "stop-result", "dwell-event", "zone-event", "operator-action", "train-state")
+KINDS = (
+    "tasc-command",
+    "stop-result",
+    "dwell-event",
+    "dwell-result",
+    "zone-event",
+    "operator-action",
+    "train-state",
+)
 CATEGORY = 3  # the internet: an open transmission system (EN 50159)
 
 

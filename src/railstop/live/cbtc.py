@@ -52,6 +52,7 @@ from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
+    from railstop.live.doors import LiveDoors, TrainDoors
     from railstop.live.tasc import FloatArray, LiveTasc, TascStop
 
 STEP_S = 0.05  # the plant step (simulated seconds)
@@ -225,6 +226,9 @@ class _TrainState:
     restricted_moving: bool = False
     tasc: TascStop | None = None  # the station stop under ground TASC in progress
     visits: int = 0  # station stops begun (the disturbance draw of each)
+    arrived: tuple[int, float] | None = None  # stopped at a platform (station, error): its dwell begins
+    dwell: TrainDoors | None = None  # the dwell over the door link in progress
+    retry: tuple[int, float] | None = None  # after a dwell fault: the dwell to begin again
 
 
 async def run_trains(
@@ -242,6 +246,7 @@ async def run_trains(
     state_period_s: float = 1.0,
     outage: set[int] | None = None,
     tasc: LiveTasc | None = None,
+    doors: LiveDoors | None = None,
 ) -> dict[str, Any]:
     """Run every train until ``stop``; return the counts (emergency brakes by cause, ...).
 
@@ -288,6 +293,9 @@ async def run_trains(
             out: list[Output] = []
             while (got := ep.take()) is not None:
                 frame, _ = got
+                if doors is not None and doors.accepts(frame):
+                    doors.ingest(frame, now_s)  # a PSD status from a platform's WPCS
+                    continue
                 if tasc is not None and tasc.accepts(frame):
                     tasc.ingest(frame, now_s)  # a braking telegram from a station
                     continue
@@ -309,9 +317,13 @@ async def run_trains(
                         ep.send(frame, zc)
                 r.outgoing.clear()
             for t in fleet:
-                if tasc is None or not _tasc_step(t, tasc, ep, now_s, step_s, order, dwell_s, office):
+                if doors is not None and _dwell_step(t, doors, ep, now_s, step_s, office):
+                    pass  # standing at the platform for its dwell (or creeping to correct its stop)
+                elif tasc is None or not _tasc_step(t, tasc, ep, now_s, step_s, order, dwell_s, office):
                     dead_now = t.k in dead
                     _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, dead_now, tasc, order, profile)
+                    if t.stopped_at is not None:
+                        t.arrived = (order[t.stopped_at], t.x_m - stations[t.stopped_at])
                 out.append(
                     Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
                 )
@@ -344,6 +356,7 @@ async def run_trains(
                         "emergency_brake": t.unit.emergency_brake,
                         "cause": t.unit.eb_cause,
                         "radio": "dead" if t.k in dead else "ok",
+                        "doors": None if t.dwell is None else t.dwell.phase,
                         "t_s": round(now_s, 2),
                     }
                     office.report("train-state", state)
@@ -359,6 +372,7 @@ async def run_trains(
         "commands": sum(t.unit.commands for t in fleet),
         "radio_rejected": _rejected(radios.values(), misdirected),
         "tasc": None if tasc is None else tasc.counts(),
+        "dwells": None if doors is None else doors.counts(),
     }
 
 
@@ -490,12 +504,56 @@ def _tasc_step(
         else:
             t.dwell_until_s = now_s + dwell_s
             t.next_station += 1
+            t.arrived = (stop.st.index, stop.error_m)
         tasc.results.append(result)
         if office is not None:
             office.report("stop-result", result)
     return True
 
 
+def _dwell_step(
+    t: _TrainState,
+    doors: LiveDoors,
+    ep: UdpEndpoint,
+    now_s: float,
+    step_s: float,
+    office: OfficeClient | None,
+) -> bool:
+    """The dwell over the door link (SPEC §5, ``live.doors``): begun when the train stops at a
+    platform; it holds the train (or creeps it to correct its stop) until start enable. After the
+    SPEC §5 fault (no PSC after the last attempt, or the link lost with PSC high: emergency
+    brake) the train stands ``DWELL_FAULT_HOLD_S``, then its confirmation begins again
+    [interpretation]: staff reset the ATC; SPEC §5 says nothing of the recovery. Returns whether
+    it held the train."""
+    if t.retry is not None and now_s >= t.dwell_until_s:
+        t.arrived, t.retry = t.retry, None
+    if t.arrived is not None:
+        station, error_m = t.arrived
+        t.arrived = None
+        t.dwell = doors.begin(t.k, station, error_m, now_s)
+        t.dwell_until_s = math.inf
+    dwell = t.dwell
+    if dwell is None:
+        return t.retry is not None  # waiting for the reset after a fault
+    moved, frames = doors.advance(dwell, now_s, step_s)
+    for frame in frames:
+        ep.send(frame, doors.address)
+    t.x_m += moved
+    t.v_mps = abs(dwell.creep_mps)
+    if dwell.done:
+        t.dwell = None
+        result = {**dwell.result(), "t_s": round(now_s, 2)}
+        if dwell.fault is None:
+            t.dwell_until_s = now_s  # start enable: it departs
+        else:
+            t.dwell_until_s = now_s + DWELL_FAULT_HOLD_S
+            t.retry = (dwell.station, dwell.error_m)
+        if office is not None:
+            office.report("dwell-result", result)
+    return True
+
+
+DWELL_FAULT_HOLD_S = 60.0  # after a dwell's fault, the train stands this long before it tries again
 EB_RESET_S = 10.0  # after a TASC emergency stop short of the platform, the train stands this long
 RESTRICTED_AFTER_S = 20.0  # at a stand with a dead radio, the driver asks and gets leave after this
 RESTRICTED_MPS = 15.0 / 3.6  # on sight, ATP cut out

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from railstop.config.doors import DoorsConfig
+from railstop.config.schema import Line
 from railstop.control.doors import (
     LOCKED_STATES,
     DoorInput,
@@ -54,13 +55,17 @@ from railstop.control.doors import (
     units_from_link,
 )
 from railstop.errors import InterlockError
-from railstop.link.codec import DoorCommand, PsdStatus
+from railstop.link.codec import DoorCommand, PsdStatus, TelegramError, decode, encode
+from railstop.link.safety import SafePeers, frame_ids
+from railstop.link.udp import Address
 from railstop.onboard import cpcs, stop_confirm
 from railstop.onboard.cpcs import CpcsState, PsdReport
 from railstop.onboard.stop_confirm import StopConfirmState, StopInput, StopPhase
 from railstop.sim.door_system import DoorModel
 from railstop.wayside import wpcs
 from railstop.wayside.wpcs import TrainReport, WpcsState, answers_psc
+
+SENSORS_ID = 0x0280  # the trackside sensors (the plant that reads them); as live.tasc's
 
 PLATFORM_BASE = 0x0200  # station i's WPCS: PLATFORM_BASE + i (as door_link's PLATFORM_ID for station 0)
 TRAIN_DOORS_BASE = 0x4800  # train k's door end (ATC / CPCS): TRAIN_DOORS_BASE + k
@@ -350,6 +355,17 @@ class TrainDoors:
         return self.stop.phase == StopPhase.FAULT or self.cpcs.fault
 
     @property
+    def phase(self) -> str:
+        """Where the dwell is, in a word: the confirmation's phase, or doors open / closing."""
+        if self.fault is not None:
+            return "fault"
+        if self.closing:
+            return "closing"
+        if self.doors_open:
+            return "doors-open"
+        return self.stop.phase.value
+
+    @property
     def creep_mps(self) -> float:
         """The correction creep's speed (signed, + = forward), 0 when the train stands."""
         return self.creep_dir * self.doors.stop_confirm.creep_speed_mps if self.creep_left_m > 0.0 else 0.0
@@ -579,3 +595,220 @@ def wired_dwell(
         train.due.clear()
         t = round(t + step_s, 9)
     return train, platform
+
+
+# ---------------------------------------------------------------------- the processes' ends
+
+
+class LiveDoors:
+    """The trains process's side of the door link: each train's dwell (:meth:`begin` at
+    standstill, :meth:`advance` each plant step), its ``door-command`` frames and the platform's
+    stop-sensor readings out, the ``psd-status`` frames in (category 3: UDP is an open network)."""
+
+    def __init__(self, *, line: Line, doors: DoorsConfig, stations: Address, master_key: bytes) -> None:
+        from railstop.sim.dwell import model_for
+
+        self.line = line
+        self.doors = doors
+        self.model = model_for(doors)
+        self.address = stations
+        self.master_key = master_key
+        n = len(line.stations)
+        self._is_platform = lambda p: PLATFORM_BASE <= p < PLATFORM_BASE + n
+        # The platforms' stop sensors are read by the plant (the frames stand for their wiring).
+        self.sensors = SafePeers(SENSORS_ID, master_key, max_age_s=1.0, peers=lambda p: False)
+        self._links: dict[int, SafePeers] = {}
+        self.active: dict[int, TrainDoors] = {}
+        self.results: list[dict[str, Any]] = []
+        self.unexpected = 0
+
+    def _link(self, train: int) -> SafePeers:
+        if train not in self._links:
+            self._links[train] = SafePeers(
+                TRAIN_DOORS_BASE + train,
+                self.master_key,
+                max_age_s=self.doors.link.max_age_s,
+                peers=self._is_platform,
+            )
+        return self._links[train]
+
+    def accepts(self, frame: bytes) -> bool:
+        ids = frame_ids(frame)
+        return ids is not None and self._is_platform(ids[0])
+
+    def ingest(self, frame: bytes, now_s: float) -> None:
+        ids = frame_ids(frame)
+        if ids is None:
+            return
+        train = ids[1] - TRAIN_DOORS_BASE
+        got = self._link(train).accept(frame, now_s)
+        if got is None:
+            return
+        dwell = self.active.get(train)
+        try:
+            status = decode(got[1].payload)
+        except TelegramError:
+            self._link(train).reject("codec")
+            return
+        if dwell is None or not isinstance(status, PsdStatus) or got[0] - PLATFORM_BASE != dwell.station:
+            self.unexpected += 1
+            return
+        dwell.receive(status, now_s)
+
+    def begin(self, train: int, station: int, error_m: float, now_s: float) -> TrainDoors:
+        st = self.line.stations[station]
+        dwell = TrainDoors(
+            train=train,
+            station=station,
+            station_name=st.name,
+            side=Side(st.platform_side),
+            error_m=error_m,
+            doors=self.doors,
+            model=self.model,
+            t0_s=now_s,
+        )
+        self.active[train] = dwell
+        return dwell
+
+    def advance(self, dwell: TrainDoors, now_s: float, step_s: float) -> tuple[float, list[bytes]]:
+        """One plant step of a dwell: how far the train moved (the correction creep) and the
+        frames to send to the stations process."""
+        moved = dwell.step(now_s, step_s)
+        platform = PLATFORM_BASE + dwell.station
+        # The stop sensors read the train standing (or not: NaN) every step.
+        sensed = pack_stop_sensed(dwell.train, dwell.station, math.nan if dwell.moving else dwell.error_m)
+        frames = [self.sensors.wrap(sensed, platform, now_s)]
+        link = self._link(dwell.train)
+        frames += [link.wrap(encode(cmd), platform, now_s) for cmd in dwell.due]
+        dwell.due.clear()
+        if dwell.done:
+            self.active.pop(dwell.train, None)
+            self.results.append(dwell.result())
+        return moved, frames
+
+    def counts(self) -> dict[str, Any]:
+        refused: dict[str, int] = {}
+        for lk in self._links.values():
+            for reason, k in lk.rejected.items():
+                refused[reason] = refused.get(reason, 0) + k
+        outcomes: dict[str, int] = {}
+        for r in self.results:
+            outcomes[r["outcome"]] = outcomes.get(r["outcome"], 0) + 1
+        dwells = [r["dwell_s"] for r in self.results if r["dwell_s"] is not None]
+        return {
+            "dwells": len(self.results),
+            "outcomes": outcomes,
+            "corrections": sum(r["corrections"] for r in self.results),
+            "dwell_s_max": max(dwells) if dwells else None,
+            "status_frames": sum(lk.delivered for lk in self._links.values()),
+            "command_frames": sum(lk.sent for lk in self._links.values()),
+            "refused": refused,
+            "unexpected": self.unexpected,
+        }
+
+
+class Platforms:
+    """The stations process's side of the door link: every station's :class:`PlatformDoors`, the
+    stop-sensor and ``door-command`` frames in, the ``psd-status`` frames out, the WCC's commands
+    through their gate (``link.release_link.WccGate``)."""
+
+    def __init__(self, *, line: Line, doors: DoorsConfig, master_key: bytes) -> None:
+        from railstop.link.release_link import WccGate, wcc_key
+        from railstop.sim.dwell import model_for
+
+        model = model_for(doors)
+        self.units = [
+            PlatformDoors(index=i, name=st.name, side=Side(st.platform_side), doors=doors, model=model)
+            for i, st in enumerate(line.stations)
+        ]
+        n = len(self.units)
+        self.links = {
+            i: SafePeers(
+                PLATFORM_BASE + i,
+                master_key,
+                max_age_s=doors.link.max_age_s,
+                peers=lambda p: p == SENSORS_ID or TRAIN_DOORS_BASE <= p < TRAIN_DOORS_BASE + 0x400,
+            )
+            for i in range(n)
+        }
+        self.gate = WccGate(key=wcc_key(master_key))
+        self.refused: dict[str, int] = {}
+
+    def owns(self, dst: int) -> bool:
+        from railstop.link.release_link import WCC_ADDRESS
+
+        return dst == WCC_ADDRESS or dst - PLATFORM_BASE in self.links
+
+    def _refuse(self, reason: str) -> None:
+        self.refused[reason] = self.refused.get(reason, 0) + 1
+
+    def ingest(self, frame: bytes, dst: int, now_s: float) -> int | None:
+        """A frame for a platform (or the WCC input); the train it came from, if any."""
+        from railstop.link.release_link import WCC_ADDRESS
+
+        if dst == WCC_ADDRESS:
+            wcc = self.gate.accept(frame, now_s)
+            if wcc is not None:
+                if wcc.station >= len(self.units):
+                    self._refuse("wcc_unknown_station")
+                else:
+                    self.units[wcc.station].wcc(
+                        manual=wcc.manual, panel_open=wcc.panel_open, panel_close=wcc.panel_close, now_s=now_s
+                    )
+            return None
+        i = dst - PLATFORM_BASE
+        got = self.links[i].accept(frame, now_s)
+        if got is None:
+            return None
+        peer, delivered = got
+        if peer == SENSORS_ID:
+            try:
+                train, station, error_m = unpack_stop_sensed(delivered.payload)
+            except ValueError:
+                self._refuse("bad_stop_sensor")
+                return None
+            if station != i:
+                self._refuse("wrong_station")
+                return None
+            self.units[i].sense(train, error_m, now_s)
+            return train
+        try:
+            cmd = decode(delivered.payload)
+        except TelegramError as exc:
+            self._refuse(f"codec-{exc.reason}")
+            return None
+        train = peer - TRAIN_DOORS_BASE
+        if not isinstance(cmd, DoorCommand) or cmd.train_id != train:
+            self._refuse("unexpected")
+            return None
+        self.units[i].receive(cmd, now_s)
+        return train
+
+    def tick(self, now_s: float) -> list[tuple[int, bytes]]:
+        """Every WPCS's cycle; the (train, frame) to send."""
+        out = []
+        for u in self.units:
+            u.tick(now_s)
+            for train, status in u.due:
+                out.append((train, self.links[u.index].wrap(encode(status), TRAIN_DOORS_BASE + train, now_s)))
+            u.due.clear()
+        return out
+
+    def take_events(self) -> list[dict[str, Any]]:
+        out = [e for u in self.units for e in u.events]
+        for u in self.units:
+            u.events.clear()
+        return sorted(out, key=lambda e: e["t_s"])
+
+    def counts(self) -> dict[str, Any]:
+        totals: dict[str, int] = {}
+        for u in self.units:
+            for k, v in u.counts.items():
+                totals[k] = totals.get(k, 0) + v
+        refused = dict(self.refused)
+        for lk in self.links.values():
+            for reason, n in lk.rejected.items():
+                refused[reason] = refused.get(reason, 0) + n
+        for reason, n in self.gate.rejected.items():
+            refused[f"wcc-{reason}"] = refused.get(f"wcc-{reason}", 0) + n
+        return {**totals, "wcc_commands": self.gate.accepted, "refused": refused}

@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.disturbances import DisturbanceSet, draw_scenario
+from railstop.config.doors import DoorsConfig
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.notch import MOD_SIZE
 from railstop.control.supervision import eb_cause_name
@@ -58,6 +59,7 @@ from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.safety import SafePeers, frame_ids
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
+from railstop.live.doors import SENSORS_ID, Platforms
 from railstop.live.office import OfficeClient
 from railstop.onboard.tasc_receiver import (
     CFG_PWM,
@@ -128,7 +130,6 @@ from railstop.wayside.tasc_unit import (
 FloatArray = NDArray[np.float64]
 
 STATION_BASE = 0x0100  # station i's wayside TASC unit: STATION_BASE + i (as tasc_link's WAYSIDE_ID)
-SENSORS_ID = 0x0280  # the trackside detectors and radars (the plant that reads them)
 TRAIN_TASC_BASE = 0x4000  # train k's onboard TASC unit: TRAIN_TASC_BASE + k
 #: The stop model's step (the radar's sample period, SPEC §1: 10 ms).
 TASC_DT_S = 0.01
@@ -370,8 +371,14 @@ async def run_stations(
     stop: asyncio.Event,
     office: OfficeClient | None = None,
     on_ready: Callable[[Address], None] | None = None,
+    doors: DoorsConfig | None = None,
 ) -> dict[str, Any]:
-    """Every station's wayside TASC unit, serving the trains until ``stop``; return the counts."""
+    """Every station's wayside units, serving the trains until ``stop``: the TASC unit and the WPCS
+    of its platform (``live.doors``, with the door data ``doors``: default the embedded); return
+    the counts."""
+    from railstop.config.doors import load_doors
+
+    platforms = Platforms(line=line, doors=doors or load_doors(), master_key=master_key)
     models = station_models(line, vehicle, controller)
     wired_stop(models[0], vehicle)  # the compiled steps loaded before the clock starts
     stations = [WaysideTasc(st) for st in models]
@@ -396,7 +403,13 @@ async def run_stations(
         def poll(now_s: float) -> list[Any]:
             while (got := ep.take()) is not None:
                 frame, addr = got
-                dst = (frame_ids(frame) or (-1, -1))[1] - STATION_BASE
+                to = (frame_ids(frame) or (-1, -1))[1]
+                if platforms.owns(to):
+                    train = platforms.ingest(frame, to, now_s)  # the platform's WPCS (or the WCC)
+                    if train is not None:
+                        plants[train] = addr
+                    continue
+                dst = to - STATION_BASE
                 if dst not in links:
                     refused["wrong_destination"] = refused.get("wrong_destination", 0) + 1
                     continue
@@ -418,6 +431,14 @@ async def run_stations(
 
         def plant(now_s: float, step_s: float) -> list[Any]:
             nonlocal commands
+            for train, frame in platforms.tick(now_s):
+                addr = plants.get(train)
+                if addr is not None:
+                    ep.send(frame, addr)
+            events = platforms.take_events()
+            if office is not None:
+                for event in events:
+                    office.report("dwell-event", event)
             for w in stations:
                 w.repeat(now_s)
                 for train, payload in w.due:
@@ -439,6 +460,7 @@ async def run_stations(
     return {
         "stops_served": sum(w.stops_served for w in stations),
         "stops_ended_readings_lost": sum(w.sensors_lost for w in stations),
+        "platforms": platforms.counts(),
         "commands": commands,
         "frames_sent": sum(lk.sent for lk in links.values()),
         "readings_frames": sum(lk.delivered for lk in links.values()),
