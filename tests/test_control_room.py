@@ -245,3 +245,124 @@ def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credentia
         actions = [r["data"] for r in store.office_reports(kind="operator-action")]
     assert [a["result"].split(":")[0] for a in actions] == ["refused", "sent to the zone controller"]
     assert all(a["operator"] == "alice" and a["train"] == 1 for a in actions)
+
+
+def test_the_wcc_switches_a_platform_to_manual_and_the_panel_moves_the_psd(tmp_path: Path) -> None:
+    """SPEC §5 live: the page (the WCC) switches Harbour's WPCS to manual before the first train
+    arrives. The train stops, PSC goes high, but the ATC's door command no longer opens the PSD;
+    the operator's "open" opens it (then the train's doors), his "close" closes it once the train's
+    doors are locked, and the train gets start enable. A wrong credential changes nothing; every
+    operator action is in the database."""
+    from playwright.sync_api import sync_playwright
+
+    from railstop.live.operators import add_operator
+
+    ops = tmp_path / "operators.toml"
+    add_operator(ops, "bob", "tr0ub4dor")
+    db = str(tmp_path / "office.db")
+    env = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
+    exe = [sys.executable, "-m", "railstop.cli"]
+    zc_port, st_port = _free_udp_port(), _free_udp_port()
+    epoch = ["--epoch", repr(time.time()), "--scale", "2"]
+    procs: list[subprocess.Popen[str]] = []
+
+    def start(*args: str) -> list[str]:
+        p = subprocess.Popen(
+            [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        procs.append(p)
+        assert p.stderr is not None
+        return [p.stderr.readline().strip() for _ in range(2 if args[0] == "office" else 1)]
+
+    harbour = 'tr[data-station="Harbour"]'
+    try:
+        lines = start("office", "serve", "--db", db, "--port", "0", "--http-port", "0", "--zc",
+                      f"127.0.0.1:{zc_port}", "--stations", f"127.0.0.1:{st_port}",
+                      "--operators", str(ops))  # fmt: skip
+        url = next(x.split(" at ")[1] for x in lines if x.startswith("control-room page"))
+        office = next(x.split(" on ")[1].split()[0] for x in lines if x.startswith("office listening"))
+        start("live", "zc", "--port", str(zc_port), "--trains", "2", "--office", office, *epoch)
+        assert start("live", "stations", "--port", str(st_port), "--office", office, *epoch)[0].startswith(
+            "stations on"
+        )
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1280, "height": 1100})
+                page.goto(url)
+                page.wait_for_selector("#status.ok", timeout=15_000)
+
+                def wcc(command: str, credential: str = "tr0ub4dor") -> str:
+                    page.click(f'#platforms {harbour} button[data-cmd="{command}"]')
+                    page.check("#wcc-confirm")
+                    page.fill("#wcc-operator", "bob")
+                    page.fill("#wcc-credential", credential)
+                    page.click("#wcc-send")
+                    page.wait_for_function("document.getElementById('wcc-result').textContent !== ''")
+                    text = page.inner_text("#wcc-result")
+                    page.evaluate("document.getElementById('wcc-result').textContent = ''")
+                    return text
+
+                def cell(i: int) -> str:
+                    return page.inner_text(f"#platforms {harbour} td:nth-child({i})")
+
+                assert wcc("manual", "guess").startswith("refused")
+                assert cell(4) == "auto"
+                assert "sent to the station" in wcc("manual")
+                page.wait_for_function(
+                    f"document.querySelector('#platforms {harbour} td.wpcs-mode').textContent === 'manual'",
+                    timeout=10_000,
+                )
+                # Only now do the trains run: train 0 starts 100 m before Harbour.
+                start("live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "2", "--spacing-m",
+                      "1100", "--stations", f"127.0.0.1:{st_port}", "--office", office, *epoch)  # fmt: skip
+                page.wait_for_function(
+                    f"document.querySelector('#platforms {harbour} td:nth-child(5)')"
+                    ".textContent.startsWith('psc')",
+                    timeout=30_000,
+                )
+                time.sleep(2.0)  # 4 s of the run: in automatic the PSD would be opening by now
+                assert cell(3) == "closed_locked" and cell(5).startswith("psc")
+                wcc_png = tmp_path / "wcc.png"
+                page.screenshot(path=str(wcc_png), full_page=True)
+                if os.environ.get("RAILSTOP_SCREENSHOT_DIR"):  # how docs/control-room-wcc.png is made
+                    shutil.copy(wcc_png, Path(os.environ["RAILSTOP_SCREENSHOT_DIR"]) / "control-room-wcc.png")
+                assert "sent to the station" in wcc("open")
+                page.wait_for_function(
+                    f"document.querySelector('#platforms {harbour} td:nth-child(3)').textContent === 'open'",
+                    timeout=10_000,
+                )
+                # Closing: the PSD waits for the train's doors (its dwell), then closes; start enable.
+                assert "sent to the station" in wcc("close")
+                page.wait_for_function(
+                    f"document.querySelector('#platforms {harbour} td:nth-child(6)').textContent"
+                    ".includes('start enable')",
+                    timeout=40_000,
+                )
+                assert cell(3) == "closed_locked"
+                assert "sent to the station" in wcc("auto")
+                page.wait_for_function(
+                    f"document.querySelector('#platforms {harbour} td.wpcs-mode').textContent === 'auto'",
+                    timeout=10_000,
+                )
+            finally:
+                browser.close()
+        assert wcc_png.stat().st_size > 10_000
+    finally:
+        results = []
+        for p in reversed(procs):
+            p.send_signal(signal.SIGTERM)
+            out, _ = p.communicate(timeout=30)
+            results.append(out)
+    from railstop.store import open_store
+
+    with open_store(db) as store:
+        actions = [r["data"] for r in store.office_reports(kind="operator-action")]
+        events = [r["data"] for r in store.office_reports(kind="dwell-event") if r["data"]["st"] == "Harbour"]
+    assert [a["result"].split(":")[0] for a in actions] == ["refused"] + ["sent to the station"] * 4
+    assert [a["command"] for a in actions[1:]] == [
+        "WPCS manual", "WPCS manual, panel open", "WPCS manual, panel close", "WPCS auto",
+    ]  # fmt: skip
+    kinds = [e["ev"] for e in events]
+    assert kinds[:4] == ["wcc-manual", "psc", "psd-open", "psd-locked"], kinds
+    assert "wcc-auto" in kinds

@@ -104,6 +104,7 @@ def test_wcc_manual_holds_the_psd_until_the_panel_opens_it() -> None:
     assert train.start_enable_s is not None and train.start_enable_s > 40.0
     events = [e["ev"] for e in platform.events]
     assert events[:3] == ["wcc-manual", "psc", "psd-open"]
+    assert platform.events[0]["wcc"] == "manual"
     assert "psd-locked" in events
 
 

@@ -362,9 +362,12 @@ def _run_line(
 
     results: dict[str, object] = {}
     try:
+        st_port = _free_udp_port()
         office_args = ["office", "serve", "--db", db, "--port", "0", "--http-port", str(http_port)]
         if operators is not None:
             office_args += ["--zc", f"127.0.0.1:{zc_port}", "--operators", operators]
+            if controller is not None:
+                office_args += ["--stations", f"127.0.0.1:{st_port}"]  # the page's WCC commands
         _, lines = start(office_args, lines=2)
         page = next((x for x in lines if x.startswith("control-room page")), "")
         listening = next((x for x in lines if x.startswith("office listening")), "")
@@ -381,7 +384,6 @@ def _run_line(
         outage_args = [a for o in outages for a in ("--outage", o)]
         tasc_args: list[str] = []
         if controller is not None:
-            st_port = _free_udp_port()
             # The stations and the trains load their compiled steps at the same time.
             stations_proc = launch(
                 ["live", "stations", "--port", str(st_port), "--controller", controller, "--office",

@@ -74,13 +74,19 @@ def serve_cmd(
     zc: Annotated[
         str | None, typer.Option(help="The zone controller's UDP address HOST:PORT, for manual releases.")
     ] = None,
+    stations: Annotated[
+        str | None,
+        typer.Option(help="The stations' UDP address HOST:PORT, for the WCC's commands to the WPCS."),
+    ] = None,
     operators: Annotated[
-        Path | None, typer.Option(help="Operators file (railstop office add-operator) for manual releases.")
+        Path | None,
+        typer.Option(help="Operators file (railstop office add-operator) for the page's operator commands."),
     ] = None,
     line: LineOpt = None,
 ) -> None:
     """Receive, store and acknowledge the wayside's reports until stopped (SIGTERM, Ctrl-C); with
-    --http-port, serve the control-room page too (with --zc and --operators: its zone release)."""
+    --http-port, serve the control-room page too (with --operators and --zc: its zone release; with
+    --operators and --stations: its WCC commands)."""
     from railstop.config import load_line
     from railstop.link.udp import EpochClock
     from railstop.live.office import serve_office
@@ -89,18 +95,22 @@ def serve_cmd(
         key = master_key(key_hex)
         ids = sender_ids(senders)
         ln = load_line(line)
-        if (zc is None) != (operators is None):
-            raise RailstopError("--zc and --operators: the manual release needs both")
-        release_to = None
-        if zc is not None and operators is not None:
+        if operators is not None and zc is None and stations is None:
+            raise RailstopError("--operators: give --zc (zone release) and / or --stations (WCC) too")
+        if operators is None and (zc is not None or stations is not None):
+            raise RailstopError("--zc / --stations: the operator commands need --operators")
+        ops = None
+        zc_addr = None if zc is None else address_option(zc, "--zc")
+        st_addr = None if stations is None else address_option(stations, "--stations")
+        if operators is not None:
             from railstop.live.operators import load_operators
 
-            release_to = (address_option(zc, "--zc"), load_operators(operators))
+            ops = load_operators(operators)
     except RailstopError as exc:
         fail(str(exc))
-    stations = [{"name": st.name, "chainage_m": st.stop_point_m} for st in ln.stations]
+    station_list = [{"name": st.name, "chainage_m": st.stop_point_m} for st in ln.stations]
     length = ln.line.length_m or max(st.stop_point_m for st in ln.stations) + 500.0
-    line_data = {"name": ln.line.name, "length_m": length, "stations": stations}
+    line_data = {"name": ln.line.name, "length_m": length, "stations": station_list}
 
     async def main() -> dict[str, object]:
         stop = asyncio.Event()
@@ -114,7 +124,7 @@ def serve_cmd(
         page = (
             None
             if http_port is None
-            else await _start_page(host, http_port, ln.line.name, line_data, key, release_to)
+            else await _start_page(host, http_port, ln.line.name, line_data, key, ops, zc_addr, st_addr)
         )
         try:
             stats = await serve_office(
@@ -160,7 +170,9 @@ async def _start_page(
     name: str,
     line_data: dict[str, Any],
     key: bytes,
-    release_to: tuple[tuple[str, int], dict[str, str]] | None,
+    operators: dict[str, str] | None,
+    zc: tuple[str, int] | None,
+    stations: tuple[str, int] | None,
 ) -> _Page:
     import uvicorn
 
@@ -172,13 +184,24 @@ async def _start_page(
     def history(after: int, n: int) -> list[dict[str, Any]]:
         return stores[0].office_reports(after_id=after, limit=n, latest=True) if stores else []
 
-    release = None if release_to is None else _release_handler(release_to, key, stores, broadcast)
+    desk = None
+    if operators is not None:
+        desk = _OperatorDesk(
+            operators=operators,
+            key=key,
+            stores=stores,
+            broadcast=broadcast,
+            zc=zc,
+            stations=stations,
+            station_names=[st["name"] for st in line_data["stations"]],
+        )
     app = make_app(
         history=history,
         broadcast=broadcast,
         title=f"railstop control room: {name}",
         line=line_data,
-        release=release,
+        release=None if desk is None or zc is None else desk.release,
+        wcc=None if desk is None or stations is None else desk.wcc,
     )
     server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="off"))
     task = asyncio.create_task(server.serve())
@@ -191,55 +214,97 @@ async def _start_page(
     return _Page(server, task, broadcast, stores)
 
 
-def _release_handler(
-    release_to: tuple[tuple[str, int], dict[str, str]], key: bytes, stores: list[Any], broadcast: Any
-) -> Any:
-    """SPEC §4 step 5: the page's release, checked against the operators file, logged in the
-    database (kind ``operator-action``, with its outcome) and sent to the zone controller as an
-    authenticated ``zone-release`` telegram (``link.release_link``)."""
-    import socket
+class _OperatorDesk:
+    """The control room's operator commands, each checked against the operators file, logged in the
+    database (kind ``operator-action``, with its outcome) and sent as an authenticated telegram
+    (``link.release_link``): SPEC §4 step 5, the zone release to the zone controller; SPEC §5, the
+    WCC's switch of a station's WPCS to manual (and the platform panel's buttons) to the stations."""
 
-    from railstop.link.release_link import OperatorConsole, release_key
-    from railstop.live.office import OFFICE_ID, new_session
-    from railstop.live.operators import check
-    from railstop.live.page import ReleaseRequest
+    def __init__(
+        self,
+        *,
+        operators: dict[str, str],
+        key: bytes,
+        stores: list[Any],
+        broadcast: Any,
+        zc: tuple[str, int] | None,
+        stations: tuple[str, int] | None,
+        station_names: list[str],
+    ) -> None:
+        import socket
 
-    zc, operators = release_to
-    console = OperatorConsole(key=release_key(key))
-    # [interpretation] The release link's sequence numbers go on across office restarts: they
-    # start at the tenths of seconds since 2026 (the zone controller refuses a number it has
-    # had); 2**32 of them last until 2039.
-    console.sender.next_seq = int((time.time() - 1_767_225_600.0) * 10.0)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    session = new_session()
-    actions = iter(range(1, 1 << 62))
+        from railstop.link.release_link import WCC_ADDRESS, OperatorConsole, release_key, wcc_key
+        from railstop.live.office import new_session
 
-    async def log(data: dict[str, Any]) -> None:
-        if not stores:
+        self.operators, self.stores, self.broadcast = operators, stores, broadcast
+        self.zc, self.stations, self.station_names = zc, stations, station_names
+        self.consoles = {
+            "zc": OperatorConsole(key=release_key(key)),
+            "wcc": OperatorConsole(key=wcc_key(key), to=WCC_ADDRESS),
+        }
+        # [interpretation] The operator links' sequence numbers go on across office restarts: they
+        # start at the tenths of seconds since 2026 (a receiver refuses a number it has had);
+        # 2**32 of them last until 2039.
+        for console in self.consoles.values():
+            console.sender.next_seq = int((time.time() - 1_767_225_600.0) * 10.0)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.session = new_session()
+        self.actions = iter(range(1, 1 << 62))
+
+    async def _log(self, data: dict[str, Any]) -> None:
+        from railstop.live.office import OFFICE_ID
+
+        if not self.stores:
             return
         row = await asyncio.to_thread(
-            stores[0].save_office_report,
+            self.stores[0].save_office_report,
             sender_id=OFFICE_ID,
-            session=session,
-            seq=next(actions),
+            session=self.session,
+            seq=next(self.actions),
             kind="operator-action",
             sent_s=time.time(),
             data=data,
         )
         if row is not None:
-            broadcast.publish(row)
+            self.broadcast.publish(row)
 
-    async def release(request: ReleaseRequest) -> tuple[int, str]:
-        ok = await asyncio.to_thread(check, operators, request.operator, request.credential)
-        action = {"operator": request.operator, "action": "zone-release", "train": request.train}
+    async def _checked(self, operator: str, credential: str, action: dict[str, Any]) -> bool:
+        from railstop.live.operators import check
+
+        ok = await asyncio.to_thread(check, self.operators, operator, credential)
         if not ok:
-            await log({**action, "result": "refused: unknown operator or wrong credential"})
+            await self._log({**action, "result": "refused: unknown operator or wrong credential"})
+        return ok
+
+    async def release(self, request: Any) -> tuple[int, str]:
+        action = {"operator": request.operator, "action": "zone-release", "train": request.train}
+        if not await self._checked(request.operator, request.credential, action):
             return 403, "refused: unknown operator or wrong credential"
-        sock.sendto(console.release(request.train, time.time()), zc)
-        await log({**action, "result": "sent to the zone controller"})
+        assert self.zc is not None  # offered only with a zone controller link
+        self.sock.sendto(self.consoles["zc"].release(request.train, time.time()), self.zc)
+        await self._log({**action, "result": "sent to the zone controller"})
         return 200, f"release of train {request.train}'s zone sent to the zone controller"
 
-    return release
+    async def wcc(self, request: Any) -> tuple[int, str]:
+        if request.station >= len(self.station_names):
+            return 400, f"no station {request.station} on this line"
+        name = self.station_names[request.station]
+        manual = request.mode == "manual"
+        what = f"WPCS {request.mode}" + (f", panel {request.panel}" if request.panel != "none" else "")
+        action = {"operator": request.operator, "action": "wcc", "station": name, "command": what}
+        if not await self._checked(request.operator, request.credential, action):
+            return 403, "refused: unknown operator or wrong credential"
+        assert self.stations is not None  # offered only with a stations link
+        frame = self.consoles["wcc"].wcc(
+            request.station,
+            manual=manual,
+            panel_open=request.panel == "open",
+            panel_close=request.panel == "close",
+            now_s=time.time(),
+        )
+        self.sock.sendto(frame, self.stations)
+        await self._log({**action, "result": "sent to the station"})
+        return 200, f"{name}: {what} sent to the station"
 
 
 @office_app.command("add-operator")

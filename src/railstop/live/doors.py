@@ -189,10 +189,11 @@ class PlatformDoors:
     def wcc(self, *, manual: bool, panel_open: bool, panel_close: bool, now_s: float) -> None:
         """SPEC §5: the WCC switches the WPCS to manual (the platform panel's open / close buttons
         then stand for DOC and DCC) or back to automatic."""
-        if manual != self.wcc_manual:
-            self._event("wcc-manual" if manual else "wcc-auto", now_s)
+        changed = manual != self.wcc_manual
         self.wcc_manual = manual
         self.panel_open, self.panel_close = manual and panel_open, manual and panel_close
+        if changed:
+            self._event("wcc-manual" if manual else "wcc-auto", now_s)
         if self.train is not None:
             self._scan(now_s)
 
@@ -742,12 +743,14 @@ class Platforms:
     def _refuse(self, reason: str) -> None:
         self.refused[reason] = self.refused.get(reason, 0) + 1
 
-    def ingest(self, frame: bytes, dst: int, now_s: float) -> int | None:
-        """A frame for a platform (or the WCC input); the train it came from, if any."""
+    def ingest(self, frame: bytes, dst: int, now_s: float, unix_s: float | None = None) -> int | None:
+        """A frame for a platform (or the WCC input); the train it came from, if any. ``unix_s``:
+        the time on the operator link's clock (the control room keeps Unix time, whatever the run's
+        time scale; default ``now_s``)."""
         from railstop.link.release_link import WCC_ADDRESS
 
         if dst == WCC_ADDRESS:
-            wcc = self.gate.accept(frame, now_s)
+            wcc = self.gate.accept(frame, now_s if unix_s is None else unix_s)
             if wcc is not None:
                 if wcc.station >= len(self.units):
                     self._refuse("wcc_unknown_station")

@@ -18,7 +18,7 @@ import asyncio
 import json
 from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib import resources
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import FastAPI, Query
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
@@ -73,6 +73,21 @@ class ReleaseRequest(BaseModel):
 Release = Callable[[ReleaseRequest], Awaitable[tuple[int, str]]]
 
 
+class WccRequest(BaseModel):
+    """SPEC §5: the WCC switches a station's WPCS to manual (and presses the platform panel's open or
+    close button) or back to automatic."""
+
+    station: int = Field(ge=0, le=0xFFFF)
+    mode: Literal["manual", "auto"]
+    panel: Literal["none", "open", "close"] = "none"
+    operator: str = Field(min_length=1, max_length=40)
+    credential: str = Field(min_length=1, max_length=200)
+    confirmed: bool  # the page's confirmation
+
+
+Wcc = Callable[[WccRequest], Awaitable[tuple[int, str]]]
+
+
 def make_app(
     *,
     history: Callable[[int, int], list[dict[str, Any]]],
@@ -80,11 +95,13 @@ def make_app(
     title: str,
     line: dict[str, Any],
     release: Release | None = None,
+    wcc: Wcc | None = None,
 ) -> FastAPI:
     """The page's app. ``history(after_id, n)``: the last ``n`` stored reports after that id (oldest
     first);
     ``line``: what the page draws the line from (``length_m``, ``stations``: name, chainage_m);
-    ``release``: the manual zone release (None: the page offers none)."""
+    ``release``: the manual zone release, ``wcc``: the WCC's commands to the stations' WPCS (None:
+    the page offers none)."""
     app = FastAPI(title=title, docs_url=None, redoc_url=None, openapi_url=None)
 
     @app.post("/api/release")
@@ -96,11 +113,26 @@ def make_app(
         status, message = await release(request)
         return JSONResponse({"message": message}, status_code=status)
 
+    @app.post("/api/wcc")
+    async def wcc_command(request: WccRequest) -> JSONResponse:
+        if wcc is None:
+            return JSONResponse({"message": "this office has no link to the stations"}, status_code=503)
+        if not request.confirmed:
+            return JSONResponse({"message": "the command needs the operator's confirmation"}, status_code=400)
+        if request.panel != "none" and request.mode != "manual":
+            return JSONResponse({"message": "the panel's buttons act only in manual"}, status_code=400)
+        status, message = await wcc(request)
+        return JSONResponse({"message": message}, status_code=status)
+
     page = resources.files("railstop.live").joinpath("static/control_room.html").read_text(encoding="utf-8")
 
     @app.get("/", response_class=HTMLResponse)
     async def index() -> str:
-        return page.replace("{{title}}", title).replace("{{release}}", "1" if release is not None else "0")
+        return (
+            page.replace("{{title}}", title)
+            .replace("{{release}}", "1" if release is not None else "0")
+            .replace("{{wcc}}", "1" if wcc is not None else "0")
+        )
 
     @app.get("/api/line")
     async def line_data() -> dict[str, Any]:

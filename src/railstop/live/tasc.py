@@ -42,6 +42,7 @@ from __future__ import annotations
 import asyncio
 import math
 import struct
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -405,7 +406,8 @@ async def run_stations(
                 frame, addr = got
                 to = (frame_ids(frame) or (-1, -1))[1]
                 if platforms.owns(to):
-                    train = platforms.ingest(frame, to, now_s)  # the platform's WPCS (or the WCC)
+                    # The platform's WPCS (or the WCC, whose link keeps Unix time).
+                    train = platforms.ingest(frame, to, now_s, time.time())
                     if train is not None:
                         plants[train] = addr
                     continue
