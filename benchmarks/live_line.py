@@ -80,6 +80,16 @@ def main() -> None:
             f"age on delivery (ms, median / p99 / max): braking telegrams {tasc.get('telegram_age_ms')}, "
             f"sensor readings {st.get('readings_age_ms') if isinstance(st, dict) else None}"
         )
+    dwells = fleet.get("dwells")
+    if dwells:
+        platforms = out.get("stations", {}).get("platforms", {})
+        print(
+            f"dwells over the door link: {dwells['dwells']} ended ({dwells['outcomes'] or 'none'}), "
+            f"{dwells['corrections']} correction(s), longest {dwells['dwell_s_max']} s; door frames: "
+            f"{dwells['command_frames']:,} commands sent, {dwells['status_frames']:,} statuses delivered, "
+            f"refused {dwells['refused'] or 'none'}; platforms: PSC answered "
+            f"{platforms.get('psc_answered')}, links lost {platforms.get('links_lost')}"
+        )
     sent = sum(
         out[r]["office_link"]["submitted"] for r in ("zone_controller", "stations", "trains") if r in out
     )

@@ -337,3 +337,21 @@ def test_office_reports_lists_what_is_stored_and_sums_up_the_stops(tmp_path: Pat
     assert (
         "Museum (tasc-pwm): 2 stop(s), 1 within tolerance, |error| max 3.500 m, 1 emergency brake(s)" in out
     )
+
+
+def test_office_reports_sums_up_the_dwells() -> None:
+    """The dwell summary of ``railstop office reports`` (SPEC §5): per station, start enables,
+    faults, corrections and the longest dwell to start enable."""
+    from railstop.cli_office import dwell_summary_lines
+
+    def dwell(station: str, outcome: str, dwell_s: float | None, corrections: int = 0) -> dict[str, object]:
+        return {"station": station, "outcome": outcome, "dwell_s": dwell_s, "corrections": corrections}
+
+    lines = dwell_summary_lines(
+        [dwell("Museum", "start-enable", 32.8), dwell("Museum", "start-enable", 37.2, 1),
+         dwell("Museum", "fault", None, 2), dwell("Harbour", "fault", None)]
+    )  # fmt: skip
+    assert lines == [
+        "Harbour (doors): 1 dwell(s), 0 start enable, 1 fault(s), 0 correction(s)",
+        "Museum (doors): 3 dwell(s), 2 start enable, 1 fault(s), 3 correction(s), longest 37.2 s",
+    ]

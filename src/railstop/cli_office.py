@@ -366,6 +366,8 @@ def reports_cmd(
     console.print(table)
     for line in stop_summary_lines([r["data"] for r in rows if r["kind"] == "stop-result"]):
         console.print(line, highlight=False)
+    for line in dwell_summary_lines([r["data"] for r in rows if r["kind"] == "dwell-result"]):
+        console.print(line, highlight=False)
 
 
 def stop_summary_lines(stops: list[dict[str, Any]]) -> list[str]:
@@ -381,5 +383,24 @@ def stop_summary_lines(stops: list[dict[str, Any]]) -> list[str]:
         out.append(
             f"{station} ({controller}): {len(items)} stop(s), {within} within tolerance, "
             f"|error| max {worst:.3f} m, {ebs} emergency brake(s)"
+        )
+    return out
+
+
+def dwell_summary_lines(dwells: list[dict[str, Any]]) -> list[str]:
+    """Per station (SPEC §5): dwells, start enables, faults, corrections, the longest to start
+    enable."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for d in dwells:
+        groups.setdefault(str(d.get("station")), []).append(d)
+    out = []
+    for station, items in sorted(groups.items()):
+        enabled = [d for d in items if d.get("outcome") == "start-enable"]
+        faults = sum(d.get("outcome") == "fault" for d in items)
+        corrections = sum(int(d.get("corrections") or 0) for d in items)
+        longest = max((float(d["dwell_s"]) for d in enabled if d.get("dwell_s") is not None), default=None)
+        out.append(
+            f"{station} (doors): {len(items)} dwell(s), {len(enabled)} start enable, {faults} fault(s), "
+            f"{corrections} correction(s)" + ("" if longest is None else f", longest {longest:.1f} s")
         )
     return out
