@@ -28,6 +28,10 @@ def test_wired_dwell_follows_the_dwell_simulation(error_m: float) -> None:
     assert train.corrections == sim.corrections
     assert sim.start_enable_s is not None and train.start_enable_s is not None
     assert sim.start_enable_s <= train.start_enable_s <= sim.start_enable_s + 4 * CYCLE
+    print(
+        f"stop error {error_m:+.2f} m: start enable {train.start_enable_s:.2f} s live, "
+        f"{sim.start_enable_s:.2f} s simulated"
+    )
     assert abs(train.error_m) <= DOORS.stop_confirm.tolerance_m
     # The PSD opened and closed again, and the platform let the train go.
     assert [e["ev"] for e in platform.events] == ["psc", "psd-open", "psd-locked", "psc-off"]
@@ -59,6 +63,7 @@ def test_platform_dead_with_doors_open_is_a_lost_link() -> None:
     assert train.start_enable_s is None and train.emergency_brake
     t_fault = next(t for t, what in train.events if what == "fault")
     assert 10.0 < t_fault <= 10.0 + DOORS.link.supervision_timeout_s + 0.02
+    print(f"platform dead at 10 s with the doors open: fault and emergency brake at {t_fault:.2f} s")
     assert platform.train == 1  # the dead platform never let go (it ran no more)
 
 
@@ -127,3 +132,64 @@ def test_status_and_command_travel_through_the_codec() -> None:
     with pytest.raises(ValueError):
         unpack_stop_sensed(b"\x00" * 3)
     assert math.isnan(unpack_stop_sensed(pack_stop_sensed(3, 2, math.nan))[2])
+
+
+def _run(
+    train: TrainDoors, platform: PlatformDoors | None, t0: float, until_s: float
+) -> list[tuple[float, bool]]:
+    """Train and platform wired, from ``t0`` to ``until_s`` or the dwell's end; each step's (time,
+    moved while a train door was not locked)."""
+    locked = LOCKED_STATES
+    out = []
+    t = t0
+    up: list[object] = []
+    while t < until_s and not (train.done and not up):
+        moved = train.step(t, 0.01)
+        unlocked = not all(u in locked for s in (Side.L, Side.R) for u in train.cpcs.side(s))
+        out.append((t, moved != 0.0 and unlocked))
+        if platform is not None:
+            platform.sense(train.train, math.nan if train.moving else train.error_m, t)
+            for cmd in up:
+                platform.receive(cmd, t)  # type: ignore[arg-type]
+            platform.tick(t)
+            for _, status in platform.due:
+                train.receive(status, t)
+            platform.due.clear()
+        up = list(train.due)
+        train.due.clear()
+        t = round(t + 0.01, 9)
+    return out
+
+
+def test_after_a_fault_with_doors_open_the_next_dwell_closes_them_before_it_creeps() -> None:
+    """A dwell ends in the link-lost fault with the train's doors open; the train's next dwell there
+    (after the staff's reset) starts from those doors. Out of position, the correction creep waits
+    until every train door is closed and locked (the traction interlock), then the train moves."""
+    model = model_for(DOORS)
+    first, _ = wired_dwell(DOORS, error_m=0.0, platform_silent_after_s=10.0)
+    assert first.fault is not None
+    assert any(u == DoorState.OPEN for u in first.cpcs.side(Side.R))
+    platform = PlatformDoors(index=0, name="P", side=Side.R, doors=DOORS, model=model)
+    again = TrainDoors(
+        train=1, station=0, station_name="P", side=Side.R, error_m=0.8, doors=DOORS, model=model,
+        t0_s=100.0, carried=first.cpcs,
+    )  # fmt: skip
+    steps = _run(again, platform, 100.0, 300.0)
+    assert not any(bad for _, bad in steps), "the train moved with a door open"
+    assert again.corrections == 1 and again.start_enable_s is not None
+    assert abs(again.error_m) <= DOORS.stop_confirm.tolerance_m
+
+
+def test_after_a_fault_in_position_the_next_dwell_goes_on_from_open_doors() -> None:
+    model = model_for(DOORS)
+    first, _ = wired_dwell(DOORS, error_m=0.0, platform_silent_after_s=10.0)
+    platform = PlatformDoors(index=0, name="P", side=Side.R, doors=DOORS, model=model)
+    # The platform's PSD is open too (it held it as it was).
+    platform.state = platform.state._replace(units=(DoorState.OPEN,) * len(platform.state.units))
+    again = TrainDoors(
+        train=1, station=0, station_name="P", side=Side.R, error_m=0.0, doors=DOORS, model=model,
+        t0_s=100.0, carried=first.cpcs,
+    )  # fmt: skip
+    _run(again, platform, 100.0, 300.0)
+    assert again.start_enable_s is not None and again.corrections == 0
+    assert all(u in LOCKED_STATES for u in platform.state.units)

@@ -520,3 +520,10 @@ def demo_cmd(
             f"stations' tolerance, |error| p99 {t['abs_error_p99_m']} m, max {t['abs_error_max_m']} m; "
             f"emergency brakes {t['emergency_brakes'] or 'none'}"
         )
+    d = fleet.get("dwells")
+    if isinstance(d, dict):
+        print(
+            f"dwells over the door link (SPEC §5): {d['dwells']} ended {d['outcomes'] or '-'}, "
+            f"{d['corrections']} correction(s), the longest {d['dwell_s_max']} s from standstill to "
+            f"start enable"
+        )

@@ -54,6 +54,7 @@ from railstop.wayside.zone_controller import ZoneController, ZoneMode
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
     from railstop.live.doors import LiveDoors, TrainDoors
     from railstop.live.tasc import FloatArray, LiveTasc, TascStop
+    from railstop.onboard.cpcs import CpcsState
 
 STEP_S = 0.05  # the plant step (simulated seconds)
 
@@ -228,7 +229,7 @@ class _TrainState:
     visits: int = 0  # station stops begun (the disturbance draw of each)
     arrived: tuple[int, float] | None = None  # stopped at a platform (station, error): its dwell begins
     dwell: TrainDoors | None = None  # the dwell over the door link in progress
-    retry: tuple[int, float] | None = None  # after a dwell fault: the dwell to begin again
+    retry: tuple[int, float, CpcsState] | None = None  # after a dwell fault: the dwell to begin again
 
 
 async def run_trains(
@@ -525,12 +526,14 @@ def _dwell_step(
     brake) the train stands ``DWELL_FAULT_HOLD_S``, then its confirmation begins again
     [interpretation]: staff reset the ATC; SPEC §5 says nothing of the recovery. Returns whether
     it held the train."""
+    carried = None
     if t.retry is not None and now_s >= t.dwell_until_s:
-        t.arrived, t.retry = t.retry, None
+        station, error_m, carried = t.retry
+        t.arrived, t.retry = (station, error_m), None
     if t.arrived is not None:
         station, error_m = t.arrived
         t.arrived = None
-        t.dwell = doors.begin(t.k, station, error_m, now_s)
+        t.dwell = doors.begin(t.k, station, error_m, now_s, carried)
         t.dwell_until_s = math.inf
     dwell = t.dwell
     if dwell is None:
@@ -547,7 +550,7 @@ def _dwell_step(
             t.dwell_until_s = now_s  # start enable: it departs
         else:
             t.dwell_until_s = now_s + DWELL_FAULT_HOLD_S
-            t.retry = (dwell.station, dwell.error_m)
+            t.retry = (dwell.station, dwell.error_m, dwell.cpcs)  # its doors stay as they are
         if office is not None:
             office.report("dwell-result", result)
     return True

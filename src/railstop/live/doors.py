@@ -99,7 +99,9 @@ class DoorMotion:
         self._gen: dict[Hashable, int] = {}
         self._pending: list[tuple[float, Hashable, int]] = []
 
-    def follow(self, key: Hashable, before: DoorState, after: DoorState, now_s: float) -> None:
+    def follow(self, key: Hashable, before: DoorState | None, after: DoorState, now_s: float) -> None:
+        """``key`` went from ``before`` to ``after`` at ``now_s`` (``before`` None: it is in
+        ``after`` already, its motion to be timed from now)."""
         if before == after:
             return
         gen = self._gen.get(key, 0) + 1
@@ -311,6 +313,7 @@ class TrainDoors:
     model: DoorModel
     t0_s: float
     stop: StopConfirmState = field(default_factory=StopConfirmState)
+    carried: CpcsState | None = None  # the doors as an earlier dwell here left them (None: all locked)
     cpcs: CpcsState = field(init=False)
     signals: DoorSignals = field(default_factory=DoorSignals)
     due: list[DoorCommand] = field(default_factory=list)
@@ -323,8 +326,14 @@ class TrainDoors:
     events: list[tuple[float, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.cpcs = CpcsState.closed(self.doors.doors_per_side)
         self.motion = DoorMotion(self.doors, psd=False)
+        self.cpcs = CpcsState.closed(self.doors.doors_per_side)
+        if self.carried is not None:
+            self.cpcs = self.carried
+            # Doors as an earlier dwell here left them (after its fault): a motion under way runs on.
+            for side in (Side.L, Side.R):
+                for i, u in enumerate(self.cpcs.side(side)):
+                    self.motion.follow((side, i), None, u, self.t0_s)
         self.t = self.doors.timing
         self.link = self.doors.link
         self.standstill_at_s = self.t0_s + self.t.zero_speed_confirm_s
@@ -337,6 +346,7 @@ class TrainDoors:
         self.closing = False
         self.creep_left_m = 0.0
         self.creep_dir = 0.0
+        self.creep_pending = False
         self.settle_end_s = math.inf
 
     # -- inputs -------------------------------------------------------------------------
@@ -413,6 +423,8 @@ class TrainDoors:
             self._note(now_s, "close")
         self._scan(now_s)
         self._react(now_s)
+        if self.creep_pending:
+            self._start_creep()
         if self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) and now_s >= self.next_cmd_s:
             self.due.append(self.command())
             self.next_cmd_s = now_s + self.link.exchange_cycle_s - 1e-9
@@ -496,9 +508,22 @@ class TrainDoors:
             # SPEC §3 lamps F / R: a short creep towards the stopping point, at most creep_max_m.
             self.due.append(self.command(psc=False))
             self.corrections += 1
-            self.moving = True
-            self.creep_dir = -1.0 if self.error_m > 0.0 else 1.0
-            self.creep_left_m = max(min(abs(self.error_m), self.doors.stop_confirm.creep_max_m), 1e-6)
+            self.creep_pending = True
+
+    def _start_creep(self) -> None:
+        """SPEC §3 lamps F / R: a short creep towards the stopping point, at most creep_max_m, once
+        every train door is closed and locked (the traction interlock of ``sim.door_system``); the
+        ATC closes any door still open first (DMC and DCC)."""
+        locked = self.model.interlocks.locked
+        if not all(u in locked for side in (Side.L, Side.R) for u in self.cpcs.side(side)):
+            self.signals = self.signals.with_side(Side.L, dmc=True, doa=False)
+            self.signals = self.signals.with_side(Side.R, dmc=True, doa=False)._replace(doc=False, dcc=True)
+            return
+        self.creep_pending = False
+        self.signals = self.signals._replace(dcc=False)
+        self.moving = True
+        self.creep_dir = -1.0 if self.error_m > 0.0 else 1.0
+        self.creep_left_m = max(min(abs(self.error_m), self.doors.stop_confirm.creep_max_m), 1e-6)
 
     def _react(self, now_s: float) -> None:
         if self.done or self.stop.phase != StopPhase.CONFIRMED:
@@ -656,7 +681,11 @@ class LiveDoors:
             return
         dwell.receive(status, now_s)
 
-    def begin(self, train: int, station: int, error_m: float, now_s: float) -> TrainDoors:
+    def begin(
+        self, train: int, station: int, error_m: float, now_s: float, carried: CpcsState | None = None
+    ) -> TrainDoors:
+        """A train's dwell from its standstill at ``now_s``; ``carried``: its doors as an earlier
+        dwell here left them (after that dwell's fault)."""
         st = self.line.stations[station]
         dwell = TrainDoors(
             train=train,
@@ -667,6 +696,7 @@ class LiveDoors:
             doors=self.doors,
             model=self.model,
             t0_s=now_s,
+            carried=carried,
         )
         self.active[train] = dwell
         return dwell
