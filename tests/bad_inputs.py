@@ -901,6 +901,31 @@ add(
     "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--tasc-loss", "1.5",
     needles=("--tasc-loss",),
 )  # fmt: skip
+add(
+    "live-stations-doors",
+    "live", "stations", *LIVE_KEY, "--doors", "nosuch.toml",
+    needles=("nosuch.toml",),
+)  # fmt: skip
+add(
+    "live-trains-doors",
+    "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--doors", "nosuch.toml",
+    needles=("nosuch.toml",),
+)  # fmt: skip
+add(
+    "office-serve-operators-alone",
+    "office", "serve", *LIVE_KEY, "--operators", "ops.toml",
+    needles=("--operators", "--zc", "--stations"),
+)  # fmt: skip
+add(
+    "office-serve-stations-without-operators",
+    "office", "serve", *LIVE_KEY, "--stations", "127.0.0.1:9",
+    needles=("--stations", "--operators"),
+)  # fmt: skip
+add(
+    "office-serve-stations-address",
+    "office", "serve", *LIVE_KEY, "--stations", "nonsense", "--operators", "ops.toml",
+    needles=("--stations", "nonsense"),
+)  # fmt: skip
 add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
 add(
     "office-reports-kind",
