@@ -820,6 +820,7 @@ add(
     "start_enable=0",
     "manual=0",
     "fault=0",
+    "psd_open=0",
     needles=("psc", "maybe"),
 )
 add(

@@ -290,6 +290,67 @@ def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_t
     assert commands and len(commands) + len(events) == served["office_link"]["submitted"]  # type: ignore[index]
 
 
+def test_killing_the_stations_during_a_dwell_is_a_lost_door_link_and_the_train_stands(
+    procs: Procs, tmp_path: Path
+) -> None:
+    """SPEC §5 live: the stations process (every platform's WPCS) is killed with SIGKILL while a
+    train stands at a platform with its doors open. The train's supervision of the status frames
+    reports the fault and applies the emergency brake (the door link is lost with PSC high); it
+    stands for the reset, then with a new stations process its confirmation starts again and it
+    gets start enable there."""
+    from railstop.config.doors import load_doors
+    from railstop.live.cbtc import DWELL_FAULT_HOLD_S
+
+    db = str(tmp_path / "office.db")
+    scale = 3.0
+    epoch = time.time()
+    common = ["--epoch", repr(epoch), "--scale", str(scale)]
+    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
+    office_addr = line.split(" on ")[1].split()[0]
+    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "2", "--office", office_addr, *common)
+    zc_port = line.split("127.0.0.1:")[1].split()[0]
+    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
+    st_port = line.split("127.0.0.1:")[1].split()[0]
+    trains, _ = procs.start(
+        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "2", "--spacing-m", "1100",
+        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
+    )  # fmt: skip
+    opened = _wait_for(db, "dwell-event", lambda r: r["ev"] == "psd-open", 60.0)
+    time.sleep(1.0)  # the train's doors follow the PSD's
+    os.kill(stations.pid, signal.SIGKILL)
+    killed_s = (time.time() - epoch) * scale
+    stations.communicate(timeout=30)
+    fault = _wait_for(db, "dwell-result", lambda r: r["outcome"] == "fault", 30.0)
+    stations2, line = procs.start("live", "stations", "--port", st_port, "--office", office_addr, *common)
+    assert line.startswith("stations on"), line
+    resumed = _wait_for(
+        db,
+        "dwell-result",
+        lambda r: (
+            r["outcome"] == "start-enable" and r["train"] == fault["train"] and float(r["t_s"]) > killed_s
+        ),
+        90.0,
+    )
+    procs.stop(trains)
+    procs.stop(stations2)
+    procs.stop(zc)
+    assert fault["station"] == opened["st"] == resumed["station"] and fault["train"] == opened["tr"]
+    assert "link-lost" in str(fault["fault"])
+    delay = float(fault["t_s"]) - killed_s  # type: ignore[arg-type]
+    timeout = load_doors().link.supervision_timeout_s
+    assert 0.0 < delay <= timeout + 0.3, delay
+    print(f"kill -9 of the stations with the doors open -> dwell fault, emergency brake after {delay:.2f} s")
+    # It stood for the reset, with the emergency brake reported, before it tried again.
+    assert float(resumed["t_s"]) >= float(fault["t_s"]) + DWELL_FAULT_HOLD_S  # type: ignore[arg-type]
+    t_fault = float(fault["t_s"])  # type: ignore[arg-type]
+    held = [
+        s for s in _states(db)
+        if s["train"] == fault["train"] and t_fault + 2.0 < float(s["t_s"]) < t_fault + 50.0  # type: ignore[arg-type]
+    ]  # fmt: skip
+    assert held and all(s["emergency_brake"] and s["cause"] == "dwell-fault" for s in held)
+    assert all(float(s["speed_mps"]) == 0.0 for s in held)  # type: ignore[arg-type]
+
+
 def test_the_wall_clock_counts_a_step_that_started_late_and_how_late() -> None:
     """A plant step that blocks 60 ms on a 10 ms clock: the next step starts about 50 ms late; it is
     counted, and the latest start is measured (the benchmark prints both)."""

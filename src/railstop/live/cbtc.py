@@ -354,8 +354,10 @@ async def run_trains(
                         "train": t.k,
                         "position_m": round(t.x_m, 1),
                         "speed_mps": round(t.v_mps, 2),
-                        "emergency_brake": t.unit.emergency_brake,
-                        "cause": t.unit.eb_cause,
+                        # The CBTC unit's emergency brake, or the dwell's (SPEC §5 fault) while the
+                        # train stands for its reset.
+                        "emergency_brake": t.unit.emergency_brake or t.retry is not None,
+                        "cause": t.unit.eb_cause or ("dwell-fault" if t.retry is not None else None),
                         "radio": "dead" if t.k in dead else "ok",
                         "doors": None if t.dwell is None else t.dwell.phase,
                         "t_s": round(now_s, 2),
