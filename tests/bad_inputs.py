@@ -927,6 +927,16 @@ add(
     "office", "serve", *LIVE_KEY, "--stations", "nonsense", "--operators", "ops.toml",
     needles=("--stations", "nonsense"),
 )  # fmt: skip
+add(
+    "live-stations-psd-jam",
+    "live", "stations", *LIVE_KEY, "--psd-jam", "Nowhere:3",
+    needles=("--psd-jam", "Nowhere:3"),
+)  # fmt: skip
+add(
+    "live-run-psd-jam-unit",
+    "live", "run", "--duration-s", "1", "--psd-jam", "Harbour:25",
+    needles=("--psd-jam", "Harbour:25"),
+)  # fmt: skip
 add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
 add(
     "office-reports-kind",

@@ -193,3 +193,23 @@ def test_after_a_fault_in_position_the_next_dwell_goes_on_from_open_doors() -> N
     _run(again, platform, 100.0, 300.0)
     assert again.start_enable_s is not None and again.corrections == 0
     assert all(u in LOCKED_STATES for u in platform.state.units)
+
+
+def test_a_psd_unit_that_jams_withholds_start_enable_until_the_staff_isolate_it() -> None:
+    """Fault injection: PSD unit 3 fails to close. The WPCS reports the PSD not closed and locked,
+    so the train gets no start enable (SPEC §5 fig. 7) until the staff isolate the unit; the same
+    timeline as the dwell simulation's, later only by the link's exchange cycles."""
+    train, platform = wired_dwell(DOORS, error_m=0.0, psd_jam=3, step_s=0.01)
+    sim = run_dwell(doors=DOORS, station="P", platform_side="R", stop_error_m=0.0, psd_fail=3)
+    assert sim.start_enable_s is not None and train.start_enable_s is not None
+    assert sim.start_enable_s <= train.start_enable_s <= sim.start_enable_s + 4 * CYCLE
+    events = [(e["ev"], e.get("unit")) for e in platform.events]
+    assert ("psd-jam", 3) in events and ("psd-isolated", 3) in events
+    jammed = next(e["t_s"] for e in platform.events if e["ev"] == "psd-jam")
+    assert train.start_enable_s >= jammed + DOORS.timing.staff_isolation_s
+    assert platform.state.units[2] == DoorState.ISOLATED
+    print(
+        f"PSD 3 jammed: start enable {train.start_enable_s:.2f} s live, {sim.start_enable_s:.2f} s simulated"
+    )
+    with pytest.raises(ValueError, match="PSD unit 25"):
+        platform.jam(24)

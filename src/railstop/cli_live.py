@@ -159,6 +159,32 @@ TascControllerOpt = Annotated[
 ]
 
 
+PsdJamOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--psd-jam",
+        help="Fault injection: STATION:UNIT, that PSD unit (1 = front) fails to close on its next closing.",
+    ),
+]
+
+
+def _psd_jams(texts: list[str], line: Line, doors_per_side: int) -> tuple[tuple[int, int], ...]:
+    """--psd-jam STATION:UNIT (a station's name or number from 0, a unit from 1) as (station, unit
+    from 0); RailstopError naming the bad value."""
+    names = {st.name: i for i, st in enumerate(line.stations)}
+    out = []
+    for text in texts:
+        station, _, unit = text.rpartition(":")
+        i = names.get(station, int(station) if station.isdigit() else -1)
+        if not 0 <= i < len(line.stations) or not unit.isdigit() or not 1 <= int(unit) <= doors_per_side:
+            raise RailstopError(
+                f"--psd-jam: STATION:UNIT with a station of the line ({', '.join(names)}) and a unit "
+                f"1..{doors_per_side} (got {text!r})"
+            )
+        out.append((i, int(unit) - 1))
+    return tuple(out)
+
+
 def _tasc_controller(controller: str) -> str:
     from railstop.onboard.tasc_receiver import CONFIG_CODES
 
@@ -178,6 +204,7 @@ def stations_cmd(
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     doors: DoorsOpt = None,
+    psd_jam: PsdJamOpt = None,
 ) -> None:
     """Every station's wayside units as a live process: the TASC unit (SPEC §1: sensor readings in,
     braking telegrams out, every command to the office) and the platform's WPCS (SPEC §5: the door
@@ -189,6 +216,7 @@ def stations_cmd(
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         ctrl = _tasc_controller(controller)
         door_data = load_doors(doors)
+        jams = _psd_jams(psd_jam or [], ln, door_data.doors_per_side)
     except RailstopError as exc:
         fail(str(exc))
 
@@ -196,7 +224,7 @@ def stations_cmd(
         "stations", office, 802, key,
         lambda stop, client, ready: run_stations(
             line=ln, vehicle=veh, controller=ctrl, local=("127.0.0.1", port), base=base, master_key=key,
-            stop=stop, office=client, on_ready=ready, doors=door_data,
+            stop=stop, office=client, on_ready=ready, doors=door_data, jams=jams,
         ),
     )  # fmt: skip
 
@@ -329,6 +357,7 @@ def _run_line(
     outages: list[str],
     controller: str | None = "tasc-pwm",
     tasc_loss: float = 0.0,
+    psd_jams: list[str] | None = None,
 ) -> dict[str, object]:
     """Office (with its page), zone controller, stations (with ``controller``; None: no ground
     TASC, point-mass stops) and trains as processes for ``duration_s`` wall seconds; their counts,
@@ -387,7 +416,7 @@ def _run_line(
             # The stations and the trains load their compiled steps at the same time.
             stations_proc = launch(
                 ["live", "stations", "--port", str(st_port), "--controller", controller, "--office",
-                 office_addr, *common]
+                 office_addr, *[a for j in psd_jams or [] for a in ("--psd-jam", j)], *common]
             )  # fmt: skip
             tasc_args = ["--stations", f"127.0.0.1:{st_port}", "--controller", controller]
             tasc_args += ["--tasc-loss", repr(tasc_loss)]
@@ -463,10 +492,16 @@ def run_cmd(
         float,
         typer.Option(min=0.0, max=1.0, help="Fault injection: the share of braking telegram frames lost."),
     ] = 0.0,
+    psd_jam: PsdJamOpt = None,
 ) -> None:
     """Office (with its page), zone controller, stations and trains as processes for --duration-s."""
     try:
         ctrl = _tasc_controller(controller) if tasc else None
+        if psd_jam:
+            from railstop.config import load_line
+            from railstop.config.doors import load_doors
+
+            _psd_jams(psd_jam, load_line(None), load_doors(None).doors_per_side)  # refused before any start
     except RailstopError as exc:
         fail(str(exc))
     results = _run_line(
@@ -480,6 +515,7 @@ def run_cmd(
         outages=list(outage or []),
         controller=ctrl,
         tasc_loss=tasc_loss,
+        psd_jams=list(psd_jam or []),
     )
     print(json.dumps(results))
 

@@ -91,32 +91,38 @@ def unpack_stop_sensed(payload: bytes) -> tuple[int, int, float]:
 
 class DoorMotion:
     """The door units' own motion (the plant): a unit that begins opening, closing or locking
-    finishes after the door data's time, unless it has moved on since (a stale completion)."""
+    finishes after the door data's time, unless it has moved on since (a stale completion); other
+    physical events (a jam, the staff's isolation) are scheduled the same way (:meth:`schedule`)."""
 
     def __init__(self, doors: DoorsConfig, *, psd: bool) -> None:
         self.timing = doors.timing
         self.psd = psd
         self._gen: dict[Hashable, int] = {}
-        self._pending: list[tuple[float, Hashable, int]] = []
+        self._pending: list[tuple[float, int, Hashable, int, DoorInput]] = []
+        self._seq = 0
 
     def follow(self, key: Hashable, before: DoorState | None, after: DoorState, now_s: float) -> None:
         """``key`` went from ``before`` to ``after`` at ``now_s`` (``before`` None: it is in
         ``after`` already, its motion to be timed from now)."""
         if before == after:
             return
-        gen = self._gen.get(key, 0) + 1
-        self._gen[key] = gen
+        self._gen[key] = self._gen.get(key, 0) + 1
         motion = self.timing.motion_s(after, psd=self.psd)
         if motion is not None:
-            self._pending.append((now_s + motion, key, gen))
+            self.schedule(key, now_s + motion, DoorInput.DONE)
 
-    def due(self, now_s: float) -> list[Hashable]:
-        """The units whose motion has finished by ``now_s`` (in the order they finished)."""
-        done = sorted(p for p in self._pending if p[0] <= now_s + 1e-9)
+    def schedule(self, key: Hashable, at_s: float, inp: DoorInput) -> None:
+        """``inp`` happens to ``key`` at ``at_s`` unless the unit moves on before."""
+        self._seq += 1
+        self._pending.append((at_s, self._seq, key, self._gen.get(key, 0), inp))
+
+    def due(self, now_s: float) -> list[tuple[Hashable, DoorInput]]:
+        """The events that have happened by ``now_s`` (in the order they happened)."""
+        done = sorted((p for p in self._pending if p[0] <= now_s + 1e-9), key=lambda p: (p[0], p[1]))
         if not done:
             return []
         self._pending = [p for p in self._pending if p[0] > now_s + 1e-9]
-        return [key for _, key, gen in done if self._gen.get(key) == gen]
+        return [(key, inp) for _, _, key, gen, inp in done if self._gen.get(key, 0) == gen]
 
 
 def _signals(cmd: DoorCommand) -> DoorSignals:
@@ -150,6 +156,7 @@ class PlatformDoors:
         self.due: list[tuple[int, PsdStatus]] = []  # (train, status) to send now
         self.events: list[dict[str, Any]] = []  # for the office
         self.was_open = False
+        self.jam_next: set[int] = set()  # fault injection: these PSD units jam on their next closing
         self.counts = {"psc_answered": 0, "psc_refused": 0, "links_lost": 0, "commands": 0, "other_train": 0}
 
     # -- inputs ---------------------------------------------------------------------
@@ -209,11 +216,11 @@ class PlatformDoors:
                 self._event("psc", now_s)
                 self._scan(now_s)
                 self.due.append((train, self.status()))
-        for unit in self.motion.due(now_s):
+        for unit, inp in self.motion.due(now_s):
             assert isinstance(unit, int)
             before = self.state
             try:
-                self.state = wpcs.door_event(self.state, unit, DoorInput.DONE, self.model.doors)
+                self.state = wpcs.door_event(self.state, unit, inp, self.model.doors)
             except InterlockError as exc:
                 self.state = wpcs.safe(self.state)
                 self._event("fault", now_s, error=str(exc))
@@ -265,9 +272,28 @@ class PlatformDoors:
             self._event("fault", now_s, error=str(exc))
         self._follow(before, now_s)
 
+    def jam(self, unit: int) -> None:
+        """Fault injection: PSD unit ``unit`` (0 = front) fails to close on its next closing; the
+        station's staff isolate it ``staff_isolation_s`` later (closed and locked by hand), which
+        then no longer withholds start enable (SPEC §3, §5; the door data's timings)."""
+        if not 0 <= unit < len(self.state.units):
+            raise ValueError(f"PSD unit {unit + 1}: {self.name} has units 1..{len(self.state.units)}")
+        self.jam_next.add(unit)
+
     def _follow(self, before: WpcsState, now_s: float) -> None:
+        t = self.doors.timing
         for i, (u0, u1) in enumerate(zip(before.units, self.state.units, strict=True)):
             self.motion.follow(i, u0, u1, now_s)
+            if u1 == u0:
+                continue
+            if u1 == DoorState.CLOSING and i in self.jam_next:
+                self.jam_next.discard(i)
+                self.motion.schedule(i, now_s + t.psd_jam_at_s, DoorInput.JAM)
+            elif u1 == DoorState.JAMMED:
+                self._event("psd-jam", now_s, unit=i + 1)
+                self.motion.schedule(i, now_s + t.staff_isolation_s, DoorInput.ISOLATE)
+            elif u1 == DoorState.ISOLATED:
+                self._event("psd-isolated", now_s, unit=i + 1)
         units = [u for u in self.state.units if u != DoorState.ISOLATED]
         if units and all(u == DoorState.OPEN for u in units) and not self.was_open:
             self.was_open = True
@@ -406,12 +432,12 @@ class TrainDoors:
             self._stop_input(StopInput.PSC_TIMEOUT, now_s)  # no reply: not in position
         elif phase == StopPhase.CONFIRMED and now_s - self.status_s > self.link.supervision_timeout_s:
             self._stop_input(StopInput.LINK_LOST, now_s)
-        for key in self.motion.due(now_s):
+        for key, inp in self.motion.due(now_s):
             assert isinstance(key, tuple)
             side, unit = key
             before = self.cpcs
             try:
-                self.cpcs = cpcs.door_event(self.cpcs, side, unit, DoorInput.DONE, self.model.doors)
+                self.cpcs = cpcs.door_event(self.cpcs, side, unit, inp, self.model.doors)
             except InterlockError as exc:
                 self.cpcs = cpcs.safe(self.cpcs)
                 self._fail(str(exc), now_s)
@@ -584,16 +610,20 @@ def wired_dwell(
     step_s: float = 0.05,
     platform_silent_after_s: float = math.inf,
     wcc: tuple[tuple[float, bool, bool, bool], ...] = (),
+    psd_jam: int | None = None,
     until_s: float = 600.0,
 ) -> tuple[TrainDoors, PlatformDoors]:
     """One dwell with the train's end and the platform's wired directly in this process, each
     frame delivered at the next step (the live units' check against the dwell simulation): the
     platform falls silent after ``platform_silent_after_s`` (its process died); ``wcc``: the WCC's
-    actions, each (at_s, manual, panel_open, panel_close)."""
+    actions, each (at_s, manual, panel_open, panel_close); ``psd_jam``: this PSD unit (1 = front) fails
+    to close."""
     from railstop.sim.dwell import model_for
 
     model = model_for(doors)
     platform = PlatformDoors(index=0, name="P", side=side, doors=doors, model=model)
+    if psd_jam is not None:
+        platform.jam(psd_jam - 1)
     train = TrainDoors(
         train=1, station=0, station_name="P", side=side, error_m=error_m, doors=doors, model=model, t0_s=0.0
     )
@@ -743,7 +773,11 @@ class Platforms:
     stop-sensor and ``door-command`` frames in, the ``psd-status`` frames out, the WCC's commands
     through their gate (``link.release_link.WccGate``)."""
 
-    def __init__(self, *, line: Line, doors: DoorsConfig, master_key: bytes) -> None:
+    def __init__(
+        self, *, line: Line, doors: DoorsConfig, master_key: bytes, jams: tuple[tuple[int, int], ...] = ()
+    ) -> None:
+        """``jams``: fault injection, (station, PSD unit from 0) that fail to close on their next
+        closing."""
         from railstop.link.release_link import WccGate, wcc_key
         from railstop.sim.dwell import model_for
 
@@ -752,6 +786,8 @@ class Platforms:
             PlatformDoors(index=i, name=st.name, side=Side(st.platform_side), doors=doors, model=model)
             for i, st in enumerate(line.stations)
         ]
+        for station, unit in jams:
+            self.units[station].jam(unit)
         n = len(self.units)
         self.links = {
             i: SafePeers(

@@ -373,13 +373,14 @@ async def run_stations(
     office: OfficeClient | None = None,
     on_ready: Callable[[Address], None] | None = None,
     doors: DoorsConfig | None = None,
+    jams: tuple[tuple[int, int], ...] = (),
 ) -> dict[str, Any]:
     """Every station's wayside units, serving the trains until ``stop``: the TASC unit and the WPCS
-    of its platform (``live.doors``, with the door data ``doors``: default the embedded); return
-    the counts."""
+    of its platform (``live.doors``, with the door data ``doors``: default the embedded; ``jams``:
+    fault injection, (station, PSD unit from 0) that fail to close); return the counts."""
     from railstop.config.doors import load_doors
 
-    platforms = Platforms(line=line, doors=doors or load_doors(), master_key=master_key)
+    platforms = Platforms(line=line, doors=doors or load_doors(), master_key=master_key, jams=jams)
     models = station_models(line, vehicle, controller)
     wired_stop(models[0], vehicle)  # the compiled steps loaded before the clock starts
     stations = [WaysideTasc(st) for st in models]
