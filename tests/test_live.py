@@ -192,10 +192,10 @@ def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path
 
 
 def test_a_lost_train_that_left_its_zone_is_flagged_and_its_zone_kept(tmp_path: Path) -> None:
-    """The same with the radio dead until 115 s: in restricted mode the train runs its 400 m and
+    """The same with the radio dead until 125 s: in restricted mode the train runs its 400 m and
     leaves its zone. Re-detected outside it, it is flagged for the operator and the zone is kept
     (SPEC §4: an operator releases it after visual confirmation; fail safe, DESIGN rule 10)."""
-    zc, zones, lost = _restricted_run(tmp_path, "1:15:100")
+    zc, zones, lost = _restricted_run(tmp_path, "1:15:110")
     assert zc["lost_trains"] == 1 and zc["auto_releases"] == 0 and zc["flagged"] == 1, zc
     assert [(z["train"], z["active"], z["status"]) for z in zones] == [
         (1, True, "lost"),
