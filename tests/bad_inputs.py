@@ -937,6 +937,11 @@ add(
     "live", "run", "--duration-s", "1", "--psd-jam", "Harbour:25",
     needles=("--psd-jam", "Harbour:25"),
 )  # fmt: skip
+add(
+    "live-trains-door-mode",
+    "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--door-mode", "robot",
+    needles=("--door-mode", "robot"),
+)  # fmt: skip
 add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
 add(
     "office-reports-kind",

@@ -213,3 +213,26 @@ def test_a_psd_unit_that_jams_withholds_start_enable_until_the_staff_isolate_it(
     )
     with pytest.raises(ValueError, match="PSD unit 25"):
         platform.jam(24)
+
+
+@pytest.mark.parametrize("error_m", [0.0, 0.8])
+def test_manual_driving_follows_the_dwell_simulation(error_m: float) -> None:
+    """The driver's dwell (SPEC §5 manual column: door-side selector, open and close buttons, each a
+    moment after its cue): the same outcome and corrections as the dwell simulation's manual mode,
+    later only by the link's exchange cycles."""
+    train, platform = wired_dwell(DOORS, error_m=error_m, manual=True, step_s=0.01)
+    sim = run_dwell(doors=DOORS, station="P", platform_side="R", stop_error_m=error_m, mode="manual")
+    assert (
+        sim.outcome == "start-enable" and train.start_enable_s is not None and sim.start_enable_s is not None
+    )
+    assert train.corrections == sim.corrections and train.psc_requests == sim.psc_attempts
+    assert sim.start_enable_s <= train.start_enable_s <= sim.start_enable_s + 4 * CYCLE
+    auto, _ = wired_dwell(DOORS, error_m=error_m, step_s=0.01)
+    assert (
+        auto.start_enable_s is not None and train.start_enable_s > auto.start_enable_s
+    )  # the driver is slower
+    assert [e["ev"] for e in platform.events] == ["psc", "psd-open", "psd-locked", "psc-off"]
+    print(
+        f"manual, stop error {error_m:+.2f} m: start enable {train.start_enable_s:.2f} s live, "
+        f"{sim.start_enable_s:.2f} s simulated"
+    )

@@ -159,6 +159,13 @@ TascControllerOpt = Annotated[
 ]
 
 
+DoorModeOpt = Annotated[
+    str,
+    typer.Option(
+        "--door-mode",
+        help="Who works the train doors at the platforms: auto (the ATC) or manual (the driver).",
+    ),
+]
 PsdJamOpt = Annotated[
     list[str] | None,
     typer.Option(
@@ -263,6 +270,7 @@ def trains_cmd(
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     doors: DoorsOpt = None,
+    door_mode: DoorModeOpt = "auto",
 ) -> None:
     """Every train's onboard units (CBTC; with --stations ground TASC and the dwell over the door
     link with the platforms' WPCS) and the plant that moves the trains, as one live process."""
@@ -276,6 +284,8 @@ def trains_cmd(
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         zc_addr = address_option(zc, "--zc")
         windows = [_outage(o, trains) for o in outage or []]
+        if door_mode not in ("auto", "manual"):
+            raise RailstopError(f"--door-mode: auto or manual (got {door_mode!r})")
         tasc = door_link = None
         if stations is not None:
             door_link = LiveDoors(
@@ -283,6 +293,7 @@ def trains_cmd(
                 doors=load_doors(doors),
                 stations=address_option(stations, "--stations"),
                 master_key=key,
+                manual=door_mode == "manual",
             )
             tasc = LiveTasc(
                 line=ln,
@@ -358,6 +369,7 @@ def _run_line(
     controller: str | None = "tasc-pwm",
     tasc_loss: float = 0.0,
     psd_jams: list[str] | None = None,
+    door_mode: str = "auto",
 ) -> dict[str, object]:
     """Office (with its page), zone controller, stations (with ``controller``; None: no ground
     TASC, point-mass stops) and trains as processes for ``duration_s`` wall seconds; their counts,
@@ -419,7 +431,7 @@ def _run_line(
                  office_addr, *[a for j in psd_jams or [] for a in ("--psd-jam", j)], *common]
             )  # fmt: skip
             tasc_args = ["--stations", f"127.0.0.1:{st_port}", "--controller", controller]
-            tasc_args += ["--tasc-loss", repr(tasc_loss)]
+            tasc_args += ["--tasc-loss", repr(tasc_loss), "--door-mode", door_mode]
         tr = launch(
             ["live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m",
              str(spacing_m), "--office", office_addr, *outage_args, *tasc_args, *common]
@@ -493,10 +505,13 @@ def run_cmd(
         typer.Option(min=0.0, max=1.0, help="Fault injection: the share of braking telegram frames lost."),
     ] = 0.0,
     psd_jam: PsdJamOpt = None,
+    door_mode: DoorModeOpt = "auto",
 ) -> None:
     """Office (with its page), zone controller, stations and trains as processes for --duration-s."""
     try:
         ctrl = _tasc_controller(controller) if tasc else None
+        if door_mode not in ("auto", "manual"):
+            raise RailstopError(f"--door-mode: auto or manual (got {door_mode!r})")
         if psd_jam:
             from railstop.config import load_line
             from railstop.config.doors import load_doors
@@ -516,6 +531,7 @@ def run_cmd(
         controller=ctrl,
         tasc_loss=tasc_loss,
         psd_jams=list(psd_jam or []),
+        door_mode=door_mode,
     )
     print(json.dumps(results))
 

@@ -326,9 +326,11 @@ class PlatformDoors:
 
 @dataclass
 class TrainDoors:
-    """A train's dwell at one station (SPEC §5) in automatic operation, from the moment its wheels
-    stop to start enable (or the fault): ``step`` each plant step; the ``door-command`` telegrams
-    to send are queued in ``due``, the ``psd-status`` telegrams received go to ``receive``."""
+    """A train's dwell at one station (SPEC §5), in automatic operation (the ATC's door sequence) or
+    ``manual`` (the driver's door-side selector and buttons, a ``driver_action_s`` after each cue),
+    from the moment its wheels stop to start enable (or the fault): ``step`` each plant step; the
+    ``door-command`` telegrams to send are queued in ``due``, the ``psd-status`` telegrams received
+    go to ``receive``."""
 
     train: int
     station: int
@@ -340,6 +342,7 @@ class TrainDoors:
     t0_s: float
     stop: StopConfirmState = field(default_factory=StopConfirmState)
     carried: CpcsState | None = None  # the doors as an earlier dwell here left them (None: all locked)
+    manual: bool = False  # driven by a driver (SPEC §5 manual column): his selector and buttons
     cpcs: CpcsState = field(init=False)
     signals: DoorSignals = field(default_factory=DoorSignals)
     due: list[DoorCommand] = field(default_factory=list)
@@ -373,6 +376,8 @@ class TrainDoors:
         self.creep_left_m = 0.0
         self.creep_dir = 0.0
         self.creep_pending = False
+        self.creep_at_s = -math.inf  # the driver moves off this long after the lamp lights
+        self.driver: list[tuple[float, dict[str, bool]]] = []  # the driver's actions to come
         self.settle_end_s = math.inf
 
     # -- inputs -------------------------------------------------------------------------
@@ -383,8 +388,16 @@ class TrainDoors:
         if self.stop.phase == StopPhase.PSC_WAIT:
             self._stop_input(StopInput.PSC_REPLY, now_s)  # SPEC §5: the reply makes PSC high
             if self.stop.phase == StopPhase.CONFIRMED:
-                # SPEC §5: with PSC the ATC releases DMC on the platform side and gives DOA, DOC.
-                self.signals = self.signals.with_side(self.side, dmc=False, doa=True)._replace(doc=True)
+                if self.manual:
+                    # SPEC §5: with PSC the ATC releases DMC (vital, both modes); the driver turns
+                    # the door-side selector (DOA), then presses the open button (DOC).
+                    self.signals = self.signals.with_side(self.side, dmc=False)
+                    act = self.t.driver_action_s
+                    self.driver.append((now_s + act, {"doa": True}))
+                    self.driver.append((now_s + 2 * act, {"doc": True}))
+                else:
+                    # SPEC §5: with PSC the ATC releases DMC on the platform side and gives DOA, DOC.
+                    self.signals = self.signals.with_side(self.side, dmc=False, doa=True)._replace(doc=True)
         self._scan(now_s)
 
     @property
@@ -445,11 +458,21 @@ class TrainDoors:
         if now_s >= self.dwell_end_s:
             self.dwell_end_s = math.inf
             self.closing = True
-            self.signals = self.signals.with_side(self.side, dmc=True)._replace(dcc=True)  # SPEC §5: close
+            if self.manual:
+                # The driver: door-side selector off and the close button (the manual column).
+                self.signals = self.signals.with_side(self.side, doa=False)._replace(dcc=True)
+            else:
+                self.signals = self.signals.with_side(self.side, dmc=True)._replace(dcc=True)  # SPEC §5
             self._note(now_s, "close")
+        while self.driver and self.driver[0][0] <= now_s + 1e-9:
+            _, changes = self.driver.pop(0)
+            s = self.signals
+            for name, value in changes.items():
+                s = s.with_side(self.side, doa=value) if name == "doa" else s._replace(**{name: value})
+            self.signals = s
         self._scan(now_s)
         self._react(now_s)
-        if self.creep_pending:
+        if self.creep_pending and now_s >= self.creep_at_s:
             self._start_creep()
         if self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) and now_s >= self.next_cmd_s:
             self.due.append(self.command())
@@ -467,7 +490,7 @@ class TrainDoors:
             doc=s.doc,
             dcc=s.dcc,
             psc=self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) if psc is None else psc,
-            automatic=True,
+            automatic=not self.manual,
             doors_locked=door_mask(self.cpcs.side(self.side), LOCKED_STATES),
         )
 
@@ -489,7 +512,7 @@ class TrainDoors:
             self.cpcs = cpcs.scan(
                 self.cpcs,
                 self.signals,
-                manual=False,
+                manual=self.manual,
                 zero_speed=not self.moving,
                 psd=self._psd(now_s),
                 actions=self.model.actions,
@@ -535,6 +558,8 @@ class TrainDoors:
             self.due.append(self.command(psc=False))
             self.corrections += 1
             self.creep_pending = True
+            # SPEC §3 lamps: the driver moves off a moment after the lamp lights; the ATC at once.
+            self.creep_at_s = now_s + (self.t.driver_action_s if self.manual else 0.0)
 
     def _start_creep(self) -> None:
         """SPEC §3 lamps F / R: a short creep towards the stopping point, at most creep_max_m, once
@@ -569,7 +594,11 @@ class TrainDoors:
         if ready and st is not None and st.psd_closed_locked and st.start_enable:
             # SPEC §5 fig. 7: start enable; the door commands are released, PSC dropped.
             self.start_enable_s = now_s
-            self.signals = self.signals.with_side(self.side, doa=False)._replace(dcc=False)
+            if self.manual:
+                # The door commands released; the ATC raises DMC again for the run.
+                self.signals = self.signals.with_side(self.side, dmc=True)._replace(dcc=False)
+            else:
+                self.signals = self.signals.with_side(self.side, doa=False)._replace(dcc=False)
             self._stop_input(StopInput.DEPART, now_s)
             self.due.append(self.command(psc=False))
             self.done = True
@@ -611,6 +640,7 @@ def wired_dwell(
     platform_silent_after_s: float = math.inf,
     wcc: tuple[tuple[float, bool, bool, bool], ...] = (),
     psd_jam: int | None = None,
+    manual: bool = False,
     until_s: float = 600.0,
 ) -> tuple[TrainDoors, PlatformDoors]:
     """One dwell with the train's end and the platform's wired directly in this process, each
@@ -625,7 +655,15 @@ def wired_dwell(
     if psd_jam is not None:
         platform.jam(psd_jam - 1)
     train = TrainDoors(
-        train=1, station=0, station_name="P", side=side, error_m=error_m, doors=doors, model=model, t0_s=0.0
+        train=1,
+        station=0,
+        station_name="P",
+        side=side,
+        error_m=error_m,
+        doors=doors,
+        model=model,
+        t0_s=0.0,
+        manual=manual,
     )
     actions = sorted(wcc)
     up: list[DoorCommand] = []
@@ -661,9 +699,13 @@ class LiveDoors:
     standstill, :meth:`advance` each plant step), its ``door-command`` frames and the platform's
     stop-sensor readings out, the ``psd-status`` frames in (category 3: UDP is an open network)."""
 
-    def __init__(self, *, line: Line, doors: DoorsConfig, stations: Address, master_key: bytes) -> None:
+    def __init__(
+        self, *, line: Line, doors: DoorsConfig, stations: Address, master_key: bytes, manual: bool = False
+    ) -> None:
+        """``manual``: the trains' doors are worked by their drivers (SPEC §5 manual column)."""
         from railstop.sim.dwell import model_for
 
+        self.manual = manual
         self.line = line
         self.doors = doors
         self.model = model_for(doors)
@@ -727,6 +769,7 @@ class LiveDoors:
             model=self.model,
             t0_s=now_s,
             carried=carried,
+            manual=self.manual,
         )
         self.active[train] = dwell
         return dwell
