@@ -942,6 +942,11 @@ add(
     "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--door-mode", "robot",
     needles=("--door-mode", "robot"),
 )  # fmt: skip
+add(
+    "live-trains-obstruct",
+    "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--trains", "2", "--obstruct", "5:1",
+    needles=("--obstruct", "5:1"),
+)  # fmt: skip
 add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
 add(
     "office-reports-kind",

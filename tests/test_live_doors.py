@@ -236,3 +236,20 @@ def test_manual_driving_follows_the_dwell_simulation(error_m: float) -> None:
         f"manual, stop error {error_m:+.2f} m: start enable {train.start_enable_s:.2f} s live, "
         f"{sim.start_enable_s:.2f} s simulated"
     )
+
+
+def test_an_obstructed_train_door_withholds_start_enable_until_it_is_cleared() -> None:
+    """Fault injection: train door 2 on the platform side meets an obstacle while closing; it
+    reopens and holds until the obstacle is cleared, then closes; start enable only then, as in the
+    dwell simulation (later only by the link's exchange cycles)."""
+    train, _ = wired_dwell(DOORS, error_m=0.0, obstruct=2, step_s=0.01)
+    sim = run_dwell(doors=DOORS, station="P", platform_side="R", stop_error_m=0.0, obstruct_door=2)
+    plain, _ = wired_dwell(DOORS, error_m=0.0, step_s=0.01)
+    assert sim.start_enable_s is not None and train.start_enable_s is not None and plain.start_enable_s
+    assert sim.start_enable_s <= train.start_enable_s <= sim.start_enable_s + 4 * CYCLE
+    assert train.start_enable_s > plain.start_enable_s + DOORS.timing.obstruction_clear_s
+    assert any(what == "door 2 obstructed" for _, what in train.events)
+    print(
+        f"door 2 obstructed: start enable {train.start_enable_s:.2f} s live, "
+        f"{sim.start_enable_s:.2f} s simulated"
+    )

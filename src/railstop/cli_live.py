@@ -271,6 +271,13 @@ def trains_cmd(
     vehicle: VehicleOpt = None,
     doors: DoorsOpt = None,
     door_mode: DoorModeOpt = "auto",
+    obstruct: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Fault injection: TRAIN:DOOR, that train's door (1 = front) on the platform side meets "
+            "an obstacle at its next dwell's closing."
+        ),
+    ] = None,
 ) -> None:
     """Every train's onboard units (CBTC; with --stations ground TASC and the dwell over the door
     link with the platforms' WPCS) and the plant that moves the trains, as one live process."""
@@ -295,6 +302,15 @@ def trains_cmd(
                 master_key=key,
                 manual=door_mode == "manual",
             )
+            for text in obstruct or []:
+                train_s, _, door_s = text.partition(":")
+                n = door_link.doors.doors_per_side
+                if not (
+                    train_s.isdigit() and door_s.isdigit() and int(train_s) < trains and 1 <= int(door_s) <= n
+                ):
+                    why = f"TRAIN:DOOR with a train 0..{trains - 1} and a door 1..{n}"
+                    raise RailstopError(f"--obstruct: {why} (got {text!r})")
+                door_link.obstructions[int(train_s)] = int(door_s) - 1
             tasc = LiveTasc(
                 line=ln,
                 vehicle=veh,

@@ -343,6 +343,7 @@ class TrainDoors:
     stop: StopConfirmState = field(default_factory=StopConfirmState)
     carried: CpcsState | None = None  # the doors as an earlier dwell here left them (None: all locked)
     manual: bool = False  # driven by a driver (SPEC §5 manual column): his selector and buttons
+    obstruct: int | None = None  # fault injection: this platform-side door (0 = front) is obstructed
     cpcs: CpcsState = field(init=False)
     signals: DoorSignals = field(default_factory=DoorSignals)
     due: list[DoorCommand] = field(default_factory=list)
@@ -525,9 +526,20 @@ class TrainDoors:
         self._follow(before, now_s)
 
     def _follow(self, before: CpcsState, now_s: float) -> None:
+        t = self.t
         for side in (Side.L, Side.R):
             for i, (u0, u1) in enumerate(zip(before.side(side), self.cpcs.side(side), strict=True)):
                 self.motion.follow((side, i), u0, u1, now_s)
+                if u0 == u1 or side != self.side:
+                    continue
+                # Fault injection: an obstacle in the closing door (once); the door reopens and holds
+                # until it is cleared (the door data's times), withholding start enable meanwhile.
+                if u1 == DoorState.CLOSING and i == self.obstruct:
+                    self.obstruct = None
+                    self.motion.schedule((side, i), now_s + t.obstruction_at_s, DoorInput.OBSTRUCT)
+                elif u1 == DoorState.OBSTRUCTED:
+                    self._note(now_s, f"door {i + 1} obstructed")
+                    self.motion.schedule((side, i), now_s + t.obstruction_clear_s, DoorInput.CLEAR)
 
     def _stop_input(self, inp: StopInput, now_s: float) -> None:
         was = self.stop.phase
@@ -641,6 +653,7 @@ def wired_dwell(
     wcc: tuple[tuple[float, bool, bool, bool], ...] = (),
     psd_jam: int | None = None,
     manual: bool = False,
+    obstruct: int | None = None,
     until_s: float = 600.0,
 ) -> tuple[TrainDoors, PlatformDoors]:
     """One dwell with the train's end and the platform's wired directly in this process, each
@@ -664,6 +677,7 @@ def wired_dwell(
         model=model,
         t0_s=0.0,
         manual=manual,
+        obstruct=None if obstruct is None else obstruct - 1,
     )
     actions = sorted(wcc)
     up: list[DoorCommand] = []
@@ -706,6 +720,7 @@ class LiveDoors:
         from railstop.sim.dwell import model_for
 
         self.manual = manual
+        self.obstructions: dict[int, int] = {}  # fault injection: train -> door (0 = front), next dwell
         self.line = line
         self.doors = doors
         self.model = model_for(doors)
@@ -770,6 +785,7 @@ class LiveDoors:
             t0_s=now_s,
             carried=carried,
             manual=self.manual,
+            obstruct=self.obstructions.pop(train, None),
         )
         self.active[train] = dwell
         return dwell
