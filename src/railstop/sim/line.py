@@ -98,6 +98,13 @@ ENTRY_MARGIN_M = 10.0
 ON_LINE = ("running", "stopping", "dwelling", "held")
 #: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
 RUNS_PER_TRAIN = 100
+#: After a dwell's SPEC §5 fault the train stands this long (its emergency brake applied) before
+#: the staff have reset its ATC and the confirmation starts again ([interpretation], as the live
+#: plant's DWELL_FAULT_HOLD_S: SPEC §5 says nothing of the recovery).
+FAULT_HOLD_S = 60.0
+#: A train held short of the platform is driven onto it at this speed (on sight, by the staff).
+RECOVERY_MPS = 10.0 * KMH
+RECOVERY_ACCEL_MPS2 = 0.3
 #: Adhesion on a low-adhesion patch between stations (wet leaves, as position-run's).
 LOW_MU = 0.05
 #: What one trip leaves of the learned scale and delay (standard deviations): a train in service
@@ -248,6 +255,7 @@ class Train:
     telegrams: list[tuple[float, int]] = field(default_factory=list)  # (occupancy time, circuit id)
     samples_t: list[float] = field(default_factory=list)
     samples_x: list[float] = field(default_factory=list)
+    dwells_here: int = 0  # dwells begun at its current station (a dwell fault's retries)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -719,10 +727,12 @@ class LineSimulation:
                 doors,
                 seed=self.seed,
                 train_id=train.index,
-                counter=train.next_station,
+                # A retry after a fault draws its own link (the first is the station's number).
+                counter=train.next_station + 1000 * train.dwells_here,
                 loss_probability=self.settings.door_link_loss,
             ),
         )
+        train.dwells_here += 1
         self.dwells.append(
             DwellRecord(
                 train=train.index,
@@ -736,13 +746,41 @@ class LineSimulation:
         )
         train.next_station += 1
         train.play_t = train.play_x = train.play_v = None
-        if dwell.start_enable_s is None:
-            # SPEC §5 fault path: no start enable, doors held closed, the train stays.
-            train.phase = "held"
-            return
         train.x_m = st.stop_point_m + dwell.final_stop_error_m  # after any correction creep
+        if dwell.start_enable_s is None:
+            # SPEC §5 fault path: no start enable, doors held closed, the train stays (the line
+            # behind it waits) until the staff's reset (``_recover``).
+            train.phase = "held"
+            train.until_s = arrive + dwell.dwell_total_s + FAULT_HOLD_S
+            return
+        train.dwells_here = 0
         train.phase = "dwelling"
         train.until_s = arrive + dwell.start_enable_s
+
+    def _recover(self, train: Train, now_s: float) -> None:
+        """After a dwell fault and the staff's reset ([interpretation], ``FAULT_HOLD_S``): a train
+        short of the platform by more than the tolerance is driven onto the stopping point on sight
+        (``RECOVERY_MPS``); then its confirmation starts again (a new dwell, its correction creeps
+        included). A platform whose link stays dead faults it again: it stays, fail safe."""
+        train.next_station -= 1
+        st = self.line.stations[train.next_station]
+        gap = st.stop_point_m - train.x_m
+        t, x, v = np.array([now_s]), np.array([train.x_m]), np.array([0.0])
+        if gap > st.psd_tolerance_m:
+            # A trapezoid (or triangle) of speed, RECOVERY_ACCEL_MPS2 up and down.
+            a = RECOVERY_ACCEL_MPS2
+            top = min(RECOVERY_MPS, math.sqrt(a * gap))
+            ramp_s, ramp_m = top / a, top * top / (2.0 * a)
+            cruise_s = (gap - 2.0 * ramp_m) / top
+            r = np.linspace(0.0, ramp_s, 20)
+            t = np.concatenate((now_s + r, now_s + ramp_s + cruise_s + r[1:]))
+            x = np.concatenate(
+                (train.x_m + 0.5 * a * r * r, train.x_m + gap - ramp_m + top * r[1:] - 0.5 * a * r[1:] ** 2)
+            )
+            v = np.concatenate((a * r, top - a * r[1:]))
+            x[-1], v[-1] = st.stop_point_m, 0.0
+        train.play_t, train.play_x, train.play_v = t, x, v
+        train.phase = "stopping"
 
     def _doors(self, dwell_s: float) -> DoorsConfig:
         """The door data with the doors standing open for ``dwell_s``."""
@@ -773,6 +811,8 @@ class LineSimulation:
                 self._play(train, now_s)
             elif train.phase == "dwelling" and now_s >= train.until_s:
                 train.phase = "running"
+            elif train.phase == "held" and now_s >= train.until_s:
+                self._recover(train, now_s)
             if train.phase in ON_LINE:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
