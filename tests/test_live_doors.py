@@ -10,7 +10,14 @@ import pytest
 from railstop.config.doors import load_doors
 from railstop.control.doors import LOCKED_STATES, DoorState, Side
 from railstop.link.codec import decode, encode
-from railstop.live.doors import PlatformDoors, TrainDoors, pack_stop_sensed, unpack_stop_sensed, wired_dwell
+from railstop.live.doors import (
+    PlatformDoors,
+    TrainDoors,
+    pack_stop_sensed,
+    run_wired,
+    unpack_stop_sensed,
+    wired_dwell,
+)
 from railstop.sim.dwell import model_for, run_dwell
 
 DOORS = load_doors()
@@ -134,30 +141,16 @@ def test_status_and_command_travel_through_the_codec() -> None:
     assert math.isnan(unpack_stop_sensed(pack_stop_sensed(3, 2, math.nan))[2])
 
 
-def _run(
-    train: TrainDoors, platform: PlatformDoors | None, t0: float, until_s: float
-) -> list[tuple[float, bool]]:
+def _run(train: TrainDoors, platform: PlatformDoors, t0: float, until_s: float) -> list[tuple[float, bool]]:
     """Train and platform wired, from ``t0`` to ``until_s`` or the dwell's end; each step's (time,
     moved while a train door was not locked)."""
-    locked = LOCKED_STATES
     out = []
-    t = t0
-    up: list[object] = []
-    while t < until_s and not (train.done and not up):
-        moved = train.step(t, 0.01)
-        unlocked = not all(u in locked for s in (Side.L, Side.R) for u in train.cpcs.side(s))
+
+    def observe(t: float, moved: float) -> None:
+        unlocked = not all(u in LOCKED_STATES for s in (Side.L, Side.R) for u in train.cpcs.side(s))
         out.append((t, moved != 0.0 and unlocked))
-        if platform is not None:
-            platform.sense(train.train, math.nan if train.moving else train.error_m, t)
-            for cmd in up:
-                platform.receive(cmd, t)  # type: ignore[arg-type]
-            platform.tick(t)
-            for _, status in platform.due:
-                train.receive(status, t)
-            platform.due.clear()
-        up = list(train.due)
-        train.due.clear()
-        t = round(t + 0.01, 9)
+
+    run_wired(train, platform, t0_s=t0, step_s=0.01, until_s=until_s, observe=observe)
     return out
 
 

@@ -22,20 +22,81 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from railstop.control.doors import LOCKED_STATES, DoorSignals, DoorState, door_mask
 from railstop.link.channel import ChannelParams, LinkError, SimChannel
 from railstop.link.codec import DoorCommand, PsdStatus, Telegram
 from railstop.link.safe_channel import SafeChannel
 from railstop.link.safety import SafeReceiver, SafeSender, link_key
 
-__all__ = ["DoorLink", "DoorLinkCounts", "Received"]
+__all__ = ["DoorLink", "DoorLinkCounts", "Received", "command_signals", "door_command", "psd_status"]
 
 PLATFORM_ID = 0x0200  # the station's WPCS
 # Demonstration master key (category 3 only). A deployment loads its keys from its key management.
 _DEMO_MASTER = hashlib.sha256(b"railstop demonstration door link master key").digest()
+
+
+_OPEN = frozenset({DoorState.OPEN})
+
+
+def door_command(
+    train_id: int,
+    signals: DoorSignals,
+    *,
+    psc: bool,
+    automatic: bool,
+    doors: Sequence[DoorState],
+    locked: frozenset[DoorState] = LOCKED_STATES,
+) -> DoorCommand:
+    """The train's ``door-command``: its door signals, the PSC request, the driving mode and which of
+    its ``doors`` facing the platform are closed and locked."""
+    s = signals
+    return DoorCommand(
+        train_id=train_id,
+        doa_l=s.doa_l,
+        doa_r=s.doa_r,
+        dmc_l=s.dmc_l,
+        dmc_r=s.dmc_r,
+        doc=s.doc,
+        dcc=s.dcc,
+        psc=psc,
+        automatic=automatic,
+        doors_locked=door_mask(doors, locked),
+    )
+
+
+def command_signals(cmd: DoorCommand) -> DoorSignals:
+    """The door signals a ``door-command`` carries (what the WPCS reads them as)."""
+    return DoorSignals(
+        doa_l=cmd.doa_l, doa_r=cmd.doa_r, dmc_l=cmd.dmc_l, dmc_r=cmd.dmc_r, doc=cmd.doc, dcc=cmd.dcc
+    )
+
+
+def psd_status(
+    train_id: int,
+    units: Sequence[DoorState],
+    *,
+    fault: bool,
+    psc: bool,
+    manual: bool,
+    locked: frozenset[DoorState] = LOCKED_STATES,
+) -> PsdStatus:
+    """The WPCS's ``psd-status`` for its PSD ``units``: start enable only with every unit closed and
+    locked and no fault (SPEC §5 fig. 7), and which units are fully open."""
+    all_locked = all(u in locked for u in units)
+    return PsdStatus(
+        train_id=train_id,
+        psc=psc,
+        psd_closed_locked=all_locked,
+        start_enable=all_locked and not fault,
+        manual=manual,
+        fault=fault,
+        psd_open=door_mask(units, _OPEN),
+    )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,12 +50,12 @@ from railstop.control.doors import (
     DoorSignals,
     DoorState,
     Side,
-    door_mask,
     summarise,
     units_from_link,
 )
 from railstop.errors import InterlockError
 from railstop.link.codec import DoorCommand, PsdStatus, TelegramError, decode, encode
+from railstop.link.door_link import command_signals, door_command, psd_status
 from railstop.link.safety import SafePeers, frame_ids
 from railstop.link.udp import Address
 from railstop.onboard import cpcs, stop_confirm
@@ -123,12 +123,6 @@ class DoorMotion:
             return []
         self._pending = [p for p in self._pending if p[0] > now_s + 1e-9]
         return [(key, inp) for _, _, key, gen, inp in done if self._gen.get(key, 0) == gen]
-
-
-def _signals(cmd: DoorCommand) -> DoorSignals:
-    return DoorSignals(
-        doa_l=cmd.doa_l, doa_r=cmd.doa_r, dmc_l=cmd.dmc_l, dmc_r=cmd.dmc_r, doc=cmd.doc, dcc=cmd.dcc
-    )
 
 
 # ---------------------------------------------------------------------- the platform
@@ -233,16 +227,13 @@ class PlatformDoors:
 
     # -- the unit -------------------------------------------------------------------
     def status(self) -> PsdStatus:
-        units = self.state.units
-        locked = all(u in LOCKED_STATES for u in units)
-        return PsdStatus(
-            train_id=self.train if self.train is not None else 0,
-            psc=self.train is not None,
-            psd_closed_locked=locked,
-            start_enable=locked and not self.state.fault,
-            manual=self.wcc_manual,
+        return psd_status(
+            self.train if self.train is not None else 0,
+            self.state.units,
             fault=self.state.fault,
-            psd_open=door_mask(units, _OPEN),
+            psc=self.train is not None,
+            manual=self.wcc_manual,
+            locked=self.model.interlocks.locked,
         )
 
     def _scan(self, now_s: float) -> None:
@@ -251,7 +242,7 @@ class PlatformDoors:
             return
         n = len(self.state.units)
         train = TrainReport(
-            signals=_signals(cmd),
+            signals=command_signals(cmd),
             manual=not cmd.automatic,
             doors=units_from_link(n, locked_mask=cmd.doors_locked),
         )
@@ -481,18 +472,13 @@ class TrainDoors:
         return moved
 
     def command(self, *, psc: bool | None = None) -> DoorCommand:
-        s = self.signals
-        return DoorCommand(
-            train_id=self.train,
-            doa_l=s.doa_l,
-            doa_r=s.doa_r,
-            dmc_l=s.dmc_l,
-            dmc_r=s.dmc_r,
-            doc=s.doc,
-            dcc=s.dcc,
+        return door_command(
+            self.train,
+            self.signals,
             psc=self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) if psc is None else psc,
             automatic=not self.manual,
-            doors_locked=door_mask(self.cpcs.side(self.side), LOCKED_STATES),
+            doors=self.cpcs.side(self.side),
+            locked=self.model.interlocks.locked,
         )
 
     # -- inside -------------------------------------------------------------------------
@@ -679,17 +665,44 @@ def wired_dwell(
         manual=manual,
         obstruct=None if obstruct is None else obstruct - 1,
     )
+    run_wired(
+        train,
+        platform,
+        t0_s=0.0,
+        step_s=step_s,
+        until_s=until_s,
+        platform_silent_after_s=platform_silent_after_s,
+        wcc=wcc,
+    )
+    return train, platform
+
+
+def run_wired(
+    train: TrainDoors,
+    platform: PlatformDoors,
+    *,
+    t0_s: float,
+    step_s: float,
+    until_s: float,
+    platform_silent_after_s: float = math.inf,
+    wcc: tuple[tuple[float, bool, bool, bool], ...] = (),
+    observe: Callable[[float, float], None] | None = None,
+) -> None:
+    """Step ``train`` and ``platform`` wired directly from ``t0_s`` until the dwell has ended (and the
+    train's last frame is delivered) or ``until_s``; each frame is delivered at the next step.
+    ``observe(t_s, moved_m)`` is called after each train step."""
     actions = sorted(wcc)
     up: list[DoorCommand] = []
     down: list[PsdStatus] = []
-    t = 0.0
+    t = t0_s
     while (not train.done or up) and t < until_s:  # the train's last frame (PSC off) delivered too
         for status in down:
             train.receive(status, t)
         down = []
-        train.step(t, step_s)
-        alive = t < platform_silent_after_s
-        if alive:
+        moved = train.step(t, step_s)
+        if observe is not None:
+            observe(t, moved)
+        if t < platform_silent_after_s:
             while actions and actions[0][0] <= t:
                 _, manual, panel_open, panel_close = actions.pop(0)
                 platform.wcc(manual=manual, panel_open=panel_open, panel_close=panel_close, now_s=t)
@@ -702,7 +715,6 @@ def wired_dwell(
         up = list(train.due)
         train.due.clear()
         t = round(t + step_s, 9)
-    return train, platform
 
 
 # ---------------------------------------------------------------------- the processes' ends

@@ -41,18 +41,16 @@ import numpy as np
 
 from railstop.config.doors import DoorsConfig
 from railstop.control.doors import (
-    LOCKED_STATES,
     DoorInput,
     DoorSignals,
     DoorState,
     Side,
-    door_mask,
     summarise,
 )
 from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.codec import DoorCommand, PsdStatus
-from railstop.link.door_link import DoorLink, DoorLinkCounts
+from railstop.link.door_link import DoorLink, DoorLinkCounts, door_command, psd_status
 from railstop.onboard.stop_confirm import StopPhase
 from railstop.sim.door_system import (
     Controls,
@@ -429,31 +427,23 @@ class _Dwell:
             self._at(0.0, "tick")
 
     def _command(self) -> DoorCommand:
-        s = self.controls.signals
-        return DoorCommand(
-            train_id=self.link.train_id,
-            doa_l=s.doa_l,
-            doa_r=s.doa_r,
-            dmc_l=s.dmc_l,
-            dmc_r=s.dmc_r,
-            doc=s.doc,
-            dcc=s.dcc,
+        return door_command(
+            self.link.train_id,
+            self.controls.signals,
             psc=self.world.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED),
             automatic=not self.manual,
-            doors_locked=door_mask(self.world.cpcs.side(self.side), LOCKED_STATES),
+            doors=self.world.cpcs.side(self.side),
         )
 
     def _status(self) -> PsdStatus:
         wp = self.world.wpcs
-        locked = all(u in self.model.interlocks.locked for u in wp.units)
-        return PsdStatus(
-            train_id=self.link.train_id,
-            psc=self.platform_psc,
-            psd_closed_locked=locked,
-            start_enable=locked and not wp.fault,
-            manual=self.controls.wcc_manual,
+        return psd_status(
+            self.link.train_id,
+            wp.units,
             fault=wp.fault,
-            psd_open=door_mask(wp.units, frozenset({DoorState.OPEN})),
+            psc=self.platform_psc,
+            manual=self.controls.wcc_manual,
+            locked=self.model.interlocks.locked,
         )
 
     def _expect_arrival(self) -> None:
