@@ -166,6 +166,13 @@ DoorModeOpt = Annotated[
         help="Who works the train doors at the platforms: auto (the ATC) or manual (the driver).",
     ),
 ]
+
+
+def _check_door_mode(door_mode: str) -> None:
+    if door_mode not in ("auto", "manual"):
+        raise RailstopError(f"--door-mode: auto or manual (got {door_mode!r})")
+
+
 PsdJamOpt = Annotated[
     list[str] | None,
     typer.Option(
@@ -291,8 +298,7 @@ def trains_cmd(
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         zc_addr = address_option(zc, "--zc")
         windows = [_outage(o, trains) for o in outage or []]
-        if door_mode not in ("auto", "manual"):
-            raise RailstopError(f"--door-mode: auto or manual (got {door_mode!r})")
+        _check_door_mode(door_mode)
         tasc = door_link = None
         if stations is not None:
             door_link = LiveDoors(
@@ -526,8 +532,7 @@ def run_cmd(
     """Office (with its page), zone controller, stations and trains as processes for --duration-s."""
     try:
         ctrl = _tasc_controller(controller) if tasc else None
-        if door_mode not in ("auto", "manual"):
-            raise RailstopError(f"--door-mode: auto or manual (got {door_mode!r})")
+        _check_door_mode(door_mode)
         if psd_jam:
             from railstop.config import load_line
             from railstop.config.doors import load_doors

@@ -30,7 +30,7 @@ import numpy as np
 from railstop.link.channel import ChannelParams, SimChannel
 from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
 from railstop.link.safe_channel import SafeChannel
-from railstop.link.safety import SafeReceiver, SafeSender, link_key
+from railstop.link.safety import SafeReceiver, SafeSender, link_key, sum_counts
 from railstop.messages import Message, MovementCommand, Output, PositionReport
 from railstop.streams import Stream, seed_u64
 
@@ -95,10 +95,7 @@ class CbtcRadio:
 
     @property
     def counts(self) -> RadioCounts:
-        rejected: dict[str, int] = {}
-        for end in self._links.values():
-            for reason, n in end.rejected.items():
-                rejected[reason] = rejected.get(reason, 0) + n
+        rejected = sum_counts(end.rejected for end in self._links.values())
         if self.unexpected:
             rejected["unexpected-type"] = self.unexpected
         ends = self._links.items()

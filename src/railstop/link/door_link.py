@@ -31,7 +31,7 @@ from railstop.control.doors import LOCKED_STATES, DoorSignals, DoorState, door_m
 from railstop.link.channel import ChannelParams, LinkError, SimChannel
 from railstop.link.codec import DoorCommand, PsdStatus, Telegram
 from railstop.link.safe_channel import SafeChannel
-from railstop.link.safety import SafeReceiver, SafeSender, link_key
+from railstop.link.safety import SafeReceiver, SafeSender, link_key, sum_counts
 
 __all__ = ["DoorLink", "DoorLinkCounts", "Received", "command_signals", "door_command", "psd_status"]
 
@@ -204,10 +204,7 @@ class DoorLink:
 
     @property
     def counts(self) -> DoorLinkCounts:
-        rejected: dict[str, int] = {}
-        for d in (self.up, self.down):
-            for reason, n in d.rejected.items():
-                rejected[reason] = rejected.get(reason, 0) + n
+        rejected = sum_counts(d.rejected for d in (self.up, self.down))
         return DoorLinkCounts(
             commands_sent=self.up.sent,
             commands_delivered=self.up.delivered,

@@ -92,7 +92,7 @@ import hmac
 import math
 import struct
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from railstop.errors import RailstopError
@@ -394,6 +394,19 @@ class SafeReceiver:
         """
         elapsed_ms = round(_check_time("now_s", now_s) * 1000.0) - round(self.last_valid_s * 1000.0)
         return elapsed_ms > round(self.timeout_s * 1000.0)
+
+
+def sum_counts(
+    counts: Iterable[Mapping[str, int]], *, into: dict[str, int] | None = None, prefix: str = ""
+) -> dict[str, int]:
+    """Counts by reason (refusals, outcomes) summed over ``counts``, added to ``into`` (a new dict by
+    default), each key with ``prefix``."""
+    out = {} if into is None else into
+    for c in counts:
+        for reason, n in c.items():
+            key = prefix + reason
+            out[key] = out.get(key, 0) + n
+    return out
 
 
 class SafePeers:

@@ -42,7 +42,7 @@ from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, stat
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
-from railstop.link.safety import SafePeers, frame_ids
+from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
@@ -382,10 +382,7 @@ async def run_trains(
 def _rejected(radios: Iterable[UdpRadio], misdirected: int) -> dict[str, int]:
     """The frames the trains' radios refused, by reason, summed over the trains."""
     out: dict[str, int] = {"wrong_destination": misdirected} if misdirected else {}
-    for r in radios:
-        for reason, n in r.links.rejected.items():
-            out[reason] = out.get(reason, 0) + n
-    return out
+    return sum_counts((r.links.rejected for r in radios), into=out)
 
 
 def _move(

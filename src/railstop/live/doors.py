@@ -56,7 +56,7 @@ from railstop.control.doors import (
 from railstop.errors import InterlockError
 from railstop.link.codec import DoorCommand, PsdStatus, TelegramError, decode, encode
 from railstop.link.door_link import command_signals, door_command, psd_status
-from railstop.link.safety import SafePeers, frame_ids
+from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address
 from railstop.onboard import cpcs, stop_confirm
 from railstop.onboard.cpcs import CpcsState, PsdReport
@@ -819,13 +819,8 @@ class LiveDoors:
         return moved, frames
 
     def counts(self) -> dict[str, Any]:
-        refused: dict[str, int] = {}
-        for lk in self._links.values():
-            for reason, k in lk.rejected.items():
-                refused[reason] = refused.get(reason, 0) + k
-        outcomes: dict[str, int] = {}
-        for r in self.results:
-            outcomes[r["outcome"]] = outcomes.get(r["outcome"], 0) + 1
+        refused = sum_counts(lk.rejected for lk in self._links.values())
+        outcomes = sum_counts({r["outcome"]: 1} for r in self.results)
         dwells = [r["dwell_s"] for r in self.results if r["dwell_s"] is not None]
         return {
             "dwells": len(self.results),
@@ -941,14 +936,7 @@ class Platforms:
         return sorted(out, key=lambda e: e["t_s"])
 
     def counts(self) -> dict[str, Any]:
-        totals: dict[str, int] = {}
-        for u in self.units:
-            for k, v in u.counts.items():
-                totals[k] = totals.get(k, 0) + v
-        refused = dict(self.refused)
-        for lk in self.links.values():
-            for reason, n in lk.rejected.items():
-                refused[reason] = refused.get(reason, 0) + n
-        for reason, n in self.gate.rejected.items():
-            refused[f"wcc-{reason}"] = refused.get(f"wcc-{reason}", 0) + n
+        totals = sum_counts(u.counts for u in self.units)
+        refused = sum_counts((lk.rejected for lk in self.links.values()), into=dict(self.refused))
+        sum_counts([self.gate.rejected], into=refused, prefix="wcc-")
         return {**totals, "wcc_commands": self.gate.accepted, "refused": refused}

@@ -57,7 +57,7 @@ from railstop.control.notch import MOD_SIZE
 from railstop.control.supervision import eb_cause_name
 from railstop.control.tasc import HISTORY, SAMPLES
 from railstop.link.codec import TelegramError, decode, encode
-from railstop.link.safety import SafePeers, frame_ids
+from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import SENSORS_ID, Platforms
@@ -457,9 +457,7 @@ async def run_stations(
             return []
 
         await clock.run_live(plant, poll, stop)
-    for lk in links.values():
-        for reason, n in lk.rejected.items():
-            refused[reason] = refused.get(reason, 0) + n
+    sum_counts((lk.rejected for lk in links.values()), into=refused)
     return {
         "stops_served": sum(w.stops_served for w in stations),
         "stops_ended_readings_lost": sum(w.sensors_lost for w in stations),
@@ -812,10 +810,7 @@ class LiveTasc:
         return [self.sensors.wrap(payload, STATION_BASE + stop.st.index, now_s)]
 
     def counts(self) -> dict[str, Any]:
-        refused: dict[str, int] = {}
-        for lk in self._rx.values():
-            for reason, k in lk.rejected.items():
-                refused[reason] = refused.get(reason, 0) + k
+        refused = sum_counts(lk.rejected for lk in self._rx.values())
         return {
             "telegrams_delivered": sum(lk.delivered for lk in self._rx.values()),
             "telegrams_refused": refused,
