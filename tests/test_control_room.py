@@ -149,6 +149,33 @@ def test_a_page_opened_late_gets_the_history(office: tuple[str, int]) -> None:
             browser.close()
 
 
+class _Processes:
+    """The live line's processes of a browser test (railstop's CLI with the test's key): ``start``
+    gives a process's first stderr lines (two for the office), ``stop_all`` stops them, the last
+    started first, and gives each one's stdout in that order."""
+
+    def __init__(self) -> None:
+        self.env = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
+        self.all: list[subprocess.Popen[str]] = []
+
+    def start(self, *args: str) -> list[str]:
+        p = subprocess.Popen(
+            [sys.executable, "-m", "railstop.cli", *args],
+            env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        self.all.append(p)
+        assert p.stderr is not None
+        return [p.stderr.readline().strip() for _ in range(2 if args[0] == "office" else 1)]
+
+    def stop_all(self) -> list[str]:
+        results = []
+        for p in reversed(self.all):
+            p.send_signal(signal.SIGTERM)
+            out, _ = p.communicate(timeout=30)
+            results.append(out)
+        return results
+
+
 def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -166,19 +193,11 @@ def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credentia
     ops = tmp_path / "operators.toml"
     add_operator(ops, "alice", "correct horse battery")
     db = str(tmp_path / "office.db")
-    env = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
-    exe = [sys.executable, "-m", "railstop.cli"]
     zc_port = _free_udp_port()
     epoch = ["--epoch", repr(time.time()), "--scale", "1"]
-    procs: list[subprocess.Popen[str]] = []
 
-    def start(*args: str) -> list[str]:
-        p = subprocess.Popen(
-            [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
-        procs.append(p)
-        assert p.stderr is not None
-        return [p.stderr.readline().strip() for _ in range(2 if args[0] == "office" else 1)]
+    procs = _Processes()
+    start = procs.start
 
     try:
         lines = start("office", "serve", "--db", db, "--port", "0", "--http-port", "0", "--zc",
@@ -188,7 +207,7 @@ def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credentia
         start("live", "zc", "--port", str(zc_port), "--trains", "3", "--office", office, *epoch)
         start("live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "3", "--spacing-m", "800",
               "--office", office, "--outage-train", "1", *epoch)  # fmt: skip
-        trains = procs[2]
+        trains = procs.all[2]
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
@@ -232,11 +251,7 @@ def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credentia
                 browser.close()
         assert zone_png.stat().st_size > 10_000
     finally:
-        results = []
-        for p in reversed(procs):
-            p.send_signal(signal.SIGTERM)
-            out, _ = p.communicate(timeout=30)
-            results.append(out)
+        results = procs.stop_all()
     zc_counts = json.loads(results[1].strip().splitlines()[-1])
     assert zc_counts["manual_releases"] >= 1 and zc_counts["lost_trains"] >= 1
     from railstop.store import open_store
@@ -260,19 +275,11 @@ def test_the_wcc_switches_a_platform_to_manual_and_the_panel_moves_the_psd(tmp_p
     ops = tmp_path / "operators.toml"
     add_operator(ops, "bob", "tr0ub4dor")
     db = str(tmp_path / "office.db")
-    env = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
-    exe = [sys.executable, "-m", "railstop.cli"]
     zc_port, st_port = _free_udp_port(), _free_udp_port()
     epoch = ["--epoch", repr(time.time()), "--scale", "2"]
-    procs: list[subprocess.Popen[str]] = []
 
-    def start(*args: str) -> list[str]:
-        p = subprocess.Popen(
-            [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
-        procs.append(p)
-        assert p.stderr is not None
-        return [p.stderr.readline().strip() for _ in range(2 if args[0] == "office" else 1)]
+    procs = _Processes()
+    start = procs.start
 
     harbour = 'tr[data-station="Harbour"]'
     try:
@@ -349,11 +356,7 @@ def test_the_wcc_switches_a_platform_to_manual_and_the_panel_moves_the_psd(tmp_p
                 browser.close()
         assert wcc_png.stat().st_size > 10_000
     finally:
-        results = []
-        for p in reversed(procs):
-            p.send_signal(signal.SIGTERM)
-            out, _ = p.communicate(timeout=30)
-            results.append(out)
+        procs.stop_all()
     from railstop.store import open_store
 
     with open_store(db) as store:

@@ -220,6 +220,30 @@ def _wait_for(db: str, kind: str, ok: object, timeout_s: float) -> dict[str, obj
     raise AssertionError(f"no {kind} report as expected within {timeout_s} s")
 
 
+def _start_tasc_line(
+    procs: Procs, db: str, trains: int, scale: float
+) -> tuple[float, list[str], str, str, subprocess.Popen[str], subprocess.Popen[str], subprocess.Popen[str]]:
+    """Office, zone controller, stations and ``trains`` trains 1100 m apart (stopping by ground
+    TASC) as processes at ``scale``: (epoch, the common options, the office's address, the
+    stations' port, the zone controller, the stations, the trains)."""
+    epoch = time.time()
+    common = ["--epoch", repr(epoch), "--scale", str(scale)]
+    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
+    office_addr = line.split(" on ")[1].split()[0]
+    zc, line = procs.start(
+        "live", "zc", "--port", "0", "--trains", str(trains), "--office", office_addr, *common
+    )
+    zc_port = line.split("127.0.0.1:")[1].split()[0]
+    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
+    assert line.startswith("stations on"), line
+    st_port = line.split("127.0.0.1:")[1].split()[0]
+    fleet, _ = procs.start(
+        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m", "1100",
+        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
+    )  # fmt: skip
+    return epoch, common, office_addr, st_port, zc, stations, fleet
+
+
 def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_tasc(
     procs: Procs, tmp_path: Path
 ) -> None:
@@ -232,19 +256,7 @@ def test_killing_the_stations_brakes_the_stopping_train_and_a_restart_restores_t
 
     db = str(tmp_path / "office.db")
     scale = 3.0
-    epoch = time.time()
-    common = ["--epoch", repr(epoch), "--scale", str(scale)]
-    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
-    office_addr = line.split(" on ")[1].split()[0]
-    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "3", "--office", office_addr, *common)
-    zc_port = line.split("127.0.0.1:")[1].split()[0]
-    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
-    assert line.startswith("stations on"), line
-    st_port = line.split("127.0.0.1:")[1].split()[0]
-    trains, _ = procs.start(
-        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "3", "--spacing-m", "1100",
-        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
-    )  # fmt: skip
+    epoch, common, office_addr, st_port, zc, stations, trains = _start_tasc_line(procs, db, 3, scale)
     first = _wait_for(db, "tasc-command", lambda r: True, 60.0)
     os.kill(stations.pid, signal.SIGKILL)
     killed_s = (time.time() - epoch) * scale
@@ -303,18 +315,7 @@ def test_killing_the_stations_during_a_dwell_is_a_lost_door_link_and_the_train_s
 
     db = str(tmp_path / "office.db")
     scale = 3.0
-    epoch = time.time()
-    common = ["--epoch", repr(epoch), "--scale", str(scale)]
-    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
-    office_addr = line.split(" on ")[1].split()[0]
-    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "2", "--office", office_addr, *common)
-    zc_port = line.split("127.0.0.1:")[1].split()[0]
-    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
-    st_port = line.split("127.0.0.1:")[1].split()[0]
-    trains, _ = procs.start(
-        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "2", "--spacing-m", "1100",
-        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
-    )  # fmt: skip
+    epoch, common, office_addr, st_port, zc, stations, trains = _start_tasc_line(procs, db, 2, scale)
     opened = _wait_for(db, "dwell-event", lambda r: r["ev"] == "psd-open", 60.0)
     time.sleep(1.0)  # the train's doors follow the PSD's
     os.kill(stations.pid, signal.SIGKILL)
@@ -385,18 +386,7 @@ def test_killing_the_trains_process_loses_every_train_and_silences_the_stations(
     silent instead of repeating its last command (DESIGN rule 10)."""
     db = str(tmp_path / "office.db")
     scale = 3.0
-    epoch = time.time()
-    common = ["--epoch", repr(epoch), "--scale", str(scale)]
-    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
-    office_addr = line.split(" on ")[1].split()[0]
-    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "3", "--office", office_addr, *common)
-    zc_port = line.split("127.0.0.1:")[1].split()[0]
-    stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
-    st_port = line.split("127.0.0.1:")[1].split()[0]
-    trains, _ = procs.start(
-        "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", "3", "--spacing-m", "1100",
-        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
-    )  # fmt: skip
+    _epoch, _common, _office_addr, _st_port, zc, stations, trains = _start_tasc_line(procs, db, 3, scale)
     _wait_for(db, "tasc-command", lambda r: True, 60.0)
     os.kill(trains.pid, signal.SIGKILL)
     trains.communicate(timeout=30)
