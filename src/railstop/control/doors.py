@@ -104,6 +104,12 @@ def door_mask(units: Sequence[DoorState], states: frozenset[DoorState]) -> int:
     return sum(1 << i for i, u in enumerate(units) if u in states)
 
 
+def all_open(units: Iterable[DoorState]) -> bool:
+    """Whether every unit in service (staff-isolated ones aside) is fully open, and there is one."""
+    serving = [u for u in units if u != DS.ISOLATED]
+    return bool(serving) and all(u == DS.OPEN for u in serving)
+
+
 def units_from_link(n: int, *, locked_mask: int, open_mask: int = 0) -> tuple[DoorState, ...]:
     """``n`` door units as the far end of the door link knows them (SPEC §5: it sees only what the
     link carries): fully open (``open_mask``), closed and locked (``locked_mask``), else

@@ -50,6 +50,7 @@ from railstop.control.doors import (
     DoorSignals,
     DoorState,
     Side,
+    all_open,
     summarise,
     units_from_link,
 )
@@ -285,8 +286,7 @@ class PlatformDoors:
                 self.motion.schedule(i, now_s + t.staff_isolation_s, DoorInput.ISOLATE)
             elif u1 == DoorState.ISOLATED:
                 self._event("psd-isolated", now_s, unit=i + 1)
-        units = [u for u in self.state.units if u != DoorState.ISOLATED]
-        if units and all(u == DoorState.OPEN for u in units) and not self.was_open:
+        if all_open(self.state.units) and not self.was_open:
             self.was_open = True
             self._event("psd-open", now_s)
         elif self.was_open and all(u in LOCKED_STATES for u in self.state.units):
@@ -577,8 +577,7 @@ class TrainDoors:
     def _react(self, now_s: float) -> None:
         if self.done or self.stop.phase != StopPhase.CONFIRMED:
             return
-        units = [u for u in self.cpcs.side(self.side) if u != DoorState.ISOLATED]
-        if not self.doors_open and units and all(u == DoorState.OPEN for u in units):
+        if not self.doors_open and all_open(self.cpcs.side(self.side)):
             # Doors open: the ATC drops DOC; the dwell runs.
             self.doors_open = True
             self.signals = self.signals._replace(doc=False)

@@ -45,6 +45,7 @@ from railstop.control.doors import (
     DoorSignals,
     DoorState,
     Side,
+    all_open,
     summarise,
 )
 from railstop.errors import ConfigError, SimulationError
@@ -594,8 +595,7 @@ class _Dwell:
             self.controls = self.controls._replace(signals=self._side_signals(doa=False, dcc=False))
 
     def _platform_doors_open(self) -> bool:
-        units = [u for u in self.world.cpcs.side(self.side) if u != DoorState.ISOLATED]
-        return bool(units) and all(u == DoorState.OPEN for u in units)
+        return all_open(self.world.cpcs.side(self.side))
 
     # -- the timeline -----------------------------------------------------------------
     def _snapshot(self) -> dict[str, int | float | str]:
