@@ -2,8 +2,8 @@
 
     python benchmarks/live_line.py [--trains 20] [--minutes 10] [--spacing-m 250]
 
-Runs ``railstop live run`` (office, zone controller, trains: three processes
-over UDP on loopback, scale 1) and prints per process its plant steps, the
+Runs ``railstop live run`` (office, zone controller, plant, stations, trains:
+five processes over UDP on loopback, scale 1) and prints per process its plant steps, the
 steps that started more than one step late (a process that could not keep
 up), its CPU seconds and its share of one core; for the zone controller the
 reports and commands against the cycles due (trains x duration / report
@@ -46,7 +46,7 @@ def main() -> None:
         f"{'process':16s} {'steps':>8s} {'late':>6s} {'latest ms':>10s} {'CPU s':>8s} {'wall s':>8s} "
         f"{'CPU share':>10s}"
     )
-    for role in ("zone_controller", "stations", "trains", "office"):
+    for role in ("zone_controller", "plant", "stations", "trains", "office"):
         if role not in out:
             continue
         r = out[role]
@@ -65,6 +65,14 @@ def main() -> None:
         f"cycles due, {zc['lost_trains']} train(s) lost, {zc['commands_held_at_start']} command(s) held "
         f"until every train had reported"
     )
+    plant = out.get("plant")
+    if isinstance(plant, dict):
+        print(
+            f"plant: {plant['tasc_stops']} TASC stop(s) in lock step, {plant['late_tasc_drives']:,} TASC "
+            f"drive(s) late (the last one held), {plant['sensor_frames']:,} trackside frames; drives lost "
+            f"{plant['drive_lost']} time(s) (once when the trains' process stops first), refused "
+            f"{plant['refused'] or 'none'}"
+        )
     ebs = fleet["emergency_brakes"] or "none"
     print(f"trains: emergency brakes {ebs}; radio frames rejected {fleet['radio_rejected'] or 'none'}")
     tasc = fleet.get("tasc")

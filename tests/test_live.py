@@ -192,10 +192,10 @@ def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path
 
 
 def test_a_lost_train_that_left_its_zone_is_flagged_and_its_zone_kept(tmp_path: Path) -> None:
-    """The same with the radio dead until 125 s: in restricted mode the train runs its 400 m and
+    """The same with the radio dead until 130 s: in restricted mode the train runs its 400 m and
     leaves its zone. Re-detected outside it, it is flagged for the operator and the zone is kept
     (SPEC §4: an operator releases it after visual confirmation; fail safe, DESIGN rule 10)."""
-    zc, zones, lost = _restricted_run(tmp_path, "1:15:110")
+    zc, zones, lost = _restricted_run(tmp_path, "1:15:115")
     assert zc["lost_trains"] == 1 and zc["auto_releases"] == 0 and zc["flagged"] == 1, zc
     assert [(z["train"], z["active"], z["status"]) for z in zones] == [
         (1, True, "lost"),
@@ -221,11 +221,12 @@ def _wait_for(db: str, kind: str, ok: object, timeout_s: float) -> dict[str, obj
 
 
 def _start_tasc_line(
-    procs: Procs, db: str, trains: int, scale: float
+    procs: Procs, db: str, trains: int, scale: float, plant: bool = False
 ) -> tuple[float, list[str], str, str, subprocess.Popen[str], subprocess.Popen[str], subprocess.Popen[str]]:
     """Office, zone controller, stations and ``trains`` trains 1100 m apart (stopping by ground
-    TASC) as processes at ``scale``: (epoch, the common options, the office's address, the
-    stations' port, the zone controller, the stations, the trains)."""
+    TASC) as processes at ``scale`` (with ``plant``, the plant a process of its own, the last one
+    started): (epoch, the common options, the office's address, the stations' port, the zone
+    controller, the stations, the trains)."""
     epoch = time.time()
     common = ["--epoch", repr(epoch), "--scale", str(scale)]
     _, line = procs.start("office", "serve", "--db", db, "--port", "0")
@@ -237,9 +238,17 @@ def _start_tasc_line(
     stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
     assert line.startswith("stations on"), line
     st_port = line.split("127.0.0.1:")[1].split()[0]
+    plant_args: list[str] = []
+    if plant:
+        _, line = procs.start(
+            "live", "plant", "--port", "0", "--trains", str(trains), "--spacing-m", "1100",
+            "--stations", f"127.0.0.1:{st_port}", *common,
+        )  # fmt: skip
+        assert line.startswith("plant on"), line
+        plant_args = ["--plant", line.split(" on ")[1].split()[0]]
     fleet, _ = procs.start(
         "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m", "1100",
-        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *common,
+        "--stations", f"127.0.0.1:{st_port}", "--office", office_addr, *plant_args, *common,
     )  # fmt: skip
     return epoch, common, office_addr, st_port, zc, stations, fleet
 
@@ -400,3 +409,48 @@ def test_killing_the_trains_process_loses_every_train_and_silences_the_stations(
     assert zc_counts["lost_trains"] == 3
     assert {z["train"] for z in _reports(db, "zone-event") if z["active"]} == {0, 1, 2}
     assert served["stops_ended_readings_lost"] == 1 and served["stops_served"] == 0
+
+
+def test_killing_the_plant_brakes_every_train_and_killing_the_trains_brakes_them_in_the_plant(
+    procs: Procs, tmp_path: Path
+) -> None:
+    """The plant a process of its own, one train in its TASC stop (in lock step with the plant).
+    Killing the plant with SIGKILL: the trains process hears nothing for SENSE_TIMEOUT_S and
+    applies every train's emergency brake, reported with cause ``plant-lost`` (DESIGN rule 10).
+    Then, with a second line whose trains process is killed instead, the plant hears no drive for
+    DRIVE_TIMEOUT_S and brakes every train to a stand."""
+    from railstop.live.plant import SENSE_TIMEOUT_S
+
+    db = str(tmp_path / "office.db")
+    scale = 3.0
+    epoch, _common, _office, _st_port, zc, stations, trains = _start_tasc_line(procs, db, 2, scale, True)
+    plant = procs.all[-2]
+    _wait_for(db, "tasc-command", lambda r: True, 60.0)
+    killed_s = (time.time() - epoch) * scale
+    os.kill(plant.pid, signal.SIGKILL)
+    plant.communicate(timeout=30)
+    lost = _wait_for(db, "train-state", lambda r: r["cause"] == "plant-lost", 30.0)
+    counts = procs.stop(trains)
+    times = [e for e in counts["emergency_brake_times"] if e["cause"] == "plant-lost"]  # type: ignore[union-attr]
+    assert {e["train"] for e in times} == {0, 1}
+    applied = max(float(e["t_s"]) for e in times)
+    print(f"plant killed at {killed_s:.2f} s; every train's emergency brake at {applied:.2f} s")
+    # Within the time-out and one trains-process step (50 ms), plus the scheduling of the kill.
+    assert killed_s < applied <= killed_s + SENSE_TIMEOUT_S + 0.05 + 0.3 * scale
+    assert lost["emergency_brake"] is True
+    assert counts["plant"]["plant_lost"] == 1  # type: ignore[index]
+    procs.stop(zc)
+    procs.stop(stations)
+
+    db2 = str(tmp_path / "office2.db")
+    _, _, _, _, zc, stations, trains = _start_tasc_line(procs, db2, 2, scale, True)
+    plant = procs.all[-2]
+    _wait_for(db2, "tasc-command", lambda r: True, 60.0)
+    os.kill(trains.pid, signal.SIGKILL)
+    trains.communicate(timeout=30)
+    time.sleep(15.0 / scale)  # 15 s: every train braked from line speed to a stand
+    moved = procs.stop(plant)
+    assert moved["drive_lost"] == 1
+    assert all(t["v_mps"] == 0.0 for t in moved["trains"])  # type: ignore[union-attr, index]
+    procs.stop(zc)
+    procs.stop(stations)

@@ -123,8 +123,7 @@ def test_injected_telegram_loss_drops_frames_before_the_safety_layer(loss: float
         line=LINE, vehicle=VEHICLE, controller="tasc-pwm", stations=("127.0.0.1", 9), master_key=key,
         dist=load_disturbances("nominal"), seed=1, loss=loss,
     )  # fmt: skip
-    st = side.models[0]
-    stop = side.begin(0, 0, 0, st.first_detector_m - 30.0, 16.0, 0.0)
+    stop = side.begin(0, 0)
     station = SafePeers(STATION_BASE, key, max_age_s=1.0, peers=lambda p: False)
     for i in range(10):
         side.ingest(station.wrap(b"payload", TRAIN_TASC_BASE, 0.01 * i), 0.01 * i)

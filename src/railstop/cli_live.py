@@ -243,6 +243,61 @@ def stations_cmd(
     )  # fmt: skip
 
 
+@live_app.command("plant")
+def plant_cmd(
+    port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the plant.")] = 7730,
+    trains: TrainsOpt = 4,
+    spacing_m: Annotated[
+        float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")
+    ] = 600.0,
+    epoch: EpochOpt = None,
+    scale: ScaleOpt = 1.0,
+    key_hex: KeyOpt = None,
+    stations: Annotated[
+        str | None,
+        typer.Option(
+            help="The stations' UDP address HOST:PORT: the trackside readings go there and the trains "
+            "stop by ground TASC (none: point-mass stops)."
+        ),
+    ] = None,
+    controller: TascControllerOpt = "tasc-pwm",
+    seed: Annotated[int, typer.Option(help="Seed of the trains' disturbance draws (one per stop).")] = 1,
+    disturbances: Annotated[
+        str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
+    ] = "standard",
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """The plant as a live process: every train's motion (under its drives from the trains
+    process; under ground TASC the stop model's brakes and motion, in lock step with the onboard
+    unit), the trains' own sensors and the trackside sensors (the stations' detectors and radar,
+    the platforms' stop sensors)."""
+    from railstop.config.disturbances import load_disturbances
+    from railstop.live.plant import Plant, TascPlantData, run_plant
+
+    try:
+        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        stations_at = None if stations is None else address_option(stations, "--stations")
+        data = None
+        if stations_at is not None:
+            data = TascPlantData(_tasc_controller(controller), load_disturbances(disturbances), seed)
+        plant = Plant(line=ln, vehicle=veh, trains=trains, spacing_m=spacing_m, master_key=key, tasc=data)
+    except (RailstopError, ValueError) as exc:
+        fail(str(exc))
+    if data is not None:
+        from railstop.live.tasc import warm_up
+
+        warm_up()  # the compiled steps loaded before the clock starts
+
+    _serve_listener(
+        "plant", None, 802, key,
+        lambda stop, _client, ready: run_plant(
+            plant=plant, local=("127.0.0.1", port), stations=stations_at, base=base, master_key=key,
+            stop=stop, on_ready=ready,
+        ),
+    )  # fmt: skip
+
+
 @live_app.command("trains")
 def trains_cmd(
     zc: Annotated[str, typer.Option(help="The zone controller's UDP address HOST:PORT.")] = "127.0.0.1:7710",
@@ -274,6 +329,10 @@ def trains_cmd(
         float,
         typer.Option(min=0.0, max=1.0, help="Fault injection: the share of braking telegram frames lost."),
     ] = 0.0,
+    plant: Annotated[
+        str | None,
+        typer.Option(help="The plant process's UDP address HOST:PORT (none: the plant runs in this one)."),
+    ] = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     doors: DoorsOpt = None,
@@ -287,7 +346,8 @@ def trains_cmd(
     ] = None,
 ) -> None:
     """Every train's onboard units (CBTC; with --stations ground TASC and the dwell over the door
-    link with the platforms' WPCS) and the plant that moves the trains, as one live process."""
+    link with the platforms' WPCS) as one live process; the plant that moves the trains is the
+    process at --plant, or runs in this one."""
     from railstop.config.disturbances import load_disturbances
     from railstop.config.doors import load_doors
     from railstop.live.cbtc import run_trains
@@ -297,6 +357,7 @@ def trains_cmd(
     try:
         key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
         zc_addr = address_option(zc, "--zc")
+        plant_addr = None if plant is None else address_option(plant, "--plant")
         windows = [_outage(o, trains) for o in outage or []]
         _check_door_mode(door_mode)
         tasc = door_link = None
@@ -363,6 +424,7 @@ def trains_cmd(
                 outage=dead,
                 tasc=tasc,
                 doors=door_link,
+                plant=plant_addr,
             )
 
         return await _with_office(office, 801, key, fleet)
@@ -445,6 +507,12 @@ def _run_line(
         if not zc_line.startswith("zone controller on"):
             raise RailstopError(f"the zone controller did not start: {zc_line}")
         outage_args = [a for o in outages for a in ("--outage", o)]
+        plant_port = _free_udp_port()
+        plant_args = ["live", "plant", "--port", str(plant_port), "--trains", str(trains), "--spacing-m",
+                      str(spacing_m), *common]  # fmt: skip
+        if controller is not None:
+            plant_args += ["--stations", f"127.0.0.1:{st_port}", "--controller", controller]
+        plant_proc = launch(plant_args)
         tasc_args: list[str] = []
         if controller is not None:
             # The stations and the trains load their compiled steps at the same time.
@@ -454,9 +522,13 @@ def _run_line(
             )  # fmt: skip
             tasc_args = ["--stations", f"127.0.0.1:{st_port}", "--controller", controller]
             tasc_args += ["--tasc-loss", repr(tasc_loss), "--door-mode", door_mode]
+        _, (plant_line,) = start([], proc=plant_proc)
+        if not plant_line.startswith("plant on"):
+            raise RailstopError(f"the plant did not start: {plant_line}")
         tr = launch(
             ["live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(trains), "--spacing-m",
-             str(spacing_m), "--office", office_addr, *outage_args, *tasc_args, *common]
+             str(spacing_m), "--office", office_addr, "--plant", f"127.0.0.1:{plant_port}", *outage_args,
+             *tasc_args, *common]
         )  # fmt: skip
         if controller is not None:
             _, (st_line,) = start([], proc=stations_proc)
@@ -465,7 +537,8 @@ def _run_line(
         start([], proc=tr)
         print(
             f"{page} (open it in a browser); office {office_addr}, zone controller 127.0.0.1:{zc_port} "
-            f"(pid {zc.pid}), {'stations (pid ' + str(procs[2].pid) + '), ' if controller else ''}trains "
+            f"(pid {zc.pid}), plant 127.0.0.1:{plant_port} (pid {plant_proc.pid}), "
+            f"{'stations (pid ' + str(stations_proc.pid) + '), ' if controller else ''}trains "
             f"(pid {tr.pid}); running {duration_s:g} s",
             flush=True,
         )
@@ -478,12 +551,12 @@ def _run_line(
         # The trains first, the office last: it stores what the others report as they stop.
         # The line's processes stop together (one alone would see its peers fall silent: lost
         # trains, missed commands), then the office, which stores what they report as they stop.
-        roles = ("office", "zone_controller", *(("stations",) if controller else ()), "trains")
+        roles = ("office", "zone_controller", "plant", *(("stations",) if controller else ()), "trains")
         by_role = dict(zip(roles, procs, strict=False))
-        for role in ("trains", "zone_controller", "stations"):
+        for role in ("trains", "zone_controller", "plant", "stations"):
             if role in by_role and by_role[role].poll() is None:
                 by_role[role].send_signal(signal.SIGTERM)
-        for role in ("trains", "zone_controller", "stations", "office"):
+        for role in ("trains", "zone_controller", "plant", "stations", "office"):
             if role not in by_role:
                 continue
             p = by_role[role]

@@ -8,12 +8,13 @@ the same pure units as the line simulation (``wayside.zone_controller``,
   Reports arrive as UDP datagrams (``cbtc-report`` codec frames in EN 50159
   category-3 safety frames, a key per train and direction), commands leave
   the same way to the address each train reports from.
-* **trains** (:func:`run_trains`): every train's onboard CBTC unit and the
-  plant that moves the trains (one process for all trains): a train runs
-  under its authority and its speed limit, stops at each station for the
-  dwell, brakes at the emergency rate while its unit's emergency brake is
-  applied; at the line's end it starts again from the first station once
-  the start of the line is clear.
+* **trains** (:func:`run_trains`): every train's onboard units (one process
+  for all trains): the CBTC unit, the ATO's driving as drives to the plant
+  (``live.plant``: a process of its own, or in this one), the onboard TASC
+  unit and the dwell. A train runs under its authority and its speed limit,
+  stops at each station for the dwell, brakes at the emergency rate while
+  its unit's emergency brake is applied; at the line's end it starts again
+  from the first station once the start of the line is clear.
 
 Both report to the management office (``live.office``): the trains their
 state every ``state_period_s`` (position, speed, emergency brake and cause),
@@ -31,6 +32,7 @@ released at standstill by a fresh command.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import time
 from collections.abc import Callable, Iterable
@@ -53,7 +55,8 @@ from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
     from railstop.live.doors import LiveDoors, TrainDoors
-    from railstop.live.tasc import FloatArray, LiveTasc, TascStop
+    from railstop.live.plant import Drive, PlantPort
+    from railstop.live.tasc import FloatArray, LiveTasc, TascOnboard
     from railstop.onboard.cpcs import CpcsState
 
 STEP_S = 0.05  # the plant step (simulated seconds)
@@ -215,7 +218,7 @@ def _report_zones(
 class _TrainState:
     k: int
     unit: OnboardCbtc
-    x_m: float
+    x_m: float  # where the plant says the train is
     v_mps: float = 0.0
     next_station: int = 0
     dwell_until_s: float = -math.inf
@@ -225,11 +228,12 @@ class _TrainState:
     restricted_at_s: float | None = None  # restricted mode (radio dead): may start moving then
     restricted_left_m: float = 400.0
     restricted_moving: bool = False
-    tasc: TascStop | None = None  # the station stop under ground TASC in progress
+    tasc: TascOnboard | None = None  # the station stop under ground TASC in progress
     visits: int = 0  # station stops begun (the disturbance draw of each)
     arrived: tuple[int, float] | None = None  # stopped at a platform (station, error): its dwell begins
     dwell: TrainDoors | None = None  # the dwell over the door link in progress
     retry: tuple[int, float, CpcsState] | None = None  # after a dwell fault: the dwell to begin again
+    relocating: float | None = None  # sent back into service there; until the plant says it is
 
 
 async def run_trains(
@@ -248,30 +252,36 @@ async def run_trains(
     outage: set[int] | None = None,
     tasc: LiveTasc | None = None,
     doors: LiveDoors | None = None,
+    plant: Address | None = None,
 ) -> dict[str, Any]:
     """Run every train until ``stop``; return the counts (emergency brakes by cause, ...).
 
     ``outage``: the trains whose radio is dead now (fault injection; the caller may change the set
     while the trains run): every frame to or from them is lost. ``tasc``: the stations process
     (``live.tasc.run_stations``) stops the trains by ground TASC (without it the plant stops them
-    where they aim, a point mass)."""
+    where they aim, a point mass). ``plant``: the plant process (``live.plant.run_plant``) that
+    moves the trains; without it the plant runs in this process."""
+    from railstop.live.plant import (
+        Drive,
+        Plant,
+        PlantPort,
+        TascPlantData,
+        initial_positions,
+        line_end_m,
+    )
+
     dead = outage if outage is not None else set()
     p = line.cbtc
     brake = vehicle.brake
     order = sorted(range(len(line.stations)), key=lambda i: line.stations[i].stop_point_m)
     stations = [line.stations[i].stop_point_m for i in order]
-    end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
-    # Train k starts spacing_m behind train k - 1, the first 300 m before the line's end, none
-    # closer to the line's start than its length.
+    end_m = line_end_m(line)
     # Each train talks to the zone controller with its own safety-layer id.
     radios = {
         k: UdpRadio(own_id=TRAIN_BASE + k, master_key=master_key, name=f"radio-{k}") for k in range(trains)
     }
     fleet = []
-    for k in range(trains):
-        x = end_m - 300.0 - k * spacing_m
-        if x < vehicle.length_m + 10.0:
-            raise ValueError(f"{trains} trains {spacing_m:g} m apart do not fit on the {end_m:g} m line")
+    for k, x in enumerate(initial_positions(line, vehicle, trains, spacing_m)):
         unit = OnboardCbtc(
             train_id=k,
             direction="R",
@@ -282,12 +292,34 @@ async def run_trains(
         unit.position_m = x
         ahead = next((i for i, st in enumerate(stations) if st > x + 1.0), len(stations))
         fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
+
+    def onboard(train: int, t_s: float, sense: Any) -> Any:
+        # The onboard TASC unit's cycle on the train's sensing (the CBTC unit's brake on wire e).
+        return None if tasc is None else tasc.cycle(train, t_s, sense, fleet[train].unit.emergency_brake)
+
+    local = None
+    if plant is None:
+        plant_tasc = None
+        if tasc is not None:
+            plant_tasc = TascPlantData(tasc.models[0].model.controller, tasc.dist, tasc.seed)
+        local = Plant(
+            line=line, vehicle=vehicle, trains=trains, spacing_m=spacing_m, master_key=master_key,
+            tasc=plant_tasc,
+        )  # fmt: skip
+    port = PlantPort(trains, plant=local, address=plant, master_key=master_key, onboard=onboard)
     profile = static_profile(line, end_m, brake.full_service_mps2 * 0.8)
     clock = WallClock([*(t.unit for t in fleet), *radios.values()], step_s=STEP_S, base=base)
     ebs: dict[str, int] = {}
     eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
     misdirected = 0  # frames for no train of this process
-    async with await open_endpoint(local_for(zc)) as ep:
+    async with contextlib.AsyncExitStack() as stack:
+        ep = await stack.enter_async_context(await open_endpoint(local_for(zc)))
+        if plant is not None:
+            port.ep = await stack.enter_async_context(await open_endpoint(local_for(plant)))
+            port.heard_s = base.now_s()  # its first frames have a period of grace
+            serving = asyncio.create_task(port.serve(base, stop))
+            stack.callback(serving.cancel)
+        sensors_to = tasc.address if tasc is not None else (doors.address if doors is not None else None)
 
         def poll(now_s: float) -> list[Output]:
             nonlocal misdirected
@@ -310,29 +342,52 @@ async def run_trains(
                 out.extend(r.ingest(frame, now_s, to=lambda k: f"cbtc-{k}"))
             return out
 
-        def plant(now_s: float, step_s: float) -> list[Output]:
+        def step(now_s: float, step_s: float) -> list[Output]:
             out: list[Output] = []
             for k, r in radios.items():
                 for frame, _ in r.outgoing:
                     if k not in dead:
                         ep.send(frame, zc)
                 r.outgoing.clear()
+            port.tick(now_s, step_s, ep, sensors_to)  # in this process: the plant's steps
+            if tasc is not None:
+                for frame in tasc.hello(now_s):
+                    ep.send(frame, tasc.address)
             for t in fleet:
-                if doors is not None and _dwell_step(t, doors, ep, now_s, step_s, office):
+                state = port.states.get(t.k)
+                if state is not None and t.relocating is None:
+                    t.x_m, t.v_mps = state.x_m, state.v_mps
+                elif state is not None and t.relocating is not None and abs(state.x_m - t.relocating) < 1.0:
+                    t.relocating = None  # the plant has it back in service
+                drive: Drive | None
+                if port.lost:
+                    # Fail safe: the plant is silent; nothing is known of the train: brake.
+                    drive = Drive(0.0, 0.0, brake.emergency_decel_mps2)
+                elif t.relocating is not None:
+                    drive = Drive(0.0, 0.0, math.inf, t.relocating)  # sent again until the plant has it
+                elif doors is not None and (drive := _dwell_step(t, doors, ep, now_s, step_s, office)):
                     pass  # standing at the platform for its dwell (or creeping to correct its stop)
-                elif tasc is None or not _tasc_step(t, tasc, ep, now_s, step_s, order, dwell_s, office):
-                    dead_now = t.k in dead
-                    _move(t, now_s, step_s, vehicle, stations, dwell_s, fleet, dead_now, tasc, order, profile)
+                elif tasc is not None and _tasc_step(t, tasc, port, now_s, order, dwell_s, office):
+                    drive = None  # the onboard TASC unit drives it (in lock step with the plant)
+                else:
+                    drive = _move(
+                        t, now_s, step_s, vehicle, stations, dwell_s, fleet, t.k in dead, tasc, order, profile
+                    )
                     if t.stopped_at is not None:
                         t.arrived = (order[t.stopped_at], t.x_m - stations[t.stopped_at])
+                if drive is not None:
+                    port.drive(t.k, drive)
+                    if math.isfinite(drive.relocate_m):
+                        t.relocating, t.x_m, t.v_mps = drive.relocate_m, drive.relocate_m, 0.0
                 out.append(
                     Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
                 )
-                if t.unit.emergency_brake and not t.eb_reported:
-                    cause = t.unit.eb_cause or "?"
+                eb_now = t.unit.emergency_brake or port.lost
+                if eb_now and not t.eb_reported:
+                    cause = t.unit.eb_cause or ("plant-lost" if port.lost else "?")
                     ebs[cause] = ebs.get(cause, 0) + 1
                     eb_times.append({"train": t.k, "t_s": round(now_s, 3), "cause": cause})
-                t.eb_reported = t.unit.emergency_brake
+                t.eb_reported = eb_now
                 if t.stopped_at is not None and office is not None:
                     st = line.stations[order[t.stopped_at]]
                     office.report(
@@ -350,22 +405,25 @@ async def run_trains(
                 t.stopped_at = None
                 if office is not None and now_s - t.last_state_s >= state_period_s:
                     t.last_state_s = now_s
-                    state = {
+                    state_report = {
                         "train": t.k,
                         "position_m": round(t.x_m, 1),
                         "speed_mps": round(t.v_mps, 2),
                         # The CBTC unit's emergency brake, or the dwell's (SPEC §5 fault) while the
-                        # train stands for its reset.
-                        "emergency_brake": t.unit.emergency_brake or t.retry is not None,
-                        "cause": t.unit.eb_cause or ("dwell-fault" if t.retry is not None else None),
+                        # train stands for its reset, or the plant's silence.
+                        "emergency_brake": eb_now or t.retry is not None,
+                        "cause": t.unit.eb_cause
+                        or ("plant-lost" if port.lost else None)
+                        or ("dwell-fault" if t.retry is not None else None),
                         "radio": "dead" if t.k in dead else "ok",
                         "doors": None if t.dwell is None else t.dwell.phase,
                         "t_s": round(now_s, 2),
                     }
-                    office.report("train-state", state)
+                    office.report("train-state", state_report)
+            port.flush(now_s)  # between processes: the drives to the plant
             return out
 
-        await clock.run_live(plant, poll, stop)
+        await clock.run_live(step, poll, stop)
     return {
         "emergency_brakes": ebs,
         "emergency_brake_times": eb_times,
@@ -376,6 +434,7 @@ async def run_trains(
         "radio_rejected": _rejected(radios.values(), misdirected),
         "tasc": None if tasc is None else tasc.counts(),
         "dwells": None if doors is None else doors.counts(),
+        "plant": port.counts() if local is None else {**port.counts(), **local.counts()},
     }
 
 
@@ -397,10 +456,12 @@ def _move(
     tasc: LiveTasc | None = None,
     order: list[int] | None = None,
     profile: FloatArray | None = None,
-) -> None:
-    """One plant step of a train: the driving the ATO would do under the onboard unit's limits.
-    With ground TASC it runs at the station's entry speed to the hand-over point, where the stop
-    is taken over (``_tasc_step``); short of an authority there, it stops where it aims."""
+) -> Drive:
+    """The driving the ATO does under the onboard unit's limits, as the drive to the plant. With
+    ground TASC it runs at the station's entry speed to the hand-over point, where the stop is
+    taken over (``_tasc_step``); short of an authority there, it stops where it aims."""
+    from railstop.live.plant import HOLD, Drive
+
     unit = t.unit
     brake = vehicle.brake
     # Back into service 200 m before the first station; with ground TASC, 150 m before its
@@ -408,76 +469,71 @@ def _move(
     reentry = stations[0] - 200.0
     if tasc is not None and order is not None:
         reentry = min(reentry, tasc.handover_m(order[0], tasc.entry_mps(order[0])) - 150.0)
-    if _turn(t, now_s, stations, fleet, reentry):
-        return
-    if _restricted(t, now_s, step_s, radio_dead, fleet, vehicle):
-        return  # it moved the train (once)
+    turn = _turn(t, now_s, stations, fleet, reentry)
+    if turn is not None:
+        return turn
+    restricted = _restricted(t, now_s, step_s, radio_dead, fleet, vehicle)
+    if restricted is not None:
+        return restricted
     if unit.emergency_brake:
-        t.v_mps = max(0.0, t.v_mps - brake.emergency_decel_mps2 * step_s)
-    elif now_s < t.dwell_until_s:
-        t.v_mps = 0.0
-    else:
-        # The line's static profile (civil limits, each approached on a braking curve), read here
-        # and LOOKAHEAD_S ahead as the line simulation's ATO reads it: the zone controller's
-        # command carries only the limit where the train is.
-        target = unit.permitted_mps()
-        if profile is not None:
-            ahead = t.x_m + t.v_mps * LOOKAHEAD_S
-            target = min(target, profile_at(profile, t.x_m), profile_at(profile, ahead))
-        permitted = target
-        if t.next_station < len(stations):
-            to_stop = stations[t.next_station] - t.x_m
-            plan = brake.full_service_mps2 * 0.8
-            to_handover, entry, waiting = -1.0, 0.0, False
-            if tasc is not None and order is not None:
-                station = order[t.next_station]
-                entry = tasc.entry_mps(station)
-                to_handover = tasc.handover_m(station, entry) - t.x_m
-                if unit.distance_to_end_m() < to_stop:
-                    # The platform is not free (the authority ends short of the stopping point): wait
-                    # HOLD_BACK_M before the hand-over point, as the line simulation's trains do.
-                    to_handover -= HOLD_BACK_M
-                    entry, waiting = 0.0, True
-            if to_handover > 0.0:
-                # The station's entry speed at the hand-over point (SPEC §1: the TASC zone's speed).
-                target = min(target, math.sqrt(entry * entry + 2.0 * plan * to_handover))
-            elif waiting and to_handover > -HOLD_BACK_M:
-                target = 0.0  # waiting for the platform
-            else:
-                target = min(target, permitted_speed_mps(max(to_stop, 0.0), plan, 0.5))
-            if to_stop <= 0.05 and t.v_mps < 0.3:
-                t.v_mps = 0.0
-                t.dwell_until_s = now_s + dwell_s
-                t.stopped_at = t.next_station
-                t.next_station += 1
-                return
-        creep = t.next_station < len(stations) and stations[t.next_station] - t.x_m > 0.05 and target > 0.0
-        target = max(0.0, target - 0.3)
-        if creep:
-            target = max(target, min(0.2, permitted))  # the last centimetres: creep, do not stall
-        max_accel = vehicle.traction.max_accel_mps2 if vehicle.traction is not None else 1.0
-        accel = max_accel if t.v_mps < target else -brake.full_service_mps2
-        t.v_mps = (
-            min(target, t.v_mps + accel * step_s) if accel > 0 else max(target, t.v_mps + accel * step_s)
-        )
-    t.x_m += t.v_mps * step_s
+        return Drive(0.0, 0.0, brake.emergency_decel_mps2)
+    if now_s < t.dwell_until_s:
+        return HOLD
+    # The line's static profile (civil limits, each approached on a braking curve), read here
+    # and LOOKAHEAD_S ahead as the line simulation's ATO reads it: the zone controller's
+    # command carries only the limit where the train is.
+    target = unit.permitted_mps()
+    if profile is not None:
+        ahead = t.x_m + t.v_mps * LOOKAHEAD_S
+        target = min(target, profile_at(profile, t.x_m), profile_at(profile, ahead))
+    permitted = target
+    if t.next_station < len(stations):
+        to_stop = stations[t.next_station] - t.x_m
+        plan = brake.full_service_mps2 * 0.8
+        to_handover, entry, waiting = -1.0, 0.0, False
+        if tasc is not None and order is not None:
+            station = order[t.next_station]
+            entry = tasc.entry_mps(station)
+            to_handover = tasc.handover_m(station, entry) - t.x_m
+            if unit.distance_to_end_m() < to_stop:
+                # The platform is not free (the authority ends short of the stopping point): wait
+                # HOLD_BACK_M before the hand-over point, as the line simulation's trains do.
+                to_handover -= HOLD_BACK_M
+                entry, waiting = 0.0, True
+        if to_handover > 0.0:
+            # The station's entry speed at the hand-over point (SPEC §1: the TASC zone's speed).
+            target = min(target, math.sqrt(entry * entry + 2.0 * plan * to_handover))
+        elif waiting and to_handover > -HOLD_BACK_M:
+            target = 0.0  # waiting for the platform
+        else:
+            target = min(target, permitted_speed_mps(max(to_stop, 0.0), plan, 0.5))
+        if to_stop <= 0.05 and t.v_mps < 0.3:
+            t.dwell_until_s = now_s + dwell_s
+            t.stopped_at = t.next_station
+            t.next_station += 1
+            return HOLD
+    creep = t.next_station < len(stations) and stations[t.next_station] - t.x_m > 0.05 and target > 0.0
+    target = max(0.0, target - 0.3)
+    if creep:
+        target = max(target, min(0.2, permitted))  # the last centimetres: creep, do not stall
+    max_accel = vehicle.traction.max_accel_mps2 if vehicle.traction is not None else 1.0
+    return Drive(target, max_accel, brake.full_service_mps2)
 
 
 def _tasc_step(
     t: _TrainState,
     tasc: LiveTasc,
-    ep: UdpEndpoint,
+    port: PlantPort,
     now_s: float,
-    step_s: float,
     order: list[int],
     dwell_s: float,
     office: OfficeClient | None,
 ) -> bool:
     """Ground TASC drives the train from the station's hand-over point to standstill (SPEC §1):
-    the stop starts there once the train's CBTC authority reaches the stopping point; its readings
-    go to the stations process, its telegrams come back. Returns whether it drove the train."""
-    stop = t.tasc
-    if stop is None:
+    the stop starts there once the train's CBTC authority reaches the stopping point; the plant
+    sends its readings to the station, the station's telegrams come to the train's onboard unit,
+    whose drive the plant follows in lock step. Returns whether the stop holds the train."""
+    if t.tasc is None:
         if (
             t.next_station >= len(order)
             or now_s < t.dwell_until_s
@@ -487,27 +543,40 @@ def _tasc_step(
             or t.unit.distance_to_end_m() < tasc.models[order[t.next_station]].station.stop_point_m - t.x_m
         ):
             return False
-        stop = t.tasc = tasc.begin(t.k, order[t.next_station], t.visits, t.x_m, t.v_mps, now_s)
+        t.tasc = tasc.begin(t.k, order[t.next_station])
+        port.ended.pop(t.k, None)
+        port.begin_tasc(t.k, order[t.next_station], t.visits)
         t.visits += 1
-    for frame in tasc.advance(stop, now_s, step_s, t.unit.emergency_brake):
-        ep.send(frame, tasc.address)
-    t.x_m, t.v_mps = stop.x_m, stop.v_mps
-    if stop.stopped:
-        t.tasc = None
-        result = {**stop.result(), "t_s": round(now_s, 2)}
-        if result["emergency_brake"] is not None and stop.error_m < -stop.st.station.psd_tolerance_m:
-            # [interpretation] Short of the platform after an emergency brake: the train stands
-            # EB_RESET_S (the brake is reset at standstill), then is driven onto the platform under
-            # the plant's control (its stop reported as a point-mass stop); SPEC §1 says nothing
-            # of the recovery. Past the platform it dwells where it stands.
-            t.dwell_until_s = now_s + EB_RESET_S
-        else:
-            t.dwell_until_s = now_s + dwell_s
-            t.next_station += 1
-            t.arrived = (stop.st.index, stop.error_m)
-        tasc.results.append(result)
-        if office is not None:
-            office.report("stop-result", result)
+        return True
+    ended = port.ended.pop(t.k, None)
+    if ended is None:
+        return True
+    from railstop.live.tasc import stop_result
+    from railstop.onboard.tasc_receiver import RX_EB_T
+
+    onboard = t.tasc
+    tasc.end(t.k)
+    t.tasc = None
+    st = onboard.st
+    t.x_m, t.v_mps = ended.x_m, 0.0
+    error = ended.x_m - st.station.stop_point_m
+    cause = onboard.eb_cause()
+    eb_t = float(onboard.rx[RX_EB_T])
+    result = stop_result(st, t.k, error, True, ended.jerk_mps3, ended.stop_time_s, cause, eb_t, onboard.eb)
+    result["t_s"] = round(now_s, 2)
+    if result["emergency_brake"] is not None and error < -st.station.psd_tolerance_m:
+        # [interpretation] Short of the platform after an emergency brake: the train stands
+        # EB_RESET_S (the brake is reset at standstill), then is driven onto the platform under
+        # the plant's control (its stop reported as a point-mass stop); SPEC §1 says nothing
+        # of the recovery. Past the platform it dwells where it stands.
+        t.dwell_until_s = now_s + EB_RESET_S
+    else:
+        t.dwell_until_s = now_s + dwell_s
+        t.next_station += 1
+        t.arrived = (st.index, error)
+    tasc.results.append(result)
+    if office is not None:
+        office.report("stop-result", result)
     return True
 
 
@@ -518,13 +587,15 @@ def _dwell_step(
     now_s: float,
     step_s: float,
     office: OfficeClient | None,
-) -> bool:
+) -> Drive | None:
     """The dwell over the door link (SPEC §5, ``live.doors``): begun when the train stops at a
     platform; it holds the train (or creeps it to correct its stop) until start enable. After the
     SPEC §5 fault (no PSC after the last attempt, or the link lost with PSC high: emergency
     brake) the train stands ``DWELL_FAULT_HOLD_S``, then its confirmation begins again
-    [interpretation]: staff reset the ATC; SPEC §5 says nothing of the recovery. Returns whether
-    it held the train."""
+    [interpretation]: staff reset the ATC; SPEC §5 says nothing of the recovery. Returns the
+    drive that holds (or creeps) the train, None when no dwell holds it."""
+    from railstop.live.plant import HOLD, Drive
+
     carried = None
     if t.retry is not None and now_s >= t.dwell_until_s:
         station, error_m, carried = t.retry
@@ -536,12 +607,11 @@ def _dwell_step(
         t.dwell_until_s = math.inf
     dwell = t.dwell
     if dwell is None:
-        return t.retry is not None  # waiting for the reset after a fault
-    moved, frames = doors.advance(dwell, now_s, step_s)
+        return HOLD if t.retry is not None else None  # waiting for the reset after a fault
+    _, frames = doors.advance(dwell, now_s, step_s)
     for frame in frames:
         ep.send(frame, doors.address)
-    t.x_m += moved
-    t.v_mps = abs(dwell.creep_mps)
+    creep = dwell.creep_mps
     if dwell.done:
         t.dwell = None
         result = {**dwell.result(), "t_s": round(now_s, 2)}
@@ -552,7 +622,8 @@ def _dwell_step(
             t.retry = (dwell.station, dwell.error_m, dwell.cpcs)  # its doors stay as they are
         if office is not None:
             office.report("dwell-result", result)
-    return True
+    # The correction creep (SPEC §5) at its speed, at once (the point-mass plant); else standing.
+    return Drive(creep, math.inf, math.inf) if creep != 0.0 else HOLD
 
 
 DWELL_FAULT_HOLD_S = 60.0  # after a dwell's fault, the train stands this long before it tries again
@@ -565,53 +636,49 @@ SIGHT_M = 150.0  # he stops this far behind the train ahead (he can see it)
 
 def _restricted(
     t: _TrainState, now_s: float, step_s: float, dead: bool, fleet: list[_TrainState], vehicle: Vehicle
-) -> bool:
+) -> Drive | None:
     """A train whose radio is dead drives on in restricted mode: at a stand after its emergency
     brake it waits ``RESTRICTED_AFTER_S``, then its driver, with the ATP cut out, moves it on sight
     at 15 km/h for up to ``RESTRICTED_M``, stopping ``SIGHT_M`` behind the train ahead; when the
     radio comes back he stops and cuts the ATP in again. [interpretation] SPEC §4 says only that a
     lost train may move while lost (so that it is re-detected outside its zone and held for the
-    operator); this is the usual degraded mode that moves it. Returns whether it drove the train."""
+    operator); this is the usual degraded mode that moves it. Returns the drive when he drives it."""
+    from railstop.live.plant import Drive
+
     brake = vehicle.brake
     if not dead:
         t.restricted_at_s, t.restricted_left_m = None, RESTRICTED_M
         if t.v_mps > 0.0 and t.restricted_moving:
-            t.v_mps = max(0.0, t.v_mps - brake.full_service_mps2 * step_s)  # he stops: ATP back in
-            t.x_m += t.v_mps * step_s
-            t.restricted_moving = t.v_mps > 0.0
-            return True
-        return False
+            return Drive(0.0, 0.0, brake.full_service_mps2)  # he stops: ATP back in
+        t.restricted_moving = False
+        return None
     if not t.unit.emergency_brake:
-        return False
+        return None
     if t.restricted_at_s is None:
         if t.v_mps > 0.0:
-            return False  # still braking
+            return None  # still braking
         t.restricted_at_s = now_s + RESTRICTED_AFTER_S
     if now_s < t.restricted_at_s or t.restricted_left_m <= 0.0:
-        t.v_mps = max(0.0, t.v_mps - brake.full_service_mps2 * step_s)
-        t.x_m += t.v_mps * step_s
-        return True
+        return Drive(0.0, 0.0, brake.full_service_mps2)
     ahead = min((o.x_m - vehicle.length_m for o in fleet if o.x_m > t.x_m), default=math.inf)
     room = min(t.restricted_left_m, ahead - SIGHT_M - t.x_m)
     target = min(RESTRICTED_MPS, permitted_speed_mps(max(room, 0.0), brake.full_service_mps2 * 0.5, 0.5))
-    accel = 0.3 if t.v_mps < target else -brake.full_service_mps2
-    t.v_mps = max(
-        0.0, min(target, t.v_mps + accel * step_s) if accel > 0 else max(target, t.v_mps + accel * step_s)
-    )
-    t.x_m += t.v_mps * step_s
     t.restricted_left_m -= t.v_mps * step_s
-    t.restricted_moving = t.v_mps > 0.0
-    return True
+    t.restricted_moving = True
+    return Drive(target, 0.3, brake.full_service_mps2)
 
 
 def _turn(
     t: _TrainState, now_s: float, stations: list[float], fleet: list[_TrainState], reentry_m: float
-) -> bool:
+) -> Drive | None:
     """After its dwell at the last station a train leaves service there and comes back into service
-    at ``reentry_m`` once that stretch is clear (the line has one direction)."""
+    at ``reentry_m`` once that stretch is clear (the line has one direction): the drive that
+    relocates it, or holds it until then; None before its last station's dwell has ended."""
+    from railstop.live.plant import HOLD, Drive
+
     if t.next_station < len(stations) or now_s < t.dwell_until_s or t.unit.emergency_brake:
-        return False
-    start = reentry_m
-    if all(o is t or not (start - 400.0 < o.x_m < stations[0] + 200.0) for o in fleet):
-        t.x_m, t.v_mps, t.next_station = start, 0.0, 0
-    return True
+        return None
+    if all(o is t or not (reentry_m - 400.0 < o.x_m < stations[0] + 200.0) for o in fleet):
+        t.next_station = 0
+        return Drive(0.0, 0.0, math.inf, reentry_m)
+    return HOLD

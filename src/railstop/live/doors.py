@@ -721,8 +721,9 @@ def run_wired(
 
 class LiveDoors:
     """The trains process's side of the door link: each train's dwell (:meth:`begin` at
-    standstill, :meth:`advance` each plant step), its ``door-command`` frames and the platform's
-    stop-sensor readings out, the ``psd-status`` frames in (category 3: UDP is an open network)."""
+    standstill, :meth:`advance` each plant step), its ``door-command`` frames out, the
+    ``psd-status`` frames in (category 3: UDP is an open network). The platform's stop sensors
+    are read by the plant (``live.plant``)."""
 
     def __init__(
         self, *, line: Line, doors: DoorsConfig, stations: Address, master_key: bytes, manual: bool = False
@@ -739,8 +740,6 @@ class LiveDoors:
         self.master_key = master_key
         n = len(line.stations)
         self._is_platform = lambda p: PLATFORM_BASE <= p < PLATFORM_BASE + n
-        # The platforms' stop sensors are read by the plant (the frames stand for their wiring).
-        self.sensors = SafePeers(SENSORS_ID, master_key, max_age_s=1.0, peers=lambda p: False)
         self._links: dict[int, SafePeers] = {}
         self.active: dict[int, TrainDoors] = {}
         self.results: list[dict[str, Any]] = []
@@ -806,11 +805,8 @@ class LiveDoors:
         frames to send to the stations process."""
         moved = dwell.step(now_s, step_s)
         platform = PLATFORM_BASE + dwell.station
-        # The stop sensors read the train standing (or not: NaN) every step.
-        sensed = pack_stop_sensed(dwell.train, dwell.station, math.nan if dwell.moving else dwell.error_m)
-        frames = [self.sensors.wrap(sensed, platform, now_s)]
         link = self._link(dwell.train)
-        frames += [link.wrap(encode(cmd), platform, now_s) for cmd in dwell.due]
+        frames = [link.wrap(encode(cmd), platform, now_s) for cmd in dwell.due]
         dwell.due.clear()
         if dwell.done:
             self.active.pop(dwell.train, None)
@@ -905,7 +901,7 @@ class Platforms:
                 self._refuse("wrong_station")
                 return None
             self.units[i].sense(train, error_m, now_s)
-            return train
+            return None  # from the trackside, not from the train
         try:
             cmd = decode(delivered.payload)
         except TelegramError as exc:

@@ -15,13 +15,15 @@ onboard unit drives the brakes (the configuration of the operation). Here:
   the latest telegram is repeated every ``repeat_period_s`` (the train's life
   sign) until the train stands. Every command goes to the office with its
   inputs (SPEC §1 claims 7, 20).
-* **the train side** (:class:`TascStop`, in the trains process) holds a
-  train's onboard unit and the stop model's plant from the hand-over point to
-  standstill: each 10 ms step the telegrams received run ``receiver_cycle_1``
+* **the train side**: from the hand-over point to standstill the onboard unit
+  (:class:`TascOnboard`, in the trains process) runs, each 10 ms step, the
+  telegrams received and the train's sensing through ``receiver_cycle_1``
   (the kernel's onboard step: the configuration's output, the telegram
-  time-out and the overrun guard), then the ECU, the actuator (dead time, jerk
-  limit, lag) and the train's motion (``actuator_step_1``, ``motion_step_1``),
-  then the detectors and the radar read the train.
+  time-out and the overrun guard); its brake demand drives the stop model's
+  plant (:class:`TascPlant`, in ``live.plant``: the ECU, the actuator's dead
+  time, jerk limit and lag, the train's motion, ``actuator_step_1`` and
+  ``motion_step_1``), and the detectors and the radar read the train.
+  :class:`TascStop` wires the two in one process in the kernel's order.
 
 Only the clock and the transport differ from the stop model: the link's delay
 is the processes' real one (plus the plant's batching of five readings per
@@ -134,6 +136,8 @@ STATION_BASE = 0x0100  # station i's wayside TASC unit: STATION_BASE + i (as tas
 TRAIN_TASC_BASE = 0x4000  # train k's onboard TASC unit: TRAIN_TASC_BASE + k
 #: The stop model's step (the radar's sample period, SPEC §1: 10 ms).
 TASC_DT_S = 0.01
+#: A train's radio announces itself to the station of its stop this often (association).
+HELLO_PERIOD_S = 0.25
 #: Runs of the disturbance draw per train (as the line simulation): run = train x 100 + visit.
 RUNS_PER_TRAIN = 100
 #: One reading on the sensor wire: time, radar speed (NaN: none), detector passed, detector index,
@@ -389,13 +393,15 @@ async def run_stations(
             STATION_BASE + w.st.index,
             master_key,
             max_age_s=line.stations[w.st.index].tasc.max_telegram_age_s,
-            peers=lambda p: p == SENSORS_ID,
+            # The plant's readings, and the trains' radios announcing themselves (association).
+            peers=lambda p: p == SENSORS_ID or TRAIN_TASC_BASE <= p < TRAIN_TASC_BASE + 0x400,
         )
         for w in stations
     }
     refused: dict[str, int] = {}
     ages: list[float] = []  # each reading frame's age on delivery
-    plants: dict[int, Address] = {}  # where each train's readings come from (its telegrams go there)
+    trains_at: dict[int, Address] = {}  # where each train's radio announced itself (telegrams go there)
+    door_at: dict[int, Address] = {}  # where each train's door commands come from (statuses go there)
     commands = 0
     clock = WallClock([], step_s=TASC_DT_S, base=base)
     async with await open_endpoint(local) as ep:
@@ -410,7 +416,7 @@ async def run_stations(
                     # The platform's WPCS (or the WCC, whose link keeps Unix time).
                     train = platforms.ingest(frame, to, now_s, time.time())
                     if train is not None:
-                        plants[train] = addr
+                        door_at[train] = addr
                     continue
                 dst = to - STATION_BASE
                 if dst not in links:
@@ -418,6 +424,11 @@ async def run_stations(
                     continue
                 accepted = links[dst].accept(frame, now_s)
                 if accepted is None:
+                    continue
+                if accepted[0] != SENSORS_ID:
+                    # A train's radio associating with the station's (SPEC §1: the wayside radios
+                    # the train; [interpretation] its radio must be known to be reached).
+                    trains_at[accepted[0] - TRAIN_TASC_BASE] = addr
                     continue
                 ages.append(now_s - accepted[1].sent_s)
                 try:
@@ -428,14 +439,13 @@ async def run_stations(
                 if station != dst:
                     refused["wrong_station"] = refused.get("wrong_station", 0) + 1
                     continue
-                plants[train] = addr
                 stations[dst].read(train, stands, readings)
             return []
 
         def plant(now_s: float, step_s: float) -> list[Any]:
             nonlocal commands
             for train, frame in platforms.tick(now_s):
-                addr = plants.get(train)
+                addr = door_at.get(train)
                 if addr is not None:
                     ep.send(frame, addr)
             events = platforms.take_events()
@@ -445,7 +455,7 @@ async def run_stations(
             for w in stations:
                 w.repeat(now_s)
                 for train, payload in w.due:
-                    addr = plants.get(train)
+                    addr = trains_at.get(train)
                     if addr is not None:
                         ep.send(links[w.st.index].wrap(payload, TRAIN_TASC_BASE + train, now_s), addr)
                 w.due.clear()
@@ -476,29 +486,47 @@ async def run_stations(
 # ---------------------------------------------------------------------- the train
 
 
+@dataclass(frozen=True, slots=True)
+class Sense:
+    """What the train's own sensors tell its onboard TASC unit before step ``k`` (the plant's side
+    of the train's wiring): the tachometer's speed, the odometer's last step, the transponder its
+    antenna passed in the step before (NaN: none), and whether the train stands."""
+
+    k: int
+    tach_mps: float
+    odo_step_m: float
+    transponder_m: float
+    stopped: bool
+
+
+@dataclass(frozen=True, slots=True)
+class BrakeDrive:
+    """The onboard unit's output for step ``k`` to the train's brakes and traction: the service
+    brake demand (through the ECU), whether traction lets go of the approach speed (``braking``),
+    and the emergency brake (wire e)."""
+
+    k: int
+    demand_mps2: float
+    braking: bool
+    eb: bool
+
+
 @dataclass
-class TascStop:
-    """A train's stop under ground TASC (SPEC §1) from the hand-over point to standstill: its
-    onboard unit and the stop model's plant, one ``step`` per 10 ms."""
+class TascOnboard:
+    """A train's onboard TASC unit during one stop (SPEC §1): the telegrams received and the
+    train's own sensors (:class:`Sense`) in, one ``receiver_cycle_1`` (the kernel's onboard step:
+    the configuration's output, the telegram time-out and the overrun guard) per 10 ms step, the
+    brake demand out (:class:`BrakeDrive`)."""
 
     st: StationTasc
     train: int
-    sc: FloatArray
-    x_m: float
-    v_mps: float
-    rng: np.random.Generator
-    t0_s: float
-    rx: FloatArray = field(init=False)
-    out: list[Reading] = field(default_factory=list)
     inbox: list[bytes] = field(default_factory=list)  # telegram payloads received, oldest first
-    stopped: bool = False
     eb: bool = False
-    max_jerk: float = 0.0
     commands: int = 0
     refused: int = 0
 
     def __post_init__(self) -> None:
-        m, sc, kp = self.st.model, self.sc, self.st.model.kp
+        m = self.st.model
         self.rx = np.empty(RX_SIZE)
         self.mod = np.empty(MOD_SIZE)
         self.rh_v, self.rh_e = np.empty(HISTORY), np.empty(HISTORY)
@@ -507,44 +535,20 @@ class TascStop:
         self.taus = np.empty(SAMPLES)
         self.pending = np.full(TEL_SIZE, np.nan)
         self.last_payload: bytes | None = None
-        static = kp[KP_TARE] + sc[SC_LOAD] * kp[KP_CRUSH]
-        rotating = kp[KP_TARE] * kp[KP_ROTATING]
-        self.static, self.effective = static, static + rotating
-        self.believed = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
-        self.tach_scale = (sc[SC_WHEEL_D] * (1.0 + sc[SC_ODO_ERROR])) / sc[SC_WHEEL_D]
-        self.delay_steps = int(np.rint(sc[SC_DEAD_TIME] / TASC_DT_S))
-        self.ring = np.zeros(self.delay_steps + 1)
-        self.limited = self.output = self.accel = self.prev_accel = 0.0
-        self.lag_alpha = 1.0 - math.exp(-TASC_DT_S / sc[SC_TAU])
-        self.sliding = self.prev_counted = False
-        self.odo_step = 0.0
         self.own_notch, self.own_for = 0, -1
         self.own_duty = math.nan
-        self.k = 0
-        self.transponder_next = int(np.searchsorted(m.transponders, self.x_m, side="right"))
-        self.sensor_next = int(np.searchsorted(m.det_pos, self.x_m, side="right"))
-        self.passed, self.det_idx, self.pass_s = False, 0, math.nan
-        self.stop_time_s = math.nan
 
     def deliver(self, payload: bytes) -> None:
         self.inbox.append(payload)
 
-    def _doppler(self) -> float:
-        kp = self.st.model.kp
-        if kp[KP_HAS_DOPPLER] == 0.0:
-            return math.nan
-        if kp[KP_DOPPLER_REACH] - self.x_m > kp[KP_DOPPLER_RANGE]:
-            return 0.0  # out of the radar's range (the stop model's convention)
-        noise = self.sc[SC_DOPPLER_NOISE]
-        return self.v_mps * (1.0 + noise * self.rng.standard_normal()) if noise > 0.0 else self.v_mps
-
-    def step(self, t_s: float, extra_eb: bool = False) -> None:
-        """One 10 ms step at ``t_s``: the reading of the sensors (queued in ``out``), the onboard
-        unit, the brakes, the motion. ``extra_eb``: another unit (CBTC) applies the emergency brake."""
-        m, kp, sc = self.st.model, self.st.model.kp, self.sc
-        self.out.append(Reading(t_s, self._doppler(), self.passed, self.det_idx, self.pass_s))
-        self.passed = False
-        tach_v = self.v_mps * creep_1(self.sliding, kp[KP_SLIDE_SLIP]) * self.tach_scale
+    def cycle(self, t_s: float, sense: Sense, extra_eb: bool = False) -> BrakeDrive:
+        """One 10 ms step at ``t_s``. ``extra_eb``: another unit (CBTC) applies the emergency brake."""
+        m, kp = self.st.model, self.st.model.kp
+        if math.isfinite(sense.transponder_m):
+            # The train's own ATP resets its odometer at the transponders; at the first one its
+            # brake controller applies the initial brake step (SPEC §1, as the stop model).
+            receiver_fix_1(self.rx, m.rp, sense.transponder_m)
+            self.own_notch = int(kp[KP_INITIAL_NOTCH])
         new = copy = False
         for payload in self.inbox:
             if payload == self.last_payload:
@@ -569,22 +573,88 @@ class TascStop:
             self.own_for = self.own_notch
         notch, duty, eb, _ = receiver_cycle_1(
             self.rx, m.rp, self.mod, self.tach, self.rh_v, self.rh_e, self.taus, m.table, m.pwm_duty,
-            m.pwm_decel, m.det_to_stop, m.ext, self.st.grad, self.pending, t_s, self.k, new, copy and not new,
-            tach_v, self.odo_step, self.own_notch, self.own_duty,
+            m.pwm_decel, m.det_to_stop, m.ext, self.st.grad, self.pending, t_s, sense.k, new,
+            copy and not new, sense.tach_mps, sense.odo_step_m, self.own_notch, self.own_duty,
         )  # fmt: skip
         self.eb = eb or extra_eb
         braking = math.isfinite(self.rx[RX_FIRST_RX]) or self.eb or self.own_notch > 0
         demand = m.table[line_notch(notch)] if notch >= 0 else pwm_to_decel_1(duty, m.pwm_duty, m.pwm_decel)
         if self.eb:
             demand = kp[KP_EMERGENCY]  # wire e: the emergency brake, whatever the service command
+        return BrakeDrive(sense.k, float(demand), bool(braking), self.eb)
+
+    def eb_cause(self) -> str | None:
+        """The onboard unit's own emergency brake's cause (None: it applied none)."""
+        return eb_cause_name(int(self.rx[RX_EB])) if self.rx[RX_EB] > 0.0 else None
+
+
+@dataclass
+class TascPlant:
+    """A train under ground TASC as the plant moves it (the stop model's plant): its brakes (the
+    ECU's load compensation, dead time, jerk limit, lag: ``actuator_step_1``), its motion
+    (``motion_step_1``: adhesion, resistance, gradient), the wheels and tachometer, the transponders
+    under it, and the station's sensors reading it (the readings queued in ``out``), one ``step``
+    per 10 ms with the onboard unit's :class:`BrakeDrive`."""
+
+    st: StationTasc
+    train: int
+    sc: FloatArray
+    x_m: float
+    v_mps: float
+    rng: np.random.Generator
+    t0_s: float
+    out: list[Reading] = field(default_factory=list)
+    stopped: bool = False
+    max_jerk: float = 0.0
+
+    def __post_init__(self) -> None:
+        m, sc, kp = self.st.model, self.sc, self.st.model.kp
+        static = kp[KP_TARE] + sc[SC_LOAD] * kp[KP_CRUSH]
+        rotating = kp[KP_TARE] * kp[KP_ROTATING]
+        self.static, self.effective = static, static + rotating
+        self.believed = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
+        self.tach_scale = (sc[SC_WHEEL_D] * (1.0 + sc[SC_ODO_ERROR])) / sc[SC_WHEEL_D]
+        self.delay_steps = int(np.rint(sc[SC_DEAD_TIME] / TASC_DT_S))
+        self.ring = np.zeros(self.delay_steps + 1)
+        self.limited = self.output = self.accel = self.prev_accel = 0.0
+        self.lag_alpha = 1.0 - math.exp(-TASC_DT_S / sc[SC_TAU])
+        self.sliding = self.prev_counted = False
+        self.odo_step = 0.0
+        self.k = 0
+        self.transponder_next = int(np.searchsorted(m.transponders, self.x_m, side="right"))
+        self.transponder_m = math.nan  # passed in the last step
+        self.sensor_next = int(np.searchsorted(m.det_pos, self.x_m, side="right"))
+        self.passed, self.det_idx, self.pass_s = False, 0, math.nan
+        self.stop_time_s = math.nan
+
+    def _doppler(self) -> float:
+        kp = self.st.model.kp
+        if kp[KP_HAS_DOPPLER] == 0.0:
+            return math.nan
+        if kp[KP_DOPPLER_REACH] - self.x_m > kp[KP_DOPPLER_RANGE]:
+            return 0.0  # out of the radar's range (the stop model's convention)
+        noise = self.sc[SC_DOPPLER_NOISE]
+        return self.v_mps * (1.0 + noise * self.rng.standard_normal()) if noise > 0.0 else self.v_mps
+
+    def sense(self) -> Sense:
+        """What the train's sensors tell its onboard unit before the next step."""
+        tach_v = self.v_mps * creep_1(self.sliding, self.st.model.kp[KP_SLIDE_SLIP]) * self.tach_scale
+        return Sense(self.k, float(tach_v), float(self.odo_step), self.transponder_m, self.stopped)
+
+    def step(self, t_s: float, drive: BrakeDrive) -> None:
+        """One 10 ms step at ``t_s`` under ``drive``: the station's sensors read the train (queued in
+        ``out``), then the brakes and the motion; the passages of transponders and detectors."""
+        m, kp, sc = self.st.model, self.st.model.kp, self.sc
+        self.out.append(Reading(t_s, self._doppler(), self.passed, self.det_idx, self.pass_s))
+        self.passed = False
         self.limited, self.output = actuator_step_1(
-            self.ring, self.k, self.delay_steps, demand, self.limited, self.output, self.lag_alpha,
-            kp[KP_JERK] * TASC_DT_S, kp[KP_EMERGENCY],
+            self.ring, self.k, self.delay_steps, drive.demand_mps2, self.limited, self.output,
+            self.lag_alpha, kp[KP_JERK] * TASC_DT_S, kp[KP_EMERGENCY],
         )  # fmt: skip
         brake_decel = self.output * sc[SC_BRAKE_GAIN] * self.believed / self.effective
         mu = sc[SC_LOW_MU] if sc[SC_LOW_START] <= self.x_m < sc[SC_LOW_END] else sc[SC_MU]
         x0, v0 = self.x_m, self.v_mps
-        hold = not braking
+        hold = not drive.braking
         self.x_m, self.v_mps, self.accel, stopped, st, self.sliding = motion_step_1(
             x0, v0, self.stopped, brake_decel, mean_gradient_1(x0, kp[KP_LENGTH], *self.st.grad), mu, hold,
             self.static, self.effective, kp[KP_DAVIS_A], kp[KP_DAVIS_B], kp[KP_DAVIS_C], t_s, TASC_DT_S,
@@ -598,12 +668,10 @@ class TascStop:
         self.stopped = stopped
         creep = creep_1(self.sliding, kp[KP_SLIDE_SLIP])
         self.odo_step = (self.x_m - x0) * creep * self.tach_scale
-        # The train's own ATP resets its odometer at the transponders; at the first one its brake
-        # controller applies the initial brake step (SPEC §1, as the stop model).
+        self.transponder_m = math.nan
         if passage_1(m.transponders, self.transponder_next, x0, self.x_m):
-            receiver_fix_1(self.rx, m.rp, m.transponders[self.transponder_next])
+            self.transponder_m = float(m.transponders[self.transponder_next])
             self.transponder_next += 1
-            self.own_notch = int(kp[KP_INITIAL_NOTCH])
         if passage_1(m.det_pos, self.sensor_next, x0, self.x_m):
             self.det_idx = self.sensor_next
             jitter = sc[SC_SENSOR_JITTER] * self.rng.standard_normal()
@@ -616,24 +684,85 @@ class TascStop:
     def error_m(self) -> float:
         return self.x_m - float(self.st.model.kp[KP_STOP])
 
+    def result(self, eb_cause: str | None, eb_t_s: float, extra_eb: bool) -> dict[str, Any]:
+        """The stop as the office stores it, with the onboard unit's emergency brake (its cause and
+        time on the run's clock; ``extra_eb``: another unit applied it)."""
+        return stop_result(
+            self.st, self.train, self.error_m, self.stopped, self.max_jerk, self.stop_time_s - self.t0_s,
+            eb_cause, eb_t_s, extra_eb,
+        )  # fmt: skip
+
+
+def stop_result(
+    st: StationTasc,
+    train: int,
+    error_m: float,
+    stopped: bool,
+    jerk_mps3: float,
+    stop_time_s: float,
+    eb_cause: str | None,
+    eb_t_s: float,
+    extra_eb: bool,
+) -> dict[str, Any]:
+    """A TASC stop as the office stores it: the plant's side (error, jerk, the stop's time from its
+    start) and the onboard unit's (its emergency brake's cause and time; ``extra_eb``: another
+    unit, the CBTC, applied it)."""
+    station = st.station
+    return {
+        "station": station.name,
+        "train": train,
+        "controller": st.model.controller,
+        "error_m": round(error_m, 3),
+        "within": abs(error_m) <= station.psd_tolerance_m and stopped,
+        "emergency_brake": eb_cause if eb_cause is not None else ("cbtc" if extra_eb else None),
+        # when the onboard unit applied it (on the run's clock)
+        "eb_t_s": round(eb_t_s, 2) if eb_cause is not None else None,
+        "jerk_mps3": round(jerk_mps3, 2),
+        "stop_time_s": round(stop_time_s, 2) if math.isfinite(stop_time_s) else None,
+    }
+
+
+class TascStop:
+    """A train's stop under ground TASC (SPEC §1) from the hand-over point to standstill with its
+    onboard unit and the plant in one process: each 10 ms ``step`` the plant's sensing runs the
+    onboard unit's cycle, whose drive steps the plant in the same step (the stop model's order)."""
+
+    def __init__(
+        self,
+        *,
+        st: StationTasc,
+        train: int,
+        sc: FloatArray,
+        x_m: float,
+        v_mps: float,
+        rng: np.random.Generator,
+        t0_s: float,
+    ) -> None:
+        self.st, self.train = st, train
+        self.onboard = TascOnboard(st=st, train=train)
+        self.plant = TascPlant(st=st, train=train, sc=sc, x_m=x_m, v_mps=v_mps, rng=rng, t0_s=t0_s)
+
+    def deliver(self, payload: bytes) -> None:
+        self.onboard.deliver(payload)
+
+    def step(self, t_s: float, extra_eb: bool = False) -> None:
+        self.plant.step(t_s, self.onboard.cycle(t_s, self.plant.sense(), extra_eb))
+
+    x_m = property(lambda self: self.plant.x_m)
+    v_mps = property(lambda self: self.plant.v_mps)
+    stopped = property(lambda self: self.plant.stopped)
+    out = property(lambda self: self.plant.out)
+    error_m = property(lambda self: self.plant.error_m)
+    stop_time_s = property(lambda self: self.plant.stop_time_s)
+    commands = property(lambda self: self.onboard.commands)
+    rx = property(lambda self: self.onboard.rx)
+    inbox = property(lambda self: self.onboard.inbox)
+    eb = property(lambda self: self.onboard.eb)
+
     def result(self) -> dict[str, Any]:
         """The stop as the office stores it."""
-        st = self.st.station
-        cause = eb_cause_name(int(self.rx[RX_EB])) if self.rx[RX_EB] > 0.0 else None
-        return {
-            "station": st.name,
-            "train": self.train,
-            "controller": self.st.model.controller,
-            "error_m": round(self.error_m, 3),
-            "within": abs(self.error_m) <= st.psd_tolerance_m and self.stopped,
-            "emergency_brake": cause if cause is not None else ("cbtc" if self.eb else None),
-            # when the onboard unit applied it (on the run's clock)
-            "eb_t_s": round(float(self.rx[RX_EB_T]), 2) if cause is not None else None,
-            "jerk_mps3": round(self.max_jerk, 2),
-            "stop_time_s": round(self.stop_time_s - self.t0_s, 2)
-            if math.isfinite(self.stop_time_s)
-            else None,
-        }
+        cause = self.onboard.eb_cause()
+        return self.plant.result(cause, float(self.onboard.rx[RX_EB_T]), self.onboard.eb)
 
 
 def draw_stop(
@@ -704,10 +833,10 @@ def warm_up() -> None:
 
 
 class LiveTasc:
-    """The trains process's side of ground TASC: every station's stop model, the link to the
-    stations process (readings out, telegrams in, category 3 both ways) and the stops in progress.
-    The plant (``live.cbtc.run_trains``) hands a train over at the station's hand-over point
-    (:meth:`begin`), steps it (:meth:`advance`) and takes it back at standstill."""
+    """The trains process's side of ground TASC: every station's stop model, the telegrams from
+    the stations process (category 3) and each stop's onboard unit. A train is handed over at the
+    station's hand-over point (:meth:`begin`); its unit's cycle answers the plant's sensing
+    (:meth:`cycle`) until the plant says it stands (:meth:`end`)."""
 
     def __init__(
         self,
@@ -736,12 +865,10 @@ class LiveTasc:
         self.dist = dist
         self.seed = seed
         n = len(self.models)
-        self.sensors = SafePeers(
-            SENSORS_ID, master_key, max_age_s=1.0, peers=lambda p: False
-        )  # sends only: the readings
         self._rx: dict[int, SafePeers] = {}
         self._is_station = lambda p: STATION_BASE <= p < STATION_BASE + n
-        self.active: dict[int, TascStop] = {}
+        self.active: dict[int, TascOnboard] = {}
+        self._hello_s: dict[int, float] = {}
         self.unexpected = 0  # telegrams for a train not stopping at that station
         self.results: list[dict[str, Any]] = []  # every stop, as reported
         self.ages: list[float] = []  # each telegram's age on delivery (s, the run's clock)
@@ -788,26 +915,31 @@ class LiveTasc:
     def entry_mps(self, station: int) -> float:
         return float(self.models[station].station.tasc.entry_speed_kmh) / 3.6
 
-    def begin(self, train: int, station: int, visit: int, x_m: float, v_mps: float, now_s: float) -> TascStop:
-        st = self.models[station]
-        sc, rng = draw_stop(self.dist, st, self.vehicle, seed=self.seed, train=train, visit=visit)
-        stop = TascStop(st=st, train=train, sc=sc, x_m=x_m, v_mps=v_mps, rng=rng, t0_s=now_s)
-        self.active[train] = stop
-        return stop
+    def begin(self, train: int, station: int) -> TascOnboard:
+        """The train's onboard unit takes over its stop at ``station`` (the plant hands the train
+        over at the same time)."""
+        onboard = TascOnboard(st=self.models[station], train=train)
+        self.active[train] = onboard
+        return onboard
 
-    def advance(self, stop: TascStop, now_s: float, step_s: float, extra_eb: bool) -> list[bytes]:
-        """Step the stop from ``now_s`` over ``step_s`` (whole 10 ms steps); the frames of the
-        readings to send to the station (ended, at standstill, with a last frame that says so)."""
-        n = max(1, round(step_s / TASC_DT_S))
-        for j in range(n):
-            if stop.stopped:
-                break
-            stop.step(now_s + j * TASC_DT_S, extra_eb)
-        payload = pack_readings(stop.train, stop.st.index, stop.stopped, stop.out)
-        stop.out.clear()
-        if stop.stopped:
-            self.active.pop(stop.train, None)
-        return [self.sensors.wrap(payload, STATION_BASE + stop.st.index, now_s)]
+    def cycle(self, train: int, t_s: float, sense: Sense, extra_eb: bool) -> BrakeDrive | None:
+        """The onboard unit's 10 ms cycle on the train's sensing (None: no stop in progress)."""
+        onboard = self.active.get(train)
+        return None if onboard is None else onboard.cycle(t_s, sense, extra_eb)
+
+    def end(self, train: int) -> TascOnboard | None:
+        self._hello_s.pop(train, None)
+        return self.active.pop(train, None)
+
+    def hello(self, now_s: float) -> list[bytes]:
+        """The association frames due: each train under a stop announces its radio to the station
+        every ``HELLO_PERIOD_S`` (so a station, or one started again, knows where to radio it)."""
+        out = []
+        for train, onboard in self.active.items():
+            if now_s >= self._hello_s.get(train, -math.inf) + HELLO_PERIOD_S:
+                self._hello_s[train] = now_s
+                out.append(self._links(train).wrap(b"", STATION_BASE + onboard.st.index, now_s))
+        return out
 
     def counts(self) -> dict[str, Any]:
         refused = sum_counts(lk.rejected for lk in self._rx.values())
@@ -816,7 +948,6 @@ class LiveTasc:
             "telegrams_refused": refused,
             "telegrams_unexpected": self.unexpected,
             "telegrams_lost_injected": self.injected_losses,
-            "readings_frames": self.sensors.sent,
             "telegram_age_ms": age_summary(self.ages),
             **stop_summary(self.results),
         }
