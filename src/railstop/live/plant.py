@@ -53,7 +53,7 @@ from typing import Any
 
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.schema import Line, Vehicle
-from railstop.link.safety import SafePeers, frame_ids
+from railstop.link.safety import MAX_PAYLOAD_BYTES, SafePeers, frame_ids
 from railstop.link.udp import Address, UdpEndpoint, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import PLATFORM_BASE, SENSORS_ID, pack_stop_sensed
@@ -80,16 +80,17 @@ SENSE_TIMEOUT_S = 0.5  # no plant state for this long: the trains process brakes
 #: [interpretation]: they span the precise-stop zone and a correction's reach beyond it; SPEC §5
 #: needs only that a train outside the tolerance is seen as not in position.
 STOP_SENSOR_SPAN_M = 5.0
-_MAX_RECORDS = 18  # records per frame: under the 1472-byte datagram with the safety layer's bytes
 
 # One drive record: train, kind, integer, four values. Kinds: ATO (target, accel, decel,
 # relocate), TASC begin (integer = station << 16 | visit), TASC brake (integer = step k; demand,
 # braking, eb).
 _DRIVE = struct.Struct(">H B I d d d d")
 _ATO, _BEGIN, _BRAKE = 0, 1, 2
-# One state record: train, flags, TASC step k, position, speed, then the TASC sensing (step time,
-# tachometer, odometer step, transponder) and at the stop's end its jerk and stop time.
-_STATE = struct.Struct(">H B I d d d d d d d d")
+# One state record: train, flags, position, speed; under TASC then the sensing (step k, step time,
+# tachometer, odometer step, transponder); at the stop's end then its jerk and stop time.
+_STATE = struct.Struct(">H B d d")
+_SENSE = struct.Struct(">I d d d d")
+_END = struct.Struct(">d d")
 _F_TASC, _F_ENDED, _F_EB, _F_STOPPED = 1, 2, 4, 8
 _HEAD = struct.Struct(">B H")
 
@@ -363,51 +364,72 @@ def unpack_drives(payload: bytes) -> list[tuple[int, Drive | tuple[int, int] | B
 def pack_states(states: list[TrainState]) -> list[bytes]:
     rows = []
     for s in states:
-        flags = (_F_TASC if s.sense else 0) | (_F_ENDED if s.ended else 0) | (_F_EB if s.eb else 0)
         se = s.sense
+        flags = (_F_TASC if se else 0) | (_F_ENDED if s.ended else 0) | (_F_EB if s.eb else 0)
         if se is not None and se.stopped:
             flags |= _F_STOPPED
-        rows.append(
-            _STATE.pack(
-                s.train,
-                flags,
-                se.k if se else 0,
-                s.x_m,
-                s.v_mps,
-                s.sense_t_s,
-                se.tach_mps if se else 0.0,
-                se.odo_step_m if se else 0.0,
-                se.transponder_m if se else math.nan,
-                s.jerk_mps3,
-                s.stop_time_s,
-            )
-        )
+        row = _STATE.pack(s.train, flags, s.x_m, s.v_mps)
+        if se is not None:
+            row += _SENSE.pack(se.k, s.sense_t_s, se.tach_mps, se.odo_step_m, se.transponder_m)
+        if s.ended:
+            row += _END.pack(s.jerk_mps3, s.stop_time_s)
+        rows.append(row)
     return _chunks(rows, 2)
 
 
 def unpack_states(payload: bytes) -> list[TrainState]:
-    out = []
-    for train, flags, k, x, v, t_s, tach, odo, transp, jerk, stop_t in _rows(payload, 2, _STATE):
-        sense = Sense(k, tach, odo, transp, bool(flags & _F_STOPPED)) if flags & _F_TASC else None
-        out.append(
-            TrainState(train, x, v, sense, t_s, bool(flags & _F_ENDED), jerk, stop_t, bool(flags & _F_EB))
-        )
+    """ValueError for a payload of the wrong shape."""
+    _, n = _head(payload, 2)
+    out, at = [], _HEAD.size
+    try:
+        for _ in range(n):
+            train, flags, x, v = _STATE.unpack_from(payload, at)
+            at += _STATE.size
+            sense, t_s, jerk, stop_t = None, math.nan, math.nan, math.nan
+            if flags & _F_TASC:
+                k, t_s, tach, odo, transp = _SENSE.unpack_from(payload, at)
+                at += _SENSE.size
+                sense = Sense(k, tach, odo, transp, bool(flags & _F_STOPPED))
+            if flags & _F_ENDED:
+                jerk, stop_t = _END.unpack_from(payload, at)
+                at += _END.size
+            out.append(
+                TrainState(train, x, v, sense, t_s, bool(flags & _F_ENDED), jerk, stop_t, bool(flags & _F_EB))
+            )
+    except struct.error:
+        raise ValueError("plant frame shorter than its records") from None
+    if at != len(payload):
+        raise ValueError("plant frame length does not match its records")
     return out
 
 
 def _chunks(rows: list[bytes], kind: int) -> list[bytes]:
-    return [
-        _HEAD.pack(kind, len(rows[i : i + _MAX_RECORDS])) + b"".join(rows[i : i + _MAX_RECORDS])
-        for i in range(0, len(rows), _MAX_RECORDS)
-    ]
+    """The rows in payloads of at most MAX_PAYLOAD_BYTES (the safety layer's), each with its head."""
+    out: list[bytes] = []
+    batch: list[bytes] = []
+    size = _HEAD.size
+    for row in rows:
+        if batch and size + len(row) > MAX_PAYLOAD_BYTES:
+            out.append(_HEAD.pack(kind, len(batch)) + b"".join(batch))
+            batch, size = [], _HEAD.size
+        batch.append(row)
+        size += len(row)
+    if batch:
+        out.append(_HEAD.pack(kind, len(batch)) + b"".join(batch))
+    return out
 
 
-def _rows(payload: bytes, kind: int, row: struct.Struct) -> list[tuple[Any, ...]]:
+def _head(payload: bytes, kind: int) -> tuple[int, int]:
     if len(payload) < _HEAD.size:
         raise ValueError("short plant frame")
     got, n = _HEAD.unpack_from(payload)
     if got != kind:
         raise ValueError(f"plant frame of kind {got}, expected {kind}")
+    return got, n
+
+
+def _rows(payload: bytes, kind: int, row: struct.Struct) -> list[tuple[Any, ...]]:
+    _, n = _head(payload, kind)
     if len(payload) != _HEAD.size + n * row.size:
         raise ValueError("plant frame length does not match its count")
     return [row.unpack_from(payload, _HEAD.size + j * row.size) for j in range(n)]
