@@ -32,6 +32,7 @@ TRAINS = 3
 class Procs:
     def __init__(self) -> None:
         self.all: list[subprocess.Popen[str]] = []
+        self.first_line: dict[int, str] = {}  # by pid: the line a process says when it is ready
 
     def start(self, *args: str) -> tuple[subprocess.Popen[str], str]:
         p = subprocess.Popen(
@@ -39,7 +40,8 @@ class Procs:
         )
         self.all.append(p)
         assert p.stderr is not None
-        return p, p.stderr.readline().strip()
+        self.first_line[p.pid] = p.stderr.readline().strip()
+        return p, self.first_line[p.pid]
 
     def stop(self, p: subprocess.Popen[str]) -> dict[str, object]:
         p.send_signal(signal.SIGTERM)
@@ -416,9 +418,10 @@ def test_killing_the_plant_brakes_every_train_and_killing_the_trains_brakes_them
 ) -> None:
     """The plant a process of its own, one train in its TASC stop (in lock step with the plant).
     Killing the plant with SIGKILL: the trains process hears nothing for SENSE_TIMEOUT_S and
-    applies every train's emergency brake, reported with cause ``plant-lost`` (DESIGN rule 10).
-    Then, with a second line whose trains process is killed instead, the plant hears no drive for
-    DRIVE_TIMEOUT_S and brakes every train to a stand."""
+    applies every train's emergency brake, reported with cause ``plant-lost`` (DESIGN rule 10). A
+    new plant on the same port is told where the trains stand: they run on from there, the stop
+    cut short is ended by a point-mass stop. Then, with a second line whose trains process is killed
+    instead, the plant hears no drive for DRIVE_TIMEOUT_S and brakes every train to a stand."""
     from railstop.live.plant import SENSE_TIMEOUT_S
 
     db = str(tmp_path / "office.db")
@@ -430,6 +433,22 @@ def test_killing_the_plant_brakes_every_train_and_killing_the_trains_brakes_them
     os.kill(plant.pid, signal.SIGKILL)
     plant.communicate(timeout=30)
     lost = _wait_for(db, "train-state", lambda r: r["cause"] == "plant-lost", 30.0)
+    time.sleep(2.0)
+    before = {int(r["train"]): float(r["position_m"]) for r in _reports(db, "train-state")}  # type: ignore[arg-type]
+    plant_port = procs.first_line[plant.pid].split("127.0.0.1:")[1].split()[0]
+    _, line = procs.start(
+        "live", "plant", "--port", plant_port, "--trains", "2", "--spacing-m", "1100", "--stations",
+        f"127.0.0.1:{_st_port}", *_common,
+    )  # fmt: skip
+    assert line.startswith("plant on"), line
+    restarted_s = (time.time() - epoch) * scale
+    # Each train runs on from where it stood (not from its start), its emergency brake released.
+    after = _wait_for(
+        db, "train-state",
+        lambda r: float(r["t_s"]) > restarted_s + 2.0 and r["cause"] is None and float(r["speed_mps"]) > 0.5,
+        60.0,
+    )  # fmt: skip
+    assert abs(float(after["position_m"]) - before[int(after["train"])]) < 300.0  # type: ignore[arg-type]
     counts = procs.stop(trains)
     times = [e for e in counts["emergency_brake_times"] if e["cause"] == "plant-lost"]  # type: ignore[union-attr]
     assert {e["train"] for e in times} == {0, 1}
@@ -438,9 +457,11 @@ def test_killing_the_plant_brakes_every_train_and_killing_the_trains_brakes_them
     # Within the time-out and one trains-process step (50 ms), plus the scheduling of the kill.
     assert killed_s < applied <= killed_s + SENSE_TIMEOUT_S + 0.05 + 0.3 * scale
     assert lost["emergency_brake"] is True
-    assert counts["plant"]["plant_lost"] == 1  # type: ignore[index]
+    assert counts["plant"]["plant_lost"] == 1 and counts["plant"]["plant_restarts"] == 1  # type: ignore[index]
+    print(f"plant started again at {restarted_s:.2f} s; train {after['train']} running at {after['t_s']} s")
     procs.stop(zc)
     procs.stop(stations)
+    procs.stop(procs.all[-1])
 
     db2 = str(tmp_path / "office2.db")
     _, _, _, _, zc, stations, trains = _start_tasc_line(procs, db2, 2, scale, True)

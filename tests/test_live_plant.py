@@ -19,6 +19,8 @@ from railstop.live.plant import (
     PLANT_STEP_S,
     SENSE_TIMEOUT_S,
     Drive,
+    DriveRecord,
+    Place,
     Plant,
     PlantPort,
     TascPlantData,
@@ -88,12 +90,13 @@ def test_the_plant_in_lock_step_with_the_onboard_unit_stops_where_the_kernel_sto
 
 
 def test_drives_and_states_cross_the_wire_unchanged() -> None:
-    drives: list[tuple[int, Drive | tuple[int, int] | BrakeDrive]] = [
+    drives: list[DriveRecord] = [
         (0, Drive(12.5, 1.0, 1.2)),
         (1, Drive(0.0, 0.0, math.inf, 650.0)),
         (2, (3, 17)),
         (3, BrakeDrive(4711, 0.83, True, False)),
         (4, BrakeDrive(4712, 2.0, True, True)),
+        (5, Place(1234.5)),
     ] * 5  # more than one frame's records
     payloads = pack_drives(drives)
     assert len(payloads) > 1 and all(len(p) <= 255 for p in payloads)  # the safety layer's limit
@@ -115,6 +118,26 @@ def test_drives_and_states_cross_the_wire_unchanged() -> None:
         unpack_drives(pack_states(states)[0])  # a state frame is not a drive frame
     with pytest.raises(ValueError):
         unpack_states(pack_states(states)[0][:-3])
+
+
+def test_a_fresh_plant_says_so_until_the_trains_are_placed_and_a_place_ends_a_stop() -> None:
+    """A plant that has just started does not know where the trains are (``fresh`` in every
+    state) until the trains process places them; a train placed stands there, a TASC stop under
+    way ended."""
+    plant = _plant(trains=2)
+    assert all(s.fresh for s in plant.states(0.0))
+    st = plant.models[0]
+    plant.fleet[1].x_m, plant.fleet[1].v_mps = handover_m(st.first_detector_m, 12.0), 12.0
+    plant.drive(1, Drive(12.0, 0.0, 0.0))
+    plant.begin_tasc(1, 0, 0)
+    plant.step(0.0)
+    assert plant.fleet[1].tasc is not None
+    plant.place(0, 1000.0)
+    plant.place(1, 2000.0)
+    plant.step(PLANT_STEP_S)
+    states = plant.states(PLANT_STEP_S)
+    assert not any(s.fresh for s in states)
+    assert [(s.x_m, s.v_mps, s.sense) for s in states] == [(1000.0, 0.0, None), (2000.0, 0.0, None)]
 
 
 def test_with_the_trains_silent_the_plant_brakes_every_train_at_the_emergency_rate() -> None:

@@ -312,6 +312,7 @@ async def run_trains(
     ebs: dict[str, int] = {}
     eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
     misdirected = 0  # frames for no train of this process
+    cut_short = 0  # TASC stops cut short by a plant started again
     async with contextlib.AsyncExitStack() as stack:
         ep = await stack.enter_async_context(await open_endpoint(local_for(zc)))
         if plant is not None:
@@ -343,6 +344,7 @@ async def run_trains(
             return out
 
         def step(now_s: float, step_s: float) -> list[Output]:
+            nonlocal cut_short
             out: list[Output] = []
             for k, r in radios.items():
                 for frame, _ in r.outgoing:
@@ -355,12 +357,28 @@ async def run_trains(
                     ep.send(frame, tasc.address)
             for t in fleet:
                 state = port.states.get(t.k)
-                if state is not None and t.relocating is None:
+                fresh = state is not None and state.fresh
+                if state is None or fresh:
+                    pass  # a plant that does not know where the train is: placed below
+                elif t.relocating is None:
                     t.x_m, t.v_mps = state.x_m, state.v_mps
-                elif state is not None and t.relocating is not None and abs(state.x_m - t.relocating) < 1.0:
+                elif abs(state.x_m - t.relocating) < 1.0:
                     t.relocating = None  # the plant has it back in service
                 drive: Drive | None
-                if port.lost:
+                if fresh:
+                    # A plant that knows nothing of the trains (its start, or its start again in the
+                    # running line): each train stands where this process last knew it (they
+                    # were braked when the plant fell silent) [interpretation: the simulated world
+                    # resumes from the onboard units' view]. A TASC stop under way is cut short:
+                    # the train stands EB_RESET_S, then is driven onto the platform.
+                    if t.tasc is not None and tasc is not None:
+                        tasc.end(t.k)
+                        t.tasc = None
+                        t.dwell_until_s = now_s + EB_RESET_S
+                        cut_short += 1
+                    port.place(t.k, t.x_m)
+                    t.v_mps, drive = 0.0, None
+                elif port.lost:
                     # Fail safe: the plant is silent; nothing is known of the train: brake.
                     drive = Drive(0.0, 0.0, brake.emergency_decel_mps2)
                 elif t.relocating is not None:
@@ -434,7 +452,11 @@ async def run_trains(
         "radio_rejected": _rejected(radios.values(), misdirected),
         "tasc": None if tasc is None else tasc.counts(),
         "dwells": None if doors is None else doors.counts(),
-        "plant": port.counts() if local is None else {**port.counts(), **local.counts()},
+        "plant": {
+            **port.counts(),
+            **(local.counts() if local is not None else {}),
+            "tasc_stops_cut_short": cut_short,
+        },
     }
 
 

@@ -83,15 +83,15 @@ STOP_SENSOR_SPAN_M = 5.0
 
 # One drive record: train, kind, integer, four values. Kinds: ATO (target, accel, decel,
 # relocate), TASC begin (integer = station << 16 | visit), TASC brake (integer = step k; demand,
-# braking, eb).
+# braking, eb), place (position).
 _DRIVE = struct.Struct(">H B I d d d d")
-_ATO, _BEGIN, _BRAKE = 0, 1, 2
+_ATO, _BEGIN, _BRAKE, _PLACE = 0, 1, 2, 3
 # One state record: train, flags, position, speed; under TASC then the sensing (step k, step time,
 # tachometer, odometer step, transponder); at the stop's end then its jerk and stop time.
 _STATE = struct.Struct(">H B d d")
 _SENSE = struct.Struct(">I d d d d")
 _END = struct.Struct(">d d")
-_F_TASC, _F_ENDED, _F_EB, _F_STOPPED = 1, 2, 4, 8
+_F_TASC, _F_ENDED, _F_EB, _F_STOPPED, _F_FRESH = 1, 2, 4, 8, 16
 _HEAD = struct.Struct(">B H")
 
 
@@ -129,6 +129,14 @@ HOLD = Drive(0.0, 0.0, math.inf)  # standing (the holding brake)
 
 
 @dataclass(frozen=True, slots=True)
+class Place:
+    """The trains process places a train, standing, where it last knew it: what a plant that knows
+    nothing of the trains (started, or started again in a running line) is told first."""
+
+    x_m: float
+
+
+@dataclass(frozen=True, slots=True)
 class TrainState:
     """A train as the plant tells the trains process: position, speed; under ground TASC the
     sensing for its next step (``sense``); ``ended``: its TASC stop ended in this state (with the
@@ -143,6 +151,7 @@ class TrainState:
     jerk_mps3: float = math.nan
     stop_time_s: float = math.nan
     eb: bool = False
+    fresh: bool = False  # the plant has not been told where its trains are (its start)
 
 
 @dataclass
@@ -200,6 +209,7 @@ class Plant:
         self.steps = 0
         self.late_drives = 0  # TASC steps whose drive had not arrived (the last one held)
         self.eb_all = False  # fail safe: every train's emergency brake (the trains process is silent)
+        self.fresh = True  # not yet told where the trains are (the trains process places them)
         self.tasc_stops = 0
 
     # -- inputs ---------------------------------------------------------------------
@@ -211,6 +221,14 @@ class Plant:
         v = self.fleet[train]
         if v.tasc is None and self.tasc is not None and 0 <= station < len(self.models):
             v.begin = (station, visit)
+
+    def place(self, train: int, x_m: float) -> None:
+        """The train stands at ``x_m`` (:class:`Place`); a TASC stop under way there ends."""
+        if 0 <= train < len(self.fleet):
+            v = self.fleet[train]
+            v.x_m, v.v_mps, v.drive = x_m, 0.0, HOLD
+            v.tasc = v.brake = v.begin = v.ended = None
+            self.fresh = False
 
     def brake(self, train: int, drive: BrakeDrive) -> None:
         """A TASC drive received (in lock step: for the train's next step)."""
@@ -315,6 +333,7 @@ class Plant:
                     jerk_mps3=jerk,
                     stop_time_s=stop_t,
                     eb=self.eb_all,
+                    fresh=self.fresh,
                 )
             )
             v.ended = None
@@ -332,7 +351,10 @@ class Plant:
 # ---------------------------------------------------------------------- the wire
 
 
-def pack_drives(records: list[tuple[int, Drive | tuple[int, int] | BrakeDrive]]) -> list[bytes]:
+DriveRecord = tuple[int, "Drive | tuple[int, int] | BrakeDrive | Place"]
+
+
+def pack_drives(records: list[DriveRecord]) -> list[bytes]:
     """The trains process's drives as frames' payloads (at most ``_MAX_RECORDS`` a frame)."""
     rows = []
     for train, d in records:
@@ -340,15 +362,17 @@ def pack_drives(records: list[tuple[int, Drive | tuple[int, int] | BrakeDrive]])
             rows.append(_DRIVE.pack(train, _ATO, 0, d.target_mps, d.accel_mps2, d.decel_mps2, d.relocate_m))
         elif isinstance(d, BrakeDrive):
             rows.append(_DRIVE.pack(train, _BRAKE, d.k, d.demand_mps2, float(d.braking), float(d.eb), 0.0))
+        elif isinstance(d, Place):
+            rows.append(_DRIVE.pack(train, _PLACE, 0, d.x_m, 0.0, 0.0, 0.0))
         else:
             station, visit = d
             rows.append(_DRIVE.pack(train, _BEGIN, (station << 16) | visit, 0.0, 0.0, 0.0, 0.0))
     return _chunks(rows, 1)
 
 
-def unpack_drives(payload: bytes) -> list[tuple[int, Drive | tuple[int, int] | BrakeDrive]]:
+def unpack_drives(payload: bytes) -> list[DriveRecord]:
     """ValueError for a payload of the wrong shape or an unknown kind."""
-    out: list[tuple[int, Drive | tuple[int, int] | BrakeDrive]] = []
+    out: list[DriveRecord] = []
     for train, kind, n, a, b, c, d in _rows(payload, 1, _DRIVE):
         if kind == _ATO:
             out.append((train, Drive(a, b, c, d)))
@@ -356,6 +380,8 @@ def unpack_drives(payload: bytes) -> list[tuple[int, Drive | tuple[int, int] | B
             out.append((train, BrakeDrive(n, a, b != 0.0, c != 0.0)))
         elif kind == _BEGIN:
             out.append((train, (n >> 16, n & 0xFFFF)))
+        elif kind == _PLACE:
+            out.append((train, Place(a)))
         else:
             raise ValueError(f"unknown drive kind {kind}")
     return out
@@ -366,6 +392,7 @@ def pack_states(states: list[TrainState]) -> list[bytes]:
     for s in states:
         se = s.sense
         flags = (_F_TASC if se else 0) | (_F_ENDED if s.ended else 0) | (_F_EB if s.eb else 0)
+        flags |= _F_FRESH if s.fresh else 0
         if se is not None and se.stopped:
             flags |= _F_STOPPED
         row = _STATE.pack(s.train, flags, s.x_m, s.v_mps)
@@ -393,9 +420,8 @@ def unpack_states(payload: bytes) -> list[TrainState]:
             if flags & _F_ENDED:
                 jerk, stop_t = _END.unpack_from(payload, at)
                 at += _END.size
-            out.append(
-                TrainState(train, x, v, sense, t_s, bool(flags & _F_ENDED), jerk, stop_t, bool(flags & _F_EB))
-            )
+            ended, eb, fresh = bool(flags & _F_ENDED), bool(flags & _F_EB), bool(flags & _F_FRESH)
+            out.append(TrainState(train, x, v, sense, t_s, ended, jerk, stop_t, eb, fresh))
     except struct.error:
         raise ValueError("plant frame shorter than its records") from None
     if at != len(payload):
@@ -481,6 +507,8 @@ async def run_plant(
                         plant.drive(train, d)
                     elif isinstance(d, BrakeDrive):
                         plant.brake(train, d)
+                    elif isinstance(d, Place):
+                        plant.place(train, d.x_m)
                     else:
                         plant.begin_tasc(train, *d)
             return []
@@ -548,7 +576,8 @@ class PlantPort:
         self.wiring = SafePeers(
             TRAINS_WIRING_ID, self.master_key, max_age_s=1.0, peers=lambda p: p == PLANT_ID
         )
-        self.pending: list[tuple[int, Drive | tuple[int, int] | BrakeDrive]] = []
+        self.pending: list[DriveRecord] = []
+        self.restarts = 0  # plants that came up fresh after one that knew the trains
         self.refused_payloads = 0
         self.ep: UdpEndpoint | None = None
         if self.plant is not None:
@@ -556,6 +585,8 @@ class PlantPort:
 
     def _take(self, states: list[TrainState]) -> None:
         for s in states:
+            if s.fresh and s.train in self.states and not self.states[s.train].fresh and s.train == 0:
+                self.restarts += 1  # a plant started again in the running line
             self.states[s.train] = s
             if s.ended:
                 self.ended[s.train] = s
@@ -565,6 +596,12 @@ class PlantPort:
             self.plant.drive(train, drive)
         else:
             self.pending.append((train, drive))
+
+    def place(self, train: int, x_m: float) -> None:
+        if self.plant is not None:
+            self.plant.place(train, x_m)
+        else:
+            self.pending.append((train, Place(x_m)))
 
     def begin_tasc(self, train: int, station: int, visit: int) -> None:
         if self.plant is not None:
@@ -614,7 +651,7 @@ class PlantPort:
                 continue
             self.heard_s = now_s
             self._take(states)
-            replies: list[tuple[int, Drive | tuple[int, int] | BrakeDrive]] = []
+            replies: list[DriveRecord] = []
             for s in states:
                 if s.sense is not None and self.onboard is not None:
                     d = self.onboard(s.train, s.sense_t_s, s.sense)
@@ -629,6 +666,7 @@ class PlantPort:
             "frames_sent": self.wiring.sent,
             "refused": _refused(self.wiring, self.refused_payloads),
             "plant_lost": self.losses,
+            "plant_restarts": self.restarts,
         }
 
 
