@@ -255,6 +255,32 @@ def test_slides_between_stations_are_bridged_by_the_accelerometer() -> None:
     assert smooth.run(900.0).summary()["slide_events"] == 0
 
 
+def test_slides_inside_the_station_stops_reach_the_odometer(tmp_path: Path) -> None:
+    """Every station stop meets a low-adhesion patch (μ 0.05) and no patch lies between stations:
+    the slides come from the stop model's trajectories alone. They reach the line's odometer (the
+    slide events count them) and the positioning's WSP input, whose accelerometer bridges them.
+    Each slide lasts the whole patch (some 10 s at μ 0.05), so the bridge's bias tells: the onboard
+    position's p99 error with a 2 % diameter error stays under 2 m (1.449 m when written), where
+    an unbridged slide would leave the wheel 15 % short over the 80 m patch (12 m)."""
+    wet = tmp_path / "wet-stops.toml"
+    wet.write_text(
+        'description = "every stop on a wet patch"\n'
+        "low_adhesion_probability = 1.0\n"
+        "low_adhesion_mu = { fixed = 0.05 }\n"
+        "low_adhesion_length_m = { fixed = 80.0 }\n"
+    )
+    op = Operation(trains=2, headway_s=150.0)
+    sim = LineSimulation(
+        line=LINE, vehicle=VEHICLE, operation=op, disturbances=load_disturbances(wet), odometer_error_pct=2.0
+    )
+    s = sim.run(900.0).summary()
+    assert s["stops"] >= 4
+    assert s["slide_events"] >= 2  # none between stations: from the stops
+    assert isinstance(s["position_error_p99_m"], float) and s["position_error_p99_m"] < 2.0
+    dry = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, odometer_error_pct=2.0)
+    assert dry.run(900.0).summary()["slide_events"] == 0
+
+
 def test_carried_calibration_beats_a_cold_start() -> None:
     """A train that enters with the scale and delay of its earlier trips is within a metre from
     the start; a cold one (the learner's 5 % prior) is metres off until it has learned."""

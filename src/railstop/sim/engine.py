@@ -72,6 +72,7 @@ class Trace:
     driver_action: FloatArray
     supervision: FloatArray
     lamp: FloatArray
+    sliding: FloatArray  # 1 where the wheels slide (the WSP acting), else 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -216,6 +217,7 @@ def _trace(tr: FloatArray) -> Trace:
         TR_LIMIT,
         TR_NOTCH,
         TR_OWN,
+        TR_SLIDE,
         TR_SUPERVISION,
         TR_SWITCH,
         TR_T,
@@ -243,6 +245,7 @@ def _trace(tr: FloatArray) -> Trace:
         driver_action=col(TR_ACTION),
         supervision=col(TR_SUPERVISION),
         lamp=col(TR_LAMP),
+        sliding=col(TR_SLIDE),
     )
 
 

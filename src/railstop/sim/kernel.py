@@ -300,7 +300,10 @@ TR_LIMIT = 11
 TR_ACTION = 12
 TR_SUPERVISION = 13
 TR_LAMP = 14
-TR_SIZE = 15
+# The wheels slide this step (braking beyond the adhesion, the WSP acting: 1, else 0): what the
+# train's odometer must know of (SPEC §2 slip/slide; the line's odometer plays it back).
+TR_SLIDE = 15
+TR_SIZE = 16
 
 # Link attempt log columns (recording): what the byte-level checker replays.
 LA_STEP = 0
@@ -459,6 +462,7 @@ def _record_move(
         trace[rows, TR_X] = x0 + (gone if forward else -gone)
         trace[rows, TR_V] = speed if forward else -speed
         trace[rows, TR_NOTCH] = 0.0
+        trace[rows, TR_SLIDE] = 0.0
         trace[rows, TR_LIMIT] = limit
         trace[rows, TR_ACTION] = (ACT_CREEP_FORWARD if forward else ACT_REVERSE) if moving else ACT_WAIT
         trace[rows, TR_SUPERVISION] = 0.0
@@ -942,6 +946,7 @@ def _simulate_run(
             trace[k, TR_DUTY] = duty
             trace[k, TR_OWN] = own_demand
             trace[k, TR_SWITCH] = switch_pos if switch_pos >= 0 else np.nan
+            trace[k, TR_SLIDE] = 1.0 if sliding and not stopped else 0.0
             if is_driver:
                 trace[k, TR_LIMIT] = limit_now
                 trace[k, TR_ACTION] = dv[DV_ACTION]

@@ -41,9 +41,12 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   is sampled every step. The station stop is taken over where the train
   physically is (the wayside's detectors see it).
 
+The slides of a station stop (the stop model's trajectory records where its
+wheels slid) reach the train's odometer and its positioning unit's WSP input
+as the line's own slides do.
+
 Not yet: the wayside's occupancy telegrams and signal aspects reach the
-trains as values (no medium between them); slides inside the station-stop
-trajectories.
+trains as values (no medium between them).
 """
 
 from __future__ import annotations
@@ -245,6 +248,7 @@ class Train:
     play_t: Any = None  # stopping: the stop's trajectory (times on the line's clock, positions,
     play_x: Any = None  # speeds)
     play_v: Any = None
+    play_slide: Any = None  # 1 where the wheels slid in the stop's trajectory (the WSP acting)
     load_factor: float = 0.5
     patches: list[tuple[float, float]] = field(default_factory=list)  # low adhesion (start, end)
     sliding: bool = False  # braking beyond the adhesion: the WSP acts this step
@@ -299,7 +303,7 @@ class LineResult:
     position_errors: list[float]
     skipped_stops: int
     signals_passed_at_danger: int
-    slide_events: int = 0  # slides between stations (the WSP acting on a low-adhesion patch)
+    slide_events: int = 0  # slides (the WSP acting on low adhesion), between stations and in stops
     calibration: str = "carried"
     signalling: str = "fixed-block"
     cbtc: dict[str, Any] | None = None  # the CBTC summary (SPEC §4), with signalling cbtc*
@@ -692,6 +696,7 @@ class LineSimulation:
         train.play_t = t0_s + np.concatenate(([0.0], tr_t[keep]))
         train.play_x = np.concatenate(([train.x_m], tr_x[keep]))
         train.play_v = np.concatenate(([train.v_mps], tr_v[keep]))
+        train.play_slide = np.concatenate(([0.0], batch.trace.sliding[:, 0][keep]))
         train.phase = "stopping"
         arrive = float(train.play_t[-1])
         self.stops.append(
@@ -706,7 +711,17 @@ class LineSimulation:
             )
         )
 
-    def _play(self, train: Train, now_s: float) -> None:
+    def _play(self, train: Train, now_s: float, dt: float) -> None:
+        # The stop model's slides reach the odometer (SPEC §2 slip/slide): the train slides in
+        # this step if its trajectory slid anywhere in it, a new slide event as on the line. Not
+        # in the step it comes to a stand: the dwell begins there, and its correction creep must
+        # reach the odometer (a bridged step would leave the wheel's count out).
+        lo, hi = np.searchsorted(train.play_t, [now_s - dt, now_s], side="right")
+        if train.play_slide is not None and now_s < train.play_t[-1] and train.play_slide[lo:hi].any():
+            train.sliding = True
+            if now_s - train.last_slide_s > SLIDE_GAP_S:
+                train.slides += 1
+            train.last_slide_s = now_s
         if now_s < train.play_t[-1]:
             # The speed too: the tachometer's log and the occupancy instants need it.
             train.x_m = float(np.interp(now_s, train.play_t, train.play_x))
@@ -745,7 +760,7 @@ class LineSimulation:
             )
         )
         train.next_station += 1
-        train.play_t = train.play_x = train.play_v = None
+        train.play_t = train.play_x = train.play_v = train.play_slide = None
         train.x_m = st.stop_point_m + dwell.final_stop_error_m  # after any correction creep
         if dwell.start_enable_s is None:
             # SPEC §5 fault path: no start enable, doors held closed, the train stays (the line
@@ -780,6 +795,7 @@ class LineSimulation:
             v = np.concatenate((a * r, top - a * r[1:]))
             x[-1], v[-1] = st.stop_point_m, 0.0
         train.play_t, train.play_x, train.play_v = t, x, v
+        train.play_slide = None  # driven on sight at a crawl: no slide
         train.phase = "stopping"
 
     def _doors(self, dwell_s: float) -> DoorsConfig:
@@ -808,7 +824,7 @@ class LineSimulation:
             elif train.phase == "running":
                 self._run(train, now_s, dt)
             elif train.phase == "stopping":
-                self._play(train, now_s)
+                self._play(train, now_s, dt)
             elif train.phase == "dwelling" and now_s >= train.until_s:
                 train.phase = "running"
             elif train.phase == "held" and now_s >= train.until_s:
