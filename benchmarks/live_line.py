@@ -58,6 +58,24 @@ def main() -> None:
             f"{role:16s} {steps!s:>8s} {late!s:>6s} {latest!s:>10s} {r['cpu_s']:8.2f} {r['wall_s']:8.1f} "
             f"{share:10.1%}"
         )
+    # When the late steps were due and when the garbage collector paused (over 5 ms), in seconds
+    # after the first of all these: late steps that hit every process at once point at the host.
+    marks = {}
+    for role in ("zone_controller", "plant", "stations", "trains"):
+        if isinstance(out.get(role), dict):
+            pauses = out[role].get("gc", {}).get("long_at_unix_ms", [])
+            marks[role] = (out[role].get("late_at_unix", []), [t for t, _ in pauses])
+    starts = [t for late, gcs in marks.values() for t in (*late, *gcs)]
+    if starts:
+        t0 = min(starts)
+        for role, (late, gcs) in marks.items():
+            gc = out[role].get("gc", {})
+            at_late = [round(t - t0, 2) for t in late[:12]]
+            at_gc = [round(t - t0, 2) for t in gcs[:12]]
+            print(
+                f"{role}: late steps at {at_late}; GC pauses over 5 ms {gc.get('over_5_ms')} "
+                f"(longest {gc.get('max_ms')} ms) at {at_gc}"
+            )
     zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
     due = args.trains * duration / period
     print(

@@ -383,9 +383,32 @@ def test_the_wall_clock_counts_a_step_that_started_late_and_how_late() -> None:
         stop = asyncio.Event()
         await clock.run_live(plant, lambda now_s: [], stop, until_s=clock.now_s + 0.2)  # type: ignore[arg-type]
 
+    blocked_unix = clock.base.epoch + clock.now_s
     asyncio.run(run())
     assert clock.late_steps >= 1
     assert 0.04 <= clock.late_max_s <= 0.2
+    timing = clock.timing()
+    assert timing["late_steps"] == clock.late_steps == len(timing["late_at_unix"])
+    # The late step was due just after the blocked one (Unix time, as the benchmark compares).
+    first = timing["late_at_unix"][0]
+    assert blocked_unix <= first <= blocked_unix + 0.2
+
+
+def test_the_gc_watch_times_the_collector_s_pauses() -> None:
+    import gc
+
+    from railstop.live.clock import GcWatch
+
+    junk = [[i] for i in range(200_000)]
+    before = time.time()
+    with GcWatch(over_s=0.0) as watch:
+        gc.collect()
+    del junk
+    counts = watch.counts()
+    assert counts["collections"] >= 1 and counts["over_0_ms"] >= 1 and counts["max_ms"] > 0.0
+    at, took_ms = counts["long_at_unix_ms"][0]
+    assert before - 0.01 <= at <= time.time() and took_ms > 0.0
+    assert watch._on_gc not in gc.callbacks  # removed on leaving
 
 
 def test_killing_the_trains_process_loses_every_train_and_silences_the_stations(

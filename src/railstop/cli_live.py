@@ -76,6 +76,8 @@ def _outage(text: str, trains: int) -> tuple[int, float, float]:
 def _serve(coro_factory: object) -> None:
     """Run a live process until SIGTERM / SIGINT; print its counts as one JSON line."""
 
+    from railstop.live.clock import GcWatch
+
     async def main() -> dict[str, object]:
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
@@ -85,10 +87,12 @@ def _serve(coro_factory: object) -> None:
 
     started = time.monotonic()
     try:
-        result = asyncio.run(main())
+        with GcWatch() as watch:
+            result = asyncio.run(main())
     except (RailstopError, ValueError) as exc:
         fail(str(exc))
     if isinstance(result, dict):
+        result["gc"] = watch.counts()  # its pauses, beside its clock's late steps
         # What the process cost: its CPU seconds (user + system) over its wall seconds.
         result["cpu_s"] = round(time.process_time(), 2)
         result["wall_s"] = round(time.monotonic() - started, 2)

@@ -16,8 +16,10 @@ counted (``late_steps``): the process could not keep up.
 from __future__ import annotations
 
 import asyncio
+import gc
 import time
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from railstop.messages import Output
 from railstop.sim.clock import PlantStep, SimClock
@@ -50,6 +52,7 @@ class WallClock(SimClock):
         self.base = base
         self.late_steps = 0
         self.late_max_s = 0.0  # the latest a step started (simulated seconds after its time)
+        self.late_at: list[float] = []  # when the first LATE_KEPT late steps were due (Unix time)
         self.steps = 0
 
     async def run_live(
@@ -73,9 +76,66 @@ class WallClock(SimClock):
                 self.late_max_s = max(self.late_max_s, -wait * self.base.scale)
                 if -wait * self.base.scale > self.step_s:
                     self.late_steps += 1
+                    if len(self.late_at) < LATE_KEPT:
+                        self.late_at.append(self.base.epoch + t_next / self.base.scale)
             self._fire_until(t_next)
             self.now_s = t_next
             # What arrived on the sockets since the last step, at the time it is taken.
             self.deliver(poll(self.now_s))
             self.deliver(plant(self.now_s, self.step_s))
             self.steps += 1
+
+    def timing(self) -> dict[str, Any]:
+        """The clock's figures for a process's counts: steps, the steps that started more than
+        one step late, the latest start, and when the first of the late ones were due."""
+        return {
+            "steps": self.steps,
+            "late_steps": self.late_steps,
+            "late_max_ms": round(self.late_max_s * 1000.0, 1),
+            "late_at_unix": [round(t, 3) for t in self.late_at],
+        }
+
+
+LATE_KEPT = 100  # late steps whose times a clock keeps
+
+
+class GcWatch:
+    """The garbage collector's pauses in this process (``gc.callbacks``): the collections that
+    took longer than ``over_s``, the longest, and when the first of them began (Unix time), to
+    set beside a clock's late steps."""
+
+    def __init__(self, over_s: float = 0.005) -> None:
+        self.over_s = over_s
+        self.collections = 0
+        self.long = 0
+        self.max_s = 0.0
+        self.long_at: list[tuple[float, float]] = []  # (Unix time, seconds) of the first long ones
+        self._began = 0.0
+        self._began_unix = 0.0
+
+    def __enter__(self) -> GcWatch:
+        gc.callbacks.append(self._on_gc)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        gc.callbacks.remove(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._began, self._began_unix = time.perf_counter(), time.time()
+            return
+        took = time.perf_counter() - self._began
+        self.collections += 1
+        self.max_s = max(self.max_s, took)
+        if took > self.over_s:
+            self.long += 1
+            if len(self.long_at) < LATE_KEPT:
+                self.long_at.append((round(self._began_unix, 3), round(took * 1000.0, 1)))
+
+    def counts(self) -> dict[str, Any]:
+        return {
+            "collections": self.collections,
+            f"over_{self.over_s * 1000.0:g}_ms": self.long,
+            "max_ms": round(self.max_s * 1000.0, 1),
+            "long_at_unix_ms": self.long_at,
+        }

@@ -529,9 +529,8 @@ async def run_plant(
 
         await clock.run_live(step, poll, stop)
     return {
+        **clock.timing(),
         **plant.counts(),
-        "late_steps": clock.late_steps,
-        "late_max_ms": round(clock.late_max_s * 1000.0, 1),
         "drive_lost": drive_lost,
         "refused": _refused(wiring, refused_payloads),
         "trains": [{"train": v.k, "x_m": round(v.x_m, 2), "v_mps": round(v.v_mps, 3)} for v in plant.fleet],

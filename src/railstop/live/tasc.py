@@ -477,9 +477,7 @@ async def run_stations(
         "readings_frames": sum(lk.delivered for lk in links.values()),
         "readings_age_ms": age_summary(ages),
         "refused": refused,
-        "late_steps": clock.late_steps,
-        "late_max_ms": round(clock.late_max_s * 1000.0, 1),
-        "steps": clock.steps,
+        **clock.timing(),
     }
 
 
