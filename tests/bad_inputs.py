@@ -947,6 +947,31 @@ add(
     "live", "trains", *LIVE_KEY, "--stations", "127.0.0.1:9", "--trains", "2", "--obstruct", "5:1",
     needles=("--obstruct", "5:1"),
 )  # fmt: skip
+add(
+    "live-plant-stations-address",
+    "live", "plant", *LIVE_KEY, "--stations", "nonsense",
+    needles=("--stations", "nonsense"),
+)  # fmt: skip
+add(
+    "live-plant-controller",
+    "live", "plant", *LIVE_KEY, "--stations", "127.0.0.1:9", "--controller", "ato",
+    needles=("--controller", "ato"),
+)  # fmt: skip
+add(
+    "live-plant-disturbances",
+    "live", "plant", *LIVE_KEY, "--stations", "127.0.0.1:9", "--disturbances", "nosuch",
+    needles=("nosuch",),
+)  # fmt: skip
+add(
+    "live-plant-trains-do-not-fit",
+    "live", "plant", *LIVE_KEY, "--trains", "60", "--spacing-m", "5000",
+    needles=("--trains", "--spacing-m", "60", "5000"),
+)  # fmt: skip
+add(
+    "live-trains-plant-address",
+    "live", "trains", *LIVE_KEY, "--plant", "nonsense",
+    needles=("--plant", "nonsense"),
+)  # fmt: skip
 add("office-reports-no-db", "office", "reports", "--db", "nosuch.db", needles=("--db", "nosuch.db"))
 add(
     "office-reports-kind",

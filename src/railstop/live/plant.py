@@ -103,7 +103,8 @@ def initial_positions(line: Line, vehicle: Vehicle, trains: int, spacing_m: floa
     for k in range(trains):
         x = end_m - 300.0 - k * spacing_m
         if x < vehicle.length_m + 10.0:
-            raise ValueError(f"{trains} trains {spacing_m:g} m apart do not fit on the {end_m:g} m line")
+            fit = f"{trains} trains {spacing_m:g} m apart do not fit on the {end_m:g} m line"
+            raise ValueError(f"--trains / --spacing-m: {fit}")
         out.append(x)
     return out
 
