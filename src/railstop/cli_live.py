@@ -47,6 +47,11 @@ KeyOpt = Annotated[
 ]
 OfficeOpt = Annotated[str | None, typer.Option(help="The office's UDP address HOST:PORT (none: no reports).")]
 TrainsOpt = Annotated[int, typer.Option(min=1, max=60, help="Trains on the line.")]
+SpacingOpt = Annotated[float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")]
+SeedOpt = Annotated[int, typer.Option(help="Seed of the trains' disturbance draws (one per stop).")]
+DisturbancesOpt = Annotated[
+    str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
+]
 
 
 def _process_setup(
@@ -251,9 +256,7 @@ def stations_cmd(
 def plant_cmd(
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the plant.")] = 7730,
     trains: TrainsOpt = 4,
-    spacing_m: Annotated[
-        float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")
-    ] = 600.0,
+    spacing_m: SpacingOpt = 600.0,
     epoch: EpochOpt = None,
     scale: ScaleOpt = 1.0,
     key_hex: KeyOpt = None,
@@ -265,10 +268,8 @@ def plant_cmd(
         ),
     ] = None,
     controller: TascControllerOpt = "tasc-pwm",
-    seed: Annotated[int, typer.Option(help="Seed of the trains' disturbance draws (one per stop).")] = 1,
-    disturbances: Annotated[
-        str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
-    ] = "standard",
+    seed: SeedOpt = 1,
+    disturbances: DisturbancesOpt = "standard",
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
@@ -306,9 +307,7 @@ def plant_cmd(
 def trains_cmd(
     zc: Annotated[str, typer.Option(help="The zone controller's UDP address HOST:PORT.")] = "127.0.0.1:7710",
     trains: TrainsOpt = 4,
-    spacing_m: Annotated[
-        float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")
-    ] = 600.0,
+    spacing_m: SpacingOpt = 600.0,
     epoch: EpochOpt = None,
     scale: ScaleOpt = 1.0,
     key_hex: KeyOpt = None,
@@ -325,10 +324,8 @@ def trains_cmd(
         ),
     ] = None,
     controller: TascControllerOpt = "tasc-pwm",
-    seed: Annotated[int, typer.Option(help="Seed of the trains' disturbance draws (one per stop).")] = 1,
-    disturbances: Annotated[
-        str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
-    ] = "standard",
+    seed: SeedOpt = 1,
+    disturbances: DisturbancesOpt = "standard",
     tasc_loss: Annotated[
         float,
         typer.Option(min=0.0, max=1.0, help="Fault injection: the share of braking telegram frames lost."),
@@ -590,9 +587,7 @@ def run_cmd(
         str, typer.Option(help="The office's database (SQLite file or PostgreSQL URL).")
     ] = "railstop.db",
     http_port: Annotated[int, typer.Option(min=0, max=65535, help="The control-room page's port.")] = 8080,
-    spacing_m: Annotated[
-        float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")
-    ] = 600.0,
+    spacing_m: SpacingOpt = 600.0,
     operators: OperatorsOpt = None,
     outage: OutageOpt = None,
     controller: TascControllerOpt = "tasc-pwm",

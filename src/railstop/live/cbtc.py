@@ -264,6 +264,7 @@ async def run_trains(
         Plant,
         PlantPort,
         TascPlantData,
+        emergency_drive,
         initial_positions,
         line_end_m,
     )
@@ -378,7 +379,7 @@ async def run_trains(
                     t.v_mps, drive = 0.0, None
                 elif port.lost:
                     # Fail safe: the plant is silent; nothing is known of the train: brake.
-                    drive = Drive(0.0, 0.0, brake.emergency_decel_mps2)
+                    drive = emergency_drive(vehicle)
                 elif t.relocating is not None:
                     drive = Drive(0.0, 0.0, math.inf, t.relocating)  # sent again until the plant has it
                 elif doors is not None and (drive := _dwell_step(t, doors, ep, now_s, step_s, office)):
@@ -478,7 +479,7 @@ def _move(
     """The driving the ATO does under the onboard unit's limits, as the drive to the plant. With
     ground TASC it runs at the station's entry speed to the hand-over point, where the stop is
     taken over (``_tasc_step``); short of an authority there, it stops where it aims."""
-    from railstop.live.plant import HOLD, Drive
+    from railstop.live.plant import HOLD, Drive, emergency_drive
 
     unit = t.unit
     brake = vehicle.brake
@@ -494,7 +495,7 @@ def _move(
     if restricted is not None:
         return restricted
     if unit.emergency_brake:
-        return Drive(0.0, 0.0, brake.emergency_decel_mps2)
+        return emergency_drive(vehicle)
     if now_s < t.dwell_until_s:
         return HOLD
     # The line's static profile (civil limits, each approached on a braking curve), read here
@@ -626,7 +627,7 @@ def _dwell_step(
     dwell = t.dwell
     if dwell is None:
         return HOLD if t.retry is not None else None  # waiting for the reset after a fault
-    _, frames = doors.advance(dwell, now_s, step_s)
+    frames = doors.advance(dwell, now_s, step_s)
     for frame in frames:
         ep.send(frame, doors.address)
     creep = dwell.creep_mps

@@ -800,10 +800,10 @@ class LiveDoors:
         self.active[train] = dwell
         return dwell
 
-    def advance(self, dwell: TrainDoors, now_s: float, step_s: float) -> tuple[float, list[bytes]]:
-        """One plant step of a dwell: how far the train moved (the correction creep) and the
-        frames to send to the stations process."""
-        moved = dwell.step(now_s, step_s)
+    def advance(self, dwell: TrainDoors, now_s: float, step_s: float) -> list[bytes]:
+        """One step of a dwell (its correction creep reaches the plant as the train's drive,
+        ``TrainDoors.creep_mps``): the frames to send to the stations process."""
+        dwell.step(now_s, step_s)
         platform = PLATFORM_BASE + dwell.station
         link = self._link(dwell.train)
         frames = [link.wrap(encode(cmd), platform, now_s) for cmd in dwell.due]
@@ -811,7 +811,7 @@ class LiveDoors:
         if dwell.done:
             self.active.pop(dwell.train, None)
             self.results.append(dwell.result())
-        return moved, frames
+        return frames
 
     def counts(self) -> dict[str, Any]:
         refused = sum_counts(lk.rejected for lk in self._links.values())

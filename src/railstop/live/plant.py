@@ -53,7 +53,7 @@ from typing import Any
 
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.schema import Line, Vehicle
-from railstop.link.safety import MAX_PAYLOAD_BYTES, SafePeers, frame_ids
+from railstop.link.safety import MAX_PAYLOAD_BYTES, SafePeers
 from railstop.link.udp import Address, UdpEndpoint, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import PLATFORM_BASE, SENSORS_ID, pack_stop_sensed
@@ -127,6 +127,11 @@ class Drive:
 
 
 HOLD = Drive(0.0, 0.0, math.inf)  # standing (the holding brake)
+
+
+def emergency_drive(vehicle: Vehicle) -> Drive:
+    """The emergency brake as a drive: to a stand at the vehicle's emergency rate."""
+    return Drive(0.0, 0.0, vehicle.brake.emergency_decel_mps2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -242,7 +247,6 @@ class Plant:
         for a train's sensing (wired in one process); without it the drive received for that step
         is used (between processes)."""
         dt = PLANT_STEP_S
-        emergency = self.vehicle.brake.emergency_decel_mps2
         for v in self.fleet:
             tp = v.tasc
             if tp is not None:
@@ -269,13 +273,12 @@ class Plant:
                 v.x_m, v.v_mps = d.relocate_m, 0.0
                 v.drive = HOLD
                 continue
-            target, accel, decel = d.target_mps, d.accel_mps2, d.decel_mps2
             if self.eb_all:
-                target, accel, decel = 0.0, 0.0, emergency
-            if v.v_mps < target:
-                v.v_mps = min(target, v.v_mps + accel * dt)
-            elif v.v_mps > target:
-                v.v_mps = max(target, v.v_mps - decel * dt)
+                d = emergency_drive(self.vehicle)
+            if v.v_mps < d.target_mps:
+                v.v_mps = min(d.target_mps, v.v_mps + d.accel_mps2 * dt)
+            elif v.v_mps > d.target_mps:
+                v.v_mps = max(d.target_mps, v.v_mps - d.decel_mps2 * dt)
             v.x_m += v.v_mps * dt
         for v in self.fleet:
             if v.begin is not None and v.tasc is None:
@@ -578,15 +581,15 @@ class PlantPort:
         )
         self.pending: list[DriveRecord] = []
         self.restarts = 0  # plants that came up fresh after one that knew the trains
+        self.known = False  # the plant's last state knew where the trains are (not fresh)
         self.refused_payloads = 0
         self.ep: UdpEndpoint | None = None
-        if self.plant is not None:
-            self._take(self.plant.states(0.0))
 
     def _take(self, states: list[TrainState]) -> None:
         for s in states:
-            if s.fresh and s.train in self.states and not self.states[s.train].fresh and s.train == 0:
+            if s.fresh and self.known:
                 self.restarts += 1  # a plant started again in the running line
+            self.known = not s.fresh
             self.states[s.train] = s
             if s.ended:
                 self.ended[s.train] = s
@@ -617,7 +620,7 @@ class PlantPort:
             for j in range(max(1, round(step_s / PLANT_STEP_S))):
                 t = now_s + j * PLANT_STEP_S
                 self.plant.step(t, self.onboard)
-                self._take(self.plant.states(t))
+            self._take(self.plant.states(t))  # a stop's end is kept until it is told
             _send_out(ep, self.plant, stations, now_s)
             return
         lost = now_s - self.heard_s > SENSE_TIMEOUT_S
@@ -668,8 +671,3 @@ class PlantPort:
             "plant_lost": self.losses,
             "plant_restarts": self.restarts,
         }
-
-
-def frame_from_plant(frame: bytes) -> bool:
-    ids = frame_ids(frame)
-    return ids is not None and ids[0] == PLANT_ID

@@ -857,7 +857,6 @@ class LiveTasc:
         self.injected_losses = 0
         self.models = station_models(line, vehicle, controller)
         wired_stop(self.models[0], vehicle)  # the compiled steps loaded before the clock starts
-        self.vehicle = vehicle
         self.address = stations
         self.master_key = master_key
         self.dist = dist
