@@ -1,6 +1,7 @@
 """The live CBTC line on the wall clock, measured: are the cycles on time, what does each process cost?
 
     python benchmarks/live_line.py [--trains 20] [--minutes 10] [--spacing-m 250]
+    python benchmarks/live_line.py --probe-s 300     # the control probe alone
 
 Runs ``railstop live run`` (office, zone controller, plant, stations, trains:
 five processes over UDP on loopback, scale 1) and prints per process its plant steps, the
@@ -9,18 +10,54 @@ up), its CPU seconds and its share of one core; for the zone controller the
 reports and commands against the cycles due (trains x duration / report
 period), the trains lost; for the trains their emergency brakes; for the
 office the reports stored against those sent.
+
+Beside the run, a control probe: a sixth process with the same 10 ms wall clock
+and no work (no unit, no socket, no plant). Its late steps are the host's: a
+stall it shares with the live processes is not theirs. With ``--probe-s S`` the
+probe runs alone for S seconds (under ``chrt -f 50`` to try real-time priority).
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from railstop.config import default_line
+from railstop.live.clock import TimeBase, WallClock
+
+PROBE_STEP_S = 0.01  # the plant's and the stations' step
+
+
+def probe(seconds: float) -> None:
+    """A control beside the live run: the wall clock of a 10 ms process with no unit, no socket
+    and no plant. Its late steps are the host's alone (prints its timing as JSON)."""
+    base = TimeBase(time.time(), 1.0)
+    clock = WallClock([], step_s=PROBE_STEP_S, base=base)
+    asyncio.run(clock.run_live(lambda t, dt: [], lambda t: [], asyncio.Event(), until_s=seconds))
+    print(json.dumps(clock.timing()))
+
+
+def host_counters() -> dict[str, float]:
+    """The host's stolen CPU time (``/proc/stat``, seconds) and the CPU pressure stall total
+    (``/proc/pressure/cpu`` 'some', seconds), where the kernel offers them."""
+    out: dict[str, float] = {}
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()
+        out["steal_s"] = int(fields[8]) / 100.0  # USER_HZ ticks
+    except (OSError, IndexError, ValueError):
+        pass
+    try:
+        some = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+        out["cpu_pressure_s"] = int(some.rsplit("total=", 1)[1]) / 1e6
+    except (OSError, IndexError, ValueError):
+        pass
+    return out
 
 
 def main() -> None:
@@ -29,14 +66,24 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--spacing-m", type=float, default=250.0)
     ap.add_argument("--no-tasc", action="store_true", help="point-mass stops (no stations process)")
+    ap.add_argument("--probe-s", type=float, help="run only the control probe, this many seconds")
     args = ap.parse_args()
+    if args.probe_s is not None:
+        probe(args.probe_s)
+        return
     duration = args.minutes * 60.0
+    control = subprocess.Popen(
+        [sys.executable, __file__, "--probe-s", str(duration)], stdout=subprocess.PIPE, text=True
+    )
+    host_before = host_counters()
     with tempfile.TemporaryDirectory() as tmp:
         db = str(Path(tmp) / "live.db")
         argv = [sys.executable, "-m", "railstop.cli", "live", "run", "--trains", str(args.trains)]
         argv += ["--duration-s", str(duration), "--http-port", "0", "--spacing-m", str(args.spacing_m)]
         argv += ["--no-tasc"] if args.no_tasc else []
         p = subprocess.run([*argv, "--db", db], capture_output=True, text=True, check=False)
+    host_after = host_counters()
+    out_probe, _ = control.communicate()
     if p.returncode != 0:
         sys.exit(f"live run failed: {p.stderr.strip()}")
     out = json.loads(p.stdout.strip().splitlines()[-1])
@@ -60,22 +107,33 @@ def main() -> None:
         )
     # When the late steps were due and when the garbage collector paused (over 5 ms), in seconds
     # after the first of all these: late steps that hit every process at once point at the host.
+    # The control probe: a bare 10 ms clock in a sixth process, and what the host took meanwhile.
+    ctl = json.loads(out_probe.strip().splitlines()[-1])
+    print(
+        f"{'control probe':16s} {ctl['steps']:8d} {ctl['late_steps']:6d} {ctl['late_max_ms']!s:>10s}"
+        f"   (a 10 ms clock with no work, beside the run)"
+    )
+    took = {k: round(host_after[k] - host_before[k], 2) for k in host_after if k in host_before}
+    print(f"host meanwhile: {took or 'no counters'} (steal: CPU time the hypervisor took from this VM)")
     marks = {}
     for role in ("zone_controller", "plant", "stations", "trains"):
         if isinstance(out.get(role), dict):
             pauses = out[role].get("gc", {}).get("long_at_unix_ms", [])
             marks[role] = (out[role].get("late_at_unix", []), [t for t, _ in pauses])
+    marks["control probe"] = (ctl.get("late_at_unix", []), [])
     starts = [t for late, gcs in marks.values() for t in (*late, *gcs)]
     if starts:
         t0 = min(starts)
         for role, (late, gcs) in marks.items():
-            gc = out[role].get("gc", {})
+            gc = out.get(role, {}).get("gc", {})
             at_late = [round(t - t0, 2) for t in late[:12]]
             at_gc = [round(t - t0, 2) for t in gcs[:12]]
-            print(
-                f"{role}: late steps at {at_late}; GC pauses over 5 ms {gc.get('over_5_ms')} "
-                f"(longest {gc.get('max_ms')} ms) at {at_gc}"
+            pauses = (
+                f"; GC pauses over 5 ms {gc.get('over_5_ms')} (longest {gc.get('max_ms')} ms) at {at_gc}"
+                if gc
+                else " (no collector watched)"
             )
+            print(f"{role}: late steps at {at_late}{pauses}")
     zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
     due = args.trains * duration / period
     print(
