@@ -43,7 +43,6 @@ from railstop.config.disturbances import DisturbanceSet, draw_scenario
 from railstop.config.schema import Line, Vehicle
 from railstop.control.run_profile import RunProfile, RunProfileSettings
 from railstop.errors import SimulationError
-from railstop.link.codec import TrackCircuitOccupancy, decode, encode
 from railstop.onboard.positioning import FixOutcome, PositioningUnit
 from railstop.physics.traction import traction_step
 from railstop.physics.train import (
@@ -54,12 +53,10 @@ from railstop.physics.train import (
     davis_resistance_n,
     motion_step,
 )
-from railstop.sensors.gnss_clock import GnssClock, in_shadow
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
-from railstop.sensors.track_circuit import TrackCircuitDetector
+from railstop.sim.occupancy_chain import ChainSettings, OccupancyChain
 from railstop.streams import RUN_LIMIT as STREAM_LIMIT
 from railstop.streams import SEED_RANGE, RunStreams, Stream, seed_in_range
-from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -423,34 +420,6 @@ def disturbance_overrides(
 
 
 # --------------------------------------------------------------------------
-# The link: the telegram through the codec (SPEC §2 S20 radio; resolution of the wire).
-
-
-def _codec_round_trip(telegrams: OccupancyTelegrams) -> tuple[OccupancyTelegrams, bool]:
-    """Each telegram as bytes and back (``railstop.link.codec``, type ``tc-occupancy``).
-
-    The train sees the wire's resolution (0.1 ms of GNSS time). Returns the
-    decoded telegrams and whether the codec was used (always, here; the flag
-    goes into the summary). The medium's latency is the driver's
-    ``telegram_latency_s``; losses and corruption are not modelled here.
-    """
-    ids = np.empty(telegrams.size, dtype=np.int64)
-    times = np.empty(telegrams.size)
-    for j in range(telegrams.size):
-        frame = encode(
-            TrackCircuitOccupancy(
-                circuit_id=int(telegrams.circuit_id[j]), gnss_time_s=float(telegrams.gnss_time_s[j])
-            )
-        )
-        msg = decode(frame)
-        if not isinstance(msg, TrackCircuitOccupancy):  # the codec's own round trip guarantees it
-            raise SimulationError(f"tc-occupancy telegram decoded as {type(msg).__name__}")
-        ids[j] = msg.circuit_id
-        times[j] = msg.gnss_time_s
-    return OccupancyTelegrams(run=telegrams.run.copy(), circuit_id=ids, gnss_time_s=times), True
-
-
-# --------------------------------------------------------------------------
 # The run
 
 
@@ -510,29 +479,20 @@ def run_position(
     p_start, p_end, p_braking = _patches(cfg, streams, stops, start)
     accel_bias = accelerometer_bias_mps2(streams, vehicle.positioning.accelerometer_bias_sd_mps2)
 
-    # SPEC §2 clocks. A shadow is a tunnel without a repeater (or any tunnel with --no-repeaters).
-    clocks = track.clocks
-    if cfg.holdover_s is not None:
-        clocks = clocks.model_copy(update={"holdover_s": cfg.holdover_s})
-    shadow = [t for t in track.tunnels if not (t.repeater and cfg.repeaters)]
-    sh_start = np.array([t.start_m for t in shadow])
-    sh_end = np.array([t.end_m for t in shadow])
-    onboard_disc0 = np.full(n, cfg.gnss) & ~in_shadow(start, sh_start, sh_end)
-    onboard_clock = GnssClock.create(
-        clocks, streams, clock_index=np.array([0]), disciplined=onboard_disc0[:, None]
+    # SPEC §2 S10-S30: the devices, the time-stamping unit, the clocks and the radio; each run
+    # its own world (its own wayside clocks).
+    chain = OccupancyChain(
+        line,
+        train_streams=streams,
+        wayside_streams=streams,
+        start_position_m=start,
+        settings=ChainSettings(
+            gnss=cfg.gnss,
+            repeaters=cfg.repeaters,
+            holdover_s=cfg.holdover_s,
+            latency_s=cfg.telegram_latency_s,
+        ),
     )
-    c_starts = np.array([c.start_m for c in circuits])
-    # The time-stamping unit of a circuit sits at its start: in an unrepeated tunnel it has no GNSS.
-    wayside_disc = np.full(len(circuits), cfg.gnss) & ~in_shadow(c_starts, sh_start, sh_end)
-    wayside_clock = GnssClock.create(
-        clocks, streams, clock_index=1 + np.arange(len(circuits)), disciplined=wayside_disc
-    )
-
-    detector = TrackCircuitDetector.create(circuits, track.detection, streams, start_position_m=start)
-    stamper = TimestampUnit([c.id for c in circuits], n)
-    occupied0 = np.flatnonzero(c_starts <= start[0])
-    for r in range(n):
-        stamper.occupy_initial(np.full(occupied0.size, r), occupied0)
     pos_settings = vehicle.positioning.model_copy(update={"learn": vehicle.positioning.learn and cfg.learn})
     unit = PositioningUnit(
         circuits=circuits,
@@ -546,10 +506,6 @@ def run_position(
         nominal_delay_s=track.detection.delay_mean_s,
     )
 
-    # Queues: occupancy events waiting for their declaration instant, telegrams in flight.
-    pending_occ: list[tuple[IntArray, IntArray, FloatArray]] = []
-    in_flight: list[_InFlight] = []
-    used_codec = False
     fixes: list[FixRecord] = []
     slide_dist = np.zeros(n)
     slip_dist = np.zeros(n)
@@ -563,7 +519,7 @@ def run_position(
         rec["cor"].append(unit.corrected_m())
         rec["cal"].append(unit.calibrated_m())
 
-    unit.log(clock_time_s=onboard_clock.read(0.0)[:, 0], odometer_m=tacho.odometer_m(), speed_mps=np.zeros(n))
+    unit.log(clock_time_s=chain.onboard_time_s(0.0), odometer_m=tacho.odometer_m(), speed_mps=np.zeros(n))
     record(0.0)
     steps = round(MAX_TIME_S / dt)
     for k in range(steps):
@@ -616,20 +572,14 @@ def run_position(
         slide_dist += np.where(sliding, dist, 0.0)
         slip_dist += np.where(slipping, dist, 0.0)
 
-        # SPEC §2 clocks: disciplined unless in a GNSS shadow without a repeater.
-        onboard_disc = np.full(n, cfg.gnss) & ~in_shadow(motion.position_m, sh_start, sh_end)
-        onboard_clock.advance(dt, onboard_disc[:, None])
-        wayside_clock.advance(dt, wayside_disc[None, :])
-
-        # SPEC §2 S10: circuits entered; the device declares them after its delay.
-        ev = detector.detect(x0_m=x0, v0_mps=v0, accel_mps2=motion.accel_mps2, x1_m=motion.position_m, t0_s=t)
-        if ev.size:
-            pending_occ.append((ev.run, ev.circuit_index, ev.occupied_time_s))
-        pending_occ = _declare(pending_occ, t1, stamper, wayside_clock, in_flight, cfg.telegram_latency_s)
+        # SPEC §2 S10-S20: clocks, detection, time-stamping.
+        chain.advance(
+            t0_s=t, dt_s=dt, x0_m=x0, v0_mps=v0, accel_mps2=motion.accel_mps2, x1_m=motion.position_m
+        )
 
         # Onboard: the cycle's log sample, then the telegrams that have arrived.
         unit.log(
-            clock_time_s=onboard_clock.read(t1)[:, 0],
+            clock_time_s=chain.onboard_time_s(t1),
             odometer_m=tacho.odometer_m(),
             speed_mps=tacho.speed_mps(motion.speed_mps, creep),
             wsp_active=sliding | slipping,
@@ -637,37 +587,28 @@ def run_position(
             # calibrated position is the document's (no bridge either).
             accel_mps2=motion.accel_mps2 + accel_bias if cfg.accelerometer and cfg.learn else None,
         )
-        still: list[_InFlight] = []
-        for fl in in_flight:
-            due = fl.arrival_s <= t1 + 1e-12
-            if due.any():
-                got, via = _codec_round_trip(fl.subset(due).telegrams)
-                used_codec = used_codec or via
-                # The time error the fix sees: wayside clock at the occupancy - onboard clock now.
-                offset = fl.wayside_error_s[due] - onboard_clock.error_s[got.run, 0]
-                rep = unit.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s)
-                for j in range(rep.run.size):
-                    rr = int(rep.run[j])
-                    fixes.append(
-                        FixRecord(
-                            run=rr,
-                            t_s=t1,
-                            circuit_id=int(rep.circuit_id[j]),
-                            circuit_start_m=float(rep.circuit_start_m[j]),
-                            gnss_time_s=float(got.gnss_time_s[j]),
-                            outcome=FixOutcome(int(rep.outcome[j])).name.lower(),
-                            corrected_jump_m=float(rep.corrected_jump_m[j]),
-                            calibrated_jump_m=float(rep.calibrated_jump_m[j]),
-                            learned=bool(rep.learned[j]),
-                            gated=bool(rep.gated[j]),
-                            scale_estimate=float(unit.scale_estimate[rr]),
-                            delay_estimate_s=float(unit.delay_estimate_s[rr]),
-                            clock_offset_s=float(offset[j]),
-                        )
+        got = chain.arrivals(t1)
+        if got.size:
+            rep = unit.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s)
+            for j in range(rep.run.size):
+                rr = int(rep.run[j])
+                fixes.append(
+                    FixRecord(
+                        run=rr,
+                        t_s=t1,
+                        circuit_id=int(rep.circuit_id[j]),
+                        circuit_start_m=float(rep.circuit_start_m[j]),
+                        gnss_time_s=float(got.gnss_time_s[j]),
+                        outcome=FixOutcome(int(rep.outcome[j])).name.lower(),
+                        corrected_jump_m=float(rep.corrected_jump_m[j]),
+                        calibrated_jump_m=float(rep.calibrated_jump_m[j]),
+                        learned=bool(rep.learned[j]),
+                        gated=bool(rep.gated[j]),
+                        scale_estimate=float(unit.scale_estimate[rr]),
+                        delay_estimate_s=float(unit.delay_estimate_s[rr]),
+                        clock_offset_s=float(got.clock_offset_s[j]),
                     )
-            if (~due).any():
-                still.append(fl.subset(~due))
-        in_flight = still
+                )
         record(t1)
     else:
         raise SimulationError(f"the runs did not reach the last station within {MAX_TIME_S:.0f} s")
@@ -692,60 +633,9 @@ def run_position(
         learned_scale=unit.scale_estimate.copy(),
         learned_delay_s=unit.delay_estimate_s.copy(),
         detection_delay_mean_s=track.detection.delay_mean_s,
-        telegram_via_codec=used_codec,
+        telegram_via_codec=chain.used_codec,
         circuits_m=np.array([c.start_m for c in circuits] + [circuits[-1].end_m]),
         tunnels=[(t.start_m, t.end_m, t.repeater and cfg.repeaters) for t in track.tunnels],
         stops_m=stops,
         station_names=[s.name for s in line.stations],
     )
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class _InFlight:
-    """Telegrams on their way to the train, with their true arrival times and the stamping clocks' errors."""
-
-    telegrams: OccupancyTelegrams
-    arrival_s: FloatArray
-    wayside_error_s: FloatArray
-
-    def subset(self, rows: BoolArray) -> _InFlight:
-        t = self.telegrams
-        return _InFlight(
-            telegrams=OccupancyTelegrams(
-                run=t.run[rows], circuit_id=t.circuit_id[rows], gnss_time_s=t.gnss_time_s[rows]
-            ),
-            arrival_s=self.arrival_s[rows],
-            wayside_error_s=self.wayside_error_s[rows],
-        )
-
-
-def _declare(
-    pending: list[tuple[IntArray, IntArray, FloatArray]],
-    t1: float,
-    stamper: TimestampUnit,
-    clock: GnssClock,
-    in_flight: list[_InFlight],
-    latency_s: float,
-) -> list[tuple[IntArray, IntArray, FloatArray]]:
-    """Hand the occupancies declared by ``t1`` to the time-stamping unit (SPEC §2 S20); keep the rest."""
-    keep: list[tuple[IntArray, IntArray, FloatArray]] = []
-    for run, idx, t_occ in pending:
-        due = t_occ <= t1
-        if due.any():
-            r, c, tt = run[due], idx[due], t_occ[due]
-            # The unit reads its own GNSS clock at the occupancy instant (error at the end of
-            # this step, extrapolated back by the clock's drift: exact within the step).
-            error = clock.error_s[r, c] - clock.drift[r, c] * (t1 - tt) * ~clock.disciplined[r, c]
-            tel = stamper.handle(
-                run=r, circuit_index=c, indication=Indication.OCCUPIED, clock_time_s=tt + error
-            )
-            if tel.size and tel.source is not None:
-                # The telegram reaches the train a radio latency after the occupancy instant.
-                in_flight.append(
-                    _InFlight(
-                        telegrams=tel, arrival_s=tt[tel.source] + latency_s, wayside_error_s=error[tel.source]
-                    )
-                )
-        if (~due).any():
-            keep.append((run[~due], idx[~due], t_occ[~due]))
-    return keep
