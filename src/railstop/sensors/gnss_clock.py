@@ -78,10 +78,12 @@ class GnssClock:
 
     def advance(self, dt_s: float, disciplined: BoolArray) -> None:
         """Move on by ``dt_s``; ``disciplined`` says which clocks have GNSS time during the step."""
-        disc = np.broadcast_to(np.asarray(disciplined, dtype=bool), self.error_s.shape)
+        disc = np.asarray(disciplined, dtype=bool)
+        if disc.shape != self.error_s.shape:
+            disc = np.broadcast_to(disc, self.error_s.shape)
         # SPEC §2: in a shadow without a repeater the clock free-runs and drifts.
         self.error_s = np.where(disc, self.residual_s, self.error_s + self.drift * dt_s)
-        self.disciplined = disc.copy()
+        self.disciplined = np.array(disc)
 
     def read(self, true_time_s: float | FloatArray) -> FloatArray:
         """The clocks' readings at ``true_time_s`` (their current error)."""
@@ -90,7 +92,8 @@ class GnssClock:
 
 def in_shadow(position_m: FloatArray, starts_m: FloatArray, ends_m: FloatArray) -> BoolArray:
     """Which positions lie in one of the sections [start, end) (e.g. tunnels without repeaters)."""
-    x = np.asarray(position_m, dtype=np.float64)[..., None]
-    if np.size(starts_m) == 0:
-        return np.zeros(np.shape(position_m), dtype=bool)
-    return np.any((x >= starts_m) & (x < ends_m), axis=-1)
+    x = np.asarray(position_m, dtype=np.float64)
+    out = np.zeros(x.shape, dtype=bool)
+    for start, end in zip(np.ravel(starts_m).tolist(), np.ravel(ends_m).tolist(), strict=True):
+        out |= (x >= start) & (x < end)  # a line has a few tunnels: one pass each
+    return out

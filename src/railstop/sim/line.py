@@ -86,8 +86,9 @@ from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import make_door_link, run_dwell
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
+from railstop.sim.occupancy_chain import OccupancyChain
 from railstop.sim.scenario import station_gradient
-from railstop.streams import RunStreams, Stream
+from railstop.streams import RUN_LIMIT, RunStreams, Stream
 from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
@@ -101,6 +102,9 @@ ENTRY_MARGIN_M = 10.0
 ON_LINE = ("running", "stopping", "dwelling", "held")
 #: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
 RUNS_PER_TRAIN = 100
+#: The run of the random streams the line's wayside (its GNSS clocks) draws from: the last one,
+#: far from any train's.
+WAYSIDE_RUN = RUN_LIMIT - 1
 #: After a dwell's SPEC §5 fault the train stands this long (its emergency brake applied) before
 #: the staff have reset its ATC and the confirmation starts again ([interpretation], as the live
 #: plant's DWELL_FAULT_HOLD_S: SPEC §5 says nothing of the recovery).
@@ -254,9 +258,7 @@ class Train:
     sliding: bool = False  # braking beyond the adhesion: the WSP acts this step
     slides: int = 0  # slide events: slides that started
     last_slide_s: float = -np.inf  # the last step it slid
-    front_circuit: int = -1  # index of the circuit the front is in (-1: not on the line)
     x_onboard_m: float = 0.0  # where the train believes its front is (SPEC §2 positioning)
-    telegrams: list[tuple[float, int]] = field(default_factory=list)  # (occupancy time, circuit id)
     samples_t: list[float] = field(default_factory=list)
     samples_x: list[float] = field(default_factory=list)
     dwells_here: int = 0  # dwells begun at its current station (a dwell fault's retries)
@@ -453,8 +455,15 @@ class LineSimulation:
         self._place_patches()
         det = self.line.track.detection
         circuits = self.line.track.circuits
-        self.circuit_starts = np.array([c.start_m for c in circuits])
         self.circuit_sd = [det.boundary_sd_m(c.kind) for c in circuits]
+        # SPEC §2 S10-S30: every train's passage of the devices (its own boundaries and delays),
+        # one wayside (its GNSS clocks shared by every train), the radio and the onboard clocks.
+        self.chain = OccupancyChain(
+            self.line,
+            train_streams=self.train_streams,
+            wayside_streams=RunStreams.for_runs(self.seed, WAYSIDE_RUN, 1),
+            start_position_m=np.full(n, self.operation.entry_m),
+        )
         self.positioning = PositioningUnit(
             circuits=circuits,
             settings=veh.positioning,
@@ -497,11 +506,13 @@ class LineSimulation:
                 end = handover_m(self.first_detector_m[k], station.tasc.entry_speed_kmh * KMH) - 100.0 * u[1]
                 t.patches.append((end - 30.0 - 50.0 * u[2], end))
 
-    def _position_step(self, now_s: float, moved: list[float], accel: list[float]) -> None:
-        """Odometers, the wayside's occupancy telegrams when a front enters a circuit (detection
-        delay and electrical boundary drawn per train and circuit), the units' logs and fixes."""
-        det = self.line.track.detection
-        circuits = self.line.track.circuits
+    def _position_step(
+        self, now_s: float, dt: float, before: list[tuple[str, float, float]], accel: list[float]
+    ) -> None:
+        """Odometers, the SPEC §2 chain (the devices detect the fronts entering circuits, the
+        wayside stamps the occupancy in GNSS time, the telegram reaches the train a radio latency
+        later through the codec), the units' logs and fixes. ``before``: every train's (phase,
+        front, speed) at the step's start."""
         on_line = np.array([t.phase in ON_LINE for t in self.trains])
         sliding = np.array([t.sliding for t in self.trains]) & on_line
         creep = creep_factor(
@@ -510,44 +521,32 @@ class LineSimulation:
             slide_slip_ratio=self.vehicle.slide_slip_ratio,
             traction_slip_ratio=0.0,
         )
-        self.tacho.advance(np.where(on_line, np.asarray(moved), 0.0), creep)
-        for t in self.trains:
-            if not on_line[t.index]:
-                continue
-            k = int(np.searchsorted(self.circuit_starts, t.x_m, side="right")) - 1
-            while t.front_circuit < k:
-                t.front_circuit += 1
-                c = t.front_circuit
-                if c < 0:
-                    continue
-                st = self.train_streams.subset(np.array([t.index]))
-                boundary = circuits[c].start_m + self.circuit_sd[c] * float(
-                    st.normal(Stream.TC_BOUNDARY, c)[0]
-                )
-                delay = max(
-                    0.0, det.delay_mean_s + det.delay_spread_s * float(st.normal(Stream.TC_DELAY, c)[0])
-                )
-                speed = max(t.v_mps, 0.1)
-                entered = now_s - (t.x_m - boundary) / speed
-                t.telegrams.append((entered + delay, circuits[c].id))
-        n = len(self.trains)
+        x1 = np.array([t.x_m if t.phase in ON_LINE else -np.inf for t in self.trains])
+        # A train that entered in this step moved nothing yet; one not on the line enters nothing.
+        x0 = np.array(
+            [x if p in ON_LINE else xn for (p, x, _), xn in zip(before, x1, strict=True)], dtype=np.float64
+        )
+        moved = np.subtract(x1, x0, out=np.zeros(x1.size), where=on_line)
+        self.tacho.advance(moved, creep)
+        self.chain.advance(
+            t0_s=now_s - dt,
+            dt_s=dt,
+            x0_m=x0,
+            v0_mps=np.array([v for _, _, v in before]),
+            accel_mps2=np.asarray(accel),
+            x1_m=x1,
+        )
         self.positioning.log(
-            clock_time_s=np.full(n, now_s),
+            clock_time_s=self.chain.onboard_time_s(now_s),
             odometer_m=self.tacho.odometer_m(),
             speed_mps=self.tacho.speed_mps(np.array([t.v_mps for t in self.trains]), creep),
             wsp_active=sliding,
             # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
             accel_mps2=np.asarray(accel) + self.accel_bias,
         )
-        for t in self.trains:
-            due = [tg for tg in t.telegrams if tg[0] <= now_s]
-            if due:
-                t.telegrams = [tg for tg in t.telegrams if tg[0] > now_s]
-                self.positioning.handle(
-                    run=np.full(len(due), t.index),
-                    circuit_id=np.array([c for _, c in due]),
-                    gnss_time_s=np.array([g for g, _ in due]),
-                )
+        got = self.chain.arrivals(now_s)
+        if got.size:
+            self.positioning.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s)
         est = self.positioning.calibrated_m()
         for t in self.trains:
             t.x_onboard_m = float(est[t.index])
@@ -811,8 +810,7 @@ class LineSimulation:
     def plant(self, now_s: float, dt: float) -> list[Output]:
         entry_proceed = self.interlocking.aspects[self.entry_signal]
         entry_free = True  # CBTC: one train may still enter this step
-        before = [t.x_m for t in self.trains]
-        speed_before = [t.v_mps for t in self.trains]
+        before = [(t.phase, t.x_m, t.v_mps) for t in self.trains]
         for train in self.trains:
             train.sliding = False  # set by the running train's brakes below
             if train.phase == "waiting":
@@ -833,9 +831,7 @@ class LineSimulation:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
         self._position_step(
-            now_s,
-            [t.x_m - b for t, b in zip(self.trains, before, strict=True)],
-            [(t.v_mps - v) / dt for t, v in zip(self.trains, speed_before, strict=True)],
+            now_s, dt, before, [(t.v_mps - v) / dt for t, (_, _, v) in zip(self.trains, before, strict=True)]
         )
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):

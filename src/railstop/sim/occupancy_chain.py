@@ -142,6 +142,7 @@ class OccupancyChain:
             occupied = np.flatnonzero(c_starts <= start[r])
             self.stamper.occupy_initial(np.full(occupied.size, r), occupied)
         self._pending: list[tuple[IntArray, IntArray, FloatArray]] = []
+        self._wayside_due_s = 0.0  # simulated time the wayside clocks have not yet been advanced by
         self._in_flight: list[_InFlight] = []
         self.used_codec = False
 
@@ -165,7 +166,9 @@ class OccupancyChain:
         # SPEC §2 clocks: disciplined unless in a GNSS shadow without a repeater.
         onboard_disc = np.full(self.n, self.cfg.gnss) & ~in_shadow(x1_m, self._sh_start, self._sh_end)
         self.onboard_clock.advance(dt_s, onboard_disc[:, None])
-        self.wayside_clock.advance(dt_s, self._wayside_disc[None, :])
+        # The wayside clocks' state never changes (a unit stays where it is): they are advanced
+        # only when a unit stamps (``_declare``), by the time since, the same error.
+        self._wayside_due_s += dt_s
         # SPEC §2 S10: circuits entered; the device declares them after its delay.
         ev = self.detector.detect(x0_m=x0_m, v0_mps=v0_mps, accel_mps2=accel_mps2, x1_m=x1_m, t0_s=t0_s)
         if ev.size:
@@ -179,6 +182,9 @@ class OccupancyChain:
         for run, idx, t_occ in self._pending:
             due = t_occ <= t1
             if due.any():
+                if self._wayside_due_s > 0.0:
+                    clock.advance(self._wayside_due_s, self._wayside_disc[None, :])
+                    self._wayside_due_s = 0.0
                 r, c, tt = run[due], idx[due], t_occ[due]
                 w = self._row(r)
                 # The unit reads its own GNSS clock at the occupancy instant (error at the end of
