@@ -83,12 +83,12 @@ def _one_line_error(p: subprocess.CompletedProcess[str]) -> str:
         (
             ("--slides", "1000"),
             f"--slides: at most {STOPS} on this line: one slide patch per braking zone, "
-            f"and the line has {STOPS} stopping points (got 1000)",
+            f"and the line has {STOPS} stations to stop at (got 1000)",
         ),
         (
             ("--slips", "1000"),
             f"--slips: at most {STOPS} on this line: one slip patch per traction zone, "
-            f"and the line has {STOPS} departures (got 1000)",
+            f"and the line has {STOPS} stations to start from (got 1000)",
         ),
     ],
 )

@@ -142,7 +142,8 @@ def position_run(
         str | None,
         typer.Option(
             metavar="<int>",
-            help=f"Braking zones with a low-adhesion patch (slide), at most one per stopping point. "
+            help=f"Stations with a low-adhesion patch where the train brakes for them (slide), at "
+            f"most one per station. "
             f"{_default(_DEFAULTS.slides)}",
         ),
     ] = None,
@@ -150,7 +151,8 @@ def position_run(
         str | None,
         typer.Option(
             metavar="<int>",
-            help=f"Traction zones with a low-adhesion patch (slip), at most one per departure. "
+            help=f"Stations with a low-adhesion patch where the train starts from them (slip), at "
+            f"most one per station. "
             f"{_default(_DEFAULTS.slips)}",
         ),
     ] = None,
@@ -184,7 +186,8 @@ def position_run(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Drive one train over the whole line: raw, corrected (SPEC §2) and calibrated position errors."""
+    """One train over the whole line (a one-train line run): raw, corrected (SPEC §2) and calibrated
+    position errors."""
     typed = {
         "--seed": seed,
         "--run": run,
@@ -206,6 +209,7 @@ def position_run(
         ln = _load("--line", line, load_line)
         veh = _load("--vehicle", vehicle, load_vehicle)
         values: dict[str, Any] = {}
+        dist = None  # the station stops draw from the set given (default: the line's nominal)
         if disturbances is not None:
             dist = _load("--disturbances", disturbances, load_disturbances)
             values.update(disturbance_overrides(dist, ln, veh, seed=seed_n, run=run_n))
@@ -223,7 +227,12 @@ def position_run(
             learn=not no_learning,
             **values,
         )
-        result = run_position(ln, veh, settings)
+        result = run_position(
+            ln,
+            veh,
+            settings,
+            disturbances=dist,
+        )
         summary = result.summary()
         if plot is not None:
             from dataclasses import asdict
@@ -266,7 +275,8 @@ def position_run(
         f"max {s['corrected_max_abs_m']:.2f} m\n"
         f"  + learned calibration : p99 |error| {s['calibrated_p99_abs_m']:7.2f} m, max "
         f"{s['calibrated_max_abs_m']:.2f} m (learned scale error {s['learned_scale_error_pct']:+.3f} %, "
-        f"delay {s['learned_delay_s']:.3f} s)",
+        f"delay {s['learned_delay_s']:.3f} s); after the first stop p99 "
+        f"{s['calibrated_p99_abs_after_first_stop_m']} m",
         highlight=False,
         soft_wrap=True,
     )

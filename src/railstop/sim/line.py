@@ -86,7 +86,7 @@ from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import make_door_link, run_dwell
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
-from railstop.sim.occupancy_chain import OccupancyChain
+from railstop.sim.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.sim.scenario import station_gradient
 from railstop.streams import RUN_LIMIT, RunStreams, Stream
 from railstop.units import Unit
@@ -121,8 +121,52 @@ CARRIED_SCALE_SD = 2e-4
 CARRIED_DELAY_SD_S = 0.03
 #: Steps of sliding less than this apart are one slide event (the WSP releases and reapplies).
 SLIDE_GAP_S = 2.0
+#: A run ``until_gone`` looks whether every train has left the line this often (s).
+GONE_CHECK_S = 10.0
 #: How a train's onboard positioning starts: with the calibration of its earlier trips, or cold.
 CALIBRATIONS = ("carried", "cold")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PositionSettings:
+    """What a line run varies in its trains' SPEC §2 positioning, beyond the odometer error and
+    the slide chance of :class:`LineSettings` (``railstop position-run`` sets them; the defaults
+    are the line's own).
+
+    ``wheel_diameter_m``: the actual wheel (None: the vehicle's). ``slides`` / ``slips``: that many
+    stations per train get a low-adhesion patch where the ATO brakes for them (a slide) / where
+    it starts from them (a slip), chosen per train (None: ``slide_probability`` of the line
+    settings / ``slip_probability`` per station). ``low_mu``: the adhesion on a patch;
+    ``patch_length_m``: the range of the patches' lengths. ``chain``: GNSS time, repeaters, the
+    clocks' holdover and the radio's latency (``sim.occupancy_chain``). ``learn`` /
+    ``accelerometer``: the onboard learner and the accelerometer's bridge over slides (beyond
+    SPEC §2). ``record``: keep every train's true, raw, corrected and calibrated position every
+    step and every fix (for ``position-run``).
+    """
+
+    wheel_diameter_m: float | None = None
+    slides: int | None = None
+    slips: int | None = None
+    slip_probability: float = 0.0
+    low_mu: float = LOW_MU
+    patch_length_m: tuple[float, float] = (30.0, 80.0)
+    chain: ChainSettings = field(default_factory=ChainSettings)
+    learn: bool = True
+    accelerometer: bool = True
+    record: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.slip_probability <= 1.0:
+            raise SimulationError(f"slip_probability: a probability in [0, 1] (got {self.slip_probability})")
+        for name in ("slides", "slips"):
+            k = getattr(self, name)
+            if k is not None and k < 0:
+                raise SimulationError(f"{name}: at least 0 (got {k})")
+        if not 0.0 < self.low_mu <= 0.5:
+            raise SimulationError(f"low_mu: greater than 0 and at most 0.5 (got {self.low_mu})")
+        lo, hi = self.patch_length_m
+        if not 0.0 < lo <= hi <= 1000.0:
+            raise SimulationError(f"patch_length_m: 0 m < lo <= hi <= 1000 m (got {self.patch_length_m})")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -155,6 +199,7 @@ class LineSettings:
     zc_restarts: tuple[float, ...] = ()
     radio_medium: str = "cbtc-radio"
     radio_changes: Mapping[str, float] = field(default_factory=dict)
+    position: PositionSettings = field(default_factory=PositionSettings)
 
     def __post_init__(self) -> None:
         # Sequences given as lists are kept as tuples (the settings are a value).
@@ -203,6 +248,8 @@ class LineSettings:
             "zc_restarts": list(self.zc_restarts),
             "radio_medium": self.radio_medium,
             "radio_changes": dict(self.radio_changes),
+            # Only when changed: a campaign's identity stays that of the line's own positioning.
+            **({} if self.position == PositionSettings() else {"position": repr(self.position)}),
         }
 
 
@@ -254,8 +301,14 @@ class Train:
     play_v: Any = None
     play_slide: Any = None  # 1 where the wheels slid in the stop's trajectory (the WSP acting)
     load_factor: float = 0.5
-    patches: list[tuple[float, float]] = field(default_factory=list)  # low adhesion (start, end)
+    # Low adhesion: (start, end, zone); zone k < S: where the ATO brakes for station k, S + k:
+    # where it starts from station k (S stations).
+    patches: list[tuple[float, float, int]] = field(default_factory=list)
     sliding: bool = False  # braking beyond the adhesion: the WSP acts this step
+    slipping: bool = False  # traction beyond the adhesion: the anti-slip control acts this step
+    slide_m: float = 0.0  # true distance run while sliding / slipping
+    slip_m: float = 0.0
+    trace: list[tuple[float, float, float, float, float, float]] = field(default_factory=list)
     slides: int = 0  # slide events: slides that started
     last_slide_s: float = -np.inf  # the last step it slid
     x_onboard_m: float = 0.0  # where the train believes its front is (SPEC §2 positioning)
@@ -443,7 +496,8 @@ class LineSimulation:
         else:
             err = np.full(n, odometer_error_pct / 100.0)
         # SPEC §2 tachometer: whole pulses of the wheel, read with the assumed diameter.
-        actual = np.full(n, veh.wheel_diameter_m)
+        pos = self.settings.position
+        actual = np.full(n, veh.wheel_diameter_m if pos.wheel_diameter_m is None else pos.wheel_diameter_m)
         self.tacho = Tachometer.create(
             actual_diameter_m=actual,
             assumed_diameter_m=actual * (1.0 + err),
@@ -463,10 +517,11 @@ class LineSimulation:
             train_streams=self.train_streams,
             wayside_streams=RunStreams.for_runs(self.seed, WAYSIDE_RUN, 1),
             start_position_m=np.full(n, self.operation.entry_m),
+            settings=pos.chain,
         )
         self.positioning = PositioningUnit(
             circuits=circuits,
-            settings=veh.positioning,
+            settings=veh.positioning.model_copy(update={"learn": veh.positioning.learn and pos.learn}),
             n=n,
             cycle_s=self.clock.step_s,
             # The train's belief as it enters: the entry, off by what it knows of it.
@@ -490,21 +545,47 @@ class LineSimulation:
                 scale=scale, scale_sd=CARRIED_SCALE_SD, delay_s=delay, delay_sd_s=CARRIED_DELAY_SD_S
             )
         self.position_errors: list[float] = []
+        self.fixes: list[FixRecord] = []
 
     def _place_patches(self) -> None:
-        """Low-adhesion patches (wet leaves, ``LOW_MU``) where the ATO brakes for a station: with
-        ``slide_probability`` per train and station, one 30-80 m patch ending 0-100 m before the
-        hand-over point (the ATO's braking down to the TASC entry speed), drawn per train."""
-        if self.settings.slide_probability <= 0.0:
-            return
+        """Low-adhesion patches (wet leaves, ``low_mu``), drawn per train (``Stream.ADHESION``,
+        counters 3z .. 3z + 2 for zone z): where the ATO brakes for station k (zone k: a patch
+        ending 0-100 m before the hand-over point, the ATO's braking down to the TASC entry speed;
+        the stop itself has its own adhesion draw) and where it starts from station k (zone S + k:
+        a patch starting 5-125 m past the stopping point). A zone gets one with the settings'
+        chance, or the ``slides`` / ``slips`` zones of lowest draw get one each."""
+        pos = self.settings.position
+        stations = self.line.stations
+        s_count = len(stations)
+        lo, hi = pos.patch_length_m
+        for name, count in (("slides", pos.slides), ("slips", pos.slips)):
+            if count is not None and count > s_count:
+                raise SimulationError(
+                    f"{name}: at most {s_count} on this line, one per station (got {count})"
+                )
         for t in self.trains:
             st = self.train_streams.subset(np.array([t.index]))
-            for k, station in enumerate(self.line.stations):
-                u = [float(st.uniform(Stream.ADHESION, 3 * k + j)[0]) for j in range(3)]
-                if u[0] >= self.settings.slide_probability:
-                    continue
-                end = handover_m(self.first_detector_m[k], station.tasc.entry_speed_kmh * KMH) - 100.0 * u[1]
-                t.patches.append((end - 30.0 - 50.0 * u[2], end))
+            u = [
+                [float(st.uniform(Stream.ADHESION, 3 * z + j)[0]) for j in range(3)]
+                for z in range(2 * s_count)
+            ]
+            for zones, count, prob in (
+                (range(s_count), pos.slides, self.settings.slide_probability),
+                (range(s_count, 2 * s_count), pos.slips, pos.slip_probability),
+            ):
+                if count is None:
+                    chosen = [z for z in zones if u[z][0] < prob]
+                else:
+                    chosen = sorted(zones, key=lambda z: u[z][0])[:count]
+                for z in sorted(chosen):
+                    length = lo + (hi - lo) * u[z][2]
+                    if z < s_count:
+                        entry = stations[z].tasc.entry_speed_kmh * KMH
+                        end = handover_m(self.first_detector_m[z], entry) - 100.0 * u[z][1]
+                        t.patches.append((end - length, end, z))
+                    else:
+                        start = stations[z - s_count].stop_point_m + 5.0 + 120.0 * u[z][1]
+                        t.patches.append((start, start + length, z))
 
     def _position_step(
         self, now_s: float, dt: float, before: list[tuple[str, float, float]], accel: list[float]
@@ -513,13 +594,15 @@ class LineSimulation:
         wayside stamps the occupancy in GNSS time, the telegram reaches the train a radio latency
         later through the codec), the units' logs and fixes. ``before``: every train's (phase,
         front, speed) at the step's start."""
+        pos = self.settings.position
         on_line = np.array([t.phase in ON_LINE for t in self.trains])
         sliding = np.array([t.sliding for t in self.trains]) & on_line
+        slipping = np.array([t.slipping for t in self.trains]) & on_line
         creep = creep_factor(
             sliding,
-            np.zeros_like(sliding),
+            slipping,
             slide_slip_ratio=self.vehicle.slide_slip_ratio,
-            traction_slip_ratio=0.0,
+            traction_slip_ratio=self.traction.slip_ratio,
         )
         x1 = np.array([t.x_m if t.phase in ON_LINE else -np.inf for t in self.trains])
         # A train that entered in this step moved nothing yet; one not on the line enters nothing.
@@ -528,30 +611,48 @@ class LineSimulation:
         )
         moved = np.subtract(x1, x0, out=np.zeros(x1.size), where=on_line)
         self.tacho.advance(moved, creep)
+        for t in self.trains:
+            t.slide_m += float(moved[t.index]) if t.sliding else 0.0
+            t.slip_m += float(moved[t.index]) if t.slipping else 0.0
+        v0 = np.array([v for _, _, v in before])
         self.chain.advance(
             t0_s=now_s - dt,
             dt_s=dt,
             x0_m=x0,
-            v0_mps=np.array([v for _, _, v in before]),
-            accel_mps2=np.asarray(accel),
+            v0_mps=v0,
+            # The uniform acceleration that carries the front from x0 at v0 to x1 in the step: the
+            # ATO's own step, and for a stop played back from its trajectory the motion that
+            # meets both ends (the devices see the front cross where it is).
+            accel_mps2=np.where(on_line, 2.0 * (moved - v0 * dt) / (dt * dt), 0.0),
             x1_m=x1,
         )
         self.positioning.log(
             clock_time_s=self.chain.onboard_time_s(now_s),
             odometer_m=self.tacho.odometer_m(),
             speed_mps=self.tacho.speed_mps(np.array([t.v_mps for t in self.trains]), creep),
-            wsp_active=sliding,
+            wsp_active=sliding | slipping,
             # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
-            accel_mps2=np.asarray(accel) + self.accel_bias,
+            # It belongs to the calibration: without the learner the calibrated position is the
+            # document's (no bridge either).
+            accel_mps2=np.asarray(accel) + self.accel_bias if pos.accelerometer and pos.learn else None,
         )
         got = self.chain.arrivals(now_s)
         if got.size:
-            self.positioning.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s)
+            rep = self.positioning.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s)
+            if pos.record:
+                self.fixes += fix_records(rep, got, self.positioning, now_s)
         est = self.positioning.calibrated_m()
         for t in self.trains:
             t.x_onboard_m = float(est[t.index])
             if t.phase in ON_LINE:
                 self.position_errors.append(t.x_onboard_m - t.x_m)
+        if pos.record:
+            raw = self.operation.entry_m + self.tacho.odometer_m()
+            cor = self.positioning.corrected_m()
+            for t in self.trains:
+                if t.phase in ON_LINE:
+                    i = t.index
+                    t.trace.append((now_s, t.x_m, t.v_mps, float(raw[i]), float(cor[i]), float(est[i])))
 
     # ------------------------------------------------------------------ the plant
 
@@ -615,14 +716,19 @@ class LineSimulation:
         v = train.v_mps
         resist = (veh.davis_a_n + veh.davis_b_n_per_mps * v + veh.davis_c_n_per_mps2 * v * v) / mass
         a = demand_mps2(v, ceiling, self._traction_mps2(v, mass), self.brake_mps2)
-        if a > 0.0:
-            a -= resist  # traction works against the resistance; braking is the ECU's total
-        if self.cbtc is not None and self.cbtc.emergency_brake(train.index):
-            a = -self.vehicle.brake.emergency_decel_mps2  # SPEC §4: the onboard unit's emergency brake
         # On a low-adhesion patch the wheels slide when the braking asks more than the adhesion
         # gives; the wheel-slide protection holds the deceleration at it (and the wheel short).
-        mu = LOW_MU if any(s0 <= train.x_m < s1 for s0, s1 in train.patches) else veh.adhesion_mu
+        # The same under traction: the wheels slip, the anti-slip control holds the traction at
+        # the adhesion (and the wheel turns ahead of the train).
+        low = any(s0 <= train.x_m < s1 for s0, s1, _ in train.patches)
+        mu = self.settings.position.low_mu if low else veh.adhesion_mu
         limit = adhesion_limit_1(mu, self._static_mass_kg(train), mass)
+        train.slipping = a > limit
+        if a > 0.0:
+            a = min(a, limit) - resist  # traction works against the resistance; braking is the ECU's total
+        if self.cbtc is not None and self.cbtc.emergency_brake(train.index):
+            a = -self.vehicle.brake.emergency_decel_mps2  # SPEC §4: the onboard unit's emergency brake
+            train.slipping = False
         sliding = a < -limit and v > 0.0
         if sliding:
             a = -limit
@@ -812,7 +918,7 @@ class LineSimulation:
         entry_free = True  # CBTC: one train may still enter this step
         before = [(t.phase, t.x_m, t.v_mps) for t in self.trains]
         for train in self.trains:
-            train.sliding = False  # set by the running train's brakes below
+            train.sliding = train.slipping = False  # set by the running train's brakes below
             if train.phase == "waiting":
                 if self.cbtc is not None:
                     entry_free = self._cbtc_entry(train, now_s, entry_free)
@@ -925,10 +1031,17 @@ class LineSimulation:
 
     # ------------------------------------------------------------------ the run
 
-    def run(self, duration_s: float) -> LineResult:
+    def run(self, duration_s: float, *, until_gone: bool = False) -> LineResult:
+        """Run the line for ``duration_s``; with ``until_gone``, stop at the first whole
+        ``GONE_CHECK_S`` after every train has left the line (``duration_s`` is then the end)."""
         t0 = time.perf_counter()
         self.clock.deliver(self._occupancy())
-        self.clock.run(duration_s, self.plant)
+        if until_gone:
+            while self.clock.now_s < duration_s - 1e-9 and any(t.phase != "gone" for t in self.trains):
+                self.clock.run(min(self.clock.now_s + GONE_CHECK_S, duration_s), self.plant)
+            duration_s = self.clock.now_s
+        else:
+            self.clock.run(duration_s, self.plant)
         if self.cbtc is not None:
             self.cbtc.finish(self.clock.now_s)
         wall = time.perf_counter() - t0

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from railstop.config.schema import Line
 from railstop.errors import SimulationError
 from railstop.link.codec import TrackCircuitOccupancy, decode, encode
+from railstop.onboard.positioning import FixOutcome, FixReport, PositioningUnit
 from railstop.sensors.gnss_clock import GnssClock, in_shadow
 from railstop.sensors.track_circuit import TrackCircuitDetector
 from railstop.streams import RunStreams
@@ -259,3 +260,47 @@ def _codec_round_trip(telegrams: OccupancyTelegrams) -> OccupancyTelegrams:
         ids[j] = msg.circuit_id
         times[j] = msg.gnss_time_s
     return OccupancyTelegrams(run=telegrams.run.copy(), circuit_id=ids, gnss_time_s=times)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FixRecord:
+    """One telegram a train received (SPEC §2 S30/S40) and what its positioning unit did with it."""
+
+    run: int  # the train (the row of the arrays)
+    t_s: float  # true time it was handled
+    circuit_id: int
+    circuit_start_m: float
+    gnss_time_s: float
+    outcome: str
+    corrected_jump_m: float
+    calibrated_jump_m: float
+    learned: bool
+    gated: bool
+    scale_estimate: float
+    delay_estimate_s: float
+    clock_offset_s: float  # wayside clock error at the occupancy - onboard clock error at the fix
+
+
+def fix_records(rep: FixReport, got: Arrivals, unit: PositioningUnit, t_s: float) -> list[FixRecord]:
+    """The records of the telegrams ``got`` that ``unit`` handled (its report ``rep``) at ``t_s``."""
+    out = []
+    for j in range(rep.run.size):
+        r = int(rep.run[j])
+        out.append(
+            FixRecord(
+                run=r,
+                t_s=t_s,
+                circuit_id=int(rep.circuit_id[j]),
+                circuit_start_m=float(rep.circuit_start_m[j]),
+                gnss_time_s=float(got.gnss_time_s[j]),
+                outcome=FixOutcome(int(rep.outcome[j])).name.lower(),
+                corrected_jump_m=float(rep.corrected_jump_m[j]),
+                calibrated_jump_m=float(rep.calibrated_jump_m[j]),
+                learned=bool(rep.learned[j]),
+                gated=bool(rep.gated[j]),
+                scale_estimate=float(unit.scale_estimate[r]),
+                delay_estimate_s=float(unit.delay_estimate_s[r]),
+                clock_offset_s=float(got.clock_offset_s[j]),
+            )
+        )
+    return out
