@@ -25,7 +25,7 @@ from railstop.control.line_ato import (
 from railstop.errors import InterlockError, SimulationError
 from railstop.messages import BROADCAST, CircuitOccupancy, Message, Output, SignalAspects
 from railstop.sim.clock import SimClock
-from railstop.sim.line import LineSimulation
+from railstop.sim.line import LineSimulation, PositionSettings
 from railstop.wayside.interlocking import FixedBlockInterlocking
 
 LINE = default_line()
@@ -281,6 +281,43 @@ def test_slides_inside_the_station_stops_reach_the_odometer(tmp_path: Path) -> N
     assert dry.run(900.0).summary()["slide_events"] == 0
 
 
+def test_slips_after_departures_push_the_odometer_ahead_and_are_bridged() -> None:
+    """A low-adhesion patch past every stopping point: starting from the station the traction
+    asks more than the adhesion gives, the wheels slip (the anti-slip control holds the traction
+    at the adhesion) and turn ahead of the train, so the odometer over-reads with an exact wheel;
+    the positioning bridges each slip with its accelerometer. A slip from standstill lasts long
+    (some 20 s over an 80 m patch at the adhesion's 0.3 m/s²), so the bridge's bias tells
+    (0.02 m/s² sd x 20² s² / 2 = 4 m): it keeps the onboard position within 2 m (p99), half of
+    what the odometer alone leaves."""
+    op = Operation(trains=1)
+
+    def run(accelerometer: bool) -> tuple[LineSimulation, dict[str, object]]:
+        sim = LineSimulation(
+            line=LINE,
+            vehicle=VEHICLE,
+            operation=op,
+            odometer_error_pct=0.0,
+            position=PositionSettings(slides=0, slips=len(LINE.stations), accelerometer=accelerometer),
+        )
+        return sim, sim.run(900.0).summary()
+
+    sim, s = run(True)
+    train = sim.trains[0]
+    assert train.phase == "gone" and s["slide_events"] == 0
+    # Each patch is 30-80 m; the train slips over most of the first three (the last station's
+    # patch too: it starts from it).
+    assert train.slip_m > 90.0
+    # The wheel turned ahead: the odometer reads more than the train ran (5 % creep at least).
+    run_m = train.x_m - op.entry_m
+    assert float(sim.tacho.odometer_m()[0]) > run_m + 0.05 * 0.5 * train.slip_m
+    bridged, alone = s["position_error_p99_m"], run(False)[1]["position_error_p99_m"]
+    assert isinstance(bridged, float) and isinstance(alone, float)
+    assert bridged < 2.0 and bridged < 0.5 * alone
+    dry = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, odometer_error_pct=0.0)
+    dry.run(900.0)
+    assert dry.trains[0].slip_m == 0.0
+
+
 def test_carried_calibration_beats_a_cold_start() -> None:
     """A train that enters with the scale and delay of its earlier trips is within a metre from
     the start; a cold one (the learner's 5 % prior) is metres off until it has learned."""
@@ -300,11 +337,27 @@ def test_carried_calibration_beats_a_cold_start() -> None:
         ({"slide_probability": 1.5}, "slide_probability"),
         ({"slide_probability": -0.1}, "slide_probability"),
         ({"calibration": "warm"}, "calibration"),
+        ({"position": PositionSettings(slides=len(LINE.stations) + 1)}, "slides: at most 4 on this line"),
+        ({"position": PositionSettings(slips=len(LINE.stations) + 1)}, "slips: at most 4 on this line"),
     ],
 )
 def test_bad_line_settings_are_refused(kwargs: dict[str, object], field: str) -> None:
     with pytest.raises(SimulationError, match=field):
         LineSimulation(line=LINE, vehicle=VEHICLE, operation=Operation(trains=1), **kwargs)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"low_mu": 0.0}, "low_mu"),
+        ({"slip_probability": 1.5}, "slip_probability"),
+        ({"slides": -1}, "slides"),
+        ({"patch_length_m": (80.0, 30.0)}, "patch_length_m"),
+    ],
+)
+def test_bad_position_settings_are_refused(kwargs: dict[str, object], field: str) -> None:
+    with pytest.raises(SimulationError, match=field):
+        PositionSettings(**kwargs)  # type: ignore[arg-type]
 
 
 def test_a_dwell_fault_holds_the_train_until_the_staff_recover_it() -> None:

@@ -80,6 +80,10 @@ class Controls(NamedTuple):
     wcc_manual: bool = False  # the WCC switched the WPCS to manual
     panel_open: bool = False  # the PSD panel's buttons (used only with wcc_manual)
     panel_close: bool = False
+    # The train as the platform last received it over the door link (its door-command frame:
+    # signals, mode, which doors are closed and locked); None: the train's own of this cycle, an
+    # ideal link (the verifier's wiring).
+    platform_view: TrainReport | None = None
 
 
 class EventKind(StrEnum):
@@ -255,7 +259,22 @@ def scan_units(
     confirmed = psc(world)
     w_state = world.wpcs
     side = w_state.side
-    if confirmed:
+    if confirmed and controls.platform_view is not None:
+        # SPEC §5 over the link: the WPCS acts on the train's last door-command frame.
+        try:
+            w_state = wpcs.scan(
+                w_state,
+                controls.platform_view,
+                wcc_manual=controls.wcc_manual,
+                panel_open=controls.panel_open,
+                panel_close=controls.panel_close,
+                actions=model.actions,
+                interlocks=model.interlocks,
+                doors=model.doors,
+            )
+        except InterlockError as exc:
+            w_state, error = wpcs.safe(w_state), str(exc)
+    elif confirmed:
         s = controls.signals
         if controls.wcc_manual:
             w_key: object = (

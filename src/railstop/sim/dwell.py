@@ -23,7 +23,12 @@ start enable). So:
   ([interpretation], see ``onboard/stop_confirm.py``);
 * start enable is given when a status frame reports the PSD closed and locked
   after the train's own doors are (SPEC §5 fig. 7: the PSD state reaches the
-  train over the link, and counts only while PSC is high).
+  train over the link, and counts only while PSC is high);
+* the WPCS acts on the train's last ``door-command`` frame (its door signals,
+  its mode, which of its doors are closed and locked), scanning as each one
+  arrives: the PSD opens and closes on what the link carried, a lost frame
+  delays it, and before the first frame the platform knows no door signal and
+  no door locked (the most restrictive view).
 
 Nothing here reads a clock: time is a number the driver advances from one
 scheduled event to the next, and the result is a timeline of
@@ -47,11 +52,12 @@ from railstop.control.doors import (
     Side,
     all_open,
     summarise,
+    units_from_link,
 )
 from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.codec import DoorCommand, PsdStatus
-from railstop.link.door_link import DoorLink, DoorLinkCounts, door_command, psd_status
+from railstop.link.door_link import DoorLink, DoorLinkCounts, command_signals, door_command, psd_status
 from railstop.onboard.stop_confirm import StopPhase
 from railstop.sim.door_system import (
     Controls,
@@ -66,7 +72,7 @@ from railstop.sim.door_system import (
     step,
 )
 from railstop.streams import Stream, seed_u64
-from railstop.wayside.wpcs import answers_psc
+from railstop.wayside.wpcs import TrainReport, answers_psc
 
 MODES = ("auto", "manual")
 _MAX_CYCLES = 100_000
@@ -295,7 +301,17 @@ class _Dwell:
         self.psd_fail = psd_fail
         self.error_m = stop_error_m
         self.world = World.arriving(platform_side=side, doors_per_side=doors.doors_per_side)
-        self.controls = Controls(signals=DoorSignals(), manual=manual)
+        # The platform knows the train only from its door-command frames: nothing yet (no door
+        # signal, no door known locked: the most restrictive view).
+        self.controls = Controls(
+            signals=DoorSignals(),
+            manual=manual,
+            platform_view=TrainReport(
+                signals=DoorSignals(),
+                manual=manual,
+                doors=units_from_link(doors.doors_per_side, locked_mask=0),
+            ),
+        )
         self.t_s = 0.0
         self.end_s = 0.0
         self.queue: list[_Pending] = []
@@ -482,6 +498,15 @@ class _Dwell:
         self._expect_arrival()
 
     def _platform_receives(self, cmd: DoorCommand) -> None:
+        # SPEC §5: what the WPCS knows of the train is this frame; it scans on it at once.
+        view = TrainReport(
+            signals=command_signals(cmd),
+            manual=not cmd.automatic,
+            doors=units_from_link(self.cfg.doors_per_side, locked_mask=cmd.doors_locked),
+        )
+        if view != self.controls.platform_view:
+            self.controls = self.controls._replace(platform_view=view)
+            self._cycle()
         if not cmd.psc:
             self.platform_psc = False
             return

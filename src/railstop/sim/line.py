@@ -34,19 +34,24 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
 
 - **the onboard position** of every train (SPEC §2, ``onboard.positioning``):
   its odometer (the assumed wheel diameter, so off by the drawn diameter
-  error), corrected at every track circuit it enters from the wayside's
-  occupancy telegram (the detection delay and the electrical boundary drawn
-  per circuit, GNSS time), with the learned scale; the train's ATO brakes for
-  the signals and limits by that position, and its error against the truth
-  is sampled every step. The station stop is taken over where the train
-  physically is (the wayside's detectors see it).
+  error; slides and slips on low-adhesion patches), corrected at every track
+  circuit it enters from the wayside's occupancy telegram
+  (``sim.occupancy_chain``: the detection delay and the electrical boundary
+  drawn per train and circuit, the wayside's GNSS clocks shared by every
+  train and free-running in a tunnel without a repeater, the radio's latency,
+  the codec), with the learned scale; the train's ATO brakes for the signals
+  and limits by that position, and its error against the truth is sampled
+  every step. The station stop is taken over where the train physically is
+  (the wayside's detectors see it). ``railstop position-run`` is this line
+  with one train, its positioning recorded (``PositionSettings.record``).
 
 The slides of a station stop (the stop model's trajectory records where its
 wheels slid) reach the train's odometer and its positioning unit's WSP input
 as the line's own slides do.
 
-Not yet: the wayside's occupancy telegrams and signal aspects reach the
-trains as values (no medium between them).
+The track circuits' reports reach the interlocking, and its aspects the trains, as messages
+with no medium between them [interpretation]: they stand for wired circuits and lineside
+signals, not for a radio.
 """
 
 from __future__ import annotations
