@@ -259,39 +259,23 @@ def scan_units(
     confirmed = psc(world)
     w_state = world.wpcs
     side = w_state.side
-    if confirmed and controls.platform_view is not None:
-        # SPEC §5 over the link: the WPCS acts on the train's last door-command frame.
-        try:
-            w_state = wpcs.scan(
-                w_state,
-                controls.platform_view,
-                wcc_manual=controls.wcc_manual,
-                panel_open=controls.panel_open,
-                panel_close=controls.panel_close,
-                actions=model.actions,
-                interlocks=model.interlocks,
-                doors=model.doors,
-            )
-        except InterlockError as exc:
-            w_state, error = wpcs.safe(w_state), str(exc)
-    elif confirmed:
-        s = controls.signals
-        if controls.wcc_manual:
-            w_key: object = (
-                "wpcs",
-                s.doa(side),
-                s.dmc(side),
-                controls.panel_open,
-                controls.panel_close,
-                True,
-            )
-        else:
-            w_key = ("wpcs", s.doa(side), s.dmc(side), s.doc, s.dcc, controls.manual)
-        cached = None if memo is None else memo.get(w_key)
+    if confirmed:
+        view = controls.platform_view
+        w_key: object | None = None
+        if view is None:  # the verifier's ideal link: the scan depends on these inputs only
+            s = controls.signals
+            if controls.wcc_manual:
+                w_key = ("wpcs", s.doa(side), s.dmc(side), controls.panel_open, controls.panel_close, True)
+            else:
+                w_key = ("wpcs", s.doa(side), s.dmc(side), s.doc, s.dcc, controls.manual)
+        cached = None if memo is None or w_key is None else memo.get(w_key)
         if cached is not None:
             w_state, error = cached  # type: ignore[misc]
         else:
-            train = TrainReport(signals=s, manual=controls.manual, doors=world.cpcs.side(side))
+            # SPEC §5 over the link: the WPCS acts on the train's last door-command frame; without
+            # one, on the train's own signals of this cycle.
+            own = world.cpcs.side(side)
+            train = view if view is not None else TrainReport(controls.signals, controls.manual, own)
             try:
                 w_state = wpcs.scan(
                     w_state,
@@ -305,7 +289,7 @@ def scan_units(
                 )
             except InterlockError as exc:
                 w_state, error = wpcs.safe(w_state), str(exc)
-            if memo is not None:
+            if memo is not None and w_key is not None:
                 memo[w_key] = (w_state, error)
     c_key = ("cpcs", controls.signals, controls.manual, w_state)
     cached = None if memo is None else memo.get(c_key)
