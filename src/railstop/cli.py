@@ -1083,6 +1083,45 @@ def report(
     out.print(f"report: {path}", highlight=False)
 
 
+@app.command()
+def hazards(
+    markdown: Annotated[
+        Path | None,
+        typer.Option("--markdown", help="Write the whole log as Markdown to this file (docs/safety/...)."),
+    ] = None,
+    directory: Annotated[
+        Path | None,
+        typer.Option("--dir", help="A folder of hazard TOML files to check (default: the embedded log)."),
+    ] = None,
+) -> None:
+    """The hazard log: every hazard, its safety rule, the unit that enforces it and its tests."""
+    from rich.table import Table
+
+    from railstop.config.hazards import load_hazard_log
+    from railstop.report.hazard_log import render_markdown
+
+    try:
+        entries = load_hazard_log(directory)
+    except RailstopError as exc:
+        fail(str(exc))
+    if markdown is not None:
+        text = render_markdown(entries)
+        try:
+            markdown.parent.mkdir(parents=True, exist_ok=True)
+            markdown.write_text(text + "\n", encoding="utf-8")
+        except OSError as exc:
+            fail(f"--markdown: {exc.filename or markdown}: {exc.strerror}")
+        out.print(f"hazard log: {len(entries)} hazards written to {markdown}", highlight=False)
+        return
+    table = Table(title=f"Hazard log ({len(entries)} hazards)", show_lines=False)
+    for col in ("id", "hazard", "safe state", "unit", "tests"):
+        table.add_column(col, overflow="fold")
+    for e in entries:
+        h = e.hazard
+        table.add_row(h.id, h.title, h.safe_state, h.unit.removeprefix("railstop."), str(len(h.tests)))
+    out.print(table)
+
+
 def main() -> None:
     run_program(app)
 
