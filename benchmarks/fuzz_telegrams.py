@@ -1,6 +1,18 @@
-"""Fuzz the codec's ``decode`` and the safety layer's ``SafeReceiver.accept``.
+"""Fuzz the codec's ``decode``, the safety layer's ``SafeReceiver.accept`` and ``SafePeers.accept``,
+and a live UDP endpoint.
 
-    python benchmarks/fuzz_telegrams.py [--inputs 1000000] [--seed S]
+    python benchmarks/fuzz_telegrams.py [--inputs 1000000] [--peers 200000] [--udp 20000] [--seed S]
+
+``--peers N``: N inputs to ``SafePeers.accept`` of a zone controller (its
+live predicate: itself and 4096 train ids): random bytes, frames with forged
+headers (any source, its own id among them, any destination, sequence number,
+timestamp and length, a MAC made without the key), bit flips and replays of
+genuine frames, and genuine frames. Failures: any exception, a delivery that
+is not a genuine new frame, receiver state for anyone but the genuine peer,
+counters that do not add up. ``--udp N``: N datagrams (random and forged, a
+genuine frame every 100th) over loopback into a UDP endpoint read as a live
+process reads it (``take`` then ``SafePeers.accept``); it prints the
+endpoint's and the safety layer's counters.
 
 Feeds ``--inputs`` inputs to ``decode`` and as many to ``accept`` (half to a
 category 1 receiver, half to a category 3 one): random lengths and bytes,
@@ -24,7 +36,10 @@ Inputs come from ``numpy.random.default_rng(seed)``, drawn in batches.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import collections
+import socket
+import struct
 import sys
 import time
 import traceback
@@ -34,7 +49,11 @@ import numpy as np
 
 from railstop.errors import TelegramError
 from railstop.link.codec import LAYOUTS, Layout, crc16, decode, encode
-from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+from railstop.link.safety import Delivered, SafePeers, SafeReceiver, SafeSender, link_key
+from railstop.link.udp import open_endpoint
+
+PEERS_KEY = b"fuzz master key of 32 bytes, v2."
+ZC, TRAIN = 0x0300, 0x2001  # the zone controller and a train radio, as in the live CBTC line
 
 BATCH = 20_000
 MAX_AGE_S = 0.5
@@ -264,6 +283,105 @@ def fuzz_accept(
     return outcomes
 
 
+def _zc_peers() -> SafePeers:
+    return SafePeers(ZC, PEERS_KEY, max_age_s=MAX_AGE_S, peers=lambda p: p == ZC or 0x2000 <= p < 0x3000)
+
+
+def _hostile(rng: np.random.Generator, k: int, recent: collections.deque[bytes]) -> bytes:
+    """One hostile input of kind ``k`` (0 random bytes, 1 forged header, 2 bit flips, 3 replay)."""
+    if k == 0:
+        return rng.bytes(int(rng.integers(0, 61)))
+    if k == 1:
+        src = int(rng.choice([ZC, TRAIN, int(rng.integers(0x2000, 0x3000)), int(rng.integers(0, 1 << 16))]))
+        dst = int(rng.choice([ZC, int(rng.integers(0, 1 << 16))]))
+        n = int(rng.integers(0, 20))
+        length = n if rng.random() < 0.8 else int(rng.integers(0, 256))
+        head = struct.pack(
+            ">BHHIIB", int(rng.choice([0x13, int(rng.integers(0, 256))])), src, dst,
+            int(rng.integers(0, 1 << 32)), int(rng.integers(0, 1 << 32)), length,
+        )  # fmt: skip
+        return head + rng.bytes(n) + rng.bytes(8)
+    base = recent[int(rng.integers(0, len(recent)))]
+    if k == 2:
+        buf = bytearray(base)
+        for _ in range(int(rng.integers(1, 4))):
+            p = int(rng.integers(0, 8 * len(buf)))
+            buf[p // 8] ^= 1 << (p % 8)
+        return bytes(buf)
+    return base
+
+
+def fuzz_peers(n: int, rng: np.random.Generator, failures: Failures) -> collections.Counter[str]:
+    links = _zc_peers()
+    train = SafePeers(TRAIN, PEERS_KEY, max_age_s=MAX_AGE_S, peers=lambda p: p == ZC)
+    recent: collections.deque[bytes] = collections.deque(maxlen=64)
+    genuine: set[bytes] = set()
+    last_seq = 0
+    now_ms = 0
+    outcomes: collections.Counter[str] = collections.Counter()
+    for i in range(n):
+        now_ms += int(rng.integers(0, 10))
+        k = int(rng.integers(0, 5))
+        if k == 4 or not recent:
+            data = train.wrap(i.to_bytes(4, "big"), ZC, now_ms / 1000)
+            genuine.add(data[14:18])
+            recent.append(data)
+        else:
+            data = _hostile(rng, k, recent)
+        try:
+            got = links.accept(data, now_ms / 1000)
+        except Exception as exc:
+            failures.record("SafePeers.accept raised", data, exc)
+            continue
+        if got is None:
+            continue
+        outcomes["delivered"] += 1
+        if got[0] != TRAIN or got[1].payload not in genuine or got[1].seq <= last_seq:
+            failures.record("SafePeers delivered a frame that is not genuine or not new", data)
+        last_seq = got[1].seq
+    outcomes.update(links.rejected)
+    if sum(outcomes.values()) != n or links.delivered != outcomes["delivered"]:
+        failures.record("SafePeers counters do not add up", b"")
+    if links.peers_held > 1:
+        failures.record(f"SafePeers holds {links.peers_held} receivers (1 genuine peer)", b"")
+    outcomes["_held"] = links.peers_held
+    return outcomes
+
+
+async def _fuzz_udp(n: int, rng: np.random.Generator, failures: Failures) -> dict[str, object]:
+    links = _zc_peers()
+    train = SafePeers(TRAIN, PEERS_KEY, max_age_s=5.0, peers=lambda p: p == ZC)
+    recent: collections.deque[bytes] = collections.deque([train.wrap(b"first", ZC, 0.0)], maxlen=64)
+    genuine_sent = 0
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    async with await open_endpoint(("127.0.0.1", 0), queue_frames=4096) as ep:
+
+        def drain() -> None:
+            while (got := ep.take()) is not None:
+                try:
+                    links.accept(got[0], loop.time() - t0)
+                except Exception as exc:
+                    failures.record("SafePeers.accept (UDP) raised", got[0], exc)
+
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i in range(n):
+                if i % 100 == 0:
+                    data = train.wrap(i.to_bytes(4, "big"), ZC, loop.time() - t0)
+                    recent.append(data)
+                    genuine_sent += 1
+                else:
+                    data = _hostile(rng, int(rng.integers(0, 4)), recent)
+                tx.sendto(data, ep.local_address)
+                if i % 50 == 49:
+                    await asyncio.sleep(0)  # the endpoint reads; a live process's pace, not a flood
+                    drain()
+            await asyncio.sleep(0.2)
+            drain()
+        stats = ep.stats
+    return {"genuine_sent": genuine_sent, "stats": stats, "links": links}
+
+
 def _table(title: str, outcomes: collections.Counter[str], n: int, seconds: float) -> None:
     print(f"\n{title}: {n:,} inputs in {seconds:.1f} s = {n / seconds:,.0f} inputs/s")
     for reason, count in sorted(outcomes.items(), key=lambda kv: -kv[1]):
@@ -284,10 +402,12 @@ def main() -> None:
     parser.add_argument(
         "--inputs", type=int, default=1_000_000, help="inputs to decode, and as many to accept"
     )
+    parser.add_argument("--peers", type=int, default=200_000, help="inputs to SafePeers.accept")
+    parser.add_argument("--udp", type=int, default=20_000, help="datagrams into a live UDP endpoint")
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
-    if args.inputs < 2:
-        parser.error("--inputs: at least 2")
+    if args.inputs < 2 or args.peers < 0 or args.udp < 0:
+        parser.error("--inputs: at least 2; --peers, --udp: at least 0")
     rng = np.random.default_rng(args.seed)
     failures = Failures()
     print(f"fuzz_telegrams: seed {args.seed}, {args.inputs:,} inputs to decode and {args.inputs:,} to accept")
@@ -301,7 +421,25 @@ def main() -> None:
     _table("SafeReceiver.accept, category 3 (HMAC-SHA256/8)", c3, args.inputs - half, c3_s)
     print(f"  (deletions counted: {c3['_deletions']:,})")
     total = 2 * args.inputs
-    print(f"\ntotal {total:,} inputs in {dec_s + c1_s + c3_s:.1f} s; unexpected: {failures.count}")
+    seconds = dec_s + c1_s + c3_s
+    if args.peers:
+        pe, pe_s = _timed(lambda: fuzz_peers(args.peers, rng, failures))
+        _table("SafePeers.accept (zone controller, 4096 possible peers)", pe, args.peers, pe_s)
+        print(f"  (receivers held: {pe['_held']})")
+        total, seconds = total + args.peers, seconds + pe_s
+    if args.udp:
+        t0 = time.perf_counter()
+        out = asyncio.run(_fuzz_udp(args.udp, rng, failures))
+        udp_s = time.perf_counter() - t0
+        st, links = out["stats"], out["links"]
+        assert isinstance(links, SafePeers)
+        print(f"\nUDP endpoint + SafePeers: {args.udp:,} datagrams over loopback in {udp_s:.1f} s")
+        print(f"  endpoint: {st}")
+        held = links.peers_held
+        print(f"  genuine sent {out['genuine_sent']}, delivered {links.delivered}, receivers held {held}")
+        print(f"  refused: {dict(sorted(links.rejected.items()))}")
+        total, seconds = total + args.udp, seconds + udp_s
+    print(f"\ntotal {total:,} inputs in {seconds:.1f} s; unexpected: {failures.count}")
     if failures.count:
         sys.exit(1)
 

@@ -7,21 +7,27 @@ import zlib
 from typing import ClassVar
 
 import pytest
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
 from railstop.errors import RailstopError
 from railstop.link.codec import TascRequiredDecel, encode
 from railstop.link.safety import (
+    DEMO_KEY_PURPOSES,
     HEADER_BYTES,
+    MAC_BYTES,
+    PEER_REASONS,
     REASONS,
     SEQ_WINDOW,
     Delivered,
     LinkConfigError,
     Rejected,
+    SafePeers,
     SafeReceiver,
     SafeSender,
+    check_master_key,
+    demo_master_key,
     frame_size,
     hkdf_sha256,
     link_key,
@@ -587,3 +593,244 @@ def test_time_out_is_decided_in_whole_milliseconds() -> None:
     assert isinstance(receiver.accept(sender.wrap(b"a", 0.951), 0.951), Delivered)
     assert not receiver.timed_out(1.951)
     assert receiver.timed_out(1.952)
+
+
+def test_sequence_number_zero_is_malformed() -> None:
+    """No sender sends sequence number 0 (the first is 1): a frame with it, even with a valid safety
+    code, is refused and cannot pass for a restart of the peer."""
+    _, receiver = make_pair(1)
+    body = struct.pack(">BHHIIB", 0x11, A, B, 0, 0, 1) + b"z"
+    assert receiver.accept(resign(1, body), 0.0) == Rejected(reason="malformed")
+    assert receiver.last_seq == 0 and receiver.restarts == 0
+
+
+# --------------------------------------------------------------------------
+# Restarts of either end: a frame delivered once is never delivered again
+
+
+@CATS
+def test_old_session_frames_are_not_delivered_after_a_sender_restart(category: int) -> None:
+    """Once the receiver follows a restarted sender, frames of the old session with higher sequence
+    numbers (still fresh) are refused; alternating old and new frames delivers each new one once
+    and no old one again."""
+    sender, receiver = make_pair(category, max_age_s=5.0)
+    old = [sender.wrap(bytes([i]), 10.0 + 0.01 * i) for i in range(50)]
+    for i, frame in enumerate(old[:40]):
+        assert isinstance(receiver.accept(frame, 10.0 + 0.01 * i), Delivered)
+    again = SafeSender(A, B, key=key_for(category), category=category)  # restarted at 10.5 s
+    new = [again.wrap(bytes([100 + i]), 10.5 + 0.01 * i) for i in range(10)]
+    assert isinstance(receiver.accept(new[0], 10.5), Delivered) and receiver.restarts == 1
+    delivered = []
+    for i in range(1, 10):
+        t = 10.5 + 0.01 * i
+        for frame in (old[40 + i], new[i], old[i], old[39]):  # old ones sent before, some never delivered
+            got = receiver.accept(frame, t)
+            if isinstance(got, Delivered):
+                delivered.append(got.payload[0])
+    assert delivered == list(range(101, 110))
+    assert receiver.counts["old_session"] > 0 and receiver.restarts == 1
+
+
+@CATS
+def test_a_restarted_receiver_refuses_what_was_sent_before_it_started(category: int) -> None:
+    """A receiver process started again (a new SafeReceiver) is given its start: the frames its
+    predecessor delivered, still younger than max_age_s, are refused; frames sent after it started
+    are delivered."""
+    sender, first = make_pair(category, max_age_s=5.0)
+    frames = [sender.wrap(bytes([i]), 1.0 + 0.1 * i) for i in range(10)]
+    for i, frame in enumerate(frames):
+        assert isinstance(first.accept(frame, 1.0 + 0.1 * i), Delivered)
+    # Without its start the new incarnation would deliver them again (the hazard) ...
+    _, blind = make_pair(category, max_age_s=5.0)
+    assert isinstance(blind.accept(frames[9], 2.5), Delivered)
+    # ... with it, refused; the sender's next frame is delivered.
+    _, second = make_pair(category, max_age_s=5.0, not_before_s=2.0)
+    assert [second.accept(f, 2.5) for f in frames] == [Rejected(reason="old_session")] * 10
+    assert isinstance(second.accept(sender.wrap(b"next", 2.6), 2.6), Delivered)
+    assert second.counts["old_session"] == 10
+
+
+class _Run:
+    """Genuine frames of successive sender sessions, an adversary delivering any of them in any
+    order, any number of times, to successive receiver incarnations."""
+
+    def __init__(self, category: int) -> None:
+        self.category = category
+        self.now_ms = 0
+        self.frames: list[tuple[bytes, tuple[int, int]]] = []  # (frame, (session, seq))
+        self.session = 0
+        self.sender = SafeSender(A, B, key=key_for(category), category=category)
+        self.receiver = self.new_receiver(None)
+        self.delivered: list[tuple[int, int]] = []
+        self.by_payload: dict[bytes, tuple[int, int]] = {}
+
+    def new_receiver(self, start_s: float | None) -> SafeReceiver:
+        return SafeReceiver(
+            B, A, key=key_for(self.category), category=self.category, max_age_s=MAX_AGE_S,
+            timeout_s=TIMEOUT_S, not_before_s=start_s,
+        )  # fmt: skip
+
+    def deliver(self, frame: bytes) -> None:
+        got = self.receiver.accept(frame, self.now_ms / 1000)
+        if isinstance(got, Delivered):
+            ident = self.by_payload[got.payload]
+            assert ident not in self.delivered, f"{ident} delivered twice"
+            self.delivered.append(ident)
+
+
+@pytest.mark.parametrize("category", [1, 3])
+@settings(max_examples=150, deadline=None)
+@given(data=st.data())
+def test_no_frame_is_delivered_twice_across_restarts_of_either_end(
+    category: int, data: st.DataObject
+) -> None:
+    """The rule of the module docstring as a property: whatever the adversary replays, however the
+    sender and the receiver restart (each restart takes at least 1 ms), no genuine frame is
+    delivered twice, and every frame delivered is genuine."""
+    run = _Run(category)
+    for _ in range(data.draw(st.integers(1, 40))):
+        action = data.draw(st.sampled_from(["send", "send", "advance", "replay", "sender", "receiver"]))
+        if action == "send":
+            seq = run.sender.next_seq
+            payload = struct.pack(">HI", run.session, seq)
+            frame = run.sender.wrap(payload, run.now_ms / 1000)
+            run.by_payload[payload] = (run.session, seq)
+            run.frames.append((frame, (run.session, seq)))
+            if data.draw(st.booleans()):
+                run.deliver(frame)
+        elif action == "advance":
+            run.now_ms += data.draw(st.integers(0, 3 * MAX_AGE_MS))
+        elif action == "replay" and run.frames:
+            run.deliver(data.draw(st.sampled_from(run.frames))[0])
+        elif action == "sender":
+            run.now_ms += data.draw(st.integers(1, 50))
+            run.session += 1
+            run.sender = SafeSender(A, B, key=key_for(category), category=category)
+        elif action == "receiver":
+            run.now_ms += data.draw(st.integers(1, 50))
+            run.receiver = run.new_receiver(run.now_ms / 1000)
+
+
+# --------------------------------------------------------------------------
+# SafePeers: one party, many peers, any bytes from anyone
+
+OWN, PEER = 0x0300, 0x2001  # the zone controller and a train radio, as in the live CBTC line
+
+
+def zc_peers(**kw: object) -> SafePeers:
+    return SafePeers(OWN, MASTER, max_age_s=1.0, peers=lambda p: p == OWN or 0x2000 <= p < 0x3000, **kw)  # type: ignore[arg-type]
+
+
+def forged(src: int, dst: int, *, seq: int = 1, ts_ms: int = 0, payload: bytes = b"x") -> bytes:
+    """A category-3 frame with any header and a MAC made without the key."""
+    return struct.pack(">BHHIIB", 0x13, src, dst, seq, ts_ms, len(payload)) + payload + bytes(MAC_BYTES)
+
+
+def test_peers_survive_a_frame_naming_the_receiver_as_its_source() -> None:
+    """A frame whose header names the receiving party as its source (reflection; random junk does it
+    about once in 65,536 datagrams) is refused and counted; it used to end the process."""
+    links = zc_peers()
+    assert links.accept(forged(OWN, OWN), 0.0) is None
+    assert links.accept(forged(OWN, 0x1234), 0.0) is None
+    genuine = SafePeers(PEER, MASTER, max_age_s=1.0, peers=lambda p: p == OWN).wrap(b"report", OWN, 0.0)
+    got = links.accept(genuine, 0.0)
+    assert got is not None and got[0] == PEER and got[1].payload == b"report"
+    assert links.rejected == {"wrong_source": 2} and links.delivered == 1
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    frame=st.one_of(
+        st.binary(max_size=64),
+        st.builds(
+            forged,
+            st.integers(0, 0xFFFF),
+            st.sampled_from([OWN, 0, 0xFFFF, PEER]),
+            seq=st.integers(0, 2**32 - 1),
+            ts_ms=st.integers(0, 2**32 - 1),
+            payload=st.binary(max_size=20),
+        ),
+    ),
+    now_s=st.floats(-1e6, 1e6),
+)
+def test_peers_accept_any_bytes_without_raising_or_keeping_state(frame: bytes, now_s: float) -> None:
+    """Any bytes, any header: refused (no key), counted once, no receiver created."""
+    links = zc_peers()
+    assert links.accept(frame, now_s) is None
+    assert sum(links.rejected.values()) == 1 and set(links.rejected) <= set(PEER_REASONS)
+    assert links.peers_held == 0
+
+
+def test_peers_keep_no_state_for_forged_sources_and_a_bounded_number_of_real_ones() -> None:
+    """Frames naming every possible source id make no receiver (the MAC is checked first); peers that
+    verify are held up to max_peers, one more is refused as too_many_peers and stays unheard."""
+    links = zc_peers(max_peers=3)
+    for src in range(0x2000, 0x3000):  # every id the predicate allows, forged
+        assert links.accept(forged(src, OWN), 0.0) is None
+    assert links.peers_held == 0 and links.rejected == {"bad_mac": 0x1000}
+    trains = [SafePeers(0x2000 + k, MASTER, max_age_s=1.0, peers=lambda p: True) for k in range(5)]
+    got = [links.accept(t.wrap(b"r", OWN, 0.0), 0.0) for t in trains]
+    assert [g is not None for g in got] == [True, True, True, False, False]
+    assert links.peers_held == 3 and links.rejected["too_many_peers"] == 2
+    # The peers held are still heard.
+    assert links.accept(trains[0].wrap(b"r2", OWN, 0.1), 0.1) is not None
+
+
+def test_peers_refuse_cheaply_what_cannot_be_a_peer() -> None:
+    links = zc_peers()
+    assert links.accept(forged(0x1000, OWN), 0.0) is None  # not a possible peer
+    assert links.accept(forged(PEER, 0x0301), 0.0) is None  # for another party
+    assert links.accept(b"\x13" + bytes(20), 0.0) is None  # too short for category 3
+    assert links.accept(forged(PEER, OWN)[:-1], 0.0) is None  # length byte disagrees
+    assert links.accept("text", 0.0) is None  # type: ignore[arg-type]
+    assert links.rejected == {"unknown_peer": 1, "wrong_destination": 1, "malformed": 3}
+
+
+def test_peers_count_an_error_of_the_peer_predicate_and_go_on() -> None:
+    """An unexpected error while checking a frame (here the caller's predicate fails) is counted as
+    ``error`` and survived; a bad receiver time is the caller's error and raises."""
+
+    def broken(p: int) -> bool:
+        raise KeyError(p)
+
+    links = SafePeers(OWN, MASTER, max_age_s=1.0, peers=broken)
+    assert links.accept(forged(PEER, OWN), 0.0) is None
+    assert links.rejected == {"error": 1}
+    with pytest.raises(LinkConfigError):
+        links.accept(forged(PEER, OWN), float("nan"))
+
+
+def test_peers_started_refuse_frames_sent_before_the_process_started() -> None:
+    """A party started again (SafePeers with started_s) refuses what its predecessor may have
+    delivered; what the peer sends afterwards gets through."""
+    train = SafePeers(PEER, MASTER, max_age_s=1.0, peers=lambda p: p == OWN)
+    frames = [train.wrap(bytes([i]), OWN, 5.0 + 0.1 * i) for i in range(5)]
+    before = zc_peers()
+    assert all(before.accept(f, 5.0 + 0.1 * i) is not None for i, f in enumerate(frames))
+    again = zc_peers(started_s=5.45)
+    assert [again.accept(f, 5.5) for f in frames] == [None] * 5
+    assert again.rejected == {"old_session": 5} and again.peers_held == 0
+    assert again.accept(train.wrap(b"new", OWN, 5.5), 5.5) is not None
+
+
+@pytest.mark.parametrize("purpose", DEMO_KEY_PURPOSES)
+def test_live_links_refuse_the_built_in_demonstration_keys(purpose: str) -> None:
+    """The simulations' master keys are public (their derivation is in the source): a live link
+    (SafePeers) refuses them, and short or missing keys, with one line."""
+    with pytest.raises(LinkConfigError, match="demonstration key") as info:
+        SafePeers(OWN, demo_master_key(purpose), max_age_s=1.0, peers=lambda p: True)
+    assert "\n" not in str(info.value)
+    for bad in (b"", bytes(15), None, "0011" * 8):
+        with pytest.raises(LinkConfigError, match="at least 16 bytes"):
+            SafePeers(OWN, bad, max_age_s=1.0, peers=lambda p: True)  # type: ignore[arg-type]
+    assert check_master_key(bytearray(MASTER)) == MASTER
+
+
+def test_simulated_links_keep_their_demonstration_keys() -> None:
+    """The simulations go on with their built-in keys (the same bytes as before they were named)."""
+    import hashlib
+
+    from railstop.link import cbtc_radio, door_link
+
+    assert hashlib.sha256(b"railstop demonstration CBTC radio master key").digest() == cbtc_radio._DEMO_MASTER
+    assert hashlib.sha256(b"railstop demonstration door link master key").digest() == door_link._DEMO_MASTER

@@ -288,3 +288,30 @@ def test_a_bad_number_is_one_line_naming_the_option(command: str, option: str, v
     assert res.returncode == 2, res
     assert res.stderr.strip().splitlines() == [f"error: argument {option}: {want}"]
     assert res.stdout == ""
+
+
+def _one_line_exit_2(res: subprocess.CompletedProcess[str], needle: str) -> None:
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], res.stderr
+
+
+def test_live_paths_refuse_a_missing_or_built_in_key() -> None:
+    """No live path runs on a built-in key: the UDP command refuses a demonstration master key, a
+    live process refuses to start without a key, and with a demonstration key given it stops with
+    one line (exit 2) before it opens a socket. ``railstop live run`` / ``demo`` generate a key per
+    run and hand it to the processes they start (RAILSTOP_OFFICE_KEY)."""
+    from railstop.link.safety import demo_master_key
+
+    demo = demo_master_key("CBTC radio").hex()
+    env = {k: v for k, v in os.environ.items() if k != "RAILSTOP_OFFICE_KEY"}
+    common = ["--port", "9", "--count", "1", "--category", "3", "--epoch", "0"]
+    res = subprocess.run(
+        udp_cli("send", *common, "--key-hex", demo), capture_output=True, text=True, timeout=30, env=env
+    )
+    _one_line_exit_2(res, "demonstration key")
+    live = [sys.executable, "-m", "railstop.cli", "live", "zc", "--port", "0"]
+    res = subprocess.run(live, capture_output=True, text=True, timeout=60, env=env)
+    _one_line_exit_2(res, "key")
+    res = subprocess.run([*live, "--key-hex", demo], capture_output=True, text=True, timeout=60, env=env)
+    _one_line_exit_2(res, "demonstration key")

@@ -20,7 +20,8 @@ from typing import Any
 import pytest
 
 import railstop.link.udp as udp
-from railstop.link.udp import open_endpoint
+from railstop.link.safety import PEER_REASONS, SafePeers
+from railstop.link.udp import open_endpoint, process_udp_stats
 
 LOOPBACK = "127.0.0.1"
 LINUX = sys.platform.startswith("linux")
@@ -121,3 +122,97 @@ def test_receive_command_reports_kernel_drops() -> None:
     got = json.loads(res.stdout.strip().splitlines()[-1])
     assert "dropped_by_kernel" in got
     assert got["dropped_by_kernel"] == (0 if LINUX else None)
+
+
+def test_a_flooding_source_cannot_push_out_another() -> None:
+    """Real sockets: one source floods the endpoint (300 datagrams into a 32-frame queue) while a
+    second sends 10 (below its share, 16); the flood loses its own frames, every one of the other's
+    is kept (in order) and served in turn, not after the flood's. (With one queue for all, the
+    oldest dropped, the flood pushed out all but the last.)"""
+
+    async def body() -> None:
+        rx = await open_endpoint((LOOPBACK, 0), queue_frames=32, receive_buffer_bytes=1 << 20)
+        async with rx:
+            with (
+                socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as flood,
+                socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as genuine,
+            ):
+                genuine.bind((LOOPBACK, 0))
+                # No await: the kernel buffer holds them until the event loop reads them all at once.
+                for i in range(300):
+                    flood.sendto(b"F" + i.to_bytes(2, "big"), rx.local_address)
+                    if i % 30 == 0:
+                        genuine.sendto(b"G" + bytes([i // 30]), rx.local_address)
+                got = await drain(rx, 0.3)
+                mine = genuine.getsockname()
+            stats = rx.stats
+        assert stats.received == 310 and stats.dropped_by_kernel in (0, None)
+        assert [g for g in got if g[:1] == b"G"] == [b"G" + bytes([k]) for k in range(10)]
+        assert stats.dropped_queue_full == 310 - len(got) == 300 - 22  # the flood kept 22 of the 32
+        # Served in turn: the genuine frames come among the first (one of them every second frame).
+        assert {g[:1] for g in got[:12]} == {b"F", b"G"} and got[-1][:1] == b"F"
+        assert mine[1] > 0
+
+    run(body)
+
+
+def test_process_udp_stats_sum_every_endpoint_open_or_closed() -> None:
+    """A process's totals include the endpoints it closed, with the queue's drops."""
+
+    async def body() -> dict[str, int | None]:
+        before = process_udp_stats()
+        b = await open_endpoint((LOOPBACK, 0), queue_frames=2)
+        a = await open_endpoint((LOOPBACK, 0), b.local_address)
+        async with b:
+            async with a:
+                for i in range(5):
+                    a.send(bytes([i]))
+                while b.stats.received < 5:
+                    await asyncio.sleep(0.005)
+            mid = process_udp_stats()  # a closed, b open
+            assert mid["dropped_queue_full"] == before["dropped_queue_full"] + 3  # type: ignore[operator]
+        after = process_udp_stats()
+        assert after["sent"] == before["sent"] + 5  # type: ignore[operator]
+        assert after["received"] == before["received"] + 5  # type: ignore[operator]
+        assert after["endpoints"] == before["endpoints"] + 2  # type: ignore[operator]
+        return after
+
+    run(body)
+
+
+def test_random_and_forged_datagrams_into_a_live_endpoint_are_all_counted() -> None:
+    """Random bytes and frames with forged headers over real sockets into an endpoint and SafePeers
+    (as a live process reads them): nothing raises, each is counted once, no receiver state is
+    kept, and a genuine peer is still heard."""
+    import random
+
+    master = bytes(range(40, 72))
+    rng = random.Random(5)
+    junk = [rng.randbytes(rng.randrange(0, 60)) for _ in range(300)]
+    heads = [
+        bytes([0x13]) + rng.choice([0x0300, 0x2001, rng.randrange(65536)]).to_bytes(2, "big")
+        + rng.choice([0x0300, rng.randrange(65536)]).to_bytes(2, "big") + rng.randbytes(8) + b"\x02"
+        + rng.randbytes(10)
+        for _ in range(300)
+    ]  # fmt: skip
+
+    async def body() -> tuple[SafePeers, int]:
+        links = SafePeers(0x0300, master, max_age_s=1.0, peers=lambda p: p == 0x0300 or 0x2000 <= p < 0x3000)
+        train = SafePeers(0x2001, master, max_age_s=1.0, peers=lambda p: p == 0x0300)
+        rx = await open_endpoint((LOOPBACK, 0), queue_frames=1000, receive_buffer_bytes=1 << 20)
+        taken = 0
+        async with rx:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+                for data in [*junk, *heads, train.wrap(b"hello", 0x0300, 1.0)]:
+                    tx.sendto(data, rx.local_address)
+                    await asyncio.sleep(0)
+                for data, _ in [(g, None) for g in await drain(rx, 0.3)]:
+                    taken += 1
+                    links.accept(data, 1.0)
+        return links, taken
+
+    links, taken = run(body)
+    assert taken == 601  # empty datagrams included: nothing lost on loopback at this pace
+    assert links.delivered == 1 and sum(links.rejected.values()) == 600
+    assert set(links.rejected) <= set(PEER_REASONS) and "error" not in links.rejected
+    assert links.peers_held == 1

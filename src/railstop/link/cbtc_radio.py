@@ -20,7 +20,6 @@ direction from (seed, stream, train, direction) (DESIGN rule 7).
 
 from __future__ import annotations
 
-import hashlib
 import heapq
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -30,7 +29,7 @@ import numpy as np
 from railstop.link.channel import ChannelParams, SimChannel
 from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
 from railstop.link.safe_channel import SafeChannel
-from railstop.link.safety import SafeReceiver, SafeSender, link_key, sum_counts
+from railstop.link.safety import SafeReceiver, SafeSender, demo_master_key, link_key, sum_counts
 from railstop.messages import Message, MovementCommand, Output, PositionReport
 from railstop.streams import Stream, seed_u64
 
@@ -39,8 +38,9 @@ __all__ = ["MAX_AGE_S", "TRAIN_BASE", "ZC_ADDRESS", "CbtcRadio", "RadioCounts", 
 ZC_ADDRESS = 0x0300  # the zone controller's safety-layer id
 TRAIN_BASE = 0x2000  # train k's safety-layer id is TRAIN_BASE + k
 MAX_AGE_S = 1.0  # a radio frame older than this is stale
-# Demonstration master key. A deployment loads its link keys from its key management.
-_DEMO_MASTER = hashlib.sha256(b"railstop demonstration CBTC radio master key").digest()
+# The simulated radio's built-in demonstration master key (no attacker in a simulation). Public:
+# the live links (SafePeers) refuse it; a deployment loads its keys from its key management.
+_DEMO_MASTER = demo_master_key("CBTC radio")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -20,7 +20,6 @@ transponder, a cut loop cable).
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -31,13 +30,14 @@ from railstop.control.doors import LOCKED_STATES, DoorSignals, DoorState, door_m
 from railstop.link.channel import ChannelParams, LinkError, SimChannel
 from railstop.link.codec import DoorCommand, PsdStatus, Telegram
 from railstop.link.safe_channel import SafeChannel
-from railstop.link.safety import SafeReceiver, SafeSender, link_key, sum_counts
+from railstop.link.safety import SafeReceiver, SafeSender, demo_master_key, link_key, sum_counts
 
 __all__ = ["DoorLink", "DoorLinkCounts", "Received", "command_signals", "door_command", "psd_status"]
 
 PLATFORM_ID = 0x0200  # the station's WPCS
-# Demonstration master key (category 3 only). A deployment loads its keys from its key management.
-_DEMO_MASTER = hashlib.sha256(b"railstop demonstration door link master key").digest()
+# The simulated door link's built-in demonstration master key (category 3 only; no attacker in a
+# simulation). Public: the live links (SafePeers) refuse it; a deployment loads its own keys.
+_DEMO_MASTER = demo_master_key("door link")
 
 
 _OPEN = frozenset({DoorState.OPEN})

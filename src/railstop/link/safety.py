@@ -32,14 +32,16 @@ Threats and defences (EN 50159 §7; the reason the receiver reports):
 ==============  ==========================================================  ============================
 threat          defence                                                     reported as
 ==============  ==========================================================  ============================
-repetition      sequence number: only a number above the last delivered     ``repeated``
-                one is delivered; a window remembers delivered numbers
+repetition      sequence number: only a number above the last delivered     ``repeated``,
+                one is delivered; a window remembers delivered numbers;     ``old_session``
+                across a restart of either end: the timestamp (below)
 deletion        sequence number (gap counted in ``Delivered.gap``,          gap / ``deletions``,
                 ``deletions``) and time-out (:meth:`timed_out`)             ``timed_out()``
 insertion       safety code (cat 3: MAC, no valid frame without the key),   ``corrupt`` / ``bad_mac`` /
                 source and destination ids, sequence number                 ``wrong_source`` / ...
-re-sequencing   sequence number: a frame older than the last delivered      ``out_of_order``
-                one is never delivered
+re-sequencing   sequence number: a frame older than the last delivered      ``out_of_order``,
+                one is never delivered; timestamp: nor one sent before      ``old_session``
+                the last delivered one was sent
 corruption      safety code: CRC-32 (cat 1, 2) / HMAC-SHA256 (cat 3)        ``corrupt`` / ``bad_mac``
 delay           timestamp: older than ``max_age_s`` (or ahead of the        ``stale``, ``timed_out()``
                 receiver's clock) is refused; time-out
@@ -54,8 +56,8 @@ a rejected frame never changes the receiver's state, only its counters):
 1. ``malformed`` — not bytes, or shorter than header + safety code;
 2. ``corrupt`` (cat 1, 2) / ``bad_mac`` (cat 3) — the safety code, before
    any header field is trusted (MAC compared with ``hmac.compare_digest``);
-3. ``malformed`` — version / category not the receiver's, or the length
-   byte disagrees with the frame length;
+3. ``malformed`` — version / category not the receiver's, the length byte
+   disagrees with the frame length, or sequence number 0 (none is sent);
 4. ``wrong_source`` — source id is not the peer's;
 5. ``wrong_destination`` — destination id is not the receiver's own;
 6. ``repeated`` — sequence number equal to the last delivered, or lower
@@ -63,26 +65,52 @@ a rejected frame never changes the receiver's state, only its counters):
    ``out_of_order`` — lower than the last delivered and not known to be
    delivered (a frame that was overtaken, or one older than the window);
 7. ``stale`` — the timestamp is more than ``max_age_s`` before the
-   receiver's time, or more than ``future_tolerance_s`` after it.
+   receiver's time, or more than ``future_tolerance_s`` after it;
+8. ``old_session`` — sent (timestamp) before the last delivered frame was
+   sent, or before the receiver started (``not_before_s``).
 
 Sequence before time: a replayed old frame is reported as the replay it is.
 
-A restarted sender begins again at sequence number 1. A frame with a lower
-sequence number than the last delivered but a *later* timestamp, fresh and
-with a valid safety code, can only come from a new session of the peer
-(within a session sequence and timestamp rise together; a replay keeps its
-old timestamp): the receiver follows it from there (``restarts`` counts
-them) instead of refusing the restarted peer until its numbers pass the old
-ones.
+Restarts of either end (EN 50159 repetition and re-sequencing across
+sessions). **A receiver never delivers again a frame it delivered before a
+restart of either end.** The rule that makes it so is the timestamp: within
+a session the sender's timestamps never decrease (its clock is monotonic),
+so the timestamps of the delivered frames must never decrease either; a
+frame sent before the last delivered one was sent is refused as
+``old_session`` whatever its sequence number.
+
+* A restarted sender begins again at sequence number 1. A frame with a lower
+  sequence number than the last delivered but a *later* timestamp, fresh and
+  with a valid safety code, can only come from a new session of the peer (a
+  replay keeps its old timestamp): the receiver follows it from there
+  (``restarts`` counts them) instead of refusing the restarted peer until its
+  numbers pass the old ones. Frames of the old session that arrive afterwards,
+  whatever their numbers, were sent before the new session's and are refused
+  (``old_session``; or ``stale`` once older than ``max_age_s``).
+* A restarted receiver (a new process, a new :class:`SafeReceiver`) knows
+  nothing of what its previous incarnation delivered. It is given the time it
+  started as ``not_before_s`` (an argument: units read no clock) and refuses
+  every frame sent before it (``old_session``): whatever the previous
+  incarnation delivered was sent before the new one started. The cost is the
+  frames in flight at the start, refused once. Without ``not_before_s`` (the
+  simulations, whose receivers never restart) there is no such floor;
+  :class:`SafePeers`, used by the live processes, takes ``started_s``.
 
 Assumptions (documented, not checked): the sender's and the receiver's
 clocks are synchronised (GNSS time, SPEC §2) to well within
-``future_tolerance_s``; the timestamp is the sender's time in ms modulo
+``future_tolerance_s``; a restart takes longer than 1 ms (the timestamp's
+resolution); the timestamp is the sender's time in ms modulo
 2**32 and the receiver takes the age modulo 2**32 as a signed number, so
 wrap-around is harmless as long as the true age is below 2**31 ms (24.8
 days; the counter itself repeats every 49.7 days). The sequence number does
 not wrap: a sender refuses to send after 2**32 - 1 frames (497 days at one
 frame per 10 ms); the link is re-keyed and restarted before that.
+
+Keys: category 3 keys come from a master key shared by the parties
+(:func:`link_key`). The simulations use built-in demonstration master keys
+(:func:`demo_master_key`, public by construction); :class:`SafePeers`, the
+live processes' links, refuses them and any key shorter than
+:data:`MIN_KEY_BYTES` (:func:`check_master_key`).
 """
 
 from __future__ import annotations
@@ -99,17 +127,23 @@ from railstop.errors import RailstopError
 
 __all__ = [
     "CRC_BYTES",
+    "DEMO_KEY_PURPOSES",
     "HEADER_BYTES",
     "MAC_BYTES",
+    "MAX_PEERS",
     "MIN_KEY_BYTES",
+    "PEER_REASONS",
     "REASONS",
     "SEQ_WINDOW",
     "VERSION",
     "Delivered",
     "LinkConfigError",
     "Rejected",
+    "SafePeers",
     "SafeReceiver",
     "SafeSender",
+    "check_master_key",
+    "demo_master_key",
     "frame_ids",
     "frame_size",
     "hkdf_sha256",
@@ -136,9 +170,18 @@ REASONS = (
     "out_of_order",
     "stale",
     "bad_mac",
+    "old_session",
 )
 
 _KDF_SALT = b"railstop EN 50159 link key v1"
+
+#: The simulated links with a built-in demonstration master key (:func:`demo_master_key`).
+DEMO_KEY_PURPOSES = ("CBTC radio", "door link", "zone release", "TASC link")
+
+#: Receivers one :class:`SafePeers` holds at most (one per peer heard with a valid MAC) unless
+#: told otherwise: more than the live line's parties (60 trains at most, a station's plant and
+#: trains) and a bound on the state frames can make a process keep.
+MAX_PEERS = 256
 
 
 class LinkConfigError(RailstopError, ValueError):
@@ -186,6 +229,39 @@ def link_key(master: bytes, src_id: int, dst_id: int) -> bytes:
     return hkdf_sha256(
         bytes(master), salt=_KDF_SALT, info=b"railstop link" + struct.pack(">HH", src_id, dst_id)
     )
+
+
+def demo_master_key(purpose: str) -> bytes:
+    """The built-in master key of a simulated link (one of :data:`DEMO_KEY_PURPOSES`).
+
+    Public by construction (its derivation is in the source): for simulations only, where no
+    attacker exists. :func:`check_master_key` refuses it, so no live link runs on it.
+    """
+    if purpose not in DEMO_KEY_PURPOSES:
+        raise LinkConfigError(f"purpose: one of {', '.join(DEMO_KEY_PURPOSES)} (got {purpose!r})")
+    return hashlib.sha256(f"railstop demonstration {purpose} master key".encode()).digest()
+
+
+_DEMO_KEYS = frozenset(demo_master_key(p) for p in DEMO_KEY_PURPOSES)
+
+
+def check_master_key(master: object) -> bytes:
+    """``master`` as the master key of a live link: bytes, at least :data:`MIN_KEY_BYTES` long and
+    not a built-in demonstration key; :class:`LinkConfigError` (one line) otherwise.
+
+    EN 50159 category 3 (masquerade): a key anyone can read in the source authenticates nobody.
+    """
+    if not isinstance(master, bytes | bytearray) or len(master) < MIN_KEY_BYTES:
+        raise LinkConfigError(
+            f"master key: at least {MIN_KEY_BYTES} bytes are needed (a key file, the environment, or "
+            "one generated for the run)"
+        )
+    if bytes(master) in _DEMO_KEYS:
+        raise LinkConfigError(
+            "master key: a built-in demonstration key is public and refused on a live link; "
+            "give the run its own key"
+        )
+    return bytes(master)
 
 
 def hkdf_sha256(ikm: bytes, *, salt: bytes, info: bytes, length: int = 32) -> bytes:
@@ -299,7 +375,11 @@ class SafeReceiver:
         timeout_s: float,
         start_s: float = 0.0,
         future_tolerance_s: float = 0.05,
+        not_before_s: float | None = None,
     ) -> None:
+        """``not_before_s``: when this receiver (its process) started; frames sent before it are
+        refused as ``old_session`` (a previous incarnation may have delivered them). None: no
+        such floor (a receiver that is never restarted, as in the simulations)."""
         _check_id("own_id", own_id)
         _check_id("peer_id", peer_id)
         if own_id == peer_id:
@@ -327,7 +407,10 @@ class SafeReceiver:
         self.last_valid_s = _check_time("start_s", start_s)
         self.deletions = 0
         self.restarts = 0  # new sessions of the peer followed (a restarted sender)
-        self._last_sent_ms = -math.inf  # the sending time of the last frame delivered
+        # The sending time of the last frame delivered; before the first, the receiver's start
+        # (module docstring, restarts: nothing sent earlier is delivered).
+        self.not_before_s = None if not_before_s is None else _check_time("not_before_s", not_before_s)
+        self._last_sent_ms = -math.inf if not_before_s is None else float(round(not_before_s * 1000.0))
         self.counts: dict[str, int] = dict.fromkeys((*REASONS, "delivered"), 0)
 
     def _reject(self, reason: str) -> Rejected:
@@ -353,7 +436,7 @@ class SafeReceiver:
         if not hmac.compare_digest(code, _safety_code(self.category, self._key, body)):
             return self._reject("bad_mac" if self.category == 3 else "corrupt")
         vc, src, dst, seq, ts_ms, length = HEADER.unpack_from(body)
-        if vc != (VERSION << 4 | self.category) or length != len(body) - HEADER_BYTES:
+        if vc != (VERSION << 4 | self.category) or length != len(body) - HEADER_BYTES or seq == 0:
             return self._reject("malformed")
         if src != self.peer_id:
             return self._reject("wrong_source")
@@ -361,29 +444,41 @@ class SafeReceiver:
             return self._reject("wrong_destination")
         now_ms = round(now * 1000.0)
         age_ms = (now_ms - ts_ms + (1 << 31)) % _TS_MOD - (1 << 31)  # signed, wrap-safe
+        sent_ms = now_ms - age_ms  # the sending time on the receiver's time line
         fresh = not (age_ms > self._max_age_ms or -age_ms > self._future_ms)
+        restart = False
         if seq <= self.last_seq:
-            if fresh and now_ms - age_ms > self._last_sent_ms:
-                # The peer restarted: within one session sequence and timestamp rise together, so
-                # a lower sequence number with a later timestamp is a new session (a replay keeps
-                # its old timestamp: refused below as repeated, or as stale). Followed from here.
-                self.restarts += 1
-                self.last_seq, self._seen = seq - 1, 0
-            else:
+            # The peer restarted: within one session sequence and timestamp rise together, so a
+            # lower sequence number with a later timestamp is a new session (a replay keeps its
+            # old timestamp: refused here as repeated, or below as stale / old session).
+            restart = fresh and sent_ms > self._last_sent_ms
+            if not restart:
                 back = self.last_seq - seq
                 seen = back < SEQ_WINDOW and self._seen >> back & 1
                 return self._reject("repeated" if seen else "out_of_order")
         if not fresh:
             return self._reject("stale")
+        if sent_ms < self._last_sent_ms:
+            # Sent before the last delivered frame (or before this receiver started): a frame of an
+            # earlier session of either end, whatever its sequence number (module docstring).
+            return self._reject("old_session")
+        if restart:
+            self.restarts += 1  # followed from here: the state changes only for a delivery
+            self.last_seq, self._seen = seq - 1, 0
         gap = seq - self.last_seq - 1
         shift = seq - self.last_seq
         self._seen = ((self._seen << shift) | 1) & ((1 << SEQ_WINDOW) - 1) if shift < SEQ_WINDOW else 1
         self.last_seq = seq
         self.deletions += gap
         self.last_valid_s = now
-        self._last_sent_ms = now_ms - age_ms
+        self._last_sent_ms = float(sent_ms)
         self.counts["delivered"] += 1
-        return Delivered(payload=body[HEADER_BYTES:], seq=seq, sent_s=(now_ms - age_ms) / 1000.0, gap=gap)
+        return Delivered(payload=body[HEADER_BYTES:], seq=seq, sent_s=sent_ms / 1000.0, gap=gap)
+
+    @property
+    def last_sent_s(self) -> float | None:
+        """When the last delivered frame was sent (before the first: ``not_before_s``, or None)."""
+        return None if math.isinf(self._last_sent_ms) else self._last_sent_ms / 1000.0
 
     def timed_out(self, now_s: float) -> bool:
         """No frame delivered for longer than ``timeout_s`` (counting from ``start_s`` before the first).
@@ -409,25 +504,69 @@ def sum_counts(
     return out
 
 
+#: Why :class:`SafePeers` refused a frame: a receiver's reasons, and ``unknown_peer`` (a source
+#: that cannot be a peer), ``too_many_peers`` (a new peer, valid MAC, beyond ``max_peers``),
+#: ``error`` (an unexpected error while checking the frame: counted, survived).
+PEER_REASONS = (*REASONS, "unknown_peer", "too_many_peers", "error")
+
+
 class SafePeers:
     """Category-3 links of one party with any number of peers over a shared transport (one socket):
     ``wrap(payload, peer, now_s)`` gives the frame for ``peer`` (its own sequence and key per
     direction), ``accept(frame, now_s)`` checks a received frame with the receiver of the peer it
-    names and gives (peer, payload), or the reason it was refused (counted in ``rejected``).
-    ``peers(id)`` says which senders may be heard (any other is refused as ``unknown_peer``)."""
+    names and gives (peer, payload), or None: the reason it was refused is counted in
+    ``rejected`` (:data:`PEER_REASONS`). ``peers(id)`` says which senders may be heard.
+
+    Any bytes, from anyone (DESIGN rule 9: a process that serves others survives every bad
+    frame): :meth:`accept` never raises for a frame, it counts it. Cheap refusals come first and
+    touch no state, before any MAC is computed: too short or not this version and category
+    (``malformed``), a source that is this party or not a possible peer (``wrong_source`` /
+    ``unknown_peer``), a destination not this party (``wrong_destination``). The header is only
+    used to refuse here, never to accept. No receiver state exists before a frame's MAC verified
+    with the key of the peer it names, and at most ``max_peers`` receivers are held (a new peer
+    beyond them is refused, ``too_many_peers``: it stays unheard and its own supervision acts,
+    DESIGN rule 10). ``started_s``: when this party (its process) started; its receivers refuse
+    frames sent before it (``old_session``: the module docstring's restart rule). None: no such
+    floor. The master key must be a live key (:func:`check_master_key`).
+    """
 
     def __init__(
-        self, own_id: int, master_key: bytes, *, max_age_s: float, peers: Callable[[int], bool]
+        self,
+        own_id: int,
+        master_key: bytes,
+        *,
+        max_age_s: float,
+        peers: Callable[[int], bool],
+        max_peers: int = MAX_PEERS,
+        started_s: float | None = None,
+        future_tolerance_s: float = 0.2,
     ) -> None:
+        _check_id("own_id", own_id)
+        if not callable(peers):
+            raise LinkConfigError("peers: a function of a source id is needed")
+        if not isinstance(max_peers, int) or isinstance(max_peers, bool) or max_peers < 1:
+            raise LinkConfigError(f"max_peers: a whole number >= 1 is needed (got {max_peers!r})")
+        for name, value in (("max_age_s", max_age_s), ("future_tolerance_s", future_tolerance_s)):
+            if _check_time(name, value) < 0.0:
+                raise LinkConfigError(f"{name}: must be >= 0 (got {value!r})")
         self.own_id = own_id
-        self.master_key = master_key
-        self.max_age_s = max_age_s
+        self.master_key = check_master_key(master_key)
+        self.max_age_s = float(max_age_s)
+        self.future_tolerance_s = float(future_tolerance_s)
+        self.max_peers = max_peers
+        self.started_s = None if started_s is None else _check_time("started_s", started_s)
         self.known = peers
         self._tx: dict[int, SafeSender] = {}
         self._rx: dict[int, SafeReceiver] = {}
+        self._vc = VERSION << 4 | 3
         self.sent = 0
         self.delivered = 0
         self.rejected: dict[str, int] = {}
+
+    @property
+    def peers_held(self) -> int:
+        """Receivers held: peers heard with a valid MAC (at most ``max_peers``)."""
+        return len(self._rx)
 
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -436,29 +575,75 @@ class SafePeers:
         if peer not in self._tx:
             key = link_key(self.master_key, self.own_id, peer)
             self._tx[peer] = SafeSender(self.own_id, peer, key=key, category=3)
+        frame = self._tx[peer].wrap(payload, now_s)
         self.sent += 1
-        return self._tx[peer].wrap(payload, now_s)
+        return frame
 
     def accept(self, frame: bytes, now_s: float) -> tuple[int, Delivered] | None:
-        ids = frame_ids(frame)
-        peer = -1 if ids is None else ids[0]
-        if not self.known(peer):
+        """(peer, delivery), or None with the reason counted. ``now_s`` is the caller's: a bad one
+        raises :class:`LinkConfigError`; nothing about the frame does."""
+        now = _check_time("now_s", now_s)
+        try:
+            return self._accept(frame, now)
+        except Exception:  # DESIGN rule 9: counted and survived, never a crash
+            self.reject("error")
+            return None
+
+    def _accept(self, frame: object, now_s: float) -> tuple[int, Delivered] | None:
+        if isinstance(frame, bytes | bytearray | memoryview):
+            data = bytes(frame)
+        else:
+            self.reject("malformed")
+            return None
+        n = len(data)
+        if n < HEADER_BYTES + MAC_BYTES:
+            self.reject("malformed")
+            return None
+        vc, src, dst, _seq, _ts, length = HEADER.unpack_from(data)
+        if vc != self._vc or length != n - HEADER_BYTES - MAC_BYTES:
+            self.reject("malformed")
+            return None
+        if src == self.own_id:
+            self.reject("wrong_source")  # reflection: no peer sends as this party
+            return None
+        if not self.known(src):
             self.reject("unknown_peer")
             return None
-        if peer not in self._rx:
-            self._rx[peer] = SafeReceiver(
+        if dst != self.own_id:
+            self.reject("wrong_destination")
+            return None
+        rx = self._rx.get(src)
+        if rx is None:
+            # A peer not heard yet: its MAC first, so that no state exists for a forged source.
+            key = link_key(self.master_key, src, self.own_id)
+            body, code = data[: n - MAC_BYTES], data[n - MAC_BYTES :]
+            if not hmac.compare_digest(code, _safety_code(3, key, body)):
+                self.reject("bad_mac")
+                return None
+            if len(self._rx) >= self.max_peers:
+                self.reject("too_many_peers")
+                return None
+            rx = SafeReceiver(
                 self.own_id,
-                peer,
-                key=link_key(self.master_key, peer, self.own_id),
+                src,
+                key=key,
                 category=3,
                 max_age_s=self.max_age_s,
                 timeout_s=1e9,  # the units above supervise their peers' silence
                 start_s=now_s,
-                future_tolerance_s=0.2,
+                future_tolerance_s=self.future_tolerance_s,
+                not_before_s=self.started_s,
             )
-        got = self._rx[peer].accept(frame, now_s)
-        if not isinstance(got, Delivered):
-            self.reject(got.reason)
-            return None
+            got = rx.accept(data, now_s)
+            if not isinstance(got, Delivered):
+                # Authentic but refused (stale, old session...): nothing kept for a frame not delivered.
+                self.reject(got.reason)
+                return None
+            self._rx[src] = rx
+        else:
+            got = rx.accept(data, now_s)
+            if not isinstance(got, Delivered):
+                self.reject(got.reason)
+                return None
         self.delivered += 1
-        return peer, got
+        return src, got

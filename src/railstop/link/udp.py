@@ -10,8 +10,15 @@ the TASC units) stay pure.
   1472 = Ethernet MTU 1500 − IPv4 20 − UDP 8, so no IP fragmentation) are
   refused on send with :class:`~railstop.link.channel.LinkError`; longer
   datagrams received are dropped and counted.
-* The receive queue is bounded: when it is full the *oldest* frame is dropped
-  (a late TASC telegram is worth less than the newest one) and counted.
+* The receive queue is bounded (``queue_frames`` in all) and fair between the
+  source addresses: each source has its own first-in first-out queue and
+  :meth:`UdpEndpoint.take` / :meth:`UdpEndpoint.recv` serve the sources in
+  turn, one frame each. When the queue is full the *oldest* frame of a source
+  holding at least its share (the arriving one if it does, else the longest)
+  is dropped and counted (a late TASC telegram is worth less than the newest
+  one): a source flooding the endpoint loses its own frames, one that sends
+  fewer than its share loses none, and it is served in turn however many
+  frames the flood queued (DESIGN rule 9).
 * Datagrams the kernel drops before the endpoint sees them (socket receive
   buffer full) are counted too, on Linux: the socket has ``SO_RXQ_OVFL`` set and
   is read with ``recvmsg``, whose ancillary data carries the kernel's drop
@@ -21,6 +28,9 @@ the TASC units) stay pure.
   the option does not exist (not Linux) or the event loop cannot watch a socket
   (Windows' proactor), the endpoint uses asyncio's own datagram transport and
   the counter is None: unknown, not zero.
+* Every drop is counted: by the kernel, by the queue, too long, a socket
+  error (:class:`EndpointStats`); :func:`process_udp_stats` sums them over
+  every endpoint the process opened, for its printed counts.
 
 Two processes (``python -m railstop.link.udp``)
 -----------------------------------------------
@@ -61,14 +71,15 @@ import socket
 import struct
 import sys
 import time
+import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, NoReturn
 
 from railstop.errors import RailstopError, TelegramError
 from railstop.link.channel import LinkError
 from railstop.link.codec import TascRequiredDecel, decode, encode
-from railstop.link.safety import Delivered, SafeReceiver, SafeSender, link_key
+from railstop.link.safety import Delivered, SafeReceiver, SafeSender, check_master_key, link_key
 
 Address = tuple[str, int]
 
@@ -80,7 +91,7 @@ DEFAULT_QUEUE_FRAMES = 256
 #: Python's ``socket`` module); None where there is no such option.
 SO_RXQ_OVFL: int | None = getattr(socket, "SO_RXQ_OVFL", 40 if sys.platform.startswith("linux") else None)
 _DROPS = struct.Struct("=I")  # the counter: a native uint32 (wraps at 2^32)
-_READS_PER_WAKE = 64  # datagrams read per readiness callback, so a flood cannot starve the loop
+_READS_PER_WAKE = 256  # datagrams read per readiness callback: a batch (a flood cannot starve the loop)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -93,6 +104,11 @@ class EndpointStats:
     dropped_oversize: int  # received datagrams longer than max_frame_bytes
     dropped_by_kernel: int | None  # dropped by the kernel (receive buffer full); None = cannot know
     errors: int  # errors the socket reported (e.g. ICMP port unreachable)
+    sources_max: int = 0  # the most source addresses with frames queued at once
+
+    def summary(self) -> dict[str, int | None]:
+        """The counts as a dict (for a process's printed counts)."""
+        return asdict(self)
 
 
 class _Protocol(asyncio.DatagramProtocol):
@@ -106,8 +122,11 @@ class _Protocol(asyncio.DatagramProtocol):
         self._endpoint._errors += 1
 
     def kernel_drops(self, count: int) -> None:
-        """The kernel's drop counter of the socket, as it came with the latest datagram."""
-        self._endpoint._dropped_kernel = count
+        """The kernel's drop counter of the socket, as it came with the latest datagram (a uint32:
+        the drops since the last one are the difference modulo 2^32)."""
+        ep = self._endpoint
+        ep._dropped_kernel = (ep._dropped_kernel or 0) + (count - ep._kernel_seen) % (1 << 32)
+        ep._kernel_seen = count
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._endpoint._wake.set()  # a waiting recv() returns
@@ -144,10 +163,13 @@ class _RecvmsgTransport(asyncio.DatagramTransport):
             except OSError as exc:  # e.g. ICMP port unreachable of an earlier send
                 self._protocol.error_received(exc)
                 continue
-            for level, kind, payload in ancdata:
-                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= _DROPS.size:
-                    self._protocol.kernel_drops(_DROPS.unpack_from(payload)[0])
-            self._protocol.datagram_received(data, addr)
+            try:
+                for level, kind, payload in ancdata:
+                    if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= _DROPS.size:
+                        self._protocol.kernel_drops(_DROPS.unpack_from(payload)[0])
+                self._protocol.datagram_received(data, addr)
+            except Exception as exc:  # DESIGN rule 9: a datagram never stops the reader; counted
+                self._protocol.error_received(exc)
             if self._closing:
                 return
 
@@ -222,7 +244,10 @@ class UdpEndpoint:
     def __init__(self, *, remote: Address | None, queue_frames: int, max_frame_bytes: int) -> None:
         self._transport: asyncio.DatagramTransport | None = None
         self._remote = remote
-        self._queue: collections.deque[tuple[bytes, Address]] = collections.deque()
+        # One FIFO per source address with frames queued; _turn: those sources in serving order.
+        self._queues: dict[Address, collections.deque[bytes]] = {}
+        self._turn: collections.deque[Address] = collections.deque()
+        self._queued = 0
         self._queue_frames = queue_frames
         self._max_frame_bytes = max_frame_bytes
         self._wake = asyncio.Event()
@@ -231,7 +256,11 @@ class UdpEndpoint:
         self._dropped_full = 0
         self._dropped_oversize = 0
         self._dropped_kernel: int | None = None  # None until open_endpoint enables the counter
+        self._kernel_seen = 0  # the kernel's counter as it came last (uint32)
         self._errors = 0
+        self._sources_max = 0
+        self._counted = False  # added to the process's totals (at close)
+        _OPEN.add(self)
 
     # -- socket callbacks ------------------------------------------------
 
@@ -239,12 +268,42 @@ class UdpEndpoint:
         if len(data) > self._max_frame_bytes:
             self._dropped_oversize += 1
             return
-        if len(self._queue) >= self._queue_frames:
-            self._queue.popleft()  # bounded queue: the oldest frame goes
-            self._dropped_full += 1
-        self._queue.append((data, addr))
+        q = self._queues.get(addr)
+        if q is None:
+            q = self._queues[addr] = collections.deque()
+            self._turn.append(addr)
+            self._sources_max = max(self._sources_max, len(self._queues))
+        q.append(data)
+        self._queued += 1
         self._received += 1
+        if self._queued > self._queue_frames:
+            # Full: the oldest frame of a source holding at least its share goes. The arriving
+            # source if it does (a flood pays for itself, at O(1)); else the longest queue. A
+            # source below its share never loses a frame (module docstring).
+            if len(q) * len(self._queues) >= self._queued:
+                victim = addr
+            else:
+                victim = max(self._queues, key=lambda a: len(self._queues[a]))
+            vq = self._queues[victim]
+            vq.popleft()
+            self._queued -= 1
+            self._dropped_full += 1
+            if not vq:
+                del self._queues[victim]
+                self._turn.remove(victim)
         self._wake.set()
+
+    def _pop(self) -> tuple[bytes, Address]:
+        """The next frame in turn: the oldest of the next source, which then goes to the back."""
+        addr = self._turn.popleft()
+        q = self._queues[addr]
+        data = q.popleft()
+        self._queued -= 1
+        if q:
+            self._turn.append(addr)
+        else:
+            del self._queues[addr]
+        return data, addr
 
     # -- public ----------------------------------------------------------
 
@@ -269,6 +328,7 @@ class UdpEndpoint:
             dropped_oversize=self._dropped_oversize,
             dropped_by_kernel=self._dropped_kernel,
             errors=self._errors,
+            sources_max=self._sources_max,
         )
 
     def send(self, frame: bytes, addr: Address | None = None) -> None:
@@ -287,12 +347,13 @@ class UdpEndpoint:
         self._sent += 1
 
     async def recv(self, timeout_s: float | None = None) -> tuple[bytes, Address] | None:
-        """The oldest queued frame and its sender; None after ``timeout_s`` (None = wait) or once closed."""
+        """The next queued frame and its sender (as :meth:`take`); None after ``timeout_s`` (None =
+        wait) or once closed."""
         if timeout_s is not None and not (timeout_s >= 0.0 and math.isfinite(timeout_s)):
             raise LinkError(f"timeout_s must be a non-negative number (got {timeout_s!r})")
         loop = asyncio.get_running_loop()
         deadline = None if timeout_s is None else loop.time() + timeout_s
-        while not self._queue:
+        while not self._queued:
             if self.closed:
                 return None
             self._wake.clear()
@@ -303,21 +364,74 @@ class UdpEndpoint:
                 await asyncio.wait_for(self._wake.wait(), remaining)
             except TimeoutError:
                 return None
-        return self._queue.popleft()
+        return self._pop()
 
     def take(self) -> tuple[bytes, Address] | None:
-        """The oldest queued frame and its sender, or None at once when none is queued."""
-        return self._queue.popleft() if self._queue else None
+        """The next queued frame and its sender (the sources in turn, each source's oldest first),
+        or None at once when none is queued."""
+        return self._pop() if self._queued else None
+
+    @property
+    def queued(self) -> int:
+        """Frames waiting in the queue."""
+        return self._queued
 
     def close(self) -> None:
         if self._transport is not None:
             self._transport.close()
+        _count_closed(self)
 
     async def __aenter__(self) -> UdpEndpoint:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
         self.close()
+
+
+# Every endpoint of this process, for its totals: those open, and the sum of those closed.
+_OPEN: weakref.WeakSet[UdpEndpoint] = weakref.WeakSet()
+_CLOSED: dict[str, int] = {}
+_CLOSED_UNKNOWN_KERNEL = [0]  # closed endpoints whose kernel drops could not be known
+
+
+def _count_closed(ep: UdpEndpoint) -> None:
+    if ep._counted:
+        return
+    ep._counted = True
+    _OPEN.discard(ep)
+    _add(_CLOSED, ep.stats)
+    if ep.stats.dropped_by_kernel is None:
+        _CLOSED_UNKNOWN_KERNEL[0] += 1
+
+
+def _add(into: dict[str, int], stats: EndpointStats) -> None:
+    for name, value in stats.summary().items():
+        if name == "sources_max":
+            into[name] = max(into.get(name, 0), int(value or 0))
+        elif value is not None:
+            into[name] = into.get(name, 0) + int(value)
+    into["endpoints"] = into.get("endpoints", 0) + 1
+
+
+def process_udp_stats() -> dict[str, int | None]:
+    """Every UDP endpoint this process opened, summed (open and closed): datagrams sent and
+    received, every drop by where it happened (the kernel, the queue, too long), socket errors.
+    ``dropped_by_kernel`` is None if any endpoint could not know it (not Linux)."""
+    out: dict[str, int] = dict(_CLOSED)
+    unknown = _CLOSED_UNKNOWN_KERNEL[0]
+    for ep in list(_OPEN):
+        _add(out, ep.stats)
+        unknown += ep.stats.dropped_by_kernel is None
+    result: dict[str, int | None] = {
+        "endpoints": out.get("endpoints", 0),
+        "sent": out.get("sent", 0),
+        "received": out.get("received", 0),
+        "dropped_by_kernel": None if unknown else out.get("dropped_by_kernel", 0),
+        "dropped_queue_full": out.get("dropped_queue_full", 0),
+        "dropped_oversize": out.get("dropped_oversize", 0),
+        "errors": out.get("errors", 0),
+    }
+    return result
 
 
 def local_for(remote: Address) -> Address:
@@ -434,7 +548,7 @@ def _direction_key(args: argparse.Namespace, src_id: int, dst_id: int) -> bytes 
         return None
     if args.key is None:
         raise LinkError("category 3 needs --key-hex (the shared master key)")
-    return link_key(args.key, src_id, dst_id)
+    return link_key(check_master_key(args.key), src_id, dst_id)
 
 
 async def run_sender(args: argparse.Namespace) -> dict[str, Any]:
@@ -483,6 +597,9 @@ async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
         max_age_s=args.max_age_s,
         timeout_s=args.timeout_s,
         start_s=clock.now_s(),
+        # Frames sent before this process started are refused (an earlier receiver may have
+        # delivered them: the safety layer's restart rule).
+        not_before_s=clock.now_s(),
     )
     delivered = 0
     decoded = 0
@@ -500,7 +617,11 @@ async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
             got = await ep.recv(max(0.0, end - loop.time()))
             if got is None:
                 break
-            result = receiver.accept(got[0], clock.now_s())
+            try:
+                result = receiver.accept(got[0], clock.now_s())
+            except Exception:  # DESIGN rule 9: no frame stops the receiver; counted
+                rejected["error"] += 1
+                continue
             if isinstance(result, Delivered):
                 delivered += 1
                 payloads.append(result.payload.hex())
@@ -509,6 +630,8 @@ async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
                     decoded += 1
                 except TelegramError as exc:
                     telegram_errors[exc.reason] += 1
+                except Exception:  # DESIGN rule 9: counted, survived
+                    telegram_errors["error"] += 1
                 if delivered >= args.count and linger_until is None:
                     linger_until = loop.time() + args.linger_s
             else:
@@ -525,6 +648,7 @@ async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
         "dropped_queue_full": stats.dropped_queue_full,
         "dropped_oversize": stats.dropped_oversize,
         "dropped_by_kernel": stats.dropped_by_kernel,
+        "socket_errors": stats.errors,
         "payloads": payloads,
     }
 
@@ -675,6 +799,7 @@ __all__ = [
     "demo_telegram",
     "main",
     "open_endpoint",
+    "process_udp_stats",
 ]
 
 
