@@ -833,6 +833,7 @@ add(
     "gradient_permille=nan",
     "speed_limit_mps=20",
     "report_time_s=1",
+    "delay_s=0.1",
     needles=("gradient_permille",),
 )
 add("telegram-types-unknown-option", "telegram", "types", "--json", needles=("--json",))
@@ -913,9 +914,35 @@ add(
     needles=("nosuch.toml",),
 )  # fmt: skip
 add(
-    "office-serve-operators-alone",
+    "office-serve-operators-missing",
     "office", "serve", *LIVE_KEY, "--operators", "ops.toml",
-    needles=("--operators", "--zc", "--stations"),
+    needles=("ops.toml",),
+)  # fmt: skip
+add(
+    "office-serve-operators-readable",
+    "office", "serve", *LIVE_KEY, "--http-port", "0", "--operators", "ops.toml",
+    files={"ops.toml": '[operators.alice]\npbkdf2_sha256 = "1$00$00"\n'},
+    needles=("ops.toml", "chmod 600"),
+)  # fmt: skip
+add(
+    "office-serve-allowed-hosts",
+    "office", "serve", *LIVE_KEY, "--http-port", "0", "--allowed-hosts", "http://x/",
+    needles=("--allowed-hosts", "http://x/"),
+)  # fmt: skip
+add(
+    "office-serve-wildcard-without-allowed-hosts",
+    "office", "serve", *LIVE_KEY, "--host", "0.0.0.0", "--port", "0", "--http-port", "0",
+    needles=("--allowed-hosts",),
+)  # fmt: skip
+add(
+    "office-serve-tls-key-alone",
+    "office", "serve", *LIVE_KEY, "--http-port", "0", "--tls-key", "key.pem",
+    needles=("--tls-cert", "--tls-key"),
+)  # fmt: skip
+add(
+    "office-add-operator-credential-on-command-line",
+    "office", "add-operator", "ops.toml", "alice", "--credential", "typed in the shell",
+    needles=("--credential",),
 )  # fmt: skip
 add(
     "office-serve-stations-without-operators",

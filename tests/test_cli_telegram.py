@@ -32,7 +32,7 @@ def test_encode_prints_lowercase_hex() -> None:
 
 
 def test_decode_prints_every_field_with_units() -> None:
-    p = run("decode", "21 00:07 00125174 411b 01 0036ef7a eb58")
+    p = run("decode", "21 00:07 00125174 411b 01 0036ef7a 000009c4 4eca")
     assert p.returncode == 0, p.stderr
     rows = {ln.split()[0]: ln.split(None, 1)[1] for ln in p.stdout.splitlines()}
     assert rows["type"].startswith("cbtc-report (0x21")

@@ -177,12 +177,22 @@ def test_a_train_found_outside_its_zone_waits_for_the_operators_authenticated_re
         seed=1,
     )
     zc = sig.zc
-    zc.handle(PositionReport(train_id=0, position_m=2000.0, speed_mps=0.0, direction="R", time_s=0.0), 0.0)
+    zc.handle(
+        PositionReport(
+            train_id=0, position_m=2000.0, speed_mps=0.0, direction="R", time_s=0.0, uncertainty_m=8.0
+        ),
+        0.0,
+    )
     zc.on_timer(0.2)
     zc.on_timer(1.5)  # two reports missed: lost
     assert zc.trains[0].status == TrainStatus.LOST
     # It reports again behind its zone (the zone runs ahead to its authority's end): it moved while lost.
-    zc.handle(PositionReport(train_id=0, position_m=1500.0, speed_mps=0.0, direction="R", time_s=2.0), 2.0)
+    zc.handle(
+        PositionReport(
+            train_id=0, position_m=1500.0, speed_mps=0.0, direction="R", time_s=2.0, uncertainty_m=8.0
+        ),
+        2.0,
+    )
     assert zc.trains[0].status == TrainStatus.FLAGGED
     wait = LINE.cbtc.operator_release_s
     assert sig.operator(10.0) == [] and sig.operator(10.0 + wait - 1.0) == []

@@ -125,10 +125,12 @@ REFERENCES = [
     # type 96 | train 1234 | detector 02 | 0.700 m/s² = 700 = 02bc | CRC
     (TascRequiredDecel(train_id=0x1234, detector=2, required_mps2=0.7), "96 1234 02 02bc 85c1"),
     # type 21 | train 7 | 1200.500 m = 1200500 mm = 00125174 | 16.667 m/s = 411b | L = 01
-    # | 3600.250 s = 3600250 ms = 0036ef7a | CRC
+    # | 3600.250 s = 3600250 ms = 0036ef7a | uncertainty 2.500 m = 2500 mm = 000009c4 | CRC
     (
-        CbtcReport(train_id=7, position_m=1200.5, speed_mps=16.667, direction="L", time_s=3600.25),
-        "21 0007 00125174 411b 01 0036ef7a eb58",
+        CbtcReport(
+            train_id=7, position_m=1200.5, speed_mps=16.667, direction="L", time_s=3600.25, uncertainty_m=2.5
+        ),
+        "21 0007 00125174 411b 01 0036ef7a 000009c4 4eca",
     ),
     # type 41 | train 0102 | DOA-R (bit 1), DOC (4), PSC (6), automatic (7) = 1101 0010 = d2
     # | train doors 2..24 closed and locked, door 1 not = 00fffffe | CRC
@@ -524,10 +526,10 @@ def test_encode_unknown_class() -> None:
         ("17 0001 00 07 2711", "out_of_range", "duty"),  # 1.0001
         ("14 0001 00 8000 00000000 00000000 0000", "out_of_range", "speed_mps"),  # -32.768 m/s
         ("12 0001 00 05f5e101 00000000 ffff 00000000 00000000", "out_of_range", "distance_m"),  # 100.001 km
-        ("22 0001 00000000 03e9 0000 00000000", "out_of_range", "gradient_permille"),  # 100.1 ‰
+        ("22 0001 00000000 03e9 0000 00000000 0000", "out_of_range", "gradient_permille"),  # 100.1 ‰
         ("18 0001 00 02", "bad_value", "delta"),
         ("18 0001 00 80", "bad_value", "delta"),
-        ("21 0001 00000000 0000 02 00000000", "bad_value", "direction"),
+        ("21 0001 00000000 0000 02 00000000 00000000", "bad_value", "direction"),
         ("42 0001 20 00000000", "bad_value", "status"),  # bit 5 undefined
         ("42 0001 00 01000000", "out_of_range", "psd_open"),  # a 25th unit
     ],
@@ -614,7 +616,11 @@ def test_random_bytes_behind_a_valid_type(data: bytes) -> None:
 
 def test_describe_lists_every_field_with_units() -> None:
     rows = dict(
-        describe(CbtcReport(train_id=7, position_m=1200.5, speed_mps=16.667, direction="L", time_s=3.0))
+        describe(
+            CbtcReport(
+                train_id=7, position_m=1200.5, speed_mps=16.667, direction="L", time_s=3.0, uncertainty_m=2.5
+            )
+        )
     )
     assert rows == {
         "train_id": "7",
@@ -622,6 +628,7 @@ def test_describe_lists_every_field_with_units() -> None:
         "speed_mps": "16.667 m/s",
         "direction": "L (-chainage, down)",
         "time_s": "3.000 s",
+        "uncertainty_m": "2.500 m",
     }
     rows = dict(
         describe(

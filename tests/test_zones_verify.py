@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import random
 import subprocess
 import sys
@@ -14,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from railstop.config.layout import Cbtc
-from railstop.messages import PositionReport
+from railstop.messages import MovementCommand, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
 from railstop.sim import zones_verify
 from railstop.sim.zones_verify import (
@@ -49,7 +50,7 @@ def real() -> dict[ZoneMode, VerifyResult]:
 def test_real_controller_has_no_violation(mode: ZoneMode, real: dict[ZoneMode, VerifyResult]) -> None:
     r = real[mode]
     assert r.violations == 0, r.examples
-    assert set(r.counts) == {inv.name for inv in INVARIANTS} and len(INVARIANTS) == 4
+    assert set(r.counts) == {inv.name for inv in INVARIANTS} and len(INVARIANTS) == 5
     assert r.mode == mode and r.model == MODEL
     assert r.states > 1000 and r.transitions > 5 * r.states  # several choices per state
 
@@ -83,8 +84,11 @@ def test_real_controller_with_a_margin_and_a_processing_delay(mode: ZoneMode) ->
         missed_reports_lost=2,
         missed_commands_eb=2,
         safety_margin_m=20.0,
+        rollback_m=0.0,
     )
-    r = verify(ZoneModel(trains=2, segments=5, max_losses=3, params=params), mode=mode)
+    # No uncertainty nor rollback here: the conventional zone with a margin must leave room on
+    # the short line for a lost train to be found outside it.
+    r = verify(ZoneModel(trains=2, segments=5, max_losses=3, uncertainty_m=0.0, params=params), mode=mode)
     assert r.violations == 0, r.examples
     assert r.coverage.get("flagged", 0) > 0 and r.coverage.get("auto-release", 0) > 0
 
@@ -138,11 +142,22 @@ class NeverBrakes(OnboardCbtc):
         pass
 
 
+class KeepsTheLongestAuthority(OnboardCbtc):
+    """An onboard unit that never lets a command shorten the authority it holds."""
+
+    def _on_command(self, message: MovementCommand) -> None:
+        held = self.authority_end_m
+        super()._on_command(message)
+        if not math.isnan(held):
+            self.authority_end_m = max(held, self.authority_end_m)
+
+
 BROKEN: dict[str, dict[str, object]] = {
     "authority-clear": {"controller_factory": IgnoresZones},
     "no-auto-release-outside": {"controller_factory": ReleasesEveryRedetection},
     "missed-commands-brake": {"onboard_factory": NeverBrakes},
     "lost-train-zone": {"controller_factory": NeverLoses},
+    "authority-end": {"onboard_factory": KeepsTheLongestAuthority},
 }
 
 
@@ -177,7 +192,11 @@ def test_a_broken_rule_breaks_its_invariant_and_nothing_else() -> None:
     r = verify(ZoneModel(trains=2, segments=4), controller_factory=ReleasesEveryRedetection)
     assert r.counts["no-auto-release-outside"] > 0
     assert (
-        r.counts["authority-clear"] == r.counts["missed-commands-brake"] == r.counts["lost-train-zone"] == 0
+        r.counts["authority-clear"]
+        == r.counts["missed-commands-brake"]
+        == r.counts["lost-train-zone"]
+        == r.counts["authority-end"]
+        == 0
     )
 
 

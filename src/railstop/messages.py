@@ -1,4 +1,5 @@
-"""Role-neutral messages between units (DESIGN rule 3): frozen dataclasses, nothing else.
+"""Role-neutral messages between units (DESIGN rule 3): frozen dataclasses, nothing else (but
+the grid the CBTC telegrams carry their values on, which both CBTC ends share).
 
 Units import messages, never each other. A unit returns its outputs as
 ``Output`` pairs: the name of the unit it is for (or ``BROADCAST``) and the
@@ -8,6 +9,7 @@ them, through the link model where a link is between the two.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 BROADCAST = "*"
@@ -28,27 +30,55 @@ class SignalAspects:
     proceed: tuple[bool, ...]
 
 
+#: Counts per unit of the CBTC telegrams' distances, speeds and times (``cbtc-report`` and
+#: ``cbtc-command`` in link/codec.py: mm, mm/s, ms). The CBTC units put the values they send on
+#: this grid themselves, so that both ends compute with the very numbers the other receives.
+CBTC_COUNTS_PER_UNIT = 1000
+
+
+def cbtc_grid(value: float) -> float:
+    """``value`` as a CBTC telegram carries it (the codec's ``quantize``: half to even)."""
+    return round(value * CBTC_COUNTS_PER_UNIT) / CBTC_COUNTS_PER_UNIT
+
+
+def cbtc_grid_down(value: float) -> float:
+    """The largest value on the CBTC telegrams' grid not above ``value`` (a distance that the
+    wire's rounding must never lengthen)."""
+    return math.floor(value * CBTC_COUNTS_PER_UNIT) / CBTC_COUNTS_PER_UNIT
+
+
+def cbtc_grid_up(value: float) -> float:
+    """The smallest value on the CBTC telegrams' grid not below ``value`` (an uncertainty)."""
+    return math.ceil(value * CBTC_COUNTS_PER_UNIT) / CBTC_COUNTS_PER_UNIT
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PositionReport:
-    """SPEC §4 report a: the onboard CBTC unit's position (train front, Pp) and speed (Vp)."""
+    """SPEC §4 report a: the onboard CBTC unit's position (train front, Pp), speed (Vp) and the
+    location uncertainty of its positioning (IEEE 1474.1: the true front lies within
+    ``position_m ± uncertainty_m``; missing, negative or non-finite: the report is invalid)."""
 
     train_id: int
     position_m: float
     speed_mps: float  # >= 0; the sign is in ``direction``
     direction: str  # "R" (+chainage) or "L"
-    time_s: float  # when the onboard unit took the position
+    time_s: float  # when the onboard unit took the position; the report's identity
+    uncertainty_m: float  # >= 0, the positioning's confidence bound on the front
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MovementCommand:
-    """SPEC §4 command b: the movement authority as a distance from the compensated position Pc,
-    the gradient and the speed limit there."""
+    """SPEC §4 command b: the movement authority as a distance from the compensated position
+    Pc = Pp ± Δt·Vp of the report it answers, the gradient and the speed limit there. The onboard
+    unit rebuilds Pc from its own copy of that report and ``delay_s`` (Δt), so that the end is the
+    point the zone controller meant."""
 
     train_id: int
     authority_m: float  # distance from Pc to the end of the authority (>= 0)
     gradient_permille: float
     speed_limit_mps: float
-    report_time_s: float  # the report this command answers
+    report_time_s: float  # the report this command answers (its time_s)
+    delay_s: float  # Δt of SPEC §4 the controller compensated with (>= 0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -102,9 +132,10 @@ class PlatformLamps:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DoorCameraFrame:
     """SPEC §3: one frame of the platform's CCD camera, as its image processing classified the
-    train doors' shape: open (True), closed (False), or unreadable / lost (None)."""
+    train doors' shape: "open", "moving" (between open and shut), "closed" (the leaves fully
+    shut), or None (unreadable / lost)."""
 
-    doors_open: bool | None
+    shape: str | None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -151,6 +182,7 @@ class OnboardPosition:
 
     position_m: float
     speed_mps: float
+    uncertainty_m: float  # the positioning's confidence bound on the front (>= 0; else invalid)
 
 
 #: Every message a unit takes or sends.

@@ -72,6 +72,35 @@ class Cbtc(Model):
     # The authority ends this far behind the rear of the train ahead or a protection zone
     # (assumption: the braking-curve uncertainty and the radio's uncompensated latency).
     safety_margin_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] = 20.0
+    # IEEE 1474.1 rollback allowance: a train ahead may roll back this far before its own
+    # protection stops it; the authority behind it ends this much earlier, its zone starts so much
+    # further back (assumption: 2 m, a metro's rollback protection).
+    rollback_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 2.0
+    # The location uncertainty of the onboard positioning (SPEC §2 chain), reported with every
+    # position where the line's position chain gives no bound of its own: the true front lies
+    # within ± this of the onboard position ([interpretation]: the chain's worst error on this
+    # line is about 7 m, docs/position.md; 8 m bounds it).
+    position_uncertainty_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] = 8.0
+
+    # IEEE 1474.1 safe braking model of the onboard overspeed supervision: from the moment the
+    # train is over the curve, the supervision takes ``overspeed_detection_s`` to see it and the
+    # propulsion ``propulsion_cutoff_s`` to be cut (the train accelerating at
+    # ``runaway_accel_mps2`` all that time, plus a downhill gradient), the emergency brake
+    # ``brake_build_up_s`` to build up (coasting), then the train stops at the guaranteed
+    # emergency brake rate ``gebr_mps2`` (flat track; less a downhill gradient). SPEC "typical
+    # values": emergency about 1.3 m/s², brake dead time 0.2-0.6 s and build-up 0.3-0.6 s (1.2 s:
+    # the worst dead time plus one build-up time constant, the lag's lost time). Bounds: no
+    # negative time or acceleration; no guaranteed brake or runaway above 3 m/s² (about 0.3 g,
+    # more than wheel on rail can give).
+    gebr_mps2: Annotated[float, Field(gt=0.0, le=3.0, allow_inf_nan=False)] = 1.1
+    overspeed_detection_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.2
+    propulsion_cutoff_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.5
+    brake_build_up_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = 1.2
+    runaway_accel_mps2: Annotated[float, Field(ge=0.0, le=3.0, allow_inf_nan=False)] = 1.0
+    # The line's ATO aims this far short of the authority's end: the intervention curve keeps its
+    # reaction distance (about 1.3 m at a standstill, 4.7 m more than the ATO's 0.7 m/s² approach
+    # near 3.6 m/s with the default values), which an approach to the end itself would cross.
+    ato_stop_short_m: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 8.0
 
     # SPEC §4 step 5: a train re-detected outside its zone waits for the operator's release after
     # visual confirmation; in the line simulation the operator releases it this long after it

@@ -364,6 +364,8 @@ class CbtcReport(Telegram):
     speed_mps: float
     direction: str
     time_s: float
+    # The location uncertainty (IEEE 1474.1); no default value: one left out does not encode.
+    uncertainty_m: float = math.nan
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -376,6 +378,7 @@ class CbtcCommand(Telegram):
     gradient_permille: float
     speed_limit_mps: float
     report_time_s: float
+    delay_s: float = math.nan  # Δt; no default value: one left out does not encode
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -742,6 +745,15 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     description="travel direction",
                 ),
                 _time_ms("time_s", "time of the report (onboard clock)"),
+                Field(
+                    name="uncertainty_m",
+                    code="I",
+                    unit="m",
+                    counts_per_unit=1000,
+                    min=0.0,
+                    max=0xFFFF_FFFF / 1000,
+                    description="location uncertainty: the true front is within position_m ± this",
+                ),
             ),
         ),
         Layout(
@@ -780,6 +792,15 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     description="speed limit at Pc",
                 ),
                 _time_ms("report_time_s", "time_s of the report this command answers"),
+                Field(
+                    name="delay_s",
+                    code="H",
+                    unit="s",
+                    counts_per_unit=1000,
+                    min=0.0,
+                    max=65.535,
+                    description="Δt of Pc = Pp ± Δt·Vp (the onboard unit rebuilds Pc from its report)",
+                ),
             ),
         ),
         Layout(

@@ -180,19 +180,26 @@ class CbtcSignalling:
     # ------------------------------------------------------------------ the driver's side
 
     def observe(
-        self, k: int, *, onboard_m: float, speed_mps: float, true_m: float, on_line: bool
+        self,
+        k: int,
+        *,
+        onboard_m: float,
+        speed_mps: float,
+        true_m: float,
+        on_line: bool,
+        uncertainty_m: float | None = None,
     ) -> list[Output]:
         """The train's true position for the checks, and its onboard position for its unit (once
-        active; delivered by the clock, which then knows the unit's next report)."""
+        active; delivered by the clock, which then knows the unit's next report) with its location
+        uncertainty: ``uncertainty_m``, or where the driver gives none the line's declared bound
+        of its position chain (``[cbtc] position_uncertainty_m``, [interpretation])."""
         self.true_front[k] = true_m
         self.on_line[k] = on_line
         if not self.active[k]:
             return []
-        return [
-            Output(
-                to=self.onboard[k].name, message=OnboardPosition(position_m=onboard_m, speed_mps=speed_mps)
-            )
-        ]
+        u = self.line.cbtc.position_uncertainty_m if uncertainty_m is None else uncertainty_m
+        position = OnboardPosition(position_m=onboard_m, speed_mps=speed_mps, uncertainty_m=u)
+        return [Output(to=self.onboard[k].name, message=position)]
 
     def activate(self, k: int) -> None:
         """The train's onboard unit starts (it is next to enter the line): from the next step on
@@ -200,9 +207,15 @@ class CbtcSignalling:
         self.active[k] = True
 
     def authority_end_m(self, k: int) -> float:
-        """Where the train's authority ends, on its own chainage (-inf: none)."""
-        end = self.onboard[k].authority_end_m
-        return -math.inf if math.isnan(end) else end
+        """Where the train's ATO may aim, on its own chainage (-inf: no authority): the end of
+        its authority less ``ato_stop_short_m`` (IEEE 1474.1: the ATO runs under the emergency brake
+        intervention curve, which near the end keeps the reaction distance) and less what its
+        location uncertainty has grown since the report the authority answers."""
+        unit = self.onboard[k]
+        if math.isnan(unit.authority_end_m) or math.isnan(unit.position_m):
+            return -math.inf
+        room = unit.distance_to_end_m() - self.line.cbtc.ato_stop_short_m
+        return unit.position_m + unit.sign * room
 
     def emergency_brake(self, k: int) -> bool:
         return self.onboard[k].emergency_brake

@@ -76,14 +76,15 @@ OnboardFactory = Callable[..., OnboardCbtc]
 def _default_params() -> Cbtc:
     # SPEC §4: the paper's counts (2 missed reports -> lost, 2 missed commands -> emergency brake);
     # the model's cycle is 1 s (SPEC §4: a heartbeat of 0.5-1 s) and the processing delay 0.
-    # [interpretation] The safety margin is 0: the authority may reach the obstacle itself, the
-    # tightest case the invariants must still hold for.
+    # [interpretation] The safety margin is 0: the authority may reach the obstacle itself (less
+    # the uncertainties and the rollback), the tightest case the invariants must still hold for.
     return Cbtc(
         report_period_s=1.0,
         processing_delay_s=0.0,
         missed_reports_lost=2,
         missed_commands_eb=2,
         safety_margin_m=0.0,
+        rollback_m=2.0,
     )
 
 
@@ -107,6 +108,7 @@ class ZoneModel:
     train_length_m: float = 80.0  # shorter than a segment
     step_m: float = 100.0  # a train advances 0 or 1 step per cycle
     max_losses: int = 3  # reports lost in a row per train, at most
+    uncertainty_m: float = 5.0  # every train's reported location uncertainty (IEEE 1474.1)
     params: Cbtc = field(default_factory=_default_params)
 
     def __post_init__(self) -> None:
@@ -122,6 +124,8 @@ class ZoneModel:
             raise ValueError(f"step_m: between 0 and segment_m (got {self.step_m})")
         if self.max_losses < 0:
             raise ValueError(f"max_losses: at least 0 (got {self.max_losses})")
+        if not (math.isfinite(self.uncertainty_m) and self.uncertainty_m >= 0.0):
+            raise ValueError(f"uncertainty_m: finite and at least 0 (got {self.uncertainty_m})")
         if self.params.processing_delay_s >= self.params.report_period_s:
             raise ValueError("params.processing_delay_s: must be shorter than the report period")
 
@@ -144,7 +148,10 @@ class ZoneModel:
         return [(i + 0.5) * self.segment_m for i in range(1, self.trains + 1)]
 
     def occupancy(self, front_m: float) -> tuple[float, float]:
-        return front_m - self.train_length_m, front_m
+        """Where a train reported at ``front_m`` may be: its length, its location uncertainty at both
+        ends and the rollback allowance behind (IEEE 1474.1)."""
+        u = self.uncertainty_m
+        return front_m - self.train_length_m - u - self.params.rollback_m, front_m + u
 
 
 # ---------------------------------------------------------------------- what happens in a cycle
@@ -223,6 +230,7 @@ class TrainSnapshot:
     commands_missed: int  # cycles in a row that ended without a command (the model's book)
     known_m: float | None  # the last front the controller received (the model's book)
     given_end_m: float | None  # the furthest authority end the controller gave it (the model's book)
+    intended_end_m: float | None  # the end the controller meant by the last command it got (the book)
     status: TrainStatus  # the controller's
     zone: Zone | None  # the controller's
     emergency_brake: bool  # the onboard unit's
@@ -312,7 +320,16 @@ def _plain(value: object) -> object:
 # The onboard unit's running counters and absolute times: left out of the state (its behaviour
 # does not depend on them).
 _ONBOARD_SKIP = frozenset(
-    {"commands", "eb_count", "eb_causes", "foreign_commands", "_next_report_s", "start_s", "params"}
+    {
+        "commands",
+        "eb_count",
+        "eb_causes",
+        "foreign_commands",
+        "refused_commands",
+        "_next_report_s",
+        "start_s",
+        "params",
+    }
 )
 
 
@@ -362,6 +379,7 @@ class World:
         self.got_command = [False] * n  # in the cycle under way
         self.known: list[float | None] = [None] * n
         self.given_end: list[float | None] = [None] * n
+        self.intended_end: list[float | None] = [None] * n
         # The cycle under way:
         self._actions: list[TrainAction] = []
         self._timers: list[TimerRecord] = []
@@ -378,7 +396,8 @@ class World:
         w = copy.copy(self)
         w.zc = copy_unit(self.zc)
         w.onboards = [copy_unit(ob) for ob in self.onboards]
-        for name in ("fronts", "losses", "commands_missed", "got_command", "known", "given_end", "_actions"):
+        names = ("fronts", "losses", "commands_missed", "got_command", "known", "given_end", "intended_end")
+        for name in (*names, "_actions"):
             setattr(w, name, list(getattr(self, name)))
         w._timers = list(self._timers)
         w._releases = list(self._releases)
@@ -404,7 +423,10 @@ class World:
         # [interpretation] The model abstracts speed away: a train moves in whole steps between
         # cycles and stands at each report (speed 0), so the onboard speed supervision (tested in
         # the unit tests) stays quiet and the emergency brake releases with the next command.
-        ob.handle(OnboardPosition(position_m=action.to_m, speed_mps=0.0), self.t_s)
+        position = OnboardPosition(
+            position_m=action.to_m, speed_mps=0.0, uncertainty_m=self.model.uncertainty_m
+        )
+        ob.handle(position, self.t_s)
         self.got_command[i] = False
         outs = ob.on_timer(self.t_s)
         self._timers.append(
@@ -473,6 +495,7 @@ class World:
             end = front + cmd.authority_m
             prev = self.given_end[i]
             self.given_end[i] = end if prev is None else max(prev, end)
+            self.intended_end[i] = end
             self.got_command[i] = True
             self.onboards[i].handle(cmd, now_s)
             records.append(
@@ -518,7 +541,7 @@ class World:
                     v = (v.position_m, v.speed_mps, v.direction)
                 parts.append(_plain(v))
             unit = tuple(parts)
-        onboard = tuple([_plain(getattr(ob, name)) for name in _onboard_state_names(type(ob))])
+        onboard = tuple([self._onboard_field(ob, name) for name in _onboard_state_names(type(ob))])
         return TrainSnapshot(
             train=train,
             front_m=self.fronts[i],
@@ -526,6 +549,7 @@ class World:
             commands_missed=self.commands_missed[i],
             known_m=self.known[i],
             given_end_m=self.given_end[i],
+            intended_end_m=self.intended_end[i],
             status=self.status(train),
             zone=self.zone(train),
             emergency_brake=ob.emergency_brake,
@@ -533,6 +557,20 @@ class World:
             unit=unit,
             onboard=onboard,
         )
+
+    def _onboard_field(self, ob: OnboardCbtc, name: str) -> object:
+        """A hashable stand-in for the onboard unit's field, its absolute times made ages in cycles
+        (the reports it keeps, the report its authority answers)."""
+        v = getattr(ob, name)
+        period = self.model.params.report_period_s
+        if name == "_answered_s":
+            return None if math.isinf(v) else round((self.t_s - v) / period, 6)
+        if name == "_sent":
+            return tuple(
+                (round((self.t_s - r.time_s) / period, 6), r.position_m, r.speed_mps, r.uncertainty_m)
+                for r in v
+            )
+        return _plain(v)
 
     # ------------------------------------------------------------------ the choices of a cycle
 
@@ -615,8 +653,10 @@ def _authority_clear(before: Snapshot, step: Step, after: Snapshot, model: ZoneM
     # protection zone. [interpretation] An authority already inside a zone set since (the
     # conventional zone reaches back over the overlap) is not *extended*: the command is 0.
     # A train ahead of the lost one is not following it: the zone's rounding may reach under
-    # it, and it may run on, away from the zone.
-    margin = model.params.safety_margin_m
+    # it, and it may run on, away from the zone. IEEE 1474.1: the last reported rear less the
+    # train ahead's uncertainty and the rollback (model.occupancy), and the end placed for the
+    # train's own front plus its uncertainty.
+    margin = model.params.safety_margin_m + model.uncertainty_m
     for c in step.commands:
         limit, why = math.inf, ""
         fronts = dict(c.known)
@@ -630,7 +670,7 @@ def _authority_clear(before: Snapshot, step: Step, after: Snapshot, model: ZoneM
                     limit, why = lim, f"the zone {z.start_m:g}-{z.end_m:g} m of T{z.train_id}"
         for other, front in c.known:
             if other != c.train and front > c.front_m + _EPS:
-                rear, _ = model.occupancy(front)
+                rear, _ = model.occupancy(front)  # less its uncertainty and the rollback
                 lim = max(rear - margin, c.front_m)
                 if lim < limit:
                     limit, why = lim, f"the last reported rear {rear:g} m of T{other}"
@@ -700,9 +740,9 @@ def _lost_train_zone(before: Snapshot, step: Step, after: Snapshot, model: ZoneM
             continue
         if s.known_m is None:  # never heard of: not on the controlled line
             continue
-        lo, hi = model.occupancy(s.known_m)
+        lo, hi = model.occupancy(s.known_m)  # with the uncertainty and the rollback
         if s.given_end_m is not None:
-            hi = max(hi, s.given_end_m)
+            hi = max(hi, s.given_end_m + model.uncertainty_m)  # its true front may stop that far
         # [interpretation] An authority beyond the line's end (the area's exit) is protected up to
         # the end: the zone is made of the line's segments, and beyond them the train leaves.
         lo, hi = max(lo, 0.0), min(hi, model.line_end_m)
@@ -717,11 +757,30 @@ def _lost_train_zone(before: Snapshot, step: Step, after: Snapshot, model: ZoneM
     return None
 
 
+def _authority_end(before: Snapshot, step: Step, after: Snapshot, model: ZoneModel) -> str | None:
+    # SPEC §4: the authority is the distance from Pc of the report the command answers; the
+    # onboard unit must take the end the controller meant, never one beyond it (which would eat
+    # the margin, the uncertainties and the rollback the controller left before the obstacle),
+    # and a newer command's shorter authority replaces a longer one.
+    for s in after.trains:
+        if s.held_end_m is None:
+            continue
+        if s.intended_end_m is None:
+            return f"T{s.train} holds an authority to {s.held_end_m:g} m that no command gave"
+        if s.held_end_m > s.intended_end_m + _EPS:
+            return (
+                f"T{s.train} holds an authority to {s.held_end_m:g} m, beyond the {s.intended_end_m:g} m "
+                "the controller meant by its last command"
+            )
+    return None
+
+
 INVARIANTS: tuple[Invariant[CheckFn], ...] = (
     Invariant(
         name="authority-clear",
         text="no authority reaches into the zone of a lost train ahead or beyond the last reported rear "
-        "of the train ahead (a train already inside a zone gets 0)",
+        "of the train ahead less the margin, both uncertainties and the rollback (a train already "
+        "inside a zone gets 0)",
         check=_authority_clear,
     ),
     Invariant(
@@ -738,6 +797,12 @@ INVARIANTS: tuple[Invariant[CheckFn], ...] = (
         name="lost-train-zone",
         text="a lost train has a zone covering its last known occupancy and its furthest authority end",
         check=_lost_train_zone,
+    ),
+    Invariant(
+        name="authority-end",
+        text="the onboard authority's end is never beyond the end the controller meant by its last command "
+        "(so never beyond the obstacle less the margin, the uncertainties and the rollback)",
+        check=_authority_end,
     ),
 )
 
