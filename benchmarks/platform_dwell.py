@@ -10,9 +10,9 @@ row) replaced by each pair of values given. Printed per value:
 the outcomes, how far the PSD lags the train doors (open: the PSD fully open
 after the train doors; close: the PSD closed and locked after the train
 doors are), the time from the stand to departure, the frames misread, and
-the **unsafe PSD moves**: the PSD starting to close while the train doors
-are open, or opening while the relay is off (the checks of ``platform
-verify``, counted on the simulated timelines). The figures are what the
+the **unsafe PSD moves**: the PSD starting to close before the train doors
+are closed and locked, or opening while the relay is off (the checks of
+``platform verify``, counted on the simulated timelines). The figures are what the
 camera's detection delay, confirmation and misreads cost a dwell.
 """
 
@@ -38,8 +38,8 @@ def _unsafe(timeline: tuple) -> int:
     now: dict[str, object] = {}
     bad = 0
     for e in timeline:
-        if e.signal == "PSD" and e.value == "closing" and now.get("train_doors") in ("open", "opening"):
-            bad += 1
+        if e.signal == "PSD" and e.value == "closing" and now.get("train_doors") != "closed_locked":
+            bad += 1  # SPEC §5 order: the train doors closed and locked first
         if e.signal == "PSD" and e.value == "opening" and now.get("psd_relay") != 1:
             bad += 1
         now[e.signal] = e.value
@@ -60,7 +60,8 @@ def main() -> None:
     print(
         f"{args.dwells:,} dwells per value, stands within ±0.30 m; camera: a frame every "
         f"{cam.frame_period_s:g} s, {cam.processing_delay_s:g} s detection delay, 'open' from "
-        f"{cam.open_fraction:.0%} open; train doors "
+        f"{cam.open_fraction:.0%} open, 'closed' only shut, locked after {cam.lock_confirm_s:g} s more; "
+        f"train doors "
         f"{doors.timing.train_door_open_s:g} / {doors.timing.train_door_close_s:g} s, PSD "
         f"{doors.timing.psd_open_s:g} / {doors.timing.psd_close_s:g} s (open / close)"
     )

@@ -12,7 +12,15 @@ from types import MappingProxyType
 import pytest
 
 from railstop.config.doors import load_doors
-from railstop.control.doors import DOOR_TRANSITIONS, Action, ActionRow, DoorInput, DoorState, Interlocks
+from railstop.control.doors import (
+    CLOSED_STATES,
+    DOOR_TRANSITIONS,
+    Action,
+    ActionRow,
+    DoorInput,
+    DoorState,
+    Interlocks,
+)
 from railstop.onboard.stop_confirm import STOP_TRANSITIONS, StopInput, StopPhase
 from railstop.sim.door_system import DoorModel
 from railstop.sim.doors_verify import INVARIANTS, all_controls, verify
@@ -114,6 +122,16 @@ def test_each_invariant_catches_its_broken_table(invariant, real_result) -> None
     (example,) = broken.examples
     assert example.invariant == invariant.name and example.message
     assert example.trace[0].startswith("moving") and example.trace[-1].startswith("->")
+
+
+@pytest.mark.parametrize("doors_per_side", [1, 2])
+def test_a_psd_that_closes_on_shut_but_unlocked_train_doors_is_caught(doors_per_side: int) -> None:
+    """SPEC §5 order: "closed" is not enough; the PSD waits for the train doors' lock."""
+    (inv,) = [i for i in INVARIANTS if i.name == "train-closes-first"]
+    loose = dataclasses.replace(MODEL, interlocks=Interlocks(psd_closes_when_train=CLOSED_STATES))
+    r = verify(loose, doors_per_side=doors_per_side, invariants=[inv], stop_on_violation=True)
+    assert r.counts[inv.name] >= 1
+    assert r.examples[0].message.endswith("is closed")  # shut, the lock not yet made
 
 
 def test_broken_source_row_fails_in_full_search() -> None:

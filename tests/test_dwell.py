@@ -386,3 +386,22 @@ def test_cli_dwell_link_cut_ends_in_the_fault_path(tmp_path: Path) -> None:
     d = json.loads(p.stdout)
     assert d["outcome"] == "fault" and d["emergency_brake"] and d["start_enable_s"] is None
     assert d["link"]["lost"] > 0 and d["link"]["commands_sent"] > 100
+
+
+@pytest.mark.parametrize("mode", ["auto", "manual"])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_psd_starts_closing_only_after_the_train_doors_are_closed_and_locked(
+    mode: str, seed: int
+) -> None:
+    """SPEC §5 order, closing: train doors first (closed and locked, as the train's door-command
+    frames carry it to the WPCS), then the PSD; with a lossy link (a lost frame delays the PSD,
+    never lets it close early), an obstruction, automatic and manual door modes."""
+    from railstop.sim.dwell import make_door_link
+
+    link = make_door_link(CFG, seed=seed, loss_probability=0.1)
+    r = dwell(0.1, mode=mode, link=link, obstruct_door=1 + seed, seed=seed)
+    closings = [e.t_s for e in r.timeline if e.signal == "PSD" and str(e.value).startswith("closing")]
+    # A link lost with PSC high ends in the fault (the PSD then stays as it is); else it closes.
+    assert closings or r.outcome == "fault"
+    for t in closings:
+        assert value_at(r, "train_doors-R", t) == "closed_locked", t

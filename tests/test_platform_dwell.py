@@ -140,9 +140,13 @@ def expert_only() -> DriverFile:
 
 # ----------------------------------------------------------------------------- PsdFollower
 
+OPEN_, MOVING_, CLOSED_ = "open", "moving", "closed"
+OPEN_CMD = PsdCommand(open=True, camera_ok=True)
+CLOSE_CMD = PsdCommand(open=False, camera_ok=True)
 
-def follower(confirm: int = 3, lost: int = 10) -> PsdFollower:
-    return PsdFollower(confirm_frames=confirm, lost_limit_frames=lost)
+
+def follower(confirm: int = 3, lost: int = 10, lock: int = 5) -> PsdFollower:
+    return PsdFollower(confirm_frames=confirm, lost_limit_frames=lost, lock_frames=lock)
 
 
 def relay(f: PsdFollower, on: bool) -> list[PsdCommand]:
@@ -151,10 +155,10 @@ def relay(f: PsdFollower, on: bool) -> list[PsdCommand]:
     )
 
 
-def frames(f: PsdFollower, *seen: bool | None) -> list[PsdCommand]:
+def frames(f: PsdFollower, *seen: str | None) -> list[PsdCommand]:
     got: list[PsdCommand] = []
     for s in seen:
-        got += commands(f.handle(DoorCameraFrame(doors_open=s), 0.0))
+        got += commands(f.handle(DoorCameraFrame(shape=s), 0.0))
     return got
 
 
@@ -167,8 +171,8 @@ def commands(outputs: list[Any]) -> list[PsdCommand]:
 def opened(f: PsdFollower, confirm: int = 3) -> PsdFollower:
     """A follower with its relay energised and the doors confirmed open (the PSD told to open)."""
     relay(f, True)
-    got = frames(f, *[True] * confirm)
-    assert got == [PsdCommand(open=True, camera_ok=True)]
+    got = frames(f, *[OPEN_] * confirm)
+    assert got == [OPEN_CMD]
     return f
 
 
@@ -176,36 +180,60 @@ def opened(f: PsdFollower, confirm: int = 3) -> PsdFollower:
 def test_fewer_misread_frames_than_confirm_never_move_the_command(confirm: int) -> None:
     f = follower(confirm)
     relay(f, True)
-    assert frames(f, *[False] * confirm) == []  # closed confirmed: still closed, nothing to say
+    assert frames(f, *[CLOSED_] * 40) == []  # closed and locked: still closed, nothing to say
     # Runs of confirm-1 "open" misreads, each broken by a true "closed" frame, unreadable frames
     # in between (they neither confirm nor break a run).
-    burst = [True, None] * (confirm - 1) + [False]
+    burst = [OPEN_, None] * (confirm - 1) + [CLOSED_]
     assert frames(f, *burst * 20) == []
     assert not f.command.open
     # One more "open" in the run is the confirmed shape: the PSD opens.
-    assert frames(f, *[True, None] * (confirm - 1), True) == [PsdCommand(open=True, camera_ok=True)]
+    assert frames(f, *[OPEN_, None] * (confirm - 1), OPEN_) == [OPEN_CMD]
     # The same the other way round: misread "closed" frames do not shut an open PSD.
-    assert frames(f, *([False] * (confirm - 1) + [True]) * 20) == []
+    assert frames(f, *([CLOSED_] * (confirm - 1) + [OPEN_]) * 20) == []
     assert f.command.open
+
+
+@pytest.mark.parametrize(("confirm", "lock"), [(1, 0), (2, 3), (3, 5), (4, 2)])
+def test_the_psd_closes_only_after_a_run_of_closed_frames_that_outlasts_misreads_and_the_lock(
+    confirm: int, lock: int
+) -> None:
+    """SPEC §5 order (train doors closed and locked, then the PSD): "closed" frames, readable and in
+    a row, enough that with confirm - 1 misreads at either end lock + 1 true ones remain."""
+    f = opened(follower(confirm, lock=lock), confirm)
+    need = 2 * (confirm - 1) + lock + 1
+    assert f.locked_after_frames() == need
+    assert frames(f, *[MOVING_] * 30) == []  # the doors on their way: held open
+    assert frames(f, *[CLOSED_] * (need - 1)) == [] and f.command.open
+    # An unreadable frame, or any other shape, starts the count again.
+    for breaker in (None, MOVING_, OPEN_):
+        assert frames(f, breaker, *[CLOSED_] * (need - 1)) == [] and f.command.open
+    assert frames(f, CLOSED_) == [CLOSE_CMD]
+    assert f.doors_locked()
 
 
 def test_without_the_relay_the_psd_never_opens_whatever_the_camera_says() -> None:
     f = follower()
     relay(f, False)
-    assert frames(f, *[True] * 50, *[None] * 5, *[True] * 50) == []
-    assert f.shape is True and not f.command.open  # it sees the doors open and still keeps shut
+    assert frames(f, *[OPEN_] * 50, *[None] * 5, *[OPEN_] * 50) == []
+    assert f.shape == OPEN_ and not f.command.open  # it sees the doors open and still keeps shut
 
 
-def test_the_relay_dropping_closes_an_open_psd() -> None:
+def test_the_relay_dropping_holds_an_open_psd_until_the_doors_are_seen_locked() -> None:
+    """[interpretation] DESIGN rule 10: OK going dark (signal-open switch, a moved train) does not
+    shut the PSD on train doors that are not closed and locked; nothing opens without it."""
     f = opened(follower())
-    assert relay(f, False) == [PsdCommand(open=False, camera_ok=True)]
-    assert frames(f, *[True] * 20) == []  # the doors still open: the PSD stays shut
+    assert relay(f, False) == []  # held open
+    assert frames(f, *[OPEN_] * 20, *[MOVING_] * 20, *[CLOSED_] * (f.locked_after_frames() - 1)) == []
+    assert f.command.open
+    assert frames(f, CLOSED_) == [CLOSE_CMD]
+    assert frames(f, *[OPEN_] * 20) == []  # no relay: it does not open again
 
 
-def test_the_relay_dropping_closes_an_open_psd_held_by_a_lost_camera() -> None:
+def test_the_relay_dropping_leaves_an_open_psd_held_by_a_lost_camera_for_staff() -> None:
     f = opened(follower(lost=4))
     assert frames(f, *[None] * 4) == [PsdCommand(open=True, camera_ok=False)]
-    assert relay(f, False) == [PsdCommand(open=False, camera_ok=False)]
+    assert relay(f, False) == []
+    assert f.command == PsdCommand(open=True, camera_ok=False)
 
 
 @pytest.mark.parametrize("lost", [1, 4, 10])
@@ -221,36 +249,44 @@ def test_a_lost_camera_holds_an_open_psd_open(lost: int) -> None:
 def test_a_lost_camera_holds_a_closed_psd_closed() -> None:
     f = follower(lost=5)
     relay(f, True)
-    frames(f, *[False] * 3)
+    frames(f, *[CLOSED_] * 3)
     assert frames(f, *[None] * 5) == [PsdCommand(open=False, camera_ok=False)]
     assert frames(f, *[None] * 50) == []
     assert not f.command.open
 
 
 @pytest.mark.parametrize("confirm", [1, 3, 4])
-def test_a_recovered_camera_needs_confirm_frames_again(confirm: int) -> None:
+def test_a_recovered_camera_needs_the_whole_run_again(confirm: int) -> None:
     lost = 6
-    # Held open: the first readable frames after the loss do not close it before a full run.
+    # Held open: the readable frames after the loss do not close it before a whole locked run.
     f = opened(follower(confirm, lost), confirm)
     frames(f, *[None] * lost)
-    got = frames(f, *[False] * (confirm - 1))
+    got = frames(f, *[CLOSED_] * (f.locked_after_frames() - 1))
     assert all(c.open for c in got) and f.command.open
-    assert frames(f, False) == [PsdCommand(open=False, camera_ok=True)]
+    assert frames(f, CLOSED_) == [CLOSE_CMD]
     # Held closed: "open" frames seen before the loss do not count towards the run after it.
     f = follower(confirm, lost)
     relay(f, True)
-    frames(f, *[False] * confirm, *[True] * (confirm - 1), *[None] * lost)
+    frames(f, *[CLOSED_] * confirm, *[OPEN_] * (confirm - 1), *[None] * lost)
     assert not f.command.open and not f.camera_ok()
-    got = frames(f, *[True] * (confirm - 1))
+    got = frames(f, *[OPEN_] * (confirm - 1))
     assert not any(c.open for c in got) and not f.command.open
-    assert frames(f, True) == [PsdCommand(open=True, camera_ok=True)]
+    assert frames(f, OPEN_) == [OPEN_CMD]
 
 
 def test_unreadable_frames_short_of_the_limit_neither_confirm_nor_break_a_run() -> None:
     f = follower(confirm=3, lost=4)
     relay(f, True)
-    assert frames(f, True, None, None, None, True, None, None, None) == []
-    assert frames(f, True) == [PsdCommand(open=True, camera_ok=True)]  # the third "open" frame
+    assert frames(f, OPEN_, None, None, None, OPEN_, None, None, None) == []
+    assert frames(f, OPEN_) == [OPEN_CMD]  # the third "open" frame
+
+
+def test_a_frame_of_unknown_shape_counts_unreadable_and_is_refused() -> None:
+    f = opened(follower(lost=1))
+    with pytest.raises(InterlockError, match="unknown shape"):
+        f.handle(DoorCameraFrame(shape="ajar"), 0.0)
+    # DESIGN rule 10 first: counted unreadable (here: the camera lost), the PSD held open.
+    assert not f.camera_ok() and f.command.open and f.closed_run == 0
 
 
 @pytest.mark.parametrize(
@@ -268,13 +304,15 @@ def test_a_psd_control_needs_at_least_one_frame() -> None:
         PsdFollower(confirm_frames=0)
     with pytest.raises(InterlockError):
         PsdFollower(lost_limit_frames=0)
+    with pytest.raises(InterlockError):
+        PsdFollower(lock_frames=-1)
     with pytest.raises(InterlockError, match="platform"):
-        PlatformUnit(lamp_table=PLATFORM.lamps()).handle(DoorCameraFrame(doors_open=True), 0.0)
+        PlatformUnit(lamp_table=PLATFORM.lamps()).handle(DoorCameraFrame(shape=OPEN_), 0.0)
 
 
 _EVENTS = st.one_of(
     st.booleans().map(lambda b: ("relay", b)),
-    st.sampled_from([True, False, None]).map(lambda s: ("frame", s)),
+    st.sampled_from([OPEN_, MOVING_, CLOSED_, None]).map(lambda s: ("frame", s)),
 )
 
 
@@ -282,16 +320,18 @@ _EVENTS = st.one_of(
 @given(
     confirm=st.integers(1, 4),
     lost=st.integers(1, 6),
+    lock=st.integers(0, 4),
     events=st.lists(_EVENTS, max_size=80),
 )
 def test_the_psd_command_follows_only_confirmed_shapes_under_the_relay(
-    confirm: int, lost: int, events: list[tuple[str, bool | None]]
+    confirm: int, lost: int, lock: int, events: list[tuple[str, Any]]
 ) -> None:
     """Against a plain reading of the rules, for any sequence of relay changes and frames."""
-    f = follower(confirm, lost)
+    f = follower(confirm, lost, lock)
     on = False
-    readable: list[bool] = []  # the readable frames since the camera was last lost
-    shape: bool | None = None  # the last shape seen in confirm readable frames in a row since then
+    readable: list[str] = []  # the readable frames since the camera was last lost
+    shape: str | None = None  # the last shape seen in confirm readable frames in a row since then
+    since: list[str | None] = []  # every frame, to find the last run of "closed" ones
     unreadable = 0
     cmd = PsdCommand(open=False, camera_ok=True)
     for kind, value in events:
@@ -300,6 +340,7 @@ def test_the_psd_command_follows_only_confirmed_shapes_under_the_relay(
             got = relay(f, on)
         else:
             got = frames(f, value)
+            since.append(value)
             if value is None:
                 unreadable += 1
                 if unreadable >= lost:
@@ -309,15 +350,19 @@ def test_the_psd_command_follows_only_confirmed_shapes_under_the_relay(
                 readable.append(value)
                 if len(readable) >= confirm and len(set(readable[-confirm:])) == 1:
                     shape = value
+        closed_run = 0
+        for v in reversed(since):
+            if v != CLOSED_:
+                break
+            closed_run += 1
+        locked = closed_run >= 2 * (confirm - 1) + lock + 1
         assert f.camera_ok() == (unreadable < lost)
         assert got == ([] if f.command == cmd else [f.command])  # a message only on a change
-        if f.command.open:
-            assert on  # never open without the relay
         if f.command.open and not cmd.open:
-            assert shape is True and f.camera_ok()
+            assert on and shape == OPEN_ and f.camera_ok()  # never opens without the relay
         if cmd.open and not f.command.open:
-            assert not on or shape is False
-        if on and not f.camera_ok():
+            assert locked  # SPEC §5 order: never closes before the doors count as locked
+        if not f.camera_ok():
             assert f.command.open == cmd.open  # lost: held where it was
         cmd = f.command
 
@@ -325,19 +370,29 @@ def test_the_psd_command_follows_only_confirmed_shapes_under_the_relay(
 # ----------------------------------------------------------------------------- the camera
 
 
-def test_classify_lost_frames_and_misreads() -> None:
-    from railstop.sensors.door_camera import classify
+def test_classify_three_shapes_lost_frames_and_misreads() -> None:
+    from railstop.sensors.door_camera import classify, true_shape
 
     p = DoorCamera(lost_frame_probability=0.1, misread_probability=0.2, open_fraction=0.3)
-    for x in (0.0, 0.29, 0.3, 1.0):
-        truth = x >= p.open_fraction
+    # "closed" only fully shut; "open" from open_fraction; "moving" in between.
+    cases = {0.0: CLOSED_, 1e-6: MOVING_, 0.29: MOVING_, 0.3: OPEN_, 1.0: OPEN_}
+    for x, truth in cases.items():
+        assert true_shape(x, p) == truth
         # A draw below the lost probability: unreadable, whatever the doors and the misread draw.
         assert classify(x, 0.0, 0.9, p) is None and classify(x, 0.099, 0.0, p) is None
-        assert classify(x, 0.1, 0.9, p) is truth and classify(x, 0.99, 0.2, p) is truth
-        # A draw below the misread probability: the other shape.
-        assert classify(x, 0.5, 0.0, p) is (not truth) and classify(x, 0.5, 0.199, p) is (not truth)
+        assert classify(x, 0.1, 0.9, p) == truth and classify(x, 0.99, 0.2, p) == truth
+        # A draw below the misread probability: one of the two other shapes, each half the time.
+        low, high = classify(x, 0.5, 0.0, p), classify(x, 0.5, 0.199, p)
+        assert {low, high} == {OPEN_, MOVING_, CLOSED_} - {truth}
+        assert classify(x, 0.5, 0.099, p) == low and classify(x, 0.5, 0.1, p) == high
     perfect = DoorCamera(lost_frame_probability=0.0, misread_probability=0.0)
-    assert classify(0.9, 0.0, 0.0, perfect) is True and classify(0.1, 0.0, 0.0, perfect) is False
+    assert classify(0.9, 0.0, 0.0, perfect) == OPEN_ and classify(0.01, 0.0, 0.0, perfect) == MOVING_
+
+
+def test_the_dwell_refuses_a_lock_confirmation_shorter_than_the_doors_lock() -> None:
+    camera = PLATFORM.camera.model_copy(update={"lock_confirm_s": TIMING.train_door_lock_s / 2})
+    with pytest.raises(ConfigError, match=r"camera\.lock_confirm_s"):
+        dwell(0.1, platform=PLATFORM.model_copy(update={"camera": camera}))
 
 
 @pytest.mark.parametrize(
@@ -398,6 +453,10 @@ def test_a_stand_in_the_window_serves_the_platform_psd_master_train_slave(
     # The PSD follows the train doors (the camera's delay): opens after them, closes after them.
     assert first(states, "PSD", "opening") > first(states, "train_doors", "opening")
     assert first(states, "PSD", "closing") > first(states, "train_doors", "closing")
+    # SPEC §5 order (closing: train doors first, then the PSD): it starts closing only once they
+    # are closed and locked.
+    for t, s in becomes(states, "PSD", "closing"):
+        assert s["train_doors"] == "closed_locked", (t, s)
     moved = first(states, "moving", 1)
     assert moved == pytest.approx(r.departure_s)
     assert moved > first(states, "PSD", "closed_locked") > first(states, "PSD", "closing")
@@ -718,3 +777,20 @@ def test_the_psd_never_starts_closing_onto_open_train_doors_at_a_stand_inside_th
             r = dwell(err, seed)
             for t, s in becomes(instants(r.timeline), "PSD", "closing"):
                 assert s["train_doors"] not in ("open", "opening"), (seed, err, t)
+
+
+@pytest.mark.parametrize("seed", range(1, 13))
+def test_the_psd_never_starts_closing_before_the_train_doors_are_closed_and_locked(seed: int) -> None:
+    """SPEC §3 with the camera, SPEC §5 order: over stands across the window and many camera draws
+    (misreads at a tenth of the frames), every PSD closing starts with the train doors locked."""
+    camera = PLATFORM.camera.model_copy(update={"misread_probability": 0.1})
+    platform = PLATFORM.model_copy(update={"camera": camera})
+    stand = -0.3 + 0.05 * (seed - 1)
+    r = dwell(stand, seed=seed, platform=platform)
+    assert r.outcome == "departed"
+    states = instants(r.timeline)
+    closings = becomes(states, "PSD", "closing")
+    assert closings
+    for t, s in closings:
+        assert s["train_doors"] == "closed_locked" and s["camera"] == "closed_locked", (t, s)
+    assert first(states, "PSD", "closing") > first(states, "train_doors", "closed_locked")

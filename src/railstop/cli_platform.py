@@ -64,9 +64,13 @@ def verify_cmd(
     platform: Annotated[
         Path | None, typer.Option("--platform", help="Platform TOML file (default: embedded).")
     ] = None,
+    doors: DoorsOpt = None,
 ) -> None:
     """Every reachable state of the real platform unit and PSD control under every event; exit 1 on
     a violation."""
+    import math
+
+    from railstop.config.doors import load_doors
     from railstop.config.platform import load_platform
     from railstop.sim.platform_verify import INVARIANTS, verify
     from railstop.wayside.platform import PlatformUnit, PsdFollower
@@ -78,20 +82,29 @@ def verify_cmd(
         confirm = data.camera.confirm_frames
         misreads = confirm - 1 if max_misreads is None else max_misreads
         lost = data.camera.lost_limit_frames if lost_limit is None else lost_limit
+        lock = data.camera.lock_frames
+        # The world's doors lock within the door data's lock time: frames that span it.
+        lock_s = load_doors(doors).timing.train_door_lock_s
+        door_lock = math.ceil(lock_s / data.camera.frame_period_s - 1e-9)
         result = verify(
             lambda: PlatformUnit(lamp_table=data.lamps(), debounce_scans=k),
-            follower_factory=lambda: PsdFollower(confirm_frames=confirm, lost_limit_frames=lost),
+            follower_factory=lambda: PsdFollower(
+                confirm_frames=confirm, lost_limit_frames=lost, lock_frames=lock
+            ),
             max_dropouts=drops,
             max_misreads=misreads,
+            lock_frames=door_lock,
         )
     except RailstopError as exc:
         fail(str(exc))
     out.print(
         f"platform verify ({source}): the real platform unit (debounce {k} scans, up to {drops} "
-        f"missed scans in a row per sensor) and PSD control (confirms {confirm} frames, camera lost "
-        f"after {lost} unreadable ones; up to {misreads} misread frames in a row); train stops short / "
-        "in the window / past, starts, doors, camera frames, PSD following the control, the "
-        "signal-open switch",
+        f"missed scans in a row per sensor; train stops short / in the window / past, starts, the "
+        f"PSD, the signal-open switch: {result.unit_states} states) and PSD control (confirms "
+        f"{confirm} frames, counts the doors locked after {lock} more, camera lost after {lost} "
+        f"unreadable ones; up to {misreads} misread frames in a row, the doors locked within "
+        f"{door_lock} frames of shutting; the relay, the train doors opening, closing, reopening, "
+        f"locking, camera frames, the PSD following the control: {result.control_states} states)",
         highlight=False,
         soft_wrap=True,
     )

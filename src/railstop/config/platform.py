@@ -9,6 +9,7 @@ else.
 from __future__ import annotations
 
 import functools
+import math
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -45,6 +46,14 @@ class DoorCamera(Model):
     lost_frame_probability: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.001
     confirm_frames: Annotated[int, Field(ge=1, le=100)] = 3
     lost_limit_frames: Annotated[int, Field(ge=1, le=1000)] = 10
+    # SPEC §3 / §5 order (train doors closed and locked, then the PSD): the camera cannot see the
+    # locks, so "closed" frames must go on this long before the doors count as locked.
+    lock_confirm_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = 0.5
+
+    @property
+    def lock_frames(self) -> int:
+        """Frames that span ``lock_confirm_s`` (rounded up: never shorter than the time)."""
+        return math.ceil(self.lock_confirm_s / self.frame_period_s - 1e-9)
 
 
 class LampRow(Model):

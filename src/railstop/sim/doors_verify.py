@@ -114,14 +114,17 @@ def _train_after_psd(
 def _psd_after_train(
     before: World, c: Controls, ev: Event, after: World, errors: tuple[str, ...], model: DoorModel
 ) -> str | None:
-    # SPEC §5 order: closing the train doors first, then the PSD.
+    # SPEC §5 order: closing the train doors first, then the PSD: a PSD unit starts closing only
+    # once every train door of its side is closed and locked (SPEC §5 fig. 7's "closed and
+    # locked"; a door shut but not yet locked does not count). Judged against LOCKED_STATES, not
+    # the model's own interlock set, so that a looser set is caught.
     if after.wpcs is before.wpcs:
         return None
     side = after.wpcs.side
     for i, (u0, u1) in enumerate(zip(before.wpcs.units, after.wpcs.units, strict=True)):
         if u1 == DoorState.CLOSING and u0 != DoorState.CLOSING:
             for j, t in enumerate(after.cpcs.side(side)):
-                if t not in CLOSED_STATES:
+                if t not in LOCKED_STATES:
                     return f"PSD {side.value}{i + 1} closes while train door {side.value}{j + 1} is {t.value}"
     return None
 
@@ -189,7 +192,7 @@ INVARIANTS: tuple[Invariant[CheckFn], ...] = (
     ),
     Invariant(
         name="train-closes-first",
-        text="the PSD never closes before the train doors are closed",
+        text="the PSD starts closing only after the train doors of its side are closed and locked",
         check=_psd_after_train,
     ),
     Invariant(

@@ -11,9 +11,12 @@ wires the real units to a clock and to the people who act on them:
   §3: he opens no doors without it: the PSD would stay closed in front of
   them), keeps them open for the dwell and closes them;
 * the CCD camera (``sensors.door_camera``: detection delay, misreads, lost
-  frames) shows the doors to the PSD control (``wayside.platform.PsdFollower``),
-  which opens and closes the PSD after them while the relay is energised; the
-  PSD is faster than the train doors (the door data's timings, checked there);
+  frames; "open", "moving", "closed" only when fully shut) shows the doors to
+  the PSD control (``wayside.platform.PsdFollower``), which opens the PSD after
+  them while the relay is energised and closes it only once the doors have
+  been seen shut for long enough to be locked (SPEC §5 order: train doors
+  closed and locked, then the PSD); the PSD is faster than the train doors
+  (the door data's timings, checked there);
 * the platform unit permits departure only with the PSD closed and locked
   (SPEC §3: the PSD is master, the train slave) and then lights S; the driver
   departs when he sees it (at a station without PSD, once his doors are closed
@@ -39,7 +42,7 @@ import numpy as np
 
 from railstop.config.doors import DoorsConfig
 from railstop.config.platform import PlatformFile
-from railstop.errors import SimulationError
+from railstop.errors import ConfigError, SimulationError
 from railstop.messages import (
     DoorCameraFrame,
     PlatformLamps,
@@ -48,7 +51,7 @@ from railstop.messages import (
     SignalOpenSwitch,
     StopSensorScan,
 )
-from railstop.sensors.door_camera import classify
+from railstop.sensors.door_camera import classify, true_shape
 from railstop.sensors.stop_sensors import sees, sensor_positions
 from railstop.sim.dwell import DwellEvent
 from railstop.streams import Stream, seed_u64
@@ -184,6 +187,16 @@ def run_platform_dwell(
         raise SimulationError(f"stop_error_m: must be a finite number (got {stop_error_m!r})")
     if camera_lost_from_s is not None and not (math.isfinite(camera_lost_from_s) and camera_lost_from_s >= 0):
         raise SimulationError(f"camera_lost_from_s: must be a time >= 0 (got {camera_lost_from_s!r})")
+    if platform.camera.lock_confirm_s < doors.timing.train_door_lock_s:
+        # SPEC §5 order: the PSD closes after the train doors are locked; the camera cannot see the
+        # locks, so its lock confirmation may not be shorter than the doors' lock time.
+        raise ConfigError(
+            "platform data",
+            "camera.lock_confirm_s",
+            f"shorter than the train doors' lock time ({doors.source}: timing.train_door_lock_s = "
+            f"{doors.timing.train_door_lock_s:g} s)",
+            platform.camera.lock_confirm_s,
+        )
     rng = np.random.default_rng(
         np.random.SeedSequence([int(seed_u64(seed)), int(Stream.PLATFORM_DWELL), counter])
     )
@@ -240,7 +253,9 @@ class _PlatformDwell:
         self.s2_m, self.s1_m = sensor_positions(0.0, self.sensors.spacing_m)
         self.unit = PlatformUnit(lamp_table=platform.lamps(), debounce_scans=self.sensors.debounce_scans)
         self.follower = PsdFollower(
-            confirm_frames=self.camera.confirm_frames, lost_limit_frames=self.camera.lost_limit_frames
+            confirm_frames=self.camera.confirm_frames,
+            lost_limit_frames=self.camera.lost_limit_frames,
+            lock_frames=self.camera.lock_frames,
         )
         self.lamps = PlatformLamps(lamp=None, psd_enable=False, departure_permitted=True)
         self.command = PsdCommand(open=False, camera_ok=True)
@@ -332,9 +347,9 @@ class _PlatformDwell:
         seen = None if lost else classify(past, float(u_lost), float(u_misread), self.camera)
         if seen is None:
             self.lost_frames += 1
-        elif seen != (past >= self.camera.open_fraction):
+        elif seen != true_shape(past, self.camera):
             self.misreads += 1
-        self._deliver_follower(DoorCameraFrame(doors_open=seen))
+        self._deliver_follower(DoorCameraFrame(shape=seen))
 
     def _psd_state(self) -> None:
         locked = self.psd.locked(self.t_s)
@@ -414,8 +429,9 @@ class _PlatformDwell:
         }
         if self.has_psd:
             f = self.follower
+            # What the PSD control knows of the train doors: "closed_locked" once it counts them so.
             values["camera"] = (
-                "lost" if not f.camera_ok() else {None: "-", True: "open", False: "closed"}[f.shape]
+                "lost" if not f.camera_ok() else "closed_locked" if f.doors_locked() else (f.shape or "-")
             )
             values["psd_command"] = "open" if self.command.open else "close"
             values["PSD"] = (

@@ -38,6 +38,7 @@ from railstop.messages import (
     SignalOpenSwitch,
     StopSensorScan,
 )
+from railstop.sensors.door_camera import CLOSED, OPEN, SHAPES
 
 
 @dataclass(slots=True)
@@ -155,53 +156,83 @@ class PlatformUnit:
 @dataclass(slots=True)
 class PsdFollower:
     """SPEC §3 fig. 4: the PSD control. The PSD follows the train doors as the CCD camera sees
-    them, and only while the platform unit's PSD relay is energised (OK lit).
+    them (``sensors.door_camera``: "open", "moving", "closed" = fully shut, or unreadable).
 
-    * A shape (open / closed) counts once ``confirm_frames`` readable frames in a row show it, so
-      a misread frame cannot move the PSD; unreadable frames neither confirm nor break a run.
-    * The PSD is told to open only with the relay energised and the doors confirmed open; it is
-      told to close when the relay drops or the doors are confirmed closed.
+    * A shape counts once ``confirm_frames`` readable frames in a row show it, so a misread frame
+      cannot move the PSD; unreadable frames neither confirm nor break a run.
+    * **Opening** (SPEC §3: only while OK is lit): the PSD is told to open only with the relay
+      energised and the doors confirmed open.
+    * **Closing** (SPEC §5 order, train doors first, then the PSD; [interpretation] for SPEC §3,
+      where no data link tells the platform that the train doors are locked): the PSD is told to
+      close only once the doors count as **closed and locked**: a run of readable "closed"
+      frames (an unreadable frame or any other shape starts it again) long enough that, with
+      up to ``confirm_frames - 1`` misread frames at either end of it, it still holds
+      ``lock_frames + 1`` true ones: the doors have stood shut for the lock time of the door
+      data (the camera cannot see the locks). Until then a PSD that is open stays open: while
+      the doors move ("moving"), while they are shut but not yet counted locked, and also when
+      the relay drops
+      ([interpretation] DESIGN rule 10, most restrictive for people on the platform: a PSD never
+      closes on a train door that is not closed and locked; departure needs the PSD closed, so
+      the train waits). Nothing opens without the relay.
     * ``lost_limit_frames`` unreadable frames in a row: the camera is lost and the doors' shape
-      unknown. [interpretation] (DESIGN rule 10) a closed PSD then stays closed and an open one
-      stays open (closing it could shut passengers between the PSD and an open train door);
-      departure needs the PSD closed (the platform unit), so the train is held until the camera
-      sees again or staff close the PSD by hand. The relay dropping still closes it (SPEC §3).
+      unknown. [interpretation] (DESIGN rule 10) the PSD is held where it is: a closed PSD stays
+      closed, an open one open (closing it could shut passengers between the PSD and an open
+      train door); the train is held until the camera sees again or staff close the PSD by hand.
     """
 
     confirm_frames: int = 3
     lost_limit_frames: int = 10
+    lock_frames: int = 5
     name: str = "psd-control"
     accepts: tuple[type, ...] = (PlatformLamps, DoorCameraFrame)
     relay: bool = False
-    shape: bool | None = None  # the confirmed shape: True open, False closed, None not known
-    run_shape: bool | None = None  # the shape of the current run of equal frames
+    shape: str | None = None  # the confirmed shape: "open", "moving", "closed"; None not known
+    run_shape: str | None = None  # the shape of the current run of equal frames
     run: int = 0
     lost: int = 0
+    closed_run: int = 0  # readable "closed" frames in a row, nothing else between
     command: PsdCommand = field(default_factory=lambda: PsdCommand(open=False, camera_ok=True))
 
     def __post_init__(self) -> None:
-        if self.confirm_frames < 1 or self.lost_limit_frames < 1:
-            raise InterlockError("psd-control: confirm_frames and lost_limit_frames must be at least 1")
+        if self.confirm_frames < 1 or self.lost_limit_frames < 1 or self.lock_frames < 0:
+            raise InterlockError(
+                "psd-control: confirm_frames and lost_limit_frames must be at least 1, lock_frames at least 0"
+            )
 
     def camera_ok(self) -> bool:
         return self.lost < self.lost_limit_frames
 
+    def locked_after_frames(self) -> int:
+        """The "closed" frames in a row after which the doors count as closed and locked."""
+        return 2 * (self.confirm_frames - 1) + self.lock_frames + 1
+
+    def doors_locked(self) -> bool:
+        """The train doors count as closed and locked (SPEC §3 / §5: what the PSD closes after)."""
+        return self.closed_run >= self.locked_after_frames()
+
     def decide(self) -> PsdCommand:
         """The command now (a pure function of the state)."""
         ok = self.camera_ok()
-        if not self.relay:
-            return PsdCommand(open=False, camera_ok=ok)  # SPEC §3: only while OK is lit
-        if not ok or self.shape is None:
-            return PsdCommand(open=self.command.open, camera_ok=ok)  # unknown: held where it is
-        return PsdCommand(open=self.shape, camera_ok=ok)
+        if self.doors_locked():
+            return PsdCommand(open=False, camera_ok=ok)  # SPEC §5 order: train doors locked, then the PSD
+        if self.relay and ok and self.shape == OPEN:
+            return PsdCommand(open=True, camera_ok=ok)  # SPEC §3: follows the doors while OK is lit
+        # Doors moving, shut but not yet counted locked, not known, or the relay off: nothing opens
+        # and an open PSD stays open.
+        return PsdCommand(open=self.command.open, camera_ok=ok)
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
+        bad: str | None = None
         if isinstance(message, PlatformLamps):
             self.relay = message.psd_enable
         elif isinstance(message, DoorCameraFrame):
-            seen = message.doors_open
+            seen = message.shape
+            if seen is not None and seen not in SHAPES:
+                bad, seen = f"psd-control: a camera frame of unknown shape {seen!r}", None
             if seen is None:
+                # Unreadable (or unknown: DESIGN rule 10, counted as unreadable).
                 self.lost += 1
+                self.closed_run = 0
                 if not self.camera_ok():
                     self.shape, self.run_shape, self.run = None, None, 0
             else:
@@ -210,13 +241,17 @@ class PsdFollower:
                 self.run_shape = seen
                 if self.run >= self.confirm_frames:
                     self.shape = seen
+                self.closed_run = self.closed_run + 1 if seen == CLOSED else 0
         else:
             raise InterlockError(f"psd-control: cannot take a {type(message).__name__}")
         now = self.decide()
-        if now == self.command:
-            return []
-        self.command = now
-        return [Output(to=BROADCAST, message=now)]
+        out: list[Output] = []
+        if now != self.command:
+            self.command = now
+            out = [Output(to=BROADCAST, message=now)]
+        if bad is not None:
+            raise InterlockError(bad)  # the safe state (the frame counted unreadable) first
+        return out
 
     def next_deadline_s(self) -> float | None:
         return None
