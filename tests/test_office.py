@@ -16,8 +16,11 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from railstop.link.office_link import (
     OfficeInbox,
@@ -137,6 +140,24 @@ def test_a_restarted_sender_is_followed_and_an_old_session_replay_is_stale() -> 
     assert inbox.on_frame(restarted.submit("train-state", {"i": 1}, 20.0)[1], 20.0)[0] is not None
 
 
+def test_a_fresh_frame_of_the_old_session_does_not_take_the_link_back() -> None:
+    """Alternating frames of a sender's old and new sessions (both still fresh): the old one,
+    sent before the new session's frames, is refused every time; the new session is kept."""
+    out, inbox = ends(session=1)
+    for i in range(3):
+        inbox.on_frame(out.submit("train-state", {"i": i}, i / 10)[1], i / 10)
+    old_frame = out.submit("train-state", {"i": 3}, 0.3)[1]  # sent, not yet delivered
+    restarted = OfficeOutbox(own_id=7, office_id=OFFICE, master_key=KEY, session=2)
+    for i in range(6):  # the new session's numbers pass the old frame's
+        assert inbox.on_frame(restarted.submit("train-state", {"i": i}, 0.4)[1], 0.4)[2] is None
+    for k in range(3):
+        now = 0.5 + k / 10
+        report, _, reason = inbox.on_frame(old_frame, now)
+        assert report is None and reason in ("old_session", "repeated", "out_of_order")
+        new = inbox.on_frame(restarted.submit("train-state", {"i": k + 6}, now)[1], now)[0]
+        assert new is not None and new.session == 2
+
+
 def test_a_restarted_office_is_followed_by_the_senders() -> None:
     out, inbox = ends()
     for t in (0.0, 0.1):
@@ -192,6 +213,49 @@ def test_direction_keys_differ() -> None:
     assert link_key(KEY, 7, OFFICE) != link_key(KEY, OFFICE, 7)
 
 
+def test_an_acknowledgement_made_when_sent_is_fresh_however_long_the_report_was_held() -> None:
+    """The office holds a report while its database is away and acknowledges it once stored, maybe
+    many seconds later. An acknowledgement made on arrival would be refused as stale by then (the
+    report stays pending: safe, but it never clears); one made when it is sent is taken."""
+    out, inbox = ends()
+    seq, frame = out.submit("stop-result", {"i": 1}, 0.0)
+    report, reason = inbox.accept(frame, 0.0)
+    assert report is not None and reason is None
+    made_on_arrival = inbox.ack(report, 0.0)
+    held_s = out.times.max_age_s + 5.0
+    assert out.on_frame(made_on_arrival, held_s) is None and seq in out.pending
+    assert out.on_frame(inbox.ack(report, held_s), held_s) == seq and not out.pending
+
+
+@given(
+    field=st.sampled_from(["e", "q"]),
+    value=st.one_of(
+        st.integers(min_value=2**63, max_value=2**80),
+        st.integers(max_value=-1),
+        st.booleans(),
+        st.floats(allow_nan=False, allow_infinity=False),
+        st.text(max_size=5),
+    ),
+)
+def test_numbers_a_database_cannot_keep_are_refused_as_malformed(field: str, value: object) -> None:
+    """A sender (with the key) whose session or sequence number does not fit the database's 64-bit
+    columns (or is no integer): the office refuses the report at once, it is never queued for
+    storing (where it would fail the database) and never acknowledged."""
+    import json
+    import zlib
+
+    from railstop.link.safety import SafeSender
+
+    obj = {"e": 5, "q": 1, "k": "stop-result", "t": 1.0, "d": {}}
+    obj[field] = value
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    payload = packer.compress(json.dumps(obj).encode()) + packer.flush()
+    frame = SafeSender(7, OFFICE, key=link_key(KEY, 7, OFFICE), category=3).wrap(payload, 1.0)
+    _, inbox = ends()
+    assert inbox.on_frame(frame, 1.0) == (None, None, "malformed")
+    assert inbox.counts["accepted"] == 0
+
+
 # ------------------------------------------------------------------ the store
 
 
@@ -205,7 +269,7 @@ def db(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
 
 def test_the_store_keeps_a_report_once(db: str) -> None:
     with open_store(db) as store:
-        kw = {"sender_id": 7, "session": 5, "seq": 1, "kind": "stop-result", "sent_s": 1.5}
+        kw: dict[str, Any] = {"sender_id": 7, "session": 5, "seq": 1, "kind": "stop-result", "sent_s": 1.5}
         first = store.save_office_report(**kw, data={"error_m": 0.01})
         assert first is not None and first["data"] == {"error_m": 0.01}
         assert store.save_office_report(**kw, data={"error_m": 0.01}) is None

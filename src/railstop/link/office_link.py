@@ -97,6 +97,11 @@ class LinkTimes:
 MAX_INFLATED_BYTES = 4096
 
 
+def _is_count(v: Any, low: int) -> bool:
+    """An integer (not a bool) from ``low`` to 2**63 - 1: a session or sequence number."""
+    return isinstance(v, int) and not isinstance(v, bool) and low <= v < 2**63
+
+
 def _dumps(obj: Mapping[str, Any]) -> bytes:
     """Compact JSON, deflated (raw DEFLATE, RFC 1951): a report with a TASC command's inputs is about
     280 bytes of JSON, 190 deflated, and the safety layer carries at most 255."""
@@ -126,7 +131,7 @@ class _SessionReceiver:
         self.receiver = self._fresh(0.0)
         self.restarts = 0
 
-    def _fresh(self, now_s: float) -> SafeReceiver:
+    def _fresh(self, now_s: float, not_before_s: float | None = None) -> SafeReceiver:
         return SafeReceiver(
             self.own_id,
             self.peer_id,
@@ -136,13 +141,17 @@ class _SessionReceiver:
             timeout_s=3600.0,  # the office link is watched by the outbox's resends, not a time-out
             start_s=now_s,
             future_tolerance_s=self.times.future_tolerance_s,
+            not_before_s=not_before_s,
         )
 
     def accept(self, frame: bytes, now_s: float) -> tuple[dict[str, Any] | None, str | None]:
         """(the payload object, None) or (None, the reason it was refused)."""
         got = self.receiver.accept(frame, now_s)
         if isinstance(got, Rejected) and got.reason in ("repeated", "out_of_order"):
-            fresh = self._fresh(now_s)
+            # Only a frame sent after the last one delivered can open a new session: a fresh
+            # frame of an older session (sent before it) is not followed back (EN 50159
+            # repetition across restarts, railstop.link.safety).
+            fresh = self._fresh(now_s, not_before_s=self.receiver.last_sent_s)
             again = fresh.accept(frame, now_s)
             if isinstance(again, Delivered):
                 obj = _loads(again.payload)
@@ -255,30 +264,54 @@ class OfficeInbox:
         self.counts = {"accepted": 0, "unknown_sender": 0}
 
     def on_frame(self, frame: bytes, now_s: float) -> tuple[Report | None, bytes | None, str | None]:
-        """(the report, the acknowledgement frame to send back, None) or (None, None, the reason)."""
+        """(the report, the acknowledgement frame to send back, None) or (None, None, the reason).
+
+        ``accept`` then ``ack`` at once: for a receiver that keeps the report before it answers
+        (the office: stored first, acknowledged after), call the two apart.
+        """
+        report, reason = self.accept(frame, now_s)
+        if report is None:
+            return None, None, reason
+        return report, self.ack(report, now_s), None
+
+    def accept(self, frame: bytes, now_s: float) -> tuple[Report | None, str | None]:
+        """(the report, None) or (None, the reason it was refused); nothing is acknowledged yet."""
         ids = frame_ids(frame)
         src = -1 if ids is None else ids[0]
         rx = self._rx.get(src)
         if rx is None:
             self.counts["unknown_sender"] += 1
-            return None, None, "unknown_sender"
+            return None, "unknown_sender"
         obj, reason = rx.accept(frame, now_s)
         if obj is None:
             self._count(reason or "malformed")
-            return None, None, reason
-        kind, seq, sent, data = obj.get("k"), obj.get("q"), obj.get("t"), obj.get("d")
-        if kind not in KINDS or not isinstance(seq, int) or not isinstance(sent, int | float):
+            return None, reason
+        kind, sent, data = obj.get("k"), obj.get("t"), obj.get("d")
+        session: Any = obj.get("e")
+        seq: Any = obj.get("q")
+        # The numbering must fit the database's 64-bit columns (and a bool is not a number): a
+        # report that could never be stored is refused here, never queued for storing.
+        if (
+            kind not in KINDS
+            or not _is_count(session, 0)
+            or not _is_count(seq, 1)
+            or isinstance(sent, bool)
+            or not isinstance(sent, int | float)
+            or not isinstance(data, dict)
+        ):
             self._count("malformed")
-            return None, None, "malformed"
-        if not isinstance(data, dict):
-            self._count("malformed")
-            return None, None, "malformed"
-        report = Report(
-            sender_id=src, session=int(obj["e"]), seq=seq, kind=kind, sent_s=float(sent), data=data
-        )
-        ack = self._tx[src].wrap(_dumps({"e": self.session, "s": report.session, "q": seq}), now_s)
+            return None, "malformed"
         self.counts["accepted"] += 1
-        return report, ack, None
+        report = Report(sender_id=src, session=session, seq=seq, kind=kind, sent_s=float(sent), data=data)
+        return report, None
+
+    def ack(self, report: Report, now_s: float) -> bytes:
+        """The acknowledgement of ``report`` as a new safety frame stamped ``now_s``: made when it
+        is sent, so that acknowledgements held back (while the report was being stored) still go
+        out in sequence and fresh."""
+        return self._tx[report.sender_id].wrap(
+            _dumps({"e": self.session, "s": report.session, "q": report.seq}), now_s
+        )
 
     def _count(self, reason: str) -> None:
         self.counts[reason] = self.counts.get(reason, 0) + 1

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from railstop.store.db import (
     COMMAND_FIELDS,
+    DEFAULT_BUSY_TIMEOUT_S,
     RESULT_FIELDS,
     SCHEMA_VERSION,
     SENT_FIELDS,
@@ -11,11 +12,16 @@ from railstop.store.db import (
     StationRecord,
     StopRecord,
     Store,
+    StoreCorrupt,
+    StoreError,
+    StoreUnavailable,
+    office_report_values,
     open_store,
 )
 
 __all__ = [
     "COMMAND_FIELDS",
+    "DEFAULT_BUSY_TIMEOUT_S",
     "RESULT_FIELDS",
     "SCHEMA_VERSION",
     "SENT_FIELDS",
@@ -23,5 +29,9 @@ __all__ = [
     "StationRecord",
     "StopRecord",
     "Store",
+    "StoreCorrupt",
+    "StoreError",
+    "StoreUnavailable",
+    "office_report_values",
     "open_store",
 ]

@@ -28,6 +28,16 @@ is, changed data updates it (and its ``updated_utc``).
 ``schema_info`` records the schema version. ``open_store`` brings a file of
 an older version up to date (new tables, new nullable columns; old rows keep
 NULL there) and refuses one written by a newer railstop.
+
+Database failures come out as one-line errors of two kinds besides the plain
+``RailstopError`` (DESIGN rule 9): :class:`StoreUnavailable`, a failure that
+may pass (a SQLite lock held past the busy time-out, a lost or refused
+PostgreSQL connection, too many open files, a full disk), which a service
+retries; and :class:`StoreCorrupt`, a database file SQLite reports damaged,
+which nobody retries. ``open_store(..., check_integrity=True)`` runs SQLite's
+``PRAGMA quick_check`` before touching a file and refuses a damaged one
+untouched. A commit is durable when it returns (SQLite ``synchronous=FULL``,
+PostgreSQL ``synchronous_commit=on``, both set on every connection).
 """
 
 from __future__ import annotations
@@ -64,10 +74,81 @@ from sqlalchemy import (
     text,
 )
 from sqlalchemy.engine import URL, Engine, make_url
-from sqlalchemy.exc import ArgumentError, IntegrityError, SQLAlchemyError
+from sqlalchemy.exc import ArgumentError, DBAPIError, IntegrityError, SQLAlchemyError
+from sqlalchemy.exc import DisconnectionError as SaDisconnectionError
+from sqlalchemy.exc import TimeoutError as SaPoolTimeout
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
 from railstop.errors import RailstopError
+
+
+class StoreError(RailstopError):
+    """The event database failed (not the data given to it)."""
+
+
+class StoreUnavailable(StoreError):
+    """A database failure that may pass: retry later (nothing was written)."""
+
+
+class StoreCorrupt(StoreError):
+    """The database file is damaged: refused, never retried, never written over."""
+
+
+# SQLite's primary result codes (the low byte of the extended code, ``sqlite3.Error.sqlite_errorcode``)
+# of failures that pass: BUSY / LOCKED (another connection holds the lock past the busy time-out),
+# NOMEM, READONLY (a file or file system made read-only, or moved, under the running process),
+# IOERR (a failing read or write, e.g. a network file system), FULL (the disk), CANTOPEN (no file
+# descriptor left: the journal cannot be opened), PROTOCOL (a lock race). [interpretation] A
+# failing disk may never come back: retrying it is still safe, since what is not stored is not
+# acknowledged, and the service says on stderr that the database is away.
+_SQLITE_TRANSIENT = frozenset({5, 6, 7, 8, 10, 13, 14, 15})
+_SQLITE_CORRUPT = frozenset({11, 26})  # SQLITE_CORRUPT, SQLITE_NOTADB
+# PostgreSQL SQLSTATEs of failures that pass: class 08 (connection), 53 (insufficient resources:
+# too many connections, out of memory or disk), 57P01-57P03 (the server shutting down or
+# starting), 57014 (a statement cancelled), 58 (system error: I/O), 40001 / 40P01
+# (serialization failure, deadlock), 55P03 (lock not available), 25006 (a read-only transaction:
+# a standby not yet promoted).
+_PG_TRANSIENT_CLASSES = ("08", "53", "58")
+_PG_TRANSIENT = frozenset({"57P01", "57P02", "57P03", "57014", "40001", "40P01", "55P03", "25006"})
+_PG_CORRUPT = frozenset({"XX001", "XX002"})  # data_corrupted, index_corrupted
+
+
+def _kind_of(exc: BaseException) -> type[RailstopError]:
+    """Which error a database failure is: ``StoreUnavailable``, ``StoreCorrupt`` or ``StoreError``."""
+    if isinstance(exc, SaDisconnectionError | SaPoolTimeout):
+        return StoreUnavailable
+    if isinstance(exc, DBAPIError) and exc.connection_invalidated:
+        return StoreUnavailable  # SQLAlchemy saw the connection die (and dropped the pool's)
+    inner = getattr(exc, "orig", None) or exc
+    code = getattr(inner, "sqlite_errorcode", None)
+    if isinstance(code, int):
+        if code & 0xFF in _SQLITE_CORRUPT:
+            return StoreCorrupt
+        return StoreUnavailable if code & 0xFF in _SQLITE_TRANSIENT else StoreError
+    state = getattr(inner, "sqlstate", None)
+    if isinstance(state, str):
+        if state in _PG_CORRUPT:
+            return StoreCorrupt
+        if state in _PG_TRANSIENT or state.startswith(_PG_TRANSIENT_CLASSES):
+            return StoreUnavailable
+        return StoreError
+    # No code: psycopg's OperationalError / InterfaceError without a SQLSTATE is a connection that
+    # could not be made or was lost (refused, reset, timed out, no file descriptor).
+    if isinstance(exc, DBAPIError) and type(inner).__name__ in ("OperationalError", "InterfaceError"):
+        return StoreUnavailable
+    if isinstance(inner, OSError):
+        return StoreUnavailable  # e.g. EMFILE, ECONNREFUSED raised below the driver
+    return StoreError
+
+
+def _db_error(label: str, what: str, exc: BaseException) -> RailstopError:
+    """One line naming the database and what failed, of the kind ``_kind_of`` says."""
+    kind = _kind_of(exc)
+    detail = _one_line(exc)
+    if kind is StoreCorrupt:
+        detail += " (the file is damaged or not a database: refused, left as it is)"
+    return kind(f"{label}: {what}: {detail}")
+
 
 # The keys of one command record (``railstop.sim.engine._commands``: the wayside unit's
 # ``CR_*`` columns, absent values None by ``finite_or_none``), in column order, with their
@@ -146,6 +227,23 @@ _RUN_FIELDS: tuple[str, ...] = (
 
 def _utc_now() -> str:
     return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def office_report_values(
+    *, sender_id: int, session: int, seq: int, kind: str, sent_s: float, data: Any
+) -> dict[str, Any]:
+    """The ``office_reports`` columns of one report (all but ``received_utc``), or a
+    ``RailstopError`` naming the field: what a report must be to be kept (64-bit numbers, a
+    kind, JSON data). The office checks a report with it before it queues it for storing."""
+    src = f"office report {sender_id}/{session}/{seq}"
+    return {
+        "sender_id": _value(src, "sender_id", sender_id, int, False),
+        "session": _value(src, "session", session, int, False),
+        "seq": _value(src, "seq", seq, int, False),
+        "kind": _value(src, "kind", kind, str, False),
+        "sent_s": _value(src, "sent_s", sent_s, float, False),
+        "data_json": json.dumps(_json_data(src, "data", data), sort_keys=True),
+    }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -401,6 +499,33 @@ class Store:
             self._engine.dispose()
             self._engine = None
 
+    @property
+    def label(self) -> str:
+        """The database as messages name it (a file, or a URL without its password)."""
+        return self._label
+
+    @property
+    def dialect(self) -> str:
+        """``sqlite`` or ``postgresql``."""
+        if self._engine is None:
+            raise RailstopError(f"{self._label}: the event database is closed")
+        return str(self._engine.dialect.name)
+
+    def durability(self) -> dict[str, str]:
+        """What a commit's durability rests on, as the database reports it for a new connection:
+        SQLite ``journal_mode`` and ``synchronous`` (0 OFF, 1 NORMAL, 2 FULL, 3 EXTRA),
+        PostgreSQL ``synchronous_commit`` and ``fsync``."""
+        if self._engine is None:
+            raise RailstopError(f"{self._label}: the event database is closed")
+        sqlite = self.dialect == "sqlite"
+        names = ("journal_mode", "synchronous") if sqlite else ("synchronous_commit", "fsync")
+        verb = "PRAGMA" if sqlite else "SHOW"
+        try:
+            with self._engine.connect() as conn:
+                return {n: str(conn.exec_driver_sql(f"{verb} {n}").scalar()) for n in names}
+        except SQLAlchemyError as exc:
+            raise _db_error(self._label, "cannot read its settings", exc) from None
+
     def _session(self) -> Session:
         if self._engine is None:
             raise RailstopError(f"{self._label}: the event database is closed")
@@ -430,9 +555,7 @@ class Store:
                         f"{self._label}: cannot save run {run.run_key!r}: {_one_line(exc)}"
                     ) from None
             except SQLAlchemyError as exc:
-                raise RailstopError(
-                    f"{self._label}: cannot save run {run.run_key!r}: {_one_line(exc)}"
-                ) from None
+                raise _db_error(self._label, f"cannot save run {run.run_key!r}", exc) from None
         raise AssertionError("unreachable")  # pragma: no cover
 
     def save_campaign(
@@ -463,7 +586,7 @@ class Store:
                 session.flush()
                 return int(row.id)
         except SQLAlchemyError as exc:
-            raise RailstopError(f"{self._label}: cannot save campaign {key!r}: {_one_line(exc)}") from None
+            raise _db_error(self._label, f"cannot save campaign {key!r}", exc) from None
 
     def campaigns(self) -> list[dict[str, Any]]:
         """Every stored campaign summary, oldest first."""
@@ -513,7 +636,7 @@ class Store:
                         f"{self._label}: cannot save dwell {key!r}: {_one_line(exc)}"
                     ) from None
             except SQLAlchemyError as exc:
-                raise RailstopError(f"{self._label}: cannot save dwell {key!r}: {_one_line(exc)}") from None
+                raise _db_error(self._label, f"cannot save dwell {key!r}", exc) from None
         raise AssertionError("unreachable")  # pragma: no cover
 
     def dwell_events(self, key: str) -> list[dict[str, Any]]:
@@ -535,36 +658,54 @@ class Store:
         """Keep one report of the management office; return it as ``office_reports`` gives it, or
         None if it was already there (idempotent: the same (sender, session, seq) again changes
         nothing, whoever sent it twice)."""
-        src = f"office report {sender_id}/{session}/{seq}"
-        values = {
-            "sender_id": _value(src, "sender_id", sender_id, int, False),
-            "session": _value(src, "session", session, int, False),
-            "seq": _value(src, "seq", seq, int, False),
-            "kind": _value(src, "kind", kind, str, False),
-            "sent_s": _value(src, "sent_s", sent_s, float, False),
-            "data_json": json.dumps(_json_data(src, "data", data), sort_keys=True),
-            "received_utc": _utc_now(),
-        }
-        key = (
-            OfficeReportRow.sender_id == values["sender_id"],
-            OfficeReportRow.session == values["session"],
-            OfficeReportRow.seq == values["seq"],
-        )
+        report = {"sender_id": sender_id, "session": session, "seq": seq, "kind": kind, "sent_s": sent_s}
+        return self.save_office_reports([{**report, "data": data}])[0]
+
+    def save_office_reports(self, reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any] | None]:
+        """Keep several reports of the management office in one transaction (SPEC §1 claims 7, 20).
+
+        Each report is a mapping with the keyword arguments of ``office_report_values``. Returns,
+        in order, each report as ``office_reports`` gives it, or None where its (sender, session,
+        seq) was kept already (also earlier in the same list). When it returns, the transaction is
+        committed and durable (``synchronous=FULL`` / ``synchronous_commit=on``): the office may
+        acknowledge them. When it raises, nothing of the list was kept (``StoreUnavailable``: try
+        again later; ``StoreCorrupt``: never).
+        """
+        values = [office_report_values(**r) for r in reports]
         for attempt in range(2):
+            received = _utc_now()
             try:
                 with self._session() as session_, session_.begin():
-                    if session_.scalar(select(OfficeReportRow.id).where(*key)) is not None:
-                        return None
-                    row = OfficeReportRow(**values)
-                    session_.add(row)
-                    session_.flush()
-                    return _office_dict(row)
-            except IntegrityError as exc:  # another writer kept it between our look and our insert
+                    out: list[dict[str, Any] | None] = []
+                    rows: list[tuple[int, OfficeReportRow]] = []
+                    seen: set[tuple[int, int, int]] = set()
+                    for v in values:
+                        key = (v["sender_id"], v["session"], v["seq"])
+                        found = session_.scalar(
+                            select(OfficeReportRow.id).where(
+                                OfficeReportRow.sender_id == key[0],
+                                OfficeReportRow.session == key[1],
+                                OfficeReportRow.seq == key[2],
+                            )
+                        )
+                        if found is not None or key in seen:
+                            out.append(None)
+                            continue
+                        seen.add(key)
+                        row = OfficeReportRow(**v, received_utc=received)
+                        session_.add(row)
+                        rows.append((len(out), row))
+                        out.append(None)
+                    session_.flush()  # assigns the ids
+                    for i, row in rows:
+                        out[i] = _office_dict(row)
+                return out  # committed: the ``with`` block ended without an error
+            except IntegrityError as exc:  # another writer kept one between our look and our insert
                 if attempt == 1:
-                    raise RailstopError(f"{self._label}: cannot save {src}: {_one_line(exc)}") from None
+                    raise _db_error(self._label, f"cannot save {len(values)} office report(s)", exc) from None
             except SQLAlchemyError as exc:
-                raise RailstopError(f"{self._label}: cannot save {src}: {_one_line(exc)}") from None
-        return None
+                raise _db_error(self._label, f"cannot save {len(values)} office report(s)", exc) from None
+        raise AssertionError("unreachable")  # pragma: no cover
 
     def office_reports(
         self, *, kind: str | None = None, after_id: int = 0, limit: int = 10_000, latest: bool = False
@@ -656,16 +797,30 @@ class _ReadSession:
         assert self._session is not None
         self._session.close()
         if isinstance(exc, SQLAlchemyError):
-            raise RailstopError(f"{self._store._label}: cannot read: {_one_line(exc)}") from None
+            raise _db_error(self._store._label, "cannot read", exc) from None
 
 
-def open_store(path: str | Path) -> Store:
+#: SQLite's busy time-out: how long a statement waits for another connection's lock.
+DEFAULT_BUSY_TIMEOUT_S = 5.0
+#: How long a PostgreSQL connection may take to be made (libpq's ``connect_timeout``).
+PG_CONNECT_TIMEOUT_S = 10
+
+
+def open_store(
+    path: str | Path, *, check_integrity: bool = False, busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S
+) -> Store:
     """Open (creating if needed) the event database at ``path``.
 
     ``path`` is a SQLite file, or a full SQLAlchemy URL when it is a string
     starting with ``sqlite:`` or ``postgresql``. Problems (missing or
     read-only directory, not a database, no driver) raise ``RailstopError``
-    with a one-line message naming the path.
+    with a one-line message naming the path: ``StoreUnavailable`` for what may
+    pass (a lock, a server not answering), ``StoreCorrupt`` for a damaged file.
+    ``check_integrity``: run SQLite's ``PRAGMA quick_check`` first and refuse a
+    damaged file before anything is written to it. ``busy_timeout_s``: SQLite's
+    busy time-out (how long a statement waits for another connection's lock).
+    Connections are checked before each use (``pool_pre_ping``): one a
+    restarted PostgreSQL server dropped is replaced, not used.
     """
     if isinstance(path, str) and path.startswith(("sqlite:", "postgresql")):
         try:
@@ -686,13 +841,33 @@ def open_store(path: str | Path) -> Store:
         _check_sqlite_file(file, label)
         # URL.create, not string formatting: a '?' or '#' in a file name stays a file name.
         url = URL.create("sqlite", database=str(file))
+    if not (isinstance(busy_timeout_s, int | float) and 0.0 <= busy_timeout_s <= 3600.0):
+        raise RailstopError(f"{label}: busy time-out: 0 to 3600 s (got {busy_timeout_s!r})")
+    connect_args: dict[str, Any] = {}
+    if url.get_backend_name() == "sqlite":
+        connect_args["timeout"] = float(busy_timeout_s)
+    elif url.get_backend_name() == "postgresql":
+        # Bounded: a server that does not answer is a failure that may pass, not a hang.
+        if "connect_timeout" not in url.query:
+            connect_args["connect_timeout"] = PG_CONNECT_TIMEOUT_S
+        # SPEC §1 claims 7, 20 (a report acknowledged is a report stored): a commit returns once
+        # it is on the server's disk, whatever the server's default says.
+        if "options" not in url.query:
+            connect_args["options"] = "-c synchronous_commit=on"
     try:
-        engine = create_engine(url)
+        engine = create_engine(url, pool_pre_ping=True, connect_args=connect_args)
     except (SQLAlchemyError, ImportError) as exc:
         raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
     if engine.dialect.name == "sqlite":
-        # SQLite ignores foreign keys unless asked, per connection.
-        event.listen(engine, "connect", _sqlite_foreign_keys)
+        # SQLite ignores foreign keys unless asked, per connection; synchronous=FULL: a commit
+        # is on the disk when it returns (the durability the office's acknowledgement needs).
+        event.listen(engine, "connect", _sqlite_connection_setup)
+        if check_integrity:
+            try:
+                _check_integrity(engine, label)
+            except RailstopError:
+                engine.dispose()
+                raise
     # Two processes opening the same new or old file may both create or migrate it: the
     # second one's statements then fail on what the first did, and a second pass finds
     # the file up to date.
@@ -703,11 +878,30 @@ def open_store(path: str | Path) -> Store:
         except RailstopError:
             engine.dispose()
             raise
-        except (SQLAlchemyError, ImportError) as exc:
-            if attempt == 1 or isinstance(exc, ImportError):
+        except ImportError as exc:
+            engine.dispose()
+            raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
+        except SQLAlchemyError as exc:
+            # A damaged file is not the race above: no second pass.
+            if attempt == 1 or _kind_of(exc) is StoreCorrupt:
                 engine.dispose()
-                raise RailstopError(f"{label}: cannot open the event database: {_one_line(exc)}") from None
+                raise _db_error(label, "cannot open the event database", exc) from None
     return Store(engine, label)
+
+
+def _check_integrity(engine: Engine, label: str) -> None:
+    """Refuse a damaged SQLite file (``PRAGMA quick_check``) before anything is written to it."""
+    try:
+        with engine.connect() as conn:
+            found = [str(r[0]) for r in conn.exec_driver_sql("PRAGMA quick_check").all()]
+    except SQLAlchemyError as exc:
+        raise _db_error(label, "integrity check (PRAGMA quick_check)", exc) from None
+    if found != ["ok"]:
+        more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
+        raise StoreCorrupt(
+            f"{label}: integrity check (PRAGMA quick_check): {found[0] if found else 'no answer'}{more} "
+            "(the file is damaged: refused, left as it is)"
+        )
 
 
 # -- schema versions ----------------------------------------------------------
@@ -777,9 +971,12 @@ def _add_missing_columns(conn: Connection, existing: set[str], label: str) -> li
 # -- helpers ------------------------------------------------------------------
 
 
-def _sqlite_foreign_keys(dbapi_connection: Any, _record: Any) -> None:
+def _sqlite_connection_setup(dbapi_connection: Any, _record: Any) -> None:
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA foreign_keys=ON")
+    # FULL, whatever the build's default: with the rollback journal the store uses (and in WAL
+    # too) a committed transaction survives a power cut.
+    cursor.execute("PRAGMA synchronous=FULL")
     cursor.close()
 
 
