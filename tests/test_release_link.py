@@ -73,3 +73,29 @@ def test_a_wcc_command_that_makes_no_sense_changes_nothing() -> None:
     )
     assert gate.accept(console.wcc(1, manual=True, panel_open=True, panel_close=True, now_s=2.0), 2.0) is None
     assert gate.rejected == {"inconsistent": 2} and gate.accepted == 0
+
+
+def test_the_release_names_the_operator_who_sent_it() -> None:
+    """Each release telegram carries the sending operator's id (the control room's login), and the
+    zone controller's end records who released: not one fixed id for everyone."""
+    console, gate = OperatorConsole(), ReleaseGate()
+    for now_s, who in ((1.0, 7), (2.0, 12), (3.0, 7)):
+        assert gate.accept(console.release(4, now_s, operator_id=who), now_s) == ManualRelease(train_id=4)
+    assert gate.released_by == {7: 2, 12: 1}
+    wcc_console, wcc_gate = _wcc_console(), WccGate()
+    got = wcc_gate.accept(
+        wcc_console.wcc(1, manual=True, panel_open=False, panel_close=False, now_s=1.0, operator_id=9), 1.0
+    )
+    assert got is not None and got.operator_id == 9 and wcc_gate.commanded_by == {9: 1}
+
+
+def test_a_command_that_names_no_operator_is_refused() -> None:
+    """Fail safe: operator id 0 (a login that may only view) never releases or switches anything."""
+    console, gate = OperatorConsole(), ReleaseGate()
+    assert gate.accept(console.release(4, 1.0, operator_id=0), 1.0) is None
+    wcc_gate = WccGate()
+    frame = _wcc_console().wcc(1, manual=True, panel_open=False, panel_close=False, now_s=1.0, operator_id=0)
+    assert wcc_gate.accept(frame, 1.0) is None
+    assert (
+        gate.rejected == {"no-operator": 1} == wcc_gate.rejected and gate.accepted == wcc_gate.accepted == 0
+    )

@@ -80,13 +80,38 @@ def serve_cmd(
     ] = None,
     operators: Annotated[
         Path | None,
-        typer.Option(help="Operators file (railstop office add-operator) for the page's operator commands."),
+        typer.Option(
+            help="Operators file (railstop office add-operator, mode 0600): who may log in to the page "
+            "and send its commands."
+        ),
     ] = None,
+    allowed_hosts: Annotated[
+        str | None,
+        typer.Option(
+            "--allowed-hosts",
+            help="Host names (or HOST:PORT) the page answers to, comma-separated (default: the address "
+            "it listens on).",
+        ),
+    ] = None,
+    tls_cert: Annotated[
+        Path | None, typer.Option("--tls-cert", help="Serve the page over TLS with this certificate (PEM).")
+    ] = None,
+    tls_key: Annotated[Path | None, typer.Option("--tls-key", help="The certificate's key (PEM).")] = None,
+    http_timeout_s: Annotated[
+        float,
+        typer.Option(
+            "--http-timeout-s",
+            min=0.5,
+            max=300.0,
+            help="A request's headers, and its body, must arrive within this.",
+        ),
+    ] = 10.0,
     line: LineOpt = None,
 ) -> None:
     """Receive, store and acknowledge the wayside's reports until stopped (SIGTERM, Ctrl-C); with
-    --http-port, serve the control-room page too (with --operators and --zc: its zone release; with
-    --operators and --stations: its WCC commands)."""
+    --http-port, serve the control-room page too, behind a login (--operators; without it a one-time
+    credential for viewing is printed once); with --zc: its zone release; with --stations: its WCC
+    commands."""
     from railstop.config import load_line
     from railstop.link.udp import EpochClock
     from railstop.live.office import serve_office
@@ -95,8 +120,6 @@ def serve_cmd(
         key = master_key(key_hex)
         ids = sender_ids(senders)
         ln = load_line(line)
-        if operators is not None and zc is None and stations is None:
-            raise RailstopError("--operators: give --zc (zone release) and / or --stations (WCC) too")
         if operators is None and (zc is not None or stations is not None):
             raise RailstopError("--zc / --stations: the operator commands need --operators")
         ops = None
@@ -106,8 +129,14 @@ def serve_cmd(
             from railstop.live.operators import load_operators
 
             ops = load_operators(operators)
+        page_opts: dict[str, Any] = (
+            {} if http_port is None else _page_options(host, allowed_hosts, tls_cert, tls_key, http_timeout_s)
+        )
     except RailstopError as exc:
         fail(str(exc))
+    # Without an operators file the page still needs a login: a random one for viewing only, for this
+    # run only, printed once to the terminal (never on a command line, never stored).
+    viewer = None if ops is not None or http_port is None else _one_time_viewer()
     station_list = [{"name": st.name, "chainage_m": st.stop_point_m} for st in ln.stations]
     length = ln.line.length_m or max(st.stop_point_m for st in ln.stations) + 500.0
     line_data = {"name": ln.line.name, "length_m": length, "stations": station_list}
@@ -120,11 +149,27 @@ def serve_cmd(
 
         def ready(addr: tuple[str, int]) -> None:
             print(f"office listening on {addr[0]}:{addr[1]} (database {db})", file=sys.stderr, flush=True)
+            if viewer is not None:
+                print(
+                    f"control-room login: {VIEWER} / {viewer[0]} (viewing only, this run only)",
+                    file=sys.stderr,
+                    flush=True,
+                )
 
         page = (
             None
             if http_port is None
-            else await _start_page(host, http_port, ln.line.name, line_data, key, ops, zc_addr, st_addr)
+            else await _start_page(
+                host,
+                http_port,
+                ln.line.name,
+                line_data,
+                key,
+                dict(ops or {}) if viewer is None else {VIEWER: viewer[1]},
+                zc_addr,
+                st_addr,
+                page_opts,
+            )
         )
         try:
             stats = await serve_office(
@@ -141,7 +186,7 @@ def serve_cmd(
         finally:
             if page is not None:
                 await page.close()
-        return {"stored": stats.stored, "duplicates": stats.duplicates, "rejected": stats.rejected}
+        return stats.as_dict()  # with the database's retries, outages and time away
 
     started = time.monotonic()
     try:
@@ -164,19 +209,60 @@ class _Page:
         await self.task
 
 
+VIEWER = "viewer"  # the one-time login's name (only when the office has no operators file)
+CREDENTIAL_ENV = "RAILSTOP_OPERATOR_CREDENTIAL"
+
+
+def _one_time_viewer() -> tuple[str, Any]:
+    """A random credential (128 bits) and its operator entry, which may view but never command."""
+    import secrets
+
+    from railstop.live.operators import Operator, hash_credential
+    from railstop.live.page import VIEW_ONLY_ID
+
+    secret = secrets.token_urlsafe(16)
+    # 128 random bits need no slow hash against guessing; a few iterations keep the login quick.
+    return secret, Operator(id=VIEW_ONLY_ID, pbkdf2_sha256=hash_credential(secret, iterations=10_000))
+
+
+def _page_options(
+    host: str, allowed_hosts: str | None, tls_cert: Path | None, tls_key: Path | None, timeout_s: float
+) -> dict[str, Any]:
+    """The page's options, checked (a RailstopError naming the option)."""
+    from railstop.live.page import AllowedHosts, PageLimits
+
+    if (tls_cert is None) != (tls_key is None):
+        raise RailstopError("--tls-cert / --tls-key: give both or neither")
+    for opt, path in (("--tls-cert", tls_cert), ("--tls-key", tls_key)):
+        if path is not None and not path.is_file():
+            raise RailstopError(f"{opt}: {path}: no such file")
+    names = [] if allowed_hosts is None else [n for n in allowed_hosts.split(",") if n.strip()]
+    if allowed_hosts is not None and not names:
+        raise RailstopError(f"--allowed-hosts: a host name or HOST:PORT expected (got {allowed_hosts!r})")
+    if not names and host in ("0.0.0.0", "::", ""):
+        raise RailstopError("--allowed-hosts: the page listens on every address: name its host names")
+    return {
+        "hosts": AllowedHosts(names),
+        "limits": PageLimits(request_timeout_s=timeout_s),
+        "tls_cert": None if tls_cert is None else str(tls_cert),
+        "tls_key": None if tls_key is None else str(tls_key),
+    }
+
+
 async def _start_page(
     host: str,
     port: int,
     name: str,
     line_data: dict[str, Any],
     key: bytes,
-    operators: dict[str, str] | None,
+    operators: dict[str, Any],
     zc: tuple[str, int] | None,
     stations: tuple[str, int] | None,
+    options: dict[str, Any],
 ) -> _Page:
     import uvicorn
 
-    from railstop.live.page import Broadcast, make_app
+    from railstop.live.page import Broadcast, make_app, page_config
 
     broadcast = Broadcast()
     stores: list[Any] = []  # the office's open store, once it is open
@@ -184,74 +270,71 @@ async def _start_page(
     def history(after: int, n: int) -> list[dict[str, Any]]:
         return stores[0].office_reports(after_id=after, limit=n, latest=True) if stores else []
 
+    log = _ActionLog(stores, broadcast)
     desk = None
-    if operators is not None:
+    if zc is not None or stations is not None:
         desk = _OperatorDesk(
-            operators=operators,
             key=key,
-            stores=stores,
-            broadcast=broadcast,
+            log=log,
             zc=zc,
             stations=stations,
             station_names=[st["name"] for st in line_data["stations"]],
         )
+    hosts, limits = options["hosts"], options["limits"]
     app = make_app(
         history=history,
         broadcast=broadcast,
         title=f"railstop control room: {name}",
         line=line_data,
+        operators=operators,
+        hosts=hosts,
+        limits=limits,
+        audit=log.log,
         release=None if desk is None or zc is None else desk.release,
         wcc=None if desk is None or stations is None else desk.wcc,
     )
-    server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="off"))
+    tls = options["tls_cert"] is not None
+    config = page_config(
+        app, host=host, port=port, limits=limits, tls_cert=options["tls_cert"], tls_key=options["tls_key"]
+    )
+    server = uvicorn.Server(config)
+    try:
+        config.load()
+    except Exception as exc:  # the certificate or key cannot be read: one line
+        raise RailstopError(f"--tls-cert / --tls-key: cannot load them ({exc})") from None
     task = asyncio.create_task(server.serve())
     while not server.started and not task.done():
         await asyncio.sleep(0.02)
     if task.done():
         raise RailstopError(f"--http-port: cannot serve the control-room page on {host}:{port}")
     bound = server.servers[0].sockets[0].getsockname()
-    print(f"control-room page at http://{bound[0]}:{bound[1]}/", file=sys.stderr, flush=True)
+    try:
+        hosts.bind(bound[0], bound[1])
+    except RailstopError:
+        server.should_exit = True
+        await task
+        raise
+    shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
+    print(
+        f"control-room page at {'https' if tls else 'http'}://{shown}:{bound[1]}/",
+        file=sys.stderr,
+        flush=True,
+    )
     return _Page(server, task, broadcast, stores)
 
 
-class _OperatorDesk:
-    """The control room's operator commands, each checked against the operators file, logged in the
-    database (kind ``operator-action``, with its outcome) and sent as an authenticated telegram
-    (``link.release_link``): SPEC §4 step 5, the zone release to the zone controller; SPEC §5, the
-    WCC's switch of a station's WPCS to manual (and the platform panel's buttons) to the stations."""
+class _ActionLog:
+    """The operators' actions (logins, refusals, commands) in the office's database, kind
+    ``operator-action`` (SPEC §1 claim 20: the history of the commands), and on the open pages."""
 
-    def __init__(
-        self,
-        *,
-        operators: dict[str, str],
-        key: bytes,
-        stores: list[Any],
-        broadcast: Any,
-        zc: tuple[str, int] | None,
-        stations: tuple[str, int] | None,
-        station_names: list[str],
-    ) -> None:
-        import socket
-
-        from railstop.link.release_link import WCC_ADDRESS, OperatorConsole, release_key, wcc_key
+    def __init__(self, stores: list[Any], broadcast: Any) -> None:
         from railstop.live.office import new_session
 
-        self.operators, self.stores, self.broadcast = operators, stores, broadcast
-        self.zc, self.stations, self.station_names = zc, stations, station_names
-        self.consoles = {
-            "zc": OperatorConsole(key=release_key(key)),
-            "wcc": OperatorConsole(key=wcc_key(key), to=WCC_ADDRESS),
-        }
-        # [interpretation] The operator links' sequence numbers go on across office restarts: they
-        # start at the tenths of seconds since 2026 (a receiver refuses a number it has had);
-        # 2**32 of them last until 2039.
-        for console in self.consoles.values():
-            console.sender.next_seq = int((time.time() - 1_767_225_600.0) * 10.0)
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.stores, self.broadcast = stores, broadcast
         self.session = new_session()
         self.actions = iter(range(1, 1 << 62))
 
-    async def _log(self, data: dict[str, Any]) -> None:
+    async def log(self, data: dict[str, Any]) -> None:
         from railstop.live.office import OFFICE_ID
 
         if not self.stores:
@@ -268,61 +351,125 @@ class _OperatorDesk:
         if row is not None:
             self.broadcast.publish(row)
 
-    async def _checked(self, operator: str, credential: str, action: dict[str, Any]) -> bool:
-        from railstop.live.operators import check
 
-        ok = await asyncio.to_thread(check, self.operators, operator, credential)
-        if not ok:
-            await self._log({**action, "result": "refused: unknown operator or wrong credential"})
-        return ok
+class _OperatorDesk:
+    """The control room's operator commands, once the page has authenticated them (session, one-time
+    token, credential): each logged in the database (kind ``operator-action``, with its outcome) and
+    sent as an authenticated telegram that carries the operator's id (``link.release_link``): SPEC §4
+    step 5, the zone release to the zone controller; SPEC §5, the WCC's switch of a station's WPCS
+    to manual (and the platform panel's buttons) to the stations."""
 
-    async def release(self, request: Any) -> tuple[int, str]:
-        action = {"operator": request.operator, "action": "zone-release", "train": request.train}
-        if not await self._checked(request.operator, request.credential, action):
-            return 403, "refused: unknown operator or wrong credential"
-        assert self.zc is not None  # offered only with a zone controller link
-        self.sock.sendto(self.consoles["zc"].release(request.train, time.time()), self.zc)
-        await self._log({**action, "result": "sent to the zone controller"})
-        return 200, f"release of train {request.train}'s zone sent to the zone controller"
+    def __init__(
+        self,
+        *,
+        key: bytes,
+        log: _ActionLog,
+        zc: tuple[str, int] | None,
+        stations: tuple[str, int] | None,
+        station_names: list[str],
+    ) -> None:
+        import socket
 
-    async def wcc(self, request: Any) -> tuple[int, str]:
-        if request.station >= len(self.station_names):
-            return 400, f"no station {request.station} on this line"
-        name = self.station_names[request.station]
-        manual = request.mode == "manual"
-        what = f"WPCS {request.mode}" + (f", panel {request.panel}" if request.panel != "none" else "")
-        action = {"operator": request.operator, "action": "wcc", "station": name, "command": what}
-        if not await self._checked(request.operator, request.credential, action):
-            return 403, "refused: unknown operator or wrong credential"
-        assert self.stations is not None  # offered only with a stations link
+        from railstop.link.release_link import WCC_ADDRESS, OperatorConsole, release_key, wcc_key
+
+        self.log = log
+        self.zc, self.stations, self.station_names = zc, stations, station_names
+        self.consoles = {
+            "zc": OperatorConsole(key=release_key(key)),
+            "wcc": OperatorConsole(key=wcc_key(key), to=WCC_ADDRESS),
+        }
+        # [interpretation] The operator links' sequence numbers go on across office restarts: they
+        # start at the tenths of seconds since 2026 (a receiver refuses a number it has had);
+        # 2**32 of them last until 2039.
+        for console in self.consoles.values():
+            console.sender.next_seq = int((time.time() - 1_767_225_600.0) * 10.0)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    async def release(self, order: Any) -> tuple[int, str]:
+        if self.zc is None:
+            return 503, "this office has no zone controller link"
+        action = {"operator": order.operator, "operator_id": order.operator_id, "action": "zone-release"}
+        frame = self.consoles["zc"].release(order.train, time.time(), operator_id=order.operator_id)
+        self.sock.sendto(frame, self.zc)
+        await self.log.log({**action, "train": order.train, "result": "sent to the zone controller"})
+        return 200, f"release of train {order.train}'s zone sent to the zone controller"
+
+    async def wcc(self, order: Any) -> tuple[int, str]:
+        if self.stations is None:
+            return 503, "this office has no link to the stations"
+        if order.station >= len(self.station_names):
+            return 400, f"no station {order.station} on this line"
+        name = self.station_names[order.station]
+        what = f"WPCS {order.mode}" + (f", panel {order.panel}" if order.panel != "none" else "")
+        action = {"operator": order.operator, "operator_id": order.operator_id, "action": "wcc"}
         frame = self.consoles["wcc"].wcc(
-            request.station,
-            manual=manual,
-            panel_open=request.panel == "open",
-            panel_close=request.panel == "close",
+            order.station,
+            manual=order.mode == "manual",
+            panel_open=order.panel == "open",
+            panel_close=order.panel == "close",
             now_s=time.time(),
+            operator_id=order.operator_id,
         )
         self.sock.sendto(frame, self.stations)
-        await self._log({**action, "result": "sent to the station"})
+        await self.log.log({**action, "station": name, "command": what, "result": "sent to the station"})
         return 200, f"{name}: {what} sent to the station"
 
 
 @office_app.command("add-operator")
 def add_operator_cmd(
-    file: Annotated[Path, typer.Argument(help="The operators file (created if missing).")],
+    file: Annotated[Path, typer.Argument(help="The operators file (created if missing, mode 0600).")],
     name: Annotated[str, typer.Argument(help="The operator's name.")],
-    credential: Annotated[
-        str, typer.Option(prompt=True, hide_input=True, confirmation_prompt=True, help="The credential.")
-    ],
+    op_id: Annotated[
+        int | None,
+        typer.Option(
+            "--id",
+            min=1,
+            max=65535,
+            help="The operator's id in the command telegrams (default: "
+            "the operator's so far, or the next free one).",
+        ),
+    ] = None,
+    credential_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--credential-file",
+            help=f"Read the credential from this file's first line (or set "
+            f"{CREDENTIAL_ENV}; default: a prompt).",
+        ),
+    ] = None,
+    credential: Annotated[str | None, typer.Option("--credential", hidden=True)] = None,
 ) -> None:
-    """Add an operator (or change one's credential); only a salted PBKDF2 hash is written."""
+    """Add an operator (or change one's credential); only a salted PBKDF2 hash is written. The
+    credential comes from a prompt, a file or the environment, never from the command line."""
     from railstop.live.operators import add_operator
 
+    if credential is not None:
+        fail(
+            "--credential: a credential is never given on the command line (shell history, process list): "
+            f"use the prompt, --credential-file or {CREDENTIAL_ENV}"
+        )
     try:
-        add_operator(file, name, credential)
+        if credential_file is not None:
+            try:
+                secret = (
+                    credential_file.read_text(encoding="utf-8").splitlines()[0]
+                    if credential_file.stat().st_size
+                    else ""
+                )
+            except (OSError, UnicodeDecodeError) as exc:
+                raise RailstopError(f"--credential-file: {credential_file}: cannot read it ({exc})") from None
+        elif os.environ.get(CREDENTIAL_ENV):
+            secret = os.environ[CREDENTIAL_ENV]
+        elif sys.stdin.isatty():
+            secret = typer.prompt("Credential", hide_input=True, confirmation_prompt=True)
+        else:
+            raise RailstopError(
+                f"no credential: answer the prompt, or give --credential-file or {CREDENTIAL_ENV}"
+            )
+        given = add_operator(file, name, secret, op_id=op_id)
     except RailstopError as exc:
         fail(str(exc))
-    print(f"operator {name} written to {file}")
+    print(f"operator {name} (id {given}) written to {file} (mode 0600)")
 
 
 @office_app.command("reports")

@@ -10,7 +10,10 @@ only for a frame that passes; a frame with a wrong key, replayed, stale or
 damaged is refused and counted by its reason (DESIGN rule 10: nothing is
 released on a doubtful command). The WCC's ``wcc-command`` travels the same
 way to the stations' WPCS input (:class:`WccGate`): a doubtful one changes
-nothing.
+nothing. Every command names the operator who sent it (the telegram's
+``operator_id``, the id of the control room's login); a command that names
+none (id 0) is refused, and the receiving end counts the accepted ones per
+operator (``released_by``, ``commanded_by``).
 """
 
 from __future__ import annotations
@@ -56,16 +59,27 @@ class OperatorConsole:
     def __post_init__(self) -> None:
         self.sender = SafeSender(OPERATOR_ADDRESS, self.to, key=self.key, category=3)
 
-    def release(self, train_id: int, now_s: float) -> bytes:
-        return self.sender.wrap(encode(ZoneRelease(train_id=train_id, operator_id=self.operator_id)), now_s)
+    def release(self, train_id: int, now_s: float, *, operator_id: int | None = None) -> bytes:
+        """``operator_id``: the operator sending it (None: the console's own)."""
+        who = self.operator_id if operator_id is None else operator_id
+        return self.sender.wrap(encode(ZoneRelease(train_id=train_id, operator_id=who)), now_s)
 
-    def wcc(self, station: int, *, manual: bool, panel_open: bool, panel_close: bool, now_s: float) -> bytes:
+    def wcc(
+        self,
+        station: int,
+        *,
+        manual: bool,
+        panel_open: bool,
+        panel_close: bool,
+        now_s: float,
+        operator_id: int | None = None,
+    ) -> bytes:
         tele = WccCommand(
             station=station,
             manual=manual,
             panel_open=panel_open,
             panel_close=panel_close,
-            operator_id=self.operator_id,
+            operator_id=self.operator_id if operator_id is None else operator_id,
         )
         return self.sender.wrap(encode(tele), now_s)
 
@@ -81,6 +95,7 @@ class _Gate:
     receiver: SafeReceiver = field(init=False)
     rejected: dict[str, int] = field(default_factory=dict)
     accepted: int = 0
+    by_operator: dict[int, int] = field(default_factory=dict)  # accepted commands per operator id
 
     def __post_init__(self) -> None:
         self.receiver = SafeReceiver(
@@ -105,7 +120,13 @@ class _Gate:
         if not isinstance(tele, expect):
             self._reject("unexpected-type")
             return None
+        # SPEC §4 step 5 / §5: a command is an operator's; one that names none is refused.
+        operator = getattr(tele, "operator_id", 0)
+        if operator == 0:
+            self._reject("no-operator")
+            return None
         self.accepted += 1
+        self.by_operator[operator] = self.by_operator.get(operator, 0) + 1
         return tele
 
     def _reject(self, reason: str) -> None:
@@ -124,7 +145,14 @@ class ReleaseGate(_Gate):
 
     def accept(self, frame: bytes, now_s: float) -> ManualRelease | None:
         tele = self.take(frame, now_s, ZoneRelease)
-        return None if not isinstance(tele, ZoneRelease) else ManualRelease(train_id=tele.train_id)
+        if not isinstance(tele, ZoneRelease):
+            return None
+        return ManualRelease(train_id=tele.train_id)
+
+    @property
+    def released_by(self) -> dict[int, int]:
+        """Releases accepted per operator id (the zone controller's record of who released)."""
+        return dict(self.by_operator)
 
 
 class WccGate(_Gate):
@@ -145,6 +173,12 @@ class WccGate(_Gate):
             tele.panel_open and tele.panel_close
         ):
             self.accepted -= 1
+            self.by_operator[tele.operator_id] -= 1
             self._reject("inconsistent")
             return None
         return tele
+
+    @property
+    def commanded_by(self) -> dict[int, int]:
+        """Commands accepted per operator id."""
+        return {k: v for k, v in self.by_operator.items() if v}
