@@ -134,3 +134,106 @@ def empty_postgres(postgres_url: str) -> Iterator[str]:
     finally:
         empty()
         engine.dispose()
+
+
+# ---------------------------------------------------------------------- a loaded machine
+# ``busy``: two CPU-bound processes beside the test (``tests/busy.py``), so that a live test shows
+# it holds when the cores are taken by other work. ``pytest --busy N`` runs N of them beside every
+# test of the session (``pytest --busy 2 tests/test_live.py``: the live suite on a loaded machine).
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--busy",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run N CPU-bound processes beside every test (a loaded machine; tests/busy.py)",
+    )
+
+
+@pytest.fixture
+def busy() -> Iterator[object]:
+    from busy import busy as spinning
+
+    with spinning(2) as b:
+        yield b
+
+
+@pytest.fixture(autouse=True)
+def _busy_beside_every_test(request: pytest.FixtureRequest) -> Iterator[None]:
+    n = int(request.config.getoption("--busy"))
+    if n <= 0:
+        yield
+        return
+    from busy import busy as spinning
+
+    with spinning(n):
+        yield
+
+
+# ---------------------------------------------------------------------- a PostgreSQL to restart
+# ``restartable_postgres``: a throwaway cluster of its own (like ``postgres_url``'s, for the tests of
+# one module) that a test may stop and start again (``.stop()``, ``.start()``) to show a client
+# surviving a server restart. Its server default is ``synchronous_commit=off``, so that a test can
+# show the store asking for durable commits itself.
+
+
+class PgCluster:
+    """A throwaway PostgreSQL cluster: ``url``, ``stop()`` (fast shutdown), ``start()``."""
+
+    def __init__(self, top: Path, bindir: Path, as_user: list[str], port: int) -> None:
+        self.top, self.bindir, self.as_user, self.port = top, bindir, as_user, port
+        self.data, self.sockets, self.log = top / "data", top / "sock", top / "log" / "server.log"
+        self.url = f"postgresql://railstop@127.0.0.1:{port}/postgres"
+
+    def _run(self, *argv: str) -> None:
+        subprocess.run([*self.as_user, *argv], check=True, capture_output=True, text=True, timeout=120)
+
+    def start(self) -> None:
+        opts = f"-p {self.port} -k {self.sockets} -c listen_addresses=127.0.0.1 -c fsync=off"
+        opts += " -c synchronous_commit=off"
+        self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-w", "-t", "60",
+                  "-o", opts, "start")  # fmt: skip
+
+    def stop(self, mode: str = "fast") -> None:
+        self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-m", mode, "-w", "stop")
+
+
+@pytest.fixture(scope="module")
+def restartable_postgres() -> Iterator[PgCluster]:
+    bindir = _bindir()
+    if bindir is None:
+        pytest.skip("no PostgreSQL server binaries (initdb, pg_ctl) on this machine")
+    as_user: list[str] = []
+    owner: tuple[int, int] | None = None
+    if os.geteuid() == 0:
+        import pwd
+
+        try:
+            pw = pwd.getpwnam("postgres")
+        except KeyError:
+            pytest.skip("running as root and there is no 'postgres' user to run PostgreSQL as")
+        as_user = ["runuser", "-u", "postgres", "--"]
+        owner = (pw.pw_uid, pw.pw_gid)
+    top = Path(tempfile.mkdtemp(prefix="railstop-pg-restart-"))
+    top.chmod(0o755)
+    for d in (top / "data", top / "sock", top / "log"):
+        d.mkdir()
+        if owner is not None:
+            os.chown(d, *owner)
+    cluster = PgCluster(top, bindir, as_user, _free_port())
+    try:
+        cluster._run(str(bindir / "initdb"), "-D", str(cluster.data), "-A", "trust", "-U", "railstop",
+                     "--no-sync", "-E", "UTF8")  # fmt: skip
+        cluster.start()
+    except subprocess.CalledProcessError as exc:
+        text = cluster.log.read_text(errors="replace") if cluster.log.exists() else ""
+        shutil.rmtree(top, ignore_errors=True)
+        pytest.fail(f"could not start PostgreSQL: {exc.stderr or exc.stdout} {text[-500:]}")
+    try:
+        yield cluster
+    finally:
+        with contextlib.suppress(subprocess.SubprocessError, OSError):
+            cluster.stop("immediate")
+        shutil.rmtree(top, ignore_errors=True)

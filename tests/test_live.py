@@ -19,9 +19,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from railstop.config import default_line
+from railstop.messages import ManualRelease, MovementCommand, PositionReport
 from railstop.store import open_store
+from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
 
 KEY = os.urandom(32).hex()
 EXE = [sys.executable, "-m", "railstop.cli"]
@@ -71,13 +75,15 @@ def test_killing_the_zone_controller_brakes_every_train_and_a_restart_restores_s
     procs: Procs, tmp_path: Path
 ) -> None:
     db = str(tmp_path / "office.db")
+    state = str(tmp_path / "zc.state")
     epoch = repr(time.time())
     common = ["--epoch", epoch, "--scale", "1"]
     office, line = procs.start("office", "serve", "--db", db, "--port", "0")
     office_addr = line.split(" on ")[1].split()[0]
     zc, line = procs.start(
-        "live", "zc", "--port", "0", "--trains", str(TRAINS), "--office", office_addr, *common
-    )
+        "live", "zc", "--port", "0", "--trains", str(TRAINS), "--office", office_addr, "--state", state,
+        "--new", *common,
+    )  # fmt: skip
     zc_port = line.split("127.0.0.1:")[1].split()[0]
     trains, _ = procs.start(
         "live", "trains", "--zc", f"127.0.0.1:{zc_port}", "--trains", str(TRAINS), "--spacing-m", "800",
@@ -92,12 +98,16 @@ def test_killing_the_zone_controller_brakes_every_train_and_a_restart_restores_s
     zc.communicate(timeout=30)
     time.sleep(4.0)
     zc2, line = procs.start(
-        "live", "zc", "--port", zc_port, "--trains", str(TRAINS), "--office", office_addr, *common
-    )
+        "live", "zc", "--port", zc_port, "--trains", str(TRAINS), "--office", office_addr, "--state", state,
+        *common,
+    )  # fmt: skip
     assert line.startswith("zone controller on"), line
+    assert zc2.stderr is not None
+    assert zc2.stderr.readline().startswith(f"zone controller: restored {TRAINS} train(s) from {state}")
     time.sleep(10.0)
     restarted_s = killed_s + 4.0
 
+    stopped_s = time.time() - float(epoch)  # from here on the processes stop, one after the other
     fleet = procs.stop(trains)
     zc_counts = procs.stop(zc2)
     office_counts = procs.stop(office)
@@ -113,7 +123,10 @@ def test_killing_the_zone_controller_brakes_every_train_and_a_restart_restores_s
         f"kill -9 of the zone controller -> emergency brake after {', '.join(f'{d:.2f} s' for d in delays)}"
     )
 
-    # The restarted controller serves the trains again: they run after it, without emergency brake.
+    # The restarted controller, restored from its state (every train lost with its zone), re-detected
+    # each inside its zone and serves them again: they run after it, without emergency brake.
+    assert zc_counts["state"]["started"] == "restored"  # type: ignore[index]
+    assert zc_counts["flagged"] == 0
     states = _states(db)
     after = [s for s in states if float(s["t_s"]) > restarted_s + 3.0]  # type: ignore[arg-type]
     assert {s["train"] for s in after if float(s["speed_mps"]) > 1.0 and not s["emergency_brake"]} == set(  # type: ignore[arg-type]
@@ -125,7 +138,13 @@ def test_killing_the_zone_controller_brakes_every_train_and_a_restart_restores_s
     link = fleet["office_link"]
     assert link["drained"] is True and link["pending"] == 0  # type: ignore[index]
     assert len(states) == link["submitted"]  # type: ignore[index]
-    assert office_counts["stored"] == len(states)
+    # ... and every zone event of the restarted controller: each train's zone set at its start, then
+    # released when the train reported from inside it (and set again when the trains stopped first).
+    zones = _reports(db, "zone-event")
+    assert len(zones) == zc_counts["office_link"]["submitted"]  # type: ignore[index]
+    pairs = sorted((z["train"], z["active"]) for z in zones if float(z["t_s"]) < stopped_s)  # type: ignore[arg-type]
+    assert pairs == [(k, a) for k in range(TRAINS) for a in (False, True)]
+    assert office_counts["stored"] == len(states) + len(zones)
 
 
 def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Path) -> None:
@@ -155,7 +174,7 @@ def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Pa
 
 def _restricted_run(
     tmp_path: Path, outage: str
-) -> tuple[dict[str, object], list[dict[str, object]], list[dict[str, object]]]:
+) -> tuple[dict[str, object], list[dict[str, object]], list[dict[str, object]], float]:
     db = tmp_path / "live.db"
     p = subprocess.run(
         [*EXE, "live", "run", "--trains", "3", "--duration-s", "40", "--scale", "4", "--http-port", "0",
@@ -168,13 +187,15 @@ def _restricted_run(
         zones = [r["data"] for r in store.office_reports(kind="zone-event")]
         states = [r["data"] for r in store.office_reports(kind="train-state") if r["data"]["train"] == 1]
     lost = [s for s in states if s["radio"] == "dead"]
-    stand = min(float(s["position_m"]) for s in lost if float(s["t_s"]) > 30.0)  # type: ignore[arg-type]
+    # Where it stood after its emergency brake, then what it did in restricted mode.
+    braked = next(i for i, s in enumerate(lost) if float(s["speed_mps"]) == 0.0)  # type: ignore[arg-type]
+    stand = float(lost[braked]["position_m"])  # type: ignore[arg-type]
     furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
     assert furthest - stand > 50.0, "it moved while lost"
-    assert max(float(s["speed_mps"]) for s in lost if float(s["t_s"]) > 40.0) <= 15.0 / 3.6 + 0.01  # type: ignore[arg-type]
+    assert max(float(s["speed_mps"]) for s in lost[braked:]) <= 15.0 / 3.6 + 0.01  # type: ignore[arg-type]
     # It moved at the speed it reported (not faster), and no more than the 400 m of restricted mode.
     assert furthest - stand <= 400.0 + 1.0
-    return zc, zones, lost
+    return zc, zones, lost, stand
 
 
 def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path) -> None:
@@ -182,10 +203,11 @@ def test_a_lost_train_moves_on_in_restricted_mode_inside_its_zone(tmp_path: Path
     brakes, stands, then its driver moves it on sight at 15 km/h with the ATP cut out; the zone
     controller keeps its zone all the while and, when the radio comes back and the train reports
     from inside the zone, releases it (SPEC §4 step 4)."""
-    zc, zones, lost = _restricted_run(tmp_path, "1:15:80")
-    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 1 and zc["flagged"] == 0
-    (zone_on, zone_off) = zones
-    stand = min(float(s["position_m"]) for s in lost if float(s["t_s"]) > 30.0)  # type: ignore[arg-type]
+    zc, zones, lost, stand = _restricted_run(tmp_path, "1:15:80")
+    # Train 1's zone: set, then released (at x4 on a loaded machine another train may be lost too,
+    # its reports two periods (250 ms) late: re-detected inside its zone, never flagged).
+    assert zc["flagged"] == 0 and zc["auto_releases"] >= 1
+    (zone_on, zone_off) = [z for z in zones if z["train"] == 1]
     furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
     # The zone stood while it moved, and covered where it went.
     assert zone_on["active"] and not zone_off["active"] and zone_on["status"] == "lost"
@@ -197,8 +219,9 @@ def test_a_lost_train_that_left_its_zone_is_flagged_and_its_zone_kept(tmp_path: 
     """The same with the radio dead until 130 s: in restricted mode the train runs its 400 m and
     leaves its zone. Re-detected outside it, it is flagged for the operator and the zone is kept
     (SPEC §4: an operator releases it after visual confirmation; fail safe, DESIGN rule 10)."""
-    zc, zones, lost = _restricted_run(tmp_path, "1:15:115")
-    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 0 and zc["flagged"] == 1, zc
+    zc, zones, lost, _ = _restricted_run(tmp_path, "1:15:115")
+    assert zc["flagged"] == 1, zc
+    zones = [z for z in zones if z["train"] == 1]
     assert [(z["train"], z["active"], z["status"]) for z in zones] == [
         (1, True, "lost"),
         (1, True, "flagged"),
@@ -234,7 +257,7 @@ def _start_tasc_line(
     _, line = procs.start("office", "serve", "--db", db, "--port", "0")
     office_addr = line.split(" on ")[1].split()[0]
     zc, line = procs.start(
-        "live", "zc", "--port", "0", "--trains", str(trains), "--office", office_addr, *common
+        "live", "zc", "--port", "0", "--trains", str(trains), "--office", office_addr, "--new", *common
     )
     zc_port = line.split("127.0.0.1:")[1].split()[0]
     stations, line = procs.start("live", "stations", "--port", "0", "--office", office_addr, *common)
@@ -494,7 +517,355 @@ def test_killing_the_plant_brakes_every_train_and_killing_the_trains_brakes_them
     trains.communicate(timeout=30)
     time.sleep(15.0 / scale)  # 15 s: every train braked from line speed to a stand
     moved = procs.stop(plant)
-    assert moved["drive_lost"] == 1
+    assert moved["drive_lost"] >= 1  # (more on a loaded machine: a trains' step late by the time-out)
     assert all(t["v_mps"] == 0.0 for t in moved["trains"])  # type: ignore[union-attr, index]
     procs.stop(zc)
     procs.stop(stations)
+
+
+# ---------------------------------------------------------------------- restarts (durable state)
+
+
+def _zc() -> ZoneController:
+    from railstop.config import default_vehicle
+    from railstop.sim.line_cbtc import make_zone_controller
+
+    return make_zone_controller(default_line(), default_vehicle(), ZoneMode.MINIMAL)
+
+
+def _report(train: int, x_m: float, t_s: float) -> PositionReport:
+    u = default_line().cbtc.position_uncertainty_m
+    return PositionReport(
+        train_id=train, position_m=x_m, speed_mps=0.0, direction="R", time_s=t_s, uncertainty_m=u
+    )
+
+
+def _authority(zc: ZoneController, train: int, x_m: float, t_s: float) -> float:
+    """The authority the controller answers a report of ``train`` at ``x_m`` with."""
+    zc.handle(_report(train, x_m, t_s), t_s)
+    got = [
+        o.message
+        for o in zc.on_timer(t_s + zc.params.processing_delay_s)
+        if isinstance(o.message, MovementCommand) and o.message.train_id == train
+    ]
+    assert len(got) == 1
+    return got[0].authority_m
+
+
+# Each step: (train, what) with what a position to report from, or None (the train is silent for
+# the cycle), or "release" (the operator releases its zone).
+_STEP = st.tuples(
+    st.integers(0, 2), st.one_of(st.none(), st.just("release"), st.floats(400.0, 5600.0, allow_nan=False))
+)
+
+
+@given(steps=st.lists(_STEP, max_size=40))
+@settings(max_examples=60, deadline=None)
+def test_a_restored_zone_controller_keeps_what_it_knew_and_loses_every_tracked_train(
+    steps: list[tuple[int, object]],
+) -> None:
+    """SPEC §4 / DESIGN rule 10: a controller restored from its durable state knows every train it
+    knew. A flagged train stays flagged with its zone (only the operator releases it), a lost one
+    stays lost with its zone, a tracked one is lost at once with its SPEC §4 zone (its occupancy
+    to its furthest authority end); a flagged train's next report is answered with authority 0."""
+    zc = _zc()
+    period = zc.params.report_period_s
+    t = 0.0
+    for train, what in steps:
+        if what == "release":
+            zc.handle(ManualRelease(train_id=train), t)
+        elif isinstance(what, float):
+            zc.handle(_report(train, what, t), t)
+        t += period
+        zc.on_timer(t)
+    before = {k: (tr.status, tr.zone, tr.report, tr.furthest_end) for k, tr in zc.trains.items()}
+    back = _zc()
+    assert back.restore_state(zc.state_bytes(t)) == len(before)
+    for k, (status, zone, report, furthest) in before.items():
+        got = back.trains[k]
+        assert got.report == report and got.furthest_end == furthest
+        if status == TrainStatus.TRACKED:
+            assert got.status == TrainStatus.LOST and got.zone is not None and report is not None
+            rear = report.position_m - zc.train_length_m
+            reach = min(max(report.position_m, furthest), zc.segments[-1][1])  # the area ends there
+            assert got.zone.start_m <= rear and reach <= got.zone.end_m
+        else:
+            assert (got.status, got.zone) == (status, zone)
+    for k, (status, *_) in before.items():
+        if status == TrainStatus.FLAGGED:
+            assert _authority(back, k, 3000.0, t + period) == 0.0
+
+
+@given(at=st.integers(0, 10_000), bit=st.integers(0, 7))
+@settings(max_examples=80, deadline=None)
+def test_a_damaged_zone_controller_state_is_refused_and_changes_nothing(at: int, bit: int) -> None:
+    """Any one bit changed in the state file: refused (ConfigError, the checksum or the header), and
+    the controller is left as it was (DESIGN rule 10: a doubtful state is no state)."""
+    from railstop.errors import ConfigError
+
+    zc = _zc()
+    for k, x in enumerate((1000.0, 3000.0)):
+        zc.handle(_report(k, x, 0.0), 0.0)
+    data = bytearray(zc.state_bytes(0.0))
+    data[at % len(data)] ^= 1 << bit
+    back = _zc()
+    with pytest.raises(ConfigError):
+        back.restore_state(bytes(data))
+    assert back.trains == {} and back.counts.restarts == 0
+
+
+def test_a_zone_controller_state_of_another_layout_is_refused() -> None:
+    """A state written by another version (or with a train record of another layout: a field more)
+    is refused even with a valid checksum."""
+    import hashlib
+
+    from railstop.errors import ConfigError
+
+    zc = _zc()
+    zc.handle(_report(0, 1000.0, 0.0), 0.0)
+    text = zc.state_bytes(0.0).partition(b"\n")[2]
+    body = json.loads(text)
+    for change in ({"version": 2}, {"trains": [{**body["trains"][0], "extra_m": 1.0}]}):
+        forged = json.dumps({**body, **change}).encode()
+        digest = hashlib.sha256(forged).hexdigest().encode()
+        with pytest.raises(ConfigError):
+            _zc().restore_state(b"railstop-zone-controller-state sha256 " + digest + b"\n" + forged)
+
+
+def test_without_a_state_every_train_is_held_until_the_operator_releases_it() -> None:
+    """[interpretation] A restart with no usable state knows nothing: every train of the operation is
+    flagged with a zone over the whole area, answered with authority 0, until the operator's
+    release (SPEC §4 step 5); released, it runs again."""
+    zc = _zc()
+    zc.restore_unknown(range(2), 0.0)
+    assert all(tr.status == TrainStatus.FLAGGED for tr in zc.trains.values())
+    assert _authority(zc, 0, 1000.0, 0.0) == 0.0 and _authority(zc, 1, 3000.0, 0.5) == 0.0
+    zc.handle(ManualRelease(train_id=1), 1.0)
+    assert _authority(zc, 1, 3000.0, 1.5) > 100.0
+    assert _authority(zc, 0, 1000.0, 2.0) == 0.0  # the other still held
+
+
+class _Radios:
+    """The trains' radios played by the test: each train reports from a given position every report
+    period over a real socket (the project's radio unit and safety layer), and the authorities of
+    the commands that come back are kept per train."""
+
+    def __init__(self, epoch: float, zc_port: str, trains: int) -> None:
+        import socket
+
+        from railstop.link.cbtc_radio import TRAIN_BASE
+        from railstop.live.cbtc import UdpRadio
+
+        self.epoch, self.zc = epoch, ("127.0.0.1", int(zc_port))
+        key = bytes.fromhex(KEY)
+        self.radios = {k: UdpRadio(own_id=TRAIN_BASE + k, master_key=key) for k in range(trains)}
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.02)
+
+    def run(self, seconds: float, at: dict[int, float]) -> dict[int, list[float]]:
+        """Report the trains of ``at`` from their positions for ``seconds``; the authorities received."""
+        from railstop.link.cbtc_radio import TRAIN_BASE
+        from railstop.link.safety import frame_ids
+
+        got: dict[int, list[float]] = {k: [] for k in self.radios}
+        next_s = time.time()
+        end = next_s + seconds
+        while time.time() < end:
+            now = time.time()
+            if now >= next_s:
+                next_s += default_line().cbtc.report_period_s
+                for k, x in at.items():
+                    self.radios[k].handle(_report(k, x, now - self.epoch), now - self.epoch)
+                    for frame, _ in self.radios[k].outgoing:
+                        self.sock.sendto(frame, self.zc)
+                    self.radios[k].outgoing.clear()
+            try:
+                frame = self.sock.recv(2048)
+            except TimeoutError:
+                continue
+            k = (frame_ids(frame) or (-1, -1))[1] - TRAIN_BASE
+            if k in self.radios:
+                for out in self.radios[k].ingest(frame, time.time() - self.epoch, to=str):
+                    assert isinstance(out.message, MovementCommand)
+                    got[k].append(out.message.authority_m)
+        return got
+
+
+def test_a_restarted_zone_controller_keeps_a_flagged_train_held_and_without_its_state_holds_every_train(
+    procs: Procs, tmp_path: Path
+) -> None:
+    """The live zone controller's restarts (SPEC §4 step 5, DESIGN rule 10), with its real process
+    and sockets, the trains' radios played by the test. Train 0 is lost and re-detected outside its
+    zone: flagged, held at authority 0. Killed (SIGKILL) and started again with its state file, the
+    controller still holds train 0 (no operator has released it) and serves train 1. Killed again,
+    its state file damaged: started again, it holds both trains, until the operator's release lets
+    train 1 run."""
+    from railstop.link.release_link import OperatorConsole, release_key
+
+    state = tmp_path / "zc.state"
+    epoch = time.time()
+    common = ["--trains", "2", "--state", str(state), "--epoch", repr(epoch), "--scale", "1"]
+    zc, line = procs.start("live", "zc", "--port", "0", "--new", *common)
+    port = line.split("127.0.0.1:")[1].split()[0]
+    radios = _Radios(epoch, port, 2)
+    assert min(radios.run(2.0, {0: 1000.0, 1: 3000.0})[0][-2:]) > 100.0  # both served
+    radios.run(2.5, {1: 3000.0})  # train 0 silent: lost, its zone set (to behind train 1)
+    after = radios.run(2.0, {0: 3500.0, 1: 5000.0})  # re-detected outside its zone: it moved
+    assert after[0] and after[0][-2:] == [0.0, 0.0]
+    os.kill(zc.pid, signal.SIGKILL)
+    zc.communicate(timeout=30)
+
+    zc2, line = procs.start("live", "zc", "--port", port, *common)
+    assert zc2.stderr is not None and "restored 2 train(s)" in zc2.stderr.readline()
+    got = radios.run(3.0, {0: 3500.0, 1: 5000.0})
+    assert got[0] and set(got[0]) == {0.0}, "the flagged train stays held after the restart"
+    assert got[1][-1] > 100.0, "train 1, re-detected inside its zone, runs"
+    counts = procs.stop(zc2)
+    assert counts["state"]["started"] == "restored" and counts["manual_releases"] == 0  # type: ignore[index]
+
+    data = bytearray(state.read_bytes())
+    data[len(data) // 2] ^= 0x01  # one bit of the file damaged
+    state.write_bytes(bytes(data))
+    zc3, line = procs.start("live", "zc", "--port", port, *common)
+    assert zc3.stderr is not None
+    note = zc3.stderr.readline()
+    assert "no usable state" in note and "held at authority 0" in note, note
+    held = radios.run(2.0, {0: 3500.0, 1: 5000.0})
+    assert held[0] and held[1] and set(held[0]) | set(held[1]) == {0.0}
+    console = OperatorConsole(key=release_key(bytes.fromhex(KEY)))
+    radios.sock.sendto(console.release(1, time.time()), radios.zc)
+    released = radios.run(2.0, {0: 3500.0, 1: 5000.0})
+    assert released[1][-1] > 100.0 and set(released[0]) == {0.0}
+    counts = procs.stop(zc3)
+    assert counts["state"]["started"] == "unknown" and counts["manual_releases"] == 1  # type: ignore[index]
+
+
+def test_a_restarted_trains_process_relocalises_before_it_reports(procs: Procs, tmp_path: Path) -> None:
+    """The trains' process (every onboard unit) is killed with SIGKILL in a running line whose plant
+    is a process of its own, and started again with the same options. Its configured start is not
+    where the plant holds the trains: it sends no report and no drive until it has the plant's state
+    of each train (DESIGN rule 10). The zone controller, which lost every train meanwhile, re-detects
+    each inside its zone (SPEC §4 step 4): none flagged, no overspeed brake, and the line runs on."""
+    db = str(tmp_path / "office.db")
+    epoch = time.time()
+    common = ["--epoch", repr(epoch), "--scale", "1"]
+    _, line = procs.start("office", "serve", "--db", db, "--port", "0")
+    office = line.split(" on ")[1].split()[0]
+    zc, line = procs.start("live", "zc", "--port", "0", "--trains", "2", "--office", office, "--new", *common)
+    zc_at = f"127.0.0.1:{line.split('127.0.0.1:')[1].split()[0]}"
+    _, line = procs.start("live", "plant", "--port", "0", "--trains", "2", "--spacing-m", "800", *common)
+    assert line.startswith("plant on"), line
+    args = ["live", "trains", "--zc", zc_at, "--trains", "2", "--spacing-m", "800", "--office", office,
+            "--plant", line.split(" on ")[1].split()[0], *common]  # fmt: skip
+    trains, _ = procs.start(*args)
+    _wait_for(db, "train-state", lambda r: float(r["speed_mps"]) > 5.0, 60.0)  # type: ignore[arg-type]
+    time.sleep(4.0)  # well away from the configured start
+    os.kill(trains.pid, signal.SIGKILL)
+    killed_s = time.time() - epoch
+    trains.communicate(timeout=30)
+    _wait_for(db, "zone-event", lambda r: len({z["train"] for z in _reports(db, "zone-event")}) == 2, 30.0)
+    stood = {int(r["train"]): float(r["position_m"]) for r in _reports(db, "train-state")}  # type: ignore[arg-type]
+    trains2, _ = procs.start(*args)
+    restarted_s = time.time() - epoch
+    moving = lambda r: float(r["t_s"]) > restarted_s and float(r["speed_mps"]) > 1.0  # type: ignore[arg-type]  # noqa: E731
+    run_again = _wait_for(db, "train-state", moving, 60.0)
+    time.sleep(3.0)
+    stopped_s = time.time() - epoch  # from here on the processes stop (each sees the others fall silent)
+    fleet = procs.stop(trains2)
+    zc_counts = procs.stop(zc)
+    # Each train lost once (the kill) and re-detected inside its zone once: released, none flagged;
+    # no emergency brake in the new process.
+    zones = [(z["train"], z["active"]) for z in _reports(db, "zone-event") if float(z["t_s"]) < stopped_s]  # type: ignore[arg-type]
+    assert sorted(zones) == [(0, False), (0, True), (1, False), (1, True)], (zones, killed_s, restarted_s)
+    assert zc_counts["flagged"] == 0
+    assert [b for b in fleet["emergency_brake_times"] if b["t_s"] < stopped_s] == []  # type: ignore[union-attr]
+    assert fleet["plant"]["unlocalised_train_steps"] >= 2  # type: ignore[index]
+    after = [s for s in _reports(db, "train-state") if float(s["t_s"]) > restarted_s]  # type: ignore[arg-type]
+    # Its first state of each train is where the plant held it (not its configured start), and
+    # every train runs again.
+    for k in (0, 1):
+        first = next(float(s["position_m"]) for s in after if s["train"] == k)  # type: ignore[arg-type]
+        assert abs(first - stood[k]) < 50.0, (k, first, stood[k])
+    assert {s["train"] for s in after if float(s["speed_mps"]) > 1.0} == {0, 1}  # type: ignore[arg-type]
+    print(
+        f"trains' process killed at {killed_s:.1f} s, started again at {restarted_s:.1f} s; train "
+        f"{run_again['train']} running again at {run_again['t_s']} s"
+    )
+
+
+def test_a_late_process_takes_what_reached_it_and_refuses_none_of_it_as_stale() -> None:
+    """A loaded machine: the process's step blocks 0.6 s (its CPU taken) while a peer sends a frame
+    every 50 ms. Catching up, the clock still reads its socket at every late step, and the safety
+    layer judges each frame at the time it is really taken: every frame is delivered, none refused
+    as stale (from the future of the late step), and those sent during the stall are taken while the
+    process is still behind, before the deadlines of the steps it has yet to run."""
+    import asyncio
+    import threading
+
+    from railstop.link.safety import SafePeers
+    from railstop.link.udp import open_endpoint
+    from railstop.live.clock import TimeBase, WallClock
+
+    key = bytes(range(32))
+    base = TimeBase(time.time(), 1.0)
+    clock = WallClock([], step_s=0.05, base=base)
+    rx = SafePeers(1, key, max_age_s=1.0, peers=lambda p: p == 2)
+    taken: list[tuple[float, float]] = []  # (the clock's step time, the wall's) of each frame
+    stalled: list[float] = []
+
+    async def run() -> tuple[int, int]:
+        async with await open_endpoint(("127.0.0.1", 0)) as ep:
+            addr = ep.local_address
+            done = threading.Event()
+
+            def peer() -> None:
+                import socket
+
+                tx = SafePeers(2, key, max_age_s=1.0, peers=lambda p: False)
+                with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                    while not done.is_set():
+                        s.sendto(tx.wrap(b"x", 1, base.now_s()), addr)
+                        time.sleep(0.05)
+
+            threading.Thread(target=peer, daemon=True).start()
+
+            def poll(now_s: float) -> list[object]:
+                while (got := ep.take()) is not None:
+                    if rx.accept(got[0], now_s) is not None:
+                        taken.append((clock.now_s, base.now_s()))
+                return []
+
+            def plant(now_s: float, step_s: float) -> list[object]:
+                if clock.steps == 10 and not stalled:
+                    stalled.append(base.now_s())
+                    time.sleep(0.6)  # the CPU taken: no step, no socket read
+                return []
+
+            await clock.run_live(plant, poll, asyncio.Event(), until_s=clock.now_s + 2.0)  # type: ignore[arg-type]
+            done.set()
+        return rx.delivered, sum(rx.rejected.values())
+
+    delivered, rejected = asyncio.run(run())
+    assert rejected == 0, rx.rejected
+    assert delivered >= 30 and clock.late_steps >= 5
+    # The frames of the stall were taken during the catch-up: the clock still behind the wall by
+    # more than the step (without the reads at late steps they wait until it has caught up).
+    behind = [wall - step for step, wall in taken if wall > stalled[0] + 0.3]
+    assert max(behind) > 0.3, behind
+
+
+def test_a_state_that_cannot_be_saved_is_not_left_stale(tmp_path: Path) -> None:
+    """The durable state is replaced atomically; when a new state cannot be written, the old file is
+    removed (DESIGN rule 10: a restart then holds every train instead of restoring a state older
+    than the commands sent) and the failure is reported (the zone controller sends no command)."""
+    from railstop.live.cbtc import StateFile
+
+    path = tmp_path / "zc.state"
+    store = StateFile(path)
+    assert store.save(b"first") and path.read_bytes() == b"first"
+    assert store.save(b"second") and path.read_bytes() == b"second"
+    assert not (tmp_path / "zc.state.tmp").exists()
+    (tmp_path / "zc.state.tmp").mkdir()  # the temporary file cannot be written
+    assert not store.save(b"third")
+    assert not path.exists() and store.errors == 1 and store.writes == 2

@@ -5,7 +5,8 @@ zone controller and the trains as three processes talking over UDP on
 loopback, waits ``--duration-s`` (wall seconds) and stops them; each prints
 its counts as one JSON line. ``live zc`` and ``live trains`` are those
 processes, startable by hand (a killed one can be started again with the same
-options: the run's ``--epoch``, ``--scale`` and key).
+options: the run's ``--epoch``, ``--scale`` and key; a zone controller with its
+``--state`` file and without ``--new``).
 """
 
 from __future__ import annotations
@@ -98,6 +99,9 @@ def _serve(coro_factory: object) -> None:
         fail(str(exc))
     if isinstance(result, dict):
         result["gc"] = watch.counts()  # its pauses, beside its clock's late steps
+        from railstop.link.udp import process_udp_stats  # lazy: CLI start-up
+
+        result["udp"] = process_udp_stats()  # every datagram dropped (kernel, queue, too long), counted
         # What the process cost: its CPU seconds (user + system) over its wall seconds.
         result["cpu_s"] = round(time.process_time(), 2)
         result["wall_s"] = round(time.monotonic() - started, 2)
@@ -135,6 +139,16 @@ def _serve_listener(label: str, office: str | None, own_id: int, key: bytes, sta
     _serve(run)
 
 
+ZcStateOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--state",
+        help="The zone controller's durable state file: written on every change of a train's status, "
+        "zone or authority, read when it starts again.",
+    ),
+]
+
+
 @live_app.command("zc")
 def zc_cmd(
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the zone controller.")] = 7710,
@@ -145,8 +159,19 @@ def zc_cmd(
     office: OfficeOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    state: ZcStateOpt = None,
+    new: Annotated[
+        bool,
+        typer.Option(
+            "--new",
+            help="The operation's start: no train known yet (without it, a restart: the state is read "
+            "from --state, and without a usable one every train is held until an operator releases it).",
+        ),
+    ] = False,
 ) -> None:
     """The SPEC §4 zone controller as a live process."""
+    from pathlib import Path
+
     from railstop.live.cbtc import run_zone_controller
 
     try:
@@ -158,7 +183,8 @@ def zc_cmd(
         "zone controller", office, 800, key,
         lambda stop, client, ready: run_zone_controller(
             line=ln, vehicle=veh, trains=trains, local=("127.0.0.1", port), base=base, master_key=key,
-            stop=stop, office=client, on_ready=ready,
+            stop=stop, office=client, on_ready=ready, state=None if state is None else Path(state), new=new,
+            note=lambda text: print(text, file=sys.stderr, flush=True),
         ),
     )  # fmt: skip
 
@@ -407,9 +433,13 @@ def trains_cmd(
         loop = asyncio.get_running_loop()
         if outage_train is not None:
             loop.add_signal_handler(signal.SIGUSR1, toggle)
-        for train, start_s, duration_s in windows:  # simulated seconds since the run's epoch
-            loop.call_later(max(base.wall_until(start_s), 0.0), set_radio, train, True)
-            loop.call_later(max(base.wall_until(start_s + duration_s), 0.0), set_radio, train, False)
+        # The windows count from this process's start (simulated seconds), not from the run's epoch:
+        # on a loaded machine the processes take seconds to start, and a window timed from the
+        # epoch could be over before the trains report at all (then no train is lost).
+        t0 = base.now_s()
+        for train, start_s, duration_s in windows:
+            loop.call_later(max(base.wall_until(t0 + start_s), 0.0), set_radio, train, True)
+            loop.call_later(max(base.wall_until(t0 + start_s + duration_s), 0.0), set_radio, train, False)
 
         async def fleet(client: object) -> object:
             return await run_trains(
@@ -455,10 +485,14 @@ def _run_line(
     tasc_loss: float = 0.0,
     psd_jams: list[str] | None = None,
     door_mode: str = "auto",
+    zc_state: str | None = None,
 ) -> dict[str, object]:
     """Office (with its page), zone controller, stations (with ``controller``; None: no ground
     TASC, point-mass stops) and trains as processes for ``duration_s`` wall seconds; their counts,
-    one object per process. ``tasc_loss``: the braking telegrams' injected loss."""
+    one object per process. ``tasc_loss``: the braking telegrams' injected loss. ``zc_state``: the
+    zone controller's durable state file (the run is a new operation; a zone controller started
+    again by hand with ``--state`` reads it); default: beside the database, or in the temporary
+    folder for a database URL."""
     import threading
 
     key = os.urandom(32).hex()
@@ -502,9 +536,15 @@ def _run_line(
         office_addr = listening.split(" on ")[1].split()[0]
         # The run's time base starts now: the office (which keeps Unix time) is up.
         common = ["--epoch", repr(time.time()), "--scale", repr(scale)]
+        if zc_state is None:
+            import tempfile
+
+            url = "://" in db
+            zc_state = f"{tempfile.gettempdir()}/railstop-zc-{zc_port}.state" if url else f"{db}.zc-state"
         zc, (zc_line,) = start(
-            ["live", "zc", "--port", str(zc_port), "--trains", str(trains), "--office", office_addr, *common]
-        )
+            ["live", "zc", "--port", str(zc_port), "--trains", str(trains), "--office", office_addr,
+             "--state", zc_state, "--new", *common]
+        )  # fmt: skip
         if not zc_line.startswith("zone controller on"):
             raise RailstopError(f"the zone controller did not start: {zc_line}")
         outage_args = [a for o in outages for a in ("--outage", o)]
@@ -569,12 +609,24 @@ def _run_line(
     return results
 
 
+RunZcStateOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--zc-state",
+        help="The zone controller's durable state file (default: the database's path + .zc-state); "
+        "a zone controller started again by hand reads it (railstop live zc --state).",
+    ),
+]
 OperatorsOpt = Annotated[
     str | None, typer.Option(help="Operators file (railstop office add-operator): the page's zone release.")
 ]
 OutageOpt = Annotated[
     list[str] | None,
-    typer.Option("--outage", help="TRAIN:START_S:DURATION_S: that train's radio dead then (repeatable)."),
+    typer.Option(
+        "--outage",
+        help="TRAIN:START_S:DURATION_S: that train's radio dead from START_S simulated seconds after the "
+        "trains' process starts, for DURATION_S (repeatable).",
+    ),
 ]
 
 
@@ -600,6 +652,7 @@ def run_cmd(
     ] = 0.0,
     psd_jam: PsdJamOpt = None,
     door_mode: DoorModeOpt = "auto",
+    zc_state: RunZcStateOpt = None,
 ) -> None:
     """Office (with its page), zone controller, stations and trains as processes for --duration-s."""
     try:
@@ -625,6 +678,7 @@ def run_cmd(
         tasc_loss=tasc_loss,
         psd_jams=list(psd_jam or []),
         door_mode=door_mode,
+        zc_state=zc_state,
     )
     print(json.dumps(results))
 
@@ -634,6 +688,7 @@ def demo_cmd(
     http_port: Annotated[int, typer.Option(min=0, max=65535, help="The control-room page's port.")] = 8080,
     db: Annotated[str, typer.Option(help="The office's database.")] = "railstop-live.db",
     operators: OperatorsOpt = None,
+    zc_state: RunZcStateOpt = None,
 ) -> None:
     """Two minutes of six trains with a radio outage of train 2 from 30 s to 50 s: its protection
     zone, its re-detection; prints where to open the page, then what happened."""
@@ -646,6 +701,7 @@ def demo_cmd(
         spacing_m=600.0,
         operators=operators,
         outages=["2:30:20"],
+        zc_state=zc_state,
     )
     zc = results.get("zone_controller")
     fleet = results.get("trains")

@@ -22,11 +22,15 @@ the zone controller every change of its protection zones.
 
 Fail safe (DESIGN rule 10): a zone controller process that dies stops
 answering; each train's unit counts its missed commands and applies the
-emergency brake at the second (SPEC §4). A zone controller that starts (or
-starts again) knows no train: it answers none until every train the operation
-runs has reported ([interpretation]: it cannot grant an authority past a train
-it has not heard from), then serves them all; a train in emergency brake is
-released at standstill by a fresh command.
+emergency brake at the second (SPEC §4). A zone controller answers no train
+until every train the operation runs has reported ([interpretation]: it cannot
+grant an authority past a train it has not heard from), then serves them all;
+a train in emergency brake is released at standstill by a fresh command. It
+keeps its state on disk (every change, before the commands that carry it
+leave); started again it restores it (a flagged train stays flagged), and
+without a usable state it holds every train until the operator releases it.
+A trains process started again reports no train before the plant has told it
+where the train is.
 """
 
 from __future__ import annotations
@@ -34,13 +38,16 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from railstop.config.schema import Line, Vehicle
 from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, static_profile
+from railstop.errors import RailstopError
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
@@ -55,7 +62,7 @@ from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
     from railstop.live.doors import LiveDoors, TrainDoors
-    from railstop.live.plant import Drive, PlantPort
+    from railstop.live.plant import Drive, PlantPort, TrainState
     from railstop.live.tasc import FloatArray, LiveTasc, TascOnboard
     from railstop.onboard.cpcs import CpcsState
 
@@ -124,20 +131,36 @@ async def run_zone_controller(
     stop: asyncio.Event,
     office: OfficeClient | None = None,
     on_ready: Callable[[Address], None] | None = None,
+    state: Path | None = None,
+    new: bool = False,
+    note: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Serve the trains until ``stop``; return the counts."""
+    """Serve the trains until ``stop``; return the counts.
+
+    ``state``: the controller's durable state file, written atomically on every change of a
+    train's status, zone or furthest authority (before the commands that change it leave) and read
+    at the start. ``new``: the operation's start (no train known yet: nothing is read); otherwise a
+    restart, restored from ``state`` or, without a usable one, with every train unknown and held
+    (:func:`restore_zone_controller`). ``note``: told, once the controller is ready, how it
+    started (one line)."""
     radio = UdpRadio(own_id=ZC_ADDRESS, master_key=master_key)
     zc = make_zone_controller(line, vehicle, ZoneMode.MINIMAL)
     zc.downlink = radio.name
+    started = restore_zone_controller(zc, state, new=new, trains=trains, now_s=base.now_s())
+    store = StateFile(state) if state is not None else None
     gate = ReleaseGate(key=release_key(master_key))
     clock = WallClock([zc, radio], step_s=STEP_S, base=base)
     addresses: dict[int, Address] = {}
     heard: set[int] = set()
     zones_seen: dict[int, tuple[float, float, str]] = {}
     held = 0
+    unsaved = 0  # commands not sent because the state they change could not be saved
+    saved_key: object = None
     async with await open_endpoint(local) as ep:
         if on_ready is not None:
             on_ready(ep.local_address)
+        if note is not None:
+            note(started["note"])
 
         def poll(now_s: float) -> list[Output]:
             out: list[Output] = []
@@ -159,13 +182,24 @@ async def run_zone_controller(
             return out
 
         def plant(now_s: float, step_s: float) -> list[Output]:
-            nonlocal held
+            nonlocal held, unsaved, saved_key
+            # Durable before it acts: a change of a train's status, zone or furthest authority is
+            # on disk before the commands that carry it leave (a restart then knows every
+            # authority given). A state that cannot be saved sends no command (the trains brake on
+            # their missed commands, SPEC §4) and leaves no stale file behind (DESIGN rule 10).
+            key = _state_key(zc)
+            saved = store is None or key == saved_key
+            if not saved and store is not None:
+                saved = store.save(zc.state_bytes(now_s))
+                saved_key = key if saved else None
             # Fail safe: no command leaves before every train of the operation has reported.
             ready = len(heard) >= trains
             for frame, peer in radio.outgoing:
                 addr = addresses.get(peer - TRAIN_BASE)
                 if not ready:
                     held += 1
+                elif not saved:
+                    unsaved += 1
                 elif addr is not None:
                     ep.send(frame, addr)
             radio.outgoing.clear()
@@ -186,7 +220,92 @@ async def run_zone_controller(
         "radio": {"delivered": radio.links.delivered, "rejected": radio.links.rejected},
         "manual_releases": c.manual_releases,
         "releases_refused": gate.rejected,
+        "state": {
+            "started": started["how"],
+            "restored_trains": started["trains"],
+            "writes": 0 if store is None else store.writes,
+            "write_errors": 0 if store is None else store.errors,
+            "commands_not_sent_unsaved": unsaved,
+        },
+        "released_by": gate.released_by,  # operator id -> releases (the telegrams name the operator)
     }
+
+
+def restore_zone_controller(
+    zc: ZoneController, path: Path | None, *, new: bool, trains: int, now_s: float
+) -> dict[str, Any]:
+    """How a zone controller process starts: ``new`` (the operation's start: no train known yet, as
+    the first reports make them known), or a restart from the durable state at ``path``
+    (``ZoneController.restore_state``: every tracked train lost with its SPEC §4 zone, a flagged
+    one kept flagged), or, with no usable state (no path, no file, unreadable, damaged, another
+    version), every train of the operation unknown: flagged and held at authority 0 until an
+    operator releases it (``ZoneController.restore_unknown``, [interpretation], DESIGN rule 10).
+    Returns {how, trains, note}: ``note`` says it in one line."""
+    if new:
+        return {"how": "new", "trains": 0, "note": "zone controller: a new operation (no train known yet)"}
+    why = "no state file given (--state)"
+    if path is not None:
+        try:
+            n = zc.restore_state(path.read_bytes())
+        except OSError as exc:
+            why = f"{path}: {exc.strerror or exc}"
+        except RailstopError as exc:
+            why = str(exc)
+        else:
+            return {
+                "how": "restored",
+                "trains": n,
+                "note": f"zone controller: restored {n} train(s) from {path}; each tracked one lost "
+                "until its next report re-detects it (SPEC §4)",
+            }
+    zc.restore_unknown(range(trains), now_s)
+    return {
+        "how": "unknown",
+        "trains": 0,
+        "note": f"zone controller: no usable state ({why}): every train is unknown, held at authority 0 "
+        "until an operator releases it after visual confirmation",
+    }
+
+
+def _state_key(zc: ZoneController) -> tuple[object, ...]:
+    """What the durable state must follow: every train's status, zone and furthest authority end,
+    and the trains that left."""
+    rows = tuple((k, t.status, t.zone, t.furthest_end) for k, t in sorted(zc.trains.items()))
+    return rows, tuple(sorted(zc.left))
+
+
+class StateFile:
+    """A file replaced atomically: the new contents go to a temporary file beside it, which is
+    flushed to the disk (fsync) and renamed over the old one (the directory fsynced too), so that
+    a process killed at any instant leaves the old contents or the new, never a mixture."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.writes = 0
+        self.errors = 0
+
+    def save(self, data: bytes) -> bool:
+        """Whether ``data`` is on disk; on a failure the old file is removed (a stale state must
+        not be restored as if it were current) and False returned."""
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            with open(tmp, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+            fd = os.open(self.path.parent, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError:
+            self.errors += 1
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            return False
+        self.writes += 1
+        return True
 
 
 def _report_zones(
@@ -232,6 +351,7 @@ class _TrainState:
     dwell: TrainDoors | None = None  # the dwell over the door link in progress
     retry: tuple[int, float, CpcsState] | None = None  # after a dwell fault: the dwell to begin again
     relocating: float | None = None  # sent back into service there; until the plant says it is
+    localised: bool = False  # this process has the plant's state of the train (see ``_localise``)
 
 
 async def run_trains(
@@ -281,19 +401,27 @@ async def run_trains(
     }
     fleet = []
     for k, x in enumerate(initial_positions(line, vehicle, trains, spacing_m)):
+        # Silent until localised: its first position (from the plant) starts its reports.
         unit = OnboardCbtc(
             train_id=k,
             direction="R",
             params=p,
             curve_decel_mps2=brake.full_service_mps2,
             uplink=radios[k].name,
+            active=False,
         )
-        unit.position_m = x
         ahead = next((i for i, st in enumerate(stations) if st > x + 1.0), len(stations))
         fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
+    unlocalised_steps = 0  # train-steps held under emergency brake, waiting for the plant's state
 
     def onboard(train: int, t_s: float, sense: Any) -> Any:
-        # The onboard TASC unit's cycle on the train's sensing (the CBTC unit's brake on wire e).
+        # The onboard TASC unit's cycle on the train's sensing (the CBTC unit's brake on wire e). A
+        # train this process has not localised is under a stop it did not begin (the plant's, from
+        # before this process started): its brakes get the emergency brake (DESIGN rule 10).
+        if not fleet[train].localised:
+            from railstop.live.tasc import BrakeDrive
+
+            return BrakeDrive(sense.k, brake.emergency_decel_mps2, True, True)
         return None if tasc is None else tasc.cycle(train, t_s, sense, fleet[train].unit.emergency_brake)
 
     local = None
@@ -343,7 +471,7 @@ async def run_trains(
             return out
 
         def step(now_s: float, step_s: float) -> list[Output]:
-            nonlocal cut_short
+            nonlocal cut_short, unlocalised_steps
             out: list[Output] = []
             for k, r in radios.items():
                 for frame, _ in r.outgoing:
@@ -357,6 +485,13 @@ async def run_trains(
             for t in fleet:
                 state = port.states.get(t.k)
                 fresh = state is not None and state.fresh
+                if not t.localised and not _localise(t, state, stations):
+                    # No report (to the zone controller, to the office) nor drive before the plant
+                    # says where the train is: it stays under the emergency brake (a restarted
+                    # process's start is not the train's position; DESIGN rule 10).
+                    unlocalised_steps += 1
+                    port.drive(t.k, emergency_drive(vehicle))
+                    continue
                 if state is None or fresh:
                     pass  # a plant that does not know where the train is: placed below
                 elif t.relocating is None:
@@ -396,8 +531,12 @@ async def run_trains(
                     port.drive(t.k, drive)
                     if math.isfinite(drive.relocate_m):
                         t.relocating, t.x_m, t.v_mps = drive.relocate_m, drive.relocate_m, 0.0
+                u = t.unit.params.position_uncertainty_m  # the plant's position: the declared bound
                 out.append(
-                    Output(to=t.unit.name, message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps))
+                    Output(
+                        to=t.unit.name,
+                        message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps, uncertainty_m=u),
+                    )
                 )
                 eb_now = t.unit.emergency_brake or port.lost
                 if eb_now and not t.eb_reported:
@@ -453,8 +592,36 @@ async def run_trains(
             **port.counts(),
             **(local.counts() if local is not None else {}),
             "tasc_stops_cut_short": cut_short,
+            "unlocalised_train_steps": unlocalised_steps,
         },
     }
+
+
+def _localise(t: _TrainState, state: TrainState | None, stations: list[float]) -> bool:
+    """Whether the train is localised now: this process (started, or started again in a running
+    line) takes the plant's state of the train before it reports or drives it. A plant that knows
+    nothing of the trains (``fresh``: it started with this process) is told where they are (the
+    configured start); a plant that knows them gives the train's position, once it stands (under
+    the emergency brake until then: this process has no authority for it, and its onboard unit
+    would find it over its authority) and no ground-TASC stop is under way for it (one begun
+    before this process started: it ends under the emergency brake first). Re-localised, the
+    train's next station is the first whose stopping point it has not passed by more than the
+    stop sensors' span (a train standing at a platform does its dwell there again: this process
+    does not know whether it was done). [interpretation] SPEC §2 keeps the position in the train;
+    here the trains' process holds no memory of it, and the plant stands for the train's own
+    sensors."""
+    from railstop.live.plant import STOP_SENSOR_SPAN_M
+
+    if state is None:
+        return False
+    if not state.fresh:
+        if state.sense is not None or state.v_mps != 0.0:
+            return False
+        t.x_m, t.v_mps = state.x_m, state.v_mps
+        span = STOP_SENSOR_SPAN_M
+        t.next_station = next((i for i, st in enumerate(stations) if st > t.x_m - span), len(stations))
+    t.localised = True
+    return True
 
 
 def _rejected(radios: Iterable[UdpRadio], misdirected: int) -> dict[str, int]:

@@ -11,6 +11,17 @@ Each plant step the clock waits until the wall clock reaches the step's time,
 takes what arrived on the sockets (``poll``), fires the units' deadlines in
 time order and runs the plant. A step that starts more than one step late is
 counted (``late_steps``): the process could not keep up.
+
+A process that fell behind (its CPU taken by others, a stall of the host)
+catches up step by step (the plant's motion and the deadlines keep their
+order), and on a loaded machine it must not lose what reached it meanwhile:
+each late step still yields to the event loop, so that the frames waiting in
+the sockets are read (and a task serving another socket runs) before the
+deadlines of the next step fire; and ``poll`` is given the wall clock's time,
+not the late step's, so that the safety layer judges a frame's age at the
+time it is really taken (a frame is never refused as "from the future"
+because its receiver is behind). Without both, a process whose steps run
+late would count reports, commands or drives as missed that it had received.
 """
 
 from __future__ import annotations
@@ -66,7 +77,8 @@ class WallClock(SimClock):
         while not stop.is_set() and (until_s is None or self.now_s < until_s):
             t_next = self.now_s + self.step_s
             wait = self.base.wall_until(t_next)
-            if wait > 0.0:
+            late = wait <= 0.0
+            if not late:
                 try:
                     await asyncio.wait_for(stop.wait(), timeout=wait)
                     break
@@ -78,10 +90,12 @@ class WallClock(SimClock):
                     self.late_steps += 1
                     if len(self.late_at) < LATE_KEPT:
                         self.late_at.append(self.base.epoch + t_next / self.base.scale)
+                await asyncio.sleep(0)  # late: the sockets are read all the same (see the notes)
             self._fire_until(t_next)
             self.now_s = t_next
-            # What arrived on the sockets since the last step, at the time it is taken.
-            self.deliver(poll(self.now_s))
+            # What arrived on the sockets since the last step, at the time it is taken (late: the
+            # wall clock's, the safety layer's "now"; the units get it at the step's time).
+            self.deliver(poll(max(self.now_s, self.base.now_s()) if late else self.now_s))
             self.deliver(plant(self.now_s, self.step_s))
             self.steps += 1
 

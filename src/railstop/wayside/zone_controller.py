@@ -7,9 +7,18 @@ after its processing delay Δt, computed from the **compensated position**::
 
 The command carries the movement authority as the distance from Pc to the
 authority's end, and the gradient and speed limit at Pc: every element that
-depends on the position is recomputed from Pc (SPEC §4). The authority ends
-``safety_margin_m`` behind the nearest obstacle ahead: the last reported rear
-of the train ahead, or the start of a protection zone.
+depends on the position is recomputed from Pc (SPEC §4); it carries Δt too,
+and the onboard unit rebuilds Pc from its copy of the report, so that the end
+it takes is the end meant here. The distance is sent rounded down to the
+telegram's millimetre (the wire's rounding never lengthens it).
+
+The authority ends ``safety_margin_m`` behind the nearest obstacle ahead, with
+the location uncertainty of both trains and the rollback allowance (after
+IEEE 1474.1's safe braking model): the last reported rear of the train ahead
+*less* its uncertainty and ``rollback_m``, or the start of a protection zone;
+and it is placed for the train's own front *plus* its uncertainty. A train's
+occupancy (for zones, re-detection and as an obstacle) is its reported extent
+widened by its uncertainty at both ends and by the rollback at its rear.
 
 **Lost trains** (SPEC §4): a train whose reports stop for ``missed_reports_lost``
 cycles is lost; its position is unknown. The controller remembers it and sets
@@ -35,14 +44,19 @@ is one-dimensional (DESIGN: no track graph).
 from __future__ import annotations
 
 import bisect
+import hashlib
 import heapq
+import json
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from enum import StrEnum
+import types
+import typing
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, fields, is_dataclass
+from enum import Enum, StrEnum
+from typing import Any
 
 from railstop.config.layout import Cbtc
-from railstop.errors import InterlockError
+from railstop.errors import ConfigError, InterlockError
 from railstop.messages import (
     ControllerRestart,
     ManualRelease,
@@ -51,6 +65,8 @@ from railstop.messages import (
     Output,
     PositionReport,
     TrainLeft,
+    cbtc_grid,
+    cbtc_grid_down,
 )
 
 # The grace after a report's due time before it counts as missed: half a cycle, so that the
@@ -88,8 +104,9 @@ class _Train:
     report: PositionReport | None = None
     receipt_s: float = -math.inf
     missed: int = 0
-    # The furthest authority end sent, signed by the direction (R: chainage, L: -chainage): any
-    # of the commands in flight may be the one the train holds, so the furthest is its stop point.
+    # The furthest authority end sent, signed by the direction (R: chainage, L: -chainage), with
+    # the uncertainty of the front it was placed for: any of the commands in flight may be the one
+    # the train holds, so the furthest is where its true front may stop.
     furthest_end: float = -math.inf
     granted_end_m: float = math.nan  # the end of the last authority granted (chainage)
     zone: Zone | None = None
@@ -98,7 +115,7 @@ class _Train:
 @dataclass(slots=True)
 class ZoneCounts:
     reports: int = 0
-    rejected_reports: int = 0  # invalid (direction, non-finite values): treated as missed
+    rejected_reports: int = 0  # invalid (direction, non-finite values, uncertainty): treated as missed
     late_reports: int = 0  # from a train that has left the area
     commands: int = 0
     lost: int = 0
@@ -184,9 +201,11 @@ class ZoneController:
                 if t.missed >= self.params.missed_reports_lost:
                     self._lose(t)
         while self._pending and self._pending[0][0] <= now_s + 1e-9:
-            _, _, train_id, report = heapq.heappop(self._pending)
+            due_s, _, train_id, report = heapq.heappop(self._pending)
             known = self.trains.get(train_id)
-            cmd = self._command(known, report) if known is not None else None  # None: it left meanwhile
+            # SPEC §4: Δt runs from the report's receipt (due - the processing delay) to now.
+            delay_s = max(now_s - (due_s - self.params.processing_delay_s), 0.0)
+            cmd = self._command(known, report, delay_s) if known is not None else None  # None: it left
             if cmd is not None:
                 self.counts.commands += 1
                 out.append(Output(to=self.downlink or f"cbtc-{train_id}", message=cmd))
@@ -200,6 +219,9 @@ class ZoneController:
 
     def _on_report(self, r: PositionReport, now_s: float) -> list[Output]:
         ok = r.direction in ("R", "L") and math.isfinite(r.position_m) and math.isfinite(r.speed_mps)
+        # IEEE 1474.1: the location uncertainty is part of the report; missing (NaN), negative or
+        # infinite, the report says nothing about where the train is.
+        ok = ok and math.isfinite(r.uncertainty_m) and r.uncertainty_m >= 0.0
         if not ok or r.speed_mps < 0.0:
             # An invalid report is no report (DESIGN rule 10): refused, counted, and the train
             # drifts towards lost as it would with the report missing.
@@ -223,10 +245,13 @@ class ZoneController:
         return []
 
     def _occupancy(self, r: PositionReport) -> tuple[float, float]:
-        """(low, high) chainage of the train of report ``r``."""
+        """(low, high) chainage the train of report ``r`` may occupy: its reported extent widened
+        by its location uncertainty at both ends and by the rollback allowance at its rear (IEEE
+        1474.1: the front within ± the uncertainty, and a train may roll back that far)."""
+        u, back = r.uncertainty_m, self.params.rollback_m
         if r.direction == "R":
-            return r.position_m - self.train_length_m, r.position_m
-        return r.position_m, r.position_m + self.train_length_m
+            return r.position_m - self.train_length_m - u - back, r.position_m + u
+        return r.position_m - u, r.position_m + self.train_length_m + u + back
 
     # ------------------------------------------------------------------ lost trains (SPEC §4)
 
@@ -316,7 +341,11 @@ class ZoneController:
         # [interpretation] The area ends at the line's ends, where trains leave it (to a depot or
         # the next controller): the authority reaches past the end by a train's length, so that
         # the whole train can leave.
-        exit_m = self.train_length_m + self.params.safety_margin_m + 1.0
+        # The train's ATO stops short of an authority's end and its braking curve keeps a reaction
+        # distance there: the exit gives a safety margin more, so that the train runs out at a crawl.
+        exit_m = self.train_length_m + 2.0 * self.params.safety_margin_m + 1.0
+        if me.report is not None:  # ... and its own uncertainty, which the authority ends short by
+            exit_m += me.report.uncertainty_m
         best = self.line_end_m + exit_m if direction == "R" else -exit_m
         for o in self.trains.values():
             if o is me:
@@ -340,23 +369,30 @@ class ZoneController:
                     best = max(best, hi)
         return best
 
-    def _command(self, t: _Train, r: PositionReport) -> MovementCommand | None:
+    def _command(self, t: _Train, r: PositionReport, delay_s: float) -> MovementCommand | None:
         # SPEC §4: every report a gets its command b, computed from that report's Pp and Vp (a
         # newer report, with Δt longer than the cycle, gets its own command in turn).
         p = self.params
         sign = 1.0 if r.direction == "R" else -1.0
-        # SPEC §4: Pc = Pp ± Δt·Vp (+ in R, - in L).
-        pc = r.position_m + (sign * p.processing_delay_s * r.speed_mps if p.compensate else 0.0)
+        # SPEC §4: Pc = Pp ± Δt·Vp (+ in R, - in L), Δt measured (``delay_s``) and sent on the
+        # telegram's grid: the onboard unit computes the same Pc from the same numbers. Without
+        # compensation (the comparison setting) the command says Δt = 0: Pc = Pp.
+        dt = cbtc_grid(delay_s) if p.compensate else 0.0
+        pc = r.position_m + sign * (dt * r.speed_mps)
+        u = r.uncertainty_m
         if t.status == TrainStatus.FLAGGED:
             end = pc  # held where it is until the operator releases it (DESIGN rule 10)
         else:
-            # The nearest obstacle ahead (a train's last reported occupancy, a zone, the line's
-            # end), less the margin; an obstacle already at the train gives authority 0.
+            # The nearest obstacle ahead (a train's last reported occupancy with its uncertainty
+            # and rollback, a zone, the line's end), less the margin, for a front up to the
+            # train's own uncertainty ahead of its report (IEEE 1474.1); an obstacle already at
+            # the train gives authority 0.
             obstacle = self._obstacle_ahead(t, r.position_m, r.direction)
-            end = obstacle - sign * p.safety_margin_m
-        authority = max(sign * (end - pc), 0.0)
-        t.furthest_end = max(t.furthest_end, sign * pc + authority)
-        t.granted_end_m = pc + sign * authority
+            end = obstacle - sign * (p.safety_margin_m + u)
+        # The distance from Pc, rounded down to the telegram's grid (never lengthened on the wire).
+        authority = cbtc_grid_down(max(sign * (end - pc), 0.0))
+        t.granted_end_m = pc + sign * authority  # the end meant: what the onboard unit computes
+        t.furthest_end = max(t.furthest_end, sign * t.granted_end_m + u)
         grad = sign * self.gradient_at(pc)
         return MovementCommand(
             train_id=t.train_id,
@@ -364,4 +400,133 @@ class ZoneController:
             gradient_permille=grad,
             speed_limit_mps=self.limit_at(pc),
             report_time_s=r.time_s,
+            delay_s=dt,
         )
+
+    # ------------------------------------------------------------------ durable state (restarts)
+
+    @staticmethod
+    def state_layout() -> dict[str, Any]:
+        """The layout of the controller's durable state: its name, its version and the fields of a
+        train's record (a state of another layout is refused: :meth:`restore_state`)."""
+        return {
+            "format": "railstop-zone-controller-state",
+            "version": 1,
+            "train_fields": [f.name for f in fields(_Train)],
+        }
+
+    def state_bytes(self, saved_s: float) -> bytes:
+        """The controller's durable state at ``saved_s``: every train's record (status, last report,
+        furthest authority end, zone, ...: every field of ``_Train``, read with
+        ``dataclasses.fields`` so that a field added later travels too) and the trains that have
+        left, as JSON under a SHA-256 checksum line. What ``_restart`` assumes non-volatile memory
+        keeps (SPEC §4: the lost trains, their zones and the authorities given); the commands
+        being computed are not kept (a restart drops them)."""
+
+        def plain(v: object) -> object:
+            if is_dataclass(v) and not isinstance(v, type):
+                return {f.name: plain(getattr(v, f.name)) for f in fields(v)}
+            if isinstance(v, Enum):
+                return v.value
+            return v
+
+        body = {
+            **self.state_layout(),
+            "saved_s": saved_s,
+            "trains": [plain(t) for _, t in sorted(self.trains.items())],
+            "left": sorted(self.left),
+        }
+        text = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
+        digest = hashlib.sha256(text).hexdigest().encode()
+        return b"railstop-zone-controller-state sha256 " + digest + b"\n" + text
+
+    def restore_state(self, data: bytes) -> int:
+        """A restart from the durable state ``data`` (:meth:`state_bytes`): the trains' records and
+        the trains that left are restored, then the restart rule applies (``_restart``: every
+        tracked train lost at once with its SPEC §4 zone, a flagged one still flagged with its zone
+        kept, each re-detected by its next report). Returns the trains restored. ConfigError (and
+        nothing changed) for a state that is damaged (checksum), of another format, version or
+        train layout, or whose values are not of their fields' types (DESIGN rule 10: the caller
+        then starts with every train unknown, :meth:`restore_unknown`)."""
+        where = "zone controller state"
+        head, sep, text = data.partition(b"\n")
+        parts = head.split(b" ")
+        if not sep or len(parts) != 3 or parts[:2] != [b"railstop-zone-controller-state", b"sha256"]:
+            shown = head[:60].decode(errors="replace")
+            raise ConfigError(where, "header", "not a zone controller state", shown)
+        if hashlib.sha256(text).hexdigest().encode() != parts[2]:
+            raise ConfigError(where, "sha256", "the checksum does not match the contents (damaged)")
+        try:
+            body = json.loads(text)
+        except ValueError as exc:
+            raise ConfigError(where, "body", f"not JSON ({exc})") from None
+        if not isinstance(body, dict):
+            raise ConfigError(where, "body", "not an object")
+        layout = self.state_layout()
+        for key, want in layout.items():
+            if body.get(key) != want:
+                raise ConfigError(where, key, f"this controller reads {want!r}", body.get(key))
+
+        def typed(tp: Any, v: object, at: str) -> Any:
+            # The value ``v`` as type ``tp`` (a field's annotation), strictly: a value of another
+            # type is a damaged state, never a guess.
+            if typing.get_origin(tp) in (typing.Union, types.UnionType):
+                options = [a for a in typing.get_args(tp) if a is not type(None)]
+                if v is None and len(options) < len(typing.get_args(tp)):
+                    return None
+                if len(options) == 1:
+                    return typed(options[0], v, at)
+            elif isinstance(tp, type) and is_dataclass(tp):
+                names = {f.name for f in fields(tp) if f.init}
+                if isinstance(v, dict) and set(v) == names:
+                    hints = typing.get_type_hints(tp)
+                    return tp(**{k: typed(hints[k], v[k], f"{at}.{k}") for k in names})
+            elif isinstance(tp, type) and issubclass(tp, Enum):
+                try:
+                    return tp(v)
+                except ValueError:
+                    pass
+            elif tp is float and isinstance(v, int | float) and not isinstance(v, bool):
+                return float(v)
+            elif tp in (int, str, bool) and type(v) is tp:
+                return v
+            raise ConfigError(where, at, f"not a value of {tp}", v)
+
+        hints = typing.get_type_hints(_Train)
+        rows = body.get("trains")
+        left = body.get("left")
+        if not isinstance(rows, list) or not isinstance(left, list):
+            raise ConfigError(where, "trains", "a list of trains and a list of the trains that left expected")
+        trains: dict[int, _Train] = {}
+        for i, row in enumerate(rows):
+            if not isinstance(row, dict) or set(row) != set(hints):
+                raise ConfigError(where, f"trains[{i}]", "not a train record of this layout", row)
+            t = _Train(**{k: typed(hints[k], row[k], f"trains[{i}].{k}") for k in hints})
+            if t.train_id in trains:
+                raise ConfigError(where, f"trains[{i}].train_id", "a train twice", t.train_id)
+            trains[t.train_id] = t
+        gone = {typed(int, k, f"left[{j}]") for j, k in enumerate(left)}
+        self.trains, self.left = trains, gone
+        self._restart()
+        return len(trains)
+
+    def restore_unknown(self, train_ids: Iterable[int], now_s: float) -> None:
+        """A restart without a durable state (none, damaged, of another version): nothing is known
+        of any train. [interpretation] SPEC §4 does not say; the fail-safe reading (DESIGN rule 10:
+        unknown -> most restrictive) is that every train of the operation may be anywhere and may
+        have moved while the controller was down, as a lost train re-detected outside its zone:
+        each is flagged, with a zone over the whole area, held at authority 0 by every command
+        (its reports are still taken) until an operator releases it after visual confirmation
+        (SPEC §4 step 5)."""
+        self.counts.restarts += 1
+        self._pending.clear()
+        area = (self.segments[0][0], self.segments[-1][1])
+        for k in train_ids:
+            if k in self.left:
+                continue
+            self.trains[k] = _Train(
+                train_id=k,
+                status=TrainStatus.FLAGGED,
+                receipt_s=now_s,
+                zone=Zone(train_id=k, start_m=area[0], end_m=area[1]),
+            )
