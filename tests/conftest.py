@@ -42,12 +42,10 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="session")
-def postgres_url() -> Iterator[str]:
-    given = os.environ.get("RAILSTOP_TEST_POSTGRES_URL")
-    if given:
-        yield given
-        return
+@contextlib.contextmanager
+def _throwaway_cluster(prefix: str, *, synchronous_commit: bool) -> Iterator[PgCluster]:
+    """A PostgreSQL cluster of the machine's binaries in a temporary folder, on a free loopback
+    port, started; stopped and removed at the end (the tests are skipped without the binaries)."""
     bindir = _bindir()
     if bindir is None:
         pytest.skip("no PostgreSQL server binaries (initdb, pg_ctl) on this machine")
@@ -62,55 +60,37 @@ def postgres_url() -> Iterator[str]:
             pytest.skip("running as root and there is no 'postgres' user to run PostgreSQL as")
         as_user = ["runuser", "-u", "postgres", "--"]
         owner = (pw.pw_uid, pw.pw_gid)
-    top = Path(tempfile.mkdtemp(prefix="railstop-pg-"))
+    top = Path(tempfile.mkdtemp(prefix=prefix))
     top.chmod(0o755)
-    data, sockets, logs = top / "data", top / "sock", top / "log"
-    log = logs / "server.log"
-    for d in (data, sockets, logs):
+    for d in (top / "data", top / "sock", top / "log"):
         d.mkdir()
         if owner is not None:
             os.chown(d, *owner)
-    port = _free_port()
-
-    def run(*argv: str) -> None:
-        subprocess.run([*as_user, *argv], check=True, capture_output=True, text=True, timeout=120)
-
+    cluster = PgCluster(top, bindir, as_user, _free_port(), synchronous_commit=synchronous_commit)
     try:
-        run(
-            str(bindir / "initdb"),
-            "-D",
-            str(data),
-            "-A",
-            "trust",
-            "-U",
-            "railstop",
-            "--no-sync",
-            "-E",
-            "UTF8",
-        )
-        run(
-            str(bindir / "pg_ctl"),
-            "-D",
-            str(data),
-            "-l",
-            str(log),
-            "-w",
-            "-t",
-            "60",
-            "-o",
-            f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off",
-            "start",
-        )
+        cluster._run(str(bindir / "initdb"), "-D", str(cluster.data), "-A", "trust", "-U", "railstop",
+                     "--no-sync", "-E", "UTF8")  # fmt: skip
+        cluster.start()
     except subprocess.CalledProcessError as exc:
-        text = log.read_text(errors="replace") if log.exists() else ""
+        text = cluster.log.read_text(errors="replace") if cluster.log.exists() else ""
         shutil.rmtree(top, ignore_errors=True)
         pytest.fail(f"could not start PostgreSQL: {exc.stderr or exc.stdout} {text[-500:]}")
     try:
-        yield f"postgresql://railstop@127.0.0.1:{port}/postgres"
+        yield cluster
     finally:
         with contextlib.suppress(subprocess.SubprocessError, OSError):
-            run(str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "-w", "stop")
+            cluster.stop("immediate")
         shutil.rmtree(top, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def postgres_url() -> Iterator[str]:
+    given = os.environ.get("RAILSTOP_TEST_POSTGRES_URL")
+    if given:
+        yield given
+        return
+    with _throwaway_cluster("railstop-pg-", synchronous_commit=True) as cluster:
+        yield cluster.url
 
 
 @pytest.fixture
@@ -182,8 +162,11 @@ def _busy_beside_every_test(request: pytest.FixtureRequest) -> Iterator[None]:
 class PgCluster:
     """A throwaway PostgreSQL cluster: ``url``, ``stop()`` (fast shutdown), ``start()``."""
 
-    def __init__(self, top: Path, bindir: Path, as_user: list[str], port: int) -> None:
+    def __init__(
+        self, top: Path, bindir: Path, as_user: list[str], port: int, *, synchronous_commit: bool = False
+    ) -> None:
         self.top, self.bindir, self.as_user, self.port = top, bindir, as_user, port
+        self.synchronous_commit = synchronous_commit
         self.data, self.sockets, self.log = top / "data", top / "sock", top / "log" / "server.log"
         self.url = f"postgresql://railstop@127.0.0.1:{port}/postgres"
 
@@ -192,7 +175,7 @@ class PgCluster:
 
     def start(self) -> None:
         opts = f"-p {self.port} -k {self.sockets} -c listen_addresses=127.0.0.1 -c fsync=off"
-        opts += " -c synchronous_commit=off"
+        opts += "" if self.synchronous_commit else " -c synchronous_commit=off"
         self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-w", "-t", "60",
                   "-o", opts, "start")  # fmt: skip
 
@@ -202,38 +185,5 @@ class PgCluster:
 
 @pytest.fixture(scope="module")
 def restartable_postgres() -> Iterator[PgCluster]:
-    bindir = _bindir()
-    if bindir is None:
-        pytest.skip("no PostgreSQL server binaries (initdb, pg_ctl) on this machine")
-    as_user: list[str] = []
-    owner: tuple[int, int] | None = None
-    if os.geteuid() == 0:
-        import pwd
-
-        try:
-            pw = pwd.getpwnam("postgres")
-        except KeyError:
-            pytest.skip("running as root and there is no 'postgres' user to run PostgreSQL as")
-        as_user = ["runuser", "-u", "postgres", "--"]
-        owner = (pw.pw_uid, pw.pw_gid)
-    top = Path(tempfile.mkdtemp(prefix="railstop-pg-restart-"))
-    top.chmod(0o755)
-    for d in (top / "data", top / "sock", top / "log"):
-        d.mkdir()
-        if owner is not None:
-            os.chown(d, *owner)
-    cluster = PgCluster(top, bindir, as_user, _free_port())
-    try:
-        cluster._run(str(bindir / "initdb"), "-D", str(cluster.data), "-A", "trust", "-U", "railstop",
-                     "--no-sync", "-E", "UTF8")  # fmt: skip
-        cluster.start()
-    except subprocess.CalledProcessError as exc:
-        text = cluster.log.read_text(errors="replace") if cluster.log.exists() else ""
-        shutil.rmtree(top, ignore_errors=True)
-        pytest.fail(f"could not start PostgreSQL: {exc.stderr or exc.stdout} {text[-500:]}")
-    try:
+    with _throwaway_cluster("railstop-pg-restart-", synchronous_commit=False) as cluster:
         yield cluster
-    finally:
-        with contextlib.suppress(subprocess.SubprocessError, OSError):
-            cluster.stop("immediate")
-        shutil.rmtree(top, ignore_errors=True)
