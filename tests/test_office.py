@@ -419,3 +419,17 @@ def test_office_reports_sums_up_the_dwells() -> None:
         "Harbour (doors): 1 dwell(s), 0 start enable, 1 fault(s), 0 correction(s)",
         "Museum (doors): 3 dwell(s), 2 start enable, 1 fault(s), 3 correction(s), longest 37.2 s",
     ]
+
+
+def test_a_restarted_office_takes_no_report_sent_before_it_started() -> None:
+    """A report the previous office took, replayed to a restarted office while still fresh, is
+    refused (old_session); what the sender sends after the restart is taken."""
+    out, _ = ends(session=1)
+    _, frame = out.submit("train-state", {"i": 0}, 1.0)
+    restarted = OfficeInbox(own_id=OFFICE, master_key=KEY, senders=(7,), session=100, started_s=2.0)
+    report, ack, reason = restarted.on_frame(frame, 2.5)  # 1.5 s old: fresh, but sent before the start
+    assert report is None and ack is None and reason == "old_session"
+    assert restarted.on_frame(out.submit("train-state", {"i": 1}, 3.0)[1], 3.0)[0] is not None
+    # Without the floor the same replay would be taken again.
+    unfloored = OfficeInbox(own_id=OFFICE, master_key=KEY, senders=(7,), session=101)
+    assert unfloored.on_frame(frame, 2.5)[0] is not None

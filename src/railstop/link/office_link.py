@@ -125,13 +125,20 @@ def _loads(payload: bytes) -> dict[str, Any] | None:
 class _SessionReceiver:
     """A safety-layer receiver that follows the peer across restarts (see the module docstring)."""
 
-    def __init__(self, own_id: int, peer_id: int, *, key: bytes, times: LinkTimes) -> None:
+    def __init__(
+        self, own_id: int, peer_id: int, *, key: bytes, times: LinkTimes, not_before_s: float | None = None
+    ) -> None:
+        """``not_before_s``: when this end (its process) started; nothing sent before it is
+        delivered, whatever session it belongs to (EN 50159 repetition across a restart of this
+        end: its previous incarnation may have delivered it, ``railstop.link.safety``)."""
         self.own_id, self.peer_id, self.key, self.times = own_id, peer_id, key, times
+        self.not_before_s = not_before_s
         self.session: int | None = None
         self.receiver = self._fresh(0.0)
         self.restarts = 0
 
     def _fresh(self, now_s: float, not_before_s: float | None = None) -> SafeReceiver:
+        floors = [f for f in (not_before_s, self.not_before_s) if f is not None]
         return SafeReceiver(
             self.own_id,
             self.peer_id,
@@ -141,7 +148,7 @@ class _SessionReceiver:
             timeout_s=3600.0,  # the office link is watched by the outbox's resends, not a time-out
             start_s=now_s,
             future_tolerance_s=self.times.future_tolerance_s,
-            not_before_s=not_before_s,
+            not_before_s=max(floors) if floors else None,
         )
 
     def accept(self, frame: bytes, now_s: float) -> tuple[dict[str, Any] | None, str | None]:
@@ -249,11 +256,19 @@ class OfficeInbox:
     session: int
     times: LinkTimes = field(default_factory=LinkTimes)
     counts: dict[str, int] = field(default_factory=dict)
+    #: When the office (its process) started, on the link's clock: reports sent before it are
+    #: refused (``old_session``), so a restarted office never takes a replay of what its previous
+    #: incarnation took. None: no such floor (an office that never restarts, as in the tests).
+    started_s: float | None = None
 
     def __post_init__(self) -> None:
         self._rx = {
             s: _SessionReceiver(
-                self.own_id, s, key=link_key(self.master_key, s, self.own_id), times=self.times
+                self.own_id,
+                s,
+                key=link_key(self.master_key, s, self.own_id),
+                times=self.times,
+                not_before_s=self.started_s,
             )
             for s in self.senders
         }

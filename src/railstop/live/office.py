@@ -220,6 +220,7 @@ async def serve_office(
     changes (default: stderr). A damaged database, or a database failure that does not pass,
     raises its ``RailstopError`` (one line): from then on nothing is acknowledged.
     """
+    started_s = clock.now_s()  # nothing sent before this office started is taken (a replay)
     say = log or _stderr_line
     stats = OfficeStats()
     outage = _Outage(stats, say, backoff or Backoff())
@@ -232,6 +233,7 @@ async def serve_office(
         senders=senders,
         session=new_session(),
         times=times or LinkTimes(),
+        started_s=started_s,
     )
     held: dict[tuple[int, int, int], _Held] = {}
     wake = asyncio.Event()  # something is held
