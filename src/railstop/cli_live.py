@@ -395,6 +395,8 @@ def trains_cmd(
                 stations=address_option(stations, "--stations"),
                 master_key=key,
                 manual=door_mode == "manual",
+                trains=trains,
+                started_s=base.now_s(),  # statuses sent before this process started are refused
             )
             for text in obstruct or []:
                 train_s, _, door_s = text.partition(":")
@@ -414,6 +416,8 @@ def trains_cmd(
                 dist=load_disturbances(disturbances),
                 seed=seed,
                 loss=tasc_loss,
+                trains=trains,
+                started_s=base.now_s(),  # telegrams sent before this process started are refused
             )
     except RailstopError as exc:
         fail(str(exc))

@@ -193,6 +193,9 @@ def serve_cmd(
         result = asyncio.run(main())
     except RailstopError as exc:
         fail(str(exc))
+    from railstop.link.udp import process_udp_stats  # lazy: CLI start-up
+
+    result["udp"] = process_udp_stats()  # every datagram dropped (kernel, queue, too long), counted
     result["cpu_s"] = round(time.process_time(), 2)
     result["wall_s"] = round(time.monotonic() - started, 2)
     print(json.dumps(result))

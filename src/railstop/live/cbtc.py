@@ -50,8 +50,8 @@ from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, stat
 from railstop.errors import RailstopError
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
-from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
-from railstop.link.safety import SafePeers, frame_ids, sum_counts
+from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, _Gate, release_key
+from railstop.link.safety import SafePeers, SafeReceiver, frame_ids, sum_counts
 from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
@@ -73,16 +73,33 @@ class UdpRadio:
     """The train radio as a unit at one end of real sockets: messages handed to it become frames to
     send (``outgoing``); frames received become messages (``ingest``). Pure: the driver sends."""
 
-    def __init__(self, *, own_id: int, master_key: bytes, name: str = "radio") -> None:
+    def __init__(
+        self,
+        *,
+        own_id: int,
+        master_key: bytes,
+        name: str = "radio",
+        started_s: float | None = None,
+        peers: Callable[[int], bool] | None = None,
+        expects: type[Message] | None = None,
+    ) -> None:
+        """``started_s``: when this process started on the run's clock; frames sent before it are
+        refused (``old_session``: a previous incarnation of the process may have delivered them,
+        EN 50159 repetition across restarts). ``peers``: the safety-layer ids that may be heard
+        (default: the zone controller and any train). ``expects``: the one message type this end
+        takes (a zone controller takes reports, a train commands); any other is refused and
+        counted (``unexpected-type``), never a crash (DESIGN rule 9)."""
         self.name = name
         self.accepts: tuple[type, ...] = (PositionReport, MovementCommand)
         self.own_id = own_id
+        self.expects = expects
         self.outgoing: list[tuple[bytes, int]] = []  # (frame, peer id)
         self.links = SafePeers(
             own_id,
             master_key,
             max_age_s=MAX_AGE_S,
-            peers=lambda p: p == ZC_ADDRESS or TRAIN_BASE <= p < TRAIN_BASE + 0x1000,
+            peers=peers or (lambda p: p == ZC_ADDRESS or TRAIN_BASE <= p < TRAIN_BASE + 0x1000),
+            started_s=started_s,
         )
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
@@ -111,10 +128,38 @@ class UdpRadio:
             self.links.reject(f"telegram-{exc.reason}")
             return []
         msg = to_message(tele)
-        if msg is None:
+        if msg is None or (self.expects is not None and not isinstance(msg, self.expects)):
+            # SPEC §4: reports go up, commands come down; a command sent to the zone controller
+            # (or a report to a train), even under a valid MAC, is refused and counted.
             self.links.reject("unexpected-type")
             return []
+        if TRAIN_BASE + msg.train_id not in (got[0], self.own_id):
+            # [interpretation] A telegram names the train whose link carries it: a report from
+            # train k's radio is about train k, a command to train k's radio is for train k. A key
+            # holder's frame naming another train is refused (EN 50159 masquerade, DESIGN rule 10).
+            self.links.reject("train-mismatch")
+            return []
         return [Output(to=to(msg.train_id), message=msg)]
+
+
+def floor_gate(gate: _Gate, not_before_s: float) -> Any:
+    """``gate`` (an operator link's receiving end) with a receiver that refuses every frame sent
+    before ``not_before_s`` on that link's clock (``old_session``): a command that the process's
+    previous incarnation took (a zone release, a WCC command) is not taken again when it is
+    replayed after a restart (EN 50159 repetition across restarts, ``link.safety``). The gate's
+    own checks are unchanged."""
+    old = gate.receiver
+    gate.receiver = SafeReceiver(
+        old.own_id,
+        old.peer_id,
+        key=gate.key,
+        category=old.category,
+        max_age_s=old.max_age_s,
+        timeout_s=old.timeout_s,
+        future_tolerance_s=old.future_tolerance_s,
+        not_before_s=not_before_s,
+    )
+    return gate
 
 
 # ---------------------------------------------------------------------- the zone controller
@@ -143,16 +188,30 @@ async def run_zone_controller(
     restart, restored from ``state`` or, without a usable one, with every train unknown and held
     (:func:`restore_zone_controller`). ``note``: told, once the controller is ready, how it
     started (one line)."""
-    radio = UdpRadio(own_id=ZC_ADDRESS, master_key=master_key)
+    # Only the operation's trains are peers, only reports are taken, and nothing sent before this
+    # process started is delivered (EN 50159 repetition across a restart of the controller).
+    radio = UdpRadio(
+        own_id=ZC_ADDRESS,
+        master_key=master_key,
+        started_s=base.now_s(),
+        peers=lambda p: TRAIN_BASE <= p < TRAIN_BASE + trains,
+        expects=PositionReport,
+    )
     zc = make_zone_controller(line, vehicle, ZoneMode.MINIMAL)
     zc.downlink = radio.name
     started = restore_zone_controller(zc, state, new=new, trains=trains, now_s=base.now_s())
     store = StateFile(state) if state is not None else None
-    gate = ReleaseGate(key=release_key(master_key))
+    # The operator's link keeps Unix time: releases sent before this process started are refused.
+    gate = floor_gate(ReleaseGate(key=release_key(master_key)), time.time())
     clock = WallClock([zc, radio], step_s=STEP_S, base=base)
     addresses: dict[int, Address] = {}
     heard: set[int] = set()
     zones_seen: dict[int, tuple[float, float, str]] = {}
+    if office is not None:
+        # The zones the start set (a restore loses every tracked train) go to the office at once:
+        # on a loaded host the first reports may re-detect a train, and release its zone, before
+        # the first step compares zones with what the office was told.
+        _report_zones(zc, zones_seen, office, base.now_s())
     held = 0
     unsaved = 0  # commands not sent because the state they change could not be saved
     saved_key: object = None
@@ -173,12 +232,15 @@ async def run_zone_controller(
                     if release is not None:
                         out.append(Output(to=zc.name, message=release))
                     continue
-                msgs = radio.ingest(frame, now_s, to=lambda _k: zc.name)
-                for m in msgs:
-                    assert isinstance(m.message, PositionReport)
+                for m in radio.ingest(frame, now_s, to=lambda _k: zc.name):
+                    if not isinstance(m.message, PositionReport):
+                        # DESIGN rule 9: refused and counted, never an assert (which a key holder's
+                        # command frame would trip, and which ``python -O`` removes).
+                        radio.links.reject("unexpected-type")
+                        continue
                     addresses[m.message.train_id] = addr
                     heard.add(m.message.train_id)
-                out.extend(msgs)
+                    out.append(m)
             return out
 
         def plant(now_s: float, step_s: float) -> list[Output]:
@@ -396,8 +458,19 @@ async def run_trains(
     stations = [line.stations[i].stop_point_m for i in order]
     end_m = line_end_m(line)
     # Each train talks to the zone controller with its own safety-layer id.
+    # Each train hears only the zone controller, takes only commands, and refuses what was sent
+    # before this process started (a restarted process never re-delivers a command).
+    started_s = base.now_s()
     radios = {
-        k: UdpRadio(own_id=TRAIN_BASE + k, master_key=master_key, name=f"radio-{k}") for k in range(trains)
+        k: UdpRadio(
+            own_id=TRAIN_BASE + k,
+            master_key=master_key,
+            name=f"radio-{k}",
+            started_s=started_s,
+            peers=lambda p: p == ZC_ADDRESS,
+            expects=MovementCommand,
+        )
+        for k in range(trains)
     }
     fleet = []
     for k, x in enumerate(initial_positions(line, vehicle, trains, spacing_m)):
@@ -433,7 +506,9 @@ async def run_trains(
             line=line, vehicle=vehicle, trains=trains, spacing_m=spacing_m, master_key=master_key,
             tasc=plant_tasc,
         )  # fmt: skip
-    port = PlantPort(trains, plant=local, address=plant, master_key=master_key, onboard=onboard)
+    port = PlantPort(
+        trains, plant=local, address=plant, master_key=master_key, onboard=onboard, started_s=started_s
+    )
     profile = static_profile(line, end_m, brake.full_service_mps2 * 0.8)
     clock = WallClock([*(t.unit for t in fleet), *radios.values()], step_s=STEP_S, base=base)
     ebs: dict[str, int] = {}
@@ -585,6 +660,7 @@ async def run_trains(
         "emergency_brake_times": eb_times,
         **clock.timing(),
         "commands": sum(t.unit.commands for t in fleet),
+        "radio_delivered": sum(r.links.delivered for r in radios.values()),
         "radio_rejected": _rejected(radios.values(), misdirected),
         "tasc": None if tasc is None else tasc.counts(),
         "dwells": None if doors is None else doors.counts(),

@@ -76,6 +76,7 @@ _STOP_SENSED = struct.Struct(">H H d")
 #: A stop-sensor reading older than this does not put a train in position.
 SENSED_FRESH_S = 1.0
 _OPEN = frozenset({DoorState.OPEN})
+MAX_TRAINS = 60  # the most trains a live trains process runs (``railstop live trains --trains``)
 
 
 def pack_stop_sensed(train: int, station: int, error_m: float) -> bytes:
@@ -726,9 +727,25 @@ class LiveDoors:
     are read by the plant (``live.plant``)."""
 
     def __init__(
-        self, *, line: Line, doors: DoorsConfig, stations: Address, master_key: bytes, manual: bool = False
+        self,
+        *,
+        line: Line,
+        doors: DoorsConfig,
+        stations: Address,
+        master_key: bytes,
+        manual: bool = False,
+        trains: int = MAX_TRAINS,
+        started_s: float | None = None,
     ) -> None:
-        """``manual``: the trains' doors are worked by their drivers (SPEC §5 manual column)."""
+        """``manual``: the trains' doors are worked by their drivers (SPEC §5 manual column).
+        ``trains``: the trains of this process (0 .. trains - 1): a frame for any other is refused
+        before any link state exists. ``started_s``: when this process started on the run's
+        clock; statuses sent before it are refused (``old_session``)."""
+        if not 1 <= trains <= MAX_TRAINS:
+            raise ValueError(f"trains: 1..{MAX_TRAINS} (got {trains})")
+        self.trains = trains
+        self.started_s = started_s
+        self.not_mine = 0  # frames for a train that is not one of this process's (refused)
         from railstop.sim.dwell import model_for
 
         self.manual = manual
@@ -746,12 +763,14 @@ class LiveDoors:
         self.unexpected = 0
 
     def _link(self, train: int) -> SafePeers:
+        """Train ``train``'s link (one of this process's trains: the callers check)."""
         if train not in self._links:
             self._links[train] = SafePeers(
                 TRAIN_DOORS_BASE + train,
                 self.master_key,
                 max_age_s=self.doors.link.max_age_s,
                 peers=self._is_platform,
+                started_s=self.started_s,
             )
         return self._links[train]
 
@@ -764,6 +783,11 @@ class LiveDoors:
         if ids is None:
             return
         train = ids[1] - TRAIN_DOORS_BASE
+        if not 0 <= train < self.trains:
+            # A destination that is no train of this process: refused before any link is made
+            # for it (a forged header must not make the process hold state; DESIGN rule 9).
+            self.not_mine += 1
+            return
         got = self._link(train).accept(frame, now_s)
         if got is None:
             return
@@ -815,6 +839,8 @@ class LiveDoors:
 
     def counts(self) -> dict[str, Any]:
         refused = sum_counts(lk.rejected for lk in self._links.values())
+        if self.not_mine:
+            refused["not_a_train_here"] = refused.get("not_a_train_here", 0) + self.not_mine
         outcomes = sum_counts({r["outcome"]: 1} for r in self.results)
         dwells = [r["dwell_s"] for r in self.results if r["dwell_s"] is not None]
         return {
@@ -835,10 +861,17 @@ class Platforms:
     through their gate (``link.release_link.WccGate``)."""
 
     def __init__(
-        self, *, line: Line, doors: DoorsConfig, master_key: bytes, jams: tuple[tuple[int, int], ...] = ()
+        self,
+        *,
+        line: Line,
+        doors: DoorsConfig,
+        master_key: bytes,
+        jams: tuple[tuple[int, int], ...] = (),
+        started_s: float | None = None,
     ) -> None:
         """``jams``: fault injection, (station, PSD unit from 0) that fail to close on their next
-        closing."""
+        closing. ``started_s``: when this process started on the run's clock; frames sent before
+        it are refused (``old_session``)."""
         from railstop.link.release_link import WccGate, wcc_key
         from railstop.sim.dwell import model_for
 
@@ -856,10 +889,18 @@ class Platforms:
                 master_key,
                 max_age_s=doors.link.max_age_s,
                 peers=lambda p: p == SENSORS_ID or TRAIN_DOORS_BASE <= p < TRAIN_DOORS_BASE + 0x400,
+                started_s=started_s,
             )
             for i in range(n)
         }
         self.gate = WccGate(key=wcc_key(master_key))
+        if started_s is not None:
+            import time
+
+            from railstop.live.cbtc import floor_gate
+
+            # The WCC link keeps Unix time: commands sent before this process started are refused.
+            self.gate = floor_gate(self.gate, time.time())
         self.refused: dict[str, int] = {}
 
     def owns(self, dst: int) -> bool:
@@ -923,6 +964,10 @@ class Platforms:
                 out.append((train, self.links[u.index].wrap(encode(status), TRAIN_DOORS_BASE + train, now_s)))
             u.due.clear()
         return out
+
+    def delivered(self) -> int:
+        """Frames the platforms' links delivered (stop sensors and door commands)."""
+        return sum(lk.delivered for lk in self.links.values())
 
     def take_events(self) -> list[dict[str, Any]]:
         out = [e for u in self.units for e in u.events]

@@ -481,7 +481,11 @@ async def run_plant(
     """Move the trains until ``stop``: drives from the trains process (it is heard at the address
     its frames come from), every train's state back each step; the trackside readings to the
     stations process. Returns the counts."""
-    wiring = SafePeers(PLANT_ID, master_key, max_age_s=1.0, peers=lambda p: p == TRAINS_WIRING_ID)
+    # Nothing sent before this process started is delivered: a drive its previous incarnation
+    # followed is not followed again (EN 50159 repetition across a restart of the plant).
+    wiring = SafePeers(
+        PLANT_ID, master_key, max_age_s=1.0, peers=lambda p: p == TRAINS_WIRING_ID, started_s=base.now_s()
+    )
     clock = WallClock([], step_s=PLANT_STEP_S, base=base)
     trains_at: Address | None = None
     last_drive_s = -math.inf
@@ -536,6 +540,7 @@ async def run_plant(
         **clock.timing(),
         **plant.counts(),
         "drive_lost": drive_lost,
+        "delivered": wiring.delivered,
         "refused": _refused(wiring, refused_payloads),
         "trains": [{"train": v.k, "x_m": round(v.x_m, 2), "v_mps": round(v.v_mps, 3)} for v in plant.fleet],
     }
@@ -574,10 +579,15 @@ class PlantPort:
     heard_s: float = -math.inf
     lost: bool = False
     losses: int = 0
+    started_s: float | None = None  # when this process started: frames sent before it are refused
 
     def __post_init__(self) -> None:
         self.wiring = SafePeers(
-            TRAINS_WIRING_ID, self.master_key, max_age_s=1.0, peers=lambda p: p == PLANT_ID
+            TRAINS_WIRING_ID,
+            self.master_key,
+            max_age_s=1.0,
+            peers=lambda p: p == PLANT_ID,
+            started_s=self.started_s,
         )
         self.pending: list[DriveRecord] = []
         self.restarts = 0  # plants that came up fresh after one that knew the trains
@@ -585,14 +595,20 @@ class PlantPort:
         self.refused_payloads = 0
         self.ep: UdpEndpoint | None = None
 
-    def _take(self, states: list[TrainState]) -> None:
-        for s in states:
+    def _take(self, states: list[TrainState]) -> list[TrainState]:
+        """The states of this process's trains, kept; a record for any other train is refused
+        and counted (DESIGN rule 9: it would index no train)."""
+        mine = [s for s in states if 0 <= s.train < self.trains]
+        if len(mine) < len(states):
+            self.wiring.reject("unknown_train")
+        for s in mine:
             if s.fresh and self.known:
                 self.restarts += 1  # a plant started again in the running line
             self.known = not s.fresh
             self.states[s.train] = s
             if s.ended:
                 self.ended[s.train] = s
+        return mine
 
     def drive(self, train: int, drive: Drive) -> None:
         if self.plant is not None:
@@ -653,9 +669,8 @@ class PlantPort:
                 self.refused_payloads += 1
                 continue
             self.heard_s = now_s
-            self._take(states)
             replies: list[DriveRecord] = []
-            for s in states:
+            for s in self._take(states):
                 if s.sense is not None and self.onboard is not None:
                     d = self.onboard(s.train, s.sense_t_s, s.sense)
                     if d is not None:

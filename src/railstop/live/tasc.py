@@ -62,7 +62,7 @@ from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
-from railstop.live.doors import SENSORS_ID, Platforms
+from railstop.live.doors import MAX_TRAINS, SENSORS_ID, Platforms
 from railstop.live.office import OfficeClient
 from railstop.onboard.tasc_receiver import (
     CFG_PWM,
@@ -384,7 +384,11 @@ async def run_stations(
     fault injection, (station, PSD unit from 0) that fail to close); return the counts."""
     from railstop.config.doors import load_doors
 
-    platforms = Platforms(line=line, doors=doors or load_doors(), master_key=master_key, jams=jams)
+    # Nothing sent before this process started is delivered (EN 50159 repetition across a restart).
+    started_s = base.now_s()
+    platforms = Platforms(
+        line=line, doors=doors or load_doors(), master_key=master_key, jams=jams, started_s=started_s
+    )
     models = station_models(line, vehicle, controller)
     wired_stop(models[0], vehicle)  # the compiled steps loaded before the clock starts
     stations = [WaysideTasc(st) for st in models]
@@ -395,6 +399,7 @@ async def run_stations(
             max_age_s=line.stations[w.st.index].tasc.max_telegram_age_s,
             # The plant's readings, and the trains' radios announcing themselves (association).
             peers=lambda p: p == SENSORS_ID or TRAIN_TASC_BASE <= p < TRAIN_TASC_BASE + 0x400,
+            started_s=started_s,
         )
         for w in stations
     }
@@ -475,6 +480,7 @@ async def run_stations(
         "commands": commands,
         "frames_sent": sum(lk.sent for lk in links.values()),
         "readings_frames": sum(lk.delivered for lk in links.values()),
+        "delivered": sum(lk.delivered for lk in links.values()) + platforms.delivered(),
         "readings_age_ms": age_summary(ages),
         "refused": refused,
         **clock.timing(),
@@ -847,11 +853,21 @@ class LiveTasc:
         dist: DisturbanceSet,
         seed: int,
         loss: float = 0.0,
+        trains: int = MAX_TRAINS,
+        started_s: float | None = None,
     ) -> None:
         """``loss``: fault injection, each braking telegram frame is lost with this probability
-        (drawn from the seed; the link on loopback loses none)."""
+        (drawn from the seed; the link on loopback loses none). ``trains``: the trains of this
+        process (0 .. trains - 1): a frame for any other is refused before any link state exists.
+        ``started_s``: when this process started on the run's clock; telegrams sent before it are
+        refused (``old_session``)."""
         if not 0.0 <= loss <= 1.0:
             raise ValueError(f"--tasc-loss: a probability in [0, 1] (got {loss})")
+        if not 1 <= trains <= MAX_TRAINS:
+            raise ValueError(f"trains: 1..{MAX_TRAINS} (got {trains})")
+        self.trains = trains
+        self.started_s = started_s
+        self.not_mine = 0  # frames for a train that is not one of this process's (refused)
         self.loss = loss
         self._loss_rng = np.random.default_rng([seed, 0x7A5C])
         self.injected_losses = 0
@@ -876,12 +892,14 @@ class LiveTasc:
         return ids is not None and self._is_station(ids[0])
 
     def _links(self, train: int) -> SafePeers:
+        """Train ``train``'s link (one of this process's trains: the caller checked)."""
         if train not in self._rx:
             self._rx[train] = SafePeers(
                 TRAIN_TASC_BASE + train,
                 self.master_key,
                 max_age_s=max(m.station.tasc.max_telegram_age_s for m in self.models),
                 peers=self._is_station,
+                started_s=self.started_s,
             )
         return self._rx[train]
 
@@ -894,6 +912,11 @@ class LiveTasc:
             self.injected_losses += 1  # lost on the air (fault injection)
             return
         train = ids[1] - TRAIN_TASC_BASE
+        if not 0 <= train < self.trains:
+            # A destination that is no train of this process: refused before any link is made
+            # for it (a forged header must not make the process hold state; DESIGN rule 9).
+            self.not_mine += 1
+            return
         got = self._links(train).accept(frame, now_s)
         if got is None:
             return
@@ -940,6 +963,8 @@ class LiveTasc:
 
     def counts(self) -> dict[str, Any]:
         refused = sum_counts(lk.rejected for lk in self._rx.values())
+        if self.not_mine:
+            refused["not_a_train_here"] = refused.get("not_a_train_here", 0) + self.not_mine
         return {
             "telegrams_delivered": sum(lk.delivered for lk in self._rx.values()),
             "telegrams_refused": refused,
