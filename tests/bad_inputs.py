@@ -42,6 +42,7 @@ class Case:
     dirs: tuple[str, ...] = ()
     needles: tuple[str, ...] = ()
     module: str = CLI
+    modes: Mapping[str, int] = field(default_factory=dict)  # file name -> permission bits (chmod)
 
     def command(self) -> list[str]:
         return [sys.executable, "-m", self.module, *self.argv]
@@ -62,6 +63,8 @@ class Case:
                 path.write_bytes(content)
             else:
                 path.write_text(content, encoding="utf-8")
+        for name, mode in self.modes.items():
+            (where / name).chmod(mode)
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,8 +202,20 @@ def add(
     dirs: Iterable[str] = (),
     needles: Iterable[str] = (),
     module: str = CLI,
+    modes: Mapping[str, int] | None = None,
 ) -> None:
-    CASES.append(Case(id, tuple(argv), dict(files or {}), tuple(dirs), tuple(needles), module))
+    files, modes = dict(files or {}), dict(modes or {})
+    if any(argv[i : i + 2] == LIVE_KEY for i in range(len(argv))) and LIVE_KEY[1] not in files:
+        # A case that names the live processes' key file gets it, valid and private (mode 0600):
+        # the case then shows the refusal of its other input, not of the key.
+        files[LIVE_KEY[1]] = LIVE_KEY_TEXT
+        modes.setdefault(LIVE_KEY[1], 0o600)
+    CASES.append(Case(id, tuple(argv), files, tuple(dirs), tuple(needles), module, modes))
+
+
+# The links' master key of the live processes and the office: a key file (never --key-hex).
+LIVE_KEY = ("--key-file", "live.key")
+LIVE_KEY_TEXT = "00112233445566778899aabbccddeeff\n"
 
 
 # --------------------------------------------------------------------------
@@ -841,7 +856,69 @@ add("telegram-types-unknown-option", "telegram", "types", "--json", needles=("--
 # --------------------------------------------------------------------------
 # railstop live: the processes refuse bad options before they start
 
-LIVE_KEY = ("--key-hex", "00112233445566778899aabbccddeeff")
+# The key: never on the command line, only from a private key file or the environment.
+add(
+    "live-zc-key-hex",
+    "live", "zc", "--port", "0", "--new", "--key-hex", LIVE_KEY_TEXT.strip(),
+    needles=("--key-hex", "command line", "--key-file", "RAILSTOP_OFFICE_KEY"),
+)  # fmt: skip
+add(
+    "office-serve-key-hex",
+    "office", "serve", "--port", "0", "--key-hex", LIVE_KEY_TEXT.strip(),
+    needles=("--key-hex", "command line", "--key-file", "RAILSTOP_OFFICE_KEY"),
+)  # fmt: skip
+add(
+    "live-trains-key-hex-beside-a-key-file",
+    "live", "trains", *LIVE_KEY, "--key-hex", LIVE_KEY_TEXT.strip(),
+    needles=("--key-hex", "--key-file"),
+)  # fmt: skip
+add(
+    "live-zc-key-file-world-readable",
+    "live", "zc", "--port", "0", "--new", "--key-file", "open.key",
+    files={"open.key": LIVE_KEY_TEXT}, modes={"open.key": 0o644},
+    needles=("--key-file", "open.key", "chmod 600"),
+)  # fmt: skip
+add(
+    "live-plant-key-file-group-writable",
+    "live", "plant", "--port", "0", "--key-file", "open.key",
+    files={"open.key": LIVE_KEY_TEXT}, modes={"open.key": 0o620},
+    needles=("--key-file", "open.key", "chmod 600"),
+)  # fmt: skip
+add(
+    "office-serve-key-file-world-readable",
+    "office", "serve", "--port", "0", "--key-file", "open.key",
+    files={"open.key": LIVE_KEY_TEXT}, modes={"open.key": 0o604},
+    needles=("--key-file", "open.key", "chmod 600"),
+)  # fmt: skip
+add(
+    "live-stations-key-file-not-hex",
+    "live", "stations", "--port", "0", "--key-file", "bad.key",
+    files={"bad.key": "the key\n"}, modes={"bad.key": 0o600},
+    needles=("--key-file", "bad.key", "hexadecimal"),
+)  # fmt: skip
+add(
+    "office-serve-key-file-short",
+    "office", "serve", "--port", "0", "--key-file", "short.key",
+    files={"short.key": "0011223344556677\n"}, modes={"short.key": 0o600},
+    needles=("--key-file", "short.key", "16 bytes"),
+)  # fmt: skip
+add(
+    "live-zc-key-file-missing",
+    "live", "zc", "--port", "0", "--new", "--key-file", "nosuch.key",
+    needles=("--key-file", "nosuch.key", "no such file"),
+)  # fmt: skip
+add(
+    "live-zc-key-file-a-folder",
+    "live", "zc", "--port", "0", "--new", "--key-file", "keys",
+    dirs=("keys",),
+    needles=("--key-file", "keys", "not a regular file"),
+)  # fmt: skip
+add(
+    "office-new-key-exists",
+    "office", "new-key", "--out", "live.key",
+    files={"live.key": LIVE_KEY_TEXT}, modes={"live.key": 0o600},
+    needles=("--out", "live.key", "exists"),
+)  # fmt: skip
 add(
     "live-stations-controller",
     "live",

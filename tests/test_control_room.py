@@ -95,10 +95,14 @@ class Sender:
 
 @pytest.fixture
 def office(tmp_path: Path) -> Iterator[tuple[str, int, str]]:
-    """The office with its page and no operators file: it prints a one-time login for viewing."""
+    """The office with its page and no operators file: it prints a one-time login for viewing. Its
+    key comes from a key file (mode 0600)."""
+    key_file = tmp_path / "office.key"
+    key_file.write_text(KEY.hex() + "\n")
+    key_file.chmod(0o600)
     proc = subprocess.Popen(
         [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "office.db"),
-         "--port", "0", "--http-port", "0", "--key-hex", KEY.hex(), "--senders", "1-10"],
+         "--port", "0", "--http-port", "0", "--key-file", str(key_file), "--senders", "1-10"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     assert proc.stderr is not None

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -296,11 +297,12 @@ def _one_line_exit_2(res: subprocess.CompletedProcess[str], needle: str) -> None
     assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], res.stderr
 
 
-def test_live_paths_refuse_a_missing_or_built_in_key() -> None:
+def test_live_paths_refuse_a_missing_or_built_in_key(tmp_path: Path) -> None:
     """No live path runs on a built-in key: the UDP command refuses a demonstration master key, a
-    live process refuses to start without a key, and with a demonstration key given it stops with
-    one line (exit 2) before it opens a socket. ``railstop live run`` / ``demo`` generate a key per
-    run and hand it to the processes they start (RAILSTOP_OFFICE_KEY)."""
+    live process refuses to start without a key, and with a demonstration key given (in a key file
+    or the environment) it stops with one line (exit 2) before it opens a socket. ``railstop live
+    run`` / ``demo`` generate a key per run and hand it to the processes they start
+    (RAILSTOP_OFFICE_KEY)."""
     from railstop.link.safety import demo_master_key
 
     demo = demo_master_key("CBTC radio").hex()
@@ -313,5 +315,14 @@ def test_live_paths_refuse_a_missing_or_built_in_key() -> None:
     live = [sys.executable, "-m", "railstop.cli", "live", "zc", "--port", "0"]
     res = subprocess.run(live, capture_output=True, text=True, timeout=60, env=env)
     _one_line_exit_2(res, "key")
-    res = subprocess.run([*live, "--key-hex", demo], capture_output=True, text=True, timeout=60, env=env)
+    key_file = tmp_path / "demo.key"
+    key_file.write_text(demo + "\n")
+    key_file.chmod(0o600)
+    res = subprocess.run(
+        [*live, "--key-file", str(key_file)], capture_output=True, text=True, timeout=60, env=env
+    )
+    _one_line_exit_2(res, "demonstration key")
+    res = subprocess.run(
+        live, capture_output=True, text=True, timeout=60, env={**env, "RAILSTOP_OFFICE_KEY": demo}
+    )
     _one_line_exit_2(res, "demonstration key")

@@ -172,6 +172,54 @@ def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Pa
     assert [(z["train"], z["active"]) for z in zones] == [(1, True), (1, False)]
 
 
+def test_live_run_hands_its_key_to_its_processes_only_through_the_environment(tmp_path: Path) -> None:
+    """``railstop live run`` makes a key for the run and gives it to the processes it starts in
+    their environment (readable by this user only), never on their command lines (readable by
+    every user of the machine: ps, /proc/PID/cmdline). Read from the running processes."""
+    proc_fs = Path("/proc")
+    if not (proc_fs / "self" / "environ").exists():
+        pytest.skip("needs /proc")
+    env = {k: v for k, v in ENV.items() if k != "RAILSTOP_OFFICE_KEY"}  # the run makes its own
+    with open(tmp_path / "stderr.txt", "w+") as err:
+        run = subprocess.Popen(
+            [*EXE, "live", "run", "--trains", "1", "--duration-s", "3", "--http-port", "0",
+             "--db", str(tmp_path / "live.db"), "--no-tasc"],
+            env=env, stdout=subprocess.PIPE, stderr=err, text=True,
+        )  # fmt: skip
+        try:
+            assert run.stdout is not None
+            first = run.stdout.readline()  # said once every process has started
+            assert first.startswith("control-room page"), first + err.read()
+            children: dict[int, tuple[list[bytes], list[bytes]]] = {}
+            for entry in proc_fs.iterdir():
+                if not entry.name.isdigit():
+                    continue
+                try:
+                    fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+                    if int(fields[1]) != run.pid:  # the parent's pid
+                        continue
+                    children[int(entry.name)] = (
+                        (entry / "cmdline").read_bytes().split(b"\0"),
+                        (entry / "environ").read_bytes().split(b"\0"),
+                    )
+                except (OSError, IndexError, ValueError):
+                    continue  # a process that ended meanwhile, not one of the run's
+            keys = {
+                e.split(b"=", 1)[1]
+                for _, environ in children.values()
+                for e in environ
+                if e.startswith(b"RAILSTOP_OFFICE_KEY=")
+            }
+            for cmdline, _ in children.values():
+                assert not any(a.startswith(b"--key") or any(k in a for k in keys) for a in cmdline), cmdline
+        finally:
+            out, _ = run.communicate(timeout=120)
+    assert run.returncode == 0, out
+    # Office, zone controller, plant and trains: each got the run's one key, a 256-bit one.
+    assert len(children) == 4 and len(keys) == 1
+    assert len(bytes.fromhex(keys.pop().decode())) == 32
+
+
 def _restricted_run(
     tmp_path: Path, outage: str
 ) -> tuple[dict[str, object], list[dict[str, object]], list[dict[str, object]], float]:

@@ -290,7 +290,8 @@ def test_the_store_keeps_a_report_once(db: str) -> None:
 def _start_office(db: str, port: int = 0) -> tuple[subprocess.Popen[str], int]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", db, "--port", str(port),
-         "--key-hex", KEY.hex(), "--senders", "1-20"],
+         "--senders", "1-20"],
+        env={**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()},
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     assert proc.stderr is not None
@@ -346,14 +347,140 @@ def test_killing_the_office_mid_run_loses_no_report(db: str) -> None:
     assert proc.returncode == 0 and '"stored"' in out
 
 
+def _private_key_file(where: Path, text: str = KEY.hex() + "\n", mode: int = 0o600) -> Path:
+    path = where / "office.key"
+    path.write_text(text)
+    path.chmod(mode)
+    return path
+
+
+def _serve(tmp_path: Path, *args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``railstop office serve`` that is expected to refuse its options (it stops at once)."""
+    base = {k: v for k, v in os.environ.items() if k != "RAILSTOP_OFFICE_KEY"}
+    return subprocess.run(
+        [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "o.db"),
+         "--port", "0", *args],
+        capture_output=True, text=True, timeout=60, env={**base, **(env or {})}, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def _refused(p: subprocess.CompletedProcess[str], *needles: str) -> str:
+    """The one error line of a refused start (exit code 2, nothing served)."""
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:"), p.stderr
+    assert "Traceback" not in p.stderr and "listening" not in p.stderr + p.stdout
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    return lines[0]
+
+
 def test_office_serve_refuses_bad_options_in_one_line(tmp_path: Path) -> None:
-    for args in (["--key-hex", "abc"], ["--key-hex", "00" * 8], ["--key-hex", KEY.hex(), "--senders", "9-x"]):
-        p = subprocess.run(
-            [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "o.db"), *args],
+    key = _private_key_file(tmp_path)
+    _refused(_serve(tmp_path, "--key-file", str(key), "--senders", "9-x"), "--senders")
+    _refused(_serve(tmp_path), "--key-file", "RAILSTOP_OFFICE_KEY")  # no key at all
+    for value in ("abc", "00" * 8):
+        _refused(_serve(tmp_path, env={"RAILSTOP_OFFICE_KEY": value}), "RAILSTOP_OFFICE_KEY")
+
+
+def test_a_key_on_the_command_line_is_refused_whatever_else_is_given(tmp_path: Path) -> None:
+    """``--key-hex`` (a key every user of the machine could read in the process list) stops the
+    office and a live process in one line naming what to use instead, never echoing the key; a
+    valid key file or environment key beside it does not let it through."""
+    key = _private_key_file(tmp_path)
+    for extra, env in (
+        ([], None),
+        (["--key-file", str(key)], None),
+        ([], {"RAILSTOP_OFFICE_KEY": KEY.hex()}),
+    ):
+        line = _refused(
+            _serve(tmp_path, "--key-hex", KEY.hex(), *extra, env=env),
+            "--key-hex", "command line", "--key-file", "RAILSTOP_OFFICE_KEY",
+        )  # fmt: skip
+        assert KEY.hex() not in line
+    live = subprocess.run(
+        [sys.executable, "-m", "railstop.cli", "live", "zc", "--port", "0", "--new", "--key-hex", KEY.hex()],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    line = _refused(live, "--key-hex", "--key-file")
+    assert KEY.hex() not in line and "zone controller on" not in live.stderr
+
+
+def test_a_key_file_others_may_read_or_that_holds_no_key_is_refused(tmp_path: Path) -> None:
+    """The process does not start on a key file that group or others may read or write, that is
+    missing, not a regular file, not hex or under 16 bytes: one line naming --key-file, the file and
+    the reason; the key itself is never echoed."""
+    cases = [
+        (KEY.hex(), 0o644, "chmod 600"),
+        (KEY.hex(), 0o640, "chmod 600"),
+        (KEY.hex(), 0o602, "chmod 600"),
+        ("not a key\n", 0o600, "hexadecimal"),
+        ("00112233", 0o600, "16 bytes"),
+        ("", 0o600, "empty"),
+    ]
+    for text, mode, why in cases:
+        key = _private_key_file(tmp_path, text, mode)
+        line = _refused(_serve(tmp_path, "--key-file", str(key)), "--key-file", str(key), why)
+        assert KEY.hex() not in line
+    _refused(
+        _serve(tmp_path, "--key-file", str(tmp_path / "nosuch.key")), "--key-file", "nosuch.key", "no such"
+    )
+    _refused(_serve(tmp_path, "--key-file", str(tmp_path)), "--key-file", "not a regular file")
+
+
+@given(mode=st.integers(0, 0o777), pad=st.sampled_from(["", " ", "\n", "\t\n  "]))
+def test_only_a_key_file_closed_to_group_and_others_is_read(
+    tmp_path_factory: Any, mode: int, pad: str
+) -> None:
+    """Property over every permission mode: a key file is read exactly when group and others have no
+    permission on it (0600 or stricter), and then whitespace around the hex is ignored."""
+    from railstop.cli_office import read_key_file
+    from railstop.errors import RailstopError
+
+    path = _private_key_file(tmp_path_factory.mktemp("k"), pad + KEY.hex() + pad, mode)
+    try:
+        if mode & 0o077:
+            with pytest.raises(RailstopError, match="chmod 600"):
+                read_key_file(path)
+        elif os.geteuid() == 0 or mode & 0o400:  # root reads whatever the owner's bits
+            assert read_key_file(path) == KEY
+    finally:
+        path.chmod(0o600)
+
+
+def test_new_key_writes_a_private_random_key_that_the_office_reads_and_never_overwrites(
+    tmp_path: Path,
+) -> None:
+    from railstop.cli_office import read_key_file
+
+    def new_key(path: Path) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "railstop.cli", "office", "new-key", "--out", str(path)],
             capture_output=True, text=True, timeout=60,
         )  # fmt: skip
-        assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (args, p.stderr)
-        assert "Traceback" not in p.stderr
+
+    a, b = tmp_path / "a.key", tmp_path / "b.key"
+    made = new_key(a)
+    assert made.returncode == 0, made.stderr
+    assert a.stat().st_mode & 0o777 == 0o600
+    key = read_key_file(a)
+    assert len(key) == 32 and key.hex() not in made.stdout + made.stderr  # never printed
+    assert new_key(b).returncode == 0 and read_key_file(b) != key  # fresh each time
+    again = new_key(a)
+    _refused(again, "--out", str(a), "exists")
+    assert read_key_file(a) == key  # a key in use is never overwritten
+    # The office starts on it (and serves until stopped).
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "o.db"),
+         "--port", "0", "--key-file", str(a)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+        env={k: v for k, v in os.environ.items() if k != "RAILSTOP_OFFICE_KEY"},
+    )  # fmt: skip
+    assert proc.stderr is not None
+    try:
+        assert "office listening on 127.0.0.1:" in proc.stderr.readline()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=30)
 
 
 def test_office_reports_lists_what_is_stored_and_sums_up_the_stops(tmp_path: Path) -> None:

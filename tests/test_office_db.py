@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import resource
 import signal
 import sqlite3
@@ -54,7 +55,8 @@ class Office:
     def __init__(self, db: str) -> None:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", db, "--port", "0",
-             "--key-hex", KEY.hex(), "--senders", "1-20"],
+             "--senders", "1-20"],
+            env={**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()},
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         self.lines: list[str] = []
@@ -390,9 +392,8 @@ def test_a_damaged_sqlite_file_is_refused_at_start_untouched(tmp_path: Path) -> 
     for db in (damaged, junk):
         before = db.read_bytes()
         p = subprocess.run(
-            [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(db), "--port", "0",
-             "--key-hex", KEY.hex()],
-            capture_output=True, text=True, timeout=30,
+            [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(db), "--port", "0"],
+            env={**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}, capture_output=True, text=True, timeout=30,
         )  # fmt: skip
         assert p.returncode == 2, p.stderr
         lines = p.stderr.strip().splitlines()

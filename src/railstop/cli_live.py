@@ -24,7 +24,7 @@ import typer
 
 from railstop.cli_common import LineOpt, VehicleOpt, address_option, fail
 from railstop.cli_doors import DoorsOpt
-from railstop.cli_office import KEY_ENV, master_key
+from railstop.cli_office import KEY_ENV, KeyFileOpt, KeyHexOpt, master_key
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
@@ -43,9 +43,6 @@ EpochOpt = Annotated[
     float | None, typer.Option(help="The run's time base: seconds since 1970 at its start (default: now).")
 ]
 ScaleOpt = Annotated[float, typer.Option(min=0.1, max=100.0, help="Simulated seconds per wall second.")]
-KeyOpt = Annotated[
-    str | None, typer.Option("--key-hex", help=f"The links' master key in hex (or {KEY_ENV}).")
-]
 OfficeOpt = Annotated[str | None, typer.Option(help="The office's UDP address HOST:PORT (none: no reports).")]
 TrainsOpt = Annotated[int, typer.Option(min=1, max=60, help="Trains on the line.")]
 SpacingOpt = Annotated[float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")]
@@ -56,14 +53,20 @@ DisturbancesOpt = Annotated[
 
 
 def _process_setup(
-    key_hex: str | None, line: Path | None, vehicle: Path | None, epoch: float | None, scale: float
+    key_file: Path | None,
+    key_hex: str | None,
+    line: Path | None,
+    vehicle: Path | None,
+    epoch: float | None,
+    scale: float,
 ) -> tuple[bytes, Line, Vehicle, TimeBase]:
-    """What every live process loads first: the key, the line and vehicle data, the time base (the
-    run's epoch, or now). Raises RailstopError with the one-line message."""
+    """What every live process loads first: the key (--key-file or RAILSTOP_OFFICE_KEY; --key-hex
+    is refused), the line and vehicle data, the time base (the run's epoch, or now). Raises
+    RailstopError with the one-line message."""
     from railstop.config import load_line, load_vehicle
     from railstop.live.clock import TimeBase
 
-    key = master_key(key_hex)
+    key = master_key(key_file, key_hex)
     ln, veh = load_line(line), load_vehicle(vehicle)
     return key, ln, veh, TimeBase(time.time() if epoch is None else epoch, scale)
 
@@ -155,7 +158,8 @@ def zc_cmd(
     trains: TrainsOpt = 4,
     epoch: EpochOpt = None,
     scale: ScaleOpt = 1.0,
-    key_hex: KeyOpt = None,
+    key_file: KeyFileOpt = None,
+    key_hex: KeyHexOpt = None,
     office: OfficeOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
@@ -175,7 +179,7 @@ def zc_cmd(
     from railstop.live.cbtc import run_zone_controller
 
     try:
-        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
     except RailstopError as exc:
         fail(str(exc))
 
@@ -248,7 +252,8 @@ def stations_cmd(
     controller: TascControllerOpt = "tasc-pwm",
     epoch: EpochOpt = None,
     scale: ScaleOpt = 1.0,
-    key_hex: KeyOpt = None,
+    key_file: KeyFileOpt = None,
+    key_hex: KeyHexOpt = None,
     office: OfficeOpt = None,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
@@ -262,7 +267,7 @@ def stations_cmd(
     from railstop.live.tasc import run_stations
 
     try:
-        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
         ctrl = _tasc_controller(controller)
         door_data = load_doors(doors)
         jams = _psd_jams(psd_jam or [], ln, door_data.doors_per_side)
@@ -285,7 +290,8 @@ def plant_cmd(
     spacing_m: SpacingOpt = 600.0,
     epoch: EpochOpt = None,
     scale: ScaleOpt = 1.0,
-    key_hex: KeyOpt = None,
+    key_file: KeyFileOpt = None,
+    key_hex: KeyHexOpt = None,
     stations: Annotated[
         str | None,
         typer.Option(
@@ -307,7 +313,7 @@ def plant_cmd(
     from railstop.live.plant import Plant, TascPlantData, run_plant
 
     try:
-        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
         stations_at = None if stations is None else address_option(stations, "--stations")
         data = None
         if stations_at is not None:
@@ -336,7 +342,8 @@ def trains_cmd(
     spacing_m: SpacingOpt = 600.0,
     epoch: EpochOpt = None,
     scale: ScaleOpt = 1.0,
-    key_hex: KeyOpt = None,
+    key_file: KeyFileOpt = None,
+    key_hex: KeyHexOpt = None,
     office: OfficeOpt = None,
     outage_train: Annotated[
         int | None,
@@ -382,7 +389,7 @@ def trains_cmd(
     from railstop.live.tasc import LiveTasc
 
     try:
-        key, ln, veh, base = _process_setup(key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
         zc_addr = address_option(zc, "--zc")
         plant_addr = None if plant is None else address_option(plant, "--plant")
         windows = [_outage(o, trains) for o in outage or []]
@@ -506,6 +513,10 @@ def _run_line(
     zc_port = _free_udp_port()
 
     def launch(args: list[str]) -> subprocess.Popen[str]:
+        # The run's key reaches its processes through the environment only (readable by this user
+        # alone), never on a command line (readable by every user, ps / /proc/PID/cmdline).
+        if any(key in a for a in args) or any(a.startswith("--key") for a in args):
+            raise RailstopError("a live process would get the links' key on its command line: not started")
         proc = subprocess.Popen(
             [*exe, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )

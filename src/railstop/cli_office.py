@@ -6,6 +6,7 @@ import asyncio
 import json
 import os
 import signal
+import stat
 import sys
 import time
 from pathlib import Path
@@ -23,20 +24,106 @@ office_app = typer.Typer(
 )
 
 KEY_ENV = "RAILSTOP_OFFICE_KEY"
+# A key file is one line of hex; anything longer is not one (and is not read into memory whole).
+KEY_FILE_MAX_BYTES = 4096
+# The refusal of --key-hex (EN 50159 category 3: the links' master key is a credential). A command
+# line is readable by every user of the machine (ps, /proc/PID/cmdline) and stays in shell
+# histories, so the option is declared only to say this; the value is never echoed.
+KEY_HEX_REFUSED = (
+    "--key-hex: a key is never given on the command line (every user sees it in the process list, "
+    f"and it stays in the shell history): use --key-file FILE (mode 0600; railstop office new-key "
+    f"--out FILE writes one) or set {KEY_ENV}"
+)
+
+KeyFileOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--key-file",
+        help=f"File holding the links' master key in hex, mode 0600 (railstop office new-key writes "
+        f"one); or set {KEY_ENV}.",
+    ),
+]
+# Hidden: declared only to refuse it with KEY_HEX_REFUSED (not an unknown-option error).
+KeyHexOpt = Annotated[str | None, typer.Option("--key-hex", hidden=True)]
 
 
-def master_key(key_hex: str | None) -> bytes:
-    """The link's master key: ``--key-hex`` or the environment's RAILSTOP_OFFICE_KEY (hex, >= 16 bytes)."""
-    text = key_hex if key_hex is not None else os.environ.get(KEY_ENV)
-    if not text:
-        raise RailstopError(f"--key-hex: the office link's master key is needed (or set {KEY_ENV})")
+def _key_from_hex(text: str, where: str) -> bytes:
+    """A master key from its hex text (whitespace around it ignored), at least MIN_KEY_BYTES long;
+    the messages name ``where``, never the text (a credential)."""
+    from railstop.link.safety import MIN_KEY_BYTES  # lazy: CLI start-up
+
     try:
-        key = bytes.fromhex(text)
+        key = bytes.fromhex(text.strip())
     except ValueError:
-        raise RailstopError("--key-hex: not hexadecimal") from None
-    if len(key) < 16:
-        raise RailstopError(f"--key-hex: at least 16 bytes (32 hex digits) are needed (got {len(key)})")
+        raise RailstopError(f"{where}: not a key in hexadecimal") from None
+    if not key:
+        raise RailstopError(f"{where}: empty, no key in it")
+    if len(key) < MIN_KEY_BYTES:
+        raise RailstopError(
+            f"{where}: at least {MIN_KEY_BYTES} bytes ({2 * MIN_KEY_BYTES} hex digits) are needed "
+            f"(got {len(key)})"
+        )
     return key
+
+
+def read_key_file(path: Path) -> bytes:
+    """The master key in a key file: hex (whitespace around it ignored), at least 16 bytes, in a
+    regular file that group and others may neither read nor write (mode 0600 or stricter, as for
+    the operators file). Anything else raises a RailstopError naming --key-file, the file and why;
+    the process then never starts (DESIGN rule 10). [interpretation] The mode is checked on the
+    open file (fstat), so a file swapped after the check is not read unchecked; a symbolic link is
+    followed (secret stores mount keys so) and its target is what is checked."""
+    where = f"--key-file: {path}"
+    try:
+        # O_NONBLOCK: a FIFO given as the key file is not waited on (it is then refused below).
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise RailstopError(f"{where}: no such file") from None
+    except OSError as exc:
+        raise RailstopError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise RailstopError(f"{where}: not a regular file")
+        if os.name == "posix" and info.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+            raise RailstopError(
+                f"{where}: group or others may read or write the key file (mode "
+                f"{oct(stat.S_IMODE(info.st_mode))}): chmod 600 {path}"
+            )
+        data = b""
+        while len(data) <= KEY_FILE_MAX_BYTES:
+            chunk = os.read(fd, KEY_FILE_MAX_BYTES + 1 - len(data))
+            if not chunk:
+                break
+            data += chunk
+    except OSError as exc:
+        raise RailstopError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if len(data) > KEY_FILE_MAX_BYTES:
+        raise RailstopError(f"{where}: over {KEY_FILE_MAX_BYTES} bytes, not a key file")
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        raise RailstopError(f"{where}: not a key in hexadecimal") from None
+    return _key_from_hex(text, where)
+
+
+def master_key(key_file: Path | None, key_hex: str | None = None) -> bytes:
+    """The links' master key (EN 50159 category 3): from ``--key-file`` or else the environment's
+    RAILSTOP_OFFICE_KEY (hex, >= 16 bytes). ``key_hex`` (``--key-hex``) is refused whatever its
+    value: a key on a command line is readable by every user of the machine. No key, or a bad one:
+    a RailstopError (the process does not start)."""
+    if key_hex is not None:
+        raise RailstopError(KEY_HEX_REFUSED)
+    if key_file is not None:
+        return read_key_file(key_file)
+    text = os.environ.get(KEY_ENV)
+    if not text:
+        raise RailstopError(
+            f"--key-file: the links' master key is needed: give --key-file FILE (mode 0600) or set {KEY_ENV}"
+        )
+    return _key_from_hex(text, KEY_ENV)
 
 
 def sender_ids(spec: str) -> tuple[int, ...]:
@@ -63,9 +150,8 @@ def serve_cmd(
     ] = "railstop.db",
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port (0: any free one).")] = 7700,
-    key_hex: Annotated[
-        str | None, typer.Option("--key-hex", help=f"The link's master key in hex (or set {KEY_ENV}).")
-    ] = None,
+    key_file: KeyFileOpt = None,
+    key_hex: KeyHexOpt = None,
     senders: Annotated[str, typer.Option(help="The wayside units' ids it accepts.")] = "1-899",
     http_port: Annotated[
         int | None,
@@ -117,7 +203,7 @@ def serve_cmd(
     from railstop.live.office import serve_office
 
     try:
-        key = master_key(key_hex)
+        key = master_key(key_file, key_hex)
         ids = sender_ids(senders)
         ln = load_line(line)
         if operators is None and (zc is not None or stations is not None):
@@ -473,6 +559,34 @@ def add_operator_cmd(
     except RailstopError as exc:
         fail(str(exc))
     print(f"operator {name} (id {given}) written to {file} (mode 0600)")
+
+
+@office_app.command("new-key")
+def new_key_cmd(
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out", help="The key file to create (mode 0600); an existing file is never overwritten."
+        ),
+    ],
+) -> None:
+    """Write a fresh random master key for the links (32 bytes, in hex) to a new file with mode
+    0600, for --key-file; the key itself is never printed."""
+    import secrets
+
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        # O_EXCL: a key in use (or a link planted at the name) is never overwritten or followed.
+        fd = os.open(out, flags, 0o600)
+    except FileExistsError:
+        fail(f"--out: {out}: exists already (a key in use is never overwritten): remove it or pick another")
+    except OSError as exc:
+        fail(f"--out: {out}: cannot create it ({exc.strerror or exc})")
+    with os.fdopen(fd, "w", encoding="ascii") as fh:
+        if os.name == "posix":
+            os.fchmod(fd, 0o600)  # whatever the umask
+        fh.write(secrets.token_bytes(32).hex() + "\n")
+    print(f"a new master key written to {out} (mode 0600): give the line's processes --key-file {out}")
 
 
 @office_app.command("reports")
