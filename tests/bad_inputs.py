@@ -1101,13 +1101,18 @@ add(
 # --------------------------------------------------------------------------
 # python -m railstop.link.udp
 
-KEY = "00112233445566778899aabbccddeeff"
-RECV = ("receive", "--count", "1", "--epoch", "0", "--key-hex", KEY, "--wait-s", "0.2")
-SEND = ("send", "--count", "1", "--epoch", "0", "--key-hex", KEY)
+RECV = ("receive", "--count", "1", "--epoch", "0", *LIVE_KEY, "--wait-s", "0.2")
+SEND = ("send", "--count", "1", "--epoch", "0", *LIVE_KEY)
 
 
-def udp(id: str, *argv: str, needles: Iterable[str] = ()) -> None:
-    add(f"udp-{id}", *argv, needles=needles, module=UDP)
+def udp(
+    id: str,
+    *argv: str,
+    needles: Iterable[str] = (),
+    files: Mapping[str, str | bytes] | None = None,
+    modes: Mapping[str, int] | None = None,
+) -> None:
+    add(f"udp-{id}", *argv, needles=needles, module=UDP, files=files, modes=modes)
 
 
 udp("no-command", needles=("command",))
@@ -1117,9 +1122,9 @@ for name, value in (("zero", "0"), ("above", "65536"), ("text", "http"), ("empty
 for name, value in (("negative", "-1"), ("huge", HUGE)):
     udp(f"send-port-{name}", *SEND, "--port", value, needles=("--port",))
 udp("receive-port-missing", *RECV, needles=("--port",))
-udp("send-count-missing", "send", "--port", "5000", "--epoch", "0", "--key-hex", KEY, needles=("--count",))
+udp("send-count-missing", "send", "--port", "5000", "--epoch", "0", *LIVE_KEY, needles=("--count",))
 udp("send-count-negative", "send", "--port", "5000", "--count", "-1", "--epoch", "0", needles=("--count",))
-udp("send-epoch-missing", "send", "--port", "5000", "--count", "1", "--key-hex", KEY, needles=("--epoch",))
+udp("send-epoch-missing", "send", "--port", "5000", "--count", "1", *LIVE_KEY, needles=("--epoch",))
 for name, value in (("text", "noon"), ("nan", "nan")):
     udp(
         f"send-epoch-{name}",
@@ -1128,8 +1133,7 @@ for name, value in (("text", "noon"), ("nan", "nan")):
         "5000",
         "--count",
         "1",
-        "--key-hex",
-        KEY,
+        *LIVE_KEY,
         "--epoch",
         value,
         needles=("--epoch",),
@@ -1137,8 +1141,7 @@ for name, value in (("text", "noon"), ("nan", "nan")):
 udp(
     "receive-epoch-minus-inf",
     *RECV[:3],
-    "--key-hex",
-    KEY,
+    *LIVE_KEY,
     "--port",
     "5000",
     "--epoch",
@@ -1146,11 +1149,28 @@ udp(
     needles=("--epoch",),
 )
 udp("send-category-four", *SEND, "--port", "5000", "--category", "4", needles=("--category",))
-udp("send-key-not-hex", *SEND[:5], "--port", "5000", "--key-hex", "zz", needles=("--key-hex", "zz"))
-udp("send-key-empty", *SEND[:5], "--port", "5000", "--key-hex", "", needles=("--key-hex",))
-udp("send-key-short", *SEND[:5], "--port", "5000", "--key-hex", "0011", needles=("key",))
-udp("send-key-missing", *SEND[:5], "--port", "5000", needles=("--key-hex",))
-udp("send-key-with-crc", *SEND, "--port", "5000", "--category", "1", needles=("--key-hex",))
+udp(
+    "send-key-not-hex", *SEND[:5], "--port", "5000", "--key-file", "bad.key",
+    files={"bad.key": "zz\n"}, modes={"bad.key": 0o600}, needles=("--key-file", "bad.key", "hexadecimal"),
+)  # fmt: skip
+udp(
+    "send-key-empty", *SEND[:5], "--port", "5000", "--key-file", "empty.key",
+    files={"empty.key": ""}, modes={"empty.key": 0o600}, needles=("--key-file", "empty"),
+)  # fmt: skip
+udp(
+    "send-key-short", *SEND[:5], "--port", "5000", "--key-file", "short.key",
+    files={"short.key": "0011\n"}, modes={"short.key": 0o600}, needles=("--key-file", "16 bytes"),
+)  # fmt: skip
+udp(
+    "send-key-world-readable", *SEND[:5], "--port", "5000", "--key-file", "open.key",
+    files={"open.key": LIVE_KEY_TEXT}, modes={"open.key": 0o644}, needles=("--key-file", "chmod 600"),
+)  # fmt: skip
+udp("send-key-missing", *SEND[:5], "--port", "5000", needles=("--key-file",))
+udp("send-key-with-crc", *SEND, "--port", "5000", "--category", "1", needles=("--key-file",))
+udp(
+    "send-key-hex-refused", *SEND, "--port", "5000", "--key-hex", LIVE_KEY_TEXT.strip(),
+    needles=("--key-hex", "--key-file"),
+)  # fmt: skip
 udp("send-src-id-negative", *SEND, "--port", "5000", "--src-id", "-1", needles=("--src-id",))
 udp("send-dst-id-huge", *SEND, "--port", "5000", "--dst-id", str(2**70), needles=("--dst-id",))
 for name, value in (("negative", "-1"), ("nan", "nan")):

@@ -12,6 +12,7 @@ import select
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -132,6 +133,18 @@ def test_timeout_close_and_misuse() -> None:
 # Two real processes: python -m railstop.link.udp receive / send
 
 KEY_HEX = "000102030405060708090a0b0c0d0e0f101112131415161718191a1b1c1d1e1f"
+
+
+def write_key(text: str) -> str:
+    """A key file holding ``text`` (mode 0600, as the tool asks): the key never goes on a command line."""
+    fd, path = tempfile.mkstemp(prefix="railstop-key-")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.chmod(path, 0o600)
+    return path
+
+
+KEY_FILE = write_key(KEY_HEX)
 BUDGET_S = 20.0  # the whole two-process test, every wait included
 
 
@@ -162,7 +175,7 @@ def test_two_processes_deliver_genuine_and_reject_threats(category: int, corrupt
     epoch = time.time()  # shared time origin: stands for the GNSS-synchronised clocks
     common = ["--port", str(port), "--count", str(n), "--category", str(category), "--epoch", repr(epoch)]
     if category == 3:
-        common += ["--key-hex", KEY_HEX]
+        common += ["--key-file", KEY_FILE]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     rx = subprocess.Popen(
         udp_cli("receive", *common, "--wait-s", "15", "--linger-s", "0.3"),
@@ -219,20 +232,34 @@ def test_two_processes_deliver_genuine_and_reject_threats(category: int, corrupt
 def test_cli_usage_errors() -> None:
     base = ["--port", "9", "--count", "1", "--epoch", "0"]
     # category 3 without a key, category 1 with one: refused before any socket is used
-    for extra in (["--category", "3"], ["--category", "1", "--key-hex", KEY_HEX]):
+    for extra in (["--category", "3"], ["--category", "1", "--key-file", KEY_FILE]):
         res = subprocess.run(udp_cli("send", *base, *extra), capture_output=True, text=True, timeout=10)
         assert res.returncode == 2 and "error:" in res.stderr
     res = subprocess.run(
-        udp_cli("send", *base, "--key-hex", "not-hex"), capture_output=True, text=True, timeout=10
+        udp_cli("send", *base, "--key-file", write_key("not-hex")), capture_output=True, text=True, timeout=10
     )
     assert res.returncode == 2 and "hexadecimal" in res.stderr
+    # A key on the command line is refused whatever else is given, and not echoed.
+    res = subprocess.run(
+        udp_cli("send", *base, "--key-file", KEY_FILE, "--key-hex", KEY_HEX),
+        capture_output=True,
+        text=True,
+        timeout=10,
+    )
+    assert res.returncode == 2 and "--key-hex" in res.stderr and KEY_HEX not in res.stderr
+    loose = write_key(KEY_HEX)
+    os.chmod(loose, 0o644)
+    res = subprocess.run(
+        udp_cli("send", *base, "--key-file", loose), capture_output=True, text=True, timeout=10
+    )
+    assert res.returncode == 2 and "chmod 600" in res.stderr
 
 
 @pytest.mark.parametrize("command", ["send", "receive"])
 @pytest.mark.parametrize("port", ["0", "70000", "-1"])
 def test_a_port_outside_1_65535_is_one_line(command: str, port: str) -> None:
     """Not a traceback and an exit code 0 with {"sent": 1}: one line naming the option, code 2."""
-    args = ["--port", port, "--count", "1", "--epoch", "0", "--key-hex", KEY_HEX]
+    args = ["--port", port, "--count", "1", "--epoch", "0", "--key-file", KEY_FILE]
     res = subprocess.run(udp_cli(command, *args), capture_output=True, text=True, timeout=10)
     assert res.returncode == 2
     want = f"error: argument --port: a UDP port is 1..65535 (got '{port}')"
@@ -309,7 +336,11 @@ def test_live_paths_refuse_a_missing_or_built_in_key(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k != "RAILSTOP_OFFICE_KEY"}
     common = ["--port", "9", "--count", "1", "--category", "3", "--epoch", "0"]
     res = subprocess.run(
-        udp_cli("send", *common, "--key-hex", demo), capture_output=True, text=True, timeout=30, env=env
+        udp_cli("send", *common, "--key-file", write_key(demo)),
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=env,
     )
     _one_line_exit_2(res, "demonstration key")
     live = [sys.executable, "-m", "railstop.cli", "live", "zc", "--port", "0"]

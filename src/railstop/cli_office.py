@@ -6,7 +6,6 @@ import asyncio
 import json
 import os
 import signal
-import stat
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,6 @@ office_app = typer.Typer(
 
 KEY_ENV = "RAILSTOP_OFFICE_KEY"
 # A key file is one line of hex; anything longer is not one (and is not read into memory whole).
-KEY_FILE_MAX_BYTES = 4096
 # The refusal of --key-hex (EN 50159 category 3: the links' master key is a credential). A command
 # line is readable by every user of the machine (ps, /proc/PID/cmdline) and stays in shell
 # histories, so the option is declared only to say this; the value is never echoed.
@@ -48,65 +46,16 @@ KeyHexOpt = Annotated[str | None, typer.Option("--key-hex", hidden=True)]
 
 
 def _key_from_hex(text: str, where: str) -> bytes:
-    """A master key from its hex text (whitespace around it ignored), at least MIN_KEY_BYTES long;
-    the messages name ``where``, never the text (a credential)."""
-    from railstop.link.safety import MIN_KEY_BYTES  # lazy: CLI start-up
+    from railstop.link.keys import key_from_hex  # lazy: CLI start-up (railstop.link loads the codec)
 
-    try:
-        key = bytes.fromhex(text.strip())
-    except ValueError:
-        raise RailstopError(f"{where}: not a key in hexadecimal") from None
-    if not key:
-        raise RailstopError(f"{where}: empty, no key in it")
-    if len(key) < MIN_KEY_BYTES:
-        raise RailstopError(
-            f"{where}: at least {MIN_KEY_BYTES} bytes ({2 * MIN_KEY_BYTES} hex digits) are needed "
-            f"(got {len(key)})"
-        )
-    return key
+    return key_from_hex(text, where)
 
 
 def read_key_file(path: Path) -> bytes:
-    """The master key in a key file: hex (whitespace around it ignored), at least 16 bytes, in a
-    regular file that group and others may neither read nor write (mode 0600 or stricter, as for
-    the operators file). Anything else raises a RailstopError naming --key-file, the file and why;
-    the process then never starts (DESIGN rule 10). [interpretation] The mode is checked on the
-    open file (fstat), so a file swapped after the check is not read unchecked; a symbolic link is
-    followed (secret stores mount keys so) and its target is what is checked."""
-    where = f"--key-file: {path}"
-    try:
-        # O_NONBLOCK: a FIFO given as the key file is not waited on (it is then refused below).
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except FileNotFoundError:
-        raise RailstopError(f"{where}: no such file") from None
-    except OSError as exc:
-        raise RailstopError(f"{where}: cannot read it ({exc.strerror or exc})") from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise RailstopError(f"{where}: not a regular file")
-        if os.name == "posix" and info.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
-            raise RailstopError(
-                f"{where}: group or others may read or write the key file (mode "
-                f"{oct(stat.S_IMODE(info.st_mode))}): chmod 600 {path}"
-            )
-        data = b""
-        while len(data) <= KEY_FILE_MAX_BYTES:
-            chunk = os.read(fd, KEY_FILE_MAX_BYTES + 1 - len(data))
-            if not chunk:
-                break
-            data += chunk
-    except OSError as exc:
-        raise RailstopError(f"{where}: cannot read it ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
-    if len(data) > KEY_FILE_MAX_BYTES:
-        raise RailstopError(f"{where}: over {KEY_FILE_MAX_BYTES} bytes, not a key file")
-    try:
-        text = data.decode("ascii")
-    except UnicodeDecodeError:
-        raise RailstopError(f"{where}: not a key in hexadecimal") from None
-    return _key_from_hex(text, where)
+    """The master key in a key file (``railstop.link.keys.read_key_file``: 0600, hex, 16 bytes)."""
+    from railstop.link.keys import read_key_file as read  # lazy: CLI start-up
+
+    return read(path)
 
 
 def master_key(key_file: Path | None, key_hex: str | None = None) -> bytes:

@@ -48,8 +48,9 @@ decodes the delivered payloads and prints one JSON line:
 with the endpoint's counts (``datagrams``, ``dropped_queue_full``,
 ``dropped_oversize``, ``dropped_by_kernel``: null where it cannot be known);
 exit status 0 when N were delivered, 1 when not, 2 on a usage error.
-Category 3 (``--category 3``, open transmission: radio) needs ``--key-hex``,
-a master key; each direction uses ``safety.link_key(master, src, dst)``.
+Category 3 (``--category 3``, open transmission: radio) needs ``--key-file``,
+a file holding the master key (mode 0600); each direction uses
+``safety.link_key(master, src, dst)``.
 Categories 1 and 2 use a CRC-32 and no key.
 
 Time: the safety layer stamps and checks times in seconds. Sender and
@@ -74,11 +75,13 @@ import time
 import weakref
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, NoReturn
 
 from railstop.errors import RailstopError, TelegramError
 from railstop.link.channel import LinkError
 from railstop.link.codec import TascRequiredDecel, decode, encode
+from railstop.link.keys import read_key_file
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, check_master_key, link_key
 
 Address = tuple[str, int]
@@ -541,14 +544,20 @@ def _spread(k: int, n: int) -> list[int]:
 
 
 def _direction_key(args: argparse.Namespace, src_id: int, dst_id: int) -> bytes | None:
-    """Category 3: the key of this direction, derived from the shared master key; 1, 2: none (CRC-32)."""
+    """Category 3: the key of this direction, derived from the shared master key (read from
+    ``--key-file``); 1, 2: none (CRC-32). ``--key-hex`` is refused whatever its value."""
+    if args.key_hex is not None:
+        raise LinkError(
+            "--key-hex: a key is never given on the command line (every user sees it in the process "
+            "list): use --key-file FILE (mode 0600; railstop office new-key --out FILE writes one)"
+        )
     if args.category != 3:
-        if args.key is not None:
-            raise LinkError(f"category {args.category} uses a CRC-32, not a key: leave out --key-hex")
+        if args.key_file is not None:
+            raise LinkError(f"category {args.category} uses a CRC-32, not a key: leave out --key-file")
         return None
-    if args.key is None:
-        raise LinkError("category 3 needs --key-hex (the shared master key)")
-    return link_key(check_master_key(args.key), src_id, dst_id)
+    if args.key_file is None:
+        raise LinkError("category 3 needs --key-file (the shared master key)")
+    return link_key(check_master_key(read_key_file(args.key_file)), src_id, dst_id)
 
 
 async def run_sender(args: argparse.Namespace) -> dict[str, Any]:
@@ -653,16 +662,6 @@ async def run_receiver(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def _key(text: str) -> bytes:
-    try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not hexadecimal: {text!r}") from None
-    if not key:
-        raise argparse.ArgumentTypeError("the key must not be empty")
-    return key
-
-
 def _finite(text: str) -> float:
     """A finite number; NaN is "not a number" and infinity "not finite" (never too big or small)."""
     try:
@@ -741,12 +740,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--category", type=int, choices=(1, 2, 3), default=3, help="EN 50159 category of the transmission"
     )
     common.add_argument(
-        "--key-hex",
-        dest="key",
-        type=_key,
+        "--key-file",
+        dest="key_file",
+        type=Path,
         default=None,
-        help="shared master key, hexadecimal (category 3; each direction uses a key derived from it)",
+        help="file holding the shared master key in hexadecimal, mode 0600 (category 3; each direction "
+        "uses a key derived from it)",
     )
+    # Declared only to refuse it in one line: a key on a command line is every user's to read.
+    common.add_argument("--key-hex", dest="key_hex", default=None, help=argparse.SUPPRESS)
     common.add_argument(
         "--epoch",
         type=_finite,
