@@ -92,6 +92,10 @@ class _Gate:
     key: bytes
     own: int
     max_age_s: float = 5.0
+    # When this end's process started (on the link's clock): commands sent before it are refused
+    # (``old_session``), so one its previous incarnation took is not taken again when replayed
+    # (EN 50159 repetition across restarts, ``link.safety``). None: no floor (the simulations).
+    not_before_s: float | None = None
     receiver: SafeReceiver = field(init=False)
     rejected: dict[str, int] = field(default_factory=dict)
     accepted: int = 0
@@ -105,6 +109,7 @@ class _Gate:
             category=3,
             max_age_s=self.max_age_s,
             timeout_s=1e9,  # operator commands are rare: no supervision of their cycle
+            not_before_s=self.not_before_s,
         )
 
     def take(self, frame: bytes, now_s: float, expect: type[Telegram]) -> Telegram | None:
@@ -138,9 +143,14 @@ class ReleaseGate(_Gate):
 
     __slots__ = ()
 
-    def __init__(self, key: bytes | None = None, max_age_s: float = 5.0) -> None:
+    def __init__(
+        self, key: bytes | None = None, max_age_s: float = 5.0, not_before_s: float | None = None
+    ) -> None:
         super().__init__(
-            key=release_key() if key is None else key, own=ZC_RELEASE_ADDRESS, max_age_s=max_age_s
+            key=release_key() if key is None else key,
+            own=ZC_RELEASE_ADDRESS,
+            max_age_s=max_age_s,
+            not_before_s=not_before_s,
         )
 
     def accept(self, frame: bytes, now_s: float) -> ManualRelease | None:
@@ -162,8 +172,15 @@ class WccGate(_Gate):
 
     __slots__ = ()
 
-    def __init__(self, key: bytes | None = None, max_age_s: float = 5.0) -> None:
-        super().__init__(key=wcc_key() if key is None else key, own=WCC_ADDRESS, max_age_s=max_age_s)
+    def __init__(
+        self, key: bytes | None = None, max_age_s: float = 5.0, not_before_s: float | None = None
+    ) -> None:
+        super().__init__(
+            key=wcc_key() if key is None else key,
+            own=WCC_ADDRESS,
+            max_age_s=max_age_s,
+            not_before_s=not_before_s,
+        )
 
     def accept(self, frame: bytes, now_s: float) -> WccCommand | None:
         tele = self.take(frame, now_s, WccCommand)

@@ -50,8 +50,8 @@ from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, stat
 from railstop.errors import RailstopError
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
-from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, _Gate, release_key
-from railstop.link.safety import SafePeers, SafeReceiver, frame_ids, sum_counts
+from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
+from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
@@ -142,26 +142,6 @@ class UdpRadio:
         return [Output(to=to(msg.train_id), message=msg)]
 
 
-def floor_gate(gate: _Gate, not_before_s: float) -> Any:
-    """``gate`` (an operator link's receiving end) with a receiver that refuses every frame sent
-    before ``not_before_s`` on that link's clock (``old_session``): a command that the process's
-    previous incarnation took (a zone release, a WCC command) is not taken again when it is
-    replayed after a restart (EN 50159 repetition across restarts, ``link.safety``). The gate's
-    own checks are unchanged."""
-    old = gate.receiver
-    gate.receiver = SafeReceiver(
-        old.own_id,
-        old.peer_id,
-        key=gate.key,
-        category=old.category,
-        max_age_s=old.max_age_s,
-        timeout_s=old.timeout_s,
-        future_tolerance_s=old.future_tolerance_s,
-        not_before_s=not_before_s,
-    )
-    return gate
-
-
 # ---------------------------------------------------------------------- the zone controller
 
 
@@ -202,7 +182,7 @@ async def run_zone_controller(
     started = restore_zone_controller(zc, state, new=new, trains=trains, now_s=base.now_s())
     store = StateFile(state) if state is not None else None
     # The operator's link keeps Unix time: releases sent before this process started are refused.
-    gate = floor_gate(ReleaseGate(key=release_key(master_key)), time.time())
+    gate = ReleaseGate(key=release_key(master_key), not_before_s=time.time())
     clock = WallClock([zc, radio], step_s=STEP_S, base=base)
     addresses: dict[int, Address] = {}
     heard: set[int] = set()

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import struct
+import time
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any
@@ -893,14 +894,8 @@ class Platforms:
             )
             for i in range(n)
         }
-        self.gate = WccGate(key=wcc_key(master_key))
-        if started_s is not None:
-            import time
-
-            from railstop.live.cbtc import floor_gate
-
-            # The WCC link keeps Unix time: commands sent before this process started are refused.
-            self.gate = floor_gate(self.gate, time.time())
+        # The WCC link keeps Unix time: commands sent before this process started are refused.
+        self.gate = WccGate(key=wcc_key(master_key), not_before_s=None if started_s is None else time.time())
         self.refused: dict[str, int] = {}
 
     def owns(self, dst: int) -> bool:
