@@ -462,7 +462,8 @@ def process_figures(role: str, c: dict[str, Any]) -> tuple[int, list[Any], int]:
         refused = [c.get("rejected")]
     udp = c.get("udp") or {}
     dropped = sum(
-        int(udp.get(k) or 0) for k in ("dropped_by_kernel", "dropped_queue_full", "dropped_oversize")
+        int(udp.get(k) or 0)
+        for k in ("dropped_by_kernel", "dropped_queue_full", "dropped_oversize", "dropped_at_close")
     )
     return int(delivered), refused, dropped
 

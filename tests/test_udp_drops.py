@@ -74,6 +74,39 @@ def test_kernel_drops_on_a_full_receive_buffer_are_counted() -> None:
 
 
 @pytest.mark.skipif(not LINUX, reason="SO_RXQ_OVFL is Linux only")
+def test_drops_after_the_last_datagram_and_frames_never_taken_are_counted_at_close() -> None:
+    """No datagram follows the burst, so no ancillary data carries the kernel's last drops: the
+    process's totals read them from the socket table, and closing counts what was never taken
+    (still queued, or still in the socket's buffer). Sent = taken + every drop, exactly."""
+    blast = 500
+
+    async def body() -> None:
+        rx = await open_endpoint((LOOPBACK, 0), queue_frames=40, receive_buffer_bytes=4096)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i in range(blast):  # no await: nothing is read meanwhile, the buffer overflows
+                tx.sendto(i.to_bytes(4, "big") + bytes(196), rx.local_address)
+        await asyncio.sleep(0.05)  # the loop reads what the buffer held (the queue keeps 40)
+        taken = [rx.take() for _ in range(5)]
+        assert all(t is not None for t in taken)
+        before = rx.stats.dropped_by_kernel
+        assert before == 0  # no datagram came after the drops: its ancillary data says none
+        totals = process_udp_stats()  # reads the kernel's counter from the socket table
+        assert totals["dropped_by_kernel"] is not None and totals["dropped_by_kernel"] > 0
+        kernel = rx.stats.dropped_by_kernel
+        assert kernel is not None and kernel > 0
+        left = rx.queued
+        assert left > 0
+        rx.close()
+        stats = rx.stats
+        assert stats.dropped_at_close >= left and rx.queued == 0
+        assert stats.dropped_by_kernel is not None
+        dropped = stats.dropped_queue_full + stats.dropped_by_kernel + stats.dropped_at_close
+        assert blast == len(taken) + dropped
+
+    run(body)
+
+
+@pytest.mark.skipif(not LINUX, reason="SO_RXQ_OVFL is Linux only")
 def test_no_drops_is_zero_and_replies_still_work() -> None:
     async def body() -> None:
         b = await open_endpoint((LOOPBACK, 0))

@@ -24,12 +24,16 @@ the TASC units) stay pure.
   is read with ``recvmsg``, whose ancillary data carries the kernel's drop
   counter of the socket (``EndpointStats.dropped_by_kernel``). The counter
   arrives with each datagram, as it stood when that datagram was queued, so
-  drops after the last datagram received show only with the next one. Where
+  drops after the last datagram received show only with the next one; when
+  the process reads its totals and when the endpoint closes, the counter is
+  read from the kernel's socket table (``/proc/self/net/udp``) too, so drops
+  after the last datagram are counted as well. Where
   the option does not exist (not Linux) or the event loop cannot watch a socket
   (Windows' proactor), the endpoint uses asyncio's own datagram transport and
   the counter is None: unknown, not zero.
 * Every drop is counted: by the kernel, by the queue, too long, a socket
-  error (:class:`EndpointStats`); :func:`process_udp_stats` sums them over
+  error, and the frames still waiting (in the queue or the socket's buffer)
+  when the endpoint closes (:class:`EndpointStats`); :func:`process_udp_stats` sums them over
   every endpoint the process opened, for its printed counts.
 
 Two processes (``python -m railstop.link.udp``)
@@ -68,6 +72,7 @@ import asyncio
 import collections
 import json
 import math
+import os
 import socket
 import struct
 import sys
@@ -107,6 +112,7 @@ class EndpointStats:
     dropped_oversize: int  # received datagrams longer than max_frame_bytes
     dropped_by_kernel: int | None  # dropped by the kernel (receive buffer full); None = cannot know
     errors: int  # errors the socket reported (e.g. ICMP port unreachable)
+    dropped_at_close: int = 0  # frames never taken: queued or in the socket's buffer at close
     sources_max: int = 0  # the most source addresses with frames queued at once
 
     def summary(self) -> dict[str, int | None]:
@@ -230,6 +236,27 @@ class _RecvmsgTransport(asyncio.DatagramTransport):
         self._sock.close()
 
 
+def _socket_table_drops(sock: socket.socket) -> int | None:
+    """The kernel's drop counter of ``sock`` read from its socket table (Linux: the last column of
+    ``/proc/self/net/udp`` or ``udp6``, the same counter ``SO_RXQ_OVFL`` carries); None where it
+    cannot be read."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+    except OSError:
+        return None
+    for table in ("/proc/self/net/udp", "/proc/self/net/udp6"):
+        try:
+            with open(table, encoding="ascii", errors="replace") as fh:
+                next(fh, None)  # the header
+                for row in fh:
+                    cols = row.split()
+                    if len(cols) >= 13 and cols[9] == inode:
+                        return int(cols[-1]) if cols[-1].isdigit() else None
+        except OSError:
+            continue
+    return None
+
+
 def _enable_drop_counter(sock: socket.socket) -> bool:
     """Ask the kernel for its drop counter with each datagram; False where it cannot."""
     if SO_RXQ_OVFL is None:
@@ -260,6 +287,7 @@ class UdpEndpoint:
         self._dropped_oversize = 0
         self._dropped_kernel: int | None = None  # None until open_endpoint enables the counter
         self._kernel_seen = 0  # the kernel's counter as it came last (uint32)
+        self._dropped_at_close = 0
         self._errors = 0
         self._sources_max = 0
         self._counted = False  # added to the process's totals (at close)
@@ -331,8 +359,24 @@ class UdpEndpoint:
             dropped_oversize=self._dropped_oversize,
             dropped_by_kernel=self._dropped_kernel,
             errors=self._errors,
+            dropped_at_close=self._dropped_at_close,
             sources_max=self._sources_max,
         )
+
+    def _socket(self) -> socket.socket | None:
+        sock = None if self._transport is None else self._transport.get_extra_info("socket")
+        return sock if isinstance(sock, socket.socket) and sock.fileno() >= 0 else None
+
+    def _read_kernel_drops(self) -> None:
+        """Bring ``dropped_by_kernel`` up to the kernel's counter now (drops after the last datagram
+        received show in no datagram's ancillary data)."""
+        sock = self._socket()
+        if self._dropped_kernel is None or sock is None:
+            return
+        count = _socket_table_drops(sock)
+        if count is not None:
+            self._dropped_kernel += (count - self._kernel_seen) % (1 << 32)
+            self._kernel_seen = count % (1 << 32)
 
     def send(self, frame: bytes, addr: Address | None = None) -> None:
         """Send one frame as one datagram to ``addr`` (default: the endpoint's remote)."""
@@ -380,7 +424,22 @@ class UdpEndpoint:
         return self._queued
 
     def close(self) -> None:
-        if self._transport is not None:
+        """Close the socket. The frames never taken (queued, or still in the socket's buffer) are
+        counted as dropped at close, and the kernel's drop counter is read one last time."""
+        if self._transport is not None and not self._transport.is_closing():
+            sock = self._socket()
+            if sock is not None:
+                while True:  # what the kernel still holds for us: read and counted, never delivered
+                    try:
+                        sock.recv(1)
+                    except OSError:  # EAGAIN: empty (the socket is non-blocking), or any error
+                        break
+                    self._dropped_at_close += 1
+            self._read_kernel_drops()
+            self._dropped_at_close += self._queued
+            self._queues.clear()
+            self._turn.clear()
+            self._queued = 0
             self._transport.close()
         _count_closed(self)
 
@@ -423,6 +482,7 @@ def process_udp_stats() -> dict[str, int | None]:
     out: dict[str, int] = dict(_CLOSED)
     unknown = _CLOSED_UNKNOWN_KERNEL[0]
     for ep in list(_OPEN):
+        ep._read_kernel_drops()
         _add(out, ep.stats)
         unknown += ep.stats.dropped_by_kernel is None
     result: dict[str, int | None] = {
@@ -432,6 +492,7 @@ def process_udp_stats() -> dict[str, int | None]:
         "dropped_by_kernel": None if unknown else out.get("dropped_by_kernel", 0),
         "dropped_queue_full": out.get("dropped_queue_full", 0),
         "dropped_oversize": out.get("dropped_oversize", 0),
+        "dropped_at_close": out.get("dropped_at_close", 0),
         "errors": out.get("errors", 0),
     }
     return result
