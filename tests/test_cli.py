@@ -173,7 +173,7 @@ def test_summary_tables_never_cut_a_number(tmp_path: Path, columns: int) -> None
     the one-line-per-controller table does not fit), never an ellipsis."""
     import os
 
-    from railstop.cli import _fmt
+    from railstop.cli.campaign import _fmt
 
     out_dir = tmp_path / "cmp"
     args = (

@@ -433,7 +433,7 @@ def test_only_a_key_file_closed_to_group_and_others_is_read(
 ) -> None:
     """Property over every permission mode: a key file is read exactly when group and others have no
     permission on it (0600 or stricter), and then whitespace around the hex is ignored."""
-    from railstop.cli_office import read_key_file
+    from railstop.cli.office import read_key_file
     from railstop.errors import RailstopError
 
     path = _private_key_file(tmp_path_factory.mktemp("k"), pad + KEY.hex() + pad, mode)
@@ -450,7 +450,7 @@ def test_only_a_key_file_closed_to_group_and_others_is_read(
 def test_new_key_writes_a_private_random_key_that_the_office_reads_and_never_overwrites(
     tmp_path: Path,
 ) -> None:
-    from railstop.cli_office import read_key_file
+    from railstop.cli.office import read_key_file
 
     def new_key(path: Path) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
@@ -533,7 +533,7 @@ def test_office_reports_lists_what_is_stored_and_sums_up_the_stops(tmp_path: Pat
 def test_office_reports_sums_up_the_dwells() -> None:
     """The dwell summary of ``railstop office reports`` (SPEC §5): per station, start enables,
     faults, corrections and the longest dwell to start enable."""
-    from railstop.cli_office import dwell_summary_lines
+    from railstop.cli.office import dwell_summary_lines
 
     def dwell(station: str, outcome: str, dwell_s: float | None, corrections: int = 0) -> dict[str, object]:
         return {"station": station, "outcome": outcome, "dwell_s": dwell_s, "corrections": corrections}

@@ -51,7 +51,7 @@ class SettingError(SimulationError):
     """A position-run setting out of its range: ``setting`` (field name), ``detail`` (why), ``value``.
 
     ``str(error)`` is ``setting: detail (got value)``; the CLI puts the option and the value as
-    typed instead (``railstop.cli_position``).
+    typed instead (``railstop.cli.position``).
     """
 
     def __init__(self, setting: str, detail: str, value: object) -> None:

@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli_common import LineOpt, OperationOpt, SchedulerOpt, VehicleOpt, fail
-from railstop.cli_common import out as console
+from railstop.cli.common import LineOpt, OperationOpt, SchedulerOpt, VehicleOpt, fail
+from railstop.cli.common import out as console
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:

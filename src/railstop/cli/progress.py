@@ -31,7 +31,7 @@ from typing import Any, NoReturn
 
 import typer
 
-from railstop.cli_common import err
+from railstop.cli.common import err
 
 DEFAULT_STATUS_S = 10.0
 

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli_common import fail, out
+from railstop.cli.common import fail, out
 from railstop.errors import TelegramError
 from railstop.link.codec import (
     LAYOUTS,

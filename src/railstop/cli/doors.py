@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli_common import (
+from railstop.cli.common import (
     fail,
     out,
     print_verification,

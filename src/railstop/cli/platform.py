@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli_common import (
+from railstop.cli.common import (
     DriverOpt,
     LineOpt,
     PlatformOpt,
@@ -21,7 +21,7 @@ from railstop.cli_common import (
     stand_on_platform,
     stop_error_option,
 )
-from railstop.cli_doors import DoorsOpt
+from railstop.cli.doors import DoorsOpt
 from railstop.errors import RailstopError
 
 platform_app = typer.Typer(

@@ -22,9 +22,9 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from railstop.cli_common import LineOpt, VehicleOpt, address_option, fail
-from railstop.cli_doors import DoorsOpt
-from railstop.cli_office import KEY_ENV, KeyFileOpt, KeyHexOpt, master_key
+from railstop.cli.common import LineOpt, VehicleOpt, address_option, fail
+from railstop.cli.doors import DoorsOpt
+from railstop.cli.office import KEY_ENV, KeyFileOpt, KeyHexOpt, master_key
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:

@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import typer
 
-from railstop.cli_common import LineOpt, address_option, fail
+from railstop.cli.common import LineOpt, address_option, fail
 from railstop.errors import RailstopError
 
 office_app = typer.Typer(

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli_common import fail, out, print_verification
+from railstop.cli.common import fail, out, print_verification
 
 if TYPE_CHECKING:
     from railstop.sim.zones_verify import VerifyResult

@@ -11,7 +11,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
-from railstop.cli_common import LineOpt, VehicleOpt, fail, out
+from railstop.cli.common import LineOpt, VehicleOpt, fail, out
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.errors import RailstopError

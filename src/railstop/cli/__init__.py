@@ -1,0 +1,116 @@
+"""The ``railstop`` command: the app assembled from the command modules of ``railstop.cli``.
+
+One module per command group: ``stop`` (stop, compile), ``campaign`` (campaign, compare, certify,
+report), ``demo``, ``check``, ``hazards``, ``doors`` (and dwell), ``telegram``, ``line``, ``zones``,
+``platform``, ``office``, ``live``, ``position`` (position-run); ``common`` and ``progress`` are
+what they share.
+
+Start-up is kept short: the command modules import only what builds the command line
+(typer, the consoles, the controller names its help quotes); every command
+imports what it runs when it runs. ``stop --json --no-db`` thus loads the
+simulation engine but not SQLAlchemy, matplotlib or pyarrow, and
+``position-run`` (whose help quotes the whole-line simulation's defaults) is
+built only when it is used.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+from typer.core import TyperCommand, TyperGroup
+
+# The command modules named as modules: ``railstop.cli.stop`` stays the module, not its command.
+from railstop.cli import campaign, check, demo, hazards, stop
+from railstop.cli.doors import doors_app, dwell
+from railstop.cli.line import line_app
+from railstop.cli.live import live_app
+from railstop.cli.office import office_app
+from railstop.cli.platform import platform_app
+from railstop.cli.progress import run_program
+from railstop.cli.telegram import telegram_app
+from railstop.cli.zones import zones_app
+
+if TYPE_CHECKING:
+    from typer._click import Command, Context
+
+_POSITION_RUN = "position-run"
+_UNBUILT: Command = TyperCommand(name=_POSITION_RUN, hidden=True)
+
+
+def _position_run_command() -> Command:
+    """``position-run`` as a click command: imports ``railstop.sim.position_run`` for its help."""
+    from railstop.cli.position import position_run
+
+    sub = typer.Typer(add_completion=False)
+    sub.command(name=_POSITION_RUN)(position_run)
+    return typer.main.get_command(sub)
+
+
+class _Group(TyperGroup):
+    """The ``railstop`` group, with ``position-run`` built on first use (help, run or completion)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        # A placeholder keeps the listing order (after `dwell`) and the "did you mean" suggestions.
+        commands = dict(self.commands)
+        self.commands = {}
+        for name, command in commands.items():
+            self.commands[name] = command
+            if name == "dwell":
+                self.commands[_POSITION_RUN] = _UNBUILT
+
+    def get_command(self, ctx: Context, cmd_name: str) -> Command | None:
+        if self.commands.get(cmd_name) is _UNBUILT:
+            self.commands[cmd_name] = _position_run_command()
+        return super().get_command(ctx, cmd_name)
+
+
+app = typer.Typer(
+    cls=_Group,
+    add_completion=False,
+    no_args_is_help=True,
+    help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from railstop import __version__
+
+        print(f"railstop {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _main_options(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """railstop: precise station stopping for urban rail (ground TASC and its simulator)."""
+
+
+# The listing order of `railstop --help`: the commands as registered here (position-run after
+# dwell, see _Group), then the groups.
+app.add_typer(doors_app, name="doors")
+app.command()(dwell)
+app.add_typer(telegram_app, name="telegram")
+app.add_typer(line_app, name="line")
+app.add_typer(zones_app, name="zones")
+app.add_typer(platform_app, name="platform")
+app.add_typer(office_app, name="office")
+app.add_typer(live_app, name="live")
+app.command()(check.check)
+app.command()(stop.stop)
+app.command(name="compile")(stop.compile_model)
+app.command()(demo.demo)
+app.command()(campaign.campaign)
+app.command()(campaign.compare)
+app.command()(campaign.certify)
+app.command()(campaign.report)
+app.command()(hazards.hazards)
+
+
+def main() -> None:
+    run_program(app)

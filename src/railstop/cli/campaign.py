@@ -1,0 +1,571 @@
+"""The campaign commands: ``campaign``, ``compare``, ``certify`` and ``report`` (Monte Carlo over a
+disturbance set, every controller on identical draws, a rare-event bound, the HTML report)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from railstop.cli.common import (
+    DriverOpt,
+    LineOpt,
+    PlatformOpt,
+    SchedulerOpt,
+    VehicleOpt,
+    fail,
+    load_manual_data,
+    out,
+    styled,
+)
+from railstop.cli.progress import Reporter, on_interrupt
+from railstop.cli.stop import FormOpt, ToleranceOpt, checked_controller, checked_tolerance
+
+# The --controller help lists the engine's controllers.
+from railstop.controllers import CONTROLLERS, DRIVER_CONTROLLERS
+from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    from rich.console import RenderableType
+
+    from railstop.config.driver import DriverFile
+    from railstop.config.platform import PlatformFile
+    from railstop.config.schema import Line, Vehicle
+
+
+DisturbancesOpt = Annotated[
+    str,
+    typer.Option(
+        help="Disturbance set: standard, wide, nominal, control-law, loss-95, outage-after-first "
+        "or a TOML file."
+    ),
+]
+WorkersOpt = Annotated[
+    int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
+]
+ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
+
+
+def _run_one_campaign(
+    *,
+    ln: Line,
+    veh: Vehicle,
+    station: str,
+    controller: str,
+    runs: int,
+    seed: int,
+    disturbances: str,
+    workers: int | None,
+    out_dir: Path,
+    resume: bool,
+    chunk_size: int,
+    db: Path,
+    scheduler: str | None = None,
+    tolerance_m: float | None = None,
+    form: int | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
+) -> dict[str, object]:
+    from railstop.config.disturbances import load_disturbances
+    from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
+    from railstop.store import open_store
+
+    spec_controller = checked_controller(controller)
+    spec = CampaignSpec(
+        line=ln,
+        vehicle=veh,
+        station=ln.station(station).name,
+        controller=spec_controller,
+        runs=runs,
+        seed=seed,
+        disturbances=load_disturbances(disturbances),
+        chunk_size=chunk_size,
+        tolerance_m=tolerance_m,
+        form=form,
+        # Only a driver controller reads them: the other campaigns keep their identity.
+        driver=driver if spec_controller in DRIVER_CONTROLLERS else None,
+        platform=platform if spec_controller in DRIVER_CONTROLLERS else None,
+    )
+    n_workers = workers or os.cpu_count() or 1
+
+    def kept() -> str:
+        chunks, kept_runs = finished_chunks(spec, out_dir)
+        return (
+            f"{controller} at {spec.station}: {chunks} of {spec.chunks} chunks ({kept_runs:,} of "
+            f"{spec.runs:,} runs) kept in {out_dir}; the same command with --resume finishes it"
+        )
+
+    with Reporter(f"{controller} at {spec.station}") as status, on_interrupt(kept):
+        outcome = run_campaign(
+            spec, out_dir, workers=n_workers, resume=resume, progress=status.update, scheduler=scheduler
+        )
+    summary = dict(outcome.summary)
+    with open_store(db) as store:
+        store.save_campaign(
+            key=str(out_dir.resolve()),
+            manifest=outcome.manifest,
+            summary=summary,
+            runs_file=str((out_dir / RUNS_FILE).resolve()),
+        )
+    return {
+        "station": spec.station,
+        "controller": controller,
+        "form": outcome.manifest["form"],
+        "seed": seed,
+        "disturbances": spec.disturbances.name,
+        "out": str(out_dir),
+        **summary,
+        "runs_simulated": outcome.runs_simulated,
+        "elapsed_s": round(outcome.elapsed_s, 3),
+    }
+
+
+def _fmt(key: str, value: object) -> str:
+    if value is None:
+        return "-"
+    if key.startswith(("within", "first_within")) or key in ("restopped", "aligned"):
+        return f"{100.0 * float(value):.2f}%"  # type: ignore[arg-type]
+    if key == "overrun_ci95_upper":
+        return f"{float(value):.2e}"  # type: ignore[arg-type]
+    if isinstance(value, float):
+        if key == "runs_per_s":
+            return f"{value:,.0f}"
+        return (
+            f"{value:.1f}"
+            if key == "mean_stop_time_s"
+            else f"{value:+.3f}"
+            if key == "mean_m"
+            else f"{value:.3f}"
+        )
+    return str(value)
+
+
+def summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
+    """The campaign summary: one line per controller when the terminal is wide enough, else one
+    small metric/value table per controller side by side; a number is never cut off."""
+    from rich.columns import Columns
+    from rich.console import Group
+    from rich.measure import Measurement
+    from rich.table import Table
+
+    tols = sorted({float(t) for r in rows if isinstance(t := r.get("tolerance_m"), (int, float))})
+    tol = f"{tols[0]:g}" if len(tols) == 1 else "tol"
+    # The station's PSD tolerance, and the fixed reference bands that differ from it.
+    bands = [
+        (f"within_{band:.2f}".replace(".", "_"), f"±{band:.2f}")
+        for band in (0.30, 0.50)
+        if not (len(tols) == 1 and abs(band - tols[0]) < 1e-9)
+    ]
+    cols = (
+        ("controller", "controller"),
+        ("runs", "runs"),
+        ("within_tolerance", f"±{tol} PSD"),
+        *bands,
+        ("mean_m", "mean"),
+        ("std_m", "std"),
+        ("p99_abs_m", "p99|e|"),
+        ("max_abs_m", "max|e|"),
+        ("overruns", f">+{tol}"),
+        ("overrun_ci95_upper", f"P>+{tol} ≤"),
+        *(
+            # SPEC §3 manual driving: the driver's own stop, the corrections, the alignment.
+            (
+                ("first_within_0_50", "1st ±0.50"),
+                ("first_past_platform_end", "1st>end"),
+                ("restopped", "re-stop"),
+                ("aligned", "OK lit"),
+            )
+            if any("aligned" in r for r in rows)
+            else ()
+        ),
+        ("emergency_brakes", "EB"),
+        ("p99_max_jerk_mps3", "jerk99"),
+        ("mean_stop_time_s", "time"),
+        ("runs_per_s", "runs/s"),
+    )
+    caption = (
+        (
+            "1st ±0.50: driver's first stop within ±0.50 m; 1st>end: first stops past the platform end; "
+            "re-stop: runs the driver corrected after an F / R lamp; OK lit: runs that ended aligned; "
+            if any("aligned" in r for r in rows)
+            else ""
+        )
+        + "within bands: share of runs; PSD: the station's tolerance; errors in m (+ = overrun); "
+        f"P>+{tol} ≤: 95 % Clopper-Pearson upper bound on the overrun probability; EB: runs stopped by the "
+        "emergency brake (supervision); jerk99: p99 of max jerk m/s³; "
+        "time: mean stop time s"
+    )
+    table = Table(title=title, caption=caption)
+    for key, label in cols:
+        table.add_column(label, justify="left" if key == "controller" else "right", no_wrap=True)
+    for row in rows:
+        table.add_row(*(_fmt(k, row.get(k)) for k, _ in cols))
+    natural = Measurement.get(out, out.options.update(max_width=100_000), table).maximum
+    if natural <= out.width:
+        return table
+    blocks = []
+    for row in rows:
+        block = Table(title=str(row.get("controller")), show_header=False)
+        block.add_column("metric", no_wrap=True)
+        block.add_column("value", justify="right", no_wrap=True)
+        for key, label in cols[1:]:
+            block.add_row(label, _fmt(key, row.get(key)))
+        blocks.append(block)
+    return Group(title, Columns(blocks), caption)
+
+
+def campaign(
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    runs: Annotated[int, typer.Option(min=1, help="Number of stops.")] = 10_000,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    disturbances: DisturbancesOpt = "standard",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    out_dir: Annotated[
+        Path | None,
+        typer.Option("--out", help="Campaign folder (default: campaign-STATION-CONTROLLER-sSEED)."),
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
+    chunk_size: ChunkOpt = 10_000,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
+    tolerance_m: ToleranceOpt = None,
+    form: FormOpt = None,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
+) -> None:
+    """Monte Carlo campaign: many stops of one controller under a disturbance set."""
+    from railstop.config.plausibility import load_checked
+
+    try:
+        ln, veh = load_checked(line, vehicle)
+        drv, plat = load_manual_data(driver, platform, [controller])
+        st = ln.station(station)
+        target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())
+        row = _run_one_campaign(
+            ln=ln,
+            veh=veh,
+            station=st.name,
+            controller=controller,
+            runs=runs,
+            seed=seed,
+            disturbances=disturbances,
+            workers=workers,
+            out_dir=target,
+            resume=resume,
+            chunk_size=chunk_size,
+            db=db,
+            scheduler=scheduler,
+            tolerance_m=checked_tolerance(tolerance_m),
+            form=form,
+            driver=drv,
+            platform=plat,
+        )
+    except RailstopError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename or ''}: {exc.strerror}")
+    if as_json:
+        print(json.dumps(row))
+        return
+    out.print(
+        summary_table(
+            f"{row['runs']} stops at {row['station']} ({row['disturbances']}, seed {seed}"
+            f"{'' if form is None else f', form {form}'})",
+            [row],
+        )
+    )
+    out.print(f"per-run rows: {target}/runs.parquet; summary also in {db}", highlight=False)
+
+
+def compare_controllers(
+    *,
+    ln: Line,
+    veh: Vehicle,
+    station: str,
+    runs: int,
+    seed: int,
+    disturbances: str,
+    workers: int | None,
+    scheduler: str | None = None,
+    out_dir: Path,
+    resume: bool,
+    chunk_size: int,
+    db: Path,
+    tolerance_m: float | None = None,
+    form: int | None = None,
+    driver: DriverFile | None = None,
+    platform: PlatformFile | None = None,
+) -> list[dict[str, object]]:
+    """Every controller on identical draws (same seed, same disturbance set); ``driver`` and
+    ``platform`` go to the driver controllers."""
+    return [
+        _run_one_campaign(
+            ln=ln,
+            veh=veh,
+            station=station,
+            controller=ctrl,
+            runs=runs,
+            seed=seed,
+            disturbances=disturbances,
+            workers=workers,
+            scheduler=scheduler,
+            out_dir=out_dir / ctrl,
+            resume=resume,
+            chunk_size=chunk_size,
+            db=db,
+            tolerance_m=tolerance_m,
+            form=form,
+            driver=driver,
+            platform=platform,
+        )
+        for ctrl in CONTROLLERS
+    ]
+
+
+def compare(
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    runs: Annotated[int, typer.Option(min=1, help="Stops per controller.")] = 10_000,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    disturbances: DisturbancesOpt = "standard",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    out_dir: Annotated[
+        Path | None, typer.Option("--out", help="Folder (default: compare-STATION-sSEED); one campaign each.")
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="Continue an interrupted comparison in --out.")] = False,
+    chunk_size: ChunkOpt = 10_000,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    db: Annotated[Path, typer.Option(help="SQLite database file (gets the summaries).")] = Path(
+        "railstop.db"
+    ),
+    tolerance_m: ToleranceOpt = None,
+    form: FormOpt = None,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
+) -> None:
+    """Run every controller on identical disturbance draws and print one table."""
+    from railstop.config.plausibility import load_checked
+
+    try:
+        ln, veh = load_checked(line, vehicle)
+        drv, plat = load_manual_data(driver, platform)
+        st = ln.station(station)
+        target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())
+        rows = compare_controllers(
+            ln=ln,
+            veh=veh,
+            station=st.name,
+            runs=runs,
+            seed=seed,
+            disturbances=disturbances,
+            workers=workers,
+            scheduler=scheduler,
+            out_dir=target,
+            resume=resume,
+            chunk_size=chunk_size,
+            db=db,
+            tolerance_m=checked_tolerance(tolerance_m),
+            form=form,
+            driver=drv,
+            platform=plat,
+        )
+    except RailstopError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename or ''}: {exc.strerror}")
+    if as_json:
+        print(
+            json.dumps(
+                {
+                    "station": st.name,
+                    "seed": seed,
+                    "disturbances": rows[0]["disturbances"],
+                    "controllers": rows,
+                }
+            )
+        )
+        return
+    out.print(
+        summary_table(
+            f"{runs} stops per controller at {st.name} ({rows[0]['disturbances']}, seed {seed}"
+            f"{'' if form is None else f', form {form}'})",
+            rows,
+        )
+    )
+    out.print(f"campaigns in {target}/; `railstop report {target}` writes the HTML report", highlight=False)
+
+
+def certify(
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    threshold_m: Annotated[
+        float | None,
+        typer.Option(
+            "--threshold-m",
+            help="A hit is a stop error above this (m, + = overrun; default: the station's PSD tolerance).",
+        ),
+    ] = None,
+    target: Annotated[
+        float, typer.Option(help="Probability to certify (the bound must be at most this).")
+    ] = 1e-6,
+    runs: Annotated[int, typer.Option(min=1, help="Estimation runs.")] = 1_000_000,
+    method: Annotated[
+        str, typer.Option(help="is: importance sampling (tuned proposal); mc: plain Monte Carlo.")
+    ] = "is",
+    tuning_runs: Annotated[int, typer.Option(min=100, help="Tuning runs per cross-entropy level.")] = 4_000,
+    defensive: Annotated[
+        float,
+        typer.Option(help="Share of runs drawn from the set itself, in (0, 1] (weights <= 1/this)."),
+    ] = 0.5,
+    confidence: Annotated[float, typer.Option(help="Confidence of the bound and the interval.")] = 0.95,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    disturbances: DisturbancesOpt = "standard",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+) -> None:
+    """Bound P(stop error > threshold) by importance sampling: estimate, interval, bound."""
+    from railstop.config.disturbances import load_disturbances
+    from railstop.config.plausibility import load_checked
+    from railstop.sim.certify import CertifyError, CertifySpec
+    from railstop.sim.certify import certify as run_certify
+
+    try:
+        ln, veh = load_checked(line, vehicle)
+        spec = CertifySpec(
+            line=ln,
+            vehicle=veh,
+            station=ln.station(station).name,
+            controller=checked_controller(controller),
+            disturbances=load_disturbances(disturbances),
+            threshold_m=ln.station(station).psd_tolerance_m if threshold_m is None else threshold_m,
+            seed=seed,
+        )
+        label = f"certify {controller} at {spec.station}"
+        with Reporter(label) as status, on_interrupt(lambda: "certify keeps no partial result"):
+
+            def progress(stage: str, done: int, total: int) -> None:
+                status.stage(f"{label}, {stage}")
+                status.update(done, total)
+
+            result = run_certify(
+                spec,
+                runs=runs,
+                target=target,
+                confidence=confidence,
+                method=method,
+                defensive=defensive,
+                tuning_runs=tuning_runs,
+                workers=workers or os.cpu_count() or 1,
+                scheduler=scheduler,
+                progress=progress,
+            )
+    except CertifyError as exc:
+        fail(f"--{exc.setting.replace('_', '-')}: {exc.detail}")
+    except RailstopError as exc:
+        fail(str(exc))
+    row = result.to_dict()
+    if as_json:
+        print(json.dumps(row))
+        return
+    _print_certificate(row)
+
+
+def _print_certificate(row: dict[str, Any]) -> None:
+    from rich.table import Table
+    from rich.text import Text
+
+    conf = f"{100 * row['confidence']:g} %"
+    table = Table(
+        title=f"P(stop error > {row['threshold_m']:g} m): {row['controller']} at {row['station']} "
+        f"({row['disturbances']}, seed {row['seed']})"
+    )
+    table.add_column("", style="bold")
+    table.add_column("value", justify="right")
+    lo, hi = row["interval"]
+    method = "importance sampling" if row["method"] == "is" else "plain Monte Carlo"
+    for key, value in (
+        ("method", method),
+        ("estimation runs", f"{row['runs']:,}"),
+        ("tuning runs", f"{row['tuning_runs']:,}"),
+        ("hits", f"{row['hits']:,}"),
+        ("effective sample size (hits)", f"{row['ess_hits']:.1f}"),
+        ("largest weight's share", f"{row['max_weight_share']:.3f}"),
+        ("weight bound", f"{row['weight_bound']:g}"),
+        ("mean weight (should be 1)", f"{row['mean_weight']:.4f}"),
+        ("estimate", f"{row['estimate']:.3e}"),
+        (f"{conf} interval", f"{lo:.3e} .. {hi:.3e}"),
+        (f"{conf} upper bound", f"{row['upper_bound']:.3e}"),
+        ("target", f"{row['target']:.1e}"),
+        ("wall time", f"{row['elapsed_s']:.1f} s ({row['runs_per_s']:,.0f} runs/s)"),
+    ):
+        table.add_row(key, value)
+    out.print(table)
+    verdict, sign = (
+        (styled("certified", "green"), "<=") if row["certified"] else (styled("not certified", "red"), ">")
+    )
+    out.print(
+        Text.assemble(verdict, f": upper bound {row['upper_bound']:.2e} {sign} target {row['target']:.1e}")
+    )
+
+
+def report(
+    directory: Annotated[Path, typer.Argument(help="A campaign folder, or a folder of them (from compare).")],
+    worst: Annotated[int, typer.Option(min=0, help="Speed profiles of the N worst runs per controller.")] = 5,
+    tolerance_m: Annotated[
+        float | None,
+        typer.Option(
+            "--tolerance-m",
+            help="PSD tolerance to judge the runs by, 0 < m <= 2 (default: each campaign's station's).",
+        ),
+    ] = None,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
+) -> None:
+    """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
+    from railstop.config import load_line, load_vehicle
+    from railstop.report.campaign_report import write_report
+    from railstop.sim.campaign import read_manifest, replay_profile
+
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+        drv, plat = load_manual_data(driver, platform)
+
+        def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
+            manual = read_manifest(campaign_dir).get("manual_data_sha256") is not None
+            return replay_profile(
+                campaign_dir,
+                run,
+                ln,
+                veh,
+                driver=drv if manual else None,
+                platform=plat if manual else None,
+            )
+
+        with Reporter(f"report {directory}", unit="figures") as status:
+            path = write_report(
+                directory,
+                replay=replay,  # type: ignore[arg-type]
+                worst=worst,
+                tolerance_m=checked_tolerance(tolerance_m),
+                progress=status.update,
+            )
+    except RailstopError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename or directory}: {exc.strerror}")
+    out.print(f"report: {path}", highlight=False)

@@ -1,0 +1,38 @@
+"""``railstop check``: a line file (and a vehicle and an operation file) validated."""
+
+from __future__ import annotations
+
+from railstop.cli.common import LineOpt, OperationOpt, VehicleOpt, fail, out, print_error
+from railstop.errors import RailstopError
+
+
+def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: OperationOpt = None) -> None:
+    """Validate a line file (and optionally a vehicle and an operation file)."""
+    from railstop.config import load_line, load_vehicle
+    from railstop.config.loader import line_source
+    from railstop.config.operation import load_operation
+    from railstop.config.plausibility import plausibility_problems
+
+    try:
+        ln = load_line(line)
+        veh = load_vehicle(vehicle)
+        op = load_operation(operation, ln)
+    except RailstopError as exc:
+        fail(str(exc))
+    problems = plausibility_problems(ln, veh, line_source(line))
+    if problems:  # every one, a line each
+        for problem in problems[:-1]:
+            print_error(str(problem))
+        fail(str(problems[-1]))
+    src = str(line) if line else "embedded default line"
+    blocks = len(ln.signalling.blocks) if ln.signalling is not None else 0
+    entry = (
+        f"every {op.headway_s:g} s" if op.entries_s is None else f"at {len(op.entries_s)} timetabled times"
+    )
+    out.print(
+        f"ok: {src}: line {ln.line.name!r}, {len(ln.stations)} stations "
+        f"({', '.join(s.name for s in ln.stations)}), {len(ln.segments)} segments, {blocks} blocks; "
+        f"vehicle {veh.name!r}; operation: {op.trains} trains {entry} ({op.controller})",
+        highlight=False,
+        soft_wrap=True,
+    )

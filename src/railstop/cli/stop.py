@@ -1,0 +1,303 @@
+"""``railstop stop`` and ``railstop compile``: one detailed stop, and the stop model compiled once.
+
+The options and checks the stop shares with the campaign commands (``--form``, ``--tolerance-m``,
+``--controller``) live here too.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from railstop.cli.common import DriverOpt, LineOpt, PlatformOpt, VehicleOpt, fail, load_manual_data, out
+
+# The --controller help lists the engine's controllers; running a stop needs the engine anyway.
+from railstop.controllers import CONTROLLERS
+from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    from railstop.config.platform import PlatformFile
+    from railstop.config.schema import Station
+    from railstop.sim.dwell import DwellEvent
+    from railstop.sim.engine import BatchResult
+    from railstop.sim.platform_dwell import PlatformDwellResult
+    from railstop.sim.single import StopResult
+    from railstop.store.db import StopRecord
+
+
+FormOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),
+]
+ToleranceOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--tolerance-m",
+        help="PSD tolerance to judge the stops by, 0 < m <= 2 (default: the station's psd_tolerance_m).",
+    ),
+]
+
+
+def checked_tolerance(value: float | None) -> float | None:
+    """--tolerance-m checked: a positive finite number of metres up to 2 (a stop further off than
+    2 m is no 'precise stop'), or None for the station's own."""
+    import math
+
+    if value is not None and not (math.isfinite(value) and 0.0 < value <= 2.0):
+        fail(f"--tolerance-m: must be more than 0 and at most 2 m (got {value})")
+    return value
+
+
+def checked_controller(name: str) -> str:
+    if name not in CONTROLLERS:
+        fail(f"--controller: unknown controller {name!r}; choose one of: {', '.join(CONTROLLERS)}")
+    return name
+
+
+def stop(
+    ctx: typer.Context,
+    station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
+    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    load_factor: Annotated[
+        float, typer.Option(min=0.0, max=1.0, help="0 = empty (AW0) .. 1 = crush (AW3).")
+    ] = 0.0,
+    brake_gain: Annotated[
+        float, typer.Option(min=0.5, max=1.5, help="Actual / nominal braking deceleration.")
+    ] = 1.0,
+    form: FormOpt = None,
+    disturbances: Annotated[
+        str | None,
+        typer.Option(
+            help="Replay a campaign run drawn from this set: standard, wide, nominal, control-law, "
+            "loss-95, outage-after-first or a TOML file."
+        ),
+    ] = None,
+    run: Annotated[int, typer.Option(min=0, help="The campaign run to replay (with --disturbances).")] = 0,
+    tolerance_m: ToleranceOpt = None,
+    plot: Annotated[Path | None, typer.Option(help="Write a PNG plot of the stop here.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    db: Annotated[Path, typer.Option(help="SQLite database file.")] = Path("railstop.db"),
+    no_db: Annotated[
+        bool, typer.Option("--no-db", help="Write no database (the result is only printed).")
+    ] = False,
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    driver: DriverOpt = None,
+    platform: PlatformOpt = None,
+) -> None:
+    """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
+    from railstop.config.disturbances import load_disturbances
+    from railstop.config.plausibility import load_checked
+    from railstop.controllers import ATO_CONTROLLERS
+    from railstop.sim.single import run_stop, stop_record
+    from railstop.streams import RUN_LIMIT, SEED_RANGE, seed_in_range
+    from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
+
+    if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
+        fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
+    if run >= RUN_LIMIT:
+        fail(f"--run: a campaign run number is below 2^63 (got {run})")
+    if not seed_in_range(seed):
+        fail(f"--seed: {SEED_RANGE} (got {seed})")
+    if run != 0 and disturbances is None:
+        fail(f"--run {run} replays a campaign run: give the campaign's --disturbances (and --seed)")
+    source = ctx.get_parameter_source("db")
+    if no_db and source is not None and source.name == "COMMANDLINE":
+        fail("--db and --no-db exclude each other")
+    try:
+        ln, veh = load_checked(line, vehicle)
+        st = ln.station(station)
+        dist = None if disturbances is None else load_disturbances(disturbances)
+        drv, plat = load_manual_data(driver, platform, [controller])
+        result, batch = run_stop(
+            line=ln,
+            station=st,
+            vehicle=veh,
+            controller=checked_controller(controller),
+            seed=seed,
+            load_factor=load_factor,
+            brake_gain=brake_gain,
+            form=None if form is None else SignalForm(form),
+            disturbances=dist,
+            run=run,
+            tolerance_m=checked_tolerance(tolerance_m),
+            driver=drv,
+            platform=plat,
+        )
+        dwell = _driver_dwell(result, batch, st, plat)
+        if not no_db:
+            save_stop(db, stop_record(result, line=ln, station=st, vehicle=veh))
+            if dwell is not None:
+                # SPEC §3: the lamp and PSD timeline of the stop and its dwell.
+                from railstop.store import open_store
+
+                with open_store(db) as store:
+                    store.save_dwell(key=f"{result.run_key}|platform-dwell", station=st.name, events=dwell[1])
+        if plot is not None:
+            plot = write_plot(plot, result, batch, st)
+    except RailstopError as exc:
+        fail(str(exc))
+    if as_json:
+        extra = {} if dwell is None else {"platform_dwell": _dwell_json(dwell[0])}
+        print(json.dumps({**result.summary(), **extra}))
+        if not result.stopped:
+            raise typer.Exit(1)
+        return
+    what = (
+        "onboard ATO, no TASC telegrams"
+        if result.controller in ATO_CONTROLLERS
+        else f"{result.commands} commands received (form {result.form}: "
+        f"{FORM_NAMES[SignalForm(result.form)]})"
+    )
+    if result.driver_level is not None:
+        # SPEC §3: the driver's own stop, the lamps' corrections and whether the PSD may operate.
+        lamp = result.lamp or "no lamp"
+        what = (
+            f"{result.driver_level} driver: first stop {result.first_stop_error_m:+.3f} m, "
+            f"{result.restops} re-stop(s), lamp {lamp}"
+            + ("" if result.lamp == "OK" else " (PSD held closed)")
+        )
+    if result.switch_over_s is not None:
+        what += (
+            f", ECU input switched over to the onboard unit {result.switch_over_s} s after the first detector"
+        )
+    drawn = (
+        ""
+        if result.disturbances is None
+        else f"run {result.run} of {result.disturbances!r} seed {result.seed} "
+        f"(load {result.load_factor:.0%}, brake gain {result.brake_gain:.3f}): "
+    )
+    if not result.stopped:
+        # Fail safe: a train still moving at the end of the simulated time has no stop error.
+        out.print(
+            f"{result.controller} at {result.station}: {drawn}the train did NOT come to a stand "
+            f"within the simulated time; its front was {result.stop_error_m:+.3f} m from the stopping "
+            f"point when the simulation ended, {what}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        if plot is not None:
+            out.print(f"plot: {plot}", highlight=False)
+        raise typer.Exit(1)
+    verdict = "within" if result.within_tolerance else "OUTSIDE"
+    if result.emergency_brake is not None:
+        # DESIGN rule 10: say first that the supervision stopped the train, and why.
+        what = (
+            f"EMERGENCY BRAKE ({result.emergency_brake}) {result.emergency_brake_s} s after the first "
+            f"detector; {what}"
+        )
+    out.print(
+        f"{result.controller} at {result.station}: {drawn}stop error {result.stop_error_m:+.3f} m "
+        f"({'overrun' if result.stop_error_m > 0 else 'short'}, {verdict} the PSD tolerance "
+        f"±{result.psd_tolerance_m:g} m), "
+        f"{result.stop_time_s} s from the first detector, max jerk {result.max_jerk_mps3:.2f} m/s³, "
+        f"{result.notch_changes} notch changes, {what}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    wayside = []
+    if result.brake_delay_identified_s is not None:
+        wayside.append(
+            f"brake response identified from the Doppler: equivalent dead time "
+            f"{result.brake_delay_identified_s:.2f} s (radio + dead time + lag; nominal "
+            f"{st.tasc.assumed_link_latency_s + veh.brake.dead_time_s + veh.brake.time_constant_s:.2f} s), "
+            f"lag {result.brake_lag_identified_s:.2f} s (nominal {veh.brake.time_constant_s:.2f} s)"
+        )
+    if result.detectors_filled:
+        wayside.append(f"{result.detectors_filled} missed detector passage(s) filled in from the Doppler")
+    if wayside:
+        out.print("wayside: " + "; ".join(wayside), highlight=False, soft_wrap=True)
+    if dwell is not None:
+        from railstop.sim.platform_dwell import dwell_sentence
+
+        saved = "" if no_db else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
+        out.print(f"dwell: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
+    if plot is not None:
+        out.print(f"plot: {plot}", highlight=False)
+
+
+def _driver_dwell(
+    result: StopResult, batch: BatchResult, station: Station, platform: PlatformFile | None
+) -> tuple[PlatformDwellResult, list[DwellEvent]] | None:
+    """SPEC §3: a driver stop that came to rest goes on into its dwell (None for the others)."""
+    if result.driver_level is None or not result.stopped:
+        return None
+    from railstop.config.doors import load_doors
+    from railstop.config.platform import default_platform
+    from railstop.sim.platform_dwell import dwell_after_stop
+
+    return dwell_after_stop(
+        result, batch, station=station, platform=platform or default_platform(), doors=load_doors(None)
+    )
+
+
+def _dwell_json(dwell: PlatformDwellResult) -> dict[str, object]:
+    summary = dwell.summary()
+    summary.pop("timeline")
+    return summary
+
+
+def save_stop(db: Path, record: StopRecord) -> None:
+    """SPEC §1 claims 8, 20: the stop's record (``railstop.sim.single.stop_record``) goes to the database."""
+    from railstop.store import open_store
+
+    with open_store(db) as store:
+        store.save_stop(record)
+
+
+def write_plot(path: Path, result: StopResult, batch: BatchResult, station: Station) -> Path:
+    from railstop.provenance import footer, stamp
+    from railstop.report.plot import plot_stop
+
+    if batch.trace is None:
+        raise RailstopError("no trace was recorded")
+    try:
+        return plot_stop(
+            batch.trace,
+            run=0,
+            station_name=station.name,
+            stop_point_m=station.stop_point_m,
+            detector_positions_m=station.detector_positions_m(),
+            passage_times_s=list(batch.detector_passages_s[0]),
+            commands=batch.commands,
+            title=(
+                f"{result.controller} at {station.name} (load {result.load_factor:.0%}, "
+                f"brake gain {result.brake_gain:.2f}): stop error {result.stop_error_m:+.3f} m"
+            ),
+            path=path,
+            tolerance_m=result.psd_tolerance_m,
+            footer=footer(
+                stamp(result.inputs_sha256),
+                seed=result.seed,
+                disturbances=result.disturbances,
+                run=result.run if result.disturbances is not None else None,
+                form=result.form,
+            ),
+        )
+    except OSError as exc:
+        raise RailstopError(f"cannot write plot {path}: {exc.strerror}") from None
+
+
+def compile_model(
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Compile the stop model (and the live TASC units' steps) once into the on-disk cache, so that later
+    commands start at once."""
+    import time
+
+    from railstop.live.tasc import warm_up as warm_up_live
+    from railstop.sim.kernel import warm_up
+
+    t0 = time.perf_counter()
+    info = warm_up()
+    warm_up_live()  # the live TASC units' steps (the same compiled functions, other signatures)
+    info["seconds"] = round(time.perf_counter() - t0, 2)
+    if as_json:
+        print(json.dumps(info))
+        return
+    what = "compiled the stop model" if info["compiled"] else "the stop model was already compiled; loaded it"
+    out.print(f"{what} in {info['seconds']} s; cache: {info['cache_dir']}", highlight=False)
