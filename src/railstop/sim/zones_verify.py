@@ -929,8 +929,10 @@ def verify(
 
     while queue:
         snap, world = queue.popleft()
-        for choice in world.choices():
-            w = world.clone()
+        choices = list(world.choices())
+        for n, choice in enumerate(choices):
+            # The world leaves the queue here: its last choice runs on it, the others on copies.
+            w = world if n == len(choices) - 1 else world.clone()
             c = w.zc.counts
             before_counts = (c.lost, c.auto_releases, c.flagged, c.manual_releases)
             eb_before = sum(ob.eb_count for ob in w.onboards)
