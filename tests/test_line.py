@@ -260,7 +260,7 @@ def test_slides_inside_the_station_stops_reach_the_odometer(tmp_path: Path) -> N
     the slides come from the stop model's trajectories alone. They reach the line's odometer (the
     slide events count them) and the positioning's WSP input, whose accelerometer bridges them.
     Each slide lasts the whole patch (some 10 s at μ 0.05), so the bridge's bias tells: the onboard
-    position's p99 error with a 2 % diameter error stays under 2 m (1.418 m when written), where
+    position's p99 error with a 2 % diameter error stays under 2 m (1.383 m when last measured), where
     an unbridged slide would leave the wheel 15 % short over the 80 m patch (12 m)."""
     wet = tmp_path / "wet-stops.toml"
     wet.write_text(

@@ -22,7 +22,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from railstop.config import default_line
+from railstop.config import default_line, default_vehicle
+from railstop.live.plant import DRIVE_TIMEOUT_S
 from railstop.messages import ManualRelease, MovementCommand, PositionReport
 from railstop.store import open_store
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
@@ -813,7 +814,8 @@ def test_a_restarted_trains_process_relocalises_before_it_reports(procs: Procs, 
     killed_s = time.time() - epoch
     trains.communicate(timeout=30)
     _wait_for(db, "zone-event", lambda r: len({z["train"] for z in _reports(db, "zone-event")}) == 2, 30.0)
-    stood = {int(r["train"]): float(r["position_m"]) for r in _reports(db, "train-state")}  # type: ignore[arg-type]
+    last = {int(r["train"]): r for r in _reports(db, "train-state")}  # type: ignore[arg-type]
+    stood = {k: float(r["position_m"]) for k, r in last.items()}  # type: ignore[arg-type]
     trains2, _ = procs.start(*args)
     restarted_s = time.time() - epoch
     moving = lambda r: float(r["t_s"]) > restarted_s and float(r["speed_mps"]) > 1.0  # type: ignore[arg-type]  # noqa: E731
@@ -830,11 +832,19 @@ def test_a_restarted_trains_process_relocalises_before_it_reports(procs: Procs, 
     assert [b for b in fleet["emergency_brake_times"] if b["t_s"] < stopped_s] == []  # type: ignore[union-attr]
     assert fleet["plant"]["unlocalised_train_steps"] >= 2  # type: ignore[index]
     after = [s for s in _reports(db, "train-state") if float(s["t_s"]) > restarted_s]  # type: ignore[arg-type]
-    # Its first state of each train is where the plant held it (not its configured start), and
-    # every train runs again.
+    # Its first state of each train is where the plant held it (not its configured start, behind),
+    # and every train runs again. After its last report (at most a report period, 1 s, before the
+    # kill) the plant ran on under the last drive until its time-out, then braked at the emergency
+    # rate through the brakes' dead time and build-up: no further than that reaches.
+    brake, traction = default_vehicle().brake, default_vehicle().traction
+    assert traction is not None
+    on_s = 1.0 + DRIVE_TIMEOUT_S
     for k in (0, 1):
         first = next(float(s["position_m"]) for s in after if s["train"] == k)  # type: ignore[arg-type]
-        assert abs(first - stood[k]) < 50.0, (k, first, stood[k])
+        v = float(last[k]["speed_mps"]) + traction.max_accel_mps2 * on_s  # type: ignore[arg-type]
+        response_s = on_s + brake.dead_time_s + brake.time_constant_s
+        reach = v * response_s + v * v / (2 * brake.emergency_decel_mps2)
+        assert stood[k] - 0.1 <= first <= stood[k] + reach, (k, first, stood[k], reach)
     assert {s["train"] for s in after if float(s["speed_mps"]) > 1.0} == {0, 1}  # type: ignore[arg-type]
     print(
         f"trains' process killed at {killed_s:.1f} s, started again at {restarted_s:.1f} s; train "

@@ -16,6 +16,8 @@ from railstop.control.line_ato import handover_m
 from railstop.live.clock import TimeBase
 from railstop.live.plant import (
     DRIVE_TIMEOUT_S,
+    HOLD,
+    HOLD_BAND_MPS,
     PLANT_STEP_S,
     SENSE_TIMEOUT_S,
     Drive,
@@ -25,6 +27,7 @@ from railstop.live.plant import (
     PlantPort,
     TascPlantData,
     TrainState,
+    emergency_drive,
     pack_drives,
     pack_states,
     run_plant,
@@ -97,12 +100,14 @@ def test_drives_and_states_cross_the_wire_unchanged() -> None:
         (3, BrakeDrive(4711, 0.83, True, False)),
         (4, BrakeDrive(4712, 2.0, True, True)),
         (5, Place(1234.5)),
+        (6, emergency_drive(VEHICLE)),
     ] * 5  # more than one frame's records
     payloads = pack_drives(drives)
     assert len(payloads) > 1 and all(len(p) <= 255 for p in payloads)  # the safety layer's limit
     got = [r for p in payloads for r in unpack_drives(p)]
     assert repr(got) == repr(drives)  # NaN (no relocation) compares only by its text
     assert isinstance(got[1][1], Drive) and got[1][1].relocate_m == 650.0
+    assert isinstance(got[6][1], Drive) and got[6][1].emergency and not got[0][1].emergency  # type: ignore[union-attr]
     states = [
         TrainState(0, 100.0, 12.0),
         TrainState(1, 200.0, 3.0, Sense(7, 2.9, 0.029, 5510.0, False), 1.23),
@@ -116,6 +121,10 @@ def test_drives_and_states_cross_the_wire_unchanged() -> None:
     assert back[2].sense is not None and back[2].sense.stopped and math.isnan(back[2].sense.transponder_m)
     with pytest.raises(ValueError):
         unpack_drives(pack_states(states)[0])  # a state frame is not a drive frame
+    flagged = bytearray(pack_drives([(0, Drive(1.0, 1.0, 1.0))])[0])
+    flagged[3 + 3 + 3] = 2  # the ATO record's flag (after head, train, kind): neither 0 nor 1
+    with pytest.raises(ValueError, match="flag"):
+        unpack_drives(bytes(flagged))
     with pytest.raises(ValueError):
         unpack_states(pack_states(states)[0][:-3])
 
@@ -163,7 +172,7 @@ def test_with_the_trains_silent_the_plant_brakes_every_train_at_the_emergency_ra
     emergency = VEHICLE.brake.emergency_decel_mps2
     for car, x0 in zip(plant.fleet, start, strict=True):
         assert car.v_mps == 0.0
-        # The ATO train at once; the TASC train through its brakes' dead time and lag.
+        # Both through their brakes' dead time and lag (the ATO train's plant and the TASC train's).
         assert car.x_m - x0 <= 15.0**2 / (2 * emergency) + 15.0 * 2.0
     assert all(s.eb for s in plant.states(t))
 
@@ -223,7 +232,9 @@ def test_plant_process_over_loopback_moves_a_train_and_fails_safe_both_ways() ->
                 port.flush(now)
                 await asyncio.sleep(0.05)
             speeds.append(port.states[0].v_mps)
-            await asyncio.sleep(DRIVE_TIMEOUT_S + 0.6)  # no drives: the plant brakes
+            # No drives: the plant brakes every train, through its brakes' dead time and build-up
+            # (some 0.8 s) at the emergency rate: 2 s after the time-out it is slower than it was.
+            await asyncio.sleep(DRIVE_TIMEOUT_S + 2.0)
             speeds.append(port.states[0].v_mps)
             eb = port.states[0].eb
             stop_plant.set()
@@ -239,3 +250,47 @@ def test_plant_process_over_loopback_moves_a_train_and_fails_safe_both_ways() ->
     assert speeds[1] < speeds[0]  # braking at the emergency rate after the drives stopped
     assert failed_safe and losses == 1
     assert counts["drive_lost"] == 1 and counts["refused"] == {}
+
+
+def _drive(plant: Plant, drive: Drive, seconds: float, t: float = 0.0) -> float:
+    """Step the plant under ``drive`` for ``seconds``; the time after."""
+    plant.drive(0, drive)
+    for _ in range(round(seconds / PLANT_STEP_S)):
+        plant.step(t)
+        t += PLANT_STEP_S
+    return t
+
+
+def test_a_drive_moves_the_train_through_the_plant_s_traction_and_brakes() -> None:
+    """Outside TASC a drive is a demand on the line's train plant (``physics.plant``): the speed
+    controller reaches the target and holds it; a stop brakes through the brakes' dead time and
+    build-up, so it runs further than v² / 2a but no further than the response's mean delay μ
+    (dead time, half the jerk ramp, the lag) adds at v; a correction backs from a stand; the
+    emergency drive takes the emergency path."""
+    plant = _plant()
+    car = plant.fleet[0]
+    car.x_m = 1000.0  # level track
+    t = _drive(plant, Drive(10.0, 1.0, 1.0), 30.0)
+    assert abs(car.v_mps - 10.0) <= HOLD_BAND_MPS
+    held = car.v_mps
+    t = _drive(plant, Drive(10.0, 1.0, 1.0), 1.0, t)
+    assert car.v_mps == held  # traction holds the speed exactly
+    brake = VEHICLE.brake
+    x0, v0, a = car.x_m, car.v_mps, brake.full_service_mps2
+    t = _drive(plant, HOLD, 30.0, t)
+    mean = brake.dead_time_s + 0.5 * a / brake.jerk_limit_mps3 + brake.time_constant_s
+    assert car.v_mps == 0.0
+    assert v0 * v0 / (2 * a) + v0 * brake.dead_time_s < car.x_m - x0 < v0 * v0 / (2 * a) + v0 * mean
+    x0 = car.x_m
+    t = _drive(plant, Drive(-0.5, math.inf, math.inf), 5.0, t)
+    assert car.v_mps == pytest.approx(-0.5, abs=HOLD_BAND_MPS) and car.x_m < x0 - 1.0
+    t = _drive(plant, HOLD, 5.0, t)
+    t = _drive(plant, Drive(15.0, 1.0, 1.0), 40.0, t)
+    x0, v0, e = car.x_m, car.v_mps, brake.emergency_decel_mps2
+    _drive(plant, emergency_drive(VEHICLE), 30.0, t)
+    assert car.v_mps == 0.0
+    assert (
+        v0 * v0 / (2 * e) + v0 * brake.dead_time_s
+        < car.x_m - x0
+        < v0 * v0 / (2 * e) + v0 * (brake.dead_time_s + brake.time_constant_s)
+    )

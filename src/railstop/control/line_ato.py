@@ -14,7 +14,11 @@ ceiling made of
 Its demand is a speed-error law clipped between the planning deceleration
 and what traction gives. **[interpretation]** SPEC §1 says only that the
 train runs under its own control before the zone; this is the simplest
-such law that respects the limits and the signals.
+such law that respects the limits and the signals. The demand goes to the
+train's plant (``physics.plant``): braking through the brakes' dead time,
+jerk limit and lag, so the train runs up to a second behind its curve; the
+curves at 70 % of full service (``sim.line.PLANNING_SHARE``) leave the rest
+to catch up, and ``SIGNAL_MARGIN_M`` is far more than what it runs on.
 """
 
 from __future__ import annotations
@@ -114,4 +118,4 @@ def demand_mps2(speed_mps: float, ceiling: float, traction_mps2: float, brake_mp
     -``brake_mps2`` (full service: the ceiling is planned at less, so the curve can be held).
     Aiming 0.5 km/h under the ceiling keeps it from riding the limit."""
     target = ceiling - 0.5 * KMH
-    return float(np.clip(SPEED_GAIN_PER_S * (target - speed_mps), -brake_mps2, traction_mps2))
+    return min(max(SPEED_GAIN_PER_S * (target - speed_mps), -brake_mps2), traction_mps2)

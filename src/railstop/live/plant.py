@@ -6,8 +6,10 @@ measures them. It holds each train's true position and speed and moves them
 every ``PLANT_STEP_S`` (10 ms) under what the trains' onboard units ask:
 
 * **under the ATO and the CBTC unit** a :class:`Drive` (a target speed, the
-  rate to reach it; the emergency brake is a target of 0 at the emergency
-  rate), the point-mass motion of the line's plant;
+  rates to reach it; the emergency drive applies the emergency brake) that a
+  tiny speed controller (:func:`drive_demand`) turns into a demand on the one
+  train plant of the line (``physics.plant``: traction, the brakes' dead
+  time, jerk limit and lag, resistance, the track's gradient, adhesion);
 * **under ground TASC** (SPEC §1), from the hand-over point to standstill,
   the stop model's plant (:class:`~railstop.live.tasc.TascPlant`: the ECU's
   load compensation, the brakes' dead time, jerk limit and lag, adhesion,
@@ -53,6 +55,7 @@ from typing import Any
 
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.schema import Line, Vehicle
+from railstop.control.line_ato import SPEED_GAIN_PER_S
 from railstop.link.safety import MAX_PAYLOAD_BYTES, SafePeers
 from railstop.link.udp import Address, UdpEndpoint, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
@@ -68,6 +71,7 @@ from railstop.live.tasc import (
     pack_readings,
     station_models,
 )
+from railstop.physics.plant import PlantParams, PlantState, plant_step, set_direction, track_gradient
 from railstop.sim.kernel import KP_EMERGENCY
 
 PLANT_ID = 0x0281  # the plant's end of the trains' wiring (their sensors and actuators)
@@ -80,10 +84,17 @@ SENSE_TIMEOUT_S = 0.5  # no plant state for this long: the trains process brakes
 #: [interpretation]: they span the precise-stop zone and a correction's reach beyond it; SPEC §5
 #: needs only that a train outside the tolerance is seen as not in position.
 STOP_SENSOR_SPAN_M = 5.0
+#: The trains' load between TASC stops (a stop draws its own) [interpretation]: half way from empty
+#: to crush, as the line simulation's trains enter.
+LOAD_FACTOR = 0.5
+#: The speed controller holds the speed (traction against resistance and gradient) within this of
+#: the drive's target, once the brakes are released: the speed-error law alone settles short of
+#: the target by the resistance over its gain (0.01-0.03 m/s on the level at 10-25 m/s).
+HOLD_BAND_MPS = 0.05
 
-# One drive record: train, kind, integer, four values. Kinds: ATO (target, accel, decel,
-# relocate), TASC begin (integer = station << 16 | visit), TASC brake (integer = step k; demand,
-# braking, eb), place (position).
+# One drive record: train, kind, integer, four values. Kinds: ATO (integer = 1 for the emergency
+# brake; target, accel, decel, relocate), TASC begin (integer = station << 16 | visit), TASC brake
+# (integer = step k; demand, braking, eb), place (position).
 _DRIVE = struct.Struct(">H B I d d d d")
 _ATO, _BEGIN, _BRAKE, _PLACE = 0, 1, 2, 3
 # One state record: train, flags, position, speed; under TASC then the sensing (step k, step time,
@@ -116,22 +127,41 @@ def line_end_m(line: Line) -> float:
 @dataclass(frozen=True, slots=True)
 class Drive:
     """What the ATO and the CBTC unit ask of a train's traction and brakes: reach ``target_mps``
-    (signed: a correction may back) at ``accel_mps2`` from below or ``decel_mps2`` from above (inf:
-    at once, the point-mass plant's stop); ``relocate_m``: the train leaves service and comes
-    back there (the line has one direction), NaN otherwise."""
+    (signed: a correction may back, from a stand) with at most ``accel_mps2`` of traction from
+    below or ``decel_mps2`` of braking from above (inf: as hard as the train can, full service at
+    most); ``emergency``: the emergency brake (the plant's emergency path); ``relocate_m``: the
+    train leaves service and comes back there (the line has one direction), NaN otherwise."""
 
     target_mps: float
     accel_mps2: float
     decel_mps2: float
     relocate_m: float = math.nan
+    emergency: bool = False
 
 
 HOLD = Drive(0.0, 0.0, math.inf)  # standing (the holding brake)
 
 
 def emergency_drive(vehicle: Vehicle) -> Drive:
-    """The emergency brake as a drive: to a stand at the vehicle's emergency rate."""
-    return Drive(0.0, 0.0, vehicle.brake.emergency_decel_mps2)
+    """The emergency brake as a drive: to a stand through the plant's emergency brake."""
+    return Drive(0.0, 0.0, vehicle.brake.emergency_decel_mps2, emergency=True)
+
+
+def drive_demand(drive: Drive, plant: PlantState) -> tuple[float, bool]:
+    """The speed controller: the demand (m/s², + traction, - braking) that takes the train towards
+    the drive's target, and whether traction holds the speed. Along the running direction: a
+    target of 0 (or behind a train still running) brakes at the drive's rate, to a stand and held
+    there; within ``HOLD_BAND_MPS`` of the target traction holds the speed (the plant lets it once
+    the brakes are released); otherwise the line's ATO law, ``SPEED_GAIN_PER_S`` x the speed error,
+    within the rates.
+    [interpretation] the simplest controller that turns a target and its rates into a demand."""
+    target = drive.target_mps * plant.direction
+    if target <= 0.0:
+        return -drive.decel_mps2, False
+    error = target - plant.v_mps
+    if abs(error) <= HOLD_BAND_MPS:
+        return 0.0, True
+    return min(max(SPEED_GAIN_PER_S * error, -drive.decel_mps2), drive.accel_mps2), False
 
 
 @dataclass(frozen=True, slots=True)
@@ -163,13 +193,33 @@ class TrainState:
 @dataclass
 class _Vehicle:
     k: int
-    x_m: float
-    v_mps: float = 0.0
+    plant: PlantState  # its motion outside a TASC stop (``physics.plant``)
     drive: Drive = HOLD
     tasc: TascPlant | None = None
     brake: BrakeDrive | None = None  # the last TASC drive received
     ended: tuple[float, float] | None = None  # the TASC stop that ended: (jerk, stop time)
     begin: tuple[int, int] | None = None  # a TASC stop to begin: (station, visit)
+
+    @property
+    def x_m(self) -> float:
+        return self.plant.x_m
+
+    @x_m.setter
+    def x_m(self, x_m: float) -> None:
+        self.plant.x_m = x_m
+
+    @property
+    def v_mps(self) -> float:
+        """The speed, signed (+ towards higher chainage)."""
+        return self.plant.v_mps * self.plant.direction
+
+    @v_mps.setter
+    def v_mps(self, v_mps: float) -> None:
+        """Set the speed (a TASC stop moves the train; a test places it): 0 stands, held."""
+        p = self.plant
+        p.v_mps, p.stopped = abs(v_mps), v_mps == 0.0
+        if v_mps != 0.0:
+            p.direction = 1 if v_mps > 0.0 else -1
 
 
 OnboardFn = Callable[[int, float, Sense], BrakeDrive | None]
@@ -204,7 +254,10 @@ class Plant:
         self.line, self.vehicle = line, vehicle
         self.sensor_every = sensor_every
         starts = initial_positions(line, vehicle, trains, spacing_m)
-        self.fleet = [_Vehicle(k, x) for k, x in enumerate(starts)]
+        self.params = PlantParams.create(
+            vehicle, load_factor=LOAD_FACTOR, dt_s=PLANT_STEP_S, gradient=track_gradient(line)
+        )
+        self.fleet = [_Vehicle(k, PlantState.create(self.params, x_m=x)) for k, x in enumerate(starts)]
         self.tasc = tasc
         self.models: list[StationTasc] = (
             station_models(line, vehicle, tasc.controller) if tasc is not None else []
@@ -232,7 +285,7 @@ class Plant:
         """The train stands at ``x_m`` (:class:`Place`); a TASC stop under way there ends."""
         if 0 <= train < len(self.fleet):
             v = self.fleet[train]
-            v.x_m, v.v_mps, v.drive = x_m, 0.0, HOLD
+            v.plant, v.drive = PlantState.create(self.params, x_m=x_m), HOLD
             v.tasc = v.brake = v.begin = v.ended = None
             self.fresh = False
 
@@ -265,21 +318,21 @@ class Plant:
                     v.ended = (tp.max_jerk, tp.stop_time_s - tp.t0_s)
                     self._readings(tp)
                     v.tasc, v.brake, v.drive = None, None, HOLD
+                    v.plant = PlantState.create(self.params, x_m=tp.x_m)  # it stands, held
                 elif (self.steps + 1) % self.sensor_every == 0:
                     self._readings(tp)
                 continue
             d = v.drive
             if math.isfinite(d.relocate_m):
-                v.x_m, v.v_mps = d.relocate_m, 0.0
-                v.drive = HOLD
+                v.plant, v.drive = PlantState.create(self.params, x_m=d.relocate_m), HOLD
                 continue
             if self.eb_all:
                 d = emergency_drive(self.vehicle)
-            if v.v_mps < d.target_mps:
-                v.v_mps = min(d.target_mps, v.v_mps + d.accel_mps2 * dt)
-            elif v.v_mps > d.target_mps:
-                v.v_mps = max(d.target_mps, v.v_mps - d.decel_mps2 * dt)
-            v.x_m += v.v_mps * dt
+            p = v.plant
+            if d.target_mps != 0.0 and p.stopped:
+                set_direction(p, 1 if d.target_mps > 0.0 else -1)  # a correction backs from a stand
+            demand, hold = drive_demand(d, p)
+            plant_step(p, self.params, demand_mps2=demand, t_s=now_s, eb=d.emergency, speed_hold=hold)
         for v in self.fleet:
             if v.begin is not None and v.tasc is None:
                 station, visit = v.begin
@@ -363,7 +416,8 @@ def pack_drives(records: list[DriveRecord]) -> list[bytes]:
     rows = []
     for train, d in records:
         if isinstance(d, Drive):
-            rows.append(_DRIVE.pack(train, _ATO, 0, d.target_mps, d.accel_mps2, d.decel_mps2, d.relocate_m))
+            eb = 1 if d.emergency else 0
+            rows.append(_DRIVE.pack(train, _ATO, eb, d.target_mps, d.accel_mps2, d.decel_mps2, d.relocate_m))
         elif isinstance(d, BrakeDrive):
             rows.append(_DRIVE.pack(train, _BRAKE, d.k, d.demand_mps2, float(d.braking), float(d.eb), 0.0))
         elif isinstance(d, Place):
@@ -379,7 +433,9 @@ def unpack_drives(payload: bytes) -> list[DriveRecord]:
     out: list[DriveRecord] = []
     for train, kind, n, a, b, c, d in _rows(payload, 1, _DRIVE):
         if kind == _ATO:
-            out.append((train, Drive(a, b, c, d)))
+            if n not in (0, 1):
+                raise ValueError(f"drive flag {n}: 0 or 1 (the emergency brake)")
+            out.append((train, Drive(a, b, c, d, emergency=n == 1)))
         elif kind == _BRAKE:
             out.append((train, BrakeDrive(n, a, b != 0.0, c != 0.0)))
         elif kind == _BEGIN:

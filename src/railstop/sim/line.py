@@ -4,9 +4,11 @@ A driver (DESIGN: drivers wire units, units decide): ``SimClock`` advances
 the plant every ``step_s`` and delivers the units' messages. What runs:
 
 - **the plant** (this module): every train's true motion between stations
-  (the train's own ATO, ``control.line_ato``, demands; traction, the brakes'
-  service deceleration and running resistance act), and the track circuits'
-  occupancy from the trains' extents, reported on every change
+  (the train's own ATO, ``control.line_ato``, demands; ``physics.plant``, the
+  one train plant of the line and the live plant, moves it: traction, the
+  brake chain of the stop model with its dead time, jerk limit and lag,
+  running resistance, the track's gradients, adhesion), and the track
+  circuits' occupancy from the trains' extents, reported on every change
   (``CircuitOccupancy``);
 - **the fixed-block interlocking** (``wayside.interlocking``), a unit: the
   reports in, the signal aspects out (broadcast); each train's ATP takes them
@@ -85,8 +87,7 @@ from railstop.link.channel import ChannelParams, media_preset
 from railstop.link.door_link import DoorLinkCounts
 from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Output, SignalAspects, TrainLeft
 from railstop.onboard.positioning import PositioningUnit
-from railstop.physics.traction import tractive_effort_n
-from railstop.physics.train import adhesion_limit_1
+from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import make_door_link, run_dwell
@@ -306,6 +307,10 @@ class Train:
     play_v: Any = None
     play_slide: Any = None  # 1 where the wheels slid in the stop's trajectory (the WSP acting)
     load_factor: float = 0.5
+    # Between stations: its true motion (``physics.plant``: traction, the brake chain, resistance,
+    # gradient, adhesion), created as it enters and as it departs, for its load then.
+    plant: PlantState | None = None
+    plant_params: PlantParams | None = None
     # Low adhesion: (start, end, zone); zone k < S: where the ATO brakes for station k, S + k:
     # where it starts from station k (S stations).
     patches: list[tuple[float, float, int]] = field(default_factory=list)
@@ -440,6 +445,9 @@ class LineSimulation:
         if vehicle.traction is None:
             raise SimulationError(f"vehicle {vehicle.name!r} has no [vehicle.traction]: the trains must run")
         self.traction = vehicle.traction
+        # The track's gradients (the stations' segments, level between): the trains feel them.
+        self.gradient = track_gradient(line)
+        self.step_s = step_s
         self.line = line
         self.vehicle = vehicle
         self.operation = operation
@@ -678,18 +686,15 @@ class LineSimulation:
         self._occupied = occ
         return out
 
-    def _traction_mps2(self, v: float, mass_kg: float) -> float:
-        tr = self.traction
-        force = float(tractive_effort_n(tr, np.array([v]))[0])
-        return min(tr.max_accel_mps2, force / mass_kg)
-
-    def _static_mass_kg(self, train: Train) -> float:
-        veh = self.vehicle
-        return veh.tare_mass_kg + train.load_factor * veh.crush_payload_kg
-
-    def _mass_kg(self, train: Train) -> float:
-        veh = self.vehicle
-        return veh.tare_mass_kg * (1.0 + veh.rotating_mass_factor) + train.load_factor * veh.crush_payload_kg
+    def _start_plant(self, train: Train, v_mps: float) -> tuple[PlantState, PlantParams]:
+        """The train's plant where it is, at ``v_mps``, its brakes released, for its load now (the
+        last station stop's draw)."""
+        params = PlantParams.create(
+            self.vehicle, load_factor=train.load_factor, dt_s=self.step_s, gradient=self.gradient
+        )
+        plant = PlantState.create(params, x_m=train.x_m, v_mps=v_mps)
+        train.plant, train.plant_params = plant, params
+        return plant, params
 
     def _run(self, train: Train, now_s: float, dt: float) -> None:
         # The ATO knows its position from the onboard positioning (SPEC §2), not the truth.
@@ -715,34 +720,35 @@ class LineSimulation:
             # again once the platform clears.
             entry = st_next.tasc.entry_speed_kmh * KMH
             target = min(auth, handover_m(self.first_detector_m[train.next_station], entry) - HOLD_BACK_M)
-        ceiling = ceiling_mps(self.profile, here, train.v_mps, target, self.plan_mps2)
-        mass = self._mass_kg(train)
-        veh = self.vehicle
+        plant, params = train.plant, train.plant_params
+        if plant is None or params is None:
+            plant, params = self._start_plant(train, train.v_mps)
         v = train.v_mps
-        resist = (veh.davis_a_n + veh.davis_b_n_per_mps * v + veh.davis_c_n_per_mps2 * v * v) / mass
-        a = demand_mps2(v, ceiling, self._traction_mps2(v, mass), self.brake_mps2)
-        # On a low-adhesion patch the wheels slide when the braking asks more than the adhesion
-        # gives; the wheel-slide protection holds the deceleration at it (and the wheel short).
-        # The same under traction: the wheels slip, the anti-slip control holds the traction at
-        # the adhesion (and the wheel turns ahead of the train).
+        ceiling = ceiling_mps(self.profile, here, v, target, self.plan_mps2)
+        a = demand_mps2(v, ceiling, traction_mps2(params, v), self.brake_mps2)
+        # The plant (physics.plant, the stop model's brake chain and motion): the braking demand
+        # through the brakes' dead time, jerk limit and lag; traction up to the curve and the
+        # adhesion; resistance and the track's gradient. On a low-adhesion patch the wheels slide
+        # when the braking asks more than the adhesion gives (the wheel-slide protection holds the
+        # deceleration at it, the wheel short), and slip when traction does (the anti-slip control
+        # holds the traction at it, the wheel ahead of the train).
         low = any(s0 <= train.x_m < s1 for s0, s1, _ in train.patches)
-        mu = self.settings.position.low_mu if low else veh.adhesion_mu
-        limit = adhesion_limit_1(mu, self._static_mass_kg(train), mass)
-        train.slipping = a > limit
-        if a > 0.0:
-            a = min(a, limit) - resist  # traction works against the resistance; braking is the ECU's total
-        if self.cbtc is not None and self.cbtc.emergency_brake(train.index):
-            a = -self.vehicle.brake.emergency_decel_mps2  # SPEC §4: the onboard unit's emergency brake
-            train.slipping = False
-        sliding = a < -limit and v > 0.0
-        if sliding:
-            a = -limit
+        eb = self.cbtc is not None and self.cbtc.emergency_brake(train.index)  # SPEC §4: onboard EB
+        plant_step(
+            plant,
+            params,
+            demand_mps2=a,
+            t_s=now_s - dt,
+            eb=eb,
+            adhesion_mu=self.settings.position.low_mu if low else None,
+        )
+        train.slipping = plant.slipping
+        train.sliding = plant.sliding
+        if plant.sliding:
             if now_s - train.last_slide_s > SLIDE_GAP_S:  # a new slide, not the WSP's next cycle
                 train.slides += 1
             train.last_slide_s = now_s
-        train.sliding = sliding
-        v_new = max(v + a * dt, 0.0)
-        x_new = train.x_m + 0.5 * (v + v_new) * dt
+        x_new, v_new = plant.x_m, plant.v_mps
         if st_next is not None:
             first = self.first_detector_m[train.next_station]
             h = handover_m(first, v_new)
@@ -752,6 +758,7 @@ class LineSimulation:
                 # it is taken there, so that the stop model's run starts where the train is.)
                 frac = min(max((h - train.x_m) / max(x_new - train.x_m, 1e-9), 0.0), 1.0)
                 train.x_m, train.v_mps = h, v + (v_new - v) * frac
+                train.plant = None  # the stop model's plant takes the train
                 self._stop(train, st_next, now_s - dt + frac * dt)
                 return
         for pos, ok in zip(self.signal_m, proceed, strict=True):
@@ -761,15 +768,17 @@ class LineSimulation:
                 # A signal passed at danger: counted (it must not happen) and the train stopped by
                 # its emergency brake there (DESIGN rule 10).
                 self.signals_passed_at_danger += 1
-                v_new = 0.0
+                v_new = plant.v_mps = 0.0
+                plant.stopped = True
         train.x_m, train.v_mps = x_new, v_new
         if st_next is not None and train.x_m > st_next.platform_end:
             # Past a platform without its stop: counted, never silent (it must not happen).
             self.skipped_stops += 1
             train.next_station += 1
-        if train.x_m - veh.length_m >= self.end_m:
+        if train.x_m - self.vehicle.length_m >= self.end_m:
             train.phase = "gone"
             train.exited_s = now_s
+            train.plant = None
 
     def _stop(self, train: Train, st: Station, t0_s: float) -> None:
         """The station stop by ground TASC from the train's state at the hand-over point."""
@@ -936,6 +945,7 @@ class LineSimulation:
                 self._play(train, now_s, dt)
             elif train.phase == "dwelling" and now_s >= train.until_s:
                 train.phase = "running"
+                self._start_plant(train, 0.0)  # it departs from a stand
             elif train.phase == "held" and now_s >= train.until_s:
                 self._recover(train, now_s)
             if train.phase in ON_LINE:
@@ -1004,6 +1014,7 @@ class LineSimulation:
         train.x_m = self.operation.entry_m
         train.v_mps = self.operation.entry_speed_kmh * KMH
         train.entered_s = now_s
+        self._start_plant(train, train.v_mps)
 
     def _cbtc_entry(self, train: Train, now_s: float, free: bool) -> bool:
         """SPEC §4: the train next to enter starts its onboard unit and enters once its authority
