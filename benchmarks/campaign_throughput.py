@@ -32,9 +32,9 @@ from pathlib import Path
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
+from railstop.model.run import warm_up
 from railstop.sim.campaign import CampaignSpec, run_campaign
 from railstop.sim.engine import CONTROLLERS
-from railstop.sim.kernel import warm_up
 from railstop.sim.single import run_stop
 
 TARGETS = {"tasc-pwm": 20_000}

@@ -22,8 +22,8 @@ from railstop.control.brake_ident import (
 )
 from railstop.control.tasc import HISTORY, SAMPLES
 from railstop.controllers import TASC_PWM
+from railstop.model.build import KernelModel
 from railstop.sim.engine import BatchResult, run_batch
-from railstop.sim.kernel import KernelModel
 from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import (

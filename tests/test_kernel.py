@@ -1,4 +1,4 @@
-"""The compiled stop kernel (railstop.sim.kernel): one model for every stop (DESIGN rule 1).
+"""The compiled stop model (railstop.model): one model for every stop (DESIGN rule 1).
 
 - Every controller, signal form and station variant: a run alone, recorded
   and its telegrams checked at the byte level, equals its row in a block.
@@ -33,13 +33,32 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
 from railstop.errors import SimulationError
 from railstop.jit import JIT_MODULES
+from railstop.model.build import KernelModel, scenario_arrays, stop_params
+from railstop.model.records import (
+    KP_DT,
+    KP_STEPS,
+    LA_LOST,
+    LA_SIZE,
+    RC_SIZE,
+    RC_STEPS,
+    RES_SIZE,
+    RUN_DTYPE,
+    SC_DEAD_TIME,
+    STREAMS,
+    TR_SIZE,
+    Recording,
+    RunParams,
+    StopOutputs,
+    new_record,
+)
+from railstop.model.run import block_state, run_kernel
+from railstop.model.step import stop_finish, stop_init, stop_step
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
-from railstop.sim.kernel import LA_LOST, KernelModel, run_kernel
 from railstop.sim.scenario import Scenario
 from railstop.sim.single import run_stop
-from railstop.streams import RunStreams
-from railstop.wayside.tasc_unit import SignalForm
+from railstop.streams import RunStreams, seed_key, seed_u64
+from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE, SignalForm
 
 LINE = default_line()
 VEHICLE = default_vehicle()
@@ -154,6 +173,49 @@ def test_continuous_update_counts_commands_to_each_runs_own_stop() -> None:
         assert alone.commands_received[0] == block.commands_received[i]
 
 
+@pytest.mark.parametrize("controller", ["tasc-pwm", "driver-ats"])
+def test_the_step_driven_from_python_equals_the_compiled_run(controller: str) -> None:
+    """DESIGN rule 2: the stop is a stepped model others can drive (a replay, a live process):
+    ``stop_init``, ``stop_step`` until the train stands, ``stop_finish``, called one at a time from
+    Python on the records, give run 3 of a block bit for bit, its recorded trace included."""
+    st = LINE.station("Riverside")
+    model = KernelModel.create(
+        station=st, vehicle=VEHICLE, controller=controller, form=None, dt_s=0.01, max_time_s=150.0
+    )
+    streams = RunStreams.for_runs(5, 0, 4)
+    scenario, _ = draw_scenario(HARSH, st, VEHICLE, streams)
+    res_block, passages_block, _ = run_kernel(model, scenario, seed=5, first_run=0)
+    _, _, rec_alone = run_kernel(model, _row(scenario, 3), seed=5, first_run=3, record=True)
+    assert rec_alone is not None
+    sc, bp, gv, ge = scenario_arrays(scenario)
+    ring = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1
+    s = block_state(model, ring)
+    p = stop_params(model, bp)
+    run = RunParams(sc=sc[3], grad=(bp, gv[3], ge[3]), derived=new_record(RUN_DTYPE))
+    rows = 2 * int(model.kp[KP_STEPS])
+    rec = Recording(
+        on=True,
+        trace=np.full((rows, TR_SIZE), np.nan),
+        commands=np.zeros((rows, CR_SIZE + 1)),
+        sends=np.zeros((rows, TEL_SIZE)),
+        attempts=np.zeros((rows, LA_SIZE)),
+        deliveries=np.zeros(rows),
+        counters=np.zeros(RC_SIZE, dtype=np.int64),
+    )
+    out = StopOutputs(res=np.empty(RES_SIZE), passages=np.empty(model.det_pos.size), rec=rec)
+    seed_keys = np.array([seed_key(seed_u64(5), int(k)) for k in STREAMS], dtype=np.uint64)
+    stop_init(p, run, s, out, seed_keys, 3)
+    k = 0
+    for k in range(int(model.kp[KP_STEPS])):
+        if stop_step(p, run, s, out, k):
+            break
+    stop_finish(p, run, s, out, k + 1)
+    np.testing.assert_array_equal(out.res, res_block[3])
+    np.testing.assert_array_equal(out.passages, passages_block[3])
+    assert s.train["stopped"][0]
+    np.testing.assert_array_equal(rec.trace[: rec.counters[RC_STEPS]], rec_alone.trace)
+
+
 def _row(scenario: Scenario, i: int) -> Scenario:
     """Run i of a scenario as a scenario of one run."""
     changes: dict[str, Any] = {}
@@ -258,18 +320,26 @@ def test_byte_link_checker_catches_a_disagreement() -> None:
 def test_every_module_with_compiled_code_is_in_the_cache_key() -> None:
     src = Path(__file__).resolve().parents[1] / "src" / "railstop"
     users = set()
+    imported: set[str] = set()  # the railstop modules compiled code imports from
     for path in src.rglob("*.py"):
         tree = ast.parse(path.read_text(encoding="utf-8"))
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom) and node.module == "railstop.jit":
-                users.add(path.relative_to(src).as_posix())
+        froms = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+        if "railstop.jit" in froms:
+            users.add(path.relative_to(src).as_posix())
+            imported |= froms
     assert users, "no module uses railstop.jit?"
-    assert users | {"jit.py"} == set(JIT_MODULES)
+    listed = set(JIT_MODULES)
+    assert users | {"jit.py"} <= listed
+    # Besides them, the record layouts whose constants and dtypes the compiled code is built with
+    # (railstop.model.records): each exists and is imported by a compiled module.
+    for extra in listed - users - {"jit.py"}:
+        assert (src / extra).is_file(), extra
+        assert "railstop." + extra.removesuffix(".py").replace("/", ".") in imported, extra
 
 
 def test_a_second_process_loads_the_compiled_model_from_the_cache(tmp_path: Path) -> None:
     code = (
-        "from railstop.sim.kernel import simulate_block, warm_up\n"
+        "from railstop.model.run import simulate_block, warm_up\n"
         "info = warm_up()\n"
         "print(info['compiled'], sum(simulate_block.stats.cache_hits.values()))\n"
     )

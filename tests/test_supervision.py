@@ -174,7 +174,7 @@ def test_onboard_overrun_guard_fires_on_its_own_odometry() -> None:
 
 def test_wayside_guard_sends_an_emergency_stop() -> None:
     """The wayside's Doppler sees a train too fast for the platform end: an emergency-stop telegram."""
-    from railstop.sim.kernel import KernelModel
+    from railstop.model.build import KernelModel
 
     model = KernelModel.create(
         station=RIVERSIDE, vehicle=VEHICLE, controller=TASC_PWM, form=None, dt_s=DT, max_time_s=150.0

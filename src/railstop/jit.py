@@ -8,7 +8,7 @@ Compiling the whole model takes tens of seconds, so the machine code is
 cached on disk and a later process loads it in a fraction of a second.
 numba's own cache checks only the timestamp of the file that defines a
 function, not of the files it calls into: a change to ``physics/brake.py``
-would leave a stale compiled stop kernel in ``sim/kernel.py``. The cache
+would leave a stale compiled stop model in ``model/run.py``. The cache
 folder is therefore named by a hash of *every* compiled module's source,
 numba's and Python's versions and the machine: any change gives a fresh
 folder, and stale code is never loaded.
@@ -55,7 +55,9 @@ JIT_MODULES: tuple[str, ...] = (
     "onboard/ato.py",
     "onboard/speed_supervision.py",
     "onboard/driver.py",
-    "sim/kernel.py",
+    "model/records.py",
+    "model/step.py",
+    "model/run.py",
 )
 
 

@@ -290,7 +290,7 @@ def compile_model(
     import time
 
     from railstop.live.tasc import warm_up as warm_up_live
-    from railstop.sim.kernel import warm_up
+    from railstop.model.run import warm_up
 
     t0 = time.perf_counter()
     info = warm_up()

@@ -71,8 +71,8 @@ from railstop.live.tasc import (
     pack_readings,
     station_models,
 )
+from railstop.model.records import KP_EMERGENCY
 from railstop.physics.plant import PlantParams, PlantState, plant_step, set_direction, track_gradient
-from railstop.sim.kernel import KP_EMERGENCY
 
 PLANT_ID = 0x0281  # the plant's end of the trains' wiring (their sensors and actuators)
 TRAINS_WIRING_ID = 0x4C00  # the trains process's end of that wiring

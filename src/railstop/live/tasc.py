@@ -64,23 +64,8 @@ from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import MAX_TRAINS, SENSORS_ID, Platforms
 from railstop.live.office import OfficeClient
-from railstop.onboard.tasc_receiver import (
-    CFG_PWM,
-    CFG_SWITCHED_PWM,
-    RP_CONFIG,
-    RX_EB,
-    RX_EB_T,
-    RX_FIRST_RX,
-    RX_SIZE,
-    receiver_cycle_1,
-    receiver_fix_1,
-    receiver_init_1,
-)
-from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
-from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
-from railstop.sensors.wayside import crossing_time_1, passage_1
-from railstop.sim.engine import command_records, telegram_of
-from railstop.sim.kernel import (
+from railstop.model.build import KernelModel, scenario_arrays
+from railstop.model.records import (
     KP_CRUSH,
     KP_DAVIS_A,
     KP_DAVIS_B,
@@ -112,11 +97,24 @@ from railstop.sim.kernel import (
     SC_TAU,
     SC_WEIGHING_ERROR,
     SC_WHEEL_D,
-    KernelModel,
-    own_command_1,
-    quantize_telegram_1,
-    scenario_arrays,
 )
+from railstop.model.step import own_command_1, quantize_telegram_1
+from railstop.onboard.tasc_receiver import (
+    CFG_PWM,
+    CFG_SWITCHED_PWM,
+    RP_CONFIG,
+    RX_EB,
+    RX_EB_T,
+    RX_FIRST_RX,
+    RX_SIZE,
+    receiver_cycle_1,
+    receiver_fix_1,
+    receiver_init_1,
+)
+from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
+from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
+from railstop.sensors.wayside import crossing_time_1, passage_1
+from railstop.sim.engine import command_records, telegram_of
 from railstop.sim.tasc_link import from_message, to_message
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import (

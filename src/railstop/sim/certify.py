@@ -95,6 +95,16 @@ from railstop.config.disturbances import (
 )
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
+from railstop.model.build import KernelModel
+from railstop.model.records import (
+    RES_ERROR,
+    RES_LOSS_TRIALS,
+    RES_LOSSES,
+    RES_MISS_TRIALS,
+    RES_MISSES,
+    RES_STOPPED,
+)
+from railstop.model.run import run_kernel
 from railstop.sim.engine import DT_S, MAX_TIME_S
 from railstop.sim.executor import blocks, execute
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, Stream, seed_in_range
@@ -304,16 +314,6 @@ def sample_block(
     spec: CertifySpec, proposal: Proposal, block: tuple[int, int], keep: bool = False
 ) -> BlockResult:
     """Draw runs ``block = (first, end)`` from ``proposal`` and simulate them (a pure function)."""
-    from railstop.sim.kernel import (
-        RES_ERROR,
-        RES_LOSS_TRIALS,
-        RES_LOSSES,
-        RES_MISS_TRIALS,
-        RES_MISSES,
-        RES_STOPPED,
-        KernelModel,
-        run_kernel,
-    )
 
     first, end = block
     n = end - first

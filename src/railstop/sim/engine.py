@@ -1,6 +1,6 @@
 """The stop engine's front: controllers, results, and ``run_batch`` over the compiled kernel.
 
-``run_batch`` simulates n stops through :mod:`railstop.sim.kernel` (the one
+``run_batch`` simulates n stops through :mod:`railstop.model.run` (the one
 compiled model, DESIGN rule 1): the detailed stop is n = 1 with recording
 on, a campaign block is n = 10^4 with recording off, and each run is the
 same machine code whatever block it is in. With recording on, the braking
@@ -25,9 +25,71 @@ from railstop.config.platform import PlatformFile
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, ONBOARD_CONTROLLERS, TASC_CONTROLLERS
 from railstop.errors import SimulationError
+from railstop.link.codec import Telegram, decode, encode, layout_of
+from railstop.model.build import KernelModel
+from railstop.model.records import (
+    LA_ARRIVAL,
+    LA_CORRUPT,
+    LA_FLIP,
+    LA_LOST,
+    LA_STEP,
+    RES_EB,
+    RES_EB_T,
+    RES_ERROR,
+    RES_FILLED,
+    RES_FIRST_ERROR,
+    RES_ID_DELAY,
+    RES_ID_LAG,
+    RES_LAMP,
+    RES_LEVEL,
+    RES_MAX_JERK,
+    RES_NOTCH_CHANGES,
+    RES_RECEIVED,
+    RES_RESTOPS,
+    RES_SENT,
+    RES_SLID,
+    RES_STOP_TIME,
+    RES_STOPPED,
+    TR_ACCEL,
+    TR_ACTION,
+    TR_BRAKE,
+    TR_DEMAND,
+    TR_DUTY,
+    TR_LAMP,
+    TR_LIMIT,
+    TR_NOTCH,
+    TR_OWN,
+    TR_SLIDE,
+    TR_SUPERVISION,
+    TR_SWITCH,
+    TR_T,
+    TR_TARGET,
+    TR_V,
+    TR_X,
+)
+from railstop.model.run import KernelRecord, run_kernel
 from railstop.sim.scenario import Scenario
+from railstop.sim.tasc_link import ByteLink, from_message, to_message
 from railstop.streams import RunStreams
-from railstop.wayside.tasc_unit import TEL_FIELDS, SignalForm, TascTelegrams, finite_or_none
+from railstop.wayside.tasc_unit import (
+    CR_COMMAND,
+    CR_DECEL,
+    CR_DELTA,
+    CR_DETECTOR,
+    CR_DISTANCE,
+    CR_EFFECT,
+    CR_EMERGENCY,
+    CR_GAIN,
+    CR_NOTCH,
+    CR_PASSAGE,
+    CR_REQUIRED,
+    CR_SPEED,
+    CR_T,
+    TEL_FIELDS,
+    SignalForm,
+    TascTelegrams,
+    finite_or_none,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -128,28 +190,6 @@ def run_batch(
     ``track``: the line's track circuits (``ato-corrected`` needs them); ``driver``,
     ``platform``, ``incapacitated``: the driver controllers' (``KernelModel.create``).
     """
-    from railstop.sim.kernel import (
-        RES_EB,
-        RES_EB_T,
-        RES_ERROR,
-        RES_FILLED,
-        RES_FIRST_ERROR,
-        RES_ID_DELAY,
-        RES_ID_LAG,
-        RES_LAMP,
-        RES_LEVEL,
-        RES_MAX_JERK,
-        RES_NOTCH_CHANGES,
-        RES_RECEIVED,
-        RES_RESTOPS,
-        RES_SENT,
-        RES_SLID,
-        RES_STOP_TIME,
-        RES_STOPPED,
-        KernelModel,
-        run_kernel,
-    )
-
     if controller not in CONTROLLERS:
         raise SimulationError(f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLERS)}")
     n = scenario.n
@@ -207,25 +247,6 @@ def run_batch(
 
 
 def _trace(tr: FloatArray) -> Trace:
-    from railstop.sim.kernel import (
-        TR_ACCEL,
-        TR_ACTION,
-        TR_BRAKE,
-        TR_DEMAND,
-        TR_DUTY,
-        TR_LAMP,
-        TR_LIMIT,
-        TR_NOTCH,
-        TR_OWN,
-        TR_SLIDE,
-        TR_SUPERVISION,
-        TR_SWITCH,
-        TR_T,
-        TR_TARGET,
-        TR_V,
-        TR_X,
-    )
-
     def col(j: int) -> FloatArray:
         return tr[:, j : j + 1].copy()
 
@@ -261,24 +282,6 @@ def command_records(rows: FloatArray, form: SignalForm, sends: FloatArray) -> li
     measurements only: their computed notch never went to the train, their telegram says so.
     The ATO controllers send nothing and have no records.
     """
-    from railstop.link.codec import decode, encode, layout_of
-    from railstop.sim.tasc_link import to_message
-    from railstop.wayside.tasc_unit import (
-        CR_COMMAND,
-        CR_DECEL,
-        CR_DELTA,
-        CR_DETECTOR,
-        CR_DISTANCE,
-        CR_EFFECT,
-        CR_EMERGENCY,
-        CR_GAIN,
-        CR_NOTCH,
-        CR_PASSAGE,
-        CR_REQUIRED,
-        CR_SPEED,
-        CR_T,
-    )
-
     if len(rows) != len(sends):
         raise SimulationError(f"{len(rows)} command records but {len(sends)} telegrams recorded")
     out = []
@@ -323,7 +326,7 @@ def telegram_of(row: FloatArray, form: SignalForm) -> TascTelegrams:
     return TascTelegrams(form=form, mask=np.ones(1, dtype=bool), **values)
 
 
-def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -> dict[str, int]:
+def check_byte_link(rec: KernelRecord, station: Station, form: SignalForm, dt_s: float) -> dict[str, int]:
     """Replay the kernel's link decisions through the real frames; return the frame counts.
 
     Every attempt the kernel did not lose is encoded, wrapped in a safety
@@ -334,10 +337,6 @@ def check_byte_link(rec: Any, station: Station, form: SignalForm, dt_s: float) -
     kernel's telegram field by field. The run ends at its stop:
     a frame still in the air then is never received (nor checked).
     """
-    from railstop.link.codec import Telegram, decode, encode
-    from railstop.sim.kernel import LA_ARRIVAL, LA_CORRUPT, LA_FLIP, LA_LOST, LA_STEP
-    from railstop.sim.tasc_link import ByteLink, from_message, to_message
-
     tasc = station.tasc
     link = ByteLink(category=tasc.safety_category, max_age_s=tasc.max_telegram_age_s)
     sends = {int(c[-1]): i for i, c in enumerate(rec.commands)}

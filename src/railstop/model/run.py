@@ -1,0 +1,200 @@
+"""The run loop of the station stop: ``simulate_run``, ``simulate_block``, and ``run_kernel`` for Python.
+
+``simulate_block`` simulates runs one after another, each from the start of
+the approach to standstill (no lockstep: a run ends at its own stop), every
+10 ms (the Doppler sample period of SPEC §1): ``simulate_run`` is
+``stop_init``, then ``stop_step`` until the train stands, then
+``stop_finish`` (:mod:`railstop.model.step`). The detailed stop is one run
+with recording on; a campaign runs blocks of runs on threads (the loop holds
+no GIL) or processes (DESIGN rule 1: one model for every stop).
+
+Splitting the old kernel (one 559-line function of 69 positional arrays)
+into these records and steps changed no result bit (every controller,
+station, signal form and disturbance set, recorded runs included). Thread
+CPU time per run before -> after (1000 runs of the standard set at
+Riverside, best of 2 x 3, on 2 cores under a load of 9): tasc-pwm 275 -> 269
+µs, tasc-step 497 -> 479, ato 246 -> 232, ato-corrected 379 -> 352,
+driver-ats 164 -> 166, driver-unaided 143 -> 149 (a driver's step is short,
+so the state's round trip through memory shows: +1 to +4 %), the ten
+controllers together 2658 -> 2585 µs. Why records, and how they are compiled:
+:mod:`railstop.model.records`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railstop.config import default_line, default_vehicle
+from railstop.errors import SimulationError
+from railstop.jit import cache_dir, njit, njit_step
+from railstop.model.build import DRIVER_MODES, KernelModel, scenario_arrays, stop_params
+from railstop.model.records import (
+    KP_DT,
+    KP_IN_FLIGHT,
+    KP_STEPS,
+    LA_SIZE,
+    RC_ATTEMPTS,
+    RC_COMMANDS,
+    RC_DELIVERIES,
+    RC_SIZE,
+    RC_STEPS,
+    RES_SIZE,
+    RUN_DTYPE,
+    SC_DEAD_TIME,
+    SC_ENTRY_SPEED,
+    STREAMS,
+    TR_SIZE,
+    FloatArray,
+    Recording,
+    RunParams,
+    StopOutputs,
+    StopParams,
+    StopState,
+    UintArray,
+    new_state,
+)
+from railstop.model.step import stop_finish, stop_init, stop_step
+from railstop.sim.scenario import Scenario
+from railstop.streams import seed_key, seed_u64
+from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE
+
+
+@njit_step
+def simulate_run(
+    p: StopParams, run: RunParams, s: StopState, out: StopOutputs, seed_keys: UintArray, run_index: int
+) -> None:
+    """Run ``run_index`` from the start of its approach to its stop (or the time limit)."""
+    stop_init(p, run, s, out, seed_keys, run_index)
+    k = 0
+    for k in range(int(p.kp[KP_STEPS])):
+        if stop_step(p, run, s, out, k):
+            break
+    stop_finish(p, run, s, out, k + 1)
+
+
+@njit
+def simulate_block(
+    seed: np.uint64,
+    first_run: int,
+    p: StopParams,
+    sc: FloatArray,
+    gv: FloatArray,
+    ge: FloatArray,
+    s: StopState,
+    res: FloatArray,
+    passages: FloatArray,
+    rec: Recording,
+) -> None:
+    """Simulate runs ``first_run .. first_run + n - 1`` (rows of the draws ``sc`` and of the
+    gradients ``gv``, ``ge``), one after another through the state ``s``; run 0 is recorded when
+    ``rec.on``."""
+    seed_keys = np.empty(STREAMS.size, dtype=np.uint64)
+    for i in range(STREAMS.size):
+        seed_keys[i] = seed_key(seed, STREAMS[i])
+    derived = np.zeros(1, dtype=RUN_DTYPE)
+    for r in range(sc.shape[0]):
+        run = RunParams(sc[r], (p.bp, gv[r], ge[r]), derived)
+        rec_r = Recording(
+            rec.on and r == 0, rec.trace, rec.commands, rec.sends, rec.attempts, rec.deliveries, rec.counters
+        )
+        simulate_run(p, run, s, StopOutputs(res[r], passages[r], rec_r), seed_keys, first_run + r)
+
+
+# --------------------------------------------------------------------------
+# The Python side: the records' arrays in, the results out.
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KernelRecord:
+    """What the kernel recorded of run 0 (the detailed stop)."""
+
+    trace: FloatArray  # (steps, TR_SIZE)
+    commands: FloatArray  # (k, CR_SIZE + 1): command records and the step they were sent in
+    sends: FloatArray  # (k, TEL_SIZE): the telegrams as quantised for the air
+    attempts: FloatArray  # (m, LA_SIZE)
+    deliveries: NDArray[np.int64]  # steps at which the pending telegram was delivered
+
+
+def block_state(model: KernelModel, ring_size: int) -> StopState:
+    """The state buffers of a block of runs of ``model`` (``ring_size``: the longest dead time in steps)."""
+    return new_state(
+        ring_size=ring_size,
+        window=model.window,
+        tach_window=model.tach_window,
+        in_flight=int(model.kp[KP_IN_FLIGHT]),
+        log_len=model.log_len,
+        circuits=model.tc_starts.size,
+    )
+
+
+def run_kernel(
+    model: KernelModel,
+    scenario: Scenario,
+    *,
+    seed: int,
+    first_run: int,
+    record: bool = False,
+) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
+    """Simulate ``scenario.n`` runs: (results (n, RES_SIZE), true passage times (n, D), record of run 0)."""
+    sc, bp, gv, ge = scenario_arrays(scenario)
+    if model.controller == "ato-corrected" and scenario.n:
+        # The train was corrected at the last circuit boundary behind its start (SPEC §2).
+        start = model.det_pos[0] - np.maximum(20.0, 1.5 * sc[:, SC_ENTRY_SPEED])
+        if np.any(start < model.tc_starts[0]):
+            raise SimulationError("ato-corrected: the approach starts before the first track circuit")
+    n = scenario.n
+    rows = int(model.kp[KP_STEPS]) if record else 1
+    if record and model.controller in DRIVER_MODES:
+        rows *= 2  # room for the re-stops after the first standstill
+    rec = Recording(
+        on=record,
+        trace=np.full((rows, TR_SIZE), np.nan),
+        commands=np.zeros((rows, CR_SIZE + 1)),
+        sends=np.zeros((rows, TEL_SIZE)),
+        attempts=np.zeros((rows, LA_SIZE)),
+        deliveries=np.zeros(rows),
+        counters=np.zeros(RC_SIZE, dtype=np.int64),
+    )
+    res = np.empty((n, RES_SIZE))
+    passages = np.empty((n, model.det_pos.size))
+    ring_size = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1 if n else 1
+    state = block_state(model, ring_size)
+    simulate_block(seed_u64(seed), first_run, stop_params(model, bp), sc, gv, ge, state, res, passages, rec)
+    if not record:
+        return res, passages, None
+    counters = rec.counters
+    return (
+        res,
+        passages,
+        KernelRecord(
+            trace=rec.trace[: counters[RC_STEPS]],
+            commands=rec.commands[: counters[RC_COMMANDS]],
+            sends=rec.sends[: counters[RC_COMMANDS]],
+            attempts=rec.attempts[: counters[RC_ATTEMPTS]],
+            deliveries=rec.deliveries[: counters[RC_DELIVERIES]].astype(np.int64),
+        ),
+    )
+
+
+def warm_up() -> dict[str, object]:
+    """Compile the kernel (or load it from the on-disk cache) by running one short stop without and
+    with recording: one compiled signature serves every controller, form and station.
+
+    Returns what happened: whether anything was compiled, and the cache folder.
+    """
+    line, vehicle = default_line(), default_vehicle()
+    station = line.stations[0]
+    scenario = Scenario.nominal(station, vehicle)
+    stats: Any = simulate_block.stats  # type: ignore[attr-defined]
+    misses_before = sum(stats.cache_misses.values())
+    model = KernelModel.create(
+        station=station, vehicle=vehicle, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
+    for record in (False, True):
+        run_kernel(model, scenario, seed=0, first_run=0, record=record)
+    compiled = sum(stats.cache_misses.values()) > misses_before
+    return {"compiled": compiled, "cache_dir": str(cache_dir())}
