@@ -187,3 +187,25 @@ class PgCluster:
 def restartable_postgres() -> Iterator[PgCluster]:
     with _throwaway_cluster("railstop-pg-restart-", synchronous_commit=False) as cluster:
         yield cluster
+
+
+# ---------------------------------------------------------------------- the order of the suite
+# The slow modules first: pytest-xdist hands out tests in collection order, so a long test left to
+# the end keeps one worker busy while the others idle. The live modules mostly wait on the wall
+# clock, so starting them early also overlaps their waiting with the compute-bound tests. Only
+# the order changes; every test still runs.
+
+_SLOW_FIRST = (
+    "test_zones_verify.py",
+    "test_live.py",
+    "test_control_room.py",
+    "test_control_room_security.py",
+    "test_live_attack.py",
+    "test_office_db.py",
+    "test_office.py",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(_SLOW_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(_SLOW_FIRST)))  # stable: same order within

@@ -31,6 +31,10 @@ from railstop.sim.zones_verify import (
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode, _Train
 
 EXE = [sys.executable, "-m", "railstop.cli"]
+# One worker runs this module (make test: --dist loadgroup), so its module fixture, the search of the
+# default model in both modes, is computed once.
+pytestmark = pytest.mark.xdist_group("zones-verify")
+
 MODEL = ZoneModel()  # 3 trains, 6 segments of 100 m, up to 3 reports lost in a row
 
 

@@ -54,7 +54,7 @@ LOOKAHEAD_S = 1.0 / SPEED_GAIN_PER_S
 
 def handover_m(first_detector_m: float, speed_mps: float) -> float:
     """Where the station stop takes the train over: 1.5 s (at least 20 m) before the first
-    detector, as the stop model starts its runs (``railstop.sim.kernel``)."""
+    detector, as the stop model starts its runs (``railstop.model``)."""
     return first_detector_m - max(20.0, 1.5 * speed_mps)
 
 

@@ -1,6 +1,6 @@
 """The brake chain of SPEC §1: brake line codes, PWM, brake ECU and actuator.
 
-The stop kernel (``railstop.sim.kernel``) runs the compiled scalar cores at
+The stop kernel (``railstop.model``) runs the compiled scalar cores at
 the end of this module, one run at a time (DESIGN rule 1); the kernel itself
 applies the ECU's load compensation.
 """

@@ -132,7 +132,10 @@ class PlantParams:
             motored_axle_fraction=traction.motored_axle_fraction,
             full_service_mps2=brake.full_service_mps2,
             emergency_mps2=brake.emergency_decel_mps2,
-            # As the stop kernel rounds them (``sim.kernel``): whole steps of dead time.
+            # As the stop kernel rounds them (``railstop.model.build``): whole steps of dead time.
+            # [interpretation] At the line's 0.1 s step the 0.35 s dead time becomes 0.3 s, within
+            # half a step of the stop model's (10 ms); the plant is the simulated truth, not a
+            # safety margin, so the nearest whole step, as in the stop model, not a rounding up.
             delay_steps=int(np.rint(brake.dead_time_s / dt_s)),
             jerk_step_mps2=brake.jerk_limit_mps3 * dt_s,
             lag_alpha=1.0 - math.exp(-dt_s / brake.time_constant_s),

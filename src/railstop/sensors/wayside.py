@@ -3,7 +3,7 @@
 SPEC §1 train detection unit: detectors at fixed chainages, first (farthest)
 first. A detector reports the passage of the train front (its first axle)
 with a timing jitter, and misses the train with some probability; the stop
-kernel (``railstop.sim.kernel``) draws both, and the Doppler radar's speed
+kernel (``railstop.model``) draws both, and the Doppler radar's speed
 samples with their relative noise, from the run's random streams.
 """
 
