@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.scenario import Scenario
 from railstop.config.schema import Line
 from railstop.errors import SimulationError
 from railstop.sim.engine import run_batch
-from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 
 LINE = default_line()

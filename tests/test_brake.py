@@ -19,6 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.scenario import Scenario
 from railstop.config.schema import BrakeModel
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES, external_params
@@ -42,7 +43,6 @@ from railstop.physics.brake import (
     pwm_to_decel_1,
 )
 from railstop.sim.engine import DT_S, Trace, run_batch
-from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import TEL_DUTY, TEL_NOTCH, TEL_SIZE, SignalForm
 

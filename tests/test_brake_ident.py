@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.scenario import Scenario
 from railstop.config.schema import Station
 from railstop.control.brake_ident import (
     AFTER_S,
@@ -24,7 +25,6 @@ from railstop.control.tasc import HISTORY, SAMPLES
 from railstop.controllers import TASC_PWM
 from railstop.model.build import KernelModel
 from railstop.sim.engine import BatchResult, run_batch
-from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import (
     FILL_MARGIN_M,

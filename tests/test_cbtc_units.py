@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from railstop.config import load_line
 from railstop.config.layout import Cbtc
+from railstop.control.supervision import EbCause
 from railstop.errors import ConfigError
 from railstop.link.codec import LAYOUTS, CbtcCommand, CbtcReport
 from railstop.messages import (
@@ -27,9 +28,6 @@ from railstop.messages import (
     PositionReport,
 )
 from railstop.onboard.cbtc import (
-    EB_MISSED_COMMANDS,
-    EB_OVERSPEED,
-    EB_POSITION,
     OnboardCbtc,
     intervention_speed_mps,
     permitted_speed_mps,
@@ -152,7 +150,7 @@ def test_two_missed_reports_make_a_lost_train_with_a_minimal_zone() -> None:
     command_for(unit, 1, 1000.0, 10.0, 0.1)
     # One missed report: still tracked.
     unit.on_timer(1.0 + 1e-6)
-    assert unit.trains[2].status == TrainStatus.TRACKED and unit.trains[2].missed == 1
+    assert unit.trains[2].status == TrainStatus.TRACKED and unit.trains[2].watchdog.missed == 1
     # The second: lost, zone set, from the segment of its rear to the segment of its end.
     unit.on_timer(1.25)
     assert unit.trains[2].status == TrainStatus.LOST and unit.counts.lost >= 1
@@ -300,7 +298,7 @@ def test_a_command_for_a_report_not_held_is_no_authority_and_counts_missed() -> 
         u.handle(cmd(900.0, 0.75), t + 0.2)
     assert u.refused_commands == 2 and u.authority_end_m == 800.0
     sent(u, 1.5)
-    assert u.emergency_brake and u.eb_cause == EB_MISSED_COMMANDS
+    assert u.emergency_brake and u.eb_cause == EbCause.MISSED_COMMANDS
 
 
 def test_an_out_of_order_or_too_old_command_is_no_authority() -> None:
@@ -343,7 +341,7 @@ def test_an_invalid_onboard_position_brakes_and_stops_the_reports(bad_u: float) 
     u.handle(position(500.0), 0.0)
     assert sent(u, 0.0).uncertainty_m == 0.0
     u.handle(position(510.0, 5.0, bad_u), 0.3)
-    assert u.emergency_brake and u.eb_cause == EB_POSITION
+    assert u.emergency_brake and u.eb_cause == EbCause.POSITION_INVALID
     assert u.on_timer(0.5) == []  # no report: the zone controller loses the train (SPEC §4)
 
 
@@ -355,14 +353,14 @@ def test_two_missed_commands_apply_the_emergency_brake_one_does_not() -> None:
     u.handle(position(500.0, 10.0), 0.4)
     r = sent(u, 0.5)  # answered
     sent(u, 1.0)  # one missed
-    assert not u.emergency_brake and u.missed == 1
+    assert not u.emergency_brake and u.watchdog.missed == 1
     u.handle(cmd(1000.0, r.time_s), 1.3)
     r = sent(u, 1.5)
     sent(u, 2.0)  # one missed again, not consecutive with the first
     assert not u.emergency_brake
     r = sent(u, 2.5)  # the second in a row
-    assert u.emergency_brake and u.eb_cause == EB_MISSED_COMMANDS
-    assert u.eb_count == 1 and u.eb_causes == {EB_MISSED_COMMANDS: 1}
+    assert u.emergency_brake and u.eb_cause == EbCause.MISSED_COMMANDS
+    assert u.eb_count == 1 and u.eb_causes == {EbCause.MISSED_COMMANDS: 1}
     # Latched while moving, even when commands come back ...
     u.handle(cmd(1000.0, r.time_s), 2.6)
     assert u.emergency_brake
@@ -409,7 +407,7 @@ def test_overspeed_against_the_intervention_curve_applies_the_emergency_brake() 
     assert not u.emergency_brake
     assert u.permitted_mps() <= ok - u.overspeed_tolerance_mps  # the driving curve stays under it
     u.handle(position(500.0, ok + 0.01), 0.3)
-    assert u.emergency_brake and u.eb_cause == EB_OVERSPEED
+    assert u.emergency_brake and u.eb_cause == EbCause.CBTC_OVERSPEED
 
 
 def test_the_growth_of_the_uncertainty_shortens_the_authority() -> None:
@@ -429,7 +427,7 @@ def test_no_command_no_authority_and_foreign_commands_are_ignored() -> None:
     # Moving without an authority is overspeed (DESIGN rule 10).
     moving = onboard()
     moving.handle(position(500.0, 3.0), 0.0)
-    assert moving.emergency_brake and moving.eb_cause == EB_OVERSPEED
+    assert moving.emergency_brake and moving.eb_cause == EbCause.CBTC_OVERSPEED
     r = sent(u, 0.0)
     u.handle(
         MovementCommand(
@@ -509,9 +507,9 @@ def test_impossible_braking_data_is_refused_naming_file_field_and_value(
 class AnchorsAtArrival(OnboardCbtc):
     """The old reading: the commanded distance added to where the train is when it arrives."""
 
-    def _on_command(self, message: MovementCommand) -> None:
+    def _on_command(self, message: MovementCommand, now_s: float) -> None:
         here = self.position_m
-        super()._on_command(message)
+        super()._on_command(message, now_s)
         if message.train_id == self.train_id and self.commands and not math.isnan(here):
             self.authority_end_m = here + self.sign * message.authority_m
 

@@ -39,10 +39,11 @@ from railstop.config.disturbances import (
     draw_scenario,
     load_disturbances,
 )
+from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import Station
 from railstop.errors import ConfigError
 from railstop.physics.train import GradientProfile
-from railstop.sim.scenario import KMH, Scenario, station_gradient
+from railstop.quantities import MPS_PER_KMH
 from railstop.streams import RunStreams
 
 FAST = settings(max_examples=40, deadline=None)
@@ -387,7 +388,7 @@ def test_low_adhesion_patches(big_draw: Any) -> None:
 
 def test_units_are_converted_to_the_scenario(big_draw: Any) -> None:
     scen, v = big_draw
-    np.testing.assert_array_equal(scen.entry_speed_mps, v["entry_speed_kmh"] * KMH)
+    np.testing.assert_array_equal(scen.entry_speed_mps, v["entry_speed_kmh"] * MPS_PER_KMH)
     np.testing.assert_array_equal(scen.load_factor, v["load_factor"])
     np.testing.assert_allclose(scen.load_weighing_error, v["load_weighing_error_pct"] / 100)
     np.testing.assert_array_equal(scen.brake_gain, v["brake_gain"])
@@ -466,7 +467,7 @@ def test_choice_picks_uniformly(tmp_path: Path) -> None:
     for value in (780.0, 820.0, 860.0):
         assert np.mean(x == value) == pytest.approx(1 / 3, abs=0.015)
     np.testing.assert_array_equal(v["entry_speed_kmh"], 50.0)
-    np.testing.assert_array_equal(scen.entry_speed_mps, 50.0 * KMH)
+    np.testing.assert_array_equal(scen.entry_speed_mps, 50.0 * MPS_PER_KMH)
 
 
 def test_certain_low_adhesion(tmp_path: Path) -> None:

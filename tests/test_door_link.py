@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from railstop.link.channel import ChannelParams, LinkError, media_preset
+from railstop.config.media import ChannelParams
+from railstop.link.channel import LinkError, media_preset
 from railstop.link.codec import DoorCommand, PsdStatus
 from railstop.link.door_link import DoorLink
 

@@ -9,13 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from railstop.config.doors import load_doors
+from railstop.config.doors import Action, ActionRow, ActionTable, load_doors
 from railstop.control.doors import (
     DOOR_TRANSITIONS,
     LOCKED_STATES,
-    Action,
-    ActionRow,
-    ActionTable,
     DoorInput,
     DoorSignals,
     DoorState,

@@ -11,12 +11,10 @@ from types import MappingProxyType
 
 import pytest
 
-from railstop.config.doors import load_doors
+from railstop.config.doors import Action, ActionRow, load_doors
 from railstop.control.doors import (
     CLOSED_STATES,
     DOOR_TRANSITIONS,
-    Action,
-    ActionRow,
     DoorInput,
     DoorState,
     Interlocks,

@@ -31,6 +31,7 @@ import pytest
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
+from railstop.config.scenario import Scenario
 from railstop.errors import SimulationError
 from railstop.jit import JIT_MODULES
 from railstop.model.build import KernelModel, scenario_arrays, stop_params
@@ -55,7 +56,6 @@ from railstop.model.run import block_state, run_kernel
 from railstop.model.step import stop_finish, stop_init, stop_step
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
-from railstop.sim.scenario import Scenario
 from railstop.sim.single import run_stop
 from railstop.streams import RunStreams, seed_key, seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE, SignalForm

@@ -12,15 +12,14 @@ import math
 import numpy as np
 import pytest
 
+from railstop.config.media import ChannelParams, load_media
 from railstop.errors import ConfigError, RailstopError
 from railstop.link.channel import (
-    ChannelParams,
     LinkError,
     SimChannel,
     airtime_s,
     corruption_probability,
     delivery_delay_s,
-    load_media,
     mean_delivery_delay_s,
     media_preset,
     propagation_delay_s,

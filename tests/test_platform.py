@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railstop.config.platform import StopSensors, load_platform
+from railstop.config.platform import StopSensors, load_platform, sensor_positions
 from railstop.errors import ConfigError, InterlockError
 from railstop.messages import PlatformLamps, PsdDoorState, SignalOpenSwitch, StopSensorScan
-from railstop.sensors.stop_sensors import sees, sensor_positions
+from railstop.sensors.stop_sensors import sees
 from railstop.wayside.platform import PlatformUnit
 
 DATA, _ = load_platform()

@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.scenario import Scenario
 from railstop.errors import RailstopError
 from railstop.report import plot_stop
 from railstop.sim.engine import BatchResult, run_batch
-from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

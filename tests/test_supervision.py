@@ -20,8 +20,13 @@ from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.control.notch import MOD_SIZE
 from railstop.control.supervision import (
     EB_ONBOARD_GUARD,
+    EB_OVERSPEED,
+    EB_PERMITTED_SPEED,
     EB_TIMEOUT,
     EB_WAYSIDE_GUARD,
+    EbCause,
+    Watchdog,
+    WatchdogLimits,
     eb_cause_name,
     overrun_guard_1,
 )
@@ -313,3 +318,47 @@ def test_emergency_stop_telegram_on_the_wire() -> None:
     msg = TascEmergencyStop(train_id=1, detector=4)
     assert decode(encode(msg)) == msg
     assert TEL_EMERGENCY > 0
+
+
+def test_every_emergency_brake_cause_has_its_own_label_and_the_model_codes_stay() -> None:
+    """DESIGN rule 4: one enum names every cause of the tree. Its label is what is printed, stored
+    and counted by cause, so no two causes share one; the compiled model's codes keep their values
+    (recorded results hold them) and 0 stays "none"."""
+    labels = [c.label for c in EbCause]
+    assert len(set(labels)) == len(labels) == len(EbCause)
+    codes = (EB_TIMEOUT, EB_ONBOARD_GUARD, EB_WAYSIDE_GUARD, EB_OVERSPEED, EB_PERMITTED_SPEED)
+    assert codes == (1, 2, 3, 4, 5)
+    assert eb_cause_name(0) is None
+    assert all(eb_cause_name(int(c)) == c.label for c in EbCause)
+
+
+def test_a_watchdog_timed_from_its_feed_counts_each_cycle_late_by_the_grace() -> None:
+    """SPEC §4 (the zone controller's view of a train's reports): the k-th cycle after the last
+    feed is missed ``grace_cycles`` after it was due; at ``misses`` it has expired and asks for no
+    more wake-ups; a feed starts over."""
+    lim = WatchdogLimits(period_s=0.5, misses=2, grace_cycles=0.5)
+    w = Watchdog(lim)
+    w.feed(10.0)
+    first = 10.0 + 1.5 * lim.period_s
+    assert w.next_deadline_s() == first
+    assert not w.expired(first - 0.01) and w.missed == 0
+    assert not w.expired(first) and w.missed == 1
+    assert w.expired(first + lim.period_s) and w.missed == 2 and w.next_deadline_s() is None
+    assert w.expired(first + 10.0) and w.missed == 2  # the count stops at the limit
+    w.clear_misses()  # forgiven, still timed from the feed: expired again at once
+    assert w.next_deadline_s() == first and w.expired(first + 10.0)
+    w.feed(20.0)
+    assert w.missed == 0 and w.next_deadline_s() == 20.0 + 1.5 * lim.period_s
+
+
+def test_a_watchdog_on_its_holders_cycle_counts_the_cycles_without_a_feed() -> None:
+    """SPEC §4 (the onboard unit's view of the commands): a report cycle without a command is one
+    missed; ``misses`` in a row expire it, a command in between starts the count over."""
+    w = Watchdog(WatchdogLimits(period_s=1.0, misses=2))
+    assert not w.end_cycle()  # nothing to miss before the first cycle
+    assert not w.end_cycle() and w.missed == 1
+    w.feed(2.5)
+    assert not w.end_cycle() and w.missed == 0  # the cycle saw the feed
+    assert not w.end_cycle() and w.missed == 1
+    assert w.end_cycle() and w.missed == 2
+    assert w.end_cycle() and w.missed == 3  # still expired, counted on

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.scenario import Scenario
 from railstop.control.tasc import fit_passages_1, fit_ring_1, propagate_1, required_decel_1
 from railstop.sim.engine import TASC_CONTROLLERS, run_batch
-from railstop.sim.scenario import Scenario
 from railstop.sim.single import run_stop
 from railstop.streams import RunStreams
 

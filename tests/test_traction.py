@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from railstop.config import default_line, default_vehicle
 from railstop.physics.traction import traction_adhesion_limit_mps2, traction_step, tractive_effort_n
 from railstop.physics.train import G_MPS2, TrainMass, odometer_increment_m
+from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, creep_factor
 from railstop.sim.position_run import PositionRunResult, PositionRunSettings, run_position
 
@@ -25,7 +26,6 @@ VEHICLE = default_vehicle()
 LINE = default_line()
 assert VEHICLE.traction is not None
 TRACTION = VEHICLE.traction
-KMH = 1.0 / 3.6
 EMPTY = TrainMass.create(VEHICLE, np.zeros(1), np.zeros(1))
 
 
@@ -33,14 +33,14 @@ def test_default_traction_is_a_metro_emu() -> None:
     # ~1.0 m/s² starting acceleration aim; the curve could give more to an empty train.
     assert TRACTION.max_accel_mps2 == pytest.approx(1.0)
     assert TRACTION.max_force_n / EMPTY.effective_kg[0] > 1.0
-    assert TRACTION.max_power_w == pytest.approx(TRACTION.max_force_n * TRACTION.base_speed_kmh * KMH)
+    assert TRACTION.max_power_w == pytest.approx(TRACTION.max_force_n * TRACTION.base_speed_kmh * MPS_PER_KMH)
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.floats(min_value=0.0, max_value=40.0))
 def test_tractive_effort_constant_force_then_constant_power(v: float) -> None:
     f = float(tractive_effort_n(TRACTION, np.array([v]))[0])
-    base = TRACTION.base_speed_kmh * KMH
+    base = TRACTION.base_speed_kmh * MPS_PER_KMH
     if v <= base:
         assert f == pytest.approx(TRACTION.max_force_n)
     else:
@@ -49,7 +49,7 @@ def test_tractive_effort_constant_force_then_constant_power(v: float) -> None:
 
 
 def test_tractive_effort_continuous_and_falling() -> None:
-    base = TRACTION.base_speed_kmh * KMH
+    base = TRACTION.base_speed_kmh * MPS_PER_KMH
     v = np.linspace(0.0, 30.0, 3001)
     f = tractive_effort_n(TRACTION, v)
     assert np.all(np.diff(f) <= 1e-6)
@@ -111,8 +111,8 @@ def plain_run() -> PositionRunResult:
 def test_run_keeps_the_limits_and_stops_at_every_station(plain_run: PositionRunResult) -> None:
     res = plain_run
     x, v, t = res.true_m[:, 0], res.speed_mps[:, 0], res.t_s
-    assert np.max(v) <= LINE.line.speed_limit_kmh * KMH + 1e-6  # never above the line's limit
-    assert np.max(v) >= (LINE.line.speed_limit_kmh - 2.0) * KMH  # and up to it somewhere
+    assert np.max(v) <= LINE.line.speed_limit_kmh * MPS_PER_KMH + 1e-6  # never above the line's limit
+    assert np.max(v) >= (LINE.line.speed_limit_kmh - 2.0) * MPS_PER_KMH  # and up to it somewhere
     for station in LINE.stations:
         at_rest = (v == 0.0) & (np.abs(x - station.stop_point_m) < 30.0)
         assert at_rest.any(), f"no stop at {station.name}"

@@ -15,6 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from railstop.config.layout import Cbtc
+from railstop.control.supervision import EbCause
 from railstop.messages import MovementCommand, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
 from railstop.sim import zones_verify
@@ -142,16 +143,16 @@ class NeverLoses(ZoneController):
 class NeverBrakes(OnboardCbtc):
     """An onboard unit whose emergency brake never applies."""
 
-    def _brake(self, cause: str) -> None:
+    def _brake(self, cause: EbCause) -> None:
         pass
 
 
 class KeepsTheLongestAuthority(OnboardCbtc):
     """An onboard unit that never lets a command shorten the authority it holds."""
 
-    def _on_command(self, message: MovementCommand) -> None:
+    def _on_command(self, message: MovementCommand, now_s: float) -> None:
         held = self.authority_end_m
-        super()._on_command(message)
+        super()._on_command(message, now_s)
         if not math.isnan(held):
             self.authority_end_m = max(held, self.authority_end_m)
 

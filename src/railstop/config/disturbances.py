@@ -1,4 +1,4 @@
-"""Disturbance sets: TOML data -> per-run :class:`~railstop.sim.scenario.Scenario` (DESIGN rules 3, 4, 6).
+"""Disturbance sets: TOML data -> per-run :class:`~railstop.config.scenario.Scenario` (DESIGN rules 3, 4, 6).
 
 A disturbance file maps parameter names to distributions::
 
@@ -59,10 +59,11 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
 
 from railstop.config.loader import format_loc, read_toml, validate
+from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import FieldProblem, Station, Vehicle
 from railstop.errors import ConfigError
 from railstop.physics.train import GradientProfile
-from railstop.sim.scenario import KMH, Scenario, station_gradient
+from railstop.quantities import MPS_PER_KMH
 from railstop.streams import RunStreams, Stream
 
 FloatArray = NDArray[np.float64]
@@ -400,7 +401,7 @@ def quantile(dist: Distribution, u: FloatArray) -> FloatArray:
         values = np.asarray(dist.choice, dtype=np.float64)
         return values[np.minimum((u * values.size).astype(np.int64), values.size - 1)]
     if dist.normal is not None:
-        from scipy.special import ndtri
+        from scipy.special import ndtri  # lazy (start-up): scipy loads slowly; only a normal needs it
 
         mean, sd = dist.normal
         with np.errstate(invalid="ignore"):
@@ -496,7 +497,7 @@ def _gradient(
 # Parameter -> (Scenario field, factor from the file unit to SI). Absent parameters keep
 # the nominal field; gradients and low adhesion are built separately.
 _TO_SCENARIO: dict[str, tuple[str, float]] = {
-    "entry_speed_kmh": ("entry_speed_mps", KMH),
+    "entry_speed_kmh": ("entry_speed_mps", MPS_PER_KMH),
     "load_factor": ("load_factor", 1.0),
     "load_weighing_error_pct": ("load_weighing_error", 1e-2),
     "brake_gain": ("brake_gain", 1.0),

@@ -8,17 +8,107 @@ edited table by exhaustive search.
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
+from types import MappingProxyType
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
 from railstop.config.loader import data_text, read_toml, validate
 from railstop.config.schema import FieldProblem, _Model
-from railstop.control.doors import Action, ActionRow, ActionTable, DoorState
+from railstop.errors import ConfigError
+from railstop.quantities import kmh_to_mps
 
 DEFAULT_DOORS = "doors.toml"
-KMH_PER_MPS = 3.6
+
+# SPEC §5 Table 1, the door action table, as the units read it: the 16 rows of the data file as they
+# are (``railstop doors verify`` proves or refutes them), with the one reading of them (``decide``).
+
+
+class Action(StrEnum):
+    """The cells of SPEC §5 Table 1."""
+
+    KEEP_CLOSED = "keep-closed"
+    OPEN = "open"
+    KEEP_OPEN = "keep-open"
+    CLOSE = "close"
+
+
+Signals4 = tuple[int, int, int, int]  # (DOA, DMC, DOC, DCC) of one side, 0 or 1
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ActionRow:
+    """One row of SPEC §5 Table 1: what a closed door and an open door do for these signals."""
+
+    doa: int
+    dmc: int
+    doc: int
+    dcc: int
+    closed: Action  # keep-closed | open
+    open: Action  # keep-open | close
+    open_manual: Action | None = None  # manual driving, where it differs from ``open``
+
+    @property
+    def key(self) -> Signals4:
+        return (self.doa, self.dmc, self.doc, self.dcc)
+
+
+@dataclass(frozen=True, slots=True)
+class ActionTable:
+    """SPEC §5 Table 1 as data: all 16 combinations of (DOA, DMC, DOC, DCC), used as they are.
+
+    ``decide`` is the only reading of the table: a door in the "closed"
+    column gets ``open`` or nothing, a door in the "open" column gets
+    ``close`` or nothing ("keep" = no command: a moving door finishes its move).
+    """
+
+    rows: tuple[ActionRow, ...]
+    _lookup: Mapping[tuple[int, int, int, int, bool, bool], Action] = field(
+        init=False, repr=False, compare=False
+    )
+
+    def __post_init__(self) -> None:
+        keys = [r.key for r in self.rows]
+        expected = {(a, b, c, d) for a in (0, 1) for b in (0, 1) for c in (0, 1) for d in (0, 1)}
+        if len(keys) != 16 or set(keys) != expected:
+            raise ConfigError(
+                "door action table", "rows", "need the 16 combinations of (DOA, DMC, DOC, DCC) once each"
+            )
+        lookup: dict[tuple[int, int, int, int, bool, bool], Action] = {}
+        for r in self.rows:
+            if r.closed not in (Action.KEEP_CLOSED, Action.OPEN):
+                raise ConfigError(
+                    "door action table", f"{r.key}.closed", "must be open or keep-closed", r.closed
+                )
+            for manual in (False, True):
+                when_open = r.open_manual if (manual and r.open_manual is not None) else r.open
+                if when_open not in (Action.KEEP_OPEN, Action.CLOSE):
+                    raise ConfigError(
+                        "door action table", f"{r.key}.open", "must be close or keep-open", when_open
+                    )
+                lookup[(*r.key, True, manual)] = r.closed
+                lookup[(*r.key, False, manual)] = when_open
+        object.__setattr__(self, "_lookup", MappingProxyType(lookup))
+
+    def decide(self, doa: bool, dmc: bool, doc: bool, dcc: bool, *, closed: bool, manual: bool) -> Action:
+        """What a door does for these signals (``closed``: the door is now closed)."""
+        return self._lookup[(int(doa), int(dmc), int(doc), int(dcc), closed, manual)]
+
+    def row(self, doa: int, dmc: int, doc: int, dcc: int) -> ActionRow:
+        for r in self.rows:
+            if r.key == (doa, dmc, doc, dcc):
+                return r
+        raise KeyError((doa, dmc, doc, dcc))  # pragma: no cover - __post_init__ guarantees all 16
+
+    def replace_row(self, new: ActionRow) -> ActionTable:
+        """A copy with the row of ``new.key`` replaced (what-if tables, broken tables in tests)."""
+        return ActionTable(tuple(new if r.key == new.key else r for r in self.rows))
+
 
 Bit = Literal[0, 1]
 Seconds = Annotated[float, Field(gt=0.0, le=600.0, allow_inf_nan=False)]
@@ -49,17 +139,6 @@ class DoorTiming(_Model):
     obstruction_clear_s: Seconds
     psd_jam_at_s: Seconds
     staff_isolation_s: Seconds
-
-    def motion_s(self, state: DoorState, *, psd: bool) -> float | None:
-        """How long the motion a door unit has just begun lasts: opening, closing, or locking once
-        closed (None: ``state`` is not a motion)."""
-        if state == DoorState.OPENING:
-            return self.psd_open_s if psd else self.train_door_open_s
-        if state == DoorState.CLOSING:
-            return self.psd_close_s if psd else self.train_door_close_s
-        if state == DoorState.CLOSED:
-            return self.psd_lock_s if psd else self.train_door_lock_s
-        return None
 
     @model_validator(mode="after")
     def _order(self) -> DoorTiming:
@@ -96,7 +175,7 @@ class StopConfirmModel(_Model):
 
     @property
     def creep_speed_mps(self) -> float:
-        return self.creep_speed_kmh / KMH_PER_MPS
+        return kmh_to_mps(self.creep_speed_kmh)
 
 
 class DoorLinkModel(_Model):
@@ -189,8 +268,6 @@ class DoorsConfig:
 
     def fingerprint(self) -> str:
         """A short stable digest of the data (part of a dwell's database key)."""
-        import hashlib
-
         text = self.file.model_dump_json()
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 

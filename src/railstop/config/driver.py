@@ -21,6 +21,7 @@ from pydantic import Field, field_validator, model_validator
 from railstop.config.base import FieldProblem, Model
 from railstop.config.disturbances import Distribution
 from railstop.config.loader import data_text, read_toml, validate
+from railstop.quantities import kmh_to_mps
 
 DEFAULT_DRIVER = "driver.toml"
 
@@ -157,7 +158,7 @@ def driver_arrays(driver: DriverFile) -> tuple[NDArray[np.float64], NDArray[np.f
     r = driver.restop
     restop = np.array(
         [
-            r.creep_speed_kmh / 3.6,
+            kmh_to_mps(r.creep_speed_kmh),
             r.creep_accel_mps2,
             r.creep_decel_mps2,
             r.judgement_sd_pct / 100.0,

@@ -36,6 +36,13 @@ class StopSensors(Model):
     debounce_scans: Annotated[int, Field(ge=1, le=100)] = 3
 
 
+def sensor_positions(stop_point_m: float, spacing_m: float) -> tuple[float, float]:
+    """(S2, S1) chainages of the stop sensors (SPEC §3) for a train running in +chainage: S2 first,
+    S1 ``spacing_m`` on.
+    [interpretation] symmetric about the stopping point (see ``platform.toml``)."""
+    return stop_point_m - 0.5 * spacing_m, stop_point_m + 0.5 * spacing_m
+
+
 class DoorCamera(Model):
     """SPEC §3: the CCD camera that shows the PSD control the train doors' shape (open / closed)."""
 
@@ -127,9 +134,7 @@ class PlatformFile(Model):
 
     def home_signal_m(self, stop_point_m: float) -> float:
         """The home signal's chainage for a stopping point: SPEC §3 fig. 3 puts S2
-        ``approach.home_to_s2_m`` beyond it (S2 from sensors.stop_sensors ``sensor_positions``)."""
-        from railstop.sensors.stop_sensors import sensor_positions
-
+        ``approach.home_to_s2_m`` beyond it (S2 from :func:`sensor_positions`)."""
         s2, _ = sensor_positions(stop_point_m, self.sensors.spacing_m)
         return s2 - self.approach.home_to_s2_m
 

@@ -23,9 +23,10 @@ from pathlib import Path
 
 from railstop.config.disturbances import APPROACH_BEFORE_FIRST_DETECTOR_M
 from railstop.config.loader import line_source, load_line, load_vehicle
+from railstop.config.media import MEDIA_FILE, load_media
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.errors import ConfigError, RailstopError
-from railstop.link.channel import MEDIA_FILE, load_media
+from railstop.quantities import kmh_to_mps
 
 G_MPS2 = 9.80665
 # [interpretation] SPEC §1 has the wayside compute the braking the train needs from the first
@@ -52,7 +53,7 @@ def _worst_permille(station: Station, start_m: float, end_m: float) -> float:
 def stopping_distance_m(station: Station, vehicle: Vehicle, speed_kmh: float) -> float:
     """From the first detector at ``speed_kmh``: dead time and build-up at speed, then braking at
     ``BRAKE_MARGIN`` of full service less the zone's steepest downhill (inf if that cannot stop)."""
-    v = speed_kmh / 3.6
+    v = kmh_to_mps(speed_kmh)
     brake = vehicle.brake
     first = station.detector_positions_m()[0]
     grade = _worst_permille(station, first, station.stop_point_m)

@@ -22,6 +22,8 @@ from railstop.config.layout import (
     check_segments,
     check_speed_limits,
 )
+from railstop.errors import SimulationError
+from railstop.quantities import KMH_PER_MPS
 
 __all__ = ["FieldProblem", "FiniteFloat", "Fraction", "NonNegFloat", "PositiveFloat"]
 
@@ -332,8 +334,6 @@ class Line(_Model):
         for s in self.stations:
             if s.name.lower() == name.lower():
                 return s
-        from railstop.errors import SimulationError
-
         raise SimulationError(
             f"unknown station {name!r}; this line has: {', '.join(s.name for s in self.stations)}"
         )
@@ -409,7 +409,7 @@ class Traction(_Model):
 
     @property
     def max_power_w(self) -> float:
-        return self.max_force_n * self.base_speed_kmh / 3.6
+        return self.max_force_n * self.base_speed_kmh / KMH_PER_MPS  # F x v, v from km/h
 
 
 class Positioning(_Model):

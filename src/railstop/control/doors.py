@@ -3,24 +3,25 @@
 SPEC §5 Table 1 (the door action table) is data (``railstop/data/doors.toml``,
 DESIGN rule 3): for the four signals of one side (DOA, DMC, DOC, DCC) it says
 what a door that is now closed does and what a door that is now open does.
-``ActionTable`` uses those rows as they are; it never "corrects" them, so that
-``railstop doors verify`` can prove (or refute) an edited table.
+``config.doors.ActionTable`` holds those rows as they are; it never "corrects"
+them, so that ``railstop doors verify`` can prove (or refute) an edited table.
 
 A door unit (one train door leaf pair, or one PSD door unit) is a small state
 machine with its transitions in ``DOOR_TRANSITIONS`` (DESIGN rule 2). The same
 table serves train doors and PSD units (SPEC §5: "PSD behaves like the train
-door"); only the durations differ, and they are data too.
+door"); only the durations differ, and they are data too (:func:`motion_s`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
 from types import MappingProxyType
 from typing import NamedTuple
 
-from railstop.errors import ConfigError, InterlockError
+from railstop.config.doors import DoorTiming
+from railstop.errors import InterlockError
 
 
 class Side(StrEnum):
@@ -141,85 +142,16 @@ def door_next(
         raise InterlockError(f"{name}: input {inp.value!r} is not allowed in state {state.value!r}") from None
 
 
-class Action(StrEnum):
-    """The cells of SPEC §5 Table 1."""
-
-    KEEP_CLOSED = "keep-closed"
-    OPEN = "open"
-    KEEP_OPEN = "keep-open"
-    CLOSE = "close"
-
-
-Signals4 = tuple[int, int, int, int]  # (DOA, DMC, DOC, DCC) of one side, 0 or 1
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ActionRow:
-    """One row of SPEC §5 Table 1: what a closed door and an open door do for these signals."""
-
-    doa: int
-    dmc: int
-    doc: int
-    dcc: int
-    closed: Action  # keep-closed | open
-    open: Action  # keep-open | close
-    open_manual: Action | None = None  # manual driving, where it differs from ``open``
-
-    @property
-    def key(self) -> Signals4:
-        return (self.doa, self.dmc, self.doc, self.dcc)
-
-
-@dataclass(frozen=True, slots=True)
-class ActionTable:
-    """SPEC §5 Table 1 as data: all 16 combinations of (DOA, DMC, DOC, DCC), used as they are.
-
-    ``decide`` is the only reading of the table: a door in the "closed"
-    column gets ``open`` or nothing, a door in the "open" column gets
-    ``close`` or nothing ("keep" = no command: a moving door finishes its move).
-    """
-
-    rows: tuple[ActionRow, ...]
-    _lookup: Mapping[tuple[int, int, int, int, bool, bool], Action] = field(
-        init=False, repr=False, compare=False
-    )
-
-    def __post_init__(self) -> None:
-        keys = [r.key for r in self.rows]
-        expected = {(a, b, c, d) for a in (0, 1) for b in (0, 1) for c in (0, 1) for d in (0, 1)}
-        if len(keys) != 16 or set(keys) != expected:
-            raise ConfigError(
-                "door action table", "rows", "need the 16 combinations of (DOA, DMC, DOC, DCC) once each"
-            )
-        lookup: dict[tuple[int, int, int, int, bool, bool], Action] = {}
-        for r in self.rows:
-            if r.closed not in (Action.KEEP_CLOSED, Action.OPEN):
-                raise ConfigError(
-                    "door action table", f"{r.key}.closed", "must be open or keep-closed", r.closed
-                )
-            for manual in (False, True):
-                when_open = r.open_manual if (manual and r.open_manual is not None) else r.open
-                if when_open not in (Action.KEEP_OPEN, Action.CLOSE):
-                    raise ConfigError(
-                        "door action table", f"{r.key}.open", "must be close or keep-open", when_open
-                    )
-                lookup[(*r.key, True, manual)] = r.closed
-                lookup[(*r.key, False, manual)] = when_open
-        object.__setattr__(self, "_lookup", MappingProxyType(lookup))
-
-    def decide(self, doa: bool, dmc: bool, doc: bool, dcc: bool, *, closed: bool, manual: bool) -> Action:
-        """What a door does for these signals (``closed``: the door is now closed)."""
-        return self._lookup[(int(doa), int(dmc), int(doc), int(dcc), closed, manual)]
-
-    def row(self, doa: int, dmc: int, doc: int, dcc: int) -> ActionRow:
-        for r in self.rows:
-            if r.key == (doa, dmc, doc, dcc):
-                return r
-        raise KeyError((doa, dmc, doc, dcc))  # pragma: no cover - __post_init__ guarantees all 16
-
-    def replace_row(self, new: ActionRow) -> ActionTable:
-        """A copy with the row of ``new.key`` replaced (what-if tables, broken tables in tests)."""
-        return ActionTable(tuple(new if r.key == new.key else r for r in self.rows))
+def motion_s(timing: DoorTiming, state: DoorState, *, psd: bool) -> float | None:
+    """How long the motion a door unit has just begun lasts (``timing``: the door data): opening,
+    closing, or locking once closed (None: ``state`` is not a motion)."""
+    if state == DoorState.OPENING:
+        return timing.psd_open_s if psd else timing.train_door_open_s
+    if state == DoorState.CLOSING:
+        return timing.psd_close_s if psd else timing.train_door_close_s
+    if state == DoorState.CLOSED:
+        return timing.psd_lock_s if psd else timing.train_door_lock_s
+    return None
 
 
 def table_column(state: DoorState) -> bool | None:

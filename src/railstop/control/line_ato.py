@@ -29,9 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Line
+from railstop.quantities import MPS_PER_KMH
 
 FloatArray = NDArray[np.float64]
-KMH = 1.0 / 3.6
 
 #: Resolution of the static profile (m).
 PROFILE_DX_M = 1.0
@@ -64,14 +64,14 @@ def static_profile(line: Line, end_m: float, decel_mps2: float) -> FloatArray:
     each lower value approached on a braking curve at ``decel_mps2`` (a backward pass)."""
     n = int(np.ceil(end_m / PROFILE_DX_M)) + 1
     x = np.arange(n) * PROFILE_DX_M
-    v = np.full(n, line.line.speed_limit_kmh * KMH)
+    v = np.full(n, line.line.speed_limit_kmh * MPS_PER_KMH)
     for lim in line.speed_limits:
         # The front must be below the limit from its start; the rear until it has passed the
         # end is the train's business at the stop (the limits here are curves, not turnouts).
         inside = (x >= lim.start_m) & (x < lim.end_m)
-        v[inside] = np.minimum(v[inside], lim.limit_kmh * KMH)
+        v[inside] = np.minimum(v[inside], lim.limit_kmh * MPS_PER_KMH)
     for st in line.stations:
-        entry = st.tasc.entry_speed_kmh * KMH
+        entry = st.tasc.entry_speed_kmh * MPS_PER_KMH
         k = round(handover_m(st.detector_positions_m()[0], entry) / PROFILE_DX_M)
         if 0 <= k < n:
             v[k] = min(v[k], entry)
@@ -117,5 +117,5 @@ def demand_mps2(speed_mps: float, ceiling: float, traction_mps2: float, brake_mp
     """The ATO's acceleration demand: towards the ceiling, at most what traction gives, at least
     -``brake_mps2`` (full service: the ceiling is planned at less, so the curve can be held).
     Aiming 0.5 km/h under the ceiling keeps it from riding the limit."""
-    target = ceiling - 0.5 * KMH
+    target = ceiling - 0.5 * MPS_PER_KMH
     return min(max(SPEED_GAIN_PER_S * (target - speed_mps), -brake_mps2), traction_mps2)

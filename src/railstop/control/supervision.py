@@ -12,32 +12,77 @@ the brake line). Two rules use it:
   full service after the brake's response time, the service brake can no
   longer do it -> emergency brake.
 
-The causes are numbered for the results (``EB_*``); a run records the first
-cause and the time it fired. The emergency brake is latched to standstill.
+Every emergency brake of the tree has its cause in one enum, :class:`EbCause` (DESIGN rule 4:
+one name for one thing): the stop model's supervision above, the CBTC units of SPEC §4 and the
+live processes. A run of the compiled model records the first cause as its int value (the
+``EB_*`` constants, 0: none) and the time it fired; what is printed, stored or sent as JSON is the
+cause's ``label`` (the strings the office, the database and the tests read). The emergency brake
+is latched to standstill.
+
+The CBTC units' supervision of the reports and commands that must keep arriving is a
+:class:`Watchdog` (SPEC §4: 2 missed reports -> lost, 2 missed commands -> emergency brake).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
 from railstop.jit import njit_inline
 
-EB_NONE = 0
-EB_TIMEOUT = 1  # onboard: no braking telegram for supervision_timeout_s inside the zone
-EB_ONBOARD_GUARD = 2  # onboard: overrun guard on the train's own odometry
-EB_WAYSIDE_GUARD = 3  # wayside: overrun guard on the Doppler / passage measurements, by telegram
-EB_OVERSPEED = 4  # SPEC §3 ATS / ATC: over the limit or indicated speed for longer than the grace
-EB_PERMITTED_SPEED = 5  # SPEC §3 ATC: above the permitted speed
 
-EB_CAUSES: dict[int, str] = {
-    EB_TIMEOUT: "telegram-timeout",
-    EB_ONBOARD_GUARD: "onboard-overrun-guard",
-    EB_WAYSIDE_GUARD: "wayside-overrun-guard",
-    EB_OVERSPEED: "overspeed-3s",
-    EB_PERMITTED_SPEED: "over-permitted",
+class EbCause(IntEnum):
+    """Why an emergency brake was applied. The values 1-5 are the compiled stop model's codes
+    (``RX_EB``, ``SV_EB``, the results' ``emergency_brake``; 0 there means none) and never change:
+    recorded results hold them."""
+
+    TELEGRAM_TIMEOUT = 1  # onboard TASC: no braking telegram for supervision_timeout_s in the zone
+    ONBOARD_OVERRUN_GUARD = 2  # onboard TASC: overrun guard on the train's own odometry
+    WAYSIDE_OVERRUN_GUARD = 3  # wayside TASC: overrun guard on the Doppler / passages, by telegram
+    OVERSPEED_GRACE = 4  # SPEC §3 ATS / ATC: over the limit or indicated speed longer than the grace
+    OVER_PERMITTED = 5  # SPEC §3 ATC: above the permitted speed
+    MISSED_COMMANDS = 6  # SPEC §4 onboard CBTC: missed_commands_eb commands missed in a row
+    CBTC_OVERSPEED = 7  # onboard CBTC: over the intervention speed (safe braking model, limit)
+    POSITION_INVALID = 8  # onboard CBTC: a position it cannot trust (DESIGN rule 10)
+    PLANT_LOST = 9  # live: the plant process went silent; every train brakes (DESIGN rule 10)
+    DWELL_FAULT = 10  # live: a SPEC §5 dwell fault; the train stands for its reset
+    CBTC = 11  # live TASC stop: the CBTC unit braked, not the TASC onboard unit
+
+    @property
+    def label(self) -> str:
+        """The cause as printed, stored and sent (``telegram-timeout``, ``plant-lost``, ...)."""
+        return _LABELS[self]
+
+
+_LABELS: dict[EbCause, str] = {
+    EbCause.TELEGRAM_TIMEOUT: "telegram-timeout",
+    EbCause.ONBOARD_OVERRUN_GUARD: "onboard-overrun-guard",
+    EbCause.WAYSIDE_OVERRUN_GUARD: "wayside-overrun-guard",
+    EbCause.OVERSPEED_GRACE: "overspeed-3s",
+    EbCause.OVER_PERMITTED: "over-permitted",
+    EbCause.MISSED_COMMANDS: "missed-commands",
+    EbCause.CBTC_OVERSPEED: "overspeed",
+    EbCause.POSITION_INVALID: "position-invalid",
+    EbCause.PLANT_LOST: "plant-lost",
+    EbCause.DWELL_FAULT: "dwell-fault",
+    EbCause.CBTC: "cbtc",
 }
+
+# The compiled code's view (numba reads module-level ints as constants).
+EB_NONE = 0
+EB_TIMEOUT = int(EbCause.TELEGRAM_TIMEOUT)
+EB_ONBOARD_GUARD = int(EbCause.ONBOARD_OVERRUN_GUARD)
+EB_WAYSIDE_GUARD = int(EbCause.WAYSIDE_OVERRUN_GUARD)
+EB_OVERSPEED = int(EbCause.OVERSPEED_GRACE)
+EB_PERMITTED_SPEED = int(EbCause.OVER_PERMITTED)
+
+#: Code -> label of every cause (the results' counts by cause).
+EB_CAUSES: dict[int, str] = {int(c): c.label for c in EbCause}
 
 
 def eb_cause_name(code: int) -> str | None:
-    """The cause's name (None: no emergency brake)."""
+    """The label of a recorded cause code (None: 0, no emergency brake)."""
     return EB_CAUSES.get(int(code))
 
 
@@ -64,3 +109,80 @@ def overrun_guard_1(
     if avail <= 0.0:
         return True
     return v * v / (2.0 * avail) > limit_mps2
+
+
+# The timers' float sums (a deadline k periods on) may land a hair before the time the clock
+# delivers; within this a deadline counts as come.
+_DUE_EPS_S = 1e-9
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WatchdogLimits:
+    """What a watchdog allows, as data: something is expected once every ``period_s``; ``misses``
+    cycles in a row without it and the watchdog has expired. ``grace_cycles``: a cycle timed from
+    the last feed counts as missed this many cycles after it was due (radio jitter: late is not
+    missed)."""
+
+    period_s: float
+    misses: int
+    grace_cycles: float = 0.0
+
+
+@dataclass(slots=True)
+class Watchdog:
+    """The supervision of something that must keep arriving (SPEC §4: the trains' position reports
+    at the zone controller, the commands at the onboard unit), pure: the time is an argument.
+
+    It counts missed cycles in a row one of two ways; a holder uses one:
+
+    * timed from the last feed (:meth:`expired`, :meth:`next_deadline_s`): the k-th cycle after
+      the feed is missed at ``fed_s + (k + grace_cycles) * period_s``; the count stops at the limit;
+    * on the holder's own cycle (:meth:`end_cycle`): a cycle of the holder's that saw no feed is
+      missed (the onboard unit's report cycle: a cycle without a command since the last report).
+
+    A feed clears the count. Expired, the holder acts fail safe (DESIGN rule 10).
+    """
+
+    limits: WatchdogLimits
+    fed_s: float = -math.inf  # the last feed (-inf: none yet)
+    missed: int = 0  # cycles missed in a row
+    fed_in_cycle: bool = True  # fed since the holder's cycle began (nothing to miss before the first)
+
+    def feed(self, now_s: float) -> None:
+        """What is supervised arrived at ``now_s``."""
+        self.fed_s = now_s
+        self.missed = 0
+        self.fed_in_cycle = True
+
+    def clear_misses(self) -> None:
+        """Forgive the misses counted so far; the cycles stay timed from the last feed."""
+        self.missed = 0
+
+    @property
+    def lapsed(self) -> bool:
+        """Whether the misses have reached the limit."""
+        return self.missed >= self.limits.misses
+
+    def next_deadline_s(self) -> float | None:
+        """When the next cycle timed from the last feed counts as missed (None: expired already)."""
+        if self.lapsed:
+            return None
+        lim = self.limits
+        return self.fed_s + (self.missed + 1 + lim.grace_cycles) * lim.period_s
+
+    def expired(self, now_s: float) -> bool:
+        """Count the cycles timed from the last feed that are missed by ``now_s``; whether the
+        watchdog has expired."""
+        while (due := self.next_deadline_s()) is not None and now_s >= due - _DUE_EPS_S:
+            self.missed += 1
+        return self.lapsed
+
+    def end_cycle(self) -> bool:
+        """The holder's cycle ends: missed if nothing arrived in it. Whether this made (or kept) the
+        watchdog expired; a cycle that saw a feed never does."""
+        missed_now = not self.fed_in_cycle
+        self.fed_in_cycle = False
+        if not missed_now:
+            return False
+        self.missed += 1
+        return self.lapsed

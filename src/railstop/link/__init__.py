@@ -3,20 +3,19 @@
 ``railstop.link.codec`` turns telegrams into bytes and back (type, payload,
 CRC-16); ``railstop.link.safety`` wraps those bytes in safety frames
 (sequence number, timestamp, ids, CRC-32 or HMAC). The simulated media and
-the UDP transport live in ``railstop.link.channel`` and ``railstop.link.udp``.
+the UDP transport live in ``railstop.link.channel`` and ``railstop.link.udp``; the media's
+parameters and presets are data (``railstop.config.media``).
 """
 
 from __future__ import annotations
 
 from railstop.link.channel import (
-    ChannelParams,
     ChannelStats,
     LinkError,
     SimChannel,
     airtime_s,
     corruption_probability,
     delivery_delay_s,
-    load_media,
     mean_delivery_delay_s,
     media_preset,
     propagation_delay_s,
@@ -76,7 +75,6 @@ __all__ = [
     "TYPES",
     "CbtcCommand",
     "CbtcReport",
-    "ChannelParams",
     "ChannelStats",
     "Delivered",
     "DoorCommand",
@@ -115,7 +113,6 @@ __all__ = [
     "layout_markdown",
     "layout_of",
     "link_key",
-    "load_media",
     "mean_delivery_delay_s",
     "media_preset",
     "propagation_delay_s",

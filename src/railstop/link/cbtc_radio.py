@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from railstop.link.channel import ChannelParams, SimChannel
+from railstop.config.media import ChannelParams
+from railstop.link.channel import SimChannel
 from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
 from railstop.link.safe_channel import SafeChannel
 from railstop.link.safety import SafeReceiver, SafeSender, demo_master_key, link_key, sum_counts

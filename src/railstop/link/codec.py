@@ -61,6 +61,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.errors import TelegramError
+from railstop.link.channel import airtime_s, media_preset
+from railstop.link.safety import frame_size
 
 __all__ = [
     "LAYOUTS",
@@ -1246,10 +1248,6 @@ def from_fields(type_name: str, values: Mapping[str, str]) -> Telegram:
 
 def layout_markdown() -> str:
     """The byte layout of every telegram and its sizes / airtimes, as Markdown (docs/telegrams.md)."""
-    # lazy: neither the safety layer nor the media depend on the codec
-    from railstop.link.channel import airtime_s, media_preset
-    from railstop.link.safety import frame_size
-
     lines: list[str] = []
     lines.append("| type | code | payload B | frame B | cat 1/2 frame B | cat 3 frame B | medium |")
     lines.append("|---|---|---|---|---|---|---|")

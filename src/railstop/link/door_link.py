@@ -26,8 +26,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from railstop.config.media import ChannelParams
 from railstop.control.doors import LOCKED_STATES, DoorSignals, DoorState, door_mask
-from railstop.link.channel import ChannelParams, LinkError, SimChannel
+from railstop.link.channel import LinkError, SimChannel
 from railstop.link.codec import DoorCommand, PsdStatus, Telegram
 from railstop.link.safe_channel import SafeChannel
 from railstop.link.safety import SafeReceiver, SafeSender, demo_master_key, link_key, sum_counts

@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 
 from railstop.config.schema import Line, Vehicle
 from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, static_profile
+from railstop.control.supervision import EbCause
 from railstop.errors import RailstopError
 from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
 from railstop.link.codec import TelegramError, decode, encode
@@ -57,9 +58,13 @@ from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
+from railstop.quantities import kmh_to_mps
 from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
+# Lazy imports (start-up): live.plant and live.tasc load the compiled model, onboard.tasc_receiver
+# the TASC kernel; the functions that drive trains import them, so that the zone controller's
+# process (run_zone_controller) starts without them.
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
     from railstop.live.doors import LiveDoors, TrainDoors
     from railstop.live.plant import Drive, PlantPort, TrainState
@@ -421,7 +426,7 @@ async def run_trains(
     (``live.tasc.run_stations``) stops the trains by ground TASC (without it the plant stops them
     where they aim, a point mass). ``plant``: the plant process (``live.plant.run_plant``) that
     moves the trains; without it the plant runs in this process."""
-    from railstop.live.plant import (
+    from railstop.live.plant import (  # lazy (start-up), see the top
         Drive,
         Plant,
         PlantPort,
@@ -472,7 +477,7 @@ async def run_trains(
         # train this process has not localised is under a stop it did not begin (the plant's, from
         # before this process started): its brakes get the emergency brake (DESIGN rule 10).
         if not fleet[train].localised:
-            from railstop.live.tasc import BrakeDrive
+            from railstop.live.tasc import BrakeDrive  # lazy (start-up), see the top
 
             return BrakeDrive(sense.k, brake.emergency_decel_mps2, True, True)
         return None if tasc is None else tasc.cycle(train, t_s, sense, fleet[train].unit.emergency_brake)
@@ -595,7 +600,9 @@ async def run_trains(
                 )
                 eb_now = t.unit.emergency_brake or port.lost
                 if eb_now and not t.eb_reported:
-                    cause = t.unit.eb_cause or ("plant-lost" if port.lost else "?")
+                    # The unit's own emergency brake names its cause; else it is the plant's silence.
+                    own = t.unit.eb_cause
+                    cause = (own if own is not None else EbCause.PLANT_LOST).label
                     ebs[cause] = ebs.get(cause, 0) + 1
                     eb_times.append({"train": t.k, "t_s": round(now_s, 3), "cause": cause})
                 t.eb_reported = eb_now
@@ -623,9 +630,7 @@ async def run_trains(
                         # The CBTC unit's emergency brake, or the dwell's (SPEC §5 fault) while the
                         # train stands for its reset, or the plant's silence.
                         "emergency_brake": eb_now or t.retry is not None,
-                        "cause": t.unit.eb_cause
-                        or ("plant-lost" if port.lost else None)
-                        or ("dwell-fault" if t.retry is not None else None),
+                        "cause": _state_cause(t.unit.eb_cause, port.lost, t.retry is not None),
                         "radio": "dead" if t.k in dead else "ok",
                         "doors": None if t.dwell is None else t.dwell.phase,
                         "t_s": round(now_s, 2),
@@ -666,7 +671,7 @@ def _localise(t: _TrainState, state: TrainState | None, stations: list[float]) -
     does not know whether it was done). [interpretation] SPEC §2 keeps the position in the train;
     here the trains' process holds no memory of it, and the plant stands for the train's own
     sensors."""
-    from railstop.live.plant import STOP_SENSOR_SPAN_M
+    from railstop.live.plant import STOP_SENSOR_SPAN_M  # lazy (start-up), see the top
 
     if state is None:
         return False
@@ -702,7 +707,7 @@ def _move(
     """The driving the ATO does under the onboard unit's limits, as the drive to the plant. With
     ground TASC it runs at the station's entry speed to the hand-over point, where the stop is
     taken over (``_tasc_step``); short of an authority there, it stops where it aims."""
-    from railstop.live.plant import HOLD, Drive, emergency_drive
+    from railstop.live.plant import HOLD, Drive, emergency_drive  # lazy (start-up), see the top
 
     unit = t.unit
     brake = vehicle.brake
@@ -793,8 +798,8 @@ def _tasc_step(
     ended = port.ended.pop(t.k, None)
     if ended is None:
         return True
-    from railstop.live.tasc import stop_result
-    from railstop.onboard.tasc_receiver import RX_EB_T
+    from railstop.live.tasc import stop_result  # lazy (start-up), see the top
+    from railstop.onboard.tasc_receiver import RX_EB_T  # lazy (start-up), see the top
 
     onboard = t.tasc
     tasc.end(t.k)
@@ -836,7 +841,7 @@ def _dwell_step(
     brake) the train stands ``DWELL_FAULT_HOLD_S``, then its confirmation begins again
     [interpretation]: staff reset the ATC; SPEC §5 says nothing of the recovery. Returns the
     drive that holds (or creeps) the train, None when no dwell holds it."""
-    from railstop.live.plant import HOLD, Drive
+    from railstop.live.plant import HOLD, Drive  # lazy (start-up), see the top
 
     carried = None
     if t.retry is not None and now_s >= t.dwell_until_s:
@@ -868,10 +873,20 @@ def _dwell_step(
     return Drive(creep, math.inf, math.inf) if creep != 0.0 else HOLD
 
 
+def _state_cause(unit_cause: EbCause | None, plant_lost: bool, dwell_fault: bool) -> str | None:
+    """A train state's ``cause``: its CBTC unit's emergency brake, else the plant's silence, else
+    the dwell's fault (the train stands for its reset); None: no emergency brake."""
+    if unit_cause is not None:
+        return unit_cause.label
+    if plant_lost:
+        return EbCause.PLANT_LOST.label
+    return EbCause.DWELL_FAULT.label if dwell_fault else None
+
+
 DWELL_FAULT_HOLD_S = 60.0  # after a dwell's fault, the train stands this long before it tries again
 EB_RESET_S = 10.0  # after a TASC emergency stop short of the platform, the train stands this long
 RESTRICTED_AFTER_S = 20.0  # at a stand with a dead radio, the driver asks and gets leave after this
-RESTRICTED_MPS = 15.0 / 3.6  # on sight, ATP cut out
+RESTRICTED_MPS = kmh_to_mps(15.0)  # on sight, ATP cut out
 RESTRICTED_M = 400.0  # at most this far (to the next place where he can call in)
 SIGHT_M = 150.0  # he stops this far behind the train ahead (he can see it)
 
@@ -885,7 +900,7 @@ def _restricted(
     radio comes back he stops and cuts the ATP in again. [interpretation] SPEC §4 says only that a
     lost train may move while lost (so that it is re-detected outside its zone and held for the
     operator); this is the usual degraded mode that moves it. Returns the drive when he drives it."""
-    from railstop.live.plant import Drive
+    from railstop.live.plant import Drive  # lazy (start-up), see the top
 
     brake = vehicle.brake
     if not dead:
@@ -916,7 +931,7 @@ def _turn(
     """After its dwell at the last station a train leaves service there and comes back into service
     at ``reentry_m`` once that stretch is clear (the line has one direction): the drive that
     relocates it, or holds it until then; None before its last station's dwell has ended."""
-    from railstop.live.plant import HOLD, Drive
+    from railstop.live.plant import HOLD, Drive  # lazy (start-up), see the top
 
     if t.next_station < len(stations) or now_s < t.dwell_until_s or t.unit.emergency_brake:
         return None

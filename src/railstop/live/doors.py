@@ -52,18 +52,21 @@ from railstop.control.doors import (
     DoorState,
     Side,
     all_open,
+    motion_s,
     summarise,
     units_from_link,
 )
 from railstop.errors import InterlockError
 from railstop.link.codec import DoorCommand, PsdStatus, TelegramError, decode, encode
 from railstop.link.door_link import command_signals, door_command, psd_status
+from railstop.link.release_link import WCC_ADDRESS, WccGate, wcc_key
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address
 from railstop.onboard import cpcs, stop_confirm
 from railstop.onboard.cpcs import CpcsState, PsdReport
 from railstop.onboard.stop_confirm import StopConfirmState, StopInput, StopPhase
 from railstop.sim.door_system import DoorModel
+from railstop.sim.dwell import model_for
 from railstop.wayside import wpcs
 from railstop.wayside.wpcs import TrainReport, WpcsState, answers_psc
 
@@ -110,7 +113,7 @@ class DoorMotion:
         if before == after:
             return
         self._gen[key] = self._gen.get(key, 0) + 1
-        motion = self.timing.motion_s(after, psd=self.psd)
+        motion = motion_s(self.timing, after, psd=self.psd)
         if motion is not None:
             self.schedule(key, now_s + motion, DoorInput.DONE)
 
@@ -648,8 +651,6 @@ def wired_dwell(
     platform falls silent after ``platform_silent_after_s`` (its process died); ``wcc``: the WCC's
     actions, each (at_s, manual, panel_open, panel_close); ``psd_jam``: this PSD unit (1 = front) fails
     to close."""
-    from railstop.sim.dwell import model_for
-
     model = model_for(doors)
     platform = PlatformDoors(index=0, name="P", side=side, doors=doors, model=model)
     if psd_jam is not None:
@@ -747,8 +748,6 @@ class LiveDoors:
         self.trains = trains
         self.started_s = started_s
         self.not_mine = 0  # frames for a train that is not one of this process's (refused)
-        from railstop.sim.dwell import model_for
-
         self.manual = manual
         self.obstructions: dict[int, int] = {}  # fault injection: train -> door (0 = front), next dwell
         self.line = line
@@ -873,9 +872,6 @@ class Platforms:
         """``jams``: fault injection, (station, PSD unit from 0) that fail to close on their next
         closing. ``started_s``: when this process started on the run's clock; frames sent before
         it are refused (``old_session``)."""
-        from railstop.link.release_link import WccGate, wcc_key
-        from railstop.sim.dwell import model_for
-
         model = model_for(doors)
         self.units = [
             PlatformDoors(index=i, name=st.name, side=Side(st.platform_side), doors=doors, model=model)
@@ -899,8 +895,6 @@ class Platforms:
         self.refused: dict[str, int] = {}
 
     def owns(self, dst: int) -> bool:
-        from railstop.link.release_link import WCC_ADDRESS
-
         return dst == WCC_ADDRESS or dst - PLATFORM_BASE in self.links
 
     def _refuse(self, reason: str) -> None:
@@ -910,8 +904,6 @@ class Platforms:
         """A frame for a platform (or the WCC input); the train it came from, if any. ``unix_s``:
         the time on the operator link's clock (the control room keeps Unix time, whatever the run's
         time scale; default ``now_s``)."""
-        from railstop.link.release_link import WCC_ADDRESS
-
         if dst == WCC_ADDRESS:
             wcc = self.gate.accept(frame, now_s if unix_s is None else unix_s)
             if wcc is not None:

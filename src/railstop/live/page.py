@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any, Literal
 
+import uvicorn
 from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, RedirectResponse, Response
@@ -857,8 +858,6 @@ def page_config(
     tls_key: str | None = None,
 ) -> Any:
     """The uvicorn configuration the page is served with (the office's and the tests' alike)."""
-    import uvicorn
-
     return uvicorn.Config(
         app,
         host=host,

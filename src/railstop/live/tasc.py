@@ -56,7 +56,7 @@ from railstop.config.disturbances import DisturbanceSet, draw_scenario
 from railstop.config.doors import DoorsConfig
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.notch import MOD_SIZE
-from railstop.control.supervision import eb_cause_name
+from railstop.control.supervision import EbCause, eb_cause_name
 from railstop.control.tasc import HISTORY, SAMPLES
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
@@ -113,6 +113,7 @@ from railstop.onboard.tasc_receiver import (
 )
 from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
 from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
+from railstop.quantities import kmh_to_mps
 from railstop.sensors.wayside import crossing_time_1, passage_1
 from railstop.sim.engine import command_records, telegram_of
 from railstop.sim.tasc_link import from_message, to_message
@@ -188,7 +189,7 @@ class StationTasc:
 
     @classmethod
     def create(cls, index: int, station: Station, vehicle: Vehicle, controller: str) -> StationTasc:
-        from railstop.sim.scenario import Scenario
+        from railstop.config.scenario import Scenario
 
         model = KernelModel.create(
             station=station,
@@ -716,7 +717,7 @@ def stop_result(
         "controller": st.model.controller,
         "error_m": round(error_m, 3),
         "within": abs(error_m) <= station.psd_tolerance_m and stopped,
-        "emergency_brake": eb_cause if eb_cause is not None else ("cbtc" if extra_eb else None),
+        "emergency_brake": eb_cause if eb_cause is not None else (EbCause.CBTC.label if extra_eb else None),
         # when the onboard unit applied it (on the run's clock)
         "eb_t_s": round(eb_t_s, 2) if eb_cause is not None else None,
         "jerk_mps3": round(jerk_mps3, 2),
@@ -774,7 +775,7 @@ def draw_stop(
     simulation's run numbering: train x 100 + visit) and the random stream of its sensors."""
     run = train * RUNS_PER_TRAIN + visit % RUNS_PER_TRAIN
     streams = RunStreams.for_runs(seed, run, 1)
-    from railstop.sim.scenario import station_gradient
+    from railstop.config.scenario import station_gradient
 
     scenario, _ = draw_scenario(dist, st.station, vehicle, streams)
     scenario = scenario.with_values(gradient=station_gradient(st.station, 1))
@@ -796,8 +797,8 @@ def wired_stop(
     it was sent, none after ``silent_after_s`` (the wayside died); no reading reaches the wayside
     after ``readings_lost_after_s`` (the sensors' wiring cut). The live units' check against
     the stop kernel, and their warm-up (the compiled steps loaded before a live clock starts)."""
+    from railstop.config.scenario import Scenario
     from railstop.control.line_ato import handover_m
-    from railstop.sim.scenario import Scenario
 
     sc, _, _, _ = scenario_arrays(Scenario.nominal(st.station, vehicle))
     v = float(sc[0][0])
@@ -931,7 +932,7 @@ class LiveTasc:
         return handover_m(self.models[station].first_detector_m, speed_mps)
 
     def entry_mps(self, station: int) -> float:
-        return float(self.models[station].station.tasc.entry_speed_kmh) / 3.6
+        return kmh_to_mps(float(self.models[station].station.tasc.entry_speed_kmh))
 
     def begin(self, train: int, station: int) -> TascOnboard:
         """The train's onboard unit takes over its stop at ``station`` (the plant hands the train

@@ -3,7 +3,7 @@
 :class:`KernelModel` holds, as arrays, everything the stop needs of a
 station, vehicle, controller and signal form (``KernelModel.create``);
 :func:`stop_params` makes it the step's :class:`~railstop.model.records.StopParams`
-record; :func:`scenario_arrays` makes a :class:`~railstop.sim.scenario.Scenario`
+record; :func:`scenario_arrays` makes a :class:`~railstop.config.scenario.Scenario`
 the runs' draws (``SC_*`` columns) and gradients.
 """
 
@@ -22,7 +22,8 @@ from railstop.config.driver import (
     default_driver,
     driver_arrays,
 )
-from railstop.config.platform import LAMP_CODES, PlatformFile, default_platform
+from railstop.config.platform import LAMP_CODES, PlatformFile, default_platform, sensor_positions
+from railstop.config.scenario import Scenario
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
 from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
@@ -94,9 +95,7 @@ from railstop.onboard.ato import ato_params
 from railstop.onboard.driver import RS_EB_RESET
 from railstop.onboard.tasc_receiver import CONFIG_CODES, receiver_params, receiver_window
 from railstop.quantities import kmh_to_mps
-from railstop.sensors.stop_sensors import sensor_positions
 from railstop.sim.corrected_position import FixesLine
-from railstop.sim.scenario import Scenario
 from railstop.sim.tasc_link import CARRIED, frame_bytes
 from railstop.wayside.tasc_unit import (
     TEL_FIELDS,

@@ -169,7 +169,7 @@ KP_GRACE = 27
 KP_ATC = 28  # 1: ATC supervision (indicated / permitted speed), 0: ATS
 KP_ATC_MARGIN = 29  # m/s: permitted = indicated + this
 KP_INCAPACITATED = 30  # 1: the driver never brakes (the supervision check)
-KP_S2 = 31  # the stop sensors' chainages (sensors.stop_sensors sensor_positions) ...
+KP_S2 = 31  # the stop sensors' chainages (config.platform sensor_positions) ...
 KP_S1 = 32
 KP_SENSOR_NOISE = 33  # ... and their noise
 KP_START_BEFORE_HOME = 34  # a driver's run starts at least this far before the home signal

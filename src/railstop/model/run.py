@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.scenario import Scenario
 from railstop.errors import SimulationError
 from railstop.jit import cache_dir, njit, njit_step
 from railstop.model.build import DRIVER_MODES, KernelModel, scenario_arrays, stop_params
@@ -58,7 +59,6 @@ from railstop.model.records import (
     new_state,
 )
 from railstop.model.step import stop_finish, stop_init, stop_step
-from railstop.sim.scenario import Scenario
 from railstop.streams import seed_key, seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE
 

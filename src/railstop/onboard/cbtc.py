@@ -22,7 +22,8 @@ missed one (DESIGN rule 10).
 Supervision:
 
 * **2 consecutive missed commands -> emergency brake** (SPEC §4): a cycle
-  with no accepted command since the previous report counts as one missed;
+  with no accepted command since the previous report counts as one missed
+  (a :class:`~railstop.control.supervision.Watchdog` on the unit's report cycle);
 * **overspeed** (IEEE 1474.1 safe braking model; the supervision SPEC §4
   implies but does not spell out): faster than the emergency brake
   intervention speed to the authority's end (detection and propulsion
@@ -50,6 +51,7 @@ import math
 from dataclasses import dataclass, field
 
 from railstop.config.layout import Cbtc
+from railstop.control.supervision import EbCause, Watchdog, WatchdogLimits
 from railstop.errors import InterlockError
 from railstop.messages import (
     Message,
@@ -60,11 +62,9 @@ from railstop.messages import (
     cbtc_grid,
     cbtc_grid_up,
 )
+from railstop.quantities import kmh_to_mps
 
 G_MPS2 = 9.81
-EB_MISSED_COMMANDS = "missed-commands"
-EB_OVERSPEED = "overspeed"
-EB_POSITION = "position-invalid"
 
 
 def permitted_speed_mps(distance_m: float, decel_mps2: float, response_s: float) -> float:
@@ -134,7 +134,7 @@ class OnboardCbtc:
     params: Cbtc
     curve_decel_mps2: float  # the driving curve's rate (full service), not the supervision's
     response_s: float = 1.0
-    overspeed_tolerance_mps: float = 5.0 / 3.6
+    overspeed_tolerance_mps: float = kmh_to_mps(5.0)
     start_s: float = 0.0
     active: bool = True  # reporting (False: starts with its first OnboardPosition)
     uplink: str = "zc"  # where the reports go: the zone controller, or the radio before it
@@ -147,16 +147,16 @@ class OnboardCbtc:
     held_uncertainty_m: float = 0.0  # the uncertainty of the report the held authority answers
     speed_limit_mps: float = 0.0
     gradient_permille: float = 0.0
-    missed: int = 0
     emergency_brake: bool = False
-    eb_cause: str | None = None
+    eb_cause: EbCause | None = None
     commands: int = 0
     eb_count: int = 0  # emergency brakes applied (each latch counts once)
-    eb_causes: dict[str, int] = field(default_factory=dict)  # the same, by cause
+    eb_causes: dict[EbCause, int] = field(default_factory=dict)  # the same, by cause
     foreign_commands: int = 0  # commands for another train: ignored, counted
     refused_commands: int = 0  # answering no report held, or invalid: no authority, counted
     _next_report_s: float = 0.0
-    _command_since_report: bool = True  # nothing to miss before the first report
+    # SPEC §4: the commands, counted missed on the report cycle (nothing to miss before the first).
+    watchdog: Watchdog = field(init=False)
     _sent: list[_Sent] = field(default_factory=list)  # the last reports sent, oldest first
     _answered_s: float = -math.inf  # the time of the report the held authority answers
 
@@ -167,6 +167,8 @@ class OnboardCbtc:
             raise InterlockError(f"onboard CBTC: curve_decel_mps2 must be > 0 (got {self.curve_decel_mps2})")
         self.name = self.name or f"cbtc-{self.train_id}"
         self._next_report_s = self.start_s
+        p = self.params
+        self.watchdog = Watchdog(WatchdogLimits(period_s=p.report_period_s, misses=p.missed_commands_eb))
 
     @property
     def sign(self) -> float:
@@ -204,7 +206,7 @@ class OnboardCbtc:
         if isinstance(message, OnboardPosition):
             return self._on_position(message, now_s)
         if isinstance(message, MovementCommand):
-            self._on_command(message)
+            self._on_command(message, now_s)
             return []
         raise InterlockError(f"onboard CBTC: cannot take a {type(message).__name__}")
 
@@ -218,13 +220,13 @@ class OnboardCbtc:
             # (the controller loses the train, SPEC §4) and brakes.
             self.position_m = math.nan
             self.uncertainty_m = math.nan
-            self._brake(EB_POSITION)
+            self._brake(EbCause.POSITION_INVALID)
             return []
         self.position_m = message.position_m
         self.speed_mps = message.speed_mps
         self.uncertainty_m = u
         if self.speed_mps > self.intervention_mps():
-            self._brake(EB_OVERSPEED)
+            self._brake(EbCause.CBTC_OVERSPEED)
         return []
 
     def _answered(self, message: MovementCommand) -> _Sent | None:
@@ -237,7 +239,7 @@ class OnboardCbtc:
                 return s
         return None
 
-    def _on_command(self, message: MovementCommand) -> None:
+    def _on_command(self, message: MovementCommand, now_s: float) -> None:
         if message.train_id != self.train_id:
             self.foreign_commands += 1
             return
@@ -257,8 +259,7 @@ class OnboardCbtc:
             self.refused_commands += 1
             return
         self.commands += 1
-        self._command_since_report = True
-        self.missed = 0
+        self.watchdog.feed(now_s)
         # SPEC §4: Pc = Pp ± Δt·Vp of the answered report, computed as the controller did; the
         # authority is the distance from Pc [interpretation: anchored to the report, not to where
         # the train is when the command arrives].
@@ -287,11 +288,8 @@ class OnboardCbtc:
         p = self.params
         self._next_report_s = now_s + p.report_period_s
         # SPEC §4: a cycle without a command since the last report is a missed command.
-        if not self._command_since_report:
-            self.missed += 1
-            if self.missed >= p.missed_commands_eb:
-                self._brake(EB_MISSED_COMMANDS)
-        self._command_since_report = False
+        if self.watchdog.end_cycle():
+            self._brake(EbCause.MISSED_COMMANDS)
         if math.isnan(self.position_m):
             return []  # no position yet (or none to trust): nothing to report
         # The values on the telegrams' grid; the uncertainty widened by what rounding moved the
@@ -316,7 +314,7 @@ class OnboardCbtc:
         )
         return [Output(to=self.uplink, message=report)]
 
-    def _brake(self, cause: str) -> None:
+    def _brake(self, cause: EbCause) -> None:
         if not self.emergency_brake:
             self.emergency_brake = True
             self.eb_cause = cause

@@ -23,10 +23,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from railstop.config.doors import Action, ActionTable
 from railstop.control.doors import (
     DOOR_TRANSITIONS,
-    Action,
-    ActionTable,
     DoorInput,
     DoorSignals,
     DoorState,

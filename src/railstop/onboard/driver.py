@@ -44,6 +44,7 @@ import numpy as np
 
 from railstop.config.driver import LV_CUMULATIVE, LV_PARAMS, LV_WIDTH
 from railstop.jit import njit_inline, njit_step
+from railstop.quantities import KMH_PER_MPS
 from railstop.streams import key_normal, key_uniform
 
 # The run's driver (drawn once): the level's row, then its parameters in config.driver LEVEL_PARAMETERS order.
@@ -126,8 +127,8 @@ def driver_draw_1(dr: np.ndarray, levels: np.ndarray, key: np.uint64) -> None:
         dr[1 + j] = min(max(x, levels[row, base + 2]), levels[row, base + 3])
     dr[DR_BIAS] *= 0.01
     dr[DR_NOISE] *= 0.01
-    dr[DR_SPEED_SD] /= 3.6
-    dr[DR_MARGIN] /= 3.6
+    dr[DR_SPEED_SD] /= KMH_PER_MPS  # the data's km/h
+    dr[DR_MARGIN] /= KMH_PER_MPS
 
 
 @njit_inline

@@ -26,13 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from railstop.control.supervision import EB_CAUSES, EB_OVERSPEED, EB_PERMITTED_SPEED
+from railstop.control.supervision import EB_OVERSPEED, EB_PERMITTED_SPEED, eb_cause_name
 from railstop.errors import InterlockError
 from railstop.jit import njit_inline
 from railstop.messages import BROADCAST, Message, Output, SpeedCode, SupervisionState, TrainSpeed
+from railstop.quantities import kmh_to_mps
 
-EB_OVERSPEED_GRACE = EB_CAUSES[EB_OVERSPEED]  # over the limit / indicated speed for longer than the grace
-EB_PERMITTED = EB_CAUSES[EB_PERMITTED_SPEED]  # ATC: above the permitted speed
 MODES = ("ats", "atc")
 
 # --------------------------------------------------------------------------
@@ -80,7 +79,7 @@ def supervise_1(
 class SpeedSupervision:
     mode: str
     grace_s: float = 3.0  # SPEC §3
-    permitted_margin_mps: float = 5.0 / 3.6  # ATC only ([interpretation], see the module)
+    permitted_margin_mps: float = kmh_to_mps(5.0)  # ATC only ([interpretation], see the module)
     name: str = "speed-supervision"
     accepts: tuple[type, ...] = (SpeedCode, TrainSpeed)
     limit_mps: float = 0.0
@@ -113,7 +112,8 @@ class SpeedSupervision:
 
     @property
     def cause(self) -> str | None:
-        return EB_CAUSES.get(int(self._sv[SV_EB]))
+        """The emergency brake's cause as its label (``EbCause``; None: none applied)."""
+        return eb_cause_name(int(self._sv[SV_EB]))
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
         if isinstance(message, SpeedCode):

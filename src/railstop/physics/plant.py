@@ -55,7 +55,7 @@ RELEASED_MPS2 = 1e-3
 def gradient_profile(segments: Sequence[GradientSegment], *, field: str = "gradient") -> GradientProfile:
     """The piecewise-constant profile of ``segments`` (chainages, + uphill), level between them; a
     :class:`SimulationError` naming ``field`` when two overlap. (The same layout as
-    ``sim.scenario.station_gradient``, for one run.)"""
+    ``config.scenario.station_gradient``, for one run.)"""
     bps: list[float] = []
     vals: list[float] = [0.0]
     for seg in sorted(segments, key=lambda s: s.start_m):

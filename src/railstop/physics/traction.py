@@ -28,17 +28,16 @@ from numpy.typing import NDArray
 
 from railstop.config.schema import Traction
 from railstop.physics.train import G_MPS2, TrainMass
+from railstop.quantities import MPS_PER_KMH
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-
-KMH = 1.0 / 3.6
 
 
 def tractive_effort_n(traction: Traction, speed_mps: FloatArray) -> FloatArray:
     """Largest tractive effort (N) at ``speed_mps``: constant force, then constant power."""
     v = np.abs(np.asarray(speed_mps, dtype=np.float64))
-    base = traction.base_speed_kmh * KMH
+    base = traction.base_speed_kmh * MPS_PER_KMH
     return np.where(v <= base, traction.max_force_n, traction.max_power_w / np.maximum(v, base))
 
 

@@ -140,7 +140,7 @@ def clopper_pearson(k: SupportsIndex, n: SupportsIndex, confidence: float = 0.95
     delta = 1.0 - _confidence(confidence)
     if n == 0:
         return 0.0, 1.0
-    from scipy.stats import beta
+    from scipy.stats import beta  # lazy (start-up): scipy.stats takes over half a second to load
 
     lower = 0.0 if k == 0 else float(beta.ppf(delta / 2.0, k, n - k + 1))
     upper = 1.0 if k == n else float(beta.ppf(1.0 - delta / 2.0, k + 1, n - k))
@@ -159,7 +159,7 @@ def clopper_pearson_upper(k: SupportsIndex, n: SupportsIndex, confidence: float 
     confidence = _confidence(confidence)
     if k >= n:
         return 1.0
-    from scipy.stats import beta
+    from scipy.stats import beta  # lazy (start-up): scipy.stats takes over half a second to load
 
     return float(beta.ppf(confidence, k + 1, n - k))
 

@@ -33,7 +33,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from railstop.config.platform import LAMP_CODES
 from railstop.errors import RailstopError
+from railstop.provenance import footer, manifest_sha256, stamp
 from railstop.report.bounds import clopper_pearson_upper
 from railstop.report.figures import write_figure
 
@@ -221,8 +223,6 @@ def _manual_stats(
     """SPEC §3: the driver's first stop, the corrections and the alignment (see summary_stats)."""
     if manual is None:
         return {}
-    from railstop.config.platform import LAMP_CODES
-
     first, restops, lamp = (np.asarray(a).ravel() for a in manual)
     for name, a in (("first_stop_error_m", first), ("restops", restops), ("lamp", lamp)):
         if a.size != n:
@@ -269,6 +269,7 @@ def _fail_safe_stats(
     emergency_brake: Sequence[int] | np.ndarray | None,
     platform_end_m: float | None,
 ) -> dict[str, Any]:
+    # Lazy (start-up): control.supervision loads numba, which a report of stored results never needs.
     from railstop.control.supervision import EB_CAUSES
 
     out: dict[str, Any] = {}
@@ -474,8 +475,6 @@ def write_report(
     ``tolerance_m``: the PSD tolerance to judge against (None: each campaign's,
     from its summary.json, i.e. its station's ``psd_tolerance_m``).
     """
-    from railstop.provenance import stamp
-
     directory = Path(directory)
     if worst < 0:
         raise RailstopError(f"worst: must be at least 0 (got {worst})")
@@ -544,11 +543,11 @@ def _save(fig: Figure, path: Path) -> Path:
 
 
 def _figure(figsize: tuple[float, float]) -> Figure:
-    import matplotlib
+    import matplotlib  # lazy (start-up), see the note on matplotlib at the top
 
     # Agg before any drawing: reports are written on servers and in CI with no display.
     matplotlib.use("Agg")
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # lazy (start-up)
 
     return Figure(figsize=figsize, dpi=_DPI, layout="constrained")
 
@@ -741,7 +740,7 @@ def _distinct_values(arrays: list[np.ndarray]) -> np.ndarray:
 
 def _driver_figures(campaigns: list[_Campaign], parameters: list[str]) -> list[Figure]:
     """Stop error against each varying parameter, one panel each, one or two figures."""
-    from matplotlib.lines import Line2D
+    from matplotlib.lines import Line2D  # lazy (start-up)
 
     if not parameters:
         return []
@@ -914,8 +913,6 @@ def _worst_profiles(c: _Campaign, rows: np.ndarray, replay: Replay) -> Figure:
     ax.set_ylabel("speed (km/h)")
     ax.set_title(f"{c.name}: speed over distance of the {rows.size} worst runs", fontsize=11)
     if c.provenance:
-        from railstop.provenance import footer
-
         fig.text(0.005, 0.005, footer(c.provenance), fontsize=6.5, color="0.4", ha="left", va="bottom")
     ax.grid(True, alpha=0.4)
     ax.legend(loc="lower left", fontsize=8, framealpha=0.9)
@@ -1033,8 +1030,6 @@ def _html(
     worst: int,
     written: dict[str, Any],
 ) -> str:
-    from railstop.provenance import manifest_sha256
-
     station = _manifest_values(campaigns, lambda m: m.get("station"))
     sizes = {c.runs for c in campaigns}
     runs = (
@@ -1184,12 +1179,10 @@ def _worst_table(c: _Campaign, rows: np.ndarray, shown: list[str]) -> list[str]:
 
 
 def footer_text(written: dict[str, Any]) -> str:
-    from railstop.provenance import footer
-
     return footer(written)
 
 
 def _hex(color: str) -> str:
-    from matplotlib.colors import to_hex
+    from matplotlib.colors import to_hex  # lazy (start-up)
 
     return str(to_hex(color))

@@ -24,12 +24,12 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.transforms import blended_transform_factory
 
+from railstop.config.platform import LAMP_NAMES
 from railstop.errors import RailstopError
 from railstop.onboard.driver import ACT_BRAKE, ACT_COAST, ACT_CREEP_FORWARD, ACT_HOLD, ACT_REVERSE, ACT_WAIT
+from railstop.quantities import KMH_PER_MPS
 from railstop.report.figures import write_figure
 from railstop.sim.engine import Trace
-
-KMH_PER_MPS = 3.6
 
 _FIGSIZE_IN = (10.0, 8.0)
 _DPI = 120
@@ -209,8 +209,6 @@ _ACTIONS = {
 def _driver_timeline(ax: Axes, trace: Trace, run: int) -> None:
     """The driver's actions as a band at the foot of the axes, the lamps lit at each stand and
     the supervision's emergency brake (SPEC §3)."""
-    from railstop.config.platform import LAMP_NAMES
-
     t = trace.t_s[:, run]
     action = trace.driver_action[:, run]
     foot = blended_transform_factory(ax.transData, ax.transAxes)

@@ -25,10 +25,10 @@ from matplotlib.axes import Axes
 from matplotlib.patches import Patch
 
 from railstop.errors import RailstopError
+from railstop.quantities import KMH_PER_MPS
 from railstop.report.figures import write_figure
 from railstop.sim.position_run import PositionRunResult
 
-KMH_PER_MPS = 3.6
 _FIGSIZE_IN = (12.0, 9.0)
 _DPI = 110
 _SHADOW_FACE = (1.0, 0.9, 0.9, 1.0)

@@ -17,12 +17,6 @@ from numpy.typing import ArrayLike, NDArray
 from railstop.config.platform import StopSensors
 
 
-def sensor_positions(stop_point_m: float, spacing_m: float) -> tuple[float, float]:
-    """(S2, S1) chainages for a train running in +chainage: S2 first, S1 ``spacing_m`` on.
-    [interpretation] symmetric about the stopping point (see ``platform.toml``)."""
-    return stop_point_m - 0.5 * spacing_m, stop_point_m + 0.5 * spacing_m
-
-
 def sees(
     front_m: ArrayLike,
     rear_m: ArrayLike,

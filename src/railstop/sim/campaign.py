@@ -48,11 +48,17 @@ from railstop.config.platform import PlatformFile
 from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, overrides_sha256, stamp
+from railstop.quantities import KMH_PER_MPS
 from railstop.report.campaign_report import RESULT_COLUMNS, summary_stats
 from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
 from railstop.sim.executor import blocks, describe, execute
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
+
+try:  # POSIX only: elsewhere campaign_lock takes no lock
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX
+    fcntl = None  # type: ignore[assignment]
 
 MANIFEST = "campaign.json"
 RUNS_FILE = "runs.parquet"
@@ -318,9 +324,7 @@ def campaign_lock(out: Path) -> Iterator[None]:
     out.mkdir(parents=True, exist_ok=True)
     fd = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
     try:
-        try:
-            import fcntl
-        except ImportError:  # not POSIX: no lock
+        if fcntl is None:  # not POSIX: no lock
             yield
             return
         try:
@@ -696,4 +700,4 @@ def replay_profile(
     )
     if result.trace is None:
         raise RailstopError("replay recorded no trace")
-    return result.trace.position_m[:, 0] - station.stop_point_m, result.trace.speed_mps[:, 0] * 3.6
+    return result.trace.position_m[:, 0] - station.stop_point_m, result.trace.speed_mps[:, 0] * KMH_PER_MPS

@@ -24,10 +24,10 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import NamedTuple
 
+from railstop.config.doors import ActionTable
 from railstop.control.doors import (
     DOOR_TRANSITIONS,
     PHYSICAL_INPUTS,
-    ActionTable,
     DoorInput,
     DoorSignals,
     DoorState,

@@ -51,6 +51,7 @@ from railstop.control.doors import (
     DoorState,
     Side,
     all_open,
+    motion_s,
     summarise,
     units_from_link,
 )
@@ -398,7 +399,7 @@ class _Dwell:
             gen = self.gen.get(key, 0) + 1
             self.gen[key] = gen
             psd = group == "psd"
-            motion = t.motion_s(u1, psd=psd)
+            motion = motion_s(t, u1, psd=psd)
             if motion is not None:
                 self._at(motion, "door", group, i, gen, DoorInput.DONE)
             on_platform = psd or group == "train-" + self.side.value

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from railstop.config.driver import DriverFile
 from railstop.config.platform import PlatformFile
+from railstop.config.scenario import Scenario
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, ONBOARD_CONTROLLERS, TASC_CONTROLLERS
 from railstop.errors import SimulationError
@@ -68,7 +69,6 @@ from railstop.model.records import (
     TR_X,
 )
 from railstop.model.run import KernelRecord, run_kernel
-from railstop.sim.scenario import Scenario
 from railstop.sim.tasc_link import ByteLink, from_message, to_message
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import (

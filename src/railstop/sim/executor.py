@@ -289,6 +289,7 @@ def _pooled(
 
 
 def _import_distributed() -> Any:
+    # Lazy (start-up, and optional): Dask is loaded only for --scheduler, and may not be installed.
     try:
         import distributed
     except ImportError:
@@ -330,7 +331,7 @@ def _probe_scheduler(address: str, timeout: float) -> dict[str, Any]:
     this probe is one connection with a deadline.
     """
     distributed = _import_distributed()
-    from distributed.comm.core import connect
+    from distributed.comm.core import connect  # lazy: see _import_distributed
 
     async def probe() -> Any:
         args = distributed.Security().get_connection_args("client")
@@ -360,8 +361,8 @@ def _dask(
     fn: Callable[[T], R], items: Iterable[T], address: str, timeout: float
 ) -> Generator[tuple[T, R], None, None]:
     distributed = _import_distributed()
-    from dask.utils import funcname
-    from distributed.comm.core import CommClosedError
+    from dask.utils import funcname  # lazy: see _import_distributed
+    from distributed.comm.core import CommClosedError  # lazy: see _import_distributed
 
     _probe_scheduler(address, timeout)
     try:

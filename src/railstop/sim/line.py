@@ -69,7 +69,9 @@ import numpy as np
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
 from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.faults import RandomOutages
+from railstop.config.media import ChannelParams
 from railstop.config.operation import Operation
+from railstop.config.scenario import station_gradient
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
     HOLD_BACK_M,
@@ -83,23 +85,22 @@ from railstop.control.line_ato import (
 )
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import SimulationError
-from railstop.link.channel import ChannelParams, media_preset
+from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
 from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Output, SignalAspects, TrainLeft
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
+from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.clock import SimClock
 from railstop.sim.dwell import make_door_link, run_dwell
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
 from railstop.sim.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
-from railstop.sim.scenario import station_gradient
 from railstop.streams import RUN_LIMIT, RunStreams, Stream
 from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
 
-KMH = 1.0 / 3.6
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
@@ -116,7 +117,7 @@ WAYSIDE_RUN = RUN_LIMIT - 1
 #: plant's DWELL_FAULT_HOLD_S: SPEC §5 says nothing of the recovery).
 FAULT_HOLD_S = 60.0
 #: A train held short of the platform is driven onto it at this speed (on sight, by the staff).
-RECOVERY_MPS = 10.0 * KMH
+RECOVERY_MPS = 10.0 * MPS_PER_KMH
 RECOVERY_ACCEL_MPS2 = 0.3
 #: Adhesion on a low-adhesion patch between stations (wet leaves, as position-run's).
 LOW_MU = 0.05
@@ -593,7 +594,7 @@ class LineSimulation:
                 for z in sorted(chosen):
                     length = lo + (hi - lo) * u[z][2]
                     if z < s_count:
-                        entry = stations[z].tasc.entry_speed_kmh * KMH
+                        entry = stations[z].tasc.entry_speed_kmh * MPS_PER_KMH
                         end = handover_m(self.first_detector_m[z], entry) - 100.0 * u[z][1]
                         t.patches.append((end - length, end, z))
                     else:
@@ -718,7 +719,7 @@ class LineSimulation:
             # The platform is not clear: the station stop cannot take the train, so its ATO
             # stops it HOLD_BACK_M before the hand-over point, from where it runs up to speed
             # again once the platform clears.
-            entry = st_next.tasc.entry_speed_kmh * KMH
+            entry = st_next.tasc.entry_speed_kmh * MPS_PER_KMH
             target = min(auth, handover_m(self.first_detector_m[train.next_station], entry) - HOLD_BACK_M)
         plant, params = train.plant, train.plant_params
         if plant is None or params is None:
@@ -824,7 +825,7 @@ class LineSimulation:
                 station=st.name,
                 arrive_s=round(arrive, 3),
                 error_m=round(error, 4),
-                entry_speed_kmh=round(train.v_mps / KMH, 2),
+                entry_speed_kmh=round(train.v_mps / MPS_PER_KMH, 2),
                 emergency_brake=eb,
                 within_tolerance=stopped and abs(error) <= st.psd_tolerance_m,
             )
@@ -1012,7 +1013,7 @@ class LineSimulation:
     def _enter(self, train: Train, now_s: float) -> None:
         train.phase = "running"
         train.x_m = self.operation.entry_m
-        train.v_mps = self.operation.entry_speed_kmh * KMH
+        train.v_mps = self.operation.entry_speed_kmh * MPS_PER_KMH
         train.entered_s = now_s
         self._start_plant(train, train.v_mps)
 
@@ -1026,7 +1027,7 @@ class LineSimulation:
         if any(t.phase == "waiting" and t.index < train.index for t in self.trains):
             return free  # not the head of the queue
         cbtc.activate(train.index)
-        v = self.operation.entry_speed_kmh * KMH
+        v = self.operation.entry_speed_kmh * MPS_PER_KMH
         need = v * v / (2.0 * self.plan_mps2) + v * LOOKAHEAD_S + ENTRY_MARGIN_M
         if (
             not cbtc.emergency_brake(train.index)

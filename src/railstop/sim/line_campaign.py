@@ -26,7 +26,7 @@ from railstop.config.operation import Operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
 from railstop.sim.executor import execute
-from railstop.sim.line import LineSettings
+from railstop.sim.line import LineSettings, LineSimulation
 
 RUNS_FILE = "runs.jsonl"
 SPEC_FILE = "campaign.json"
@@ -60,8 +60,6 @@ class LineCampaignSpec:
 
 def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
     """One line run of the campaign: its summary and its stops (JSON-ready)."""
-    from railstop.sim.line import LineSimulation  # the worker's import (the caller needs only the settings)
-
     sim = LineSimulation(
         line=spec.line,
         vehicle=spec.vehicle,

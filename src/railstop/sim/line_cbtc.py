@@ -24,12 +24,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from railstop.config.media import ChannelParams
 from railstop.config.schema import Line, Vehicle
 from railstop.link.cbtc_radio import CbtcRadio
-from railstop.link.channel import ChannelParams
 from railstop.link.release_link import OperatorConsole, ReleaseGate
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output
 from railstop.onboard.cbtc import OnboardCbtc
+from railstop.quantities import kmh_to_mps
 from railstop.units import Unit
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
 
@@ -51,7 +52,7 @@ def civil_limit_mps(line: Line, x_m: float) -> float:
     for s in line.speed_limits:
         if s.start_m <= x_m < s.end_m:
             limit = min(limit, s.limit_kmh)
-    return limit / 3.6
+    return kmh_to_mps(limit)
 
 
 def gradient_permille(line: Line, x_m: float) -> float:
@@ -300,9 +301,10 @@ class CbtcSignalling:
             "authority_overlaps": self.authority_overlaps,
             "collisions": self.collisions,
             "onboard_emergency_brakes": int(sum(u.eb_count for u in self.onboard)),
+            # By the causes' labels, in their order (EbCause: the JSON keys stay the printed names).
             "onboard_eb_causes": {
-                cause: sum(u.eb_causes.get(cause, 0) for u in self.onboard)
-                for cause in sorted({c for u in self.onboard for c in u.eb_causes})
+                cause.label: sum(u.eb_causes.get(cause, 0) for u in self.onboard)
+                for cause in sorted({c for u in self.onboard for c in u.eb_causes}, key=lambda c: c.label)
             },
             "radio_lost": r.lost,
             "radio_rejected": int(sum(r.rejected.values())),

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from railstop.config.doors import DoorsConfig
-from railstop.config.platform import PlatformFile
+from railstop.config.platform import LAMP_NAMES, PlatformFile, sensor_positions
 from railstop.errors import ConfigError, SimulationError
 from railstop.messages import (
     DoorCameraFrame,
@@ -52,7 +52,7 @@ from railstop.messages import (
     StopSensorScan,
 )
 from railstop.sensors.door_camera import classify, true_shape
-from railstop.sensors.stop_sensors import sees, sensor_positions
+from railstop.sensors.stop_sensors import sees
 from railstop.sim.dwell import DwellEvent
 from railstop.streams import Stream, seed_u64
 from railstop.wayside.platform import PlatformUnit, PsdFollower
@@ -454,8 +454,6 @@ def stand_events(
     """SPEC §3 from a driver stop's trace (``run_batch`` with recording): the lamp at each stand
     and where the front stood (``stand_error_m``), on the run's clock; and when the train came to
     its final stand (None: it did not come to rest)."""
-    from railstop.config.platform import LAMP_NAMES
-
     trace = batch.trace
     if trace is None:
         raise SimulationError("the stop was run without a trace")

@@ -10,11 +10,11 @@ import numpy as np
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.driver import DriverFile
 from railstop.config.platform import PlatformFile
+from railstop.config.scenario import Scenario
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.supervision import eb_cause_name
 from railstop.provenance import inputs_sha256, overrides_sha256
 from railstop.sim.engine import BatchResult, run_batch
-from railstop.sim.scenario import Scenario
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import SignalForm
 

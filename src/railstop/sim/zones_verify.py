@@ -62,6 +62,7 @@ from typing import TypeVar
 from railstop.config.layout import Cbtc
 from railstop.messages import ManualRelease, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
+from railstop.quantities import kmh_to_mps
 from railstop.sim.invariants import Invariant, Violation
 from railstop.wayside.zone_controller import TrainStatus, Zone, ZoneController, ZoneMode
 
@@ -89,7 +90,7 @@ def _default_params() -> Cbtc:
 
 
 def _speed_limit(_: float) -> float:
-    return 80.0 / 3.6
+    return kmh_to_mps(80.0)
 
 
 def _flat(_: float) -> float:
@@ -535,8 +536,9 @@ class World:
             parts: list[object] = []
             for name in _field_names(type(rec)):
                 v = getattr(rec, name)
-                if name == "receipt_s":  # absolute time -> age in cycles
-                    v = None if math.isinf(v) else round((self.t_s - v) / period, 6)
+                if name == "watchdog":  # its last report's absolute time -> age in cycles
+                    age = None if math.isinf(v.fed_s) else round((self.t_s - v.fed_s) / period, 6)
+                    v = (age, v.missed)
                 elif isinstance(v, PositionReport):  # its time left out
                     v = (v.position_m, v.speed_mps, v.direction)
                 parts.append(_plain(v))
@@ -565,6 +567,8 @@ class World:
         period = self.model.params.report_period_s
         if name == "_answered_s":
             return None if math.isinf(v) else round((self.t_s - v) / period, 6)
+        if name == "watchdog":  # counted on the report cycle: its feed time is never read
+            return (v.missed, v.fed_in_cycle)
         if name == "_sent":
             return tuple(
                 (round((self.t_s - r.time_s) / period, 6), r.position_m, r.speed_mps, r.uncertainty_m)

@@ -26,10 +26,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from railstop.config.doors import Action, ActionTable
 from railstop.control.doors import (
     DOOR_TRANSITIONS,
-    Action,
-    ActionTable,
     DoorInput,
     DoorSignals,
     DoorState,

@@ -21,9 +21,10 @@ occupancy (for zones, re-detection and as an obstacle) is its reported extent
 widened by its uncertainty at both ends and by the rollback at its rear.
 
 **Lost trains** (SPEC §4): a train whose reports stop for ``missed_reports_lost``
-cycles is lost; its position is unknown. The controller remembers it and sets
-a **protection zone** from its occupancy end (the last reported rear) to its
-forward stop point (the end of the furthest authority it was given): in
+cycles (a :class:`~railstop.control.supervision.Watchdog` per train) is lost;
+its position is unknown. The controller remembers it and sets a **protection
+zone** from its occupancy end (the last reported rear) to its forward stop point
+(the end of the furthest authority it was given): in
 ``minimal`` mode every *segment* touching that range (the paper's zone); in
 ``conventional`` mode every *fixed block* touching it and the overlap beyond
 (what the paper says conventional systems protect; the baseline). No train
@@ -56,6 +57,7 @@ from enum import Enum, StrEnum
 from typing import Any
 
 from railstop.config.layout import Cbtc
+from railstop.control.supervision import Watchdog, WatchdogLimits
 from railstop.errors import ConfigError, InterlockError
 from railstop.messages import (
     ControllerRestart,
@@ -100,10 +102,9 @@ class Zone:
 @dataclass(slots=True)
 class _Train:
     train_id: int
+    watchdog: Watchdog  # SPEC §4: its reports, fed at each receipt (missed_reports_lost: lost)
     status: TrainStatus = TrainStatus.UNKNOWN
     report: PositionReport | None = None
-    receipt_s: float = -math.inf
-    missed: int = 0
     # The furthest authority end sent, signed by the direction (R: chainage, L: -chainage), with
     # the uncertainty of the front it was placed for: any of the commands in flight may be the one
     # the train holds, so the furthest is where its true front may stop.
@@ -152,6 +153,7 @@ class ZoneController:
     _seq: int = 0
     _seg_starts: list[float] = field(default_factory=list)
     _block_starts: list[float] = field(default_factory=list)
+    _report_limits: WatchdogLimits = field(init=False)
 
     def __post_init__(self) -> None:
         for what, items in (("segments", self.segments), ("blocks", self.blocks)):
@@ -160,6 +162,15 @@ class ZoneController:
         self._seg_starts = [a for a, _ in self.segments]
         self._block_starts = [a for a, _ in self.blocks]
         self.mode = ZoneMode(self.mode)
+        # A report after the last one received is missed half a cycle after it was due.
+        p = self.params
+        self._report_limits = WatchdogLimits(
+            period_s=p.report_period_s, misses=p.missed_reports_lost, grace_cycles=_GRACE_CYCLES
+        )
+
+    def _watchdog(self, fed_s: float = -math.inf) -> Watchdog:
+        """A train's report watchdog, last fed at ``fed_s``."""
+        return Watchdog(self._report_limits, fed_s=fed_s)
 
     # ------------------------------------------------------------------ the contract
 
@@ -182,11 +193,11 @@ class ZoneController:
 
     def next_deadline_s(self) -> float | None:
         times = [self._pending[0][0]] if self._pending else []
-        lost_after = self.params.missed_reports_lost
         times += [
-            self._due_s(t)
+            due
             for t in self.trains.values()
-            if t.status in _SUPERVISED and t.missed < lost_after  # (a re-zoned flagged train waits)
+            # (an expired watchdog has none: a re-zoned flagged train waits)
+            if t.status in _SUPERVISED and (due := t.watchdog.next_deadline_s()) is not None
         ]
         return min(times) if times else None
 
@@ -194,12 +205,8 @@ class ZoneController:
         out: list[Output] = []
         # Supervision first: a train lost now gets its zone before any command is computed.
         for t in self.trains.values():
-            while t.status in _SUPERVISED and t.missed < self.params.missed_reports_lost:
-                if now_s < self._due_s(t) - 1e-9:
-                    break
-                t.missed += 1
-                if t.missed >= self.params.missed_reports_lost:
-                    self._lose(t)
+            if t.status in _SUPERVISED and not t.watchdog.lapsed and t.watchdog.expired(now_s):
+                self._lose(t)
         while self._pending and self._pending[0][0] <= now_s + 1e-9:
             due_s, _, train_id, report = heapq.heappop(self._pending)
             known = self.trains.get(train_id)
@@ -212,10 +219,6 @@ class ZoneController:
         return out
 
     # ------------------------------------------------------------------ reports
-
-    def _due_s(self, t: _Train) -> float:
-        # The (missed + 1)-th report after the last one received is missed half a cycle after it was due.
-        return t.receipt_s + (t.missed + 1 + _GRACE_CYCLES) * self.params.report_period_s
 
     def _on_report(self, r: PositionReport, now_s: float) -> list[Output]:
         ok = r.direction in ("R", "L") and math.isfinite(r.position_m) and math.isfinite(r.speed_mps)
@@ -231,14 +234,15 @@ class ZoneController:
             self.counts.late_reports += 1
             return []
         self.counts.reports += 1
-        t = self.trains.setdefault(r.train_id, _Train(train_id=r.train_id))
+        t = self.trains.get(r.train_id)
+        if t is None:
+            t = self.trains[r.train_id] = _Train(train_id=r.train_id, watchdog=self._watchdog())
         if t.status in (TrainStatus.LOST, TrainStatus.FLAGGED):
             self._redetect(t, r)
         elif t.status == TrainStatus.UNKNOWN:
             t.status = TrainStatus.TRACKED
         t.report = r
-        t.receipt_s = now_s
-        t.missed = 0
+        t.watchdog.feed(now_s)
         # SPEC §4: the command b0 is generated Δt after the report a0 is received.
         self._seq += 1
         heapq.heappush(self._pending, (now_s + self.params.processing_delay_s, self._seq, r.train_id, r))
@@ -325,7 +329,7 @@ class ZoneController:
         t.zone = None
         # The operator has seen the train: its next report is its confirmed position.
         t.status = TrainStatus.TRACKED if t.report is not None else TrainStatus.UNKNOWN
-        t.missed = 0
+        t.watchdog.clear_misses()  # its cycles still timed from its last report
         self.counts.manual_releases += 1
 
     # ------------------------------------------------------------------ commands
@@ -411,7 +415,7 @@ class ZoneController:
         train's record (a state of another layout is refused: :meth:`restore_state`)."""
         return {
             "format": "railstop-zone-controller-state",
-            "version": 1,
+            "version": 2,  # 2: a train's missed reports in its watchdog (was: receipt_s, missed)
             "train_fields": [f.name for f in fields(_Train)],
         }
 
@@ -502,6 +506,8 @@ class ZoneController:
             if not isinstance(row, dict) or set(row) != set(hints):
                 raise ConfigError(where, f"trains[{i}]", "not a train record of this layout", row)
             t = _Train(**{k: typed(hints[k], row[k], f"trains[{i}].{k}") for k in hints})
+            # The watchdog counts by this controller's parameters; the saved feed time and count stay.
+            t.watchdog.limits = self._report_limits
             if t.train_id in trains:
                 raise ConfigError(where, f"trains[{i}].train_id", "a train twice", t.train_id)
             trains[t.train_id] = t
@@ -526,7 +532,7 @@ class ZoneController:
                 continue
             self.trains[k] = _Train(
                 train_id=k,
+                watchdog=self._watchdog(now_s),
                 status=TrainStatus.FLAGGED,
-                receipt_s=now_s,
                 zone=Zone(train_id=k, start_m=area[0], end_m=area[1]),
             )

@@ -1,4 +1,8 @@
-"""Per-run parameters of a stop: what the disturbance draw decides (arrays of shape (n,))."""
+"""Per-run parameters of a stop: what the disturbance draw decides (arrays of shape (n,)).
+
+A record of data (DESIGN rule 3), kept with the disturbance draws that fill it
+(``config.disturbances``); the model reads it.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +13,9 @@ from numpy.typing import NDArray
 
 from railstop.config.schema import Station, Vehicle
 from railstop.physics.train import GradientProfile
+from railstop.quantities import MPS_PER_KMH
 
 FloatArray = NDArray[np.float64]
-
-KMH = 1.0 / 3.6
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -62,7 +65,7 @@ class Scenario:
             return np.full(n, float(value))
 
         return cls(
-            entry_speed_mps=full(station.tasc.entry_speed_kmh * KMH),
+            entry_speed_mps=full(station.tasc.entry_speed_kmh * MPS_PER_KMH),
             load_factor=full(load_factor),
             load_weighing_error=full(0.0),
             brake_gain=full(brake_gain),
