@@ -27,7 +27,7 @@ run: install
 test: install-test
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/mypy src
-	$(BIN)/pytest -q -n 2 --dist loadgroup
+	$(BIN)/pytest -q -n 2
 
 clean:
 	rm -rf $(VENV) railstop-demo railstop.db .pytest_cache .ruff_cache .hypothesis

@@ -173,47 +173,49 @@ def test_continuous_update_counts_commands_to_each_runs_own_stop() -> None:
         assert alone.commands_received[0] == block.commands_received[i]
 
 
-@pytest.mark.parametrize("controller", ["tasc-pwm", "driver-ats"])
-def test_the_step_driven_from_python_equals_the_compiled_run(controller: str) -> None:
+def test_the_step_driven_from_python_equals_the_compiled_run() -> None:
     """DESIGN rule 2: the stop is a stepped model others can drive (a replay, a live process):
     ``stop_init``, ``stop_step`` until the train stands, ``stop_finish``, called one at a time from
     Python on the records, give run 3 of a block bit for bit, its recorded trace included."""
-    st = LINE.station("Riverside")
-    model = KernelModel.create(
-        station=st, vehicle=VEHICLE, controller=controller, form=None, dt_s=0.01, max_time_s=150.0
-    )
-    streams = RunStreams.for_runs(5, 0, 4)
-    scenario, _ = draw_scenario(HARSH, st, VEHICLE, streams)
-    res_block, passages_block, _ = run_kernel(model, scenario, seed=5, first_run=0)
-    _, _, rec_alone = run_kernel(model, _row(scenario, 3), seed=5, first_run=3, record=True)
-    assert rec_alone is not None
-    sc, bp, gv, ge = scenario_arrays(scenario)
-    ring = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1
-    s = block_state(model, ring)
-    p = stop_params(model, bp)
-    run = RunParams(sc=sc[3], grad=(bp, gv[3], ge[3]), derived=new_record(RUN_DTYPE))
-    rows = 2 * int(model.kp[KP_STEPS])
-    rec = Recording(
-        on=True,
-        trace=np.full((rows, TR_SIZE), np.nan),
-        commands=np.zeros((rows, CR_SIZE + 1)),
-        sends=np.zeros((rows, TEL_SIZE)),
-        attempts=np.zeros((rows, LA_SIZE)),
-        deliveries=np.zeros(rows),
-        counters=np.zeros(RC_SIZE, dtype=np.int64),
-    )
-    out = StopOutputs(res=np.empty(RES_SIZE), passages=np.empty(model.det_pos.size), rec=rec)
-    seed_keys = np.array([seed_key(seed_u64(5), int(k)) for k in STREAMS], dtype=np.uint64)
-    stop_init(p, run, s, out, seed_keys, 3)
-    k = 0
-    for k in range(int(model.kp[KP_STEPS])):
-        if stop_step(p, run, s, out, k):
-            break
-    stop_finish(p, run, s, out, k + 1)
-    np.testing.assert_array_equal(out.res, res_block[3])
-    np.testing.assert_array_equal(out.passages, passages_block[3])
-    assert s.train["stopped"][0]
-    np.testing.assert_array_equal(rec.trace[: rec.counters[RC_STEPS]], rec_alone.trace)
+    # Both controllers in one test: the step called from Python is compiled for that call once
+    # per process (some 25 s), and the suite's workers are separate processes.
+    for controller in ("tasc-pwm", "driver-ats"):
+        st = LINE.station("Riverside")
+        model = KernelModel.create(
+            station=st, vehicle=VEHICLE, controller=controller, form=None, dt_s=0.01, max_time_s=150.0
+        )
+        streams = RunStreams.for_runs(5, 0, 4)
+        scenario, _ = draw_scenario(HARSH, st, VEHICLE, streams)
+        res_block, passages_block, _ = run_kernel(model, scenario, seed=5, first_run=0)
+        _, _, rec_alone = run_kernel(model, _row(scenario, 3), seed=5, first_run=3, record=True)
+        assert rec_alone is not None
+        sc, bp, gv, ge = scenario_arrays(scenario)
+        ring = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1
+        s = block_state(model, ring)
+        p = stop_params(model, bp)
+        run = RunParams(sc=sc[3], grad=(bp, gv[3], ge[3]), derived=new_record(RUN_DTYPE))
+        rows = 2 * int(model.kp[KP_STEPS])
+        rec = Recording(
+            on=True,
+            trace=np.full((rows, TR_SIZE), np.nan),
+            commands=np.zeros((rows, CR_SIZE + 1)),
+            sends=np.zeros((rows, TEL_SIZE)),
+            attempts=np.zeros((rows, LA_SIZE)),
+            deliveries=np.zeros(rows),
+            counters=np.zeros(RC_SIZE, dtype=np.int64),
+        )
+        out = StopOutputs(res=np.empty(RES_SIZE), passages=np.empty(model.det_pos.size), rec=rec)
+        seed_keys = np.array([seed_key(seed_u64(5), int(k)) for k in STREAMS], dtype=np.uint64)
+        stop_init(p, run, s, out, seed_keys, 3)
+        k = 0
+        for k in range(int(model.kp[KP_STEPS])):
+            if stop_step(p, run, s, out, k):
+                break
+        stop_finish(p, run, s, out, k + 1)
+        np.testing.assert_array_equal(out.res, res_block[3])
+        np.testing.assert_array_equal(out.passages, passages_block[3])
+        assert s.train["stopped"][0]
+        np.testing.assert_array_equal(rec.trace[: rec.counters[RC_STEPS]], rec_alone.trace)
 
 
 def _row(scenario: Scenario, i: int) -> Scenario:
