@@ -133,9 +133,7 @@ class _Protocol(asyncio.DatagramProtocol):
     def kernel_drops(self, count: int) -> None:
         """The kernel's drop counter of the socket, as it came with the latest datagram (a uint32:
         the drops since the last one are the difference modulo 2^32)."""
-        ep = self._endpoint
-        ep._dropped_kernel = (ep._dropped_kernel or 0) + (count - ep._kernel_seen) % (1 << 32)
-        ep._kernel_seen = count
+        self._endpoint._kernel_counter(count)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._endpoint._wake.set()  # a waiting recv() returns
@@ -375,8 +373,13 @@ class UdpEndpoint:
             return
         count = _socket_table_drops(sock)
         if count is not None:
-            self._dropped_kernel += (count - self._kernel_seen) % (1 << 32)
-            self._kernel_seen = count % (1 << 32)
+            self._kernel_counter(count)
+
+    def _kernel_counter(self, count: int) -> None:
+        """The kernel's drop counter as it stands now (a uint32, from a datagram's ancillary data or
+        the socket table): the drops since it was last seen are the difference modulo 2^32."""
+        self._dropped_kernel = (self._dropped_kernel or 0) + (count - self._kernel_seen) % (1 << 32)
+        self._kernel_seen = count % (1 << 32)
 
     def send(self, frame: bytes, addr: Address | None = None) -> None:
         """Send one frame as one datagram to ``addr`` (default: the endpoint's remote)."""
