@@ -33,3 +33,34 @@ DRIVER_CONTROLLERS: tuple[str, ...] = (DRIVER_ATS, DRIVER_ATC1, DRIVER_ATC2, DRI
 #: Controllers without a wayside TASC unit and its radio link.
 ONBOARD_CONTROLLERS: tuple[str, ...] = (*ATO_CONTROLLERS, *DRIVER_CONTROLLERS)
 CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS, *DRIVER_CONTROLLERS)
+#: The controllers railstop defines (a law loaded from a user's file may not take these names).
+BUILTIN_CONTROLLERS: tuple[str, ...] = CONTROLLERS
+
+# Stop-control laws loaded from users' files in this process (railstop.control.law): name ->
+# positioning ("transponders": as ato, "corrected": as ato-corrected).
+_LAWS: dict[str, str] = {}
+
+
+def register_law(name: str, positioning: str) -> None:
+    """Make a loaded law a controller of this process (``railstop.control.law.load_law_file``)."""
+    _LAWS[name] = positioning
+
+
+def known_controllers() -> tuple[str, ...]:
+    """The built-in controllers, then the laws loaded in this process."""
+    return (*CONTROLLERS, *_LAWS)
+
+
+def is_ato_like(name: str) -> bool:
+    """An onboard law positioned as the ATO (``ato``, ``ato-corrected`` or a loaded law)."""
+    return name in ATO_CONTROLLERS or name in _LAWS
+
+
+def is_corrected(name: str) -> bool:
+    """Positioned by SPEC §2 track-circuit corrections (``ato-corrected`` or a law declaring so)."""
+    return name == ATO_CORRECTED or _LAWS.get(name) == "corrected"
+
+
+def is_onboard(name: str) -> bool:
+    """No wayside TASC unit and radio link (an ATO, a loaded law or a driver)."""
+    return name in ONBOARD_CONTROLLERS or name in _LAWS

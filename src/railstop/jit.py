@@ -46,6 +46,7 @@ JIT_MODULES: tuple[str, ...] = (
     "sensors/track_circuit.py",
     "onboard/positioning.py",
     "sim/corrected_position.py",
+    "control/law.py",
     "control/notch.py",
     "control/tasc.py",
     "control/brake_ident.py",

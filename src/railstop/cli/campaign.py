@@ -12,11 +12,13 @@ import typer
 
 from railstop.cli.common import (
     DriverOpt,
+    LawOpt,
     LineOpt,
     PlatformOpt,
     SchedulerOpt,
     VehicleOpt,
     fail,
+    load_law,
     load_manual_data,
     out,
     styled,
@@ -25,7 +27,7 @@ from railstop.cli.progress import Reporter, on_interrupt
 from railstop.cli.stop import FormOpt, ToleranceOpt, checked_controller, checked_tolerance
 
 # The --controller help lists the engine's controllers.
-from railstop.controllers import CONTROLLERS, DRIVER_CONTROLLERS
+from railstop.controllers import CONTROLLERS, DRIVER_CONTROLLERS, known_controllers
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
@@ -34,6 +36,7 @@ if TYPE_CHECKING:
     from railstop.config.driver import DriverFile
     from railstop.config.platform import PlatformFile
     from railstop.config.schema import Line, Vehicle
+    from railstop.control.law import LawFile
 
 
 DisturbancesOpt = Annotated[
@@ -68,6 +71,7 @@ def _run_one_campaign(
     form: int | None = None,
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
+    law: LawFile | None = None,
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
@@ -88,6 +92,8 @@ def _run_one_campaign(
         # Only a driver controller reads them: the other campaigns keep their identity.
         driver=driver if spec_controller in DRIVER_CONTROLLERS else None,
         platform=platform if spec_controller in DRIVER_CONTROLLERS else None,
+        # Only a campaign of one of the file's laws records the file.
+        law=law if law is not None and spec_controller not in CONTROLLERS else None,
     )
     n_workers = workers or os.cpu_count() or 1
 
@@ -219,7 +225,10 @@ def summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
 
 def campaign(
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
-    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    controller: Annotated[
+        str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}, or a law of --law.")
+    ] = "tasc-pwm",
+    law: LawOpt = None,
     runs: Annotated[int, typer.Option(min=1, help="Number of stops.")] = 10_000,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     disturbances: DisturbancesOpt = "standard",
@@ -243,6 +252,7 @@ def campaign(
     """Monte Carlo campaign: many stops of one controller under a disturbance set."""
     from railstop.config.plausibility import load_checked
 
+    law_file = load_law(law)
     try:
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, [controller])
@@ -266,6 +276,7 @@ def campaign(
             form=form,
             driver=drv,
             platform=plat,
+            law=law_file,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -302,9 +313,12 @@ def compare_controllers(
     form: int | None = None,
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
+    controllers: tuple[str, ...] = CONTROLLERS,
+    law: LawFile | None = None,
 ) -> list[dict[str, object]]:
-    """Every controller on identical draws (same seed, same disturbance set); ``driver`` and
-    ``platform`` go to the driver controllers."""
+    """The ``controllers`` (default: every built-in one) on identical draws (same seed, same
+    disturbance set); ``driver`` and ``platform`` go to the driver controllers, ``law`` (the
+    file) to its laws."""
     return [
         _run_one_campaign(
             ln=ln,
@@ -324,9 +338,27 @@ def compare_controllers(
             form=form,
             driver=driver,
             platform=platform,
+            law=law,
         )
-        for ctrl in CONTROLLERS
+        for ctrl in controllers
     ]
+
+
+def checked_controllers(text: str | None, law: LawFile | None) -> tuple[str, ...]:
+    """``--controllers a,b,...`` (default: every built-in controller, then the laws of ``--law``)."""
+    if text is None:
+        return known_controllers()
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    if not names:
+        fail(f"--controllers: name at least one controller (got {text!r})")
+    for name in names:
+        if name not in known_controllers():
+            hint = "" if law is not None else " (a law of your own: give its file with --law)"
+            fail(
+                f"--controllers: unknown controller {name!r}; choose from: {', '.join(known_controllers())}"
+                f"{hint}"
+            )
+    return names
 
 
 def compare(
@@ -351,13 +383,22 @@ def compare(
     vehicle: VehicleOpt = None,
     driver: DriverOpt = None,
     platform: PlatformOpt = None,
+    controllers: Annotated[
+        str | None,
+        typer.Option(
+            help="Comma-separated controllers to compare (default: every one, and the laws of --law)."
+        ),
+    ] = None,
+    law: LawOpt = None,
 ) -> None:
-    """Run every controller on identical disturbance draws and print one table."""
+    """Run every controller (or --controllers) on identical disturbance draws and print one table."""
     from railstop.config.plausibility import load_checked
 
+    law_file = load_law(law)
+    names = checked_controllers(controllers, law_file)
     try:
         ln, veh = load_checked(line, vehicle)
-        drv, plat = load_manual_data(driver, platform)
+        drv, plat = load_manual_data(driver, platform, names)
         st = ln.station(station)
         target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())
         rows = compare_controllers(
@@ -377,6 +418,8 @@ def compare(
             form=form,
             driver=drv,
             platform=plat,
+            controllers=names,
+            law=law_file,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -534,6 +577,7 @@ def report(
     vehicle: VehicleOpt = None,
     driver: DriverOpt = None,
     platform: PlatformOpt = None,
+    law: LawOpt = None,
 ) -> None:
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
     from railstop.config import load_line, load_vehicle
@@ -546,7 +590,8 @@ def report(
         drv, plat = load_manual_data(driver, platform)
 
         def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
-            manual = read_manifest(campaign_dir).get("manual_data_sha256") is not None
+            manifest = read_manifest(campaign_dir)
+            manual = manifest.get("manual_data_sha256") is not None
             return replay_profile(
                 campaign_dir,
                 run,
@@ -554,6 +599,7 @@ def report(
                 veh,
                 driver=drv if manual else None,
                 platform=plat if manual else None,
+                law=law if "law" in manifest else None,
             )
 
         with Reporter(f"report {directory}", unit="figures") as status:

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from railstop.config.driver import DriverFile
     from railstop.config.platform import PlatformFile
     from railstop.config.schema import Station
+    from railstop.control.law import LawFile
     from railstop.sim.invariants import Invariant, Verification
 
 # Markup is off: names, traces and messages come from user data and are printed literally
@@ -45,6 +46,13 @@ def fail(message: str) -> NoReturn:
 
 
 # Options several commands share (one definition, one help text).
+LawOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--law",
+        help="A Python file of stop-control laws (docs/control-law.md): each becomes a controller.",
+    ),
+]
 LineOpt = Annotated[Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")]
 VehicleOpt = Annotated[
     Path | None, typer.Option("--vehicle", help="Vehicle TOML file (default: embedded EMU).")
@@ -99,6 +107,21 @@ def print_verification(
         f"({result.elapsed_s:.1f} s)",
         highlight=False,
     )
+
+
+def load_law(path: Path | None) -> LawFile | None:
+    """Load the laws of ``--law`` (their names become controllers): the file as a campaign records
+    it; bad input fails with one line naming the file (exit 2)."""
+    if path is None:
+        return None
+    from railstop.control.law import LawFile  # numba: loaded only when a law is given
+
+    try:
+        law = LawFile.of(path)
+        law.load()
+    except RailstopError as exc:
+        fail(f"--law: {exc}")
+    return law
 
 
 def load_manual_data(

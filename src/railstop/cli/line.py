@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli.common import LineOpt, OperationOpt, SchedulerOpt, VehicleOpt, fail
+from railstop.cli.common import LawOpt, LineOpt, OperationOpt, SchedulerOpt, VehicleOpt, fail, load_law
 from railstop.cli.common import out as console
 from railstop.errors import RailstopError
 
@@ -98,9 +98,11 @@ def run_cmd(
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     operation: OperationOpt = None,
+    law: LawOpt = None,
 ) -> None:
     """Run the trains of the operation over the line: entries, running under the fixed-block
-    signals, a station stop by ground TASC at every station, dwells; print the summary."""
+    signals, a station stop by ground TASC at every station, dwells; print the summary. With
+    ``--law``, the operation file's ``controller`` may name one of the file's laws."""
     from railstop.config import load_line, load_vehicle
     from railstop.config.disturbances import load_disturbances
     from railstop.provenance import footer, inputs_sha256, stamp
@@ -109,6 +111,7 @@ def run_cmd(
 
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
+    load_law(law)
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)

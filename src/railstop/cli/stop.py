@@ -12,10 +12,20 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli.common import DriverOpt, LineOpt, PlatformOpt, VehicleOpt, fail, load_manual_data, out
+from railstop.cli.common import (
+    DriverOpt,
+    LawOpt,
+    LineOpt,
+    PlatformOpt,
+    VehicleOpt,
+    fail,
+    load_law,
+    load_manual_data,
+    out,
+)
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
-from railstop.controllers import CONTROLLERS
+from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, is_ato_like, known_controllers
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
@@ -52,15 +62,21 @@ def checked_tolerance(value: float | None) -> float | None:
 
 
 def checked_controller(name: str) -> str:
-    if name not in CONTROLLERS:
-        fail(f"--controller: unknown controller {name!r}; choose one of: {', '.join(CONTROLLERS)}")
+    """``name`` if it is a built-in controller or a law loaded with ``--law``."""
+    if name not in known_controllers():
+        names = ", ".join(known_controllers())
+        hint = "" if name in CONTROLLERS else " (a law of your own: give its file with --law)"
+        fail(f"--controller: unknown controller {name!r}; choose one of: {names}{hint}")
     return name
 
 
 def stop(
     ctx: typer.Context,
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
-    controller: Annotated[str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}.")] = "tasc-pwm",
+    controller: Annotated[
+        str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}, or a law of --law.")
+    ] = "tasc-pwm",
+    law: LawOpt = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     load_factor: Annotated[
         float, typer.Option(min=0.0, max=1.0, help="0 = empty (AW0) .. 1 = crush (AW3).")
@@ -92,11 +108,11 @@ def stop(
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
     from railstop.config.disturbances import load_disturbances
     from railstop.config.plausibility import load_checked
-    from railstop.controllers import ATO_CONTROLLERS
     from railstop.sim.single import run_stop, stop_record
     from railstop.streams import RUN_LIMIT, SEED_RANGE, seed_in_range
     from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
 
+    load_law(law)
     if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
         fail("--load-factor and --brake-gain come from the draw when --disturbances is given")
     if run >= RUN_LIMIT:
@@ -148,8 +164,8 @@ def stop(
             raise typer.Exit(1)
         return
     what = (
-        "onboard ATO, no TASC telegrams"
-        if result.controller in ATO_CONTROLLERS
+        f"onboard {'ATO' if result.controller in ATO_CONTROLLERS else 'law of --law'}, no TASC telegrams"
+        if is_ato_like(result.controller)
         else f"{result.commands} commands received (form {result.form}: "
         f"{FORM_NAMES[SignalForm(result.form)]})"
     )

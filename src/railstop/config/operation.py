@@ -20,7 +20,7 @@ from pydantic import Field, model_validator
 from railstop.config.base import FieldProblem, FiniteFloat, Model, NonNegFloat
 from railstop.config.loader import data_text, read_toml, validate
 from railstop.config.schema import Line
-from railstop.controllers import CONTROLLERS
+from railstop.controllers import known_controllers
 from railstop.errors import ConfigError
 
 DEFAULT_OPERATION = "operation/default.toml"
@@ -54,8 +54,11 @@ class Operation(Model):
 
     @model_validator(mode="after")
     def _check(self) -> Operation:
-        if self.controller not in CONTROLLERS:
-            raise FieldProblem("controller", f"unknown controller; choose one of: {', '.join(CONTROLLERS)}")
+        if self.controller not in known_controllers():
+            known = ", ".join(known_controllers())
+            raise FieldProblem(
+                "controller", f"unknown controller; choose one of: {known} (or a law of --law)"
+            )
         if self.entries_s is not None:
             if len(self.entries_s) != self.trains:
                 raise FieldProblem(

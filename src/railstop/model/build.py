@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from railstop.config.driver import (
     LEVEL_PARAMETERS,
@@ -27,8 +28,17 @@ from railstop.config.scenario import Scenario
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
 from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
+from railstop.control.law import ControlLaw, law_params, loaded_law
 from railstop.control.tasc import external_params
-from railstop.controllers import DRIVER_ATC1, DRIVER_ATC2, DRIVER_ATS, DRIVER_UNAIDED
+from railstop.controllers import (
+    BUILTIN_CONTROLLERS,
+    DRIVER_ATC1,
+    DRIVER_ATC2,
+    DRIVER_ATS,
+    DRIVER_UNAIDED,
+    is_corrected,
+    known_controllers,
+)
 from railstop.errors import RailstopError, SimulationError
 from railstop.link.channel import airtime_s, media_preset
 from railstop.link.codec import TASC_FORM_TYPES, layout_of
@@ -91,7 +101,7 @@ from railstop.model.records import (
     IntArray,
     StopParams,
 )
-from railstop.onboard.ato import ato_params
+from railstop.onboard.ato import ATO_CORRECTED_LAW, ATO_LAW, ato_params
 from railstop.onboard.driver import RS_EB_RESET
 from railstop.onboard.tasc_receiver import CONFIG_CODES, receiver_params, receiver_window
 from railstop.quantities import kmh_to_mps
@@ -161,6 +171,7 @@ class KernelModel:
     wp: FloatArray
     rp: FloatArray
     ap: FloatArray
+    lp: NDArray[np.void]  # the stop-control law's parameters (control.law LAW_PARAMS_DTYPE)
     ext: FloatArray
     quant: FloatArray
     carried: FloatArray
@@ -201,9 +212,9 @@ class KernelModel:
     ) -> KernelModel:
         """``driver``, ``platform``: the driver controllers' data (None: the embedded defaults);
         ``incapacitated``: their driver never brakes (the supervision check of SPEC §3)."""
-        if controller not in CONTROLLER_CODES:
+        if controller not in known_controllers():
             raise SimulationError(
-                f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLER_CODES)}"
+                f"unknown controller {controller!r}; choose one of: {', '.join(known_controllers())}"
             )
         tasc = station.tasc
         form = SignalForm(tasc.signal_form if form is None else form)
@@ -222,7 +233,7 @@ class KernelModel:
         kp = np.zeros(KP_SIZE)
         kp[KP_DT] = dt_s
         kp[KP_STEPS] = round(max_time_s / dt_s)
-        kp[KP_CONTROLLER] = CONTROLLER_CODES[controller]
+        kp[KP_CONTROLLER] = controller_code(controller)
         kp[KP_STOP] = station.stop_point_m
         kp[KP_TARE] = vehicle.tare_mass_kg
         kp[KP_CRUSH] = vehicle.crush_payload_kg
@@ -264,6 +275,7 @@ class KernelModel:
             wp=wp,
             rp=receiver_params(rcfg, int(form), vehicle, station, dt_s),
             ap=ato_params(vehicle, station.stop_point_m, dt_s),
+            lp=law_params(vehicle, dt_s),
             ext=external_params(vehicle, station.stop_point_m),
             quant=quant,
             carried=carried,
@@ -345,7 +357,7 @@ def _positioning(
         "db_sd": no_floats,
         "log_len": 1,
     }
-    if controller == "ato-corrected":
+    if is_corrected(controller):
         fl = FixesLine.create(track=track, vehicle=vehicle, dt_s=dt_s)
         fp[FP_DELAY_MEAN] = fl.delay_mean_s
         fp[FP_DELAY_SPREAD] = fl.delay_spread_s
@@ -471,4 +483,24 @@ def stop_params(model: KernelModel, breakpoints_m: FloatArray) -> StopParams:
         code_pos=model.code_pos,
         code_lim=model.code_lim,
         lamp_table=model.lamp_table,
+        law=control_law_of(model.controller).compiled(),
+        lp=model.lp,
     )
+
+
+def controller_code(controller: str) -> int:
+    """The kernel's code of a controller (a loaded law runs as the ATO it is positioned as)."""
+    if controller in CONTROLLER_CODES:
+        return CONTROLLER_CODES[controller]
+    return CTRL_ATO_CORRECTED if is_corrected(controller) else CTRL_ATO
+
+
+def control_law_of(controller: str) -> ControlLaw:
+    """The onboard stop-control law of ``controller``: the ATO's for the built-in controllers (the
+    TASC and driver controllers never call it), else the law loaded under that name."""
+    law = loaded_law(controller)
+    if law is not None:
+        return law
+    if controller not in BUILTIN_CONTROLLERS:
+        raise SimulationError(f"unknown controller {controller!r}: no law of that name is loaded")
+    return ATO_CORRECTED_LAW if controller == "ato-corrected" else ATO_LAW

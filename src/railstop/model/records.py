@@ -53,12 +53,13 @@ compiled:
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.platform import LAMP_CODES
+from railstop.control.law import LAW_PARAMS_DTYPE, LAW_STATE_SIZE, MEASUREMENTS_DTYPE
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES
 from railstop.onboard.ato import AT_SIZE
@@ -319,6 +320,10 @@ class StopParams(NamedTuple):
     code_pos: FloatArray  # the station's code points ...
     code_lim: FloatArray  # ... and their speed limits (m/s)
     lamp_table: FloatArray  # the lamp per (S2, S1) reading
+    # The onboard stop-control law (railstop.control.law): the ATO's, or a loaded one; a numba
+    # first-class function (one compiled model serves every law), and its parameters record.
+    law: Any
+    lp: RecordArray
 
 
 # The run's parameters that follow from its draw (stop_init writes them; constant over the run).
@@ -484,6 +489,9 @@ class StopState(NamedTuple):
     rh_e: FloatArray
     mod: FloatArray
     at: FloatArray
+    meas: RecordArray  # the law's measurements (control.law MEASUREMENTS_DTYPE)
+    law_state: FloatArray  # the law's own state (control.law LAW_STATE_SIZE)
+    law_params: RecordArray  # the run's copy of the law's parameters (control.law LAW_PARAMS_DTYPE)
     # SPEC §2 positioning of ato-corrected (sim.corrected_position).
     fx: FloatArray
     fxi: IntArray
@@ -554,6 +562,9 @@ def new_state(
         rh_e=np.zeros(HISTORY),
         mod=np.zeros(MOD_SIZE),
         at=np.zeros(AT_SIZE),
+        meas=np.zeros(1, dtype=MEASUREMENTS_DTYPE),
+        law_state=np.zeros(LAW_STATE_SIZE),
+        law_params=np.zeros(1, dtype=LAW_PARAMS_DTYPE),
         fx=np.zeros(FX_SIZE),
         fxi=np.zeros(FXI_SIZE, dtype=np.int64),
         flog=np.zeros((LOG_ROWS, log_len)),

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.scenario import Scenario
+from railstop.controllers import is_corrected
 from railstop.errors import SimulationError
 from railstop.jit import cache_dir, njit, njit_step
 from railstop.model.build import DRIVER_MODES, KernelModel, scenario_arrays, stop_params
@@ -141,7 +142,7 @@ def run_kernel(
 ) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
     """Simulate ``scenario.n`` runs: (results (n, RES_SIZE), true passage times (n, D), record of run 0)."""
     sc, bp, gv, ge = scenario_arrays(scenario)
-    if model.controller == "ato-corrected" and scenario.n:
+    if is_corrected(model.controller) and scenario.n:
         # The train was corrected at the last circuit boundary behind its start (SPEC §2).
         start = model.det_pos[0] - np.maximum(20.0, 1.5 * sc[:, SC_ENTRY_SPEED])
         if np.any(start < model.tc_starts[0]):

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from railstop.control.law import reset_law_1
 from railstop.jit import njit_inline, njit_step
 from railstop.model.records import (
     CTRL_ATO,
@@ -466,6 +467,7 @@ def stop_init(
     _reset_state(p, s, x, entry)
     if d.is_ato:
         ato_init_1(s.at, s.mod)
+        reset_law_1(s.law_state, s.law_params, p.lp)
     elif d.is_driver:
         # SPEC §3: the run's driver and the train's ATS / ATC supervision.
         driver_draw_1(s.dr, p.levels, d.k_driver)
@@ -839,7 +841,9 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
     # The tachometer's speed: wheel speed (slower when sliding) with the assumed diameter.
     tach_v = v0 * creep_1(tr.sliding, d.slide_slip) * d.tach_scale
     if d.is_ato:
-        notch = ato_output_1(s.at, p.ap, s.mod, p.table, p.ext, run.grad, k, tach_v)
+        notch = ato_output_1(
+            s.at, p.ap, s.mod, p.table, p.ext, run.grad, k, tach_v, p.law, s.meas, s.law_state, s.law_params
+        )
         duty = np.nan
         braking = s.at[AT_BRAKING] > 0.0
         eb = False

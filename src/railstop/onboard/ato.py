@@ -36,12 +36,15 @@ transponder layout and the law are railstop's choice of a fair baseline.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
+from railstop.control.law import control_law, safe_demand_1
 from railstop.control.notch import modulator_init_1, modulator_update_1
-from railstop.control.tasc import clip_1, external_decel_1
+from railstop.control.tasc import external_decel_1
 from railstop.jit import njit_inline, njit_step
 
 FloatArray = NDArray[np.float64]
@@ -66,10 +69,9 @@ AT_DISTANCE = 1  # odometric distance to the stopping point
 AT_TARGET = 2
 AT_NOTCH = 3
 AT_BRAKING = 4  # until then the train holds its speed
-AT_CURVE = 5  # the brake curve's deceleration (NaN: draw a new one at the next plan)
-AT_FIXES = 6
-AT_PLANS = 7
-AT_SIZE = 8
+AT_FIXES = 5
+AT_PLANS = 6
+AT_SIZE = 7
 
 
 def ato_params(vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray:
@@ -88,7 +90,6 @@ def ato_params(vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray
 def ato_init_1(at: FloatArray, mod: FloatArray) -> None:
     at[:] = 0.0
     at[AT_DISTANCE] = np.inf
-    at[AT_CURVE] = np.nan
     modulator_init_1(mod)
 
 
@@ -97,8 +98,7 @@ def ato_fix_1(at: FloatArray, distance_m: float) -> None:
     """A position fix: the distance to the stopping point is now ``distance_m``; a new pattern."""
     at[AT_DISTANCE] = distance_m
     at[AT_ACTIVE] = 1.0
-    at[AT_FIXES] += 1.0
-    at[AT_CURVE] = np.nan
+    at[AT_FIXES] += 1.0  # the law sees a new fix: a new reference
 
 
 @njit_inline
@@ -118,27 +118,29 @@ def ato_output_1(
     grad: tuple[FloatArray, FloatArray, FloatArray],
     k: int,
     speed_mps: float,
+    law: Any,
+    meas: NDArray[np.void],
+    law_state: FloatArray,
+    lp: NDArray[np.void],
 ) -> int:
-    """The notch of step ``k`` (``speed_mps``: the tachometer's speed); see the module docstring."""
+    """The notch of step ``k`` (``speed_mps``: the tachometer's speed): every controller cycle
+    with a position, the ``law``'s demand (``railstop.control.law``), realised with the notches
+    by the train's brake controller."""
     cycle = int(ap[AP_CYCLE_STEPS])
     active = at[AT_ACTIVE] > 0.0
     if k % cycle == 0:
         if active:
-            full = ap[AP_MAX_DECEL]
-            # The pattern is compared a little ahead of the train: a lead that keeps the loop
-            # from lagging it by the brake's delay.
-            lead_s = ATO_LEAD_FRACTION * ap[AP_RESPONSE]
             distance = at[AT_DISTANCE]
-            ahead = max(distance - speed_mps * lead_s, 0.0)
-            if np.isnan(at[AT_CURVE]):
-                # The pattern (train deceleration) through the state at the latest fix; before the
-                # brakes are on, through the point where they will have responded, so that the
-                # train meets the pattern instead of starting behind it.
-                start = ahead if at[AT_BRAKING] > 0.0 else distance - speed_mps * ap[AP_RESPONSE]
-                at[AT_CURVE] = clip_1(speed_mps**2 / (2.0 * max(start, 1.0)), 0.05, full)
-            at[AT_TARGET] = _ato_brake_1(at[AT_CURVE], ahead, distance, speed_mps, ap, ext, grad)
+            m = meas[0]
+            m.t_s = k * ap[AP_DT]
+            m.distance_m = distance
+            m.speed_mps = speed_mps
+            m.external_mps2 = external_decel_1(ext, grad, distance, speed_mps)
+            m.fixes = int(at[AT_FIXES])
+            m.braking = at[AT_BRAKING] > 0.0
+            at[AT_TARGET] = safe_demand_1(law(meas, law_state, lp), ap[AP_MAX_DECEL])
             if at[AT_TARGET] > 0.0:
-                at[AT_BRAKING] = 1.0
+                at[AT_BRAKING] = 1.0  # from now on the traction is off
             at[AT_PLANS] += 1.0
         at[AT_NOTCH] = modulator_update_1(
             mod,
@@ -154,21 +156,35 @@ def ato_output_1(
     return int(at[AT_NOTCH])
 
 
-@njit_inline
-def _ato_brake_1(
-    curve: float,
-    ahead: float,
-    distance: float,
-    speed_mps: float,
-    ap: FloatArray,
-    ext: FloatArray,
-    grad: tuple[FloatArray, FloatArray, FloatArray],
-) -> float:
+# --------------------------------------------------------------------------
+# The ATO's law, written against railstop.control.law (the example of a law).
+
+# The law's own state (railstop.control.law: zeroed at the start of a run).
+ATO_CURVE = 0  # the pattern's deceleration (0: draw a new one at the next plan)
+ATO_FIXES_SEEN = 1  # the fixes the pattern was drawn after
+
+
+def ato_law_function(meas: NDArray[np.void], state: FloatArray, params: NDArray[np.void]) -> float:
     """The brake deceleration the ATO asks for (see the module docstring)."""
-    full = ap[AP_MAX_DECEL]
+    m, p = meas[0], params[0]
+    full = p.full_service_mps2
+    speed = m.speed_mps
+    distance = m.distance_m
+    # The pattern is compared a little ahead of the train: a lead that keeps the loop from lagging
+    # it by the brake's delay.
+    lead_s = ATO_LEAD_FRACTION * p.response_s
+    ahead = max(distance - speed * lead_s, 0.0)
+    if m.fixes != state[ATO_FIXES_SEEN]:
+        # A new fix: the pattern (train deceleration) through the state at this fix; before the
+        # brakes are on, through the point where they will have responded, so that the train
+        # meets the pattern instead of starting behind it.
+        start = ahead if m.braking else distance - speed * p.response_s
+        state[ATO_CURVE] = min(max(speed**2 / (2.0 * max(start, 1.0)), 0.05), full)
+        state[ATO_FIXES_SEEN] = m.fixes
+    curve = state[ATO_CURVE]
     if distance <= 0.0:  # at or past its stopping point with speed left: full service
         return full
-    v = speed_mps
+    v = speed
     v_pattern = np.sqrt(2.0 * curve * ahead)
     ratio = v / v_pattern if v_pattern > 0.0 else 1.0
     train = curve * ratio - (v_pattern - v) / ATO_REJOIN_S
@@ -179,6 +195,10 @@ def _ato_brake_1(
     elif ahead > 1e-3:
         # Below it: no more than stopping exactly at the stopping point.
         train = min(train, v * v / (2.0 * ahead))
-    # The line data's gradient and resistance at the train.
-    ext_now = external_decel_1(ext, grad, distance, speed_mps)
-    return clip_1(train - ext_now, 0.0, full)
+    # Less what the line data's gradient and resistance give at the train.
+    return min(max(train - m.external_mps2, 0.0), full)
+
+
+#: The onboard ATO (positioned at the transponders) and ato-corrected (by SPEC §2 corrections).
+ATO_LAW = control_law(name="ato")(ato_law_function)
+ATO_CORRECTED_LAW = control_law(name="ato-corrected", positioning="corrected")(ato_law_function)

@@ -46,11 +46,13 @@ from railstop.config.disturbances import PARAMETERS, DisturbanceSet, draw_scenar
 from railstop.config.driver import DriverFile
 from railstop.config.platform import PlatformFile
 from railstop.config.schema import Line, Station, Track, Vehicle
+from railstop.control.law import LawFile
+from railstop.controllers import known_controllers
 from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, overrides_sha256, stamp
 from railstop.quantities import KMH_PER_MPS
 from railstop.report.campaign_report import RESULT_COLUMNS, summary_stats
-from railstop.sim.engine import CONTROLLERS, BatchResult, run_batch
+from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.executor import blocks, describe, execute
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
@@ -115,6 +117,8 @@ class CampaignSpec:
     # The driver controllers' data given in place of the embedded files (None: embedded).
     driver: DriverFile | None = None
     platform: PlatformFile | None = None
+    # The file of a stop-control law loaded by the user (railstop.control.law; None: built in).
+    law: LawFile | None = None
 
     def tolerance(self) -> float:
         return (
@@ -144,6 +148,8 @@ class CampaignSpec:
         manual = overrides_sha256(self.driver, self.platform)
         if manual is not None:  # only then: a campaign on the embedded data keeps its identity
             out["manual_data_sha256"] = manual
+        if self.law is not None:  # the same: a built-in controller's campaign keeps its identity
+            out["law"] = self.law.manifest()
         return out
 
     def identity(self) -> str:
@@ -253,6 +259,8 @@ def simulate_block(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
     """The per-run rows of runs ``first .. end - 1`` of a chunk (``block`` = (chunk, first, end)): a
     pure function of the spec and the block, so any thread, process or machine may compute it."""
     _, first, end = block
+    if spec.law is not None:
+        spec.law.load()  # in a worker process: the law by its file (once per process)
     result, drawn = simulate_runs(
         station=spec.line.station(spec.station),
         vehicle=spec.vehicle,
@@ -409,10 +417,11 @@ def finished_chunks(spec: CampaignSpec, out: Path) -> tuple[int, int]:
 
 
 def _check_spec(spec: CampaignSpec) -> None:
-    if spec.controller not in CONTROLLERS:
-        raise RailstopError(
-            f"--controller: unknown controller {spec.controller!r}; choose one of: {', '.join(CONTROLLERS)}"
-        )
+    if spec.law is not None:
+        spec.law.load()
+    if spec.controller not in known_controllers():
+        names = ", ".join(known_controllers())
+        raise RailstopError(f"--controller: unknown controller {spec.controller!r}; choose one of: {names}")
     if spec.runs < 1 or spec.chunk_size < 1:
         raise RailstopError(
             f"--runs and the chunk size must be at least 1 (got {spec.runs}, {spec.chunk_size})"
@@ -636,9 +645,11 @@ def spec_from_manifest(
     *,
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
+    law: Path | None = None,
 ) -> CampaignSpec:
-    """The campaign a manifest describes, with the line, vehicle (and driver, platform) data it was
-    run on."""
+    """The campaign a manifest describes, with the line, vehicle (and driver, platform, law file)
+    data it was run on."""
+    law_file = _law_of_manifest(manifest, law, source)
     if manifest.get("model_version") != MODEL_VERSION:
         raise RailstopError(
             f"{source}: the campaign was made by stop model version {manifest.get('model_version', 1)}; "
@@ -667,7 +678,29 @@ def spec_from_manifest(
         form=int(manifest["form"]),
         driver=driver,
         platform=platform,
+        law=law_file,
     )
+
+
+def _law_of_manifest(manifest: dict[str, Any], law: Path | None, source: str) -> LawFile | None:
+    """The law file of a campaign's manifest: the one given (``--law``), which must be the one
+    the campaign ran."""
+    recorded = manifest.get("law")
+    if recorded is None:
+        if law is not None:
+            raise RailstopError(
+                f"{source}: the campaign ran a built-in controller; --law {law} does not apply"
+            )
+        return None
+    if law is None:
+        raise RailstopError(
+            f"{source}: the campaign ran the law of {recorded.get('file')!r}; pass that file with --law"
+        )
+    law_file = LawFile.of(law)
+    if law_file.sha256 != recorded.get("sha256"):
+        raise RailstopError(f"{source}: --law {law} is not the law file the campaign ran (its text differs)")
+    law_file.load()
+    return law_file
 
 
 def replay_profile(
@@ -678,10 +711,18 @@ def replay_profile(
     *,
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
+    law: Path | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Run ``run`` of the campaign in ``out`` again with recording: (distance to the stop m, speed km/h)."""
+    """Run ``run`` of the campaign in ``out`` again with recording: (distance to the stop m, speed
+    km/h); ``law``: the law file of a campaign of a loaded law."""
     spec = spec_from_manifest(
-        read_manifest(out), line, vehicle, str(Path(out) / MANIFEST), driver=driver, platform=platform
+        read_manifest(out),
+        line,
+        vehicle,
+        str(Path(out) / MANIFEST),
+        driver=driver,
+        platform=platform,
+        law=law,
     )
     station = line.station(spec.station)
     result, _ = simulate_runs(

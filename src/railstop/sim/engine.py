@@ -24,7 +24,14 @@ from railstop.config.driver import DriverFile
 from railstop.config.platform import PlatformFile
 from railstop.config.scenario import Scenario
 from railstop.config.schema import Station, Track, Vehicle
-from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, ONBOARD_CONTROLLERS, TASC_CONTROLLERS
+from railstop.controllers import (
+    ATO_CONTROLLERS,
+    CONTROLLERS,
+    ONBOARD_CONTROLLERS,
+    TASC_CONTROLLERS,
+    is_onboard,
+    known_controllers,
+)
 from railstop.errors import SimulationError
 from railstop.link.codec import Telegram, decode, encode, layout_of
 from railstop.model.build import KernelModel
@@ -190,8 +197,9 @@ def run_batch(
     ``track``: the line's track circuits (``ato-corrected`` needs them); ``driver``,
     ``platform``, ``incapacitated``: the driver controllers' (``KernelModel.create``).
     """
-    if controller not in CONTROLLERS:
-        raise SimulationError(f"unknown controller {controller!r}; choose one of: {', '.join(CONTROLLERS)}")
+    if controller not in known_controllers():
+        names = ", ".join(known_controllers())
+        raise SimulationError(f"unknown controller {controller!r}; choose one of: {names}")
     n = scenario.n
     if streams.n != n:
         raise SimulationError(f"{streams.n} random streams for {n} runs")
@@ -219,7 +227,7 @@ def run_batch(
     if rec is not None:
         trace = _trace(rec.trace)
         commands = command_records(rec.commands, model.form, rec.sends)
-        if controller not in ONBOARD_CONTROLLERS:
+        if not is_onboard(controller):
             frames = check_byte_link(rec, station, model.form, dt_s)
     return BatchResult(
         stop_error_m=res[:, RES_ERROR].copy(),
