@@ -39,10 +39,10 @@ from railstop.config.disturbances import (
     draw_scenario,
     load_disturbances,
 )
+from railstop.config.gradient import GradientProfile
 from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import Station
 from railstop.errors import ConfigError
-from railstop.physics.train import GradientProfile
 from railstop.quantities import MPS_PER_KMH
 from railstop.streams import RunStreams
 

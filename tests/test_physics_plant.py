@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.gradient import GradientProfile
 from railstop.errors import SimulationError
 from railstop.physics.brake import actuator_step_1
 from railstop.physics.plant import (
@@ -36,7 +37,7 @@ from railstop.physics.plant import (
     traction_adhesion_mps2,
     traction_mps2,
 )
-from railstop.physics.train import G_MPS2, GradientProfile, mean_gradient_1, motion_step_1
+from railstop.physics.train import G_MPS2, mean_gradient_1, motion_step_1
 
 VEHICLE = default_vehicle()
 # No running resistance: the closed forms hold exactly.

@@ -16,10 +16,10 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from railstop.config import default_vehicle
+from railstop.config.gradient import GradientProfile
 from railstop.config.schema import Vehicle
 from railstop.physics.train import (
     G_MPS2,
-    GradientProfile,
     MotionState,
     TrainMass,
     adhesion_limit_mps2,

@@ -58,11 +58,11 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
 
+from railstop.config.gradient import GradientProfile
 from railstop.config.loader import format_loc, read_toml, validate
 from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import FieldProblem, Station, Vehicle
 from railstop.errors import ConfigError
-from railstop.physics.train import GradientProfile
 from railstop.quantities import MPS_PER_KMH
 from railstop.streams import RunStreams, Stream
 

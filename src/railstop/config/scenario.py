@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.config.gradient import GradientProfile
 from railstop.config.schema import Station, Vehicle
-from railstop.physics.train import GradientProfile
 from railstop.quantities import MPS_PER_KMH
 
 FloatArray = NDArray[np.float64]

@@ -40,10 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.config.gradient import GradientProfile
 from railstop.config.schema import GradientSegment, Line, Vehicle
 from railstop.errors import SimulationError
 from railstop.physics.brake import actuator_step_1
-from railstop.physics.train import G_MPS2, GradientProfile, mean_gradient_1, motion_step_1
+from railstop.physics.train import G_MPS2, mean_gradient_1, motion_step_1
 from railstop.quantities import kmh_to_mps
 
 FloatArray = NDArray[np.float64]
