@@ -34,31 +34,17 @@ from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_dis
 from railstop.config.scenario import Scenario
 from railstop.errors import SimulationError
 from railstop.jit import JIT_MODULES
-from railstop.model.build import KernelModel, scenario_arrays, stop_params
+from railstop.model.build import KernelModel
 from railstop.model.records import (
-    KP_DT,
-    KP_STEPS,
     LA_LOST,
-    LA_SIZE,
-    RC_SIZE,
-    RC_STEPS,
-    RES_SIZE,
-    RUN_DTYPE,
-    SC_DEAD_TIME,
-    STREAMS,
-    TR_SIZE,
-    Recording,
-    RunParams,
-    StopOutputs,
-    new_record,
+    RES_STOPPED,
 )
-from railstop.model.run import block_state, run_kernel
-from railstop.model.step import stop_finish, stop_init, stop_step
+from railstop.model.run import run_kernel, run_stepped
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
 from railstop.sim.single import run_stop
-from railstop.streams import RunStreams, seed_key, seed_u64
-from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE, SignalForm
+from railstop.streams import RunStreams
+from railstop.wayside.tasc_unit import SignalForm
 
 LINE = default_line()
 VEHICLE = default_vehicle()
@@ -177,8 +163,8 @@ def test_the_step_driven_from_python_equals_the_compiled_run() -> None:
     """DESIGN rule 2: the stop is a stepped model others can drive (a replay, a live process):
     ``stop_init``, ``stop_step`` until the train stands, ``stop_finish``, called one at a time from
     Python on the records, give run 3 of a block bit for bit, its recorded trace included."""
-    # Both controllers in one test: the step called from Python is compiled for that call once
-    # per process (some 25 s), and the suite's workers are separate processes.
+    # Both controllers in one test: the step called from Python is compiled for that call (or
+    # loaded from the cache ``railstop compile`` fills) once per process.
     for controller in ("tasc-pwm", "driver-ats"):
         st = LINE.station("Riverside")
         model = KernelModel.create(
@@ -189,33 +175,13 @@ def test_the_step_driven_from_python_equals_the_compiled_run() -> None:
         res_block, passages_block, _ = run_kernel(model, scenario, seed=5, first_run=0)
         _, _, rec_alone = run_kernel(model, _row(scenario, 3), seed=5, first_run=3, record=True)
         assert rec_alone is not None
-        sc, bp, gv, ge = scenario_arrays(scenario)
-        ring = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1
-        s = block_state(model, ring)
-        p = stop_params(model, bp)
-        run = RunParams(sc=sc[3], grad=(bp, gv[3], ge[3]), derived=new_record(RUN_DTYPE))
-        rows = 2 * int(model.kp[KP_STEPS])
-        rec = Recording(
-            on=True,
-            trace=np.full((rows, TR_SIZE), np.nan),
-            commands=np.zeros((rows, CR_SIZE + 1)),
-            sends=np.zeros((rows, TEL_SIZE)),
-            attempts=np.zeros((rows, LA_SIZE)),
-            deliveries=np.zeros(rows),
-            counters=np.zeros(RC_SIZE, dtype=np.int64),
-        )
-        out = StopOutputs(res=np.empty(RES_SIZE), passages=np.empty(model.det_pos.size), rec=rec)
-        seed_keys = np.array([seed_key(seed_u64(5), int(k)) for k in STREAMS], dtype=np.uint64)
-        stop_init(p, run, s, out, seed_keys, 3)
-        k = 0
-        for k in range(int(model.kp[KP_STEPS])):
-            if stop_step(p, run, s, out, k):
-                break
-        stop_finish(p, run, s, out, k + 1)
-        np.testing.assert_array_equal(out.res, res_block[3])
-        np.testing.assert_array_equal(out.passages, passages_block[3])
-        assert s.train["stopped"][0]
-        np.testing.assert_array_equal(rec.trace[: rec.counters[RC_STEPS]], rec_alone.trace)
+        res, passages, rec = run_stepped(model, _row(scenario, 3), seed=5, run=3, record=True)
+        assert rec is not None
+        np.testing.assert_array_equal(res[0], res_block[3])
+        np.testing.assert_array_equal(passages[0], passages_block[3])
+        assert res[0, RES_STOPPED] > 0.0
+        np.testing.assert_array_equal(rec.trace, rec_alone.trace)
+        np.testing.assert_array_equal(rec.commands, rec_alone.commands)
 
 
 def _row(scenario: Scenario, i: int) -> Scenario:

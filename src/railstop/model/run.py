@@ -132,15 +132,21 @@ def block_state(model: KernelModel, ring_size: int) -> StopState:
     )
 
 
-def run_kernel(
-    model: KernelModel,
-    scenario: Scenario,
-    *,
-    seed: int,
-    first_run: int,
-    record: bool = False,
-) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
-    """Simulate ``scenario.n`` runs: (results (n, RES_SIZE), true passage times (n, D), record of run 0)."""
+@dataclass(frozen=True, slots=True)
+class _Buffers:
+    """What a call of the model works on: the draws as arrays, the records, the outputs."""
+
+    sc: FloatArray
+    bp: FloatArray
+    gv: FloatArray
+    ge: FloatArray
+    rec: Recording
+    res: FloatArray
+    passages: FloatArray
+    state: StopState
+
+
+def _buffers(model: KernelModel, scenario: Scenario, record: bool) -> _Buffers:
     sc, bp, gv, ge = scenario_arrays(scenario)
     if is_corrected(model.controller) and scenario.n:
         # The train was corrected at the last circuit boundary behind its start (SPEC §2).
@@ -160,30 +166,71 @@ def run_kernel(
         deliveries=np.zeros(rows),
         counters=np.zeros(RC_SIZE, dtype=np.int64),
     )
-    res = np.empty((n, RES_SIZE))
-    passages = np.empty((n, model.det_pos.size))
     ring_size = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1 if n else 1
-    state = block_state(model, ring_size)
-    simulate_block(seed_u64(seed), first_run, stop_params(model, bp), sc, gv, ge, state, res, passages, rec)
-    if not record:
-        return res, passages, None
-    counters = rec.counters
-    return (
-        res,
-        passages,
-        KernelRecord(
-            trace=rec.trace[: counters[RC_STEPS]],
-            commands=rec.commands[: counters[RC_COMMANDS]],
-            sends=rec.sends[: counters[RC_COMMANDS]],
-            attempts=rec.attempts[: counters[RC_ATTEMPTS]],
-            deliveries=rec.deliveries[: counters[RC_DELIVERIES]].astype(np.int64),
-        ),
+    return _Buffers(
+        sc=sc,
+        bp=bp,
+        gv=gv,
+        ge=ge,
+        rec=rec,
+        res=np.empty((n, RES_SIZE)),
+        passages=np.empty((n, model.det_pos.size)),
+        state=block_state(model, ring_size),
     )
+
+
+def _record(rec: Recording) -> KernelRecord:
+    counters = rec.counters
+    return KernelRecord(
+        trace=rec.trace[: counters[RC_STEPS]],
+        commands=rec.commands[: counters[RC_COMMANDS]],
+        sends=rec.sends[: counters[RC_COMMANDS]],
+        attempts=rec.attempts[: counters[RC_ATTEMPTS]],
+        deliveries=rec.deliveries[: counters[RC_DELIVERIES]].astype(np.int64),
+    )
+
+
+def run_kernel(
+    model: KernelModel,
+    scenario: Scenario,
+    *,
+    seed: int,
+    first_run: int,
+    record: bool = False,
+) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
+    """Simulate ``scenario.n`` runs: (results (n, RES_SIZE), true passage times (n, D), record of run 0)."""
+    b = _buffers(model, scenario, record)
+    p = stop_params(model, b.bp)
+    simulate_block(seed_u64(seed), first_run, p, b.sc, b.gv, b.ge, b.state, b.res, b.passages, b.rec)
+    return b.res, b.passages, _record(b.rec) if record else None
+
+
+def run_stepped(
+    model: KernelModel, scenario: Scenario, *, seed: int, run: int, record: bool = False
+) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
+    """Run ``run`` (``scenario`` holds its draw alone) driven from Python one step at a time:
+    ``stop_init``, ``stop_step`` until the train stands, ``stop_finish``, as a replay or a live
+    process drives the stop (DESIGN rule 2). The same results as :func:`run_kernel`, bit for bit."""
+    if scenario.n != 1:
+        raise SimulationError(f"a stepped run is one run ({scenario.n} drawn)")
+    b = _buffers(model, scenario, record)
+    p = stop_params(model, b.bp)
+    params = RunParams(b.sc[0], (b.bp, b.gv[0], b.ge[0]), np.zeros(1, dtype=RUN_DTYPE))
+    out = StopOutputs(b.res[0], b.passages[0], b.rec)
+    seed_keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
+    stop_init(p, params, b.state, out, seed_keys, run)
+    k = 0
+    for k in range(int(model.kp[KP_STEPS])):
+        if stop_step(p, params, b.state, out, k):
+            break
+    stop_finish(p, params, b.state, out, k + 1)
+    return b.res, b.passages, _record(b.rec) if record else None
 
 
 def warm_up() -> dict[str, object]:
     """Compile the kernel (or load it from the on-disk cache) by running one short stop without and
-    with recording: one compiled signature serves every controller, form and station.
+    with recording (one compiled signature serves every controller, form and station), and once
+    driven from Python step by step (``run_stepped``).
 
     Returns what happened: whether anything was compiled, and the cache folder.
     """
@@ -197,5 +244,7 @@ def warm_up() -> dict[str, object]:
     )
     for record in (False, True):
         run_kernel(model, scenario, seed=0, first_run=0, record=record)
+    # The steps as a driver outside the compiled loop calls them (compiled for that call apart).
+    run_stepped(model, scenario, seed=0, run=0, record=True)
     compiled = sum(stats.cache_misses.values()) > misses_before
     return {"compiled": compiled, "cache_dir": str(cache_dir())}
