@@ -24,6 +24,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 CLI = "railstop.cli"
 UDP = "railstop.link.udp"
@@ -123,10 +124,15 @@ def environment() -> dict[str, str]:
     return env
 
 
-def run_case(case: Case, where: Path, *, timeout_s: float = TIMEOUT_S) -> Outcome:
-    """Create the case's files in ``where`` and run it there."""
+def run_case(case: Case, where: Path, *, timeout_s: float = TIMEOUT_S, zygote: Any = None) -> Outcome:
+    """Create the case's files in ``where`` and run it there: in a fresh interpreter, or in a
+    process forked from ``zygote`` (``tests/zygote.py``: the same command, without paying its
+    imports again)."""
     case.materialise(where)
     t0 = time.perf_counter()
+    if zygote is not None:
+        rc, out, err = zygote.run(case.module, case.argv, cwd=where, env=environment(), timeout_s=timeout_s)
+        return Outcome(case, rc, out, err, time.perf_counter() - t0)
     try:
         p = subprocess.run(
             case.command(),

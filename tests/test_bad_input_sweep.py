@@ -1,21 +1,51 @@
 """Every command answers bad input with one ``error:`` line on stderr, exit code 2, never a traceback.
 
 The cases are in ``tests/bad_inputs.py`` (shared with ``benchmarks/bad_input_sweep.py``); each runs
-the real command in a subprocess in its own folder.
+the real command in a process of its own in its own folder, forked from a warm zygote
+(``tests/zygote.py``) so that 270 commands do not pay 270 interpreter start-ups; one case per
+command group also runs in a fresh interpreter (``python -m``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from bad_inputs import CASES, CLI, ERROR_PREFIX, UDP, Case, run_case
+from bad_inputs import CASES, CLI, ERROR_PREFIX, UDP, Case, Outcome, environment, run_case
+from zygote import Zygote
+
+
+@pytest.fixture(scope="module")
+def zygote() -> Iterator[Zygote]:
+    z = Zygote(environment())
+    yield z
+    z.close()
+
+
+def _first_of_each_command() -> list[Case]:
+    seen: set[tuple[str, ...]] = set()
+    firsts = []
+    for c in CASES:
+        key = (c.module, *c.argv[:1])
+        if key not in seen:
+            seen.add(key)
+            firsts.append(c)
+    return firsts
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
-def test_bad_input_is_one_error_line(case: Case, tmp_path: Path) -> None:
-    outcome = run_case(case, tmp_path)
+def test_bad_input_is_one_error_line(case: Case, tmp_path: Path, zygote: Zygote) -> None:
+    _check(case, run_case(case, tmp_path, zygote=zygote))
+
+
+@pytest.mark.parametrize("case", _first_of_each_command(), ids=lambda c: c.id)
+def test_bad_input_is_one_error_line_in_a_fresh_interpreter(case: Case, tmp_path: Path) -> None:
+    _check(case, run_case(case, tmp_path))
+
+
+def _check(case: Case, outcome: Outcome) -> None:
     shown = f"$ {case.shell()}\nstdout: {outcome.stdout[-2000:]!r}\nstderr: {outcome.stderr[-4000:]!r}"
     assert outcome.returncode is not None, f"timed out\n{shown}"
     assert not outcome.traceback, f"traceback\n{shown}"

@@ -1,7 +1,8 @@
 """Monte Carlo campaigns end to end: determinism, replay, interrupt/resume, the CLI, the database.
 
 Everything runs for real: campaigns into ``tmp_path``, the ``railstop`` command
-as a subprocess (like ``tests/test_cli.py``). Run counts are small; a campaign
+as a process of its own (like ``tests/test_cli.py``; forked from a warm zygote,
+``tests/zygote.py``, except where a signal is sent to it). Run counts are small; a campaign
 that several assertions need is computed once per test (or cached per module).
 """
 
@@ -50,6 +51,7 @@ from railstop.sim.campaign import (
 from railstop.sim.engine import CONTROLLERS
 from railstop.sim.single import run_stop
 from railstop.store import open_store
+from zygote import run_cli
 
 EXE = [sys.executable, "-m", "railstop.cli"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -81,7 +83,8 @@ KILL_CHUNKS = KILL_RUNS // KILL_CHUNK
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    """``railstop ARGS`` in ``cwd``: a process of its own, forked from a warm zygote (tests/zygote.py)."""
+    return run_cli(*args, cwd=cwd)
 
 
 def error_lines(p: subprocess.CompletedProcess[str]) -> list[str]:

@@ -1,4 +1,5 @@
-"""The ``railstop`` command end to end, through a real subprocess."""
+"""The ``railstop`` command end to end, each run a process of its own (forked from a warm zygote,
+tests/zygote.py, unless a test needs a fresh interpreter)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,14 @@ from pathlib import Path
 
 import pytest
 
+from zygote import run_cli
+
 EXE = [sys.executable, "-m", "railstop.cli"]
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    """``railstop ARGS`` in ``cwd``: a process of its own, forked from a warm zygote (tests/zygote.py)."""
+    return run_cli(*args, cwd=cwd)
 
 
 def test_check_default_line(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""``railstop telegram`` end to end, through a real subprocess."""
+"""``railstop telegram`` end to end, each run a process of its own (forked from a warm zygote)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,14 @@ import sys
 
 import pytest
 
+from zygote import run_cli
+
 EXE = [sys.executable, "-m", "railstop.cli", "telegram"]
 
 
 def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], capture_output=True, text=True, timeout=120, check=False)
+    """``railstop telegram ARGS``: a process of its own, forked from a warm zygote (tests/zygote.py)."""
+    return run_cli("telegram", *args, timeout=120)
 
 
 def one_line_error(p: subprocess.CompletedProcess[str]) -> str:

@@ -20,6 +20,7 @@ from railstop.control.law import LawFile, load_law_file
 from railstop.controllers import known_controllers
 from railstop.errors import ConfigError
 from railstop.sim.campaign import CampaignSpec, simulate_block, simulate_runs
+from zygote import run_cli
 
 EXE = [sys.executable, "-m", "railstop.cli"]
 
@@ -34,7 +35,8 @@ def _write(path: Path, text: str) -> Path:
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    """``railstop ARGS`` in ``cwd``: a process of its own, forked from a warm zygote (tests/zygote.py)."""
+    return run_cli(*args, cwd=cwd)
 
 
 def _one_line_error(p: subprocess.CompletedProcess[str], *needles: str) -> None:

@@ -537,6 +537,7 @@ def test_the_office_survives_1100_idle_connections_with_1024_descriptors(tmp_pat
         assert all(s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0 for s in socks)
         # The office's own work goes on (its reports over UDP, its database) while they hang on.
         ack_one_report(office.udp_port, 1)
+
         # Each batch the office holds waits out its 2 s header time-out before the next is
         # accepted: that many time-outs, and a loaded machine's slack.
         def wait_closed(open_: list[socket.socket]) -> list[socket.socket]:

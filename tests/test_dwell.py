@@ -14,6 +14,7 @@ from railstop.config.doors import load_doors
 from railstop.errors import RailstopError, SimulationError
 from railstop.sim.dwell import DwellResult, run_dwell
 from railstop.store import open_store
+from zygote import run_cli
 
 EXE = [sys.executable, "-m", "railstop.cli"]
 CFG = load_doors()
@@ -23,7 +24,8 @@ LINK = CFG.link
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    """``railstop ARGS`` in ``cwd``: a process of its own, forked from a warm zygote (tests/zygote.py)."""
+    return run_cli(*args, cwd=cwd)
 
 
 def dwell(stop_error_m: float, **kw: object) -> DwellResult:

@@ -17,6 +17,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -27,6 +28,7 @@ from railstop.live.plant import DRIVE_TIMEOUT_S
 from railstop.messages import ManualRelease, MovementCommand, PositionReport
 from railstop.store import open_store
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
+from zygote import popen_cli
 
 KEY = os.urandom(32).hex()
 EXE = [sys.executable, "-m", "railstop.cli"]
@@ -40,9 +42,9 @@ class Procs:
         self.first_line: dict[int, str] = {}  # by pid: the line a process says when it is ready
 
     def start(self, *args: str) -> tuple[subprocess.Popen[str], str]:
-        p = subprocess.Popen(
-            [*EXE, *args], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
+        # A process of its own, forked from a warm zygote (tests/zygote.py): it is ready in a
+        # fraction of the second and the CPU an interpreter's imports take.
+        p: Any = popen_cli(*args, env=ENV)
         self.all.append(p)
         assert p.stderr is not None
         self.first_line[p.pid] = p.stderr.readline().strip()

@@ -19,6 +19,7 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.errors import ConfigError, SimulationError
 from railstop.sim.position_run import PositionRunSettings, SettingError, run_position
+from zygote import run_cli
 
 EXE = [sys.executable, "-m", "railstop.cli", "position-run"]
 STOPS = len(default_line().stations)
@@ -26,9 +27,7 @@ STOPS = len(default_line().stations)
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "COLUMNS": "400"}  # help rows on one line each
-    return subprocess.run(
-        [*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False, env=env
-    )
+    return run_cli(*EXE[3:], *args, cwd=cwd, env=env)  # forked from a warm zygote (tests/zygote.py)
 
 
 def _one_line_error(p: subprocess.CompletedProcess[str]) -> str:

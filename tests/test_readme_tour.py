@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from zygote import run_cli
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 EXE = [sys.executable, "-m", "railstop.cli"]
 
@@ -78,9 +80,7 @@ def test_the_readme_has_examples_with_output() -> None:
 @pytest.mark.parametrize("example", SHOWN, ids=[f"L{e.line}:{' '.join(e.argv)[:50]}" for e in SHOWN])
 def test_readme_example_prints_what_the_readme_shows(example: Example, tmp_path: Path) -> None:
     env = {**os.environ, "RAILSTOP_STATUS_S": "0", "COLUMNS": "200"}
-    p = subprocess.run(
-        [*EXE, *example.argv], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env, check=False
-    )
+    p = run_cli(*example.argv, cwd=tmp_path, env=env)  # forked from a warm zygote (tests/zygote.py)
     actual = [ln.rstrip() for ln in (p.stdout + p.stderr).splitlines() if ln.strip()]
     assert _matches(example.expected, actual), (
         f"README.md line {example.line}: `railstop {' '.join(example.argv)}` printed\n"
