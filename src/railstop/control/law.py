@@ -126,6 +126,11 @@ class ControlLaw:
         division by zero gives inf, not an error); any error it raises makes its demand NaN, which
         the model turns into full service. numba cannot catch an error of a C callback itself,
         so the callback wraps the law in ``try``."""
+        if not self._compiled and self.source == "railstop":
+            # A built-in law (the ATO's): railstop's own code, compiled once into the on-disk
+            # cache (a guard is a closure, which numba cannot cache: compiling it anew cost every
+            # process about a second).
+            self._compiled.append(cfunc(LAW_SIGNATURE, cache=True)(self.function))
         if not self._compiled:
             try:
                 inner = njit(boundscheck=True, error_model="numpy", nogil=True)(self.function)
