@@ -33,9 +33,6 @@ DRIVER_CONTROLLERS: tuple[str, ...] = (DRIVER_ATS, DRIVER_ATC1, DRIVER_ATC2, DRI
 #: Controllers without a wayside TASC unit and its radio link.
 ONBOARD_CONTROLLERS: tuple[str, ...] = (*ATO_CONTROLLERS, *DRIVER_CONTROLLERS)
 CONTROLLERS: tuple[str, ...] = (*TASC_CONTROLLERS, *ATO_CONTROLLERS, *DRIVER_CONTROLLERS)
-#: The controllers railstop defines (a law loaded from a user's file may not take these names).
-BUILTIN_CONTROLLERS: tuple[str, ...] = CONTROLLERS
-
 # Stop-control laws loaded from users' files in this process (railstop.control.law): name ->
 # positioning ("transponders": as ato, "corrected": as ato-corrected).
 _LAWS: dict[str, str] = {}

@@ -344,21 +344,14 @@ def compare_controllers(
     ]
 
 
-def checked_controllers(text: str | None, law: LawFile | None) -> tuple[str, ...]:
+def checked_controllers(text: str | None) -> tuple[str, ...]:
     """``--controllers a,b,...`` (default: every built-in controller, then the laws of ``--law``)."""
     if text is None:
         return known_controllers()
     names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
     if not names:
         fail(f"--controllers: name at least one controller (got {text!r})")
-    for name in names:
-        if name not in known_controllers():
-            hint = "" if law is not None else " (a law of your own: give its file with --law)"
-            fail(
-                f"--controllers: unknown controller {name!r}; choose from: {', '.join(known_controllers())}"
-                f"{hint}"
-            )
-    return names
+    return tuple(checked_controller(name, "--controllers") for name in names)
 
 
 def compare(
@@ -395,7 +388,7 @@ def compare(
     from railstop.config.plausibility import load_checked
 
     law_file = load_law(law)
-    names = checked_controllers(controllers, law_file)
+    names = checked_controllers(controllers)
     try:
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, names)

@@ -61,12 +61,12 @@ def checked_tolerance(value: float | None) -> float | None:
     return value
 
 
-def checked_controller(name: str) -> str:
+def checked_controller(name: str, option: str = "--controller") -> str:
     """``name`` if it is a built-in controller or a law loaded with ``--law``."""
-    if name not in known_controllers():
-        names = ", ".join(known_controllers())
-        hint = "" if name in CONTROLLERS else " (a law of your own: give its file with --law)"
-        fail(f"--controller: unknown controller {name!r}; choose one of: {names}{hint}")
+    known = known_controllers()
+    if name not in known:
+        hint = " (a law of your own: give its file with --law)" if known == CONTROLLERS else ""
+        fail(f"{option}: unknown controller {name!r}; choose one of: {', '.join(known)}{hint}")
     return name
 
 

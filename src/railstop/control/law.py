@@ -66,7 +66,7 @@ from numba import cfunc, from_dtype, njit, types
 from numba.core.errors import NumbaError
 
 from railstop.config.schema import Vehicle
-from railstop.controllers import BUILTIN_CONTROLLERS, register_law
+from railstop.controllers import CONTROLLERS, register_law
 from railstop.errors import ConfigError
 from railstop.jit import njit_inline
 
@@ -121,11 +121,12 @@ class ControlLaw:
     def compiled(self) -> Any:
         """The law as a numba C callback of :data:`LAW_SIGNATURE` (compiled on first use).
 
-        Safe by construction (HZ-LAW-01): the law is compiled with bounds checks (an index outside
-        its state is an error, not a write into the model's memory) and numpy's error model (a
-        division by zero gives inf, not an error); any error it raises makes its demand NaN, which
-        the model turns into full service. numba cannot catch an error of a C callback itself,
-        so the callback wraps the law in ``try``."""
+        A loaded law is safe by construction (HZ-LAW-01): it is compiled with bounds checks (an
+        index outside its state is an error, not a write into the model's memory) and numpy's
+        error model (a division by zero gives inf, not an error); any error it raises makes its
+        demand NaN, which the model turns into full service. numba cannot catch an error of a C
+        callback itself, so the callback wraps the law in ``try``. A built-in law is railstop's
+        own code, compiled as it stands (the model's clamp still applies)."""
         if not self._compiled and self.source == "railstop":
             # A built-in law (the ATO's): railstop's own code, compiled once into the on-disk
             # cache (a guard is a closure, which numba cannot cache: compiling it anew cost every
@@ -253,7 +254,7 @@ def _load_source(text: str, origin: str, digest: str) -> list[ControlLaw]:
     if not laws:
         raise ConfigError(origin, "file", "defines no law (decorate a function with @control_law(name=...))")
     for law in laws:
-        if law.name in BUILTIN_CONTROLLERS:
+        if law.name in CONTROLLERS:
             raise ConfigError(origin, "name", "a built-in controller has that name; choose another", law.name)
         other = _LOADED.get(law.name)
         if other is not None and other.function is not law.function:
@@ -287,8 +288,13 @@ def law_params(vehicle: Vehicle, dt_s: float) -> np.ndarray:
     lp[0]["time_constant_s"] = brake.time_constant_s
     lp[0]["response_s"] = brake.dead_time_s + brake.time_constant_s
     lp[0]["jerk_limit_mps3"] = brake.jerk_limit_mps3
-    lp[0]["cycle_s"] = max(1, round(brake.controller_cycle_s / dt_s)) * dt_s
+    lp[0]["cycle_s"] = controller_cycle_steps(vehicle, dt_s) * dt_s
     return lp
+
+
+def controller_cycle_steps(vehicle: Vehicle, dt_s: float) -> int:
+    """The train's brake controller cycle in model steps (at least one): the law runs this often."""
+    return max(1, round(vehicle.brake.controller_cycle_s / dt_s))
 
 
 @njit_inline

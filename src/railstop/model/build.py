@@ -31,7 +31,7 @@ from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
 from railstop.control.law import ControlLaw, law_params, loaded_law
 from railstop.control.tasc import external_params
 from railstop.controllers import (
-    BUILTIN_CONTROLLERS,
+    CONTROLLERS,
     DRIVER_ATC1,
     DRIVER_ATC2,
     DRIVER_ATS,
@@ -501,6 +501,6 @@ def control_law_of(controller: str) -> ControlLaw:
     law = loaded_law(controller)
     if law is not None:
         return law
-    if controller not in BUILTIN_CONTROLLERS:
+    if controller not in CONTROLLERS:
         raise SimulationError(f"unknown controller {controller!r}: no law of that name is loaded")
     return ATO_CORRECTED_LAW if controller == "ato-corrected" else ATO_LAW

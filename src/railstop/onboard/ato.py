@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
-from railstop.control.law import control_law, safe_demand_1
+from railstop.control.law import control_law, controller_cycle_steps, safe_demand_1
 from railstop.control.notch import modulator_init_1, modulator_update_1
 from railstop.control.tasc import external_decel_1
 from railstop.jit import njit_inline, njit_step
@@ -77,7 +77,7 @@ AT_SIZE = 7
 def ato_params(vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray:
     brake = vehicle.brake
     ap = np.zeros(AP_SIZE)
-    ap[AP_CYCLE_STEPS] = max(1, round(brake.controller_cycle_s / dt_s))
+    ap[AP_CYCLE_STEPS] = controller_cycle_steps(vehicle, dt_s)
     ap[AP_MIN_HOLD] = brake.controller_min_hold_s
     ap[AP_RESPONSE] = brake.dead_time_s + brake.time_constant_s
     ap[AP_DT] = dt_s
