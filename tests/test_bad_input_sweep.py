@@ -8,20 +8,12 @@ command group also runs in a fresh interpreter (``python -m``).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from bad_inputs import CASES, CLI, ERROR_PREFIX, UDP, Case, Outcome, environment, run_case
-from zygote import Zygote
-
-
-@pytest.fixture(scope="module")
-def zygote() -> Iterator[Zygote]:
-    z = Zygote(environment())
-    yield z
-    z.close()
+from zygote import shared
 
 
 def _first_of_each_command() -> list[Case]:
@@ -36,8 +28,8 @@ def _first_of_each_command() -> list[Case]:
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
-def test_bad_input_is_one_error_line(case: Case, tmp_path: Path, zygote: Zygote) -> None:
-    _check(case, run_case(case, tmp_path, zygote=zygote))
+def test_bad_input_is_one_error_line(case: Case, tmp_path: Path) -> None:
+    _check(case, run_case(case, tmp_path, zygote=shared(environment())))
 
 
 @pytest.mark.parametrize("case", _first_of_each_command(), ids=lambda c: c.id)

@@ -72,12 +72,8 @@ class Zygote:
         timeout_s: float,
     ) -> tuple[int | None, str, str]:
         """(exit code, None when it timed out; stdout; stderr) of ``python -m module *argv``."""
-        assert self._proc.stdin is not None and self._proc.stdout is not None
         request = {"module": module, "argv": list(argv), "cwd": str(cwd), "env": dict(env)}
-        request["timeout"] = timeout_s
-        self._proc.stdin.write(json.dumps(request) + "\n")
-        self._proc.stdin.flush()
-        reply = json.loads(self._proc.stdout.readline())
+        reply = self._ask({**request, "timeout": timeout_s})
         return reply["rc"], reply["stdout"], reply["stderr"]
 
     def _ask(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -182,9 +178,8 @@ def popen_cli(
 ) -> ZygoteProcess:
     """``subprocess.Popen([python, -m, module, *args], stdout=PIPE, stderr=PIPE, text=True,
     env=env)``, forked from a warm zygote of this test process."""
-    return _shared(dict(os.environ if env is None else env)).spawn(
-        module, args, env=dict(os.environ if env is None else env)
-    )
+    env = dict(os.environ if env is None else env)
+    return shared(env).spawn(module, args, env=env)
 
 
 #: What the package (or rich, typer, numba) reads from the environment when it is imported: a
@@ -194,7 +189,7 @@ IMPORT_ENV = ("COLUMNS", "LINES", "NO_COLOR", "FORCE_COLOR", "TERM", "RAILSTOP_C
 _SHARED: dict[tuple[str | None, ...], Zygote] = {}
 
 
-def _shared(env: Mapping[str, str]) -> Zygote:
+def shared(env: Mapping[str, str]) -> Zygote:
     """This test process's zygote for ``env``'s import-time values (started on first use)."""
     key = tuple(env.get(name) for name in IMPORT_ENV)
     zygote = _SHARED.get(key)
@@ -214,7 +209,7 @@ def run_cli(
     """``subprocess.run([python, -m, module, *args], capture_output=True, text=True)``, forked
     from a warm zygote of this test process (one per distinct import-time environment)."""
     env = dict(os.environ if env is None else env)
-    zygote = _shared(env)
+    zygote = shared(env)
     argv = [sys.executable, "-m", module, *args]
     rc, out, err = zygote.run(module, args, cwd=cwd or Path.cwd(), env=env, timeout_s=timeout)
     if rc is None:
