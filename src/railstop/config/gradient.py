@@ -3,7 +3,9 @@ values per run (pure numpy, so that the data layer and the CLI need no compiler)
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +36,25 @@ class GradientProfile:
         rise = vals[:, 1:-1] * 1e-3 * np.diff(bp)[None, :]
         elev = np.concatenate([np.zeros((vals.shape[0], 1)), np.cumsum(rise, axis=1)], axis=1)
         return cls(breakpoints_m=bp, values_permille=vals, _elev_at_bp=elev)
+
+    @classmethod
+    def from_segments(cls, segments: Iterable[Any], n: int = 1) -> GradientProfile:
+        """The profile of gradient segments (``start_m``, ``end_m``, ``permille``; level between
+        them) for ``n`` runs; a ``ValueError`` when two overlap."""
+        bps: list[float] = []
+        vals: list[float] = [0.0]
+        for seg in sorted(segments, key=lambda s: s.start_m):
+            if bps and seg.start_m < bps[-1] - 1e-9:
+                raise ValueError(f"segments overlap at {seg.start_m} m (one ends at {bps[-1]} m)")
+            if bps and abs(bps[-1] - seg.start_m) < 1e-9:
+                vals[-1] = seg.permille
+            else:
+                bps.append(seg.start_m)
+                vals.append(seg.permille)
+            bps.append(seg.end_m)
+            vals.append(0.0)
+        values = np.tile(np.asarray(vals, dtype=np.float64), (n, 1))
+        return cls.create(np.asarray(bps, dtype=np.float64), values)
 
     def elevation_m(self, x_m: FloatArray, rows: NDArray[np.int64] | None = None) -> FloatArray:
         """Elevation (m) at chainage ``x_m`` for each run (or the runs ``rows``)."""

@@ -95,16 +95,4 @@ class Scenario:
 
 def station_gradient(station: Station, n: int) -> GradientProfile:
     """The station's gradient profile (gaps between segments are level) for n runs."""
-    segs = sorted(station.gradient, key=lambda s: s.start_m)
-    bps: list[float] = []
-    vals: list[float] = [0.0]
-    for seg in segs:
-        if bps and abs(bps[-1] - seg.start_m) < 1e-9:
-            vals[-1] = seg.permille
-        else:
-            bps.append(seg.start_m)
-            vals.append(seg.permille)
-        bps.append(seg.end_m)
-        vals.append(0.0)
-    values = np.tile(np.asarray(vals, dtype=np.float64), (n, 1))
-    return GradientProfile.create(np.asarray(bps), values)
+    return GradientProfile.from_segments(station.gradient, n)  # the schema refuses overlaps

@@ -55,21 +55,11 @@ RELEASED_MPS2 = 1e-3
 
 def gradient_profile(segments: Sequence[GradientSegment], *, field: str = "gradient") -> GradientProfile:
     """The piecewise-constant profile of ``segments`` (chainages, + uphill), level between them; a
-    :class:`SimulationError` naming ``field`` when two overlap. (The same layout as
-    ``config.scenario.station_gradient``, for one run.)"""
-    bps: list[float] = []
-    vals: list[float] = [0.0]
-    for seg in sorted(segments, key=lambda s: s.start_m):
-        if bps and seg.start_m < bps[-1] - 1e-9:
-            raise SimulationError(f"{field}: segments overlap at {seg.start_m} m (one ends at {bps[-1]} m)")
-        if bps and abs(bps[-1] - seg.start_m) < 1e-9:
-            vals[-1] = seg.permille
-        else:
-            bps.append(seg.start_m)
-            vals.append(seg.permille)
-        bps.append(seg.end_m)
-        vals.append(0.0)
-    return GradientProfile.create(np.asarray(bps, dtype=np.float64), np.asarray([vals], dtype=np.float64))
+    :class:`SimulationError` naming ``field`` when two overlap."""
+    try:
+        return GradientProfile.from_segments(segments)
+    except ValueError as exc:
+        raise SimulationError(f"{field}: {exc}") from None
 
 
 def track_gradient(line: Line) -> GradientProfile:
