@@ -44,7 +44,17 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     # [interpretation] The root package (``__init__.py``: the version only) and ``data`` (the
     # embedded TOML files, no code) are foundations: they import nothing of the tree.
     (
-        *("errors", "messages", "units", "quantities", "streams", "jit", "provenance", "controllers"),
+        *(
+            "errors",
+            "messages",
+            "units",
+            "quantities",
+            "streams",
+            "jit",
+            "clock",
+            "provenance",
+            "controllers",
+        ),
         *("__root__", "data"),
     ),
     ("config",),

@@ -5,7 +5,7 @@
 A train runs at a constant speed towards a train standing far ahead; the real
 units talk over the real radio (``railstop.wayside.zone_controller``,
 ``railstop.onboard.cbtc``, ``railstop.link.cbtc_radio`` with the ``cbtc-radio``
-medium, on ``railstop.sim.clock``). The zone controller means the authority
+medium, on ``railstop.clock``). The zone controller means the authority
 to end ``safety_margin_m`` behind the standing train's rear less both trains'
 location uncertainty and the rollback allowance; it sends the distance from
 Pc = Pp + Δt·Vp and Δt, and the onboard unit rebuilds Pc from its own copy of
@@ -22,12 +22,12 @@ from __future__ import annotations
 import argparse
 import statistics
 
+from railstop.clock import SimClock
 from railstop.config.layout import Cbtc
 from railstop.link.cbtc_radio import CbtcRadio
 from railstop.link.channel import media_preset
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
-from railstop.sim.clock import SimClock
 from railstop.wayside.zone_controller import ZoneController
 
 LENGTH_M = 120.0

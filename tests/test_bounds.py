@@ -17,8 +17,9 @@ import pytest
 from scipy.stats import binom, binomtest, norm
 
 from railstop.errors import RailstopError
-from railstop.report import bounds, campaign_report
-from railstop.report.bounds import (
+from railstop.report import campaign_report
+from railstop.stats import bounds, summary
+from railstop.stats.bounds import (
     BoundsError,
     betting_upper,
     clopper_pearson,
@@ -145,9 +146,10 @@ def test_cp_simulated_coverage(p: float, n: int) -> None:
     assert abs(covered - exact) < 4.0 * math.sqrt(exact * (1.0 - exact) / hits.size)
 
 
-def test_campaign_report_uses_this_implementation() -> None:
-    assert campaign_report.clopper_pearson_upper is bounds.clopper_pearson_upper
-    assert not hasattr(campaign_report, "_clopper_pearson_upper")
+def test_the_campaign_summary_uses_this_implementation() -> None:
+    assert summary.clopper_pearson_upper is bounds.clopper_pearson_upper
+    assert campaign_report.summary_stats is summary.summary_stats
+    assert not hasattr(summary, "_clopper_pearson_upper")
 
 
 # --------------------------------------------------------------------------- stratified

@@ -22,8 +22,9 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.scenario import Scenario
 from railstop.config.schema import BrakeModel
 from railstop.control.notch import MOD_SIZE
-from railstop.control.tasc import HISTORY, SAMPLES, external_params
+from railstop.control.tasc import HISTORY, SAMPLES, Approach, BrakeCurves, external_params
 from railstop.controllers import TASC_PWM
+from railstop.messages import TEL_DUTY, TEL_NOTCH, TEL_SIZE
 from railstop.onboard.tasc_receiver import (
     RX_SIZE,
     receiver_init_1,
@@ -44,7 +45,7 @@ from railstop.physics.brake import (
 )
 from railstop.sim.engine import DT_S, Trace, run_batch
 from railstop.streams import RunStreams
-from railstop.wayside.tasc_unit import TEL_DUTY, TEL_NOTCH, TEL_SIZE, SignalForm
+from railstop.wayside.tasc_unit import SignalForm
 
 # SPEC §1 fig. 3, copied from the SPEC: step -> wires (a, b, c); 000 = no service brake.
 SPEC_FIG3 = {
@@ -200,11 +201,8 @@ class _PwmReceiver:
             self.hist_v,
             self.hist_e,
             self.taus,
-            self.table,
-            *_map(BRAKE),
-            self.det_to_stop,
-            self.ext,
-            self.grad,
+            BrakeCurves(self.table, *_map(BRAKE)),
+            Approach(self.det_to_stop, self.ext, self.grad),
             tele,
             now_s,
         )

@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from railstop.clock import SimClock
 from railstop.config import load_line
 from railstop.config.layout import Cbtc
 from railstop.control.supervision import EbCause
@@ -33,7 +34,6 @@ from railstop.onboard.cbtc import (
     permitted_speed_mps,
     safe_braking_distance_m,
 )
-from railstop.sim.clock import SimClock
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
 
 P = Cbtc(report_period_s=0.5, processing_delay_s=0.2, safety_margin_m=20.0)

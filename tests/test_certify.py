@@ -18,7 +18,6 @@ from scipy.stats import norm
 import railstop.sim.certify as certify_module
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import LOW_ADHESION, Distribution, load_disturbances, quantile
-from railstop.report.bounds import clopper_pearson
 from railstop.sim.campaign import simulate_runs
 from railstop.sim.certify import (
     CertifyError,
@@ -27,6 +26,7 @@ from railstop.sim.certify import (
     initial_proposal,
     sample_block,
 )
+from railstop.stats.bounds import clopper_pearson
 
 LINE = load_line(None)
 VEHICLE = load_vehicle(None)

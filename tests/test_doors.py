@@ -17,21 +17,12 @@ from railstop.control.doors import (
     DoorSignals,
     DoorState,
     Interlocks,
+    PsdReport,
     Side,
     door_next,
 )
 from railstop.errors import ConfigError, InterlockError
-from railstop.onboard import cpcs
-from railstop.onboard.cpcs import Cpcs, CpcsState, PsdReport
-from railstop.onboard.stop_confirm import (
-    STOP_TRANSITIONS,
-    StopConfirm,
-    StopConfirmState,
-    StopInput,
-    StopPhase,
-)
-from railstop.onboard.stop_confirm import step as stop_step
-from railstop.sim.door_system import (
+from railstop.nodes.doors import (
     Controls,
     DoorModel,
     Event,
@@ -41,6 +32,16 @@ from railstop.sim.door_system import (
     start_enabled,
     step,
 )
+from railstop.onboard import cpcs
+from railstop.onboard.cpcs import Cpcs, CpcsState
+from railstop.onboard.stop_confirm import (
+    STOP_TRANSITIONS,
+    StopConfirm,
+    StopConfirmState,
+    StopInput,
+    StopPhase,
+)
+from railstop.onboard.stop_confirm import step as stop_step
 from railstop.wayside import wpcs
 from railstop.wayside.wpcs import TrainReport, Wpcs, WpcsState, answers_psc
 

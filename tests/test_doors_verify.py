@@ -19,9 +19,9 @@ from railstop.control.doors import (
     DoorState,
     Interlocks,
 )
+from railstop.nodes.doors import DoorModel
 from railstop.onboard.stop_confirm import STOP_TRANSITIONS, StopInput, StopPhase
-from railstop.sim.door_system import DoorModel
-from railstop.sim.doors_verify import INVARIANTS, all_controls, verify
+from railstop.verify.doors import INVARIANTS, all_controls, verify
 
 EXE = [sys.executable, "-m", "railstop.cli"]
 CFG = load_doors()

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from railstop.clock import SimClock
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.config.operation import Operation, load_operation
@@ -24,7 +25,6 @@ from railstop.control.line_ato import (
 )
 from railstop.errors import InterlockError, SimulationError
 from railstop.messages import BROADCAST, CircuitOccupancy, Message, Output, SignalAspects
-from railstop.sim.clock import SimClock
 from railstop.sim.line import LineSimulation, PositionSettings
 from railstop.wayside.interlocking import FixedBlockInterlocking
 

@@ -579,7 +579,7 @@ def test_killing_the_plant_brakes_every_train_and_killing_the_trains_brakes_them
 
 def _zc() -> ZoneController:
     from railstop.config import default_vehicle
-    from railstop.sim.line_cbtc import make_zone_controller
+    from railstop.nodes.zone import make_zone_controller
 
     return make_zone_controller(default_line(), default_vehicle(), ZoneMode.MINIMAL)
 

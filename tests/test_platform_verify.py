@@ -7,7 +7,7 @@ import pytest
 
 from railstop.config.platform import load_platform
 from railstop.messages import PlatformLamps, PsdCommand
-from railstop.sim.platform_verify import CAMERA, INVARIANTS, verify
+from railstop.verify.platform import CAMERA, INVARIANTS, verify
 from railstop.wayside.platform import PlatformUnit, PsdFollower
 
 DATA, _ = load_platform()
@@ -207,8 +207,8 @@ def test_a_camera_that_reads_closed_before_the_leaves_shut_is_caught() -> None:
 def test_a_reopen_the_camera_cannot_see_yet_is_the_only_exception() -> None:
     """Without the allowance for doors reopened after their lock within the misreads the camera
     may give, the real control is caught: the exception is needed, and it is all that is."""
-    from railstop.sim.invariants import Invariant
-    from railstop.sim.platform_verify import LOCKED, ControlState, Step
+    from railstop.verify.invariants import Invariant
+    from railstop.verify.platform import LOCKED, ControlState, Step
 
     def strict(s: Step) -> str | None:
         a = s.after

@@ -365,7 +365,7 @@ def test_timestamp_unit_telegram_on_occupancy_only() -> None:
 
 
 def test_telegram_round_trip_through_the_codec() -> None:
-    from railstop.sim.occupancy_chain import _codec_round_trip
+    from railstop.nodes.occupancy_chain import _codec_round_trip
     from railstop.wayside.tc_timestamp import OccupancyTelegrams
 
     sent = OccupancyTelegrams(

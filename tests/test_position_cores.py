@@ -14,6 +14,17 @@ import pytest
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.schema import Positioning, TrackCircuit, TrackCircuitDetection
+from railstop.model.fixes import (
+    FX_START,
+    FXI_NEXT,
+    FixesData,
+    FixesLine,
+    FixesRun,
+    TrackCircuitFixes,
+    fixes_init_run,
+    fixes_state_arrays,
+    fixes_step_run,
+)
 from railstop.onboard.positioning import (
     U_A,
     UI_CORRECTIONS,
@@ -30,15 +41,6 @@ from railstop.onboard.positioning import (
     unit_state_arrays,
 )
 from railstop.sensors.track_circuit import TrackCircuitDetector, tc_draw_run, tc_first_index, tc_next_entry
-from railstop.sim.corrected_position import (
-    FX_START,
-    FXI_NEXT,
-    FixesLine,
-    TrackCircuitFixes,
-    fixes_init_run,
-    fixes_state_arrays,
-    fixes_step_run,
-)
 from railstop.streams import RunStreams, Stream, seed_key, seed_u64, stream_key
 
 LINE = default_line()
@@ -311,20 +313,8 @@ def test_fixes_per_run_core_gives_the_wrapper_corrections() -> None:
         wrapper = dict(zip(rows.tolist(), cal.tolist(), strict=True))
         for r, (st, ist, lg, bnd, dly) in enumerate(runs):
             corrected, calibrated = fixes_step_run(
-                st,
-                ist,
-                lg,
-                bnd,
-                dly,
-                line.tc_ids,
-                line.db_ids,
-                line.db_starts_m,
-                line.db_sd_m,
-                line.delay_spread_s,
-                line.learn,
-                line.max_extrapolation_s,
-                line.gate_sigma2,
-                line.gnss_counts_per_s,
+                FixesRun(st, ist, lg, bnd, dly),
+                line.data(),
                 k * DT,
                 DT,
                 x[r],
@@ -406,20 +396,8 @@ def _one_run_in_compiled_code(
         sliding = ((k // 50) % 9 == 4) and v > 1.0
         slip = 0.85 if sliding else 1.0
         corrected[k], calibrated[k] = fixes_step_run(
-            st,
-            ist,
-            lg,
-            bnd,
-            dly,
-            tc_ids,
-            db_ids,
-            db_starts_m,
-            db_sd_m,
-            delay_spread,
-            learn,
-            max_extra,
-            gate2,
-            counts,
+            FixesRun(st, ist, lg, bnd, dly),
+            FixesData(tc_ids, db_ids, db_starts_m, db_sd_m, delay_spread, learn, max_extra, gate2, counts),
             k * 0.01,
             0.01,
             x,

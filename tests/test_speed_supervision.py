@@ -7,12 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from railstop.clock import SimClock
 from railstop.control.supervision import EbCause
 from railstop.errors import InterlockError
 from railstop.messages import Output, SpeedCode, SupervisionState, TrainSpeed
 from railstop.onboard.speed_supervision import SpeedSupervision
 from railstop.quantities import MPS_PER_KMH
-from railstop.sim.clock import SimClock
 
 
 def drive(

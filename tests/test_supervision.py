@@ -32,6 +32,7 @@ from railstop.control.supervision import (
 )
 from railstop.control.tasc import HISTORY
 from railstop.controllers import TASC_CONTROLLERS, TASC_PWM
+from railstop.messages import TEL_EMERGENCY
 from railstop.onboard.tasc_receiver import (
     RX_EB,
     RX_SIZE,
@@ -44,14 +45,7 @@ from railstop.onboard.tasc_receiver import (
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import BatchResult
 from railstop.sim.single import StopResult, run_stop
-from railstop.wayside.tasc_unit import (
-    TEL_EMERGENCY,
-    WS_EMERGENCY,
-    WS_SIZE,
-    SignalForm,
-    wayside_init_1,
-    wayside_observe_1,
-)
+from railstop.wayside.tasc_unit import WS_EMERGENCY, WS_SIZE, SignalForm, wayside_init_1, wayside_observe_1
 
 LINE = default_line()
 VEHICLE = default_vehicle()

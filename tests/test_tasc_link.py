@@ -13,16 +13,16 @@ from railstop.config.disturbances import load_disturbances
 from railstop.control.supervision import eb_cause_name
 from railstop.link.codec import TascRequiredDecel, decode, encode, layout_of
 from railstop.link.safety import frame_size
-from railstop.sim.campaign import simulate_runs
-from railstop.sim.engine import BatchResult
-from railstop.sim.single import run_stop
-from railstop.sim.tasc_link import (
+from railstop.link.tasc_link import (
     CARRIED,
     frame_bytes,
     from_message,
     quantize_telegrams,
     to_message,
 )
+from railstop.sim.campaign import simulate_runs
+from railstop.sim.engine import BatchResult
+from railstop.sim.single import run_stop
 from railstop.wayside.tasc_unit import SignalForm, TascTelegrams
 
 LINE = default_line()

@@ -1,7 +1,7 @@
 """The CBTC zone controller (SPEC §4) under random fault sequences on a longer line.
 
 A hypothesis state machine drives the real :class:`ZoneController` and one real
-:class:`OnboardCbtc` per train through ``railstop.sim.zones_verify.World``:
+:class:`OnboardCbtc` per train through ``railstop.verify.zones.World``:
 trains report (after advancing anywhere within the authority they hold, not
 on a grid), lose reports (so that they get lost and braked), move while lost,
 are released by the operator; time advances cycle by cycle. After every step
@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
 from railstop.config.layout import Cbtc
-from railstop.sim.zones_verify import INVARIANTS, Snapshot, Step, TrainAction, World, ZoneModel, initial_world
+from railstop.verify.zones import INVARIANTS, Snapshot, Step, TrainAction, World, ZoneModel, initial_world
 from railstop.wayside.zone_controller import TrainStatus, ZoneMode
 
 TRAINS = 4

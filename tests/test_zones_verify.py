@@ -18,8 +18,8 @@ from railstop.config.layout import Cbtc
 from railstop.control.supervision import EbCause
 from railstop.messages import MovementCommand, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
-from railstop.sim import zones_verify
-from railstop.sim.zones_verify import (
+from railstop.verify import zones as zones_verify
+from railstop.verify.zones import (
     INVARIANTS,
     Invariant,
     TrainAction,

@@ -45,7 +45,7 @@ JIT_MODULES: tuple[str, ...] = (
     "sensors/wayside.py",
     "sensors/track_circuit.py",
     "onboard/positioning.py",
-    "sim/corrected_position.py",
+    "model/fixes.py",
     "control/law.py",
     "control/notch.py",
     "control/tasc.py",

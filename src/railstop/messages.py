@@ -1,5 +1,6 @@
 """Role-neutral messages between units (DESIGN rule 3): frozen dataclasses, nothing else (but
-the grid the CBTC telegrams carry their values on, which both CBTC ends share).
+the grid the CBTC telegrams carry their values on, which both CBTC ends share, and the vector
+layout of the compiled TASC telegram, which both TASC ends share).
 
 Units import messages, never each other. A unit returns its outputs as
 ``Output`` pairs: the name of the unit it is for (or ``BROADCAST``) and the
@@ -213,3 +214,38 @@ class Output:
 
     to: str
     message: Message
+
+
+# The ground TASC braking telegram (SPEC §1) as the compiled units exchange it: one float
+# vector per telegram, indexed by TEL_*; NaN marks a field the signal form does not carry.
+# Both ends (wayside/tasc_unit.py, onboard/tasc_receiver.py) share this layout.
+TEL_DETECTOR = 0
+TEL_PASSAGE = 1
+TEL_MEASURED = 2
+TEL_POSITION = 3
+TEL_DISTANCE = 4
+TEL_INTERVAL = 5
+TEL_SPEED = 6
+TEL_DECEL = 7
+TEL_REQUIRED = 8
+TEL_NOTCH = 9
+TEL_DUTY = 10
+TEL_DELTA = 11
+TEL_EMERGENCY = 12  # 1: an emergency-stop telegram (the wayside's overrun guard), every form
+TEL_SIZE = 13
+#: Telegram vector index -> TascTelegrams field (the array form of the same telegram).
+TEL_FIELDS: tuple[str, ...] = (
+    "detector",
+    "passage_s",
+    "measured_s",
+    "position_m",
+    "distance_m",
+    "interval_s",
+    "speed_mps",
+    "decel_mps2",
+    "required_mps2",
+    "notch",
+    "duty",
+    "delta",
+    "emergency",
+)

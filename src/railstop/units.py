@@ -5,7 +5,7 @@ it is told the time, never reads a clock; it returns its outputs, never sends
 them. A driver calls ``handle`` with each message for it, asks
 ``next_deadline_s`` when it next needs waking without one (a time-out, a
 cycle), and calls ``on_timer`` then. The same unit runs on simulated time
-(``railstop.sim.clock``) and, later, on the wall clock.
+(``railstop.clock``) and, later, on the wall clock.
 """
 
 from __future__ import annotations

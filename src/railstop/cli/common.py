@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from railstop.config.platform import PlatformFile
     from railstop.config.schema import Station
     from railstop.control.law import LawFile
-    from railstop.sim.invariants import Invariant, Verification
+    from railstop.verify.invariants import Invariant, Verification
 
 # Markup is off: names, traces and messages come from user data and are printed literally
 # (a station "[A]" stays "[A]"); styled output is built from rich Text objects (styled()).

@@ -104,8 +104,8 @@ def verify_cmd(
     """Explore every reachable state of CPCS + WPCS + PSC under every input; exit 1 on a violation."""
 
     from railstop.config.doors import load_doors
-    from railstop.sim.doors_verify import INVARIANTS, verify
     from railstop.sim.dwell import model_for
+    from railstop.verify.doors import INVARIANTS, verify
 
     try:
         cfg = load_doors(doors)

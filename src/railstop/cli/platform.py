@@ -72,7 +72,7 @@ def verify_cmd(
 
     from railstop.config.doors import load_doors
     from railstop.config.platform import load_platform
-    from railstop.sim.platform_verify import INVARIANTS, verify
+    from railstop.verify.platform import INVARIANTS, verify
     from railstop.wayside.platform import PlatformUnit, PsdFollower
 
     try:

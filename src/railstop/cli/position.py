@@ -14,9 +14,11 @@ import typer
 from railstop.cli.common import LineOpt, VehicleOpt, fail, out
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import load_disturbances
+from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
 from railstop.sim.position_run import (
     SETTING_LIMITS,
+    PositionRunResult,
     PositionRunSettings,
     SettingError,
     check_streams,
@@ -235,17 +237,7 @@ def position_run(
         )
         summary = result.summary()
         if plot is not None:
-            from dataclasses import asdict
-
-            from railstop.provenance import footer, inputs_sha256, stamp
-            from railstop.report.position_plot import plot_position_run
-
-            inputs = inputs_sha256(ln.model_dump(mode="json"), veh.model_dump(mode="json"), asdict(settings))
-            note = footer(stamp(inputs), seed=seed_n, run=run_n, disturbances=disturbances)
-            try:
-                plot = plot_position_run(result, plot, footer=note)
-            except RailstopError as exc:
-                fail(f"--plot: {exc}")
+            plot = _write_plot(result, plot, ln, veh, settings, disturbances)
     except SettingError as exc:
         option = _OPTION_OF.get(exc.setting)
         if option is not None and option in given:
@@ -260,7 +252,33 @@ def position_run(
     if as_json:
         print(json.dumps(summary))
         return
-    s = summary
+    _print_summary(summary, plot)
+
+
+def _write_plot(
+    result: PositionRunResult,
+    plot: Path,
+    ln: Line,
+    veh: Vehicle,
+    settings: PositionRunSettings,
+    disturbances: str | None,
+) -> Path:
+    """The run's PNG with its provenance footer (the inputs' hash, seed, run, disturbance set)."""
+    from dataclasses import asdict
+
+    from railstop.provenance import footer, inputs_sha256, stamp
+    from railstop.report.position_plot import plot_position_run
+
+    inputs = inputs_sha256(ln.model_dump(mode="json"), veh.model_dump(mode="json"), asdict(settings))
+    note = footer(stamp(inputs), seed=settings.seed, run=settings.run, disturbances=disturbances)
+    try:
+        return plot_position_run(result, plot, footer=note)
+    except RailstopError as exc:
+        fail(f"--plot: {exc}")
+
+
+def _print_summary(s: dict[str, Any], plot: Path | None) -> None:
+    """The run's errors as the terminal shows them."""
     out.print(
         f"position-run over {s['line']!r}: {s['distance_m']:.0f} m in {s['duration_s']:.0f} s, "
         f"{s['corrections']} corrections ({s['rejected']} rejected); odometer scale error "

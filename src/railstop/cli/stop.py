@@ -30,7 +30,7 @@ from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
     from railstop.config.platform import PlatformFile
-    from railstop.config.schema import Station
+    from railstop.config.schema import Station, Vehicle
     from railstop.sim.dwell import DwellEvent
     from railstop.sim.engine import BatchResult
     from railstop.sim.platform_dwell import PlatformDwellResult
@@ -110,7 +110,7 @@ def stop(
     from railstop.config.plausibility import load_checked
     from railstop.sim.single import run_stop, stop_record
     from railstop.streams import RUN_LIMIT, SEED_RANGE, seed_in_range
-    from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
+    from railstop.wayside.tasc_unit import SignalForm
 
     load_law(law)
     if disturbances is not None and (load_factor != 0.0 or brake_gain != 1.0):
@@ -163,6 +163,21 @@ def stop(
         if not result.stopped:
             raise typer.Exit(1)
         return
+    _print_stop(result, st, veh, dwell, plot, None if no_db else db)
+
+
+def _print_stop(
+    result: StopResult,
+    st: Station,
+    veh: Vehicle,
+    dwell: tuple[PlatformDwellResult, list[DwellEvent]] | None,
+    plot: Path | None,
+    db: Path | None,
+) -> None:
+    """The stop as the terminal shows it; exit code 1 when the train did not come to a stand.
+    ``db``: where the stop was saved (None: nowhere)."""
+    from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
+
     what = (
         f"onboard {'ATO' if result.controller in ATO_CONTROLLERS else 'law of --law'}, no TASC telegrams"
         if is_ato_like(result.controller)
@@ -230,7 +245,7 @@ def stop(
     if dwell is not None:
         from railstop.sim.platform_dwell import dwell_sentence
 
-        saved = "" if no_db else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
+        saved = "" if db is None else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
         out.print(f"dwell: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)

@@ -10,7 +10,7 @@ import typer
 from railstop.cli.common import fail, out, print_verification
 
 if TYPE_CHECKING:
-    from railstop.sim.zones_verify import VerifyResult
+    from railstop.verify.zones import VerifyResult
 
 MODES = ("minimal", "conventional", "both")
 # Beyond this many states the command stops with an error rather than run for hours.
@@ -46,7 +46,7 @@ def verify_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Explore every reachable state of the real zone controller and onboard units; exit 1 on a violation."""
-    from railstop.sim.zones_verify import ZoneModel, verify
+    from railstop.verify.zones import ZoneModel, verify
     from railstop.wayside.zone_controller import ZoneMode
 
     if mode not in MODES:
@@ -72,7 +72,7 @@ def verify_cmd(
 
 def _print_result(result: VerifyResult) -> None:
 
-    from railstop.sim.zones_verify import INVARIANTS
+    from railstop.verify.zones import INVARIANTS
 
     m = result.model
     out.print(

@@ -85,6 +85,18 @@ DOOR_TRANSITIONS: Mapping[tuple[DoorState, DoorInput], DoorState] = MappingProxy
     }
 )
 
+#: A door unit's transition table (DOOR_TRANSITIONS or a variant the verifier tries).
+DoorTable = Mapping[tuple[DoorState, DoorInput], DoorState]
+
+
+class PsdReport(NamedTuple):
+    """What the WPCS tells the train over the link; SPEC §5: trusted only while PSC is high."""
+
+    side: Side
+    units: tuple[DoorState, ...]
+    fault: bool = False
+
+
 # The inputs that come from the world (time, obstacles, failures, staff), not
 # from the controller; the verifier offers each of them wherever the table has it.
 PHYSICAL_INPUTS: tuple[DoorInput, ...] = (DI.DONE, DI.OBSTRUCT, DI.CLEAR, DI.JAM, DI.ISOLATE)

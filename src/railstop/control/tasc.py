@@ -23,6 +23,8 @@ per cent, which a single-window gain would pass straight into the command.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -31,6 +33,26 @@ from railstop.jit import njit_inline, njit_step
 from railstop.physics.train import G_MPS2, mean_gradient_1
 
 FloatArray = NDArray[np.float64]
+
+
+class BrakeCurves(NamedTuple):
+    """The train's nominal braking as the plan uses it (the wayside's database, the onboard
+    unit's memory): the deceleration of each notch (0 first) and the PWM curve."""
+
+    table: FloatArray  # deceleration per notch (m/s²)
+    pwm_duty: FloatArray  # the PWM curve: duty ...
+    pwm_decel: FloatArray  # ... and its deceleration (m/s²)
+
+
+class Approach(NamedTuple):
+    """The line data of the approach as the plan uses it: the detectors' distances to the stopping
+    point, the external forces' parameters (EXT_*) and the gradient ``grad`` (breakpoints, values
+    in permille, elevation at the breakpoints)."""
+
+    det_to_stop: FloatArray
+    ext: FloatArray
+    grad: tuple[FloatArray, FloatArray, FloatArray]
+
 
 GAIN_MIN = 0.5
 GAIN_MAX = 2.0

@@ -57,9 +57,9 @@ from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
+from railstop.nodes.zone import make_zone_controller
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
 from railstop.quantities import kmh_to_mps
-from railstop.sim.line_cbtc import make_zone_controller
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
 # Lazy imports (start-up): live.plant and live.tasc load the compiled model, onboard.tasc_receiver
@@ -401,6 +401,274 @@ class _TrainState:
     localised: bool = False  # this process has the plant's state of the train (see ``_localise``)
 
 
+class _Trains:
+    """The trains process's state and its two callbacks on the wall clock (``poll``: the frames
+    received; ``step``: each plant step). Built by :func:`run_trains`."""
+
+    def __init__(
+        self,
+        *,
+        line: Line,
+        vehicle: Vehicle,
+        trains: int,
+        spacing_m: float,
+        base: TimeBase,
+        master_key: bytes,
+        dwell_s: float,
+        office: OfficeClient | None,
+        state_period_s: float,
+        outage: set[int] | None,
+        tasc: LiveTasc | None,
+        doors: LiveDoors | None,
+        plant: Address | None,
+    ) -> None:
+        from railstop.live.plant import Plant, PlantPort, TascPlantData, initial_positions, line_end_m  # lazy
+
+        self.line, self.vehicle, self.dwell_s, self.office = line, vehicle, dwell_s, office
+        self.state_period_s, self.tasc, self.doors = state_period_s, tasc, doors
+        self.dead = outage if outage is not None else set()
+        self.order = sorted(range(len(line.stations)), key=lambda i: line.stations[i].stop_point_m)
+        self.stations = [line.stations[i].stop_point_m for i in self.order]
+        end_m = line_end_m(line)
+        # Each train talks to the zone controller with its own safety-layer id.
+        # Each train hears only the zone controller, takes only commands, and refuses what was sent
+        # before this process started (a restarted process never re-delivers a command).
+        started_s = base.now_s()
+        self.radios = {
+            k: UdpRadio(
+                own_id=TRAIN_BASE + k,
+                master_key=master_key,
+                name=f"radio-{k}",
+                started_s=started_s,
+                peers=lambda p: p == ZC_ADDRESS,
+                expects=MovementCommand,
+            )
+            for k in range(trains)
+        }
+        self.fleet: list[_TrainState] = []
+        for k, x in enumerate(initial_positions(line, vehicle, trains, spacing_m)):
+            # Silent until localised: its first position (from the plant) starts its reports.
+            unit = OnboardCbtc(
+                train_id=k,
+                direction="R",
+                params=line.cbtc,
+                curve_decel_mps2=vehicle.brake.full_service_mps2,
+                uplink=self.radios[k].name,
+                active=False,
+            )
+            ahead = next((i for i, st in enumerate(self.stations) if st > x + 1.0), len(self.stations))
+            self.fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
+        self.unlocalised_steps = 0  # train-steps held under emergency brake, waiting for the plant's state
+        self.local: Plant | None = None
+        if plant is None:
+            plant_tasc = None
+            if tasc is not None:
+                plant_tasc = TascPlantData(tasc.models[0].model.controller, tasc.dist, tasc.seed)
+            self.local = Plant(
+                line=line, vehicle=vehicle, trains=trains, spacing_m=spacing_m, master_key=master_key,
+                tasc=plant_tasc,
+            )  # fmt: skip
+        self.port = PlantPort(
+            trains, plant=self.local, address=plant, master_key=master_key, onboard=self.onboard,
+            started_s=started_s,
+        )  # fmt: skip
+        self.profile = static_profile(line, end_m, vehicle.brake.full_service_mps2 * 0.8)
+        self.clock = WallClock(
+            [*(t.unit for t in self.fleet), *self.radios.values()], step_s=STEP_S, base=base
+        )
+        self.ebs: dict[str, int] = {}
+        self.eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, time, cause
+        self.misdirected = 0  # frames for no train of this process
+        self.cut_short = 0  # TASC stops cut short by a plant started again
+        self.sensors_to = tasc.address if tasc is not None else (doors.address if doors is not None else None)
+        self.ep: UdpEndpoint | None = None  # the socket to the zone controller (run_trains opens it)
+        self.zc: Address | None = None
+
+    def onboard(self, train: int, t_s: float, sense: Any) -> Any:
+        """The onboard TASC unit's cycle on the train's sensing (the CBTC unit's brake on wire e). A
+        train this process has not localised is under a stop it did not begin (the plant's, from
+        before this process started): its brakes get the emergency brake (DESIGN rule 10)."""
+        if not self.fleet[train].localised:
+            from railstop.live.tasc import BrakeDrive  # lazy (start-up), see the top
+
+            return BrakeDrive(sense.k, self.vehicle.brake.emergency_decel_mps2, True, True)
+        tasc = self.tasc
+        return None if tasc is None else tasc.cycle(train, t_s, sense, self.fleet[train].unit.emergency_brake)
+
+    def poll(self, now_s: float) -> list[Output]:
+        """The frames received since the last poll: PSD status, braking telegrams, commands."""
+        assert self.ep is not None
+        out: list[Output] = []
+        doors, tasc = self.doors, self.tasc
+        while (got := self.ep.take()) is not None:
+            frame, _ = got
+            if doors is not None and doors.accepts(frame):
+                doors.ingest(frame, now_s)  # a PSD status from a platform's WPCS
+                continue
+            if tasc is not None and tasc.accepts(frame):
+                tasc.ingest(frame, now_s)  # a braking telegram from a station
+                continue
+            dst = (frame_ids(frame) or (-1, -1))[1]
+            r = self.radios.get(dst - TRAIN_BASE)
+            if r is None:
+                self.misdirected += 1
+                continue
+            if dst - TRAIN_BASE in self.dead:
+                continue  # the train's radio is dead: lost
+            out.extend(r.ingest(frame, now_s, to=lambda k: f"cbtc-{k}"))
+        return out
+
+    def step(self, now_s: float, step_s: float) -> list[Output]:
+        """One plant step: the radios' frames out, the plant's step, every train's drive and
+        reports; the onboard positions for the CBTC units."""
+        from railstop.live.plant import emergency_drive  # lazy (start-up), see the top
+
+        ep, zc, port, tasc = self.ep, self.zc, self.port, self.tasc
+        assert ep is not None and zc is not None
+        out: list[Output] = []
+        for k, r in self.radios.items():
+            for frame, _ in r.outgoing:
+                if k not in self.dead:
+                    ep.send(frame, zc)
+            r.outgoing.clear()
+        port.tick(now_s, step_s, ep, self.sensors_to)  # in this process: the plant's steps
+        if tasc is not None:
+            for frame in tasc.hello(now_s):
+                ep.send(frame, tasc.address)
+        for t in self.fleet:
+            state = port.states.get(t.k)
+            if not t.localised and not _localise(t, state, self.stations):
+                # No report (to the zone controller, to the office) nor drive before the plant
+                # says where the train is: it stays under the emergency brake (a restarted
+                # process's start is not the train's position; DESIGN rule 10).
+                self.unlocalised_steps += 1
+                port.drive(t.k, emergency_drive(self.vehicle))
+                continue
+            drive = self._drive(t, state, now_s, step_s)
+            if drive is not None:
+                port.drive(t.k, drive)
+                if math.isfinite(drive.relocate_m):
+                    t.relocating, t.x_m, t.v_mps = drive.relocate_m, drive.relocate_m, 0.0
+            u = t.unit.params.position_uncertainty_m  # the plant's position: the declared bound
+            out.append(
+                Output(
+                    to=t.unit.name,
+                    message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps, uncertainty_m=u),
+                )
+            )
+            self._report(t, now_s)
+        port.flush(now_s)  # between processes: the drives to the plant
+        return out
+
+    def _drive(self, t: _TrainState, state: TrainState | None, now_s: float, step_s: float) -> Drive | None:
+        """The train's drive this step (None: the plant goes on as it is), after taking the
+        plant's state of it."""
+        from railstop.live.plant import Drive, emergency_drive  # lazy (start-up), see the top
+
+        port, tasc, doors = self.port, self.tasc, self.doors
+        fresh = state is not None and state.fresh
+        if state is None or fresh:
+            pass  # a plant that does not know where the train is: placed below
+        elif t.relocating is None:
+            t.x_m, t.v_mps = state.x_m, state.v_mps
+        elif abs(state.x_m - t.relocating) < 1.0:
+            t.relocating = None  # the plant has it back in service
+        if fresh:
+            # A plant that knows nothing of the trains (its start, or its start again in the
+            # running line): each train stands where this process last knew it (they
+            # were braked when the plant fell silent) [interpretation: the simulated world
+            # resumes from the onboard units' view]. A TASC stop under way is cut short:
+            # the train stands EB_RESET_S, then is driven onto the platform.
+            if t.tasc is not None and tasc is not None:
+                tasc.end(t.k)
+                t.tasc = None
+                t.dwell_until_s = now_s + EB_RESET_S
+                self.cut_short += 1
+            port.place(t.k, t.x_m)
+            t.v_mps = 0.0
+            return None
+        if port.lost:
+            return emergency_drive(self.vehicle)  # fail safe: the plant is silent, nothing is known
+        if t.relocating is not None:
+            return Drive(0.0, 0.0, math.inf, t.relocating)  # sent again until the plant has it
+        if doors is not None:
+            assert self.ep is not None
+            drive = _dwell_step(t, doors, self.ep, now_s, step_s, self.office)
+            if drive is not None:
+                return drive  # standing at the platform for its dwell (or creeping to correct its stop)
+        if tasc is not None and _tasc_step(t, tasc, port, now_s, self.order, self.dwell_s, self.office):
+            return None  # the onboard TASC unit drives it (in lock step with the plant)
+        drive = _move(
+            t, now_s, step_s, self.vehicle, self.stations, self.dwell_s, self.fleet, t.k in self.dead, tasc,
+            self.order, self.profile,
+        )  # fmt: skip
+        if t.stopped_at is not None:
+            t.arrived = (self.order[t.stopped_at], t.x_m - self.stations[t.stopped_at])
+        return drive
+
+    def _report(self, t: _TrainState, now_s: float) -> None:
+        """The train's emergency brake counted once applied; its stop and state to the office."""
+        office, port = self.office, self.port
+        eb_now = t.unit.emergency_brake or port.lost
+        if eb_now and not t.eb_reported:
+            # The unit's own emergency brake names its cause; else it is the plant's silence.
+            own = t.unit.eb_cause
+            cause = (own if own is not None else EbCause.PLANT_LOST).label
+            self.ebs[cause] = self.ebs.get(cause, 0) + 1
+            self.eb_times.append({"train": t.k, "t_s": round(now_s, 3), "cause": cause})
+        t.eb_reported = eb_now
+        if t.stopped_at is not None and office is not None:
+            st = self.line.stations[self.order[t.stopped_at]]
+            office.report(
+                "stop-result",
+                {
+                    "station": st.name,
+                    "train": t.k,
+                    # Not a TASC stop: the live plant is a point mass stopping where it aims.
+                    "controller": "live plant",
+                    "error_m": round(t.x_m - st.stop_point_m, 3),
+                    "within": abs(t.x_m - st.stop_point_m) <= st.psd_tolerance_m,
+                    "t_s": round(now_s, 2),
+                },
+            )
+        t.stopped_at = None
+        if office is not None and now_s - t.last_state_s >= self.state_period_s:
+            t.last_state_s = now_s
+            state_report = {
+                "train": t.k,
+                "position_m": round(t.x_m, 1),
+                "speed_mps": round(t.v_mps, 2),
+                # The CBTC unit's emergency brake, or the dwell's (SPEC §5 fault) while the
+                # train stands for its reset, or the plant's silence.
+                "emergency_brake": eb_now or t.retry is not None,
+                "cause": _state_cause(t.unit.eb_cause, port.lost, t.retry is not None),
+                "radio": "dead" if t.k in self.dead else "ok",
+                "doors": None if t.dwell is None else t.dwell.phase,
+                "t_s": round(now_s, 2),
+            }
+            office.report("train-state", state_report)
+
+    def counts(self) -> dict[str, Any]:
+        """What :func:`run_trains` returns: emergency brakes by cause, timing, link and plant counts."""
+        tasc, doors, local = self.tasc, self.doors, self.local
+        return {
+            "emergency_brakes": self.ebs,
+            "emergency_brake_times": self.eb_times,
+            **self.clock.timing(),
+            "commands": sum(t.unit.commands for t in self.fleet),
+            "radio_delivered": sum(r.links.delivered for r in self.radios.values()),
+            "radio_rejected": _rejected(self.radios.values(), self.misdirected),
+            "tasc": None if tasc is None else tasc.counts(),
+            "dwells": None if doors is None else doors.counts(),
+            "plant": {
+                **self.port.counts(),
+                **(local.counts() if local is not None else {}),
+                "tasc_stops_cut_short": self.cut_short,
+                "unlocalised_train_steps": self.unlocalised_steps,
+            },
+        }
+
+
 async def run_trains(
     *,
     line: Line,
@@ -426,236 +694,22 @@ async def run_trains(
     (``live.tasc.run_stations``) stops the trains by ground TASC (without it the plant stops them
     where they aim, a point mass). ``plant``: the plant process (``live.plant.run_plant``) that
     moves the trains; without it the plant runs in this process."""
-    from railstop.live.plant import (  # lazy (start-up), see the top
-        Drive,
-        Plant,
-        PlantPort,
-        TascPlantData,
-        emergency_drive,
-        initial_positions,
-        line_end_m,
-    )
-
-    dead = outage if outage is not None else set()
-    p = line.cbtc
-    brake = vehicle.brake
-    order = sorted(range(len(line.stations)), key=lambda i: line.stations[i].stop_point_m)
-    stations = [line.stations[i].stop_point_m for i in order]
-    end_m = line_end_m(line)
-    # Each train talks to the zone controller with its own safety-layer id.
-    # Each train hears only the zone controller, takes only commands, and refuses what was sent
-    # before this process started (a restarted process never re-delivers a command).
-    started_s = base.now_s()
-    radios = {
-        k: UdpRadio(
-            own_id=TRAIN_BASE + k,
-            master_key=master_key,
-            name=f"radio-{k}",
-            started_s=started_s,
-            peers=lambda p: p == ZC_ADDRESS,
-            expects=MovementCommand,
-        )
-        for k in range(trains)
-    }
-    fleet = []
-    for k, x in enumerate(initial_positions(line, vehicle, trains, spacing_m)):
-        # Silent until localised: its first position (from the plant) starts its reports.
-        unit = OnboardCbtc(
-            train_id=k,
-            direction="R",
-            params=p,
-            curve_decel_mps2=brake.full_service_mps2,
-            uplink=radios[k].name,
-            active=False,
-        )
-        ahead = next((i for i, st in enumerate(stations) if st > x + 1.0), len(stations))
-        fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
-    unlocalised_steps = 0  # train-steps held under emergency brake, waiting for the plant's state
-
-    def onboard(train: int, t_s: float, sense: Any) -> Any:
-        # The onboard TASC unit's cycle on the train's sensing (the CBTC unit's brake on wire e). A
-        # train this process has not localised is under a stop it did not begin (the plant's, from
-        # before this process started): its brakes get the emergency brake (DESIGN rule 10).
-        if not fleet[train].localised:
-            from railstop.live.tasc import BrakeDrive  # lazy (start-up), see the top
-
-            return BrakeDrive(sense.k, brake.emergency_decel_mps2, True, True)
-        return None if tasc is None else tasc.cycle(train, t_s, sense, fleet[train].unit.emergency_brake)
-
-    local = None
-    if plant is None:
-        plant_tasc = None
-        if tasc is not None:
-            plant_tasc = TascPlantData(tasc.models[0].model.controller, tasc.dist, tasc.seed)
-        local = Plant(
-            line=line, vehicle=vehicle, trains=trains, spacing_m=spacing_m, master_key=master_key,
-            tasc=plant_tasc,
-        )  # fmt: skip
-    port = PlantPort(
-        trains, plant=local, address=plant, master_key=master_key, onboard=onboard, started_s=started_s
-    )
-    profile = static_profile(line, end_m, brake.full_service_mps2 * 0.8)
-    clock = WallClock([*(t.unit for t in fleet), *radios.values()], step_s=STEP_S, base=base)
-    ebs: dict[str, int] = {}
-    eb_times: list[dict[str, Any]] = []  # each emergency brake applied: train, simulated time, cause
-    misdirected = 0  # frames for no train of this process
-    cut_short = 0  # TASC stops cut short by a plant started again
+    run = _Trains(
+        line=line, vehicle=vehicle, trains=trains, spacing_m=spacing_m, base=base, master_key=master_key,
+        dwell_s=dwell_s, office=office, state_period_s=state_period_s, outage=outage, tasc=tasc,
+        doors=doors, plant=plant,
+    )  # fmt: skip
     async with contextlib.AsyncExitStack() as stack:
-        ep = await stack.enter_async_context(await open_endpoint(local_for(zc)))
+        run.ep = await stack.enter_async_context(await open_endpoint(local_for(zc)))
+        run.zc = zc
         if plant is not None:
+            port = run.port
             port.ep = await stack.enter_async_context(await open_endpoint(local_for(plant)))
             port.heard_s = base.now_s()  # its first frames have a period of grace
             serving = asyncio.create_task(port.serve(base, stop))
             stack.callback(serving.cancel)
-        sensors_to = tasc.address if tasc is not None else (doors.address if doors is not None else None)
-
-        def poll(now_s: float) -> list[Output]:
-            nonlocal misdirected
-            out: list[Output] = []
-            while (got := ep.take()) is not None:
-                frame, _ = got
-                if doors is not None and doors.accepts(frame):
-                    doors.ingest(frame, now_s)  # a PSD status from a platform's WPCS
-                    continue
-                if tasc is not None and tasc.accepts(frame):
-                    tasc.ingest(frame, now_s)  # a braking telegram from a station
-                    continue
-                dst = (frame_ids(frame) or (-1, -1))[1]
-                r = radios.get(dst - TRAIN_BASE)
-                if r is None:
-                    misdirected += 1
-                    continue
-                if dst - TRAIN_BASE in dead:
-                    continue  # the train's radio is dead: lost
-                out.extend(r.ingest(frame, now_s, to=lambda k: f"cbtc-{k}"))
-            return out
-
-        def step(now_s: float, step_s: float) -> list[Output]:
-            nonlocal cut_short, unlocalised_steps
-            out: list[Output] = []
-            for k, r in radios.items():
-                for frame, _ in r.outgoing:
-                    if k not in dead:
-                        ep.send(frame, zc)
-                r.outgoing.clear()
-            port.tick(now_s, step_s, ep, sensors_to)  # in this process: the plant's steps
-            if tasc is not None:
-                for frame in tasc.hello(now_s):
-                    ep.send(frame, tasc.address)
-            for t in fleet:
-                state = port.states.get(t.k)
-                fresh = state is not None and state.fresh
-                if not t.localised and not _localise(t, state, stations):
-                    # No report (to the zone controller, to the office) nor drive before the plant
-                    # says where the train is: it stays under the emergency brake (a restarted
-                    # process's start is not the train's position; DESIGN rule 10).
-                    unlocalised_steps += 1
-                    port.drive(t.k, emergency_drive(vehicle))
-                    continue
-                if state is None or fresh:
-                    pass  # a plant that does not know where the train is: placed below
-                elif t.relocating is None:
-                    t.x_m, t.v_mps = state.x_m, state.v_mps
-                elif abs(state.x_m - t.relocating) < 1.0:
-                    t.relocating = None  # the plant has it back in service
-                drive: Drive | None
-                if fresh:
-                    # A plant that knows nothing of the trains (its start, or its start again in the
-                    # running line): each train stands where this process last knew it (they
-                    # were braked when the plant fell silent) [interpretation: the simulated world
-                    # resumes from the onboard units' view]. A TASC stop under way is cut short:
-                    # the train stands EB_RESET_S, then is driven onto the platform.
-                    if t.tasc is not None and tasc is not None:
-                        tasc.end(t.k)
-                        t.tasc = None
-                        t.dwell_until_s = now_s + EB_RESET_S
-                        cut_short += 1
-                    port.place(t.k, t.x_m)
-                    t.v_mps, drive = 0.0, None
-                elif port.lost:
-                    # Fail safe: the plant is silent; nothing is known of the train: brake.
-                    drive = emergency_drive(vehicle)
-                elif t.relocating is not None:
-                    drive = Drive(0.0, 0.0, math.inf, t.relocating)  # sent again until the plant has it
-                elif doors is not None and (drive := _dwell_step(t, doors, ep, now_s, step_s, office)):
-                    pass  # standing at the platform for its dwell (or creeping to correct its stop)
-                elif tasc is not None and _tasc_step(t, tasc, port, now_s, order, dwell_s, office):
-                    drive = None  # the onboard TASC unit drives it (in lock step with the plant)
-                else:
-                    drive = _move(
-                        t, now_s, step_s, vehicle, stations, dwell_s, fleet, t.k in dead, tasc, order, profile
-                    )
-                    if t.stopped_at is not None:
-                        t.arrived = (order[t.stopped_at], t.x_m - stations[t.stopped_at])
-                if drive is not None:
-                    port.drive(t.k, drive)
-                    if math.isfinite(drive.relocate_m):
-                        t.relocating, t.x_m, t.v_mps = drive.relocate_m, drive.relocate_m, 0.0
-                u = t.unit.params.position_uncertainty_m  # the plant's position: the declared bound
-                out.append(
-                    Output(
-                        to=t.unit.name,
-                        message=OnboardPosition(position_m=t.x_m, speed_mps=t.v_mps, uncertainty_m=u),
-                    )
-                )
-                eb_now = t.unit.emergency_brake or port.lost
-                if eb_now and not t.eb_reported:
-                    # The unit's own emergency brake names its cause; else it is the plant's silence.
-                    own = t.unit.eb_cause
-                    cause = (own if own is not None else EbCause.PLANT_LOST).label
-                    ebs[cause] = ebs.get(cause, 0) + 1
-                    eb_times.append({"train": t.k, "t_s": round(now_s, 3), "cause": cause})
-                t.eb_reported = eb_now
-                if t.stopped_at is not None and office is not None:
-                    st = line.stations[order[t.stopped_at]]
-                    office.report(
-                        "stop-result",
-                        {
-                            "station": st.name,
-                            "train": t.k,
-                            # Not a TASC stop: the live plant is a point mass stopping where it aims.
-                            "controller": "live plant",
-                            "error_m": round(t.x_m - st.stop_point_m, 3),
-                            "within": abs(t.x_m - st.stop_point_m) <= st.psd_tolerance_m,
-                            "t_s": round(now_s, 2),
-                        },
-                    )
-                t.stopped_at = None
-                if office is not None and now_s - t.last_state_s >= state_period_s:
-                    t.last_state_s = now_s
-                    state_report = {
-                        "train": t.k,
-                        "position_m": round(t.x_m, 1),
-                        "speed_mps": round(t.v_mps, 2),
-                        # The CBTC unit's emergency brake, or the dwell's (SPEC §5 fault) while the
-                        # train stands for its reset, or the plant's silence.
-                        "emergency_brake": eb_now or t.retry is not None,
-                        "cause": _state_cause(t.unit.eb_cause, port.lost, t.retry is not None),
-                        "radio": "dead" if t.k in dead else "ok",
-                        "doors": None if t.dwell is None else t.dwell.phase,
-                        "t_s": round(now_s, 2),
-                    }
-                    office.report("train-state", state_report)
-            port.flush(now_s)  # between processes: the drives to the plant
-            return out
-
-        await clock.run_live(step, poll, stop)
-    return {
-        "emergency_brakes": ebs,
-        "emergency_brake_times": eb_times,
-        **clock.timing(),
-        "commands": sum(t.unit.commands for t in fleet),
-        "radio_delivered": sum(r.links.delivered for r in radios.values()),
-        "radio_rejected": _rejected(radios.values(), misdirected),
-        "tasc": None if tasc is None else tasc.counts(),
-        "dwells": None if doors is None else doors.counts(),
-        "plant": {
-            **port.counts(),
-            **(local.counts() if local is not None else {}),
-            "tasc_stops_cut_short": cut_short,
-            "unlocalised_train_steps": unlocalised_steps,
-        },
-    }
+        await run.clock.run_live(run.step, run.poll, stop)
+    return run.counts()
 
 
 def _localise(t: _TrainState, state: TrainState | None, stations: list[float]) -> bool:

@@ -32,8 +32,8 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
+from railstop.clock import PlantStep, SimClock
 from railstop.messages import Output
-from railstop.sim.clock import PlantStep, SimClock
 from railstop.units import Unit
 
 
@@ -56,7 +56,7 @@ class TimeBase:
 
 
 class WallClock(SimClock):
-    """The simulated-time scheduler of ``railstop.sim.clock``, paced by a :class:`TimeBase`."""
+    """The simulated-time scheduler of ``railstop.clock``, paced by a :class:`TimeBase`."""
 
     def __init__(self, units: Iterable[Unit], *, step_s: float, base: TimeBase) -> None:
         super().__init__(units, step_s=step_s, start_s=base.now_s())

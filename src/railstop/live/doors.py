@@ -50,6 +50,7 @@ from railstop.control.doors import (
     DoorInput,
     DoorSignals,
     DoorState,
+    PsdReport,
     Side,
     all_open,
     motion_s,
@@ -62,10 +63,10 @@ from railstop.link.door_link import command_signals, door_command, psd_status
 from railstop.link.release_link import WCC_ADDRESS, WccGate, wcc_key
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address
+from railstop.nodes.doors import DoorModel
 from railstop.onboard import cpcs, stop_confirm
-from railstop.onboard.cpcs import CpcsState, PsdReport
+from railstop.onboard.cpcs import CpcsState
 from railstop.onboard.stop_confirm import StopConfirmState, StopInput, StopPhase
-from railstop.sim.door_system import DoorModel
 from railstop.sim.dwell import model_for
 from railstop.wayside import wpcs
 from railstop.wayside.wpcs import TrainReport, WpcsState, answers_psc
@@ -566,7 +567,7 @@ class TrainDoors:
 
     def _start_creep(self) -> None:
         """SPEC §3 lamps F / R: a short creep towards the stopping point, at most creep_max_m, once
-        every train door is closed and locked (the traction interlock of ``sim.door_system``); the
+        every train door is closed and locked (the traction interlock of ``nodes.doors``); the
         ATC closes any door still open first (DMC and DCC)."""
         locked = self.model.interlocks.locked
         if not all(u in locked for side in (Side.L, Side.R) for u in self.cpcs.side(side)):

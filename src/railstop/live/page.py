@@ -444,6 +444,79 @@ class _EventStream(Response):
             self.cleanup()
 
 
+@dataclass(slots=True, kw_only=True)
+class _Office:
+    """What the page's routes share: the stored reports, the live events, who may log in, the
+    sessions (``guard``), the command links and the audit record."""
+
+    history: Callable[[int, int], list[dict[str, Any]]]
+    broadcast: Broadcast
+    title: str
+    line: dict[str, Any]
+    operators: Mapping[str, Operator]
+    release: Release | None
+    wcc: Wcc | None
+    audit: Audit | None
+    lim: PageLimits
+    guard: Guard
+    hash_slots: asyncio.Semaphore
+    clock: Callable[[], float]
+
+    async def record(self, data: dict[str, Any]) -> None:
+        if self.audit is not None:
+            await self.audit(data)
+
+    @staticmethod
+    def client(request: Request) -> str:
+        return request.client.host if request.client else "?"
+
+    def session(self, request: Request, *, touch: bool = True) -> tuple[str, Session]:
+        sid = request.cookies.get(COOKIE)
+        s = self.guard.get(sid, self.clock(), touch=touch)
+        if sid is None or s is None:
+            raise HTTPException(401, "log in first (or again: the session has ended)")
+        return sid, s
+
+    async def checked(self, user: str, secret: str, address: str, action: dict[str, Any]) -> Operator:
+        """The operator, when ``secret`` is ``user``'s credential; else a 429 (locked out, nothing
+        checked) or a 403 (recorded)."""
+        guard, clock = self.guard, self.clock
+        wait, ok = guard.locked_for_s(user, address, clock()), False
+        if wait <= 0.0:
+            async with self.hash_slots:
+                wait = guard.attempt(user, address, clock())
+                ok = wait <= 0.0 and await asyncio.to_thread(check, dict(self.operators), user, secret)
+        if wait > 0.0:
+            raise HTTPException(
+                429,
+                f"refused: too many failed attempts: try again in {wait:.0f} s",
+                headers={"Retry-After": str(max(1, round(wait)))},
+            )
+        if not ok:
+            await self.record({**action, "result": "refused: unknown operator or wrong credential"})
+            raise HTTPException(403, "refused: unknown operator or wrong credential")
+        guard.succeeded(user, address)
+        return self.operators[user]
+
+    async def command(
+        self, request: Request, token: str, credential: str, confirmed: bool, action: dict[str, Any]
+    ) -> tuple[Operator, Session]:
+        """A command's checks: a session, a fresh one-time token, the confirmation, the credential
+        again. Returns the operator and the session."""
+        _, s = self.session(request)
+        address = self.client(request)
+        action = {**action, "operator": s.user, "operator_id": s.operator_id, "address": address}
+        if not self.guard.redeem(s, token, self.clock()):
+            # A replayed (or forged, or stale) request: refused and recorded.
+            await self.record({**action, "result": "refused: replayed or unknown command token"})
+            raise HTTPException(403, "refused: replayed or unknown command token (reload the page)")
+        if s.operator_id == VIEW_ONLY_ID:
+            raise HTTPException(403, "refused: this login may only view")
+        if not confirmed:
+            raise HTTPException(400, "the command needs the operator's confirmation")
+        return await self.checked(s.user, credential, address, action), s
+
+
 def make_app(
     *,
     history: Callable[[int, int], list[dict[str, Any]]],
@@ -464,17 +537,12 @@ def make_app(
     manual zone release, ``wcc``: the WCC's commands to the stations' WPCS (None: the page offers
     none); ``audit``: where logins, refusals and replays are recorded."""
     lim = limits or PageLimits()
-    guard = Guard(lim)
-    hash_slots = asyncio.Semaphore(lim.hash_checks)
+    office = _Office(
+        history=history, broadcast=broadcast, title=title, line=line, operators=operators,
+        release=release, wcc=wcc, audit=audit, lim=lim, guard=Guard(lim),
+        hash_slots=asyncio.Semaphore(lim.hash_checks), clock=clock,
+    )  # fmt: skip
     app = FastAPI(title=title, docs_url=None, redoc_url=None, openapi_url=None)
-    static = resources.files("railstop.live").joinpath("static")
-    files = {name: (static.joinpath(f).read_bytes(), ctype) for name, (f, ctype) in _STATIC.items()}
-    page = static.joinpath("control_room.html").read_bytes()
-    login_page = static.joinpath("login.html").read_bytes()
-
-    async def record(data: dict[str, Any]) -> None:
-        if audit is not None:
-            await audit(data)
 
     @app.exception_handler(HTTPException)
     async def http_error(_request: Request, exc: HTTPException) -> JSONResponse:
@@ -486,37 +554,20 @@ def make_app(
         where = sorted({".".join(str(p) for p in e.get("loc", ())[1:]) for e in exc.errors()})
         return JSONResponse({"message": f"invalid request: {', '.join(where) or 'body'}"}, status_code=422)
 
-    def client(request: Request) -> str:
-        return request.client.host if request.client else "?"
+    _login_routes(app, office)
+    _view_routes(app, office)
+    _command_routes(app, office)
+    shield = Shield(app, hosts=hosts, limits=lim)
+    shield.guard = office.guard
+    return shield
 
-    def session(request: Request, *, touch: bool = True) -> tuple[str, Session]:
-        sid = request.cookies.get(COOKIE)
-        s = guard.get(sid, clock(), touch=touch)
-        if sid is None or s is None:
-            raise HTTPException(401, "log in first (or again: the session has ended)")
-        return sid, s
 
-    async def checked(user: str, secret: str, address: str, action: dict[str, Any]) -> Operator:
-        """The operator, when ``secret`` is ``user``'s credential; else a 429 (locked out, nothing
-        checked) or a 403 (recorded)."""
-        wait, ok = guard.locked_for_s(user, address, clock()), False
-        if wait <= 0.0:
-            async with hash_slots:
-                wait = guard.attempt(user, address, clock())
-                ok = wait <= 0.0 and await asyncio.to_thread(check, dict(operators), user, secret)
-        if wait > 0.0:
-            raise HTTPException(
-                429,
-                f"refused: too many failed attempts: try again in {wait:.0f} s",
-                headers={"Retry-After": str(max(1, round(wait)))},
-            )
-        if not ok:
-            await record({**action, "result": "refused: unknown operator or wrong credential"})
-            raise HTTPException(403, "refused: unknown operator or wrong credential")
-        guard.succeeded(user, address)
-        return operators[user]
-
-    # ---- the login
+def _login_routes(app: FastAPI, office: _Office) -> None:
+    """The login page and its API, the static files, the session and the command tokens."""
+    guard, clock, lim = office.guard, office.clock, office.lim
+    static = resources.files("railstop.live").joinpath("static")
+    files = {name: (static.joinpath(f).read_bytes(), ctype) for name, (f, ctype) in _STATIC.items()}
+    login_page = static.joinpath("login.html").read_bytes()
 
     @app.get("/login")
     async def login_form() -> Response:
@@ -531,12 +582,14 @@ def make_app(
 
     @app.post("/api/login")
     async def login(body: LoginRequest, request: Request) -> JSONResponse:
-        address = client(request)
-        op = await checked(
+        address = office.client(request)
+        op = await office.checked(
             body.user, body.secret, address, {"operator": body.user, "action": "login", "address": address}
         )
         sid = guard.open(body.user, op.id, clock())
-        await record({"operator": body.user, "action": "login", "address": address, "result": "logged in"})
+        await office.record(
+            {"operator": body.user, "action": "login", "address": address, "result": "logged in"}
+        )
         out = JSONResponse({"user": body.user, "operator_id": op.id})
         out.set_cookie(
             COOKIE,
@@ -553,8 +606,9 @@ def make_app(
     async def logout(request: Request) -> JSONResponse:
         s = guard.close(request.cookies.get(COOKIE))
         if s is not None:
-            await record(
-                {"operator": s.user, "action": "logout", "address": client(request), "result": "logged out"}
+            address = office.client(request)
+            await office.record(
+                {"operator": s.user, "action": "logout", "address": address, "result": "logged out"}
             )
         out = JSONResponse({"message": "logged out"})
         out.delete_cookie(
@@ -564,23 +618,33 @@ def make_app(
 
     @app.get("/api/session")
     async def session_info(request: Request) -> dict[str, Any]:
-        _, s = session(request)
+        _, s = office.session(request)
         commands = s.operator_id != VIEW_ONLY_ID
         return {
             "user": s.user,
             "operator_id": s.operator_id,
-            "title": title,
-            "release": release is not None and commands,
-            "wcc": wcc is not None and commands,
+            "title": office.title,
+            "release": office.release is not None and commands,
+            "wcc": office.wcc is not None and commands,
             "idle_s": lim.session_idle_s,
         }
 
     @app.post("/api/token")
     async def token(request: Request) -> dict[str, str]:
-        _, s = session(request)
+        _, s = office.session(request)
         return {"token": guard.issue(s, clock())}
 
-    # ---- viewing
+
+def _view_routes(app: FastAPI, office: _Office) -> None:
+    """The page, the line, the stored reports and the event stream (a session each)."""
+    guard, clock, lim, broadcast, history = (
+        office.guard,
+        office.clock,
+        office.lim,
+        office.broadcast,
+        office.history,
+    )
+    page = resources.files("railstop.live").joinpath("static").joinpath("control_room.html").read_bytes()
 
     @app.get("/")
     async def index(request: Request) -> Response:
@@ -590,17 +654,17 @@ def make_app(
 
     @app.get("/api/line")
     async def line_data(request: Request) -> dict[str, Any]:
-        session(request)
-        return line
+        office.session(request)
+        return office.line
 
     @app.get("/api/reports")
     async def reports(request: Request, after: int = Query(0, ge=0)) -> list[dict[str, Any]]:
-        session(request)
+        office.session(request)
         return await asyncio.to_thread(history, after, REPORTS_PAGE)
 
     @app.get("/events")
     async def events(request: Request) -> Response:
-        sid, s = session(request)
+        sid, s = office.session(request)
         if broadcast.pages >= lim.max_streams or s.streams >= lim.max_streams_per_session:
             raise HTTPException(503, "too many open event streams")
         q = broadcast.subscribe()
@@ -631,52 +695,35 @@ def make_app(
 
         return _EventStream(stream(), cleanup)
 
-    # ---- commands: a session, a fresh one-time token, the confirmation, the credential again
 
-    async def command(
-        request: Request, token: str, credential: str, confirmed: bool, action: dict[str, Any]
-    ) -> Operator:
-        _, s = session(request)
-        action = {**action, "operator": s.user, "operator_id": s.operator_id, "address": client(request)}
-        if not guard.redeem(s, token, clock()):
-            # A replayed (or forged, or stale) request: refused and recorded.
-            await record({**action, "result": "refused: replayed or unknown command token"})
-            raise HTTPException(403, "refused: replayed or unknown command token (reload the page)")
-        if s.operator_id == VIEW_ONLY_ID:
-            raise HTTPException(403, "refused: this login may only view")
-        if not confirmed:
-            raise HTTPException(400, "the command needs the operator's confirmation")
-        return await checked(s.user, credential, client(request), action)
+def _command_routes(app: FastAPI, office: _Office) -> None:
+    """The commands: the manual zone release and the WCC's orders to the stations' WPCS."""
 
     @app.post("/api/release")
     async def release_zone(body: ReleaseRequest, request: Request) -> JSONResponse:
-        if release is None:
+        if office.release is None:
             return JSONResponse({"message": "this office has no zone controller link"}, status_code=503)
         action = {"action": "zone-release", "train": body.train}
-        op = await command(request, body.token, body.credential, body.confirmed, action)
-        _, s = session(request)
-        status, message = await release(ReleaseOrder(train=body.train, operator=s.user, operator_id=op.id))
+        op, s = await office.command(request, body.token, body.credential, body.confirmed, action)
+        status, message = await office.release(
+            ReleaseOrder(train=body.train, operator=s.user, operator_id=op.id)
+        )
         return JSONResponse({"message": message}, status_code=status)
 
     @app.post("/api/wcc")
     async def wcc_command(body: WccRequest, request: Request) -> JSONResponse:
-        if wcc is None:
+        if office.wcc is None:
             return JSONResponse({"message": "this office has no link to the stations"}, status_code=503)
         if body.panel != "none" and body.mode != "manual":
             return JSONResponse({"message": "the panel's buttons act only in manual"}, status_code=400)
         what = f"WPCS {body.mode}" + (f", panel {body.panel}" if body.panel != "none" else "")
         action = {"action": "wcc", "station": body.station, "command": what}
-        op = await command(request, body.token, body.credential, body.confirmed, action)
-        _, s = session(request)
+        op, s = await office.command(request, body.token, body.credential, body.confirmed, action)
         order = WccOrder(
             station=body.station, mode=body.mode, panel=body.panel, operator=s.user, operator_id=op.id
         )
-        status, message = await wcc(order)
+        status, message = await office.wcc(order)
         return JSONResponse({"message": message}, status_code=status)
-
-    shield = Shield(app, hosts=hosts, limits=lim)
-    shield.guard = guard
-    return shield
 
 
 # ---------------------------------------------------------------------------------------- the shield

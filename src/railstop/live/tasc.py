@@ -57,13 +57,15 @@ from railstop.config.doors import DoorsConfig
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.notch import MOD_SIZE
 from railstop.control.supervision import EbCause, eb_cause_name
-from railstop.control.tasc import HISTORY, SAMPLES
+from railstop.control.tasc import HISTORY, SAMPLES, Approach, BrakeCurves
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
+from railstop.link.tasc_link import from_message, to_message
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import MAX_TRAINS, SENSORS_ID, Platforms
 from railstop.live.office import OfficeClient
+from railstop.messages import TEL_FIELDS, TEL_SIZE
 from railstop.model.build import KernelModel, scenario_arrays
 from railstop.model.records import (
     KP_CRUSH,
@@ -116,18 +118,8 @@ from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
 from railstop.quantities import kmh_to_mps
 from railstop.sensors.wayside import crossing_time_1, passage_1
 from railstop.sim.engine import command_records, telegram_of
-from railstop.sim.tasc_link import from_message, to_message
 from railstop.streams import RunStreams
-from railstop.wayside.tasc_unit import (
-    CR_SIZE,
-    TEL_FIELDS,
-    TEL_SIZE,
-    WP_FORM,
-    WS_SIZE,
-    SignalForm,
-    wayside_init_1,
-    wayside_step_1,
-)
+from railstop.wayside.tasc_unit import CR_SIZE, WP_FORM, WS_SIZE, SignalForm, wayside_init_1, wayside_step_1
 
 FloatArray = NDArray[np.float64]
 
@@ -280,8 +272,8 @@ class WaysideTasc:
             s.last_reading_s = r.t_s
             due = wayside_step_1(
                 s.ws, m.wp, s.dbuf, s.pass_t, s.pass_x, m.det_pos, s.wh_v, s.wh_e, s.taus, s.weights,
-                m.det_to_stop, m.table, m.pwm_duty, m.pwm_decel, m.ext, self.st.grad, r.t_s, r.passed,
-                r.detector, r.passage_s, r.doppler_mps, s.tele, s.crow,
+                BrakeCurves(m.table, m.pwm_duty, m.pwm_decel), Approach(m.det_to_stop, m.ext, self.st.grad),
+                r.t_s, r.passed, r.detector, r.passage_s, r.doppler_mps, s.tele, s.crow,
             )  # fmt: skip
             if not due:
                 continue
@@ -575,8 +567,9 @@ class TascOnboard:
             self.own_duty, _ = own_command_1(self.own_notch, pwm_train, m.table, m.pwm_duty, m.pwm_decel)
             self.own_for = self.own_notch
         notch, duty, eb, _ = receiver_cycle_1(
-            self.rx, m.rp, self.mod, self.tach, self.rh_v, self.rh_e, self.taus, m.table, m.pwm_duty,
-            m.pwm_decel, m.det_to_stop, m.ext, self.st.grad, self.pending, t_s, sense.k, new,
+            self.rx, m.rp, self.mod, self.tach, self.rh_v, self.rh_e, self.taus,
+            BrakeCurves(m.table, m.pwm_duty, m.pwm_decel), Approach(m.det_to_stop, m.ext, self.st.grad),
+            self.pending, t_s, sense.k, new,
             copy and not new, sense.tach_mps, sense.odo_step_m, self.own_notch, self.own_duty,
         )  # fmt: skip
         self.eb = eb or extra_eb

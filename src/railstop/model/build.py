@@ -42,6 +42,9 @@ from railstop.controllers import (
 from railstop.errors import RailstopError, SimulationError
 from railstop.link.channel import airtime_s, media_preset
 from railstop.link.codec import TASC_FORM_TYPES, layout_of
+from railstop.link.tasc_link import CARRIED, frame_bytes
+from railstop.messages import TEL_FIELDS, TEL_PASSAGE, TEL_SIZE
+from railstop.model.fixes import FixesLine
 from railstop.model.records import (
     CTRL_ATO,
     CTRL_ATO_CORRECTED,
@@ -105,12 +108,7 @@ from railstop.onboard.ato import ATO_CORRECTED_LAW, ATO_LAW, ato_params
 from railstop.onboard.driver import RS_EB_RESET
 from railstop.onboard.tasc_receiver import CONFIG_CODES, receiver_params, receiver_window
 from railstop.quantities import kmh_to_mps
-from railstop.sim.corrected_position import FixesLine
-from railstop.sim.tasc_link import CARRIED, frame_bytes
 from railstop.wayside.tasc_unit import (
-    TEL_FIELDS,
-    TEL_PASSAGE,
-    TEL_SIZE,
     WP_BASE_DELAY,
     WP_CONTINUOUS,
     WP_CONTINUOUS_PERIOD,

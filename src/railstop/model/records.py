@@ -62,14 +62,15 @@ from railstop.config.platform import LAMP_CODES
 from railstop.control.law import LAW_PARAMS_DTYPE, LAW_STATE_SIZE, MEASUREMENTS_DTYPE
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES
+from railstop.messages import TEL_SIZE
+from railstop.model.fixes import FX_SIZE, FXI_SIZE
 from railstop.onboard.ato import AT_SIZE
 from railstop.onboard.driver import DR_SIZE, DV_SIZE
 from railstop.onboard.positioning import LOG_ROWS
 from railstop.onboard.speed_supervision import SV_SIZE
 from railstop.onboard.tasc_receiver import RX_SIZE
-from railstop.sim.corrected_position import FX_SIZE, FXI_SIZE
 from railstop.streams import Stream
-from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE, WS_SIZE
+from railstop.wayside.tasc_unit import CR_SIZE, WS_SIZE
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -492,7 +493,7 @@ class StopState(NamedTuple):
     meas: RecordArray  # the law's measurements (control.law MEASUREMENTS_DTYPE)
     law_state: FloatArray  # the law's own state (control.law LAW_STATE_SIZE)
     law_params: RecordArray  # the run's copy of the law's parameters (control.law LAW_PARAMS_DTYPE)
-    # SPEC §2 positioning of ato-corrected (sim.corrected_position).
+    # SPEC §2 positioning of ato-corrected (model.fixes).
     fx: FloatArray
     fxi: IntArray
     flog: FloatArray

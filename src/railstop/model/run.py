@@ -33,6 +33,7 @@ from railstop.config.scenario import Scenario
 from railstop.controllers import is_corrected
 from railstop.errors import SimulationError
 from railstop.jit import cache_dir, njit, njit_step
+from railstop.messages import TEL_SIZE
 from railstop.model.build import DRIVER_MODES, KernelModel, scenario_arrays, stop_params
 from railstop.model.records import (
     KP_DT,
@@ -61,7 +62,7 @@ from railstop.model.records import (
 )
 from railstop.model.step import stop_finish, stop_init, stop_step
 from railstop.streams import seed_key, seed_u64
-from railstop.wayside.tasc_unit import CR_SIZE, TEL_SIZE
+from railstop.wayside.tasc_unit import CR_SIZE
 
 
 @njit_step

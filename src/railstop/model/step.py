@@ -30,7 +30,19 @@ from __future__ import annotations
 import numpy as np
 
 from railstop.control.law import reset_law_1
+from railstop.control.tasc import Approach, BrakeCurves
 from railstop.jit import njit_inline, njit_step
+from railstop.messages import (
+    TEL_DELTA,
+    TEL_DETECTOR,
+    TEL_EMERGENCY,
+    TEL_MEASURED,
+    TEL_NOTCH,
+    TEL_PASSAGE,
+    TEL_SIZE,
+    TEL_SPEED,
+)
+from railstop.model.fixes import FixesData, FixesRun, fixes_init_run, fixes_step_run
 from railstop.model.records import (
     CTRL_ATO,
     CTRL_ATO_CORRECTED,
@@ -214,18 +226,9 @@ from railstop.onboard.tasc_receiver import (
 from railstop.physics.brake import actuator_step_1, decel_to_pwm_1, line_notch, pwm_to_decel_1
 from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
 from railstop.sensors.wayside import crossing_time_1, passage_1
-from railstop.sim.corrected_position import fixes_init_run, fixes_step_run
 from railstop.streams import key_normal, key_normal_zig, key_uniform, stream_key
 from railstop.wayside.tasc_unit import (
     CR_SIZE,
-    TEL_DELTA,
-    TEL_DETECTOR,
-    TEL_EMERGENCY,
-    TEL_MEASURED,
-    TEL_NOTCH,
-    TEL_PASSAGE,
-    TEL_SIZE,
-    TEL_SPEED,
     WP_FORM,
     WP_INITIAL_DELAY,
     WS_DELAY,
@@ -513,8 +516,8 @@ def _wayside_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k:
             doppler = v * (1.0 + noise * key_normal_zig(d.k_doppler, k)) if noise > 0.0 else v
     due = wayside_step_1(
         s.ws, p.wp, s.dbuf, s.pass_t, s.pass_x, p.det_pos, s.wh_v, s.wh_e, s.taus, s.weights,
-        p.det_to_stop, p.table, p.pwm_duty, p.pwm_decel, p.ext, run.grad, t, se.passed, se.det_idx,
-        se.pass_s, doppler, s.tele, s.crow,
+        BrakeCurves(p.table, p.pwm_duty, p.pwm_decel), Approach(p.det_to_stop, p.ext, run.grad), t, se.passed,
+        se.det_idx, se.pass_s, doppler, s.tele, s.crow,
     )  # fmt: skip
     if not due:
         return
@@ -627,9 +630,9 @@ def _tasc_control_1(
         )
         ob.own_for = own_notch
     notch, duty, eb, switch_pos = receiver_cycle_1(
-        s.rx, p.rp, s.mod, s.tach, s.rh_v, s.rh_e, s.taus, p.table, p.pwm_duty, p.pwm_decel,
-        p.det_to_stop, p.ext, run.grad, s.pending, t, k, new, copy, tach_v, s.train[0].odometer_step_m,
-        own_notch, ob.own_duty,
+        s.rx, p.rp, s.mod, s.tach, s.rh_v, s.rh_e, s.taus, BrakeCurves(p.table, p.pwm_duty, p.pwm_decel),
+        Approach(p.det_to_stop, p.ext, run.grad), s.pending, t, k, new, copy, tach_v,
+        s.train[0].odometer_step_m, own_notch, ob.own_duty,
     )  # fmt: skip
     ob.eb = eb
     ob.switch_pos = switch_pos
@@ -752,11 +755,21 @@ def _sensors_1(
         ato_odometer_1(s.at, odometer)
         if d.corrected:
             fp = p.fp
+            data = FixesData(
+                p.tc_ids,
+                p.db_ids,
+                p.db_starts,
+                p.db_sd,
+                fp[FP_DELAY_SPREAD],
+                fp[FP_LEARN] > 0.0,
+                fp[FP_MAX_EXTRAPOLATION],
+                fp[FP_GATE_SIGMA2],
+                fp[FP_GNSS_COUNTS],
+            )
             corrected, calibrated = fixes_step_run(
-                s.fx, s.fxi, s.flog, s.fbound, s.fdelay, p.tc_ids, p.db_ids, p.db_starts, p.db_sd,
-                fp[FP_DELAY_SPREAD], fp[FP_LEARN] > 0.0, fp[FP_MAX_EXTRAPOLATION], fp[FP_GATE_SIGMA2],
-                fp[FP_GNSS_COUNTS], t, kp[KP_DT], x0, v0, accel, x, odometer,
-                tr.speed_mps * creep_1(sliding, d.slide_slip) * d.tach_scale, sliding, sc[SC_LATENCY],
+                FixesRun(s.fx, s.fxi, s.flog, s.fbound, s.fdelay), data, t, kp[KP_DT], x0, v0, accel, x,
+                odometer, tr.speed_mps * creep_1(sliding, d.slide_slip) * d.tach_scale, sliding,
+                sc[SC_LATENCY],
             )  # fmt: skip
             if corrected:
                 ato_fix_1(s.at, kp[KP_STOP] - calibrated)

@@ -19,7 +19,6 @@ nothing opens, start enable withheld, emergency brake) and raises
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -29,14 +28,15 @@ from railstop.control.doors import (
     DoorInput,
     DoorSignals,
     DoorState,
+    DoorTable,
     Interlocks,
+    PsdReport,
     Side,
     door_name,
     table_column,
 )
 from railstop.errors import InterlockError
 
-DoorTable = Mapping[tuple[DoorState, DoorInput], DoorState]
 SIDES: tuple[Side, Side] = (Side.L, Side.R)
 
 
@@ -59,14 +59,6 @@ class CpcsState(NamedTuple):
 
     def with_side(self, side: Side, units: tuple[DoorState, ...]) -> CpcsState:
         return self._replace(left=units) if side == Side.L else self._replace(right=units)
-
-
-class PsdReport(NamedTuple):
-    """What the WPCS tells the train over the link; SPEC §5: trusted only while PSC is high."""
-
-    side: Side
-    units: tuple[DoorState, ...]
-    fault: bool = False
 
 
 def scan(

@@ -70,7 +70,7 @@ and passes to compiled scalar functions:
   ring buffer, L = :func:`log_length` (window, cycle).
 
 A caller may pass longer ``state``/``istate`` vectors: these functions use
-their first U_SIZE / UI_SIZE entries only (``sim/corrected_position.py``
+their first U_SIZE / UI_SIZE entries only (``model/fixes.py``
 appends its own). :func:`unit_init_run` sets a run up, :func:`unit_log_run`
 logs one sample, :func:`unit_handle_run` applies one telegram (S30 look-up,
 odometer at the telegram's time, S40 correction, learner, calibrated

@@ -41,6 +41,8 @@ from railstop.control.supervision import EB_ONBOARD_GUARD, EB_TIMEOUT, EB_WAYSID
 from railstop.control.tasc import (
     FIT_SUMS,
     REG_WEIGHTS,
+    Approach,
+    BrakeCurves,
     fit_ring_1,
     gain_update_1,
     gain_value_1,
@@ -54,8 +56,7 @@ from railstop.control.tasc import (
 )
 from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP, TASC_SWITCHED_PWM
 from railstop.jit import njit_inline, njit_step
-from railstop.physics.brake import decel_to_pwm_1
-from railstop.wayside.tasc_unit import (
+from railstop.messages import (
     TEL_DECEL,
     TEL_DELTA,
     TEL_DETECTOR,
@@ -69,6 +70,7 @@ from railstop.wayside.tasc_unit import (
     TEL_REQUIRED,
     TEL_SPEED,
 )
+from railstop.physics.brake import decel_to_pwm_1
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -247,16 +249,14 @@ def receiver_receive_1(
     hist_v: FloatArray,
     hist_e: FloatArray,
     taus: FloatArray,
-    table: FloatArray,
-    pwm_duty: FloatArray,
-    pwm_decel: FloatArray,
-    det_to_stop: FloatArray,
-    ext: FloatArray,
-    grad: tuple[FloatArray, FloatArray, FloatArray],
+    brake: BrakeCurves,
+    approach: Approach,
     tele: FloatArray,
     now_s: float,
 ) -> None:
     """Take the telegram delivered now (SPEC §1: forms 6-8 as such; forms 1-5 planned onboard)."""
+    table, pwm_duty, pwm_decel = brake.table, brake.pwm_duty, brake.pwm_decel
+    det_to_stop, ext, grad = approach.det_to_stop, approach.ext, approach.grad
     rx[RX_LAST_RX] = now_s
     if tele[TEL_EMERGENCY] > 0.0:
         # The wayside's overrun guard (DESIGN rule 10): emergency brake through wire e.
@@ -559,12 +559,8 @@ def receiver_cycle_1(
     hist_v: FloatArray,
     hist_e: FloatArray,
     taus: FloatArray,
-    table: FloatArray,
-    pwm_duty: FloatArray,
-    pwm_decel: FloatArray,
-    det_to_stop: FloatArray,
-    ext: FloatArray,
-    grad: tuple[FloatArray, FloatArray, FloatArray],
+    brake: BrakeCurves,
+    approach: Approach,
     telegram: FloatArray,
     now_s: float,
     k: int,
@@ -585,8 +581,7 @@ def receiver_cycle_1(
         receiver_alive_1(rx, now_s)
     elif new:
         receiver_receive_1(
-            rx, rp, mod, tach, hist_v, hist_e, taus, table, pwm_duty, pwm_decel, det_to_stop, ext, grad,
-            telegram, now_s,
+            rx, rp, mod, tach, hist_v, hist_e, taus, brake, approach, telegram, now_s,
         )  # fmt: skip
     receiver_observe_1(rx, rp, tach, speed_mps, now_s)
     # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
@@ -601,7 +596,7 @@ def receiver_cycle_1(
         if switch_pos == SWITCH_TRAIN:
             return -1, own_duty, eb, switch_pos
         return -1, 0.0, eb, switch_pos  # contacts in transfer: the ECU input is open
-    onboard_notch = receiver_step_output_1(rx, rp, mod, table, k, speed_mps)
+    onboard_notch = receiver_step_output_1(rx, rp, mod, brake.table, k, speed_mps)
     if config == CFG_BRAKE_CONTROLLER:
         # Config 1: the brake controller follows the onboard unit once it has a command.
         return (onboard_notch if rx[RX_ACTIVE] > 0.0 else own_notch), np.nan, eb, switch_pos

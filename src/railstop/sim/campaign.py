@@ -51,9 +51,9 @@ from railstop.controllers import known_controllers
 from railstop.errors import RailstopError
 from railstop.provenance import inputs_sha256, manifest_sha256, overrides_sha256, stamp
 from railstop.quantities import KMH_PER_MPS
-from railstop.report.campaign_report import RESULT_COLUMNS, summary_stats
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.sim.executor import blocks, describe, execute
+from railstop.stats.summary import RESULT_COLUMNS, summary_stats
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 

@@ -4,7 +4,7 @@ A PSD design must keep the overrun probability of its stops near 1e-6. Plain
 Monte Carlo sees one such stop in a million; :func:`certify` instead draws the
 runs from a *proposal* that makes the dangerous combinations common, weights
 every run by its exact likelihood ratio, and bounds the probability with a
-confidence bound that is valid with few hits (:mod:`railstop.report.bounds`).
+confidence bound that is valid with few hits (:mod:`railstop.stats.bounds`).
 
 The random inputs of a run
 --------------------------
@@ -604,7 +604,7 @@ def certify(
     Monte Carlo from the disturbance set, exact Clopper–Pearson bound);
     ``tuning_runs`` per cross-entropy level; ``progress(stage, done, total)``.
     """
-    from railstop.report.bounds import betting_upper, clopper_pearson, clopper_pearson_upper
+    from railstop.stats.bounds import betting_upper, clopper_pearson, clopper_pearson_upper
 
     # Estimation runs are numbered 0 .. runs - 1 and tuning runs from TUNING_FIRST_RUN on, within
     # the random streams' 64-bit range: the two must not overlap, nor run past 2^63.

@@ -1,6 +1,6 @@
 """A station dwell in event time: arrival -> PSC -> open -> dwell -> close -> start enable.
 
-The driver wires the pure door units (through ``sim/door_system.step``, the
+The driver wires the pure door units (through ``nodes/doors.step``, the
 same wiring the verifier proves) to a clock and to the people who act on
 them: the ATC's door sequence in automatic mode, the driver's door-side
 selector and buttons in manual mode (SPEC §5), the doors' own motion times,
@@ -59,8 +59,7 @@ from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.codec import DoorCommand, PsdStatus
 from railstop.link.door_link import DoorLink, DoorLinkCounts, command_signals, door_command, psd_status
-from railstop.onboard.stop_confirm import StopPhase
-from railstop.sim.door_system import (
+from railstop.nodes.doors import (
     Controls,
     DoorModel,
     Event,
@@ -72,6 +71,7 @@ from railstop.sim.door_system import (
     start_enabled,
     step,
 )
+from railstop.onboard.stop_confirm import StopPhase
 from railstop.streams import Stream, seed_u64
 from railstop.wayside.wpcs import TrainReport, answers_psc
 

@@ -5,7 +5,7 @@ compiled model, DESIGN rule 1): the detailed stop is n = 1 with recording
 on, a campaign block is n = 10^4 with recording off, and each run is the
 same machine code whatever block it is in. With recording on, the braking
 telegrams of the detailed stop also go through the real byte path: the
-codec and the EN 50159 safety layer (:class:`~railstop.sim.tasc_link.ByteLink`)
+codec and the EN 50159 safety layer (:class:`~railstop.link.tasc_link.ByteLink`)
 replay every transmission attempt the kernel decided (loss, corruption and
 the flipped bit, delay, staleness) and must deliver exactly the telegrams
 the kernel delivered, with the same contents; a disagreement is an error.
@@ -34,6 +34,8 @@ from railstop.controllers import (
 )
 from railstop.errors import SimulationError
 from railstop.link.codec import Telegram, decode, encode, layout_of
+from railstop.link.tasc_link import ByteLink, from_message, to_message
+from railstop.messages import TEL_FIELDS
 from railstop.model.build import KernelModel
 from railstop.model.records import (
     LA_ARRIVAL,
@@ -76,7 +78,6 @@ from railstop.model.records import (
     TR_X,
 )
 from railstop.model.run import KernelRecord, run_kernel
-from railstop.sim.tasc_link import ByteLink, from_message, to_message
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import (
     CR_COMMAND,
@@ -92,7 +93,6 @@ from railstop.wayside.tasc_unit import (
     CR_REQUIRED,
     CR_SPEED,
     CR_T,
-    TEL_FIELDS,
     SignalForm,
     TascTelegrams,
     finite_or_none,

@@ -38,7 +38,7 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   its odometer (the assumed wheel diameter, so off by the drawn diameter
   error; slides and slips on low-adhesion patches), corrected at every track
   circuit it enters from the wayside's occupancy telegram
-  (``sim.occupancy_chain``: the detection delay and the electrical boundary
+  (``nodes.occupancy_chain``: the detection delay and the electrical boundary
   drawn per train and circuit, the wayside's GNSS clocks shared by every
   train and free-running in a tunnel without a repeater, the radio's latency,
   the codec), with the learned scale; the train's ATO brakes for the signals
@@ -66,6 +66,7 @@ from typing import Any
 
 import numpy as np
 
+from railstop.clock import SimClock
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
 from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.faults import RandomOutages
@@ -88,14 +89,13 @@ from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
 from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Output, SignalAspects, TrainLeft
+from railstop.nodes.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
-from railstop.sim.clock import SimClock
 from railstop.sim.dwell import make_door_link, run_dwell
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
-from railstop.sim.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.streams import RUN_LIMIT, RunStreams, Stream
 from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
@@ -145,7 +145,7 @@ class PositionSettings:
     it starts from them (a slip), chosen per train (None: ``slide_probability`` of the line
     settings / ``slip_probability`` per station). ``low_mu``: the adhesion on a patch;
     ``patch_length_m``: the range of the patches' lengths. ``chain``: GNSS time, repeaters, the
-    clocks' holdover and the radio's latency (``sim.occupancy_chain``). ``learn`` /
+    clocks' holdover and the radio's latency (``nodes.occupancy_chain``). ``learn`` /
     ``accelerometer``: the onboard learner and the accelerometer's bridge over slides (beyond
     SPEC §2). ``record``: keep every train's true, raw, corrected and calibrated position every
     step and every fix (for ``position-run``).

@@ -5,7 +5,7 @@ The run is a line run of one train (the line's clock, its ATO driving by the onb
 a ground-TASC stop and a dwell at every station, out at the line's end) whose positioning is
 recorded every step: the true front, the raw odometer (entry + the tachometer's count), the
 document's correction (SPEC §2 S40) and the correction with the learned calibration, and every
-telegram it received (``sim.occupancy_chain``: the devices, the time-stamping unit's GNSS
+telegram it received (``nodes.occupancy_chain``: the devices, the time-stamping unit's GNSS
 clocks, the radio, the codec). The train starts cold: it has learned nothing of its wheel yet.
 
 Disturbances of a run: the odometer's assumed wheel diameter is off by
@@ -33,9 +33,9 @@ from railstop.config.disturbances import DisturbanceSet, draw_scenario
 from railstop.config.operation import Operation, load_operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import SimulationError
+from railstop.nodes.occupancy_chain import ChainSettings, FixRecord
 from railstop.onboard.positioning import FixOutcome
 from railstop.sim.line import LineSettings, LineSimulation, PositionSettings
-from railstop.sim.occupancy_chain import ChainSettings, FixRecord
 from railstop.streams import RUN_LIMIT as STREAM_LIMIT
 from railstop.streams import SEED_RANGE, RunStreams, seed_in_range
 

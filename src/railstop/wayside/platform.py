@@ -89,7 +89,7 @@ class PlatformUnit:
         # [interpretation] A missed scan reads "no train", so an overrun train whose S1 misses
         # would look like one in the window. A sensor's reading counts only once it has read
         # the same ``debounce_scans`` times in a row since the train stopped: fewer misses in a
-        # row than that cannot light OK (``sim.platform_verify`` checks it); until both sensors
+        # row than that cannot light OK (``verify.platform`` checks it); until both sensors
         # have settled, no lamp and no PSD.
         self.s2 = _Debounce(self.debounce_scans)
         self.s1 = _Debounce(self.debounce_scans)

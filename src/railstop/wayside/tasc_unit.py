@@ -28,6 +28,8 @@ from railstop.control.notch import (
 from railstop.control.supervision import overrun_guard_1
 from railstop.control.tasc import (
     REG_WEIGHTS,
+    Approach,
+    BrakeCurves,
     external_decel_1,
     fit_passages_1,
     fit_ring_1,
@@ -44,6 +46,21 @@ from railstop.control.tasc import (
     regression_taus_1,
 )
 from railstop.jit import njit_inline, njit_step
+from railstop.messages import (
+    TEL_DECEL,
+    TEL_DELTA,
+    TEL_DETECTOR,
+    TEL_DISTANCE,
+    TEL_DUTY,
+    TEL_EMERGENCY,
+    TEL_INTERVAL,
+    TEL_MEASURED,
+    TEL_NOTCH,
+    TEL_PASSAGE,
+    TEL_POSITION,
+    TEL_REQUIRED,
+    TEL_SPEED,
+)
 from railstop.physics.brake import decel_to_pwm_1
 
 FloatArray = NDArray[np.float64]
@@ -113,37 +130,6 @@ def finite_or_none(x: float) -> float | None:
 # unit's parameters are a float vector (WP_*), its state another (WS_*) plus
 # a few arrays: the Doppler ring buffer, the last three passages, the
 # command history, two scratch arrays of SAMPLES for the window means.
-
-TEL_DETECTOR = 0
-TEL_PASSAGE = 1
-TEL_MEASURED = 2
-TEL_POSITION = 3
-TEL_DISTANCE = 4
-TEL_INTERVAL = 5
-TEL_SPEED = 6
-TEL_DECEL = 7
-TEL_REQUIRED = 8
-TEL_NOTCH = 9
-TEL_DUTY = 10
-TEL_DELTA = 11
-TEL_EMERGENCY = 12  # 1: an emergency-stop telegram (the wayside's overrun guard), every form
-TEL_SIZE = 13
-#: Telegram vector index -> TascTelegrams field (the array form of the same telegram).
-TEL_FIELDS: tuple[str, ...] = (
-    "detector",
-    "passage_s",
-    "measured_s",
-    "position_m",
-    "distance_m",
-    "interval_s",
-    "speed_mps",
-    "decel_mps2",
-    "required_mps2",
-    "notch",
-    "duty",
-    "delta",
-    "emergency",
-)
 
 WP_FORM = 0
 WP_HAS_DOPPLER = 1
@@ -590,12 +576,8 @@ def wayside_command_1(
     hist_e: FloatArray,
     taus: FloatArray,
     weights: FloatArray,
-    det_to_stop: FloatArray,
-    table: FloatArray,
-    pwm_duty: FloatArray,
-    pwm_decel: FloatArray,
-    ext: FloatArray,
-    grad: tuple[FloatArray, FloatArray, FloatArray],
+    brake: BrakeCurves,
+    approach: Approach,
     now_s: float,
     new_passage: bool,
     tele: FloatArray,
@@ -603,6 +585,8 @@ def wayside_command_1(
 ) -> bool:
     """The command due now: measure, close the loop, plan; the telegram into ``tele``, its
     record (CR_*: SPEC §1 claims 8, 20) into ``record``; True when the telegram is to be sent."""
+    table, pwm_duty, pwm_decel = brake.table, brake.pwm_duty, brake.pwm_decel
+    det_to_stop, ext, grad = approach.det_to_stop, approach.ext, approach.grad
     if wp[WP_INITIAL_DECEL] > 0.0 and not np.isfinite(hist_e[0]):
         # The train's own initial brake step from the zone's first transponder, at the first
         # detector (tasc.initial_brake_notch): the wayside's database knows it, so its model of
@@ -743,12 +727,8 @@ def wayside_step_1(
     hist_e: FloatArray,
     taus: FloatArray,
     weights: FloatArray,
-    det_to_stop: FloatArray,
-    table: FloatArray,
-    pwm_duty: FloatArray,
-    pwm_decel: FloatArray,
-    ext: FloatArray,
-    grad: tuple[FloatArray, FloatArray, FloatArray],
+    brake: BrakeCurves,
+    approach: Approach,
     now_s: float,
     passed: bool,
     detector: int,
@@ -768,7 +748,8 @@ def wayside_step_1(
         ws, wp, dbuf, pass_t, pass_x, det_pos, now_s, w_passed, w_det, w_pass_s, doppler_mps
     )
     if now_s >= ws[WS_ID_AT]:  # the brake response, once after the first braking command
-        wayside_identify_1(ws, wp, dbuf, hist_v, hist_e, det_to_stop, ext, grad, taus, now_s)
+        a = approach
+        wayside_identify_1(ws, wp, dbuf, hist_v, hist_e, a.det_to_stop, a.ext, a.grad, taus, now_s)
     if due:
         return wayside_command_1(
             ws,
@@ -780,16 +761,12 @@ def wayside_step_1(
             hist_e,
             taus,
             weights,
-            det_to_stop,
-            table,
-            pwm_duty,
-            pwm_decel,
-            ext,
-            grad,
+            brake,
+            approach,
             now_s,
             w_passed,
             tele,
             record,
         )
     # Forms 7, 8: the wayside's own notch modulation between commands.
-    return wayside_modulate_1(ws, wp, table, now_s, doppler_mps, tele, record)
+    return wayside_modulate_1(ws, wp, brake.table, now_s, doppler_mps, tele, record)

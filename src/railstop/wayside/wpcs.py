@@ -32,13 +32,14 @@ from railstop.control.doors import (
     DoorInput,
     DoorSignals,
     DoorState,
+    DoorTable,
     Interlocks,
+    PsdReport,
     Side,
     door_name,
     table_column,
 )
 from railstop.errors import InterlockError
-from railstop.onboard.cpcs import DoorTable, PsdReport
 
 
 class WpcsState(NamedTuple):

@@ -1,7 +1,7 @@
 """The train at a platform: CPCS + WPCS + precise-stop confirmation wired together.
 
 This is the one wiring of the door units; both drivers use it: the exhaustive
-verifier (``sim/doors_verify.py``) and the dwell simulation (``sim/dwell.py``).
+verifier (``verify/doors.py``) and the dwell simulation (``sim/dwell.py``).
 A ``World`` is an immutable snapshot; ``step`` advances it by one cycle:
 
 1. one event of the outside world happens (a door finishes its move, an
@@ -32,11 +32,12 @@ from railstop.control.doors import (
     DoorSignals,
     DoorState,
     Interlocks,
+    PsdReport,
     Side,
 )
 from railstop.errors import InterlockError
 from railstop.onboard import cpcs, stop_confirm
-from railstop.onboard.cpcs import CpcsState, PsdReport
+from railstop.onboard.cpcs import CpcsState
 from railstop.onboard.stop_confirm import STOP_TRANSITIONS, StopConfirmState, StopInput, StopPhase
 from railstop.wayside import wpcs
 from railstop.wayside.wpcs import TrainReport, WpcsState

@@ -1,6 +1,6 @@
 """Exhaustive proof of the door interlocks: breadth-first search over every reachable state.
 
-The state is the whole ``World`` of ``sim/door_system.py``: every train door
+The state is the whole ``World`` of ``nodes/doors.py``: every train door
 unit of both sides, every PSD unit, the fault latches of CPCS and WPCS, the
 precise-stop confirmation (phase and failed attempts), whether the train moves
 and whether it stands in position, for both platform sides. From each state
@@ -28,7 +28,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from railstop.control.doors import CLOSED_STATES, LOCKED_STATES, DoorSignals, DoorState, Side
-from railstop.sim.door_system import (
+from railstop.nodes.doors import (
     Controls,
     DoorModel,
     Event,
@@ -41,7 +41,7 @@ from railstop.sim.door_system import (
     scan_units,
     start_enabled,
 )
-from railstop.sim.invariants import Invariant, Violation
+from railstop.verify.invariants import Invariant, Violation
 
 CheckFn = Callable[[World, Controls, Event, World, tuple[str, ...], DoorModel], "str | None"]
 

@@ -63,7 +63,7 @@ from railstop.config.layout import Cbtc
 from railstop.messages import ManualRelease, MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.onboard.cbtc import OnboardCbtc
 from railstop.quantities import kmh_to_mps
-from railstop.sim.invariants import Invariant, Violation
+from railstop.verify.invariants import Invariant, Violation
 from railstop.wayside.zone_controller import TrainStatus, Zone, ZoneController, ZoneMode
 
 _EPS = 1e-6

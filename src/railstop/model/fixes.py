@@ -32,6 +32,7 @@ scalars; :class:`TrackCircuitFixes` runs n runs in one compiled loop per call.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -85,6 +86,31 @@ FX_SIZE = U_SIZE + 3
 FXI_NEXT = UI_SIZE + 0  # next circuit (line order) the run will enter; C = none left
 FXI_PENDING_CIRCUIT = UI_SIZE + 1  # circuit id of the telegram on its way (-1: none)
 FXI_SIZE = UI_SIZE + 2
+
+
+class FixesRun(NamedTuple):
+    """The state of the fixes chain of one run (or, as 2-D arrays, of n runs): the positioning
+    unit's vectors (FX_*, FXI_*) and odometer log, the detector's draws per circuit."""
+
+    state: FloatArray  # (FX_SIZE,)
+    istate: IntArray  # (FXI_SIZE,)
+    log: FloatArray  # (LOG_ROWS, log_len)
+    boundary_m: FloatArray  # (C,) each circuit's electrical boundary
+    delay_s: FloatArray  # (C,) ... and detection delay
+
+
+class FixesData(NamedTuple):
+    """What a step of the chain needs of the line and the unit's settings (``FixesLine.data``)."""
+
+    tc_ids: IntArray  # (C,) circuits in line order (the detector's)
+    db_ids: IntArray  # (C,) the onboard track-circuit DB, sorted by ID
+    db_starts_m: FloatArray
+    db_sd_m: FloatArray
+    delay_spread_s: float
+    learn: bool
+    max_extrapolation_s: float
+    gate_sigma2: float
+    gnss_counts_per_s: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -146,6 +172,13 @@ class FixesLine:
     @property
     def n_circuits(self) -> int:
         return int(self.tc_ids.size)
+
+    def data(self) -> FixesData:
+        """The record :func:`fixes_step_run` takes."""
+        return FixesData(
+            self.tc_ids, self.db_ids, self.db_starts_m, self.db_sd_m, self.delay_spread_s, self.learn,
+            self.max_extrapolation_s, self.gate_sigma2, self.gnss_counts_per_s,
+        )  # fmt: skip
 
 
 def fixes_state_arrays(
@@ -224,20 +257,8 @@ def fixes_init_run(
 
 @njit_step
 def fixes_step_run(
-    state: FloatArray,
-    istate: IntArray,
-    log: FloatArray,
-    boundary_m: FloatArray,
-    delay_s: FloatArray,
-    tc_ids: IntArray,
-    db_ids: IntArray,
-    db_starts_m: FloatArray,
-    db_sd_m: FloatArray,
-    delay_spread_s: float,
-    learn: bool,
-    max_extrapolation_s: float,
-    gate_sigma2: float,
-    gnss_counts_per_s: float,
+    run: FixesRun,
+    data: FixesData,
     t0_s: float,
     dt_s: float,
     x0_m: float,
@@ -255,6 +276,9 @@ def fixes_step_run(
     line's nominal detection delay taken into account (and whatever the unit
     learned of scale and delay since), chainage, at the end of the step.
     """
+    state, istate, log, boundary_m, delay_s = run.state, run.istate, run.log, run.boundary_m, run.delay_s
+    tc_ids, db_ids, db_starts_m, db_sd_m = data.tc_ids, data.db_ids, data.db_starts_m, data.db_sd_m
+    gnss_counts_per_s = data.gnss_counts_per_s
     now = t0_s + dt_s
     odometer = state[U_ODO] + odometer_increment_m  # the cumulative reading: the newest logged + this step's
     # GNSS-disciplined onboard clock: its reading is the true time.
@@ -280,10 +304,10 @@ def fixes_step_run(
         db_ids,
         db_starts_m,
         db_sd_m,
-        delay_spread_s,
-        learn,
-        max_extrapolation_s,
-        gate_sigma2,
+        data.delay_spread_s,
+        data.learn,
+        data.max_extrapolation_s,
+        data.gate_sigma2,
         istate[FXI_PENDING_CIRCUIT],
         state[FX_PENDING_TIME],
     )
@@ -346,20 +370,8 @@ def _init_runs(
 
 @njit
 def _step_runs(
-    state: FloatArray,
-    istate: IntArray,
-    log: FloatArray,
-    boundary_m: FloatArray,
-    delay_s: FloatArray,
-    tc_ids: IntArray,
-    db_ids: IntArray,
-    db_starts_m: FloatArray,
-    db_sd_m: FloatArray,
-    delay_spread_s: float,
-    learn: bool,
-    max_extrapolation_s: float,
-    gate_sigma2: float,
-    gnss_counts_per_s: float,
+    runs: FixesRun,
+    data: FixesData,
     t0_s: float,
     dt_s: float,
     x0_m: FloatArray,
@@ -374,21 +386,10 @@ def _step_runs(
     calibrated_m: FloatArray,
 ) -> None:
     for i in range(x0_m.size):
+        run = FixesRun(runs.state[i], runs.istate[i], runs.log[i], runs.boundary_m[i], runs.delay_s[i])
         corrected[i], calibrated_m[i] = fixes_step_run(
-            state[i],
-            istate[i],
-            log[i],
-            boundary_m[i],
-            delay_s[i],
-            tc_ids,
-            db_ids,
-            db_starts_m,
-            db_sd_m,
-            delay_spread_s,
-            learn,
-            max_extrapolation_s,
-            gate_sigma2,
-            gnss_counts_per_s,
+            run,
+            data,
             t0_s,
             dt_s,
             x0_m[i],
@@ -533,20 +534,14 @@ class TrackCircuitFixes:
         corrected = np.empty(n, dtype=np.bool_)
         calibrated = np.empty(n)
         _step_runs(
-            self.unit.state,
-            self.unit.istate,
-            self.unit.log_ring,
-            self.detector.boundary_m,
-            self.detector.delay_s,
-            line.tc_ids,
-            line.db_ids,
-            line.db_starts_m,
-            line.db_sd_m,
-            line.delay_spread_s,
-            line.learn,
-            line.max_extrapolation_s,
-            line.gate_sigma2,
-            line.gnss_counts_per_s,
+            FixesRun(
+                self.unit.state,
+                self.unit.istate,
+                self.unit.log_ring,
+                self.detector.boundary_m,
+                self.detector.delay_s,
+            ),
+            line.data(),
             float(t0_s),
             float(dt_s),
             _f64(x0_m, n),

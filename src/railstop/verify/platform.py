@@ -71,7 +71,7 @@ from railstop.messages import (
     StopSensorScan,
 )
 from railstop.sensors.door_camera import CLOSED, MOVING, OPEN, SHAPES
-from railstop.sim.invariants import Invariant, Violation
+from railstop.verify.invariants import Invariant, Violation
 from railstop.wayside.platform import PlatformUnit, PsdFollower
 
 PLACES = ("approach", "short", "window", "over", "gone")

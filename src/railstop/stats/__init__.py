@@ -1,0 +1,1 @@
+"""Statistics: confidence bounds and the campaign summary."""

@@ -1,0 +1,1 @@
+"""Verifiers: exhaustive explorers of the door, platform and zone models and their invariants."""
