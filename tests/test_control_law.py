@@ -4,6 +4,7 @@ line; a law that misbehaves at run time brakes at full service (HZ-LAW-1)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -256,3 +257,33 @@ def test_the_line_stops_its_trains_by_a_law_of_the_users_own(tmp_path: Path) -> 
     # The law's stops, not tasc-pwm's: it stops about half a metre short (docs/control-law.md),
     # where tasc-pwm's nominal stops are within a few centimetres.
     assert summary["stop_error_max_m"] > 0.3 and summary["stops_within_tolerance"] < summary["stops"]
+
+
+def test_a_line_campaign_runs_a_law_in_its_worker_processes_and_resumes_only_with_its_text(
+    tmp_path: Path,
+) -> None:
+    """``railstop line campaign --law``: the law's text travels with the campaign to its worker
+    processes; the campaign records the file's hash and ``--resume`` with another text is refused."""
+    law = _write(tmp_path / "mylaw.py", CONSTANT_DECEL)
+    default_op = (
+        Path(__file__).resolve().parents[1] / "src" / "railstop" / "data" / "operation" / "default.toml"
+    )
+    op = tmp_path / "op.toml"
+    op.write_text(default_op.read_text().replace('controller = "tasc-pwm"', 'controller = "constant-decel"'))
+    out = tmp_path / "lc"
+    args = ("line", "campaign", "--operation", str(op), "--trains", "2", "--duration-s", "700")
+    p = run(
+        *args, "--runs", "2", "--workers", "2", "--out", str(out), "--law", str(law), "--json", cwd=tmp_path
+    )
+    assert p.returncode == 0, p.stderr
+    summary = json.loads(p.stdout)
+    assert summary["runs"] == 2
+    manifest = json.loads((out / "campaign.json").read_text())
+    assert manifest["law"]["sha256"] == hashlib.sha256(law.read_bytes()).hexdigest()
+    stops = [s for line in (out / "runs.jsonl").read_text().splitlines() for s in json.loads(line)["stops"]]
+    assert len(stops) >= 8
+    # The law's stops (about half a metre short, docs/control-law.md), not tasc-pwm's.
+    assert max(abs(s["error_m"]) for s in stops) > 0.3
+    law.write_text(CONSTANT_DECEL + "\n# changed\n")
+    p = run(*args, "--runs", "3", "--out", str(out), "--resume", "--law", str(law), cwd=tmp_path)
+    _one_line_error(p, str(out), "--resume")

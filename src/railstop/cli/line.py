@@ -192,9 +192,11 @@ def campaign_cmd(
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     operation: OperationOpt = None,
+    law: LawOpt = None,
 ) -> None:
     """Many line runs over disturbance draws: per station stop accuracy and dwell, trains per
-    hour, delays, emergency brakes, the onboard position's error."""
+    hour, delays, emergency brakes, the onboard position's error. With ``--law``, the operation
+    file's ``controller`` may name one of the file's laws."""
     from rich.table import Table
 
     from railstop.config import load_line, load_vehicle
@@ -204,6 +206,7 @@ def campaign_cmd(
 
     if not (seed_in_range(seed) and seed_in_range(seed + runs - 1)):
         fail(f"--seed: {SEED_RANGE} for every run's seed S + r (got S = {seed}, {runs} runs)")
+    law_file = load_law(law)
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
@@ -219,6 +222,7 @@ def campaign_cmd(
             settings=_settings(
                 door_link_loss, odometer_error_pct, slide_probability, calibration, signalling, faults
             ),
+            law=law_file,
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume, scheduler=scheduler)
     except RailstopError as exc:

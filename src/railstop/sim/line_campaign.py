@@ -24,6 +24,7 @@ import numpy as np
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.operation import Operation
 from railstop.config.schema import Line, Vehicle
+from railstop.control.law import LawFile
 from railstop.errors import RailstopError
 from railstop.sim.executor import execute
 from railstop.sim.line import LineSettings, LineSimulation
@@ -42,6 +43,9 @@ class LineCampaignSpec:
     seed: int
     duration_s: float
     settings: LineSettings = field(default_factory=LineSettings)  # checked when it is made
+    # The file of a stop-control law loaded by the user (railstop.control.law; None: built in).
+    # Its text travels with the spec to worker processes and Dask machines.
+    law: LawFile | None = None
 
     def identity(self) -> dict[str, Any]:
         """What decides the numbers (checked on --resume)."""
@@ -55,11 +59,16 @@ class LineCampaignSpec:
             "seed": self.seed,
             "duration_s": self.duration_s,
             **self.settings.identity(),
+            # A built-in controller's campaign keeps the identity it had before laws could be
+            # loaded; with a law, its file's name and hash (--resume with another text is refused).
+            **({} if self.law is None else {"law": self.law.manifest()}),
         }
 
 
 def run_one(spec: LineCampaignSpec, run: int) -> dict[str, Any]:
     """One line run of the campaign: its summary and its stops (JSON-ready)."""
+    if spec.law is not None:
+        spec.law.load()  # in a worker process: the law by its text (compiled once per process)
     sim = LineSimulation(
         line=spec.line,
         vehicle=spec.vehicle,
