@@ -23,11 +23,21 @@ install-test: $(BIN)/python
 run: install
 	$(BIN)/railstop demo
 
+# The test modules that mostly wait on the wall clock (live processes at a time scale; about a
+# third of a core): one pytest of their own, one test after another, beside the two workers of the
+# compute-bound rest, so that their waiting overlaps the computing. Both must pass.
+WALL_CLOCK_TESTS = tests/test_live.py tests/test_control_room.py
+
 # Lint, type check and the whole test suite.
 test: install-test
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/mypy src
-	$(BIN)/pytest -q -n 2
+	@log=$$(mktemp); \
+	$(BIN)/pytest -q -p no:cacheprovider $(WALL_CLOCK_TESTS) >"$$log" 2>&1 & wall=$$!; \
+	$(BIN)/pytest -q -n 2 $(addprefix --ignore=,$(WALL_CLOCK_TESTS)); rest=$$?; \
+	wait $$wall; walled=$$?; \
+	echo "--- the wall-clock tests ($(WALL_CLOCK_TESTS)), run beside the rest:"; cat "$$log"; rm -f "$$log"; \
+	test $$rest -eq 0 && test $$walled -eq 0
 
 clean:
 	rm -rf $(VENV) railstop-demo railstop.db .pytest_cache .ruff_cache .hypothesis
