@@ -481,9 +481,14 @@ def stop_params(model: KernelModel, breakpoints_m: FloatArray) -> StopParams:
         code_pos=model.code_pos,
         code_lim=model.code_lim,
         lamp_table=model.lamp_table,
-        law=control_law_of(model.controller).compiled(),
         lp=model.lp,
     )
+
+
+def compiled_law(model: KernelModel) -> Any:
+    """The compiled stop-control law of ``model``'s controller (the ATO's, or a loaded one's): the
+    argument ``law`` of ``simulate_block`` and ``stop_step``."""
+    return control_law_of(model.controller).compiled()
 
 
 def controller_code(controller: str) -> int:

@@ -34,7 +34,7 @@ from railstop.controllers import is_corrected
 from railstop.errors import SimulationError
 from railstop.jit import cache_dir, njit, njit_step
 from railstop.messages import TEL_SIZE
-from railstop.model.build import DRIVER_MODES, KernelModel, scenario_arrays, stop_params
+from railstop.model.build import DRIVER_MODES, KernelModel, compiled_law, scenario_arrays, stop_params
 from railstop.model.records import (
     KP_DT,
     KP_IN_FLIGHT,
@@ -67,13 +67,19 @@ from railstop.wayside.tasc_unit import CR_SIZE
 
 @njit_step
 def simulate_run(
-    p: StopParams, run: RunParams, s: StopState, out: StopOutputs, seed_keys: UintArray, run_index: int
+    p: StopParams,
+    run: RunParams,
+    s: StopState,
+    out: StopOutputs,
+    seed_keys: UintArray,
+    run_index: int,
+    law: Any,
 ) -> None:
     """Run ``run_index`` from the start of its approach to its stop (or the time limit)."""
     stop_init(p, run, s, out, seed_keys, run_index)
     k = 0
     for k in range(int(p.kp[KP_STEPS])):
-        if stop_step(p, run, s, out, k):
+        if stop_step(p, run, s, out, k, law):
             break
     stop_finish(p, run, s, out, k + 1)
 
@@ -90,10 +96,11 @@ def simulate_block(
     res: FloatArray,
     passages: FloatArray,
     rec: Recording,
+    law: Any,
 ) -> None:
     """Simulate runs ``first_run .. first_run + n - 1`` (rows of the draws ``sc`` and of the
     gradients ``gv``, ``ge``), one after another through the state ``s``; run 0 is recorded when
-    ``rec.on``."""
+    ``rec.on``. ``law``: the onboard stop-control law (``model.build.compiled_law``)."""
     seed_keys = np.empty(STREAMS.size, dtype=np.uint64)
     for i in range(STREAMS.size):
         seed_keys[i] = seed_key(seed, STREAMS[i])
@@ -103,7 +110,7 @@ def simulate_block(
         rec_r = Recording(
             rec.on and r == 0, rec.trace, rec.commands, rec.sends, rec.attempts, rec.deliveries, rec.counters
         )
-        simulate_run(p, run, s, StopOutputs(res[r], passages[r], rec_r), seed_keys, first_run + r)
+        simulate_run(p, run, s, StopOutputs(res[r], passages[r], rec_r), seed_keys, first_run + r, law)
 
 
 # --------------------------------------------------------------------------
@@ -202,7 +209,8 @@ def run_kernel(
     """Simulate ``scenario.n`` runs: (results (n, RES_SIZE), true passage times (n, D), record of run 0)."""
     b = _buffers(model, scenario, record)
     p = stop_params(model, b.bp)
-    simulate_block(seed_u64(seed), first_run, p, b.sc, b.gv, b.ge, b.state, b.res, b.passages, b.rec)
+    law = compiled_law(model)
+    simulate_block(seed_u64(seed), first_run, p, b.sc, b.gv, b.ge, b.state, b.res, b.passages, b.rec, law)
     return b.res, b.passages, _record(b.rec) if record else None
 
 
@@ -216,13 +224,14 @@ def run_stepped(
         raise SimulationError(f"a stepped run is one run ({scenario.n} drawn)")
     b = _buffers(model, scenario, record)
     p = stop_params(model, b.bp)
+    law = compiled_law(model)
     params = RunParams(b.sc[0], (b.bp, b.gv[0], b.ge[0]), np.zeros(1, dtype=RUN_DTYPE))
     out = StopOutputs(b.res[0], b.passages[0], b.rec)
     seed_keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
     stop_init(p, params, b.state, out, seed_keys, run)
     k = 0
     for k in range(int(model.kp[KP_STEPS])):
-        if stop_step(p, params, b.state, out, k):
+        if stop_step(p, params, b.state, out, k, law):
             break
     stop_finish(p, params, b.state, out, k + 1)
     return b.res, b.passages, _record(b.rec) if record else None

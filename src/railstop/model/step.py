@@ -27,6 +27,8 @@ reference counting, so taking an array out of a record costs nothing.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from railstop.control.law import reset_law_1
@@ -843,9 +845,10 @@ def _record_step_1(
 
 
 @njit_inline
-def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int) -> bool:
+def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, law: Any) -> bool:
     """Step ``k`` of the station stop, t = k dt -> t + dt (see the module docstring). True when
-    the train stands at its end (the run's end)."""
+    the train stands at its end (the run's end). ``law``: the onboard stop-control law
+    (``model.build.compiled_law``; the ATO's unless a law was loaded)."""
     d, tr = run.derived[0], s.train[0]
     dt = p.kp[KP_DT]
     t = k * dt
@@ -855,7 +858,7 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
     tach_v = v0 * creep_1(tr.sliding, d.slide_slip) * d.tach_scale
     if d.is_ato:
         notch = ato_output_1(
-            s.at, p.ap, s.mod, p.table, p.ext, run.grad, k, tach_v, p.law, s.meas, s.law_state, s.law_params
+            s.at, p.ap, s.mod, p.table, p.ext, run.grad, k, tach_v, law, s.meas, s.law_state, s.law_params
         )
         duty = np.nan
         braking = s.at[AT_BRAKING] > 0.0
