@@ -52,9 +52,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import DisturbanceSet, draw_scenario
-from railstop.config.doors import DoorsConfig
+from railstop.config.doors import DoorsConfig, load_doors
+from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import Line, Station, Vehicle
+from railstop.control.line_ato import handover_m
 from railstop.control.notch import MOD_SIZE
 from railstop.control.supervision import EbCause, eb_cause_name
 from railstop.control.tasc import HISTORY, SAMPLES, Approach, BrakeCurves
@@ -181,8 +184,6 @@ class StationTasc:
 
     @classmethod
     def create(cls, index: int, station: Station, vehicle: Vehicle, controller: str) -> StationTasc:
-        from railstop.config.scenario import Scenario
-
         model = KernelModel.create(
             station=station,
             vehicle=vehicle,
@@ -373,8 +374,6 @@ async def run_stations(
     """Every station's wayside units, serving the trains until ``stop``: the TASC unit and the WPCS
     of its platform (``live.doors``, with the door data ``doors``: default the embedded; ``jams``:
     fault injection, (station, PSD unit from 0) that fail to close); return the counts."""
-    from railstop.config.doors import load_doors
-
     # Nothing sent before this process started is delivered (EN 50159 repetition across a restart).
     started_s = base.now_s()
     platforms = Platforms(
@@ -768,8 +767,6 @@ def draw_stop(
     simulation's run numbering: train x 100 + visit) and the random stream of its sensors."""
     run = train * RUNS_PER_TRAIN + visit % RUNS_PER_TRAIN
     streams = RunStreams.for_runs(seed, run, 1)
-    from railstop.config.scenario import station_gradient
-
     scenario, _ = draw_scenario(dist, st.station, vehicle, streams)
     scenario = scenario.with_values(gradient=station_gradient(st.station, 1))
     sc, _, _, _ = scenario_arrays(scenario)
@@ -790,9 +787,6 @@ def wired_stop(
     it was sent, none after ``silent_after_s`` (the wayside died); no reading reaches the wayside
     after ``readings_lost_after_s`` (the sensors' wiring cut). The live units' check against
     the stop kernel, and their warm-up (the compiled steps loaded before a live clock starts)."""
-    from railstop.config.scenario import Scenario
-    from railstop.control.line_ato import handover_m
-
     sc, _, _, _ = scenario_arrays(Scenario.nominal(st.station, vehicle))
     v = float(sc[0][0])
     x = handover_m(st.first_detector_m, v)
@@ -819,8 +813,6 @@ def wired_stop(
 def warm_up() -> None:
     """Load (or compile into the cache) the live units' compiled steps: one wired stop on the
     embedded line (``railstop compile`` runs it, so that a live process starts on time)."""
-    from railstop.config import default_line, default_vehicle
-
     line, vehicle = default_line(), default_vehicle()
     wired_stop(StationTasc.create(0, line.stations[0], vehicle, "tasc-pwm"), vehicle)
 
@@ -920,8 +912,6 @@ class LiveTasc:
         stop.deliver(got[1].payload)
 
     def handover_m(self, station: int, speed_mps: float) -> float:
-        from railstop.control.line_ato import handover_m
-
         return handover_m(self.models[station].first_detector_m, speed_mps)
 
     def entry_mps(self, station: int) -> float:

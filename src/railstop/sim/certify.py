@@ -107,6 +107,7 @@ from railstop.model.records import (
 from railstop.model.run import run_kernel
 from railstop.sim.engine import DT_S, MAX_TIME_S
 from railstop.sim.executor import blocks, execute
+from railstop.stats.bounds import betting_upper, clopper_pearson, clopper_pearson_upper
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, Stream, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 
@@ -604,8 +605,6 @@ def certify(
     Monte Carlo from the disturbance set, exact Clopper–Pearson bound);
     ``tuning_runs`` per cross-entropy level; ``progress(stage, done, total)``.
     """
-    from railstop.stats.bounds import betting_upper, clopper_pearson, clopper_pearson_upper
-
     # Estimation runs are numbered 0 .. runs - 1 and tuning runs from TUNING_FIRST_RUN on, within
     # the random streams' 64-bit range: the two must not overlap, nor run past 2^63.
     _check("runs", runs, 1 <= runs <= TUNING_FIRST_RUN, "must be between 1 and 2^40")

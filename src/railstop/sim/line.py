@@ -95,6 +95,7 @@ from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gr
 from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.dwell import make_door_link, run_dwell
+from railstop.sim.engine import run_batch
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
 from railstop.streams import RUN_LIMIT, RunStreams, Stream
 from railstop.units import Unit
@@ -783,8 +784,6 @@ class LineSimulation:
 
     def _stop(self, train: Train, st: Station, t0_s: float) -> None:
         """The station stop by ground TASC from the train's state at the hand-over point."""
-        from railstop.sim.engine import run_batch
-
         station_index = self.line.stations.index(st)
         run = train.index * RUNS_PER_TRAIN + station_index
         streams = RunStreams.for_runs(self.seed, run, 1)

@@ -8,12 +8,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
-from railstop.config.driver import DriverFile
-from railstop.config.platform import PlatformFile
+from railstop.config.driver import DriverFile, default_driver
+from railstop.config.platform import LAMP_NAMES, PlatformFile
 from railstop.config.scenario import Scenario
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.supervision import eb_cause_name
-from railstop.provenance import inputs_sha256, overrides_sha256
+from railstop.onboard.tasc_receiver import SWITCH_ONBOARD
+from railstop.provenance import inputs_sha256, overrides_sha256, stamp
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import SignalForm
@@ -91,8 +92,6 @@ def _finite_or_none(x: float) -> float | None:
 
 def _switch_over_s(batch: BatchResult) -> float | None:
     """When config 2's switching unit reached the onboard position, from the first detector."""
-    from railstop.onboard.tasc_receiver import SWITCH_ONBOARD
-
     trace, first = batch.trace, float(batch.detector_passages_s[0, 0])
     if trace is None or not np.isfinite(first):
         return None
@@ -102,9 +101,6 @@ def _switch_over_s(batch: BatchResult) -> float | None:
 
 def _manual_outcome(batch: BatchResult, driver: DriverFile | None) -> dict[str, Any]:
     """SPEC §3: what a driver controller's stop adds to the result (nothing for the others)."""
-    from railstop.config.driver import default_driver
-    from railstop.config.platform import LAMP_NAMES
-
     level = int(batch.driver_level[0])
     if level < 0:
         return {}
@@ -154,6 +150,7 @@ def run_stop(
             platform=platform,
         )
     else:
+        # Lazy (start-up): the campaign module brings pyarrow, which a nominal stop never needs.
         from railstop.sim.campaign import simulate_runs
 
         batch, drawn = simulate_runs(
@@ -221,7 +218,7 @@ def run_stop(
 
 def station_record(line: Line, station: Station) -> StationRecord:
     """The station as the database keeps it (SPEC §1 claim 8: stopping point, detector positions)."""
-    from railstop.store.db import StationRecord
+    from railstop.store.db import StationRecord  # lazy (start-up): SQLAlchemy only to write a record
 
     radar = station.tasc.doppler
     return StationRecord(
@@ -247,8 +244,7 @@ def stop_record(result: StopResult, *, line: Line, station: Station, vehicle: Ve
     name), and the station row itself goes with the stop. Claim 20: the history of every
     computed command, with what went on the air (``BatchResult.commands``).
     """
-    from railstop.provenance import stamp
-    from railstop.store.db import StopRecord
+    from railstop.store.db import StopRecord  # lazy (start-up): SQLAlchemy only to write a record
 
     st = station_record(line, station)
     brake = vehicle.brake
