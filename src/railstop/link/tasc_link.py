@@ -43,6 +43,7 @@ from railstop.link.codec import (
     quantize,
 )
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_size, link_key
+from railstop.messages import TEL_FIELDS
 from railstop.wayside.tasc_unit import SignalForm, TascTelegrams, finite_or_none
 
 FloatArray = NDArray[np.float64]
@@ -66,17 +67,10 @@ CARRIED: dict[SignalForm, tuple[str, ...]] = {
     SignalForm.BRAKE_COMMAND: ("notch", "duty"),
     SignalForm.INCREASE_DECREASE: ("delta",),
 }
-_FLOAT_FIELDS = (
-    "passage_s",
-    "measured_s",
-    "position_m",
-    "distance_m",
-    "interval_s",
-    "speed_mps",
-    "decel_mps2",
-    "required_mps2",
-    "duty",
-)
+# The telegram's float fields (the others are integers: the detector, the notch, the step, the
+# emergency flag), in the telegram vector's order.
+_INT_FIELDS = ("detector", "notch", "delta", "emergency")
+_FLOAT_FIELDS = tuple(f for f in TEL_FIELDS if f not in _INT_FIELDS)
 
 
 def frame_bytes(form: SignalForm, category: int) -> int:
