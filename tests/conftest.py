@@ -192,8 +192,9 @@ def restartable_postgres() -> Iterator[PgCluster]:
 # ---------------------------------------------------------------------- the order of the suite
 # The slow modules first: pytest-xdist hands out tests in collection order, so a long test left to
 # the end keeps one worker busy while the others idle. The live modules mostly wait on the wall
-# clock, so starting them early also overlaps their waiting with the compute-bound tests. Only
-# the order changes; every test still runs.
+# clock, so starting them early also overlaps their waiting with the compute-bound tests (``make
+# test`` runs test_live.py and test_control_room.py in a pytest of their own beside the rest; the
+# order matters when the whole suite runs in one). Only the order changes; every test still runs.
 
 _SLOW_FIRST = (
     "test_zones_verify.py",
