@@ -32,14 +32,18 @@ import pytest
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
 from railstop.config.scenario import Scenario
+from railstop.control.supervision import EbCause
 from railstop.errors import SimulationError
 from railstop.jit import JIT_MODULES
 from railstop.model.build import KernelModel
 from railstop.model.records import (
     LA_LOST,
+    RES_EB,
+    RES_EB_T,
+    RES_ERROR,
     RES_STOPPED,
 )
-from railstop.model.run import run_kernel, run_stepped
+from railstop.model.run import SteppedStop, run_kernel, run_stepped
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
 from railstop.sim.single import run_stop
@@ -182,6 +186,50 @@ def test_the_step_driven_from_python_equals_the_compiled_run() -> None:
         assert res[0, RES_STOPPED] > 0.0
         np.testing.assert_array_equal(rec.trace, rec_alone.trace)
         np.testing.assert_array_equal(rec.commands, rec_alone.commands)
+        # In chunks of uneven length, as the line steps it on its 0.1 s clock from a hand-over
+        # between two of its ticks: the same run again.
+        stop = SteppedStop(model, _row(scenario, 3), seed=5, run=3)
+        chunks = 0
+        while not stop.done:
+            stop.advance(7 + chunks % 5)
+            chunks += 1
+        assert stop.advance(10) is False  # nothing moves after the end
+        res_chunked, passages_chunked, none = stop.finish()
+        assert none is None and chunks > 10
+        np.testing.assert_array_equal(res_chunked[0], res_block[3])
+        np.testing.assert_array_equal(passages_chunked[0], passages_block[3])
+
+
+def test_an_emergency_brake_from_outside_stops_a_stepped_stop_short_with_its_cause() -> None:
+    """The line's CBTC onboard unit can brake a station stop in progress (SPEC §4): applied from
+    outside half-way through the approach, the emergency brake holds to the stand, the train stands
+    well short of its stopping point, and the result names the CBTC unit as the cause with its
+    time; a run never braked from outside is the block's run."""
+    st = LINE.station("Riverside")
+    model = KernelModel.create(
+        station=st, vehicle=VEHICLE, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
+    nominal = Scenario.nominal(st, VEHICLE)
+    full = SteppedStop(model, nominal, seed=2, run=0)
+    while not full.done:
+        full.advance(50)
+    steps = full.steps
+    res_full, _, _ = full.finish()
+    braked = SteppedStop(model, nominal, seed=2, run=0)
+    braked.advance(steps // 2)
+    speed = braked.speed_mps
+    braked.emergency_brake()
+    braked.emergency_brake()  # a second call changes nothing
+    while not braked.done:
+        braked.advance(10)
+    res, passages, _ = braked.finish()
+    assert res[0, RES_STOPPED] > 0.0 and res_full[0, RES_EB] == 0.0
+    assert res[0, RES_EB] == int(EbCause.CBTC)
+    assert res[0, RES_EB_T] == pytest.approx(steps // 2 * 0.01 - passages[0, 0])
+    emergency = VEHICLE.brake.emergency_decel_mps2
+    # Short of the stop by about what the remaining service braking would have used beyond
+    # the emergency brake's distance (dead time and build-up included: a loose bound).
+    assert res[0, RES_ERROR] < -0.2 * speed**2 / (2.0 * emergency)
 
 
 def _row(scenario: Scenario, i: int) -> Scenario:

@@ -234,3 +234,20 @@ def test_radio_bursts_from_the_faults_data_make_lost_trains_and_nothing_unsafe()
     assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and s["exited"] >= 1
     with pytest.raises(Exception, match="burst_exit_probability"):
         run("cbtc", trains=1, duration_s=1.0, radio_changes={"burst_exit_probability": 2.0})
+
+
+def test_a_radio_outage_in_a_station_stop_brakes_the_stop_by_the_cbtc_unit() -> None:
+    """The line steps the station stop on its clock, so the onboard CBTC unit can act in it (SPEC
+    §4: missed commands -> emergency brake): an outage beginning during the first train's first
+    stop brakes that stop; its record names the CBTC unit as the cause and the stop ends short."""
+    sim0, _ = run("cbtc", trains=1, duration_s=400.0)
+    stop0 = sim0.stops[0]
+    assert stop0.emergency_brake is None
+    # The radio goes 12 s before the stand: the stop is well under way (below the zone's entry
+    # speed, TASC braking), and two commands missed come long before the stand.
+    sim, s = run("cbtc", trains=1, duration_s=400.0, outages=[(0, stop0.arrive_s - 12.0, 30.0)])
+    stop = sim.stops[0]
+    assert stop.station == stop0.station
+    assert stop.emergency_brake == "cbtc"
+    assert stop.error_m < stop0.error_m - 1.0 and not stop.within_tolerance
+    assert s["cbtc"]["onboard_emergency_brakes"] >= 1 and s["cbtc"]["collisions"] == 0

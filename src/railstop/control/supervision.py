@@ -47,7 +47,7 @@ class EbCause(IntEnum):
     POSITION_INVALID = 8  # onboard CBTC: a position it cannot trust (DESIGN rule 10)
     PLANT_LOST = 9  # live: the plant process went silent; every train brakes (DESIGN rule 10)
     DWELL_FAULT = 10  # live: a SPEC §5 dwell fault; the train stands for its reset
-    CBTC = 11  # live TASC stop: the CBTC unit braked, not the TASC onboard unit
+    CBTC = 11  # a TASC stop (line, live): the CBTC unit braked, not the TASC onboard unit
 
     @property
     def label(self) -> str:
@@ -76,6 +76,7 @@ EB_ONBOARD_GUARD = int(EbCause.ONBOARD_OVERRUN_GUARD)
 EB_WAYSIDE_GUARD = int(EbCause.WAYSIDE_OVERRUN_GUARD)
 EB_OVERSPEED = int(EbCause.OVERSPEED_GRACE)
 EB_PERMITTED_SPEED = int(EbCause.OVER_PERMITTED)
+EB_CBTC = int(EbCause.CBTC)
 
 #: Code -> label of every cause (the results' counts by cause).
 EB_CAUSES: dict[int, str] = {int(c): c.label for c in EbCause}

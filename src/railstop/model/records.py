@@ -407,6 +407,9 @@ ONBOARD_DTYPE = np.dtype(
         ("own_duty", np.float64),
         ("own_demand_mps2", np.float64),
         ("switch_pos", np.int64),  # config 2's changeover switch (-1: none)
+        # An emergency brake from outside the stop's units (the line's CBTC onboard unit, SPEC §4),
+        # applied by the driver that steps the stop: from when (NaN: never). It holds to the stand.
+        ("external_eb_t_s", np.float64),
     ],
     align=True,
 )

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from railstop.control.law import reset_law_1
+from railstop.control.supervision import EB_CBTC
 from railstop.control.tasc import Approach, BrakeCurves
 from railstop.jit import njit_inline, njit_step
 from railstop.messages import (
@@ -414,6 +415,7 @@ def _reset_state(p: StopParams, s: StopState, start_m: float, entry_mps: float) 
     ob.eb = False
     ob.eb_cause = 0.0
     ob.eb_t_s = np.nan
+    ob.external_eb_t_s = np.nan
     ob.limit_mps = p.kp[KP_APPROACH_LIMIT]
     ob.code_next = 0
     # The train's own control around TASC (station.tasc.initial_brake_notch): its initial brake
@@ -868,6 +870,8 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
         duty = np.nan
     else:
         notch, duty, braking, eb = _tasc_control_1(p, run, s, out, k, t, tach_v)
+    if s.onboard[0].external_eb_t_s <= t:  # NaN: never applied from outside
+        eb = braking = True
     demand, ecu_notch, brake_decel = _brake_chain_1(p, run, s, k, notch, duty, eb)
     x, accel, sliding, stopped = _move_1(p, run, s, t, x0, v0, brake_decel, not braking)
     _sensors_1(p, run, s, out, t, x0, v0, x, accel, sliding)
@@ -952,6 +956,10 @@ def stop_finish(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, r
     else:
         res[RES_EB] = 0.0 if d.is_ato else s.rx[RX_EB]
         res[RES_EB_T] = np.nan if d.is_ato else s.rx[RX_EB_T] - passages[0]
+    if res[RES_EB] == 0.0 and np.isfinite(ob.external_eb_t_s):
+        # Braked from outside only: the cause is the CBTC unit's (the stop's own units did not).
+        res[RES_EB] = EB_CBTC
+        res[RES_EB_T] = ob.external_eb_t_s - passages[0]
     identified = not onboard_only and np.isfinite(s.ws[WS_ID_GAIN])
     res[RES_ID_DELAY] = s.ws[WS_DELAY] if identified else np.nan
     res[RES_ID_LAG] = s.ws[WS_LAG] if identified else np.nan

@@ -17,12 +17,14 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
 - **the station stop by ground TASC**: at the hand-over point before a
   station's first detector, when the train's authority reaches the stopping
   point (the approach signal's proceed aspect promises the approach and
-  platform blocks clear), the stop model (``sim.engine.run_batch``, the same
-  compiled units as every campaign: wayside TASC unit, link, onboard unit,
-  brakes) stops the train, from the train's own speed there and a
-  disturbance draw of its own; the train then follows the recorded
-  trajectory on the line's clock, so the circuits it clears free the blocks
-  behind it at the right time;
+  platform blocks clear), the stop model stops the train, from the train's
+  own speed there and a disturbance draw of its own: the line steps the
+  stop model's own step (``model.run.SteppedStop``, the compiled steps of
+  every campaign: wayside TASC unit, link, onboard unit, brake chain,
+  motion) on its clock, the 10 ms steps due by each tick of it, and the
+  train is where the stop model's state puts it, so the circuits it clears
+  free the blocks behind it at the right time. Its result equals the
+  campaign's for the same draw, bit for bit;
 - **the dwell** by the door units of SPEC §5 (``sim.dwell.run_dwell``: stop
   confirmation and PSC, the correction creep of an out-of-tolerance stop,
   CPCS/WPCS, train doors and PSD, start enable), the doors standing open
@@ -47,9 +49,9 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   (the wayside's detectors see it). ``railstop position-run`` is this line
   with one train, its positioning recorded (``PositionSettings.record``).
 
-The slides of a station stop (the stop model's trajectory records where its
-wheels slid) reach the train's odometer and its positioning unit's WSP input
-as the line's own slides do.
+The slides of a station stop (the stop model's state says when its wheels
+slide) reach the train's odometer and its positioning unit's WSP input as the
+line's own slides do.
 
 The track circuits' reports reach the interlocking, and its aspects the trains, as messages
 with no medium between them [interpretation]: they stand for wired circuits and lineside
@@ -89,19 +91,26 @@ from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
 from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Output, SignalAspects, TrainLeft
+from railstop.model.build import DRIVER_MODES, KernelModel
+from railstop.model.records import RES_EB, RES_ERROR, RES_RESTOPS, RES_STOPPED, TR_T, TR_V, TR_X
+from railstop.model.run import SteppedStop
 from railstop.nodes.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
 from railstop.sim.dwell import make_door_link, run_dwell
-from railstop.sim.engine import run_batch
+from railstop.sim.engine import DT_S, MAX_TIME_S
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
 from railstop.streams import RUN_LIMIT, RunStreams, Stream
 from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
 
+#: The line's model version, in a line campaign's identity: 2 since the line steps the stop model
+#: on its clock (version 1 replayed the stop's recorded trajectory; the trains' positions between
+#: the stop model's steps, and so their odometers and occupancy instants, differ slightly).
+LINE_MODEL_VERSION = 2
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
@@ -304,10 +313,14 @@ class Train:
     entered_s: float = np.nan
     exited_s: float = np.nan
     until_s: float = np.nan  # dwelling: when the doors have closed
-    play_t: Any = None  # stopping: the stop's trajectory (times on the line's clock, positions,
-    play_x: Any = None  # speeds)
+    # stopping: the station stop's model, stepped on the line's clock from t0 (the hand-over) ...
+    stop: SteppedStop | None = None
+    stop_t0_s: float = np.nan
+    # ... or a move on the line's clock (times, positions, speeds): a driver's corrections at the
+    # stand (SPEC §3), a recovery onto the platform on sight.
+    play_t: Any = None
+    play_x: Any = None
     play_v: Any = None
-    play_slide: Any = None  # 1 where the wheels slid in the stop's trajectory (the WSP acting)
     load_factor: float = 0.5
     # Between stations: its true motion (``physics.plant``: traction, the brake chain, resistance,
     # gradient, adhesion), created as it enters and as it departs, for its load then.
@@ -338,6 +351,9 @@ class StopRecord:
     entry_speed_kmh: float
     emergency_brake: str | None
     within_tolerance: bool
+    # The stop's draw: run ``run`` of the line's seed, at exactly this speed at the hand-over.
+    run: int = -1
+    entry_speed_mps: float = math.nan
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -490,6 +506,7 @@ class LineSimulation:
         self.dwells: list[DwellRecord] = []
         self.doors = load_doors(None)
         self._doors_for: dict[float, DoorsConfig] = {}
+        self._stop_models: dict[int, KernelModel] = {}
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
         self.skipped_stops = 0
         self.signals_passed_at_danger = 0
@@ -782,8 +799,25 @@ class LineSimulation:
             train.exited_s = now_s
             train.plant = None
 
+    def _stop_model(self, station_index: int) -> KernelModel:
+        """The stop model of a station (built once: a model holds no run's state)."""
+        model = self._stop_models.get(station_index)
+        if model is None:
+            model = KernelModel.create(
+                station=self.line.stations[station_index],
+                vehicle=self.vehicle,
+                controller=self.operation.controller,
+                form=None,
+                dt_s=DT_S,
+                max_time_s=MAX_TIME_S,
+                track=self.line.track,
+            )
+            self._stop_models[station_index] = model
+        return model
+
     def _stop(self, train: Train, st: Station, t0_s: float) -> None:
-        """The station stop by ground TASC from the train's state at the hand-over point."""
+        """The station stop from the train's state at the hand-over point: its draw, and the stop
+        model ready to be stepped on the line's clock from ``t0_s``."""
         station_index = self.line.stations.index(st)
         run = train.index * RUNS_PER_TRAIN + station_index
         streams = RunStreams.for_runs(self.seed, run, 1)
@@ -794,53 +828,42 @@ class LineSimulation:
             entry_speed_mps=np.array([train.v_mps]), gradient=station_gradient(st, 1)
         )
         train.load_factor = float(scenario.load_factor[0])
-        batch = run_batch(
-            station=st,
-            vehicle=self.vehicle,
-            scenario=scenario,
-            controller=self.operation.controller,
-            streams=streams,
-            record=True,
-            track=self.line.track,
+        model = self._stop_model(station_index)
+        # A driver's corrections at the stand (SPEC §3) are worked out at once when the train
+        # stands (the wait and the creep, in closed form): recorded, and the line plays them.
+        train.stop = SteppedStop(
+            model, scenario, seed=self.seed, run=run, record=model.controller in DRIVER_MODES
         )
-        if batch.trace is None:
-            raise SimulationError("the station stop returned no trajectory")
-        tr_t = batch.trace.t_s[:, 0]
-        tr_x = batch.trace.position_m[:, 0]
-        tr_v = batch.trace.speed_mps[:, 0]
-        keep = np.isfinite(tr_t) & np.isfinite(tr_x) & np.isfinite(tr_v)
-        error = float(batch.stop_error_m[0])
-        stopped = bool(batch.stopped[0])
-        eb = eb_cause_name(int(batch.emergency_brake[0]))
-        train.play_t = t0_s + np.concatenate(([0.0], tr_t[keep]))
-        train.play_x = np.concatenate(([train.x_m], tr_x[keep]))
-        train.play_v = np.concatenate(([train.v_mps], tr_v[keep]))
-        train.play_slide = np.concatenate(([0.0], batch.trace.sliding[:, 0][keep]))
+        train.stop_t0_s = t0_s
         train.phase = "stopping"
-        arrive = float(train.play_t[-1])
-        self.stops.append(
-            StopRecord(
-                train=train.index,
-                station=st.name,
-                arrive_s=round(arrive, 3),
-                error_m=round(error, 4),
-                entry_speed_kmh=round(train.v_mps / MPS_PER_KMH, 2),
-                emergency_brake=eb,
-                within_tolerance=stopped and abs(error) <= st.psd_tolerance_m,
-            )
-        )
 
-    def _play(self, train: Train, now_s: float, dt: float) -> None:
-        # The stop model's slides reach the odometer (SPEC §2 slip/slide): the train slides in
-        # this step if its trajectory slid anywhere in it, a new slide event as on the line. Not
-        # in the step it comes to a stand: the dwell begins there, and its correction creep must
-        # reach the odometer (a bridged step would leave the wheel's count out).
-        lo, hi = np.searchsorted(train.play_t, [now_s - dt, now_s], side="right")
-        if train.play_slide is not None and now_s < train.play_t[-1] and train.play_slide[lo:hi].any():
-            train.sliding = True
-            if now_s - train.last_slide_s > SLIDE_GAP_S:
-                train.slides += 1
-            train.last_slide_s = now_s
+    def _stopping(self, train: Train, now_s: float, dt: float) -> None:
+        stop = train.stop
+        if stop is not None:
+            # The stop model's 10 ms steps due by now, never ahead of the line's clock: the train
+            # is where the model's state is, at most one of its steps (10 ms) behind the clock.
+            if self.cbtc is not None and self.cbtc.emergency_brake(train.index):
+                # SPEC §4: the onboard CBTC unit's emergency brake acts in a station stop too.
+                stop.emergency_brake()
+            due = math.floor((now_s - train.stop_t0_s) / stop.dt_s + 1e-9)
+            slid = stop.advance(due - stop.steps)
+            train.x_m, train.v_mps = stop.position_m, stop.speed_mps
+            if not stop.done:
+                # The stop model's slides reach the odometer (SPEC §2 slip/slide) as the line's
+                # own do: a new slide event unless the WSP's last cycle was just before. Not in
+                # the step it comes to a stand: the dwell begins there, and its correction creep
+                # must reach the odometer.
+                if slid:
+                    train.sliding = True
+                    if now_s - train.last_slide_s > SLIDE_GAP_S:
+                        train.slides += 1
+                    train.last_slide_s = now_s
+                return
+            train.stop = None
+            self._stopped(train, stop)
+            if train.play_t is None:
+                self._dwell(train, train.stop_t0_s + stop.steps * stop.dt_s)
+            return
         if now_s < train.play_t[-1]:
             # The speed too: the tachometer's log and the occupancy instants need it.
             train.x_m = float(np.interp(now_s, train.play_t, train.play_x))
@@ -848,8 +871,43 @@ class LineSimulation:
             return
         train.x_m = float(train.play_x[-1])
         train.v_mps = 0.0
-        st = self.line.stations[train.next_station]
         arrive = float(train.play_t[-1])
+        train.play_t = train.play_x = train.play_v = None
+        self._dwell(train, arrive)
+
+    def _stopped(self, train: Train, stop: SteppedStop) -> None:
+        """The stop's end: its record; a driver's corrections at the stand to be played."""
+        res, _, rec = stop.finish()
+        t0, stand_s = train.stop_t0_s, stop.steps * stop.dt_s
+        st = self.line.stations[train.next_station]
+        arrive = t0 + stand_s
+        if rec is not None and res[0, RES_RESTOPS] > 0.0:
+            moves = rec.trace[stop.steps :]
+            moves = moves[(moves[:, TR_T] > stand_s) & np.isfinite(moves[:, TR_X])]
+            train.play_t = t0 + np.concatenate(([stand_s], moves[:, TR_T]))
+            train.play_x = np.concatenate(([train.x_m], moves[:, TR_X]))
+            train.play_v = np.concatenate(([0.0], np.nan_to_num(moves[:, TR_V])))
+            train.play_v[-1] = 0.0
+            arrive = float(train.play_t[-1])
+        error = float(res[0, RES_ERROR])
+        stopped = bool(res[0, RES_STOPPED] > 0.0)
+        self.stops.append(
+            StopRecord(
+                train=train.index,
+                station=st.name,
+                arrive_s=round(arrive, 3),
+                error_m=round(error, 4),
+                entry_speed_kmh=round(float(stop.entry_speed_mps) / MPS_PER_KMH, 2),
+                emergency_brake=eb_cause_name(int(res[0, RES_EB])),
+                within_tolerance=stopped and abs(error) <= st.psd_tolerance_m,
+                run=stop.run,
+                entry_speed_mps=stop.entry_speed_mps,
+            )
+        )
+
+    def _dwell(self, train: Train, arrive: float) -> None:
+        """The dwell (SPEC §5) of a train standing at its station since ``arrive``."""
+        st = self.line.stations[train.next_station]
         doors = self._doors(self.operation.dwell_at_s(st.name))
         dwell = run_dwell(
             doors=doors,
@@ -879,7 +937,6 @@ class LineSimulation:
             )
         )
         train.next_station += 1
-        train.play_t = train.play_x = train.play_v = train.play_slide = None
         train.x_m = st.stop_point_m + dwell.final_stop_error_m  # after any correction creep
         if dwell.start_enable_s is None:
             # SPEC §5 fault path: no start enable, doors held closed, the train stays (the line
@@ -913,8 +970,7 @@ class LineSimulation:
             )
             v = np.concatenate((a * r, top - a * r[1:]))
             x[-1], v[-1] = st.stop_point_m, 0.0
-        train.play_t, train.play_x, train.play_v = t, x, v
-        train.play_slide = None  # driven on sight at a crawl: no slide
+        train.play_t, train.play_x, train.play_v = t, x, v  # driven on sight at a crawl: no slide
         train.phase = "stopping"
 
     def _doors(self, dwell_s: float) -> DoorsConfig:
@@ -942,7 +998,7 @@ class LineSimulation:
             elif train.phase == "running":
                 self._run(train, now_s, dt)
             elif train.phase == "stopping":
-                self._play(train, now_s, dt)
+                self._stopping(train, now_s, dt)
             elif train.phase == "dwelling" and now_s >= train.until_s:
                 train.phase = "running"
                 self._start_plant(train, 0.0)  # it departs from a stand

@@ -27,7 +27,7 @@ from railstop.config.schema import Line, Vehicle
 from railstop.control.law import LawFile
 from railstop.errors import RailstopError
 from railstop.sim.executor import execute
-from railstop.sim.line import LineSettings, LineSimulation
+from railstop.sim.line import LINE_MODEL_VERSION, LineSettings, LineSimulation
 
 RUNS_FILE = "runs.jsonl"
 SPEC_FILE = "campaign.json"
@@ -62,6 +62,9 @@ class LineCampaignSpec:
             # A built-in controller's campaign keeps the identity it had before laws could be
             # loaded; with a law, its file's name and hash (--resume with another text is refused).
             **({} if self.law is None else {"law": self.law.manifest()}),
+            # Absent from the campaigns of version 1 (its stops replayed a recorded trajectory):
+            # a --resume across versions is refused rather than mixing their runs.
+            "line_model_version": LINE_MODEL_VERSION,
         }
 
 
