@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import draw_scenario, load_disturbances
+from railstop.config.scenario import station_gradient
 from railstop.control.supervision import EB_TIMEOUT, eb_cause_name
 from railstop.link.codec import decode
 from railstop.live.tasc import (
@@ -20,7 +22,9 @@ from railstop.live.tasc import (
     wired_stop,
 )
 from railstop.onboard.tasc_receiver import CONFIG_CODES, RX_EB_T
+from railstop.sim.engine import run_batch
 from railstop.sim.single import run_stop
+from railstop.streams import RunStreams
 
 LINE = default_line()
 VEHICLE = default_vehicle()
@@ -40,6 +44,36 @@ def test_live_units_wired_without_delay_give_the_kernels_stop(controller: str) -
         assert train.commands == ref.commands
         assert len(wayside.records) == ref.commands_sent
         assert train.result()["emergency_brake"] is None
+
+
+@pytest.mark.parametrize("controller", ["tasc-pwm", "tasc-step"])
+def test_live_parts_wired_give_the_campaigns_run_of_the_same_draw_bit_for_bit(controller: str) -> None:
+    """DESIGN rule 1, parity (issue 35 item 8): the live processes' parts of the stop (the plant,
+    the onboard unit, the wayside; ``model.parts``), wired without delay on the stop's clock with
+    every telegram through the codec, give the campaign engine's run of the same draw of the
+    standard set (its sensor noise, jitter and misses, brake response, load, adhesion) bit for bit:
+    the stop error, the commands and the emergency brake. The link is ideal (the live link's
+    delays and losses are its own)."""
+    dist = load_disturbances("standard")
+    for i, station in enumerate(LINE.stations):
+        st = StationTasc.create(i, station, VEHICLE, controller)
+        for run in (3, 17):
+            streams = RunStreams.for_runs(5, run, 1)
+            scenario, _ = draw_scenario(dist, station, VEHICLE, streams)
+            zero = np.zeros(1)
+            scenario = scenario.with_values(
+                gradient=station_gradient(station, 1), radio_latency_s=zero, radio_jitter_s=zero,
+                radio_loss_probability=zero, radio_bit_error_rate=zero, radio_outage_duration_s=zero,
+            )  # fmt: skip
+            train, wayside = wired_stop(st, VEHICLE, scenario=scenario, seed=5, run=run)
+            ref = run_batch(
+                station=station, vehicle=VEHICLE, scenario=scenario, controller=controller, streams=streams,
+                track=LINE.track,
+            )  # fmt: skip
+            assert train.stopped and bool(ref.stopped[0])
+            assert train.error_m == float(ref.stop_error_m[0]), (station.name, run)
+            assert train.commands == len(wayside.records) == int(ref.commands_sent[0])
+            assert train.result()["emergency_brake"] is None and int(ref.emergency_brake[0]) == 0
 
 
 def test_every_command_record_carries_its_inputs_and_what_went_on_the_air() -> None:

@@ -59,6 +59,7 @@ JIT_MODULES: tuple[str, ...] = (
     "model/records.py",
     "model/step.py",
     "model/run.py",
+    "model/parts.py",
 )
 
 

@@ -345,8 +345,12 @@ class Plant:
     def _begin(self, v: _Vehicle, station: int, visit: int, t0_s: float) -> None:
         assert self.tasc is not None
         st = self.models[station]
-        sc, rng = draw_stop(self.tasc.dist, st, self.vehicle, seed=self.tasc.seed, train=v.k, visit=visit)
-        v.tasc = TascPlant(st=st, train=v.k, sc=sc, x_m=v.x_m, v_mps=v.v_mps, rng=rng, t0_s=t0_s)
+        scenario, run = draw_stop(
+            self.tasc.dist, st, self.vehicle, seed=self.tasc.seed, train=v.k, visit=visit, speed_mps=v.v_mps
+        )
+        v.tasc = TascPlant(
+            st=st, train=v.k, scenario=scenario, seed=self.tasc.seed, run=run, x_m=v.x_m, t0_s=t0_s
+        )
         self.tasc_stops += 1
 
     def _readings(self, tp: TascPlant) -> None:

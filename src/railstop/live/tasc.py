@@ -3,34 +3,39 @@ processes over UDP, running the stop model's own compiled steps.
 
 SPEC §1: wheel detectors and a Doppler radar measure the train; the wayside
 TASC unit computes the braking it needs and radios it to the train, whose
-onboard unit drives the brakes (the configuration of the operation). Here:
+onboard unit drives the brakes (the configuration of the operation). One stop
+of the stop model is split by place (``model.parts``): each process steps its
+own part of the same records, so each runs the stop model's own code.
 
 * **the stations process** (:func:`run_stations`) holds every station's
   wayside unit (:class:`WaysideTasc`). Its sensors' readings arrive from the
   plant as frames (the detectors and the radar are wired to the wayside; the
   frames stand for the wiring), one reading per 10 ms step (the radar's sample
-  period); each reading runs one ``wayside_step_1`` (the stop kernel's wayside
-  step). A due telegram is quantised as the kernel quantises it, encoded by
-  the codec, wrapped in an EN 50159 category-3 frame and sent to the train;
-  the latest telegram is repeated every ``repeat_period_s`` (the train's life
-  sign) until the train stands. Every command goes to the office with its
-  inputs (SPEC §1 claims 7, 20).
+  period); each reading runs the stop model's wayside step
+  (``WaysidePart``). A due telegram, quantised as the stop model quantises it,
+  is encoded by the codec, wrapped in an EN 50159 category-3 frame and sent to
+  the train; the latest telegram is repeated every ``repeat_period_s`` (the
+  train's life sign) until the train stands. Every command goes to the office
+  with its inputs (SPEC §1 claims 7, 20).
 * **the train side**: from the hand-over point to standstill the onboard unit
   (:class:`TascOnboard`, in the trains process) runs, each 10 ms step, the
-  telegrams received and the train's sensing through ``receiver_cycle_1``
-  (the kernel's onboard step: the configuration's output, the telegram
-  time-out and the overrun guard); its brake demand drives the stop model's
-  plant (:class:`TascPlant`, in ``live.plant``: the ECU, the actuator's dead
-  time, jerk limit and lag, the train's motion, ``actuator_step_1`` and
-  ``motion_step_1``), and the detectors and the radar read the train.
-  :class:`TascStop` wires the two in one process in the kernel's order.
+  telegrams received and the train's sensing through the stop model's
+  onboard step (``OnboardPart``: the transponder fixes, the configuration's
+  output, the telegram time-out and the overrun guard, the ECU); its brake
+  demand drives the stop model's plant (:class:`TascPlant`, in ``live.plant``:
+  ``PlantPart``, the actuator's dead time, jerk limit and lag, the motion, the
+  wheels and sensors), and the detectors and the radar read the train.
+  :class:`TascStop` wires the two in one process in the stop model's order.
 
-Only the clock and the transport differ from the stop model: the link's delay
-is the processes' real one (plus the plant's batching of five readings per
-50 ms step), and its losses are real ones (none on loopback). The train's
-vehicle and sensors are one draw of the operation's disturbance set per stop
-(load, brake gain and response, wheel, adhesion, detector jitter and misses,
-radar noise), as in the line simulation.
+Wired without delay on the stop's clock, the three parts give the campaign's
+run of the same draw bit for bit (``tests/test_live_tasc.py``). Only the clock
+and the transport differ from the stop model: the link's delay is the
+processes' real one (plus the plant's batching of five readings per 50 ms
+step), and its losses are real ones (none on loopback). The train's vehicle
+and sensors are one draw of the operation's disturbance set per stop (load,
+brake gain and response, wheel, adhesion, detector jitter and misses, radar
+noise), as in the line simulation, and its sensors draw from that run's
+random streams.
 
 Fail safe (DESIGN rule 10): a stations process that dies stops the telegrams;
 the onboard unit's supervision applies the emergency brake after
@@ -58,9 +63,7 @@ from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import handover_m
-from railstop.control.notch import MOD_SIZE
 from railstop.control.supervision import EbCause, eb_cause_name
-from railstop.control.tasc import HISTORY, SAMPLES, Approach, BrakeCurves
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.tasc_link import from_message, to_message
@@ -68,61 +71,21 @@ from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import MAX_TRAINS, SENSORS_ID, Platforms
 from railstop.live.office import OfficeClient
-from railstop.messages import TEL_FIELDS, TEL_SIZE
-from railstop.model.build import KernelModel, scenario_arrays
+from railstop.messages import TEL_FIELDS
+from railstop.model.build import KernelModel
+from railstop.model.parts import OnboardPart, PlantPart, WaysidePart
 from railstop.model.records import (
-    KP_CRUSH,
-    KP_DAVIS_A,
-    KP_DAVIS_B,
-    KP_DAVIS_C,
-    KP_DOPPLER_RANGE,
-    KP_DOPPLER_REACH,
-    KP_EMERGENCY,
-    KP_HAS_DOPPLER,
-    KP_INITIAL_NOTCH,
-    KP_JERK,
-    KP_LENGTH,
-    KP_QUANT_AGE,
     KP_REPEAT,
-    KP_ROTATING,
-    KP_SLIDE_SLIP,
     KP_STOP,
-    KP_TARE,
-    SC_BRAKE_GAIN,
-    SC_DEAD_TIME,
-    SC_DOPPLER_NOISE,
-    SC_LOAD,
-    SC_LOW_END,
-    SC_LOW_MU,
-    SC_LOW_START,
-    SC_MISS,
-    SC_MU,
-    SC_ODO_ERROR,
-    SC_SENSOR_JITTER,
-    SC_TAU,
-    SC_WEIGHING_ERROR,
-    SC_WHEEL_D,
 )
-from railstop.model.step import own_command_1, quantize_telegram_1
 from railstop.onboard.tasc_receiver import (
-    CFG_PWM,
-    CFG_SWITCHED_PWM,
-    RP_CONFIG,
     RX_EB,
     RX_EB_T,
-    RX_FIRST_RX,
-    RX_SIZE,
-    receiver_cycle_1,
-    receiver_fix_1,
-    receiver_init_1,
 )
-from railstop.physics.brake import actuator_step_1, line_notch, pwm_to_decel_1
-from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
 from railstop.quantities import kmh_to_mps
-from railstop.sensors.wayside import crossing_time_1, passage_1
 from railstop.sim.engine import command_records, telegram_of
 from railstop.streams import RunStreams
-from railstop.wayside.tasc_unit import CR_SIZE, WP_FORM, WS_SIZE, SignalForm, wayside_init_1, wayside_step_1
+from railstop.wayside.tasc_unit import WP_FORM, SignalForm
 
 FloatArray = NDArray[np.float64]
 
@@ -180,7 +143,9 @@ class StationTasc:
     index: int
     station: Station
     model: KernelModel
-    grad: tuple[FloatArray, FloatArray, FloatArray]
+    # The station's nominal draw: the parameters of the wayside's and the onboard unit's records
+    # (neither computes with the draw; the plant's records take each stop's own draw).
+    nominal: Scenario
 
     @classmethod
     def create(cls, index: int, station: Station, vehicle: Vehicle, controller: str) -> StationTasc:
@@ -192,8 +157,7 @@ class StationTasc:
             dt_s=TASC_DT_S,
             max_time_s=300.0,
         )
-        _, bp, gv, ge = scenario_arrays(Scenario.nominal(station, vehicle))
-        return cls(index=index, station=station, model=model, grad=(bp, gv[0], ge[0]))
+        return cls(index=index, station=station, model=model, nominal=Scenario.nominal(station, vehicle))
 
     @property
     def first_detector_m(self) -> float:
@@ -212,17 +176,8 @@ def station_models(line: Line, vehicle: Vehicle, controller: str) -> list[Statio
 @dataclass
 class _Session:
     train: int
-    ws: FloatArray
-    dbuf: FloatArray
-    pass_t: FloatArray
-    pass_x: FloatArray
-    wh_v: FloatArray
-    wh_e: FloatArray
-    taus: FloatArray
-    weights: FloatArray
-    tele: FloatArray
-    crow: FloatArray
-    pending: FloatArray
+    part: WaysidePart  # the stop model's wayside unit, on its records
+    readings: int = 0
     payload: bytes | None = None
     last_sent_s: float = -math.inf
     last_reading_s: float = -math.inf
@@ -231,7 +186,8 @@ class _Session:
 
 class WaysideTasc:
     """The wayside TASC unit of one station (SPEC §1), serving the train in its zone: readings in,
-    telegram payloads out (``due``), each command's record for the office (``records``)."""
+    telegram payloads out (``due``), each command's record for the office (``records``). Each
+    reading runs the stop model's own wayside step (``model.parts.WaysidePart``)."""
 
     def __init__(self, st: StationTasc) -> None:
         self.st = st
@@ -242,51 +198,31 @@ class WaysideTasc:
         self.sensors_lost = 0  # stops ended because their readings stopped
 
     def _begin(self, train: int) -> _Session:
-        m = self.st.model
-        s = _Session(
-            train=train,
-            ws=np.empty(WS_SIZE),
-            dbuf=np.zeros(m.window),
-            pass_t=np.empty(3),
-            pass_x=np.empty(3),
-            wh_v=np.empty(HISTORY),
-            wh_e=np.empty(HISTORY),
-            taus=np.empty(SAMPLES),
-            weights=np.empty(SAMPLES),
-            tele=np.empty(TEL_SIZE),
-            crow=np.empty(CR_SIZE),
-            pending=np.full(TEL_SIZE, np.nan),
-        )
-        wayside_init_1(s.ws, m.wp, s.wh_v, s.wh_e, s.pass_t, s.pass_x)
-        return s
+        return _Session(train=train, part=WaysidePart(self.st.model, self.st.nominal))
 
     def read(self, train: int, stands: bool, readings: list[Reading]) -> None:
         """The sensors' readings of ``train`` (in time order); a train that stands ends the stop."""
         s = self.session
         if s is None or s.train != train:
             s = self.session = self._begin(train)  # a new train in the zone: a new stop
-        m = self.st.model
-        form = int(m.wp[WP_FORM])
+        form = int(self.st.model.wp[WP_FORM])
         for r in readings:
             if r.t_s <= s.last_reading_s:
                 continue  # a reading it already has (a frame sent twice)
             s.last_reading_s = r.t_s
-            due = wayside_step_1(
-                s.ws, m.wp, s.dbuf, s.pass_t, s.pass_x, m.det_pos, s.wh_v, s.wh_e, s.taus, s.weights,
-                BrakeCurves(m.table, m.pwm_duty, m.pwm_decel), Approach(m.det_to_stop, m.ext, self.st.grad),
-                r.t_s, r.passed, r.detector, r.passage_s, r.doppler_mps, s.tele, s.crow,
-            )  # fmt: skip
+            due = s.part.command(s.readings, r.t_s, r.doppler_mps, r.passed, r.detector, r.passage_s)
+            s.readings += 1
             if not due:
                 continue
-            quantize_telegram_1(s.tele, s.pending, m.quant, m.carried, form, m.kp[KP_QUANT_AGE])
-            row = telegram_of(s.pending, SignalForm(form))
+            pending = s.part.pending
+            row = telegram_of(pending, SignalForm(form))
             try:
                 s.payload = encode(to_message(row, 0, train_id=train))
             except TelegramError:
                 continue  # a value the telegram cannot carry: nothing is sent (the train's supervision)
             s.commands += 1
             self.records.append(
-                office_record(self.st.station.name, train, s.crow, s.pending, form, s.payload)
+                office_record(self.st.station.name, train, s.part.crow, pending, form, s.payload)
             )
             self.due.append((train, s.payload))
             s.last_sent_s = r.t_s
@@ -508,9 +444,9 @@ class BrakeDrive:
 @dataclass
 class TascOnboard:
     """A train's onboard TASC unit during one stop (SPEC §1): the telegrams received and the
-    train's own sensors (:class:`Sense`) in, one ``receiver_cycle_1`` (the kernel's onboard step:
-    the configuration's output, the telegram time-out and the overrun guard) per 10 ms step, the
-    brake demand out (:class:`BrakeDrive`)."""
+    train's own sensors (:class:`Sense`) in, the stop model's onboard step (``model.parts``
+    ``OnboardPart``: the transponder fixes, the configuration's output, the telegram time-out and
+    the overrun guard, the ECU) per 10 ms step, the brake demand out (:class:`BrakeDrive`)."""
 
     st: StationTasc
     train: int
@@ -518,32 +454,29 @@ class TascOnboard:
     eb: bool = False
     commands: int = 0
     refused: int = 0
+    extra_eb: bool = False  # another unit (the CBTC) applied the emergency brake
 
     def __post_init__(self) -> None:
-        m = self.st.model
-        self.rx = np.empty(RX_SIZE)
-        self.mod = np.empty(MOD_SIZE)
-        self.rh_v, self.rh_e = np.empty(HISTORY), np.empty(HISTORY)
-        receiver_init_1(self.rx, self.mod, self.rh_v, self.rh_e)
-        self.tach = np.zeros(m.tach_window)
-        self.taus = np.empty(SAMPLES)
-        self.pending = np.full(TEL_SIZE, np.nan)
+        self.part = OnboardPart(self.st.model, self.st.nominal)
         self.last_payload: bytes | None = None
-        self.own_notch, self.own_for = 0, -1
-        self.own_duty = math.nan
+
+    @property
+    def rx(self) -> FloatArray:
+        """The receiver's state (``RX_*``)."""
+        rx: FloatArray = self.part.rx
+        return rx
 
     def deliver(self, payload: bytes) -> None:
         self.inbox.append(payload)
 
     def cycle(self, t_s: float, sense: Sense, extra_eb: bool = False) -> BrakeDrive:
-        """One 10 ms step at ``t_s``. ``extra_eb``: another unit (CBTC) applies the emergency brake."""
-        m, kp = self.st.model, self.st.model.kp
-        if math.isfinite(sense.transponder_m):
-            # The train's own ATP resets its odometer at the transponders; at the first one its
-            # brake controller applies the initial brake step (SPEC §1, as the stop model).
-            receiver_fix_1(self.rx, m.rp, sense.transponder_m)
-            self.own_notch = int(kp[KP_INITIAL_NOTCH])
+        """One 10 ms step at ``t_s``. ``extra_eb``: another unit (CBTC) applies the emergency brake
+        (held to the stand, as the CBTC unit holds its own)."""
+        if extra_eb and not self.extra_eb:
+            self.extra_eb = True
+            self.part.records.emergency_brake(t_s)
         new = copy = False
+        pending = self.part.pending
         for payload in self.inbox:
             if payload == self.last_payload:
                 # A cyclic repeat of the telegram it has: a life sign. [interpretation] The codec
@@ -552,127 +485,71 @@ class TascOnboard:
                 copy = True
                 continue
             try:
-                row = from_message(decode(payload), m.form)
+                row = from_message(decode(payload), self.st.model.form)
             except TelegramError:
                 self.refused += 1
                 continue
             for j, name in enumerate(TEL_FIELDS):
-                self.pending[j] = float(getattr(row, name)[0])
+                pending[j] = float(getattr(row, name)[0])
             self.last_payload, new = payload, True
             self.commands += 1
         self.inbox.clear()
-        pwm_train = int(m.rp[RP_CONFIG]) in (CFG_PWM, CFG_SWITCHED_PWM)
-        if self.own_notch != self.own_for:
-            self.own_duty, _ = own_command_1(self.own_notch, pwm_train, m.table, m.pwm_duty, m.pwm_decel)
-            self.own_for = self.own_notch
-        notch, duty, eb, _ = receiver_cycle_1(
-            self.rx, m.rp, self.mod, self.tach, self.rh_v, self.rh_e, self.taus,
-            BrakeCurves(m.table, m.pwm_duty, m.pwm_decel), Approach(m.det_to_stop, m.ext, self.st.grad),
-            self.pending, t_s, sense.k, new,
-            copy and not new, sense.tach_mps, sense.odo_step_m, self.own_notch, self.own_duty,
+        demand, braking, eb = self.part.cycle(
+            sense.k, t_s, sense.tach_mps, sense.odo_step_m, sense.transponder_m, sense.stopped, new,
+            copy and not new,
         )  # fmt: skip
-        self.eb = eb or extra_eb
-        braking = math.isfinite(self.rx[RX_FIRST_RX]) or self.eb or self.own_notch > 0
-        demand = m.table[line_notch(notch)] if notch >= 0 else pwm_to_decel_1(duty, m.pwm_duty, m.pwm_decel)
-        if self.eb:
-            demand = kp[KP_EMERGENCY]  # wire e: the emergency brake, whatever the service command
-        return BrakeDrive(sense.k, float(demand), bool(braking), self.eb)
+        self.eb = eb
+        return BrakeDrive(sense.k, demand, braking, eb)
 
     def eb_cause(self) -> str | None:
         """The onboard unit's own emergency brake's cause (None: it applied none)."""
         return eb_cause_name(int(self.rx[RX_EB])) if self.rx[RX_EB] > 0.0 else None
 
 
-@dataclass
 class TascPlant:
-    """A train under ground TASC as the plant moves it (the stop model's plant): its brakes (the
-    ECU's load compensation, dead time, jerk limit, lag: ``actuator_step_1``), its motion
-    (``motion_step_1``: adhesion, resistance, gradient), the wheels and tachometer, the transponders
-    under it, and the station's sensors reading it (the readings queued in ``out``), one ``step``
-    per 10 ms with the onboard unit's :class:`BrakeDrive`."""
+    """A train under ground TASC as the plant moves it: the stop model's plant
+    (``model.parts.PlantPart``: the actuator's dead time, jerk limit and lag, the motion with
+    adhesion, resistance and gradient, the wheels, tachometer and transponders) from the stop's
+    draw (``scenario``, run ``run`` of ``seed``: its random streams), and the station's sensors
+    reading it (the readings queued in ``out``), one :meth:`step` per 10 ms with the onboard unit's
+    :class:`BrakeDrive`."""
 
-    st: StationTasc
-    train: int
-    sc: FloatArray
-    x_m: float
-    v_mps: float
-    rng: np.random.Generator
-    t0_s: float
-    out: list[Reading] = field(default_factory=list)
-    stopped: bool = False
-    max_jerk: float = 0.0
-
-    def __post_init__(self) -> None:
-        m, sc, kp = self.st.model, self.sc, self.st.model.kp
-        static = kp[KP_TARE] + sc[SC_LOAD] * kp[KP_CRUSH]
-        rotating = kp[KP_TARE] * kp[KP_ROTATING]
-        self.static, self.effective = static, static + rotating
-        self.believed = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
-        self.tach_scale = (sc[SC_WHEEL_D] * (1.0 + sc[SC_ODO_ERROR])) / sc[SC_WHEEL_D]
-        self.delay_steps = int(np.rint(sc[SC_DEAD_TIME] / TASC_DT_S))
-        self.ring = np.zeros(self.delay_steps + 1)
-        self.limited = self.output = self.accel = self.prev_accel = 0.0
-        self.lag_alpha = 1.0 - math.exp(-TASC_DT_S / sc[SC_TAU])
-        self.sliding = self.prev_counted = False
-        self.odo_step = 0.0
+    def __init__(
+        self, *, st: StationTasc, train: int, scenario: Scenario, seed: int, run: int, x_m: float, t0_s: float
+    ) -> None:
+        self.st, self.train, self.t0_s = st, train, t0_s
+        self.part = PlantPart(st.model, scenario, seed=seed, run=run, start_m=x_m)
+        self.out: list[Reading] = []
         self.k = 0
-        self.transponder_next = int(np.searchsorted(m.transponders, self.x_m, side="right"))
-        self.transponder_m = math.nan  # passed in the last step
-        self.sensor_next = int(np.searchsorted(m.det_pos, self.x_m, side="right"))
-        self.passed, self.det_idx, self.pass_s = False, 0, math.nan
-        self.stop_time_s = math.nan
+        self.stopped = False
 
-    def _doppler(self) -> float:
-        kp = self.st.model.kp
-        if kp[KP_HAS_DOPPLER] == 0.0:
-            return math.nan
-        if kp[KP_DOPPLER_REACH] - self.x_m > kp[KP_DOPPLER_RANGE]:
-            return 0.0  # out of the radar's range (the stop model's convention)
-        noise = self.sc[SC_DOPPLER_NOISE]
-        return self.v_mps * (1.0 + noise * self.rng.standard_normal()) if noise > 0.0 else self.v_mps
+    @property
+    def x_m(self) -> float:
+        return float(self.part.records.train["position_m"])
+
+    @property
+    def v_mps(self) -> float:
+        return float(self.part.records.train["speed_mps"])
+
+    @property
+    def max_jerk(self) -> float:
+        return float(self.part.tally["max_jerk_mps3"])
+
+    @property
+    def stop_time_s(self) -> float:
+        return float(self.part.records.train["stop_time_s"])
 
     def sense(self) -> Sense:
         """What the train's sensors tell its onboard unit before the next step."""
-        tach_v = self.v_mps * creep_1(self.sliding, self.st.model.kp[KP_SLIDE_SLIP]) * self.tach_scale
-        return Sense(self.k, float(tach_v), float(self.odo_step), self.transponder_m, self.stopped)
+        tach, odo, transponder, stands = self.part.sense()
+        return Sense(self.k, tach, odo, transponder, stands)
 
     def step(self, t_s: float, drive: BrakeDrive) -> None:
         """One 10 ms step at ``t_s`` under ``drive``: the station's sensors read the train (queued in
-        ``out``), then the brakes and the motion; the passages of transponders and detectors."""
-        m, kp, sc = self.st.model, self.st.model.kp, self.sc
-        self.out.append(Reading(t_s, self._doppler(), self.passed, self.det_idx, self.pass_s))
-        self.passed = False
-        self.limited, self.output = actuator_step_1(
-            self.ring, self.k, self.delay_steps, drive.demand_mps2, self.limited, self.output,
-            self.lag_alpha, kp[KP_JERK] * TASC_DT_S, kp[KP_EMERGENCY],
-        )  # fmt: skip
-        brake_decel = self.output * sc[SC_BRAKE_GAIN] * self.believed / self.effective
-        mu = sc[SC_LOW_MU] if sc[SC_LOW_START] <= self.x_m < sc[SC_LOW_END] else sc[SC_MU]
-        x0, v0 = self.x_m, self.v_mps
-        hold = not drive.braking
-        self.x_m, self.v_mps, self.accel, stopped, st, self.sliding = motion_step_1(
-            x0, v0, self.stopped, brake_decel, mean_gradient_1(x0, kp[KP_LENGTH], *self.st.grad), mu, hold,
-            self.static, self.effective, kp[KP_DAVIS_A], kp[KP_DAVIS_B], kp[KP_DAVIS_C], t_s, TASC_DT_S,
-        )  # fmt: skip
-        counted = not hold and not stopped
-        if counted and self.prev_counted:
-            self.max_jerk = max(self.max_jerk, abs(self.accel - self.prev_accel) / TASC_DT_S)
-        self.prev_accel, self.prev_counted = self.accel, counted
-        if stopped and not self.stopped:
-            self.stop_time_s = st
-        self.stopped = stopped
-        creep = creep_1(self.sliding, kp[KP_SLIDE_SLIP])
-        self.odo_step = (self.x_m - x0) * creep * self.tach_scale
-        self.transponder_m = math.nan
-        if passage_1(m.transponders, self.transponder_next, x0, self.x_m):
-            self.transponder_m = float(m.transponders[self.transponder_next])
-            self.transponder_next += 1
-        if passage_1(m.det_pos, self.sensor_next, x0, self.x_m):
-            self.det_idx = self.sensor_next
-            jitter = sc[SC_SENSOR_JITTER] * self.rng.standard_normal()
-            self.pass_s = t_s + crossing_time_1(x0, v0, self.accel, m.det_pos[self.det_idx]) + jitter
-            self.passed = self.rng.uniform() >= sc[SC_MISS]
-            self.sensor_next += 1
+        ``out``), then the brakes, the motion and the train's sensors."""
+        stands, doppler, passed, det, pass_s = self.part.step(self.k, t_s, drive.demand_mps2, drive.braking)
+        self.out.append(Reading(t_s, doppler, passed, det, pass_s))
+        self.stopped = stands
         self.k += 1
 
     @property
@@ -723,19 +600,11 @@ class TascStop:
     onboard unit's cycle, whose drive steps the plant in the same step (the stop model's order)."""
 
     def __init__(
-        self,
-        *,
-        st: StationTasc,
-        train: int,
-        sc: FloatArray,
-        x_m: float,
-        v_mps: float,
-        rng: np.random.Generator,
-        t0_s: float,
+        self, *, st: StationTasc, train: int, scenario: Scenario, seed: int, run: int, x_m: float, t0_s: float
     ) -> None:
         self.st, self.train = st, train
         self.onboard = TascOnboard(st=st, train=train)
-        self.plant = TascPlant(st=st, train=train, sc=sc, x_m=x_m, v_mps=v_mps, rng=rng, t0_s=t0_s)
+        self.plant = TascPlant(st=st, train=train, scenario=scenario, seed=seed, run=run, x_m=x_m, t0_s=t0_s)
 
     def deliver(self, payload: bytes) -> None:
         self.onboard.deliver(payload)
@@ -757,20 +626,29 @@ class TascStop:
     def result(self) -> dict[str, Any]:
         """The stop as the office stores it."""
         cause = self.onboard.eb_cause()
-        return self.plant.result(cause, float(self.onboard.rx[RX_EB_T]), self.onboard.eb)
+        return self.plant.result(cause, float(self.onboard.rx[RX_EB_T]), self.onboard.extra_eb)
 
 
 def draw_stop(
-    dist: DisturbanceSet, st: StationTasc, vehicle: Vehicle, *, seed: int, train: int, visit: int
-) -> tuple[FloatArray, np.random.Generator]:
+    dist: DisturbanceSet,
+    st: StationTasc,
+    vehicle: Vehicle,
+    *,
+    seed: int,
+    train: int,
+    visit: int,
+    speed_mps: float,
+) -> tuple[Scenario, int]:
     """The train's vehicle and sensors for one stop: a draw of the disturbance set (the line
-    simulation's run numbering: train x 100 + visit) and the random stream of its sensors."""
+    simulation's run numbering: train x 100 + visit, whose random streams its sensors draw from
+    too), the station's own gradients and the train's speed at the hand-over: (draw, run)."""
     run = train * RUNS_PER_TRAIN + visit % RUNS_PER_TRAIN
     streams = RunStreams.for_runs(seed, run, 1)
     scenario, _ = draw_scenario(dist, st.station, vehicle, streams)
-    scenario = scenario.with_values(gradient=station_gradient(st.station, 1))
-    sc, _, _, _ = scenario_arrays(scenario)
-    return sc[0], np.random.default_rng([seed, train, visit])
+    scenario = scenario.with_values(
+        entry_speed_mps=np.array([speed_mps]), gradient=station_gradient(st.station, 1)
+    )
+    return scenario, run
 
 
 def wired_stop(
@@ -781,18 +659,24 @@ def wired_stop(
     silent_after_s: float = math.inf,
     readings_lost_after_s: float = math.inf,
     until_s: float = 300.0,
+    scenario: Scenario | None = None,
+    seed: int = 0,
+    run: int = 0,
 ) -> tuple[TascStop, WaysideTasc]:
-    """One nominal stop (the station's entry speed, from its hand-over point) with the wayside and
-    the train wired directly in this process: every telegram arrives ``delay_steps`` steps after
-    it was sent, none after ``silent_after_s`` (the wayside died); no reading reaches the wayside
-    after ``readings_lost_after_s`` (the sensors' wiring cut). The live units' check against
-    the stop kernel, and their warm-up (the compiled steps loaded before a live clock starts)."""
-    sc, _, _, _ = scenario_arrays(Scenario.nominal(st.station, vehicle))
-    v = float(sc[0][0])
+    """One stop (default the nominal draw: the station's entry speed; else run ``run`` of ``seed``
+    with its draw ``scenario``), from its hand-over point, with the wayside and the train wired
+    directly in this process on the stop's own clock (step k at k x 10 ms): every telegram arrives
+    ``delay_steps`` steps after it was sent, none after ``silent_after_s`` (the wayside died); no
+    reading reaches the wayside after ``readings_lost_after_s`` (the sensors' wiring cut). The
+    live units' check against the stop model, and their warm-up (the compiled steps loaded before
+    a live clock starts)."""
+    draw = scenario if scenario is not None else Scenario.nominal(st.station, vehicle)
+    v = float(draw.entry_speed_mps[0])
     x = handover_m(st.first_detector_m, v)
     wayside = WaysideTasc(st)
-    train = TascStop(st=st, train=2, sc=sc[0], x_m=x, v_mps=v, rng=np.random.default_rng(0), t0_s=0.0)
+    train = TascStop(st=st, train=2, scenario=draw, seed=seed, run=run, x_m=x, t0_s=0.0)
     air: list[tuple[float, bytes]] = []
+    k = 0
     t = 0.0
     while not train.stopped and t < until_s:
         train.step(t)
@@ -806,7 +690,8 @@ def wired_stop(
         for _, payload in [a for a in air if a[0] <= t + 1e-9]:
             train.deliver(payload)
         air = [a for a in air if a[0] > t + 1e-9]
-        t += TASC_DT_S
+        k += 1
+        t = k * TASC_DT_S  # the stop model's clock, to the bit
     return train, wayside
 
 

@@ -438,6 +438,7 @@ SENSE_DTYPE = np.dtype(
         ("sensor_next", np.int64),  # the next detector to report
         ("truth_next", np.int64),  # the next detector passed (the true passages)
         ("transponder_next", np.int64),
+        ("transponder_m", np.float64),  # a transponder the train passed in the last step (NaN: none)
         ("miss_trials", np.int64),  # detector passages drawn for a miss ...
         ("misses", np.int64),  # ... and the misses
     ],

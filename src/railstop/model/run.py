@@ -235,7 +235,7 @@ def stop_steps(
     return k, k >= steps, slid
 
 
-def _compiled_for(fn: Any, args: tuple[Any, ...]) -> Any:
+def compiled_for(fn: Any, args: tuple[Any, ...]) -> Any:
     """The compiled entry point of ``fn`` for the types of ``args`` (compiled, or loaded from the
     cache, if need be), to call again and again with arguments of those types.
 
@@ -247,6 +247,49 @@ def _compiled_for(fn: Any, args: tuple[Any, ...]) -> Any:
     if sig not in fn.overloads:
         fn.compile(sig)
     return fn.overloads[sig].entry_point
+
+
+class StopRecords:
+    """One run's records (:mod:`railstop.model.records`), started by ``stop_init``: what a driver
+    that steps the stop itself holds (``p``, ``run``, ``state``, ``out``, ``law``)."""
+
+    def __init__(
+        self, model: KernelModel, scenario: Scenario, *, seed: int, run: int, record: bool = False
+    ) -> None:
+        if scenario.n != 1:
+            raise SimulationError(f"a stepped run is one run ({scenario.n} drawn)")
+        b = _buffers(model, scenario, record)
+        self.buffers = b
+        self.p = stop_params(model, b.bp)
+        self.law = compiled_law(model)
+        # Writable copies of the gradient's rows (a draw may broadcast one read-only profile): a
+        # read-only array is another type to numba, and each type another compilation of the step.
+        grad = (b.bp, np.array(b.gv[0], dtype=np.float64), np.array(b.ge[0], dtype=np.float64))
+        self.run = RunParams(b.sc[0], grad, np.zeros(1, dtype=RUN_DTYPE))
+        self.state = b.state
+        self.out = StopOutputs(b.res[0], b.passages[0], b.rec)
+        self.run_index = run
+        self.dt_s = float(model.kp[KP_DT])
+        seed_keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
+        stop_init(self.p, self.run, self.state, self.out, seed_keys, run)
+
+    @property
+    def train(self) -> Any:
+        """The train's state record (``TRAIN_DTYPE``; a view: fields read and written by name)."""
+        return self.state.train[0]
+
+    @property
+    def entry_speed_mps(self) -> float:
+        """The run's speed at the start of its approach (its draw's)."""
+        return float(self.buffers.sc[0, SC_ENTRY_SPEED])
+
+    def emergency_brake(self, t_s: float) -> None:
+        """Apply the emergency brake from outside the stop's units (a CBTC onboard unit) from the
+        step at ``t_s`` (the run's clock) on, to the stand; the result's cause is ``EbCause.CBTC``
+        unless a unit of the stop braked too."""
+        ob = self.state.onboard[0]
+        if not math.isfinite(ob["external_eb_t_s"]):
+            ob["external_eb_t_s"] = t_s
 
 
 class SteppedStop:
@@ -262,67 +305,53 @@ class SteppedStop:
     def __init__(
         self, model: KernelModel, scenario: Scenario, *, seed: int, run: int, record: bool = False
     ) -> None:
-        if scenario.n != 1:
-            raise SimulationError(f"a stepped run is one run ({scenario.n} drawn)")
-        b = _buffers(model, scenario, record)
-        self._b = b
-        self._p = stop_params(model, b.bp)
-        self._law = compiled_law(model)
-        # Writable copies of the gradient's rows (a draw may broadcast one read-only profile): a
-        # read-only array is another type to numba, and each type another compilation of the step.
-        grad = (b.bp, np.array(b.gv[0], dtype=np.float64), np.array(b.ge[0], dtype=np.float64))
-        self._run = RunParams(b.sc[0], grad, np.zeros(1, dtype=RUN_DTYPE))
-        self._out = StopOutputs(b.res[0], b.passages[0], b.rec)
+        r = StopRecords(model, scenario, seed=seed, run=run, record=record)
+        self.records = r
         self.run = run
-        self.dt_s = float(model.kp[KP_DT])
+        self.dt_s = r.dt_s
         self.steps = 0  # steps done: the run's time is steps * dt_s
         self.done = False  # the train stands at its end, or the run's time is up
         self._finished = False
-        seed_keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
-        stop_init(self._p, self._run, b.state, self._out, seed_keys, run)
-        self._steps_fn = _compiled_for(stop_steps, (self._p, self._run, b.state, self._out, 0, 0, self._law))
+        self._steps_fn = compiled_for(stop_steps, (r.p, r.run, r.state, r.out, 0, 0, r.law))
 
     @property
     def entry_speed_mps(self) -> float:
         """The run's speed at the start of its approach (its draw's)."""
-        return float(self._b.sc[0, SC_ENTRY_SPEED])
+        return self.records.entry_speed_mps
 
     @property
     def position_m(self) -> float:
         """The train's front (chainage) after the steps done."""
-        return float(self._b.state.train[0]["position_m"])
+        return float(self.records.train["position_m"])
 
     @property
     def speed_mps(self) -> float:
         """The train's speed after the steps done."""
-        return float(self._b.state.train[0]["speed_mps"])
+        return float(self.records.train["speed_mps"])
 
     def advance(self, n: int) -> bool:
         """Up to ``n`` more steps (none once at the end); True if the wheels slid in one of them
         while the train still moved."""
         if self.done or n <= 0:
             return False
-        self.steps, self.done, slid = self._steps_fn(
-            self._p, self._run, self._b.state, self._out, self.steps, n, self._law
-        )
+        r = self.records
+        self.steps, self.done, slid = self._steps_fn(r.p, r.run, r.state, r.out, self.steps, n, r.law)
         return bool(slid)
 
     def emergency_brake(self) -> None:
         """Apply the emergency brake from outside the stop's units (the line's CBTC onboard unit)
-        from the next step on, to the stand; the result's cause is ``EbCause.CBTC`` unless a unit
-        of the stop braked too."""
-        ob = self._b.state.onboard[0]
-        if not math.isfinite(ob["external_eb_t_s"]):
-            ob["external_eb_t_s"] = self.steps * self.dt_s
+        from the next step on, to the stand (:meth:`StopRecords.emergency_brake`)."""
+        self.records.emergency_brake(self.steps * self.dt_s)
 
     def finish(self) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
         """``stop_finish`` (a driver's corrections at the stand included): (results (1, RES_SIZE),
         true passage times (1, D), the recording if asked for)."""
         if not self.done:
             raise SimulationError("the stepped run is not at its end")
-        b = self._b
+        r = self.records
+        b = r.buffers
         if not self._finished:
-            stop_finish(self._p, self._run, b.state, self._out, self.steps)
+            stop_finish(r.p, r.run, r.state, r.out, self.steps)
             self._finished = True
         return b.res, b.passages, _record(b.rec) if b.rec.on else None
 

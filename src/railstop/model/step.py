@@ -443,6 +443,7 @@ def _reset_state(p: StopParams, s: StopState, start_m: float, entry_mps: float) 
     se.sensor_next = 0
     se.truth_next = 0
     se.transponder_next = 0
+    se.transponder_m = np.nan
     se.miss_trials = 0
     se.misses = 0
     ta.max_jerk_mps3 = 0.0
@@ -504,10 +505,10 @@ def stop_init(
 
 
 @njit_inline
-def _wayside_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, t: float) -> None:
-    """The wayside unit's step: a Doppler sample now, the detector passage of the last step; a new
-    command replaces the telegram not yet delivered (the wayside sends only its latest)."""
-    kp, d, tr, se, ln = p.kp, run.derived[0], s.train[0], s.sense[0], s.link[0]
+def doppler_reading_1(p: StopParams, run: RunParams, s: StopState, k: int) -> float:
+    """The wayside radar's sample at step ``k`` of the train as the state has it (NaN: no radar;
+    0: out of its range). The plant's side of the sensors: the truth with the radar's noise."""
+    kp, d, tr = p.kp, run.derived[0], s.train[0]
     doppler = np.nan
     if d.has_doppler:
         # The radar sees trains within its range; keyed by the step, so a sample outside the
@@ -518,14 +519,27 @@ def _wayside_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k:
             noise = run.sc[SC_DOPPLER_NOISE]
             v = tr.speed_mps
             doppler = v * (1.0 + noise * key_normal_zig(d.k_doppler, k)) if noise > 0.0 else v
+    return doppler
+
+
+@njit_inline
+def wayside_command_1(
+    p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, t: float, doppler: float,
+    passed: bool, det_idx: int, pass_s: float,
+) -> bool:  # fmt: skip
+    """The wayside unit's step on the sensors' reading at ``t`` (the Doppler sample, the detector
+    passage of the last step): True when a new command is due, its telegram quantised for the air
+    in ``s.pending`` (a new command replaces the telegram not yet delivered: the wayside sends only
+    its latest). The stop model and the live stations process run this same step."""
+    ln = s.link[0]
     due = wayside_step_1(
         s.ws, p.wp, s.dbuf, s.pass_t, s.pass_x, p.det_pos, s.wh_v, s.wh_e, s.taus, s.weights,
-        BrakeCurves(p.table, p.pwm_duty, p.pwm_decel), Approach(p.det_to_stop, p.ext, run.grad), t, se.passed,
-        se.det_idx, se.pass_s, doppler, s.tele, s.crow,
+        BrakeCurves(p.table, p.pwm_duty, p.pwm_decel), Approach(p.det_to_stop, p.ext, run.grad), t, passed,
+        det_idx, pass_s, doppler, s.tele, s.crow,
     )  # fmt: skip
     if not due:
-        return
-    quantize_telegram_1(s.tele, s.pending, p.quant, p.carried, int(p.wp[WP_FORM]), kp[KP_QUANT_AGE])
+        return False
+    quantize_telegram_1(s.tele, s.pending, p.quant, p.carried, int(p.wp[WP_FORM]), p.kp[KP_QUANT_AGE])
     ln.pending_id += 1
     ln.in_flight = 0
     ln.next_try_s = -np.inf
@@ -539,6 +553,14 @@ def _wayside_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k:
         for j in range(TEL_SIZE):
             rec.sends[n, j] = s.pending[j]
         ta.commands = n + 1
+    return True
+
+
+@njit_inline
+def _wayside_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, t: float) -> None:
+    """The wayside unit's step: a Doppler sample now, the detector passage of the last step."""
+    se = s.sense[0]
+    wayside_command_1(p, run, s, out, k, t, doppler_reading_1(p, run, s, k), se.passed, se.det_idx, se.pass_s)
 
 
 @njit_inline
@@ -614,19 +636,19 @@ def _deliver_1(s: StopState, out: StopOutputs, k: int, t: float) -> bool:
 
 
 @njit_inline
-def _tasc_control_1(
-    p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, t: float, tach_v: float
+def tasc_onboard_1(
+    p: StopParams, run: RunParams, s: StopState, k: int, t: float, tach_v: float, new: bool, copy: bool
 ) -> tuple[int, float, bool, bool]:
-    """Wayside unit -> link -> onboard receiver: (notch, duty, braking, emergency brake) for the ECU."""
-    _wayside_1(p, run, s, out, k, t)
-    _transmit_1(p, run, s, out, k, t)
-    delivered = _deliver_1(s, out, k, t)
-    ln, ob, d = s.link[0], s.onboard[0], run.derived[0]
-    copy = delivered and ln.applied_id == ln.pending_id  # a copy of the command the train has
-    new = delivered and not copy
-    if new:
-        ln.applied_id = ln.pending_id
-        ln.first_rx_s = min(ln.first_rx_s, t)
+    """The train's TASC side of step ``k`` (SPEC §1): a transponder passed in the last step resets
+    its odometer (at the first, its brake controller applies the initial brake step); a new
+    telegram (``new``, in ``s.pending``) or a copy of the one it has (``copy``) and its sensing in;
+    (notch, duty, braking, emergency brake) out for the ECU. The stop model and the live trains
+    process run this same step."""
+    ob, d, se = s.onboard[0], run.derived[0], s.sense[0]
+    if se.transponder_m == se.transponder_m:  # not NaN: the train's own ATP saw a transponder
+        receiver_fix_1(s.rx, p.rp, se.transponder_m)
+        ob.own_notch = int(p.kp[KP_INITIAL_NOTCH])
+        se.transponder_m = np.nan
     own_notch = ob.own_notch
     if own_notch != ob.own_for:
         ob.own_duty, ob.own_demand_mps2 = own_command_1(
@@ -642,6 +664,23 @@ def _tasc_control_1(
     ob.switch_pos = switch_pos
     braking = np.isfinite(s.rx[RX_FIRST_RX]) or eb or own_notch > 0
     return notch, duty, braking, eb
+
+
+@njit_inline
+def _tasc_control_1(
+    p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, t: float, tach_v: float
+) -> tuple[int, float, bool, bool]:
+    """Wayside unit -> link -> onboard receiver: (notch, duty, braking, emergency brake) for the ECU."""
+    _wayside_1(p, run, s, out, k, t)
+    _transmit_1(p, run, s, out, k, t)
+    delivered = _deliver_1(s, out, k, t)
+    ln = s.link[0]
+    copy = delivered and ln.applied_id == ln.pending_id  # a copy of the command the train has
+    new = delivered and not copy
+    if new:
+        ln.applied_id = ln.pending_id
+        ln.first_rx_s = min(ln.first_rx_s, t)
+    return tasc_onboard_1(p, run, s, k, t, tach_v, new, copy)
 
 
 @njit_inline
@@ -678,12 +717,10 @@ def _driver_control_1(
 
 
 @njit_inline
-def _brake_chain_1(
-    p: StopParams, run: RunParams, s: StopState, k: int, notch: int, duty: float, eb: bool
-) -> tuple[float, int, float]:
-    """Onboard -> ECU (step code through the brake line, or PWM; ``eb``: the emergency brake) ->
-    actuator -> brakes: (demand, the ECU's notch (-1: PWM), the brakes' deceleration)."""
-    kp, d, tr, ta = p.kp, run.derived[0], s.train[0], s.tally[0]
+def ecu_1(p: StopParams, s: StopState, notch: int, duty: float, eb: bool) -> tuple[float, int]:
+    """Onboard -> ECU: the brake demand of a step code through the brake line, or of a PWM duty
+    (``eb``: the emergency brake, wire e): (demand, the ECU's notch (-1: PWM))."""
+    kp, tr, ta = p.kp, s.train[0], s.tally[0]
     if notch >= 0:
         ecu_notch = line_notch(notch)
         demand = p.table[ecu_notch]
@@ -695,17 +732,24 @@ def _brake_chain_1(
         demand = pwm_to_decel_1(duty, p.pwm_duty, p.pwm_decel)
     if eb:
         demand = kp[KP_EMERGENCY]  # wire e: the emergency brake, whatever the service command
+    return demand, ecu_notch
+
+
+@njit_inline
+def actuator_1(p: StopParams, run: RunParams, s: StopState, k: int, demand: float) -> float:
+    """The ECU's demand -> actuator (dead time, jerk limit, lag) -> brakes: the brakes' deceleration.
+    Load compensation: the ECU sets the force for the mass it believes; the real mass and the
+    brake's real effectiveness decide what that force does."""
+    kp, d, tr = p.kp, run.derived[0], s.train[0]
     tr.limited_mps2, tr.output_mps2 = actuator_step_1(
         s.ring, k, d.delay_steps, demand, tr.limited_mps2, tr.output_mps2, d.lag_alpha, d.jerk_step_mps2,
         kp[KP_EMERGENCY],
     )  # fmt: skip
-    # Load compensation: the ECU sets the force for the mass it believes; the real mass and
-    # the brake's real effectiveness decide what that force does.
-    return demand, ecu_notch, tr.output_mps2 * run.sc[SC_BRAKE_GAIN] * d.believed_kg / d.effective_kg
+    return tr.output_mps2 * run.sc[SC_BRAKE_GAIN] * d.believed_kg / d.effective_kg
 
 
 @njit_inline
-def _move_1(
+def move_1(
     p: StopParams, run: RunParams, s: StopState, t: float, x: float, v: float, brake_decel: float, hold: bool
 ) -> tuple[float, float, bool, bool]:
     """The train's dynamics t -> t + dt from ``x``, ``v``, its standstill, and the jerk while
@@ -740,7 +784,7 @@ def _move_1(
 
 
 @njit_inline
-def _sensors_1(
+def sensors_1(
     p: StopParams, run: RunParams, s: StopState, out: StopOutputs, t: float, x0: float, v0: float,
     x: float, accel: float, sliding: bool,
 ) -> None:  # fmt: skip
@@ -783,10 +827,10 @@ def _sensors_1(
     elif not d.is_driver:  # a driver judges by eye (driver_look_1); his speedometer is the tachometer
         # The train's own ATP resets its odometer at the transponders; at the first one (the
         # zone's start) its brake controller applies the initial brake step.
+        # (The train takes the passage in its next step: ``tasc_onboard_1``.)
         if passage_1(p.transponders, se.transponder_next, x0, x):
-            receiver_fix_1(s.rx, p.rp, p.transponders[se.transponder_next])
+            se.transponder_m = p.transponders[se.transponder_next]
             se.transponder_next += 1
-            s.onboard[0].own_notch = int(kp[KP_INITIAL_NOTCH])
         se.passed = False
         if passage_1(p.det_pos, se.sensor_next, x0, x):
             det_idx = se.sensor_next
@@ -847,6 +891,20 @@ def _record_step_1(
 
 
 @njit_inline
+def tach_speed_1(run: RunParams, s: StopState) -> float:
+    """The tachometer's speed: the wheel's (slower when sliding) with the assumed diameter."""
+    d, tr = run.derived[0], s.train[0]
+    return tr.speed_mps * creep_1(tr.sliding, d.slide_slip) * d.tach_scale
+
+
+@njit_inline
+def external_eb_1(s: StopState, t: float) -> bool:
+    """Whether an emergency brake from outside the stop's units (the CBTC onboard unit) is applied
+    by ``t`` (``external_eb_t_s`` NaN: never)."""
+    return s.onboard[0].external_eb_t_s <= t
+
+
+@njit_inline
 def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: int, law: Any) -> bool:
     """Step ``k`` of the station stop, t = k dt -> t + dt (see the module docstring). True when
     the train stands at its end (the run's end). ``law``: the onboard stop-control law
@@ -856,8 +914,7 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
     t = k * dt
     x0 = tr.position_m
     v0 = tr.speed_mps
-    # The tachometer's speed: wheel speed (slower when sliding) with the assumed diameter.
-    tach_v = v0 * creep_1(tr.sliding, d.slide_slip) * d.tach_scale
+    tach_v = tach_speed_1(run, s)
     if d.is_ato:
         notch = ato_output_1(
             s.at, p.ap, s.mod, p.table, p.ext, run.grad, k, tach_v, law, s.meas, s.law_state, s.law_params
@@ -870,11 +927,12 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
         duty = np.nan
     else:
         notch, duty, braking, eb = _tasc_control_1(p, run, s, out, k, t, tach_v)
-    if s.onboard[0].external_eb_t_s <= t:  # NaN: never applied from outside
+    if external_eb_1(s, t):
         eb = braking = True
-    demand, ecu_notch, brake_decel = _brake_chain_1(p, run, s, k, notch, duty, eb)
-    x, accel, sliding, stopped = _move_1(p, run, s, t, x0, v0, brake_decel, not braking)
-    _sensors_1(p, run, s, out, t, x0, v0, x, accel, sliding)
+    demand, ecu_notch = ecu_1(p, s, notch, duty, eb)
+    brake_decel = actuator_1(p, run, s, k, demand)
+    x, accel, sliding, stopped = move_1(p, run, s, t, x0, v0, brake_decel, not braking)
+    sensors_1(p, run, s, out, t, x0, v0, x, accel, sliding)
     if out.rec.on:
         _record_step_1(run, s, out, k, t, dt, demand, brake_decel, ecu_notch, duty)
     return stopped
