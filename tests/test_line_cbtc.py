@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import load_disturbances
 from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
 from railstop.errors import SimulationError
@@ -251,3 +252,28 @@ def test_a_radio_outage_in_a_station_stop_brakes_the_stop_by_the_cbtc_unit() -> 
     assert stop.emergency_brake == "cbtc"
     assert stop.error_m < stop0.error_m - 1.0 and not stop.within_tolerance
     assert s["cbtc"]["onboard_emergency_brakes"] >= 1 and s["cbtc"]["collisions"] == 0
+
+
+def test_a_train_past_its_first_detector_when_the_platform_clears_is_stopped_not_run_through() -> None:
+    """A zone set ahead (train 1's radio lost) shortens train 2's authority while it runs at speed
+    towards Riverside: it cannot stand before the station's first detector, so the TASC hand-over
+    is missed. When the zone is released the platform is clear, and the train, inside the zone,
+    must still stop there: its own ATO stops it at the stopping point and it dwells (it ran through
+    the platform before, counted as a skipped stop)."""
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=Operation(trains=3, headway_s=120.0),
+        disturbances=load_disturbances("standard"),
+        seed=8,
+        signalling="cbtc-conventional",
+        outages=[(1, 274.43, 11.1)],
+    )
+    result = sim.run(420.0)
+    s = result.summary()
+    assert s["skipped_stops"] == 0 and s["stops_by_ato"] == 1
+    (stop,) = [x for x in result.stops if x.by_ato]
+    assert stop.train == 2 and stop.station == LINE.stations[0].name and stop.emergency_brake is None
+    # By its onboard position, within a metre and a half of the stopping point; the dwell judged it.
+    assert abs(stop.error_m) < 1.5
+    assert any(d.train == 2 and d.station == stop.station for d in result.dwells)

@@ -86,7 +86,7 @@ from railstop.control.line_ato import (
     static_profile,
     stop_signal_m,
 )
-from railstop.control.supervision import eb_cause_name
+from railstop.control.supervision import EbCause, eb_cause_name
 from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
@@ -136,6 +136,9 @@ LOW_MU = 0.05
 #: 1e-4 and the delay to a few hundredths of a second.
 CARRIED_SCALE_SD = 2e-4
 CARRIED_DELAY_SD_S = 0.03
+#: A train whose own ATO stops it at a station (a missed hand-over) stands this close before the
+#: stopping point by its onboard position (the ATO's curve ends there at a crawl): its stop.
+ATO_STAND_M = 1.0
 #: Steps of sliding less than this apart are one slide event (the WSP releases and reapplies).
 SLIDE_GAP_S = 2.0
 #: A run ``until_gone`` looks whether every train has left the line this often (s).
@@ -348,12 +351,14 @@ class StopRecord:
     station: str
     arrive_s: float  # standstill
     error_m: float
-    entry_speed_kmh: float
+    entry_speed_kmh: float | None  # at the hand-over (None: a stop by the train's own ATO)
     emergency_brake: str | None
     within_tolerance: bool
     # The stop's draw: run ``run`` of the line's seed, at exactly this speed at the hand-over.
     run: int = -1
-    entry_speed_mps: float = math.nan
+    entry_speed_mps: float | None = None
+    # Made by the train's own ATO after a missed hand-over (``LineSimulation._run``), not by TASC.
+    by_ato: bool = False
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -408,6 +413,7 @@ class LineResult:
             "stops": len(self.stops),
             "stops_within_tolerance": int(sum(s.within_tolerance for s in self.stops)),
             "skipped_stops": self.skipped_stops,
+            "stops_by_ato": int(sum(s.by_ato for s in self.stops)),
             "signals_passed_at_danger": self.signals_passed_at_danger,
             "stop_error_p99_m": round(float(np.percentile(errors, 99.0)), 4) if errors.size else None,
             "stop_error_max_m": round(float(errors.max()), 4) if errors.size else None,
@@ -733,7 +739,16 @@ class LineSimulation:
             auth = self.cbtc.authority_end_m(train.index)
             platform_clear = st_next is not None and auth >= st_next.stop_point_m
         target = auth
-        if st_next is not None and not platform_clear:
+        # Past the station's first detector without its stop begun: the hand-over was missed (the
+        # platform was not clear when the train passed it, e.g. its authority shrank at a zone
+        # ahead and the train could not stand before the zone's start).
+        missed = st_next is not None and train.x_m >= self.first_detector_m[train.next_station]
+        if st_next is not None and missed and platform_clear:
+            # [interpretation] SPEC §1 stops only a train it takes over before its first detector;
+            # a train standing (or crawling) inside the zone is stopped at the stopping point by its
+            # own ATO, by its onboard position, rather than run through the platform.
+            target = min(auth, st_next.stop_point_m)
+        elif st_next is not None and not platform_clear:
             # The platform is not clear: the station stop cannot take the train, so its ATO
             # stops it HOLD_BACK_M before the hand-over point, from where it runs up to speed
             # again once the platform clears.
@@ -768,6 +783,12 @@ class LineSimulation:
                 train.slides += 1
             train.last_slide_s = now_s
         x_new, v_new = plant.x_m, plant.v_mps
+        stands = st_next is not None and missed and platform_clear and plant.stopped
+        if stands and st_next is not None and st_next.stop_point_m - train.x_onboard_m < ATO_STAND_M:
+            train.x_m, train.v_mps = x_new, 0.0
+            train.plant = None
+            self._stopped_by_ato(train, st_next, now_s)
+            return
         if st_next is not None:
             first = self.first_detector_m[train.next_station]
             h = handover_m(first, v_new)
@@ -836,6 +857,27 @@ class LineSimulation:
         )
         train.stop_t0_s = t0_s
         train.phase = "stopping"
+
+    def _stopped_by_ato(self, train: Train, st: Station, now_s: float) -> None:
+        """A station stop the train's own ATO made after a missed hand-over: recorded (``by_ato``),
+        then the dwell, which judges the stop like any other (SPEC §5: a correction creep, or the
+        fault path and the staff's recovery)."""
+        error = train.x_m - st.stop_point_m
+        eb = self.cbtc is not None and self.cbtc.emergency_brake(train.index)
+        self.stops.append(
+            StopRecord(
+                train=train.index,
+                station=st.name,
+                arrive_s=round(now_s, 3),
+                error_m=round(error, 4),
+                entry_speed_kmh=None,
+                emergency_brake=EbCause.CBTC.label if eb else None,
+                within_tolerance=abs(error) <= st.psd_tolerance_m,
+                by_ato=True,
+            )
+        )
+        train.phase = "stopping"
+        self._dwell(train, now_s)
 
     def _stopping(self, train: Train, now_s: float, dt: float) -> None:
         stop = train.stop
