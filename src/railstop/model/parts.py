@@ -132,20 +132,29 @@ class PlantPart:
         return self.records.state.tally[0]
 
 
-class OnboardPart:
-    """The train's onboard TASC unit for one stop (the trains process): the stop's records for the
-    station (its parameters; the draw decides nothing the onboard unit computes with)."""
+class _UnitPart:
+    """A unit's side of one stop: the stop's records for the station (its parameters; the draw
+    decides nothing the wayside or the onboard unit computes with) and the telegram it holds."""
 
     def __init__(self, model: KernelModel, scenario: Scenario) -> None:
-        self.records = r = StopRecords(model, scenario, seed=0, run=0)
-        self._cycle = compiled_for(
-            onboard_part, (r.p, r.run, r.state, 0, 0.0, 0.0, 0.0, math.nan, False, False, False)
-        )
+        self.records = StopRecords(model, scenario, seed=0, run=0)
 
     @property
     def pending(self) -> Any:
-        """The telegram the unit works with (``TEL_*``): a new one is written here before a cycle."""
+        """The telegram (``TEL_*``): the wayside's latest command as quantised for the air; the one
+        the onboard unit works with (a new one is written here before its cycle)."""
         return self.records.state.pending
+
+
+class OnboardPart(_UnitPart):
+    """The train's onboard TASC unit for one stop (the trains process)."""
+
+    def __init__(self, model: KernelModel, scenario: Scenario) -> None:
+        super().__init__(model, scenario)
+        r = self.records
+        self._cycle = compiled_for(
+            onboard_part, (r.p, r.run, r.state, 0, 0.0, 0.0, 0.0, math.nan, False, False, False)
+        )
 
     @property
     def rx(self) -> Any:
@@ -164,17 +173,13 @@ class OnboardPart:
         return float(demand), bool(braking), bool(eb)
 
 
-class WaysidePart:
+class WaysidePart(_UnitPart):
     """A station's wayside TASC unit for one stop (the stations process)."""
 
     def __init__(self, model: KernelModel, scenario: Scenario) -> None:
-        self.records = r = StopRecords(model, scenario, seed=0, run=0)
+        super().__init__(model, scenario)
+        r = self.records
         self._command = compiled_for(wayside_part, (r.p, r.run, r.state, r.out, 0, 0.0, 0.0, False, 0, 0.0))
-
-    @property
-    def pending(self) -> Any:
-        """The latest command's telegram as quantised for the air (``TEL_*``)."""
-        return self.records.state.pending
 
     @property
     def crow(self) -> Any:

@@ -360,6 +360,29 @@ class StopRecord:
     # Made by the train's own ATO after a missed hand-over (``LineSimulation._run``), not by TASC.
     by_ato: bool = False
 
+    @classmethod
+    def of(
+        cls,
+        train: int,
+        st: Station,
+        *,
+        arrive_s: float,
+        error_m: float,
+        stood: bool,
+        eb: str | None,
+        **more: Any,
+    ) -> StopRecord:
+        """A stop at ``st`` as recorded (rounded; within the station's PSD tolerance if it stood)."""
+        return cls(
+            train=train,
+            station=st.name,
+            arrive_s=round(arrive_s, 3),
+            error_m=round(error_m, 4),
+            emergency_brake=eb,
+            within_tolerance=stood and abs(error_m) <= st.psd_tolerance_m,
+            **more,
+        )
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DwellRecord:
@@ -862,17 +885,18 @@ class LineSimulation:
         """A station stop the train's own ATO made after a missed hand-over: recorded (``by_ato``),
         then the dwell, which judges the stop like any other (SPEC §5: a correction creep, or the
         fault path and the staff's recovery)."""
-        error = train.x_m - st.stop_point_m
         eb = self.cbtc is not None and self.cbtc.emergency_brake(train.index)
+        error = train.x_m - st.stop_point_m
+        cause = EbCause.CBTC.label if eb else None
         self.stops.append(
-            StopRecord(
-                train=train.index,
-                station=st.name,
-                arrive_s=round(now_s, 3),
-                error_m=round(error, 4),
+            StopRecord.of(
+                train.index,
+                st,
+                arrive_s=now_s,
+                error_m=error,
+                stood=True,
+                eb=cause,
                 entry_speed_kmh=None,
-                emergency_brake=EbCause.CBTC.label if eb else None,
-                within_tolerance=abs(error) <= st.psd_tolerance_m,
                 by_ato=True,
             )
         )
@@ -931,17 +955,15 @@ class LineSimulation:
             train.play_v = np.concatenate(([0.0], np.nan_to_num(moves[:, TR_V])))
             train.play_v[-1] = 0.0
             arrive = float(train.play_t[-1])
-        error = float(res[0, RES_ERROR])
-        stopped = bool(res[0, RES_STOPPED] > 0.0)
         self.stops.append(
-            StopRecord(
-                train=train.index,
-                station=st.name,
-                arrive_s=round(arrive, 3),
-                error_m=round(error, 4),
+            StopRecord.of(
+                train.index,
+                st,
+                arrive_s=arrive,
+                error_m=float(res[0, RES_ERROR]),
+                stood=bool(res[0, RES_STOPPED] > 0.0),
+                eb=eb_cause_name(int(res[0, RES_EB])),
                 entry_speed_kmh=round(float(stop.entry_speed_mps) / MPS_PER_KMH, 2),
-                emergency_brake=eb_cause_name(int(res[0, RES_EB])),
-                within_tolerance=stopped and abs(error) <= st.psd_tolerance_m,
                 run=stop.run,
                 entry_speed_mps=stop.entry_speed_mps,
             )
