@@ -863,7 +863,9 @@ def _tasc_step(
     error = ended.x_m - st.station.stop_point_m
     cause = onboard.eb_cause()
     eb_t = float(onboard.rx[RX_EB_T])
-    result = stop_result(st, t.k, error, True, ended.jerk_mps3, ended.stop_time_s, cause, eb_t, onboard.eb)
+    result = stop_result(
+        st, t.k, error, True, ended.jerk_mps3, ended.stop_time_s, cause, eb_t, onboard.extra_eb
+    )
     result["t_s"] = round(now_s, 2)
     if result["emergency_brake"] is not None and error < -st.station.psd_tolerance_m:
         # [interpretation] Short of the platform after an emergency brake: the train stands
