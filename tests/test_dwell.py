@@ -7,12 +7,13 @@ import sqlite3
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from railstop.config.doors import load_doors
 from railstop.errors import RailstopError, SimulationError
-from railstop.sim.dwell import DwellResult, run_dwell
+from railstop.sim.dwell import DwellResult, SteppedDwell, run_dwell
 from railstop.store import open_store
 from zygote import run_cli
 
@@ -95,6 +96,31 @@ def test_in_tolerance_order_and_times_from_data() -> None:
     # Auto: the ATC closes with DMC = 1 and DCC = 1.
     assert value_at(r, "DMC-R", doors_closing) == 1 and value_at(r, "DCC", doors_closing) == 1
     assert values(r, "start_enable")[-1] == 1
+
+
+@pytest.mark.parametrize(
+    ("error_m", "extra"),
+    [(0.1, {}), (0.8, {}), (30.0, {}), (0.0, {"obstruct_door": 2}), (0.0, {"psd_fail": 3})],
+)
+def test_a_dwell_stepped_on_a_clock_is_the_dwell_run_at_once(error_m: float, extra: dict[str, Any]) -> None:
+    """DESIGN rule 1: a driver can step a dwell on its own clock (``SteppedDwell.advance_to``, here
+    every 0.1 s as the line's clock ticks): the same events at the same instants, the same result,
+    timeline included, as ``run_dwell`` running it at once; the train's position follows the
+    correction creeps only as they end."""
+    once = run_dwell(doors=CFG, station="P", platform_side="R", stop_error_m=error_m, seed=4, **extra)
+    stepped = SteppedDwell(doors=CFG, station="P", platform_side="R", stop_error_m=error_m, seed=4, **extra)
+    positions = []
+    k = 0
+    while not stepped.advance_to(k * 0.1):
+        positions.append(stepped.error_m)
+        k += 1
+    assert stepped.ended and stepped.result() == once
+    # It ended at the first tick at or after its last event.
+    assert 0.1 * k >= once.dwell_total_s > 0.1 * (k - 1) - 1e-9
+    # The train moved only towards its stopping point, by the creeps, to where the dwell left it.
+    assert positions[0] == error_m
+    assert all(abs(b) <= abs(a) for a, b in zip(positions, positions[1:], strict=False))
+    assert round(stepped.error_m, 6) == once.final_stop_error_m
 
 
 def test_timeline_is_sorted_and_complete() -> None:

@@ -273,10 +273,11 @@ def test_a_lost_train_that_left_its_zone_is_flagged_and_its_zone_kept(tmp_path: 
     zc, zones, lost, _ = _restricted_run(tmp_path, "1:15:115")
     assert zc["flagged"] == 1, zc
     zones = [z for z in zones if z["train"] == 1]
-    assert [(z["train"], z["active"], z["status"]) for z in zones] == [
-        (1, True, "lost"),
-        (1, True, "flagged"),
-    ]
+    events = [(z["train"], z["active"], z["status"]) for z in zones]
+    assert events[:2] == [(1, True, "lost"), (1, True, "flagged")]
+    # On a loaded machine a flagged train's reports can come late enough to lose it again: its
+    # zone then grows over where it is (another "flagged" event). Never released, never cleared.
+    assert all(e == (1, True, "flagged") for e in events[2:]), events
     furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
     assert furthest > float(zones[0]["end_m"])  # type: ignore[arg-type]
 

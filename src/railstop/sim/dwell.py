@@ -196,6 +196,104 @@ def make_door_link(
     )
 
 
+class SteppedDwell:
+    """One dwell from a train that has just stopped ``stop_error_m`` from its stopping point, driven
+    by a caller's clock (:meth:`advance_to`, the dwell's time: 0 at the stand); the line steps it
+    on its own clock (DESIGN rule 1), :func:`run_dwell` runs it to its end at once.
+
+    ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
+    the platform side that is obstructed while closing (cleared later) / fails
+    to close (isolated by staff later). ``link``: the door link to use (its
+    time starts at the stop); default the door data's link drawn from ``seed``.
+    """
+
+    def __init__(
+        self,
+        *,
+        doors: DoorsConfig,
+        station: str,
+        platform_side: Side | str,
+        stop_error_m: float,
+        mode: str = "auto",
+        obstruct_door: int | None = None,
+        psd_fail: int | None = None,
+        model: DoorModel | None = None,
+        link: DoorLink | None = None,
+        seed: int = 0,
+    ) -> None:
+        if mode not in MODES:
+            raise SimulationError(f"mode: must be one of {', '.join(MODES)} (got {mode!r})")
+        if not math.isfinite(stop_error_m):
+            raise SimulationError(f"stop_error_m: must be a finite number (got {stop_error_m!r})")
+        side = Side(platform_side)
+        n = doors.doors_per_side
+        for name, unit in (("obstruct_door", obstruct_door), ("psd_fail", psd_fail)):
+            if unit is not None and not 1 <= unit <= n:
+                raise SimulationError(f"{name}: door units are numbered 1..{n} (got {unit})")
+        self._doors, self._station, self._side, self._mode = doors, station, side, mode
+        self._stop_error_m, self._obstruct_door, self._psd_fail = stop_error_m, obstruct_door, psd_fail
+        self._run = _Dwell(
+            doors=doors,
+            model=model or model_for(doors),
+            side=side,
+            stop_error_m=stop_error_m,
+            manual=mode == "manual",
+            obstruct=None if obstruct_door is None else obstruct_door - 1,
+            psd_fail=None if psd_fail is None else psd_fail - 1,
+            link=link if link is not None else make_door_link(doors, seed=seed),
+        )
+        self._run.start()
+        self._closed = False
+
+    def advance_to(self, t_s: float) -> bool:
+        """Every event of the dwell due by ``t_s`` (0: the stand); whether the dwell has ended."""
+        return self._run.advance_to(t_s)
+
+    @property
+    def ended(self) -> bool:
+        return self._run.ended
+
+    @property
+    def error_m(self) -> float:
+        """Where the train stands now from its stopping point (after the corrections so far)."""
+        return self._run.error_m
+
+    def result(self) -> DwellResult:
+        """The dwell's result (once it has ended; before, as far as it has come)."""
+        run = self._run
+        if run.ended and not self._closed:
+            run._log()  # the last instant of the timeline
+            self._closed = True
+        w = run.world
+        if run.start_enable_s is not None:
+            outcome = "start-enable"
+        elif w.stop.phase == StopPhase.FAULT:
+            outcome = "fault"
+        else:
+            outcome = "stalled"
+        tolerance = self._doors.stop_confirm.tolerance_m
+        return DwellResult(
+            station=self._station,
+            platform_side=self._side.value,
+            mode=self._mode,
+            stop_error_m=self._stop_error_m,
+            final_stop_error_m=round(run.error_m, 6),
+            tolerance_m=tolerance,
+            in_tolerance=answers_psc(self._stop_error_m, tolerance),
+            psc_attempts=run.psc_requests,
+            corrections=run.corrections,
+            fault=w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault,
+            emergency_brake=emergency_brake(w),
+            start_enable_s=run.start_enable_s,
+            dwell_total_s=_r(run.end_s),
+            outcome=outcome,
+            timeline=tuple(run.timeline),
+            obstruct_door=self._obstruct_door,
+            psd_fail=self._psd_fail,
+            link=run.link.counts,
+        )
+
+
 def run_dwell(
     *,
     doors: DoorsConfig,
@@ -209,60 +307,13 @@ def run_dwell(
     link: DoorLink | None = None,
     seed: int = 0,
 ) -> DwellResult:
-    """Simulate one dwell from a train that has just stopped ``stop_error_m`` from its stopping point.
-
-    ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
-    the platform side that is obstructed while closing (cleared later) / fails
-    to close (isolated by staff later). ``link``: the door link to use (its
-    time starts at the stop); default the door data's link drawn from ``seed``.
-    """
-    if mode not in MODES:
-        raise SimulationError(f"mode: must be one of {', '.join(MODES)} (got {mode!r})")
-    if not math.isfinite(stop_error_m):
-        raise SimulationError(f"stop_error_m: must be a finite number (got {stop_error_m!r})")
-    side = Side(platform_side)
-    n = doors.doors_per_side
-    for name, unit in (("obstruct_door", obstruct_door), ("psd_fail", psd_fail)):
-        if unit is not None and not 1 <= unit <= n:
-            raise SimulationError(f"{name}: door units are numbered 1..{n} (got {unit})")
-    run = _Dwell(
-        doors=doors,
-        model=model or model_for(doors),
-        side=side,
-        stop_error_m=stop_error_m,
-        manual=mode == "manual",
-        obstruct=None if obstruct_door is None else obstruct_door - 1,
-        psd_fail=None if psd_fail is None else psd_fail - 1,
-        link=link if link is not None else make_door_link(doors, seed=seed),
-    )
-    run.run()
-    w = run.world
-    if run.start_enable_s is not None:
-        outcome = "start-enable"
-    elif w.stop.phase == StopPhase.FAULT:
-        outcome = "fault"
-    else:
-        outcome = "stalled"
-    return DwellResult(
-        station=station,
-        platform_side=side.value,
-        mode=mode,
-        stop_error_m=stop_error_m,
-        final_stop_error_m=round(run.error_m, 6),
-        tolerance_m=doors.stop_confirm.tolerance_m,
-        in_tolerance=answers_psc(stop_error_m, doors.stop_confirm.tolerance_m),
-        psc_attempts=run.psc_requests,
-        corrections=run.corrections,
-        fault=w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault,
-        emergency_brake=emergency_brake(w),
-        start_enable_s=run.start_enable_s,
-        dwell_total_s=_r(run.end_s),
-        outcome=outcome,
-        timeline=tuple(run.timeline),
-        obstruct_door=obstruct_door,
-        psd_fail=psd_fail,
-        link=run.link.counts,
-    )
+    """Simulate one dwell to its end at once (:class:`SteppedDwell`, its arguments)."""
+    dwell = SteppedDwell(
+        doors=doors, station=station, platform_side=platform_side, stop_error_m=stop_error_m, mode=mode,
+        obstruct_door=obstruct_door, psd_fail=psd_fail, model=model, link=link, seed=seed,
+    )  # fmt: skip
+    dwell.advance_to(math.inf)
+    return dwell.result()
 
 
 def _r(t_s: float) -> float:
@@ -315,6 +366,7 @@ class _Dwell:
         )
         self.t_s = 0.0
         self.end_s = 0.0
+        self.cycles = 0
         self.queue: list[_Pending] = []
         self.seq = 0
         self.timeline: list[DwellEvent] = []
@@ -341,24 +393,32 @@ class _Dwell:
         self.psc_requests = 0
 
     # -- the loop -------------------------------------------------------------
-    def run(self) -> None:
+    def start(self) -> None:
+        """The train has just stood (t = 0): the ZVR confirms standstill a moment later."""
         self._log()
-        # The wheels have stopped at t = 0; the ZVR confirms standstill a moment later.
         self._at(self.timing.zero_speed_confirm_s, "standstill")
-        cycles = 0
-        while self.queue and not self.done:
+        self.cycles = 0
+
+    @property
+    def ended(self) -> bool:
+        """Start enable, the fault, or nothing left to happen (stalled)."""
+        return self.done or not self.queue
+
+    def advance_to(self, t_s: float) -> bool:
+        """Every event due by ``t_s`` (the dwell's clock: 0 at the stand); whether it has ended."""
+        while self.queue and not self.done and self.queue[0].t_s <= t_s:
             item = heapq.heappop(self.queue)
             if item.t_s > self.t_s:
                 # Log once per instant, what the signals settled to: the reactions at the
                 # same instant (e.g. the ATC's door signals when PSC rises) are one moment.
                 self._log()
             self.t_s = item.t_s
-            if self.t_s > _MAX_T_S or cycles > _MAX_CYCLES:
+            if self.t_s > _MAX_T_S or self.cycles > _MAX_CYCLES:
                 raise SimulationError(f"the dwell did not end within {_MAX_T_S:g} s")
-            cycles += 1
+            self.cycles += 1
             getattr(self, f"_on_{item.action}")(*item.args)
             self.end_s = self.t_s
-        self._log()
+        return self.ended
 
     def _at(self, delay_s: float, action: str, *args: Any) -> None:
         self.seq += 1
