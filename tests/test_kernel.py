@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -43,7 +44,7 @@ from railstop.model.records import (
     RES_ERROR,
     RES_STOPPED,
 )
-from railstop.model.run import SteppedStop, run_kernel, run_stepped
+from railstop.model.run import SteppedStop, compiled_for, run_kernel, run_stepped
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
 from railstop.sim.single import run_stop
@@ -230,6 +231,19 @@ def test_an_emergency_brake_from_outside_stops_a_stepped_stop_short_with_its_cau
     # Short of the stop by about what the remaining service braking would have used beyond
     # the emergency brake's distance (dead time and build-up included: a loose bound).
     assert res[0, RES_ERROR] < -0.2 * speed**2 / (2.0 * emergency)
+
+
+def test_a_callable_numba_does_not_shape_as_a_dispatcher_is_called_as_it_is() -> None:
+    """``compiled_for`` reaches past numba's dispatch with attributes numba does not document; a
+    function without them (another numba's dispatcher, a plain function) is called as it is."""
+
+    def plain(a: int, b: int) -> int:
+        return a + b
+
+    assert compiled_for(plain, (1, 2)) is plain
+    jitted = numba.njit(plain)
+    entry = compiled_for(jitted, (1, 2))  # compiled for (int64, int64): its entry point
+    assert entry is not jitted and entry(1, 2) == 3
 
 
 def _row(scenario: Scenario, i: int) -> Scenario:

@@ -243,10 +243,17 @@ def compiled_for(fn: Any, args: tuple[Any, ...]) -> Any:
     records (tuples of some 60 arrays) that costs more than the steps a line tick runs. Measured on
     this project's machine: 32 us a call through the dispatcher, 4.8 us through the entry point.
     """
-    sig = tuple(fn.typeof_pyval(a) for a in args)
-    if sig not in fn.overloads:
+    try:
+        sig = tuple(fn.typeof_pyval(a) for a in args)
+        overloads = fn.overloads
+    except AttributeError:
+        # Not a numba dispatcher as this numba version shapes them (``typeof_pyval``,
+        # ``overloads``, ``entry_point`` are its, not a documented API): the function itself,
+        # through its own dispatch (slower, the same results).
+        return fn
+    if sig not in overloads:
         fn.compile(sig)
-    return fn.overloads[sig].entry_point
+    return overloads[sig].entry_point
 
 
 class StopRecords:
