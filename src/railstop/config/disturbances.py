@@ -552,6 +552,29 @@ def draw_scenario(
     return scenario_from_values(dist, station, vehicle, values), _ordered(values)
 
 
+#: The runs of a line's draws per train: a train's stop at its ``visit``-th station (from 0) is run
+#: ``train x RUNS_PER_TRAIN + visit`` (``track_stop_run``), in the line simulation and live alike.
+RUNS_PER_TRAIN = 100
+
+
+def track_stop_run(train: int, visit: int) -> int:
+    """The run of a train's stop on a line (:data:`RUNS_PER_TRAIN`; visits past it wrap)."""
+    return train * RUNS_PER_TRAIN + visit % RUNS_PER_TRAIN
+
+
+def draw_track_stop(
+    dist: DisturbanceSet, station: Station, vehicle: Vehicle, *, seed: int, run: int, entry_speed_mps: float
+) -> Scenario:
+    """Run ``run`` of ``seed`` drawn for a train that arrives on the line: its own speed at the
+    hand-over (``entry_speed_mps``) and the station's own gradients (on a line the gradient is the
+    track's, not a draw: a campaign draws it to try the station on other tracks). The line
+    simulation and live operation draw their stops so."""
+    scenario, _ = draw_scenario(dist, station, vehicle, RunStreams.for_runs(seed, run, 1))
+    return scenario.with_values(
+        entry_speed_mps=np.array([entry_speed_mps]), gradient=station_gradient(station, 1)
+    )
+
+
 def patch_start_range(station: Station) -> tuple[float, float]:
     """Where a low-adhesion patch may start: [first detector, stopping point - 10 m] (ordered)."""
     first = station.detector_positions_m()[0]

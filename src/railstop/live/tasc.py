@@ -58,9 +58,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config import default_line, default_vehicle
-from railstop.config.disturbances import DisturbanceSet, draw_scenario
+from railstop.config.disturbances import DisturbanceSet, draw_track_stop, track_stop_run
 from railstop.config.doors import DoorsConfig, load_doors
-from railstop.config.scenario import Scenario, station_gradient
+from railstop.config.scenario import Scenario
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import handover_m
 from railstop.control.supervision import EbCause, eb_cause_name
@@ -84,7 +84,6 @@ from railstop.onboard.tasc_receiver import (
 )
 from railstop.quantities import kmh_to_mps
 from railstop.sim.engine import command_records, telegram_of
-from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import WP_FORM, SignalForm
 
 FloatArray = NDArray[np.float64]
@@ -95,8 +94,6 @@ TRAIN_TASC_BASE = 0x4000  # train k's onboard TASC unit: TRAIN_TASC_BASE + k
 TASC_DT_S = 0.01
 #: A train's radio announces itself to the station of its stop this often (association).
 HELLO_PERIOD_S = 0.25
-#: Runs of the disturbance draw per train (as the line simulation): run = train x 100 + visit.
-RUNS_PER_TRAIN = 100
 #: One reading on the sensor wire: time, radar speed (NaN: none), detector passed, detector index,
 #: passage time. A frame carries the train, the station, whether the train stands, the readings.
 _READING = struct.Struct(">d d B b d")
@@ -642,13 +639,8 @@ def draw_stop(
     """The train's vehicle and sensors for one stop: a draw of the disturbance set (the line
     simulation's run numbering: train x 100 + visit, whose random streams its sensors draw from
     too), the station's own gradients and the train's speed at the hand-over: (draw, run)."""
-    run = train * RUNS_PER_TRAIN + visit % RUNS_PER_TRAIN
-    streams = RunStreams.for_runs(seed, run, 1)
-    scenario, _ = draw_scenario(dist, st.station, vehicle, streams)
-    scenario = scenario.with_values(
-        entry_speed_mps=np.array([speed_mps]), gradient=station_gradient(st.station, 1)
-    )
-    return scenario, run
+    run = track_stop_run(train, visit)
+    return draw_track_stop(dist, st.station, vehicle, seed=seed, run=run, entry_speed_mps=speed_mps), run
 
 
 def wired_stop(

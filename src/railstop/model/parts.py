@@ -98,8 +98,8 @@ def wayside_part(
 
 class PlantPart:
     """The plant of one stop (the plant process): the train, its brakes, its sensors and the
-    station's sensors reading it, from the stop's draw; ``start_m`` / ``speed_mps``: where the
-    train is handed over (the draw's entry speed replaced by the train's own)."""
+    station's sensors reading it, from the stop's draw (its entry speed the train's own);
+    ``start_m``: where the train is handed over (None: where a campaign's run starts)."""
 
     def __init__(
         self, model: KernelModel, scenario: Scenario, *, seed: int, run: int, start_m: float | None = None

@@ -275,7 +275,6 @@ class StopRecords:
         self.run = RunParams(b.sc[0], grad, np.zeros(1, dtype=RUN_DTYPE))
         self.state = b.state
         self.out = StopOutputs(b.res[0], b.passages[0], b.rec)
-        self.run_index = run
         self.dt_s = float(model.kp[KP_DT])
         seed_keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
         stop_init(self.p, self.run, self.state, self.out, seed_keys, run)
@@ -327,6 +326,11 @@ class SteppedStop:
         return self.records.entry_speed_mps
 
     @property
+    def elapsed_s(self) -> float:
+        """The run's time after the steps done (the stand's step once it stands)."""
+        return self.steps * self.dt_s
+
+    @property
     def position_m(self) -> float:
         """The train's front (chainage) after the steps done."""
         return float(self.records.train["position_m"])
@@ -348,7 +352,7 @@ class SteppedStop:
     def emergency_brake(self) -> None:
         """Apply the emergency brake from outside the stop's units (the line's CBTC onboard unit)
         from the next step on, to the stand (:meth:`StopRecords.emergency_brake`)."""
-        self.records.emergency_brake(self.steps * self.dt_s)
+        self.records.emergency_brake(self.elapsed_s)
 
     def finish(self) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
         """``stop_finish`` (a driver's corrections at the stand included): (results (1, RES_SIZE),
@@ -367,8 +371,8 @@ def run_stepped(
     model: KernelModel, scenario: Scenario, *, seed: int, run: int, record: bool = False
 ) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
     """Run ``run`` (``scenario`` holds its draw alone) driven from Python one step at a time, as a
-    live process drives the stop (DESIGN rule 2). The same results as :func:`run_kernel`, bit for
-    bit."""
+    driver on a clock of its own may drive it (DESIGN rule 2). The same results as
+    :func:`run_kernel`, bit for bit."""
     stop = SteppedStop(model, scenario, seed=seed, run=run, record=record)
     while not stop.done:
         stop.advance(1)

@@ -198,8 +198,8 @@ def make_door_link(
 
 class SteppedDwell:
     """One dwell from a train that has just stopped ``stop_error_m`` from its stopping point, driven
-    by a caller's clock (:meth:`advance_to`, the dwell's time: 0 at the stand); the line steps it
-    on its own clock (DESIGN rule 1), :func:`run_dwell` runs it to its end at once.
+    by a caller's clock (:meth:`advance_to`, the dwell's time: 0 at the stand; DESIGN rule 1);
+    :func:`run_dwell` runs it to its end at once (as the line still does, when the train stands).
 
     ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
     the platform side that is obstructed while closing (cleared later) / fails

@@ -69,12 +69,18 @@ from typing import Any
 import numpy as np
 
 from railstop.clock import SimClock
-from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
+from railstop.config.disturbances import (
+    RUNS_PER_TRAIN,
+    DisturbanceSet,
+    draw_scenario,
+    draw_track_stop,
+    load_disturbances,
+    track_stop_run,
+)
 from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.faults import RandomOutages
 from railstop.config.media import ChannelParams
 from railstop.config.operation import Operation
-from railstop.config.scenario import station_gradient
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
     HOLD_BACK_M,
@@ -117,8 +123,6 @@ PLANNING_SHARE = 0.7
 ENTRY_MARGIN_M = 10.0
 #: The phases of a train on the line (it occupies track).
 ON_LINE = ("running", "stopping", "dwelling", "held")
-#: Runs of the disturbance draw per train: run = train x RUNS_PER_TRAIN + station index.
-RUNS_PER_TRAIN = 100
 #: The run of the random streams the line's wayside (its GNSS clocks) draws from: the last one,
 #: far from any train's.
 WAYSIDE_RUN = RUN_LIMIT - 1
@@ -806,8 +810,13 @@ class LineSimulation:
                 train.slides += 1
             train.last_slide_s = now_s
         x_new, v_new = plant.x_m, plant.v_mps
-        stands = st_next is not None and missed and platform_clear and plant.stopped
-        if stands and st_next is not None and st_next.stop_point_m - train.x_onboard_m < ATO_STAND_M:
+        if (
+            st_next is not None
+            and missed
+            and platform_clear
+            and plant.stopped
+            and st_next.stop_point_m - train.x_onboard_m < ATO_STAND_M
+        ):
             train.x_m, train.v_mps = x_new, 0.0
             train.plant = None
             self._stopped_by_ato(train, st_next, now_s)
@@ -863,13 +872,9 @@ class LineSimulation:
         """The station stop from the train's state at the hand-over point: its draw, and the stop
         model ready to be stepped on the line's clock from ``t0_s``."""
         station_index = self.line.stations.index(st)
-        run = train.index * RUNS_PER_TRAIN + station_index
-        streams = RunStreams.for_runs(self.seed, run, 1)
-        scenario, _ = draw_scenario(self.dist, st, self.vehicle, streams)
-        # The train's own speed, and the station's own gradients: on the line the gradient is
-        # the track's, not a draw (a campaign draws it to try the station on other tracks).
-        scenario = scenario.with_values(
-            entry_speed_mps=np.array([train.v_mps]), gradient=station_gradient(st, 1)
+        run = track_stop_run(train.index, station_index)
+        scenario = draw_track_stop(
+            self.dist, st, self.vehicle, seed=self.seed, run=run, entry_speed_mps=train.v_mps
         )
         train.load_factor = float(scenario.load_factor[0])
         model = self._stop_model(station_index)
@@ -903,7 +908,7 @@ class LineSimulation:
         train.phase = "stopping"
         self._dwell(train, now_s)
 
-    def _stopping(self, train: Train, now_s: float, dt: float) -> None:
+    def _stopping(self, train: Train, now_s: float) -> None:
         stop = train.stop
         if stop is not None:
             # The stop model's 10 ms steps due by now, never ahead of the line's clock: the train
@@ -928,7 +933,7 @@ class LineSimulation:
             train.stop = None
             self._stopped(train, stop)
             if train.play_t is None:
-                self._dwell(train, train.stop_t0_s + stop.steps * stop.dt_s)
+                self._dwell(train, train.stop_t0_s + stop.elapsed_s)
             return
         if now_s < train.play_t[-1]:
             # The speed too: the tachometer's log and the occupancy instants need it.
@@ -944,7 +949,7 @@ class LineSimulation:
     def _stopped(self, train: Train, stop: SteppedStop) -> None:
         """The stop's end: its record; a driver's corrections at the stand to be played."""
         res, _, rec = stop.finish()
-        t0, stand_s = train.stop_t0_s, stop.steps * stop.dt_s
+        t0, stand_s = train.stop_t0_s, stop.elapsed_s
         st = self.line.stations[train.next_station]
         arrive = t0 + stand_s
         if rec is not None and res[0, RES_RESTOPS] > 0.0:
@@ -1062,7 +1067,7 @@ class LineSimulation:
             elif train.phase == "running":
                 self._run(train, now_s, dt)
             elif train.phase == "stopping":
-                self._stopping(train, now_s, dt)
+                self._stopping(train, now_s)
             elif train.phase == "dwelling" and now_s >= train.until_s:
                 train.phase = "running"
                 self._start_plant(train, 0.0)  # it departs from a stand
