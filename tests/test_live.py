@@ -278,13 +278,16 @@ def test_a_lost_train_that_left_its_zone_is_flagged_and_its_zone_kept(tmp_path: 
     zc, zones, lost, _ = _restricted_run(tmp_path, "1:15:115")
     assert zc["flagged"] == 1, zc
     zones = [z for z in zones if z["train"] == 1]
-    events = [(z["train"], z["active"], z["status"]) for z in zones]
-    assert events[:2] == [(1, True, "lost"), (1, True, "flagged")]
-    # On a loaded machine a flagged train's reports can come late enough to lose it again: its
-    # zone then grows over where it is (another "flagged" event). Never released, never cleared.
-    assert all(e == (1, True, "flagged") for e in events[2:]), events
+    events = [(z["active"], z.get("status")) for z in zones]
+    # On a loaded machine late reports can lose the train for a moment before its outage (a zone
+    # set, then released when it reports from inside), and lose a flagged train again (its zone
+    # grows over where it is: another "flagged" event). The outage's zone is set (lost), then
+    # flagged; from the flag on it is never released.
+    flag = events.index((True, "flagged"))
+    assert flag >= 1 and events[flag - 1] == (True, "lost"), events
+    assert all(e == (True, "flagged") for e in events[flag:]), events
     furthest = max(float(s["position_m"]) for s in lost)  # type: ignore[arg-type]
-    assert furthest > float(zones[0]["end_m"])  # type: ignore[arg-type]
+    assert furthest > float(zones[flag - 1]["end_m"])  # type: ignore[arg-type]
 
 
 def _reports(db: str, kind: str) -> list[dict[str, object]]:
