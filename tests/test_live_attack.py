@@ -16,7 +16,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from railstop.config import default_line, default_vehicle
@@ -202,6 +202,9 @@ def test_a_status_for_no_train_of_this_process_makes_no_link(dst: int) -> None:
     doors = LiveDoors(
         line=default_line(), doors=load_doors(), stations=("127.0.0.1", 9), master_key=KEY, trains=2
     )
+    # The platform's own id cannot be the destination of what it sends (its sender refuses the
+    # reflection); a frame forged so is another test's (a header naming the receiver itself).
+    assume(dst != PLATFORM_BASE)
     platform = SafePeers(PLATFORM_BASE, KEY, max_age_s=1.0, peers=lambda p: True)
     doors.ingest(platform.wrap(b"\x00" * 8, dst, 1.0), 1.0)
     train = dst - TRAIN_DOORS_BASE
