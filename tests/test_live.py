@@ -166,8 +166,12 @@ def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Pa
     out = json.loads(last)
     zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
     assert zc["lost_trains"] == 1 and zc["auto_releases"] == 1 and zc["flagged"] == 0
-    assert fleet["emergency_brakes"] == {"missed-commands": 1}
-    assert [b["train"] for b in fleet["emergency_brake_times"]] == [1]
+    # Train 1 braked on its missed commands. Another train may brake for the same cause only when
+    # the controller itself fell silent: its late steps (a machine whose cores are taken) are the
+    # missed commands of every train, and braking on them is the safe answer (SPEC §4).
+    braked = [b["train"] for b in fleet["emergency_brake_times"]]
+    assert 1 in braked and set(fleet["emergency_brakes"]) == {"missed-commands"}, fleet["emergency_brakes"]
+    assert braked == [1] or zc["late_steps"] > 0, (braked, zc["late_steps"])
     assert office["stored"] == fleet["office_link"]["submitted"] + zc["office_link"]["submitted"]
     assert "radio of train 1 dead" in p.stderr and "radio of train 1 restored" in p.stderr
     with open_store(str(tmp_path / "live.db")) as store:
