@@ -13,6 +13,7 @@ import pytest
 
 from railstop.config.doors import load_doors
 from railstop.errors import RailstopError, SimulationError
+from railstop.nodes.dwell import DWELL_STEP_S
 from railstop.sim.dwell import DwellResult, SteppedDwell, run_dwell
 from railstop.store import open_store
 from zygote import run_cli
@@ -76,11 +77,11 @@ def test_in_tolerance_order_and_times_from_data() -> None:
     assert doors_open < doors_closing < doors_locked <= psd_closing < psd_locked <= r.start_enable_s
     # The durations are the data's.
     # PSC: the request goes up at standstill, the WPCS answers after its processing time, the reply
-    # comes down; each way one poll slot, the airtime and the latency of the medium.
+    # comes down; each way the medium's latency, taken at the next step of the dwell's clock.
     assert (
         T.zero_speed_confirm_s + LINK.wpcs_processing_s
         < psc
-        < T.zero_speed_confirm_s + LINK.wpcs_processing_s + 0.1
+        <= T.zero_speed_confirm_s + LINK.wpcs_processing_s + 2 * DWELL_STEP_S + 1e-9
     )
     assert psd_open - psd_opening == pytest.approx(T.psd_open_s)
     assert doors_open - doors_opening == pytest.approx(T.train_door_open_s)
@@ -88,7 +89,7 @@ def test_in_tolerance_order_and_times_from_data() -> None:
     assert doors_locked - doors_closing == pytest.approx(T.train_door_close_s + T.train_door_lock_s)
     assert psd_locked - psd_closing == pytest.approx(T.psd_close_s + T.psd_lock_s)
     # Start enable: the next status frame after the PSD locked reports it (SPEC §5 fig. 7).
-    assert psd_locked < r.start_enable_s < psd_locked + LINK.exchange_cycle_s + 0.05
+    assert psd_locked < r.start_enable_s <= psd_locked + LINK.exchange_cycle_s + 2 * DWELL_STEP_S + 1e-9
     assert r.dwell_total_s == r.start_enable_s
     # Only the platform side opens; the other side stays closed and held.
     assert set(values(r, "train_doors-L")) == {"closed_locked"}
@@ -203,11 +204,12 @@ def test_failed_psd_unit_is_isolated_by_staff() -> None:
     r = dwell(0.0, psd_fail=5)
     assert "PSD R5 jammed" in values(r, "start_blocked")
     jam = first(r, "start_blocked", "PSD R5 jammed")
-    # Start enable with the first status frame after the isolation.
+    # Start enable with the first status frame after the isolation (the train's next command, the
+    # platform's answer to it, each taken at the next step).
     assert (
         jam + T.staff_isolation_s
         < r.start_enable_s
-        < jam + T.staff_isolation_s + LINK.exchange_cycle_s + 0.05
+        <= jam + T.staff_isolation_s + LINK.exchange_cycle_s + 2 * DWELL_STEP_S + 1e-9
     )
     assert "isolated" in str(values(r, "PSD")[-1])
 

@@ -57,6 +57,7 @@ from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
+from railstop.nodes.dwell import DWELL_STEP_S
 from railstop.nodes.zone import make_zone_controller
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
 from railstop.quantities import kmh_to_mps
@@ -66,12 +67,13 @@ from railstop.wayside.zone_controller import ZoneController, ZoneMode
 # the TASC kernel; the functions that drive trains import them, so that the zone controller's
 # process (run_zone_controller) starts without them.
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
-    from railstop.live.doors import LiveDoors, TrainDoors
+    from railstop.live.doors import LiveDoors
     from railstop.live.plant import Drive, PlantPort, TrainState
     from railstop.live.tasc import FloatArray, LiveTasc, TascOnboard
+    from railstop.nodes.dwell import TrainDoors
     from railstop.onboard.cpcs import CpcsState
 
-STEP_S = 0.05  # the plant step (simulated seconds)
+STEP_S = DWELL_STEP_S  # the plant step (simulated seconds): the dwell's step, one clock (nodes.dwell)
 
 
 class UdpRadio:

@@ -1,7 +1,11 @@
 """The train at a platform: CPCS + WPCS + precise-stop confirmation wired together.
 
-This is the one wiring of the door units; both drivers use it: the exhaustive
-verifier (``verify/doors.py``) and the dwell simulation (``sim/dwell.py``).
+The verifier's wiring of the door units (``verify/doors.py`` explores every
+``World`` it can reach). The scans and the doors' own events are the
+functions here (:func:`platform_scan`, :func:`train_scan`,
+:func:`train_door_event`, :func:`psd_event`, :func:`train_doors_locked`),
+which the per-place door units of ``nodes/dwell.py`` (the dwell simulation,
+the line, live) call too: what is verified is what runs.
 A ``World`` is an immutable snapshot; ``step`` advances it by one cycle:
 
 1. one event of the outside world happens (a door finishes its move, an
@@ -116,6 +120,87 @@ class Event(NamedTuple):
 NOTHING = Event(EventKind.NONE)
 
 
+def platform_scan(
+    state: WpcsState,
+    train: TrainReport,
+    model: DoorModel,
+    *,
+    wcc_manual: bool = False,
+    panel_open: bool = False,
+    panel_close: bool = False,
+) -> tuple[WpcsState, str | None]:
+    """One WPCS scan (SPEC §5) on what the platform knows of the train; an input the unit does not
+    allow puts it in its safe state (DESIGN rule 7: nothing opens, the train is told) and is
+    returned as the interlock error. The one call of the scan: this wiring, ``nodes.dwell``."""
+    try:
+        return wpcs.scan(
+            state,
+            train,
+            wcc_manual=wcc_manual,
+            panel_open=panel_open,
+            panel_close=panel_close,
+            actions=model.actions,
+            interlocks=model.interlocks,
+            doors=model.doors,
+        ), None
+    except InterlockError as exc:
+        return wpcs.safe(state), str(exc)
+
+
+def train_scan(
+    state: CpcsState,
+    signals: DoorSignals,
+    model: DoorModel,
+    *,
+    manual: bool,
+    moving: bool,
+    psd: PsdReport | None,
+) -> tuple[CpcsState, str | None]:
+    """One CPCS scan (SPEC §5) on the train's door signals and the PSD as the link reported it;
+    an input the unit does not allow puts it in its safe state (doors held closed, emergency
+    brake), returned as the interlock error. The one call of the scan: this wiring,
+    ``nodes.dwell``."""
+    try:
+        return cpcs.scan(
+            state,
+            signals,
+            manual=manual,
+            zero_speed=not moving,
+            psd=psd,
+            actions=model.actions,
+            interlocks=model.interlocks,
+            doors=model.doors,
+        ), None
+    except InterlockError as exc:
+        return cpcs.safe(state), str(exc)
+
+
+def train_door_event(
+    state: CpcsState, side: Side, unit: int, inp: DoorInput, model: DoorModel
+) -> tuple[CpcsState, str | None]:
+    """A train door's own event (it finished moving, an obstacle, ...); one it does not allow puts
+    the CPCS in its safe state."""
+    try:
+        return cpcs.door_event(state, side, unit, inp, model.doors), None
+    except InterlockError as exc:
+        return cpcs.safe(state), str(exc)
+
+
+def psd_event(state: WpcsState, unit: int, inp: DoorInput, model: DoorModel) -> tuple[WpcsState, str | None]:
+    """A PSD unit's own event; one it does not allow puts the WPCS in its safe state."""
+    try:
+        return wpcs.door_event(state, unit, inp, model.doors), None
+    except InterlockError as exc:
+        return wpcs.safe(state), str(exc)
+
+
+def train_doors_locked(state: CpcsState, model: DoorModel) -> bool:
+    """Every train door on both sides closed and locked: the correction creep's traction
+    interlock (SPEC §3, §5: the PSD never opened, it opens only with PSC)."""
+    locked = model.interlocks.locked
+    return all(u in locked for u in state.left) and all(u in locked for u in state.right)
+
+
 def psc(world: World) -> bool:
     return world.stop.phase == StopPhase.CONFIRMED
 
@@ -157,12 +242,8 @@ def traction(world: World, model: DoorModel) -> str | None:
     phase = world.stop.phase
     if phase == StopPhase.CONFIRMED and start_enabled(world, model):
         return "depart"
-    if phase == StopPhase.CORRECTING:
-        # The correction creep: every train door closed and locked (the PSD never
-        # opened: it opens only with PSC, which this stop has not had).
-        locked = model.interlocks.locked
-        if all(u in locked for u in world.cpcs.left) and all(u in locked for u in world.cpcs.right):
-            return "creep"
+    if phase == StopPhase.CORRECTING and train_doors_locked(world.cpcs, model):
+        return "creep"  # the correction creep
     return None
 
 
@@ -200,25 +281,19 @@ def events(world: World, model: DoorModel) -> list[Event]:
 def apply_event(world: World, event: Event, model: DoorModel) -> tuple[World, str | None]:
     """Step 1 of a cycle; an input a unit does not allow puts that unit in its safe state."""
     kind = event.kind
-    try:
-        if kind == EventKind.NONE:
-            return world, None
-        if kind == EventKind.TRAIN_DOOR:
-            if event.side is None or event.door_input is None:
-                raise InterlockError(f"event {event}: a train door event needs a side and an input")
-            return world._replace(
-                cpcs=cpcs.door_event(world.cpcs, event.side, event.unit, event.door_input, model.doors)
-            ), None
-        if kind == EventKind.PSD:
-            if event.door_input is None:
-                raise InterlockError(f"event {event}: a PSD event needs an input")
-            return world._replace(
-                wpcs=wpcs.door_event(world.wpcs, event.unit, event.door_input, model.doors)
-            ), None
-    except InterlockError as exc:
-        if kind == EventKind.PSD:
-            return world._replace(wpcs=wpcs.safe(world.wpcs)), str(exc)
-        return world._replace(cpcs=cpcs.safe(world.cpcs)), str(exc)
+    if kind == EventKind.NONE:
+        return world, None
+    if kind == EventKind.TRAIN_DOOR:
+        if event.side is None or event.door_input is None:
+            why = f"event {event}: a train door event needs a side and an input"
+            return world._replace(cpcs=cpcs.safe(world.cpcs)), why
+        c_state, error = train_door_event(world.cpcs, event.side, event.unit, event.door_input, model)
+        return world._replace(cpcs=c_state), error
+    if kind == EventKind.PSD:
+        if event.door_input is None:
+            return world._replace(wpcs=wpcs.safe(world.wpcs)), f"event {event}: a PSD event needs an input"
+        w_state, error = psd_event(world.wpcs, event.unit, event.door_input, model)
+        return world._replace(wpcs=w_state), error
     try:
         if kind in (EventKind.STOP_IN, EventKind.STOP_OUT):
             if not world.moving:
@@ -277,19 +352,14 @@ def scan_units(
             # one, on the train's own signals of this cycle.
             own = world.cpcs.side(side)
             train = view if view is not None else TrainReport(controls.signals, controls.manual, own)
-            try:
-                w_state = wpcs.scan(
-                    w_state,
-                    train,
-                    wcc_manual=controls.wcc_manual,
-                    panel_open=controls.panel_open,
-                    panel_close=controls.panel_close,
-                    actions=model.actions,
-                    interlocks=model.interlocks,
-                    doors=model.doors,
-                )
-            except InterlockError as exc:
-                w_state, error = wpcs.safe(w_state), str(exc)
+            w_state, error = platform_scan(
+                w_state,
+                train,
+                model,
+                wcc_manual=controls.wcc_manual,
+                panel_open=controls.panel_open,
+                panel_close=controls.panel_close,
+            )
             if memo is not None and w_key is not None:
                 memo[w_key] = (w_state, error)
     c_key = ("cpcs", controls.signals, controls.manual, w_state)
@@ -297,20 +367,14 @@ def scan_units(
     if cached is not None:
         c_state, c_error = cached  # type: ignore[misc]
     else:
-        c_state, c_error = world.cpcs, None
-        try:
-            c_state = cpcs.scan(
-                c_state,
-                controls.signals,
-                manual=controls.manual,
-                zero_speed=not world.moving,
-                psd=w_state.report() if confirmed else None,
-                actions=model.actions,
-                interlocks=model.interlocks,
-                doors=model.doors,
-            )
-        except InterlockError as exc:
-            c_state, c_error = cpcs.safe(c_state), str(exc)
+        c_state, c_error = train_scan(
+            world.cpcs,
+            controls.signals,
+            model,
+            manual=controls.manual,
+            moving=world.moving,
+            psd=w_state.report() if confirmed else None,
+        )
         if memo is not None:
             memo[c_key] = (c_state, c_error)
     error = c_error or error

@@ -1,83 +1,66 @@
-"""A station dwell in event time: arrival -> PSC -> open -> dwell -> close -> start enable.
+"""A station dwell in simulated time: arrival -> PSC -> open -> dwell -> close -> start enable.
 
-The driver wires the pure door units (through ``nodes/doors.step``, the
-same wiring the verifier proves) to a clock and to the people who act on
-them: the ATC's door sequence in automatic mode, the driver's door-side
-selector and buttons in manual mode (SPEC §5), the doors' own motion times,
-an obstacle, a PSD unit that fails to close and the staff who isolate it.
-Every duration comes from ``railstop/data/doors.toml``.
+The dwell is the door units by place of ``nodes.dwell`` (the one wiring that the line and the
+live processes run too: the train's :class:`~railstop.nodes.dwell.TrainDoors`, the platform's
+:class:`~railstop.nodes.dwell.PlatformDoors`), stepped on one clock by
+:class:`~railstop.nodes.dwell.DwellRun` every ``DWELL_STEP_S`` (the live plant's step), with
+the door link of SPEC §5 between them (:class:`~railstop.link.door_link.DoorLink`: codec +
+EN 50159 safety layer + a medium of ``media.toml``, the ``[link]`` section of the door data).
+In automatic mode the train's ATC works the doors, in manual mode the driver's door-side
+selector and buttons (SPEC §5); the doors move in the door data's times; an obstacle, a PSD
+unit that fails to close and the staff who isolate it are the injected faults. So:
 
-The train and the platform talk over the door link of SPEC §5
-(:class:`~railstop.link.door_link.DoorLink`: codec + EN 50159 safety layer +
-a medium of ``media.toml``, the ``[link]`` section of the door data). From
-the PSC request on, each end sends its telegram every exchange cycle: the
-train a ``door-command`` (its door signals, PSC requested or held), the
-platform, once it has answered, a ``psd-status`` (PSC, PSD closed and locked,
-start enable). So:
-
-* PSC goes high when the WPCS's reply *arrives*: a request whose replies are
-  all lost (or never sent: the WPCS answers only a train its stop sensors see
-  in position) times out like a train out of position (SPEC §5);
+* PSC goes high when the WPCS's reply *arrives*: a request whose replies are all lost (or never
+  sent: the WPCS answers only a train its stop sensors see in position) times out like a train
+  out of position (SPEC §5);
 * with PSC high, the train supervises the status frames: none valid for
-  ``supervision_timeout_s`` is a lost link, fault and emergency brake
-  ([interpretation], see ``onboard/stop_confirm.py``);
-* start enable is given when a status frame reports the PSD closed and locked
-  after the train's own doors are (SPEC §5 fig. 7: the PSD state reaches the
-  train over the link, and counts only while PSC is high);
-* the WPCS acts on the train's last ``door-command`` frame (its door signals,
-  its mode, which of its doors are closed and locked), scanning as each one
-  arrives: the PSD opens and closes on what the link carried, a lost frame
-  delays it, and before the first frame the platform knows no door signal and
-  no door locked (the most restrictive view).
+  ``supervision_timeout_s`` is a lost link, fault and emergency brake ([interpretation], see
+  ``onboard/stop_confirm.py``);
+* start enable is given when a status frame reports the PSD closed and locked after the
+  train's own doors are (SPEC §5 fig. 7);
+* the WPCS acts on the train's last ``door-command`` frame (its door signals, its mode, which
+  of its doors are closed and locked): the PSD opens and closes on what the link carried.
 
-Nothing here reads a clock: time is a number the driver advances from one
-scheduled event to the next, and the result is a timeline of
-``(t_s, signal, value)`` events.
+Nothing here reads a clock: time is a number the driver advances, and the result is a
+timeline of ``(t_s, signal, value)`` events, each signal logged when it changes (times on the
+step's grid).
 """
 
 from __future__ import annotations
 
-import heapq
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from railstop.config.doors import DoorsConfig
-from railstop.control.doors import (
-    DoorInput,
-    DoorSignals,
-    DoorState,
-    Side,
-    all_open,
-    motion_s,
-    summarise,
-    units_from_link,
-)
+from railstop.config.media import ChannelParams
+from railstop.control.doors import DoorState, Side, summarise
 from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
-from railstop.link.codec import DoorCommand, PsdStatus
-from railstop.link.door_link import DoorLink, DoorLinkCounts, command_signals, door_command, psd_status
-from railstop.nodes.doors import (
-    Controls,
-    DoorModel,
-    Event,
-    EventKind,
-    World,
-    emergency_brake,
-    psc,
-    start_blockers,
-    start_enabled,
-    step,
-)
+from railstop.link.door_link import DoorLink, DoorLinkCounts
+from railstop.nodes.doors import DoorModel
+from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, PlatformDoors, TrainDoors, model_for
+from railstop.onboard import cpcs
 from railstop.onboard.stop_confirm import StopPhase
 from railstop.streams import Stream, seed_u64
-from railstop.wayside.wpcs import TrainReport, answers_psc
+from railstop.wayside.wpcs import answers_psc
+
+__all__ = [
+    "MODES",
+    "SIGNALS",
+    "DwellEvent",
+    "DwellResult",
+    "SteppedDwell",
+    "make_door_link",
+    "model_for",
+    "run_dwell",
+]
 
 MODES = ("auto", "manual")
-_MAX_CYCLES = 100_000
-_MAX_T_S = 3600.0
+#: A dwell that has neither given start enable nor faulted by then is "stalled" (a result).
+MAX_DWELL_S = 3600.0
 
 # The signals of the timeline, in the order they are logged at one instant.
 SIGNALS: tuple[str, ...] = (
@@ -157,10 +140,6 @@ class DwellResult:
         }
 
 
-def model_for(doors: DoorsConfig) -> DoorModel:
-    return DoorModel(actions=doors.actions, max_psc_attempts=doors.stop_confirm.max_psc_attempts)
-
-
 def make_door_link(
     doors: DoorsConfig,
     *,
@@ -169,17 +148,19 @@ def make_door_link(
     counter: int = 0,
     loss_probability: float | None = None,
     outage: tuple[float, float] | None = None,
+    medium: ChannelParams | None = None,
 ) -> DoorLink:
     """The door link of the door data's ``[link]`` section for one dwell.
 
     Its random generator is a function of (seed, stream, train, counter) only
     (DESIGN rule 7): ``counter`` numbers the dwells of one train.
     ``loss_probability`` overrides the medium's per-frame loss (both ways);
-    ``outage`` = (start_s, end_s) loses every frame sent in between (fault injection).
+    ``outage`` = (start_s, end_s) loses every frame sent in between (fault injection);
+    ``medium``: this medium instead of the door data's.
     """
     cfg = doors.link
     try:
-        params = media_preset(cfg.medium)
+        params = media_preset(cfg.medium) if medium is None else medium
     except ConfigError as exc:  # the bad name is in the door data, not in the media file
         raise ConfigError(doors.source, "link.medium", exc.message, cfg.medium) from None
     if loss_probability is not None:
@@ -199,12 +180,12 @@ def make_door_link(
 class SteppedDwell:
     """One dwell from a train that has just stopped ``stop_error_m`` from its stopping point, driven
     by a caller's clock (:meth:`advance_to`, the dwell's time: 0 at the stand; DESIGN rule 1);
-    :func:`run_dwell` runs it to its end at once (as the line still does, when the train stands).
+    :func:`run_dwell` runs it to its end at once (as the line does, when the train stands).
 
-    ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on
-    the platform side that is obstructed while closing (cleared later) / fails
-    to close (isolated by staff later). ``link``: the door link to use (its
-    time starts at the stop); default the door data's link drawn from ``seed``.
+    ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on the platform side
+    that is obstructed while closing (cleared later) / fails to close (isolated by staff later).
+    ``link``: the door link to use (its time starts at the stop); default the door data's link
+    drawn from ``seed``. A dwell that has not ended by ``MAX_DWELL_S`` is "stalled".
     """
 
     def __init__(
@@ -232,42 +213,56 @@ class SteppedDwell:
                 raise SimulationError(f"{name}: door units are numbered 1..{n} (got {unit})")
         self._doors, self._station, self._side, self._mode = doors, station, side, mode
         self._stop_error_m, self._obstruct_door, self._psd_fail = stop_error_m, obstruct_door, psd_fail
-        self._run = _Dwell(
-            doors=doors,
-            model=model or model_for(doors),
+        model = model or model_for(doors)
+        self.link = link if link is not None else make_door_link(doors, seed=seed)
+        self.platform = PlatformDoors(index=0, name=station, side=side, doors=doors, model=model)
+        if psd_fail is not None:
+            self.platform.jam(psd_fail - 1)
+        self.train = TrainDoors(
+            train=self.link.train_id,
+            station=0,
+            station_name=station,
             side=side,
-            stop_error_m=stop_error_m,
+            error_m=stop_error_m,
+            doors=doors,
+            model=model,
+            t0_s=0.0,
             manual=mode == "manual",
             obstruct=None if obstruct_door is None else obstruct_door - 1,
-            psd_fail=None if psd_fail is None else psd_fail - 1,
-            link=link if link is not None else make_door_link(doors, seed=seed),
         )
-        self._run.start()
-        self._closed = False
+        self.run = DwellRun(self.train, self.platform, self.link, t0_s=0.0, step_s=DWELL_STEP_S)
+        self.timeline: list[DwellEvent] = []
+        self._last: dict[str, int | float | str] = {}
+        self._last_key: tuple[Any, ...] | None = None
+        self.end_s = 0.0
+        self._log(0.0)
 
     def advance_to(self, t_s: float) -> bool:
-        """Every event of the dwell due by ``t_s`` (0: the stand); whether the dwell has ended."""
-        return self._run.advance_to(t_s)
+        """Every step of the dwell due by ``t_s`` (0: the stand); whether the dwell has ended."""
+        run = self.run
+        while not self.ended and run.t_s <= t_s + 1e-9:
+            t = run.t_s
+            run.step()
+            self.end_s = t
+            self._log(t)
+        return self.ended
 
     @property
     def ended(self) -> bool:
-        return self._run.ended
+        """Start enable, the fault, or ``MAX_DWELL_S`` without either (stalled)."""
+        return self.train.done or self.run.t_s > MAX_DWELL_S
 
     @property
     def error_m(self) -> float:
         """Where the train stands now from its stopping point (after the corrections so far)."""
-        return self._run.error_m
+        return self.train.error_m
 
     def result(self) -> DwellResult:
         """The dwell's result (once it has ended; before, as far as it has come)."""
-        run = self._run
-        if run.ended and not self._closed:
-            run._log()  # the last instant of the timeline
-            self._closed = True
-        w = run.world
-        if run.start_enable_s is not None:
+        train, wp = self.train, self.platform.state
+        if train.start_enable_s is not None:
             outcome = "start-enable"
-        elif w.stop.phase == StopPhase.FAULT:
+        elif train.fault is not None:
             outcome = "fault"
         else:
             outcome = "stalled"
@@ -277,21 +272,104 @@ class SteppedDwell:
             platform_side=self._side.value,
             mode=self._mode,
             stop_error_m=self._stop_error_m,
-            final_stop_error_m=round(run.error_m, 6),
+            final_stop_error_m=round(train.error_m, 6),
             tolerance_m=tolerance,
             in_tolerance=answers_psc(self._stop_error_m, tolerance),
-            psc_attempts=run.psc_requests,
-            corrections=run.corrections,
-            fault=w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault,
-            emergency_brake=emergency_brake(w),
-            start_enable_s=run.start_enable_s,
-            dwell_total_s=_r(run.end_s),
+            psc_attempts=train.psc_requests,
+            corrections=train.corrections,
+            fault=train.fault is not None or train.cpcs.fault or wp.fault,
+            emergency_brake=train.emergency_brake,
+            start_enable_s=None if train.start_enable_s is None else _r(train.start_enable_s),
+            dwell_total_s=_r(self.end_s),
             outcome=outcome,
-            timeline=tuple(run.timeline),
+            timeline=tuple(self.timeline),
             obstruct_door=self._obstruct_door,
             psd_fail=self._psd_fail,
-            link=run.link.counts,
+            link=self.link.counts,
         )
+
+    # -- the timeline -----------------------------------------------------------------
+    def _snapshot(self) -> dict[str, int | float | str]:
+        train, wp = self.train, self.platform.state
+        s = train.signals
+        phase = train.stop.phase
+        confirmed = phase == StopPhase.CONFIRMED
+        blocked = "-"
+        if train.closing and train.start_enable_s is None:
+            # What withholds start enable, as an observer who sees both ends sees it.
+            bad = [
+                b
+                for b in cpcs.start_blockers(
+                    train.cpcs,
+                    wp.report() if confirmed else None,
+                    psc=confirmed,
+                    emergency_brake=train.emergency_brake,
+                    interlocks=train.model.interlocks,
+                )
+                if b.endswith((DoorState.OBSTRUCTED.value, DoorState.JAMMED.value)) or "fault" in b
+            ]
+            blocked = "; ".join(bad) if bad else "-"
+        if train.link_lost:
+            link = "lost"
+        elif phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED):
+            link = "exchange"
+        else:
+            link = "-"
+        creeping = train.creep_left_m > 0.0
+        return {
+            "speed_mps": round(abs(train.creep_mps), 3),
+            "ZVR": int(not train.moving),
+            "stop_error_m": round(train.error_m, 3),
+            "lamp": train.lamp,
+            "PSC_request": train.stop.attempts if phase == StopPhase.PSC_WAIT else 0,
+            "PSC": int(confirmed),
+            "creep": train.lamp if creeping else "-",
+            "DMC-L": int(s.dmc_l),
+            "DMC-R": int(s.dmc_r),
+            "DOA-L": int(s.doa_l),
+            "DOA-R": int(s.doa_r),
+            "DOC": int(s.doc),
+            "DCC": int(s.dcc),
+            "PSD": summarise(wp.units, f"{wp.side.value}"),
+            "train_doors-L": summarise(train.cpcs.left, "L"),
+            "train_doors-R": summarise(train.cpcs.right, "R"),
+            "start_blocked": blocked,
+            # Given when a status frame reports the PSD closed and locked (SPEC §5 fig. 7).
+            "start_enable": int(train.start_enable_s is not None),
+            "fault": int(train.fault is not None or train.cpcs.fault or wp.fault),
+            "emergency_brake": int(train.emergency_brake),
+            "interlock_error": train.interlock_error or self.platform.interlock_error or "-",
+            "link": link,
+        }
+
+    def _log(self, t_s: float) -> None:
+        train = self.train
+        # Most steps change nothing logged: skip the snapshot then.
+        key = (
+            train.stop,
+            train.cpcs,
+            train.signals,
+            train.lamp,
+            train.moving,
+            train.creep_left_m > 0.0,
+            train.error_m,
+            train.closing,
+            train.start_enable_s,
+            train.fault,
+            train.link_lost,
+            self.platform.state,
+            self.platform.interlock_error,
+        )
+        if key == self._last_key:
+            return
+        self._last_key = key
+        snap = self._snapshot()
+        t = _r(t_s)
+        for name in SIGNALS:
+            value = snap[name]
+            if name not in self._last or self._last[name] != value:
+                self.timeline.append(DwellEvent(t_s=t, signal=name, value=value))
+                self._last[name] = value
 
 
 def run_dwell(
@@ -318,430 +396,3 @@ def run_dwell(
 
 def _r(t_s: float) -> float:
     return round(t_s, 3)
-
-
-@dataclass(order=True)
-class _Pending:
-    t_s: float
-    seq: int
-    action: str = field(compare=False)
-    args: tuple[Any, ...] = field(compare=False, default=())
-
-
-class _Dwell:
-    def __init__(
-        self,
-        *,
-        doors: DoorsConfig,
-        model: DoorModel,
-        side: Side,
-        stop_error_m: float,
-        manual: bool,
-        obstruct: int | None,
-        psd_fail: int | None,
-        link: DoorLink,
-    ) -> None:
-        self.cfg = doors
-        self.link = link
-        self.lcfg = doors.link
-        self.timing = doors.timing
-        self.sc = doors.stop_confirm
-        self.model = model
-        self.side = side
-        self.manual = manual
-        self.obstruct = obstruct
-        self.psd_fail = psd_fail
-        self.error_m = stop_error_m
-        self.world = World.arriving(platform_side=side, doors_per_side=doors.doors_per_side)
-        # The platform knows the train only from its door-command frames: nothing yet (no door
-        # signal, no door known locked: the most restrictive view).
-        self.controls = Controls(
-            signals=DoorSignals(),
-            manual=manual,
-            platform_view=TrainReport(
-                signals=DoorSignals(),
-                manual=manual,
-                doors=units_from_link(doors.doors_per_side, locked_mask=0),
-            ),
-        )
-        self.t_s = 0.0
-        self.end_s = 0.0
-        self.cycles = 0
-        self.queue: list[_Pending] = []
-        self.seq = 0
-        self.timeline: list[DwellEvent] = []
-        self.last: dict[str, int | float | str] = {}
-        self.last_key: tuple[Any, ...] | None = None
-        self.gen: dict[tuple[str, int], int] = {}
-        self.speed_mps = 0.0
-        self.creep = "-"
-        self.lamp = "-"
-        self.corrections = 0
-        self.doors_open = False
-        self.closing = False
-        self.start_enable_s: float | None = None
-        self.done = False
-        self.injected: set[str] = set()
-        self.interlock_error = "-"
-        # The door link (SPEC §5): the exchange runs while PSC is requested or high.
-        self.exchanging = False
-        self.link_state = "-"
-        self.platform_psc = False  # the WPCS has answered this train's PSC request
-        self.platform_answering = False
-        self.arrivals: set[float] = set()  # "arrive" wake-ups already scheduled
-        self.start_ready = False  # the train's own start conditions hold; waiting for the PSD status
-        self.psc_requests = 0
-
-    # -- the loop -------------------------------------------------------------
-    def start(self) -> None:
-        """The train has just stood (t = 0): the ZVR confirms standstill a moment later."""
-        self._log()
-        self._at(self.timing.zero_speed_confirm_s, "standstill")
-        self.cycles = 0
-
-    @property
-    def ended(self) -> bool:
-        """Start enable, the fault, or nothing left to happen (stalled)."""
-        return self.done or not self.queue
-
-    def advance_to(self, t_s: float) -> bool:
-        """Every event due by ``t_s`` (the dwell's clock: 0 at the stand); whether it has ended."""
-        while self.queue and not self.done and self.queue[0].t_s <= t_s:
-            item = heapq.heappop(self.queue)
-            if item.t_s > self.t_s:
-                # Log once per instant, what the signals settled to: the reactions at the
-                # same instant (e.g. the ATC's door signals when PSC rises) are one moment.
-                self._log()
-            self.t_s = item.t_s
-            if self.t_s > _MAX_T_S or self.cycles > _MAX_CYCLES:
-                raise SimulationError(f"the dwell did not end within {_MAX_T_S:g} s")
-            self.cycles += 1
-            getattr(self, f"_on_{item.action}")(*item.args)
-            self.end_s = self.t_s
-        return self.ended
-
-    def _at(self, delay_s: float, action: str, *args: Any) -> None:
-        self.seq += 1
-        heapq.heappush(self.queue, _Pending(self.t_s + delay_s, self.seq, action, args))
-
-    def _cycle(self, event: Event | None = None, signals: DoorSignals | None = None) -> None:
-        """One cycle of the wired units (the event, the WPCS, the CPCS), then the reactions."""
-        if signals is not None:
-            self.controls = self.controls._replace(signals=signals)
-        before = self.world
-        self.world, errors = step(before, self.controls, event or Event(EventKind.NONE), self.model)
-        if errors:
-            self.interlock_error = errors[0]
-        self._schedule_doors(before, self.world)
-        self._react(before)
-
-    def _side_signals(
-        self, *, doa: bool | None = None, dmc: bool | None = None, **others: bool
-    ) -> DoorSignals:
-        return self.controls.signals.with_side(self.side, doa=doa, dmc=dmc)._replace(**others)
-
-    # -- door motion ------------------------------------------------------------
-    def _schedule_doors(self, before: World, after: World) -> None:
-        t = self.timing
-        pairs = [
-            ("train-" + s.value, i, u0, u1)
-            for s in (Side.L, Side.R)
-            for i, (u0, u1) in enumerate(zip(before.cpcs.side(s), after.cpcs.side(s), strict=True))
-        ]
-        pairs += [
-            ("psd", i, u0, u1)
-            for i, (u0, u1) in enumerate(zip(before.wpcs.units, after.wpcs.units, strict=True))
-        ]
-        for group, i, u0, u1 in pairs:
-            if u0 == u1:
-                continue
-            key = (group, i)
-            gen = self.gen.get(key, 0) + 1
-            self.gen[key] = gen
-            psd = group == "psd"
-            motion = motion_s(t, u1, psd=psd)
-            if motion is not None:
-                self._at(motion, "door", group, i, gen, DoorInput.DONE)
-            on_platform = psd or group == "train-" + self.side.value
-            # The abnormal cases: an obstacle in a closing train door, a PSD unit that jams.
-            if not psd and on_platform and i == self.obstruct:
-                if u1 == DoorState.CLOSING and "obstruct" not in self.injected:
-                    self.injected.add("obstruct")
-                    self._at(t.obstruction_at_s, "door", group, i, gen, DoorInput.OBSTRUCT)
-                elif u1 == DoorState.OBSTRUCTED:
-                    self._at(t.obstruction_clear_s, "door", group, i, gen, DoorInput.CLEAR)
-            if psd and i == self.psd_fail:
-                if u1 == DoorState.CLOSING and "jam" not in self.injected:
-                    self.injected.add("jam")
-                    self._at(t.psd_jam_at_s, "door", group, i, gen, DoorInput.JAM)
-                elif u1 == DoorState.JAMMED:
-                    self._at(t.staff_isolation_s, "door", group, i, gen, DoorInput.ISOLATE)
-
-    def _on_door(self, group: str, unit: int, gen: int, inp: DoorInput) -> None:
-        if self.gen.get((group, unit)) != gen:
-            return  # the door has moved on since: a stale completion
-        if group == "psd":
-            event = Event(EventKind.PSD, self.world.wpcs.side, unit, inp)
-        else:
-            event = Event(EventKind.TRAIN_DOOR, Side(group.removeprefix("train-")), unit, inp)
-        self._cycle(event)
-
-    # -- precise-stop confirmation (SPEC §5) -----------------------------------------
-    def _on_standstill(self) -> None:
-        tol = self.sc.tolerance_m
-        kind = EventKind.STOP_IN if answers_psc(self.error_m, tol) else EventKind.STOP_OUT
-        self._cycle(Event(kind))
-
-    def _on_psc_timeout(self, attempt: int) -> None:
-        w = self.world
-        if w.stop.phase == StopPhase.PSC_WAIT and w.stop.attempts == attempt:
-            self._cycle(Event(EventKind.PSC_TIMEOUT))
-
-    # -- the door link (SPEC §5) ------------------------------------------------------
-    def _start_exchange(self) -> None:
-        if not self.exchanging:
-            self.exchanging = True
-            self.link_state = "exchange"
-            self._at(0.0, "tick")
-
-    def _command(self) -> DoorCommand:
-        return door_command(
-            self.link.train_id,
-            self.controls.signals,
-            psc=self.world.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED),
-            automatic=not self.manual,
-            doors=self.world.cpcs.side(self.side),
-        )
-
-    def _status(self) -> PsdStatus:
-        wp = self.world.wpcs
-        return psd_status(
-            self.link.train_id,
-            wp.units,
-            fault=wp.fault,
-            psc=self.platform_psc,
-            manual=self.controls.wcc_manual,
-            locked=self.model.interlocks.locked,
-        )
-
-    def _expect_arrival(self) -> None:
-        t = self.link.next_arrival_s()
-        if t is not None and t not in self.arrivals:
-            self.arrivals.add(t)
-            self._at(max(t - self.t_s, 0.0), "arrive", t)
-
-    def _on_tick(self) -> None:
-        """One exchange cycle: the train's command up, the platform's status down."""
-        phase = self.world.stop.phase
-        if phase not in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED):
-            self.exchanging = False
-            self.link_state = "-"
-            return
-        if phase == StopPhase.CONFIRMED and self.link.train_timed_out(self.t_s):
-            self.link_state = "lost"
-            self._cycle(Event(EventKind.LINK_LOST))
-            return
-        self.link.send_command(self._command(), self.t_s)
-        if self.platform_psc:
-            self.link.send_status(self._status(), self.t_s)
-        self._expect_arrival()
-        self._at(self.lcfg.exchange_cycle_s, "tick")
-
-    def _on_arrive(self, t: float) -> None:
-        self.arrivals.discard(t)
-        for r in self.link.deliver(self.t_s):
-            if self.done:
-                break
-            if r.to == "platform" and isinstance(r.telegram, DoorCommand):
-                self._platform_receives(r.telegram)
-            elif r.to == "train" and isinstance(r.telegram, PsdStatus):
-                self._train_receives(r.telegram)
-        self._expect_arrival()
-
-    def _platform_receives(self, cmd: DoorCommand) -> None:
-        # SPEC §5: what the WPCS knows of the train is this frame; it scans on it at once.
-        view = TrainReport(
-            signals=command_signals(cmd),
-            manual=not cmd.automatic,
-            doors=units_from_link(self.cfg.doors_per_side, locked_mask=cmd.doors_locked),
-        )
-        if view != self.controls.platform_view:
-            self.controls = self.controls._replace(platform_view=view)
-            self._cycle()
-        if not cmd.psc:
-            self.platform_psc = False
-            return
-        # SPEC §5: the WPCS answers only a train its stop sensors see in position.
-        if (
-            not self.platform_psc
-            and not self.platform_answering
-            and answers_psc(self.error_m, self.sc.tolerance_m)
-        ):
-            self.platform_answering = True
-            self._at(self.lcfg.wpcs_processing_s, "platform_answer")
-
-    def _on_platform_answer(self) -> None:
-        self.platform_answering = False
-        if answers_psc(self.error_m, self.sc.tolerance_m):
-            self.platform_psc = True
-            self.link.send_status(self._status(), self.t_s)
-            self._expect_arrival()
-
-    def _train_receives(self, status: PsdStatus) -> None:
-        w = self.world
-        if status.psc and w.stop.phase == StopPhase.PSC_WAIT:
-            self._cycle(Event(EventKind.PSC_REPLY))  # SPEC §5: the reply makes PSC high
-        elif self.start_ready and status.psc and status.psd_closed_locked and status.start_enable:
-            self._give_start_enable()
-
-    def _on_move(self) -> None:
-        self._cycle(Event(EventKind.MOVE))
-
-    def _on_creep_end(self, distance_m: float) -> None:
-        self.error_m -= math.copysign(distance_m, self.error_m)
-        self.speed_mps = 0.0
-        self.creep = "-"
-        self._at(self.timing.zero_speed_confirm_s, "standstill")
-
-    # -- the ATC (automatic) or the driver (manual) ----------------------------------------
-    def _on_signals(self, changes: dict[str, bool]) -> None:
-        s = self.controls.signals
-        for name, value in changes.items():
-            if name == "doa":
-                s = s.with_side(self.side, doa=value)
-            elif name == "dmc":
-                s = s.with_side(self.side, dmc=value)
-            else:
-                s = s._replace(**{name: value})
-        self._cycle(signals=s)
-
-    def _on_dwell_end(self) -> None:
-        self.closing = True
-        if self.manual:
-            # The driver: door-side selector off and the close button (manual column of the table).
-            self._on_signals({"doa": False, "dcc": True})
-        else:
-            # SPEC §5: close when DMC = 1 and DCC = 1.
-            self._on_signals({"dmc": True, "dcc": True})
-
-    def _react(self, before: World) -> None:
-        w = self.world
-        t = self.timing
-        phase, was = w.stop.phase, before.stop.phase
-        if phase != was:
-            if phase == StopPhase.PSC_WAIT:
-                # SPEC §5: standstill confirmed -> PSC request over the link; no reply within
-                # the time-out = not in position.
-                self.psc_requests += 1
-                self._start_exchange()
-                self._at(t.psc_timeout_s, "psc_timeout", w.stop.attempts)
-            elif phase == StopPhase.CORRECTING:
-                # SPEC §3 lamps: F = stopped short, move forward; R = passed, reverse.
-                self.lamp = "F" if self.error_m < 0 else "R"
-                self._at(t.driver_action_s if self.manual else 0.0, "move")
-            elif phase == StopPhase.CONFIRMED:
-                self.lamp = "OK"
-                # SPEC §5: with PSC the ATC releases DMC on the platform side (vital, both modes) ...
-                if self.manual:
-                    self._at(0.0, "signals", {"dmc": False})
-                    # ... the driver turns the door-side selector (DOA), then presses open (DOC).
-                    self._at(t.driver_action_s, "signals", {"doa": True})
-                    self._at(2 * t.driver_action_s, "signals", {"doc": True})
-                else:
-                    # ... and gives DOA and DOC for that side.
-                    self._at(0.0, "signals", {"dmc": False, "doa": True, "doc": True})
-            elif phase == StopPhase.FAULT:
-                self.done = True
-            if phase == StopPhase.CORRECTING:
-                self.platform_psc = False  # the train moves away from the PSC it asked for
-        if w.moving and not before.moving and phase == StopPhase.CORRECTING:
-            distance = min(abs(self.error_m), self.sc.creep_max_m)
-            self.corrections += 1
-            self.speed_mps = self.sc.creep_speed_mps
-            self.creep = self.lamp
-            self._at(distance / self.sc.creep_speed_mps + self.sc.creep_settle_s, "creep_end", distance)
-        if not self.doors_open and self._platform_doors_open():
-            self.doors_open = True
-            # Doors open: the ATC drops DOC (the driver releases the button); the dwell runs.
-            self._at(0.0, "signals", {"doc": False})
-            self._at(t.dwell_s, "dwell_end")
-        # Start enable after the doors have closed again (it is also high on arrival,
-        # before anything opened, but the dwell is not over then). The train's side holds
-        # now; the PSD's reaches the train with the next status frame (SPEC §5 fig. 7).
-        self.start_ready = self.closing and self.start_enable_s is None and start_enabled(w, self.model)
-
-    def _give_start_enable(self) -> None:
-        self.start_enable_s = _r(self.t_s)
-        self.lamp = "S"
-        self.done = True
-        # The door commands are released; in manual the ATC raises DMC again for the run.
-        if self.manual:
-            self.controls = self.controls._replace(signals=self._side_signals(dmc=True, dcc=False))
-        else:
-            self.controls = self.controls._replace(signals=self._side_signals(doa=False, dcc=False))
-
-    def _platform_doors_open(self) -> bool:
-        return all_open(self.world.cpcs.side(self.side))
-
-    # -- the timeline -----------------------------------------------------------------
-    def _snapshot(self) -> dict[str, int | float | str]:
-        w = self.world
-        s = self.controls.signals
-        blocked = "-"
-        if self.closing and self.start_enable_s is None:
-            bad = [
-                b
-                for b in start_blockers(w, self.model)
-                if b.endswith((DoorState.OBSTRUCTED.value, DoorState.JAMMED.value)) or "fault" in b
-            ]
-            blocked = "; ".join(bad) if bad else "-"
-        return {
-            "speed_mps": round(self.speed_mps, 3),
-            "ZVR": int(not w.moving),
-            "stop_error_m": round(self.error_m, 3),
-            "lamp": self.lamp,
-            "PSC_request": w.stop.attempts if w.stop.phase == StopPhase.PSC_WAIT else 0,
-            "PSC": int(psc(w)),
-            "creep": self.creep,
-            "DMC-L": int(s.dmc_l),
-            "DMC-R": int(s.dmc_r),
-            "DOA-L": int(s.doa_l),
-            "DOA-R": int(s.doa_r),
-            "DOC": int(s.doc),
-            "DCC": int(s.dcc),
-            "PSD": summarise(w.wpcs.units, f"{w.wpcs.side.value}"),
-            "train_doors-L": summarise(w.cpcs.left, "L"),
-            "train_doors-R": summarise(w.cpcs.right, "R"),
-            "start_blocked": blocked,
-            # Given when a status frame reports the PSD closed and locked (SPEC §5 fig. 7).
-            "start_enable": int(self.start_enable_s is not None),
-            "fault": int(w.stop.phase == StopPhase.FAULT or w.cpcs.fault or w.wpcs.fault),
-            "emergency_brake": int(emergency_brake(w)),
-            "interlock_error": self.interlock_error,
-            "link": self.link_state,
-        }
-
-    def _log(self) -> None:
-        # Most instants are link frames that change nothing logged: skip the snapshot then.
-        key = (
-            self.world,
-            self.controls,
-            self.lamp,
-            self.creep,
-            self.speed_mps,
-            self.error_m,
-            self.closing,
-            self.start_enable_s,
-            self.interlock_error,
-            self.link_state,
-        )
-        if key == self.last_key:
-            return
-        self.last_key = key
-        snap = self._snapshot()
-        t = _r(self.t_s)
-        for name in SIGNALS:
-            value = snap[name]
-            if self.last.get(name) != value or name not in self.last:
-                self.timeline.append(DwellEvent(t_s=t, signal=name, value=value))
-                self.last[name] = value
