@@ -4,18 +4,26 @@ trains and their protection zones, re-detection, the conventional baseline, faul
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from railstop.clock import SimClock
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
 from railstop.errors import SimulationError
+from railstop.link.cbtc_radio import TRAIN_BASE, ZC_ADDRESS, CbtcEndpoint, CbtcRadio
+from railstop.link.channel import media_preset
+from railstop.messages import MovementCommand, OnboardPosition, Output, PositionReport
+from railstop.nodes.train import make_onboard_cbtc
+from railstop.nodes.zone import make_zone_controller
 from railstop.sim.line import LineSimulation
+from railstop.wayside.zone_controller import ZoneMode
 
 LINE = default_line()
 VEHICLE = default_vehicle()
@@ -277,3 +285,87 @@ def test_a_train_past_its_first_detector_when_the_platform_clears_is_stopped_not
     # By its onboard position, within a metre and a half of the stopping point; the dwell judged it.
     assert abs(stop.error_m) < 1.5
     assert any(d.train == 2 and d.station == stop.station for d in result.dwells)
+
+
+class _LiveCarrier:
+    """The radio as live operation carries it, without the sockets: the zone controller's and the
+    trains' ends built as the live processes build them (their own key, the operation's trains
+    only, a start time), each frame taken by the peer's end at once."""
+
+    name = "air"
+    accepts = (PositionReport, MovementCommand)
+
+    def __init__(self, trains: int) -> None:
+        key = bytes(range(32))
+        self.zc = CbtcEndpoint.zone_controller(key, trains=trains, started_s=0.0)
+        self.ends = {k: CbtcEndpoint.train(k, key, name=f"radio-{k}", started_s=0.0) for k in range(trains)}
+
+    def handle(self, message: object, now_s: float) -> list[Output]:
+        if isinstance(message, PositionReport):
+            end = self.ends[message.train_id]
+        elif isinstance(message, MovementCommand):
+            end = self.zc
+        else:
+            return []
+        end.handle(message, now_s)
+        out: list[Output] = []
+        for frame, peer in end.outgoing:
+            if peer == ZC_ADDRESS:
+                out += self.zc.ingest(frame, now_s, to=lambda _k: "zc")
+            else:
+                k = peer - TRAIN_BASE
+                out += self.ends[k].ingest(frame, now_s, to=lambda _k, k=k: f"cbtc-{k}")  # type: ignore[misc]
+        end.outgoing.clear()
+        return out
+
+    def next_deadline_s(self) -> float | None:
+        return None
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        return []
+
+
+def _exchange(radio: object, uplink: str, trains: int = 3) -> list[tuple[float, ...]]:
+    """Three trains running at 15 m/s, 700 m apart, for 60 s under one zone controller and their
+    onboard units over ``radio``; every 0.1 s each train's authority end, permitted speed and
+    emergency brake, and the controller's counts at the end."""
+    zc = make_zone_controller(LINE, VEHICLE, ZoneMode.MINIMAL)
+    zc.downlink = radio.name  # type: ignore[attr-defined]
+    onboard = [make_onboard_cbtc(LINE, VEHICLE, k, uplink=uplink) for k in range(trains)]
+    for unit in onboard:
+        unit.active = True
+    clock = SimClock([zc, radio, *onboard], step_s=0.1)  # type: ignore[list-item]
+    seen: list[tuple[float, ...]] = []
+
+    def plant(now_s: float, step_s: float) -> list[Output]:
+        for unit in onboard:
+            seen.append((now_s, unit.authority_end_m, unit.permitted_mps(), float(unit.emergency_brake)))
+        pos = [
+            OnboardPosition(position_m=1900.0 - 700.0 * k + 15.0 * now_s, speed_mps=15.0, uncertainty_m=2.0)
+            for k in range(trains)
+        ]
+        return [Output(to=u.name, message=p) for u, p in zip(onboard, pos, strict=True)]
+
+    clock.run(60.0, plant)
+    c = zc.counts
+    seen.append((c.reports, c.commands, c.lost))
+    return seen
+
+
+def test_the_line_and_live_radios_carry_the_same_exchange() -> None:
+    """DESIGN rule 1 parity (a CBTC report/command exchange): the zone controller and the onboard
+    units of the line and of live operation (``nodes.zone``, ``nodes.train``), their telegrams
+    through the same endpoint (``link.cbtc_radio.CbtcEndpoint``): over the line's simulated radio
+    with a medium that loses nothing and takes no time, and with the frames carried as live
+    carries them (the live processes' ends, their own key), every train's authority, permitted
+    speed and emergency brake are the same at every step, and so are the controller's counts."""
+    ideal = media_preset("cbtc-radio").replace(
+        cycle_s=0.0, latency_s=0.0, jitter_s=0.0, loss_probability=0.0, bit_error_rate=0.0,
+        burst_enter_probability=0.0, bit_rate_bps=1e300,
+    )  # fmt: skip
+    line = _exchange(CbtcRadio(params=ideal, seed=0), uplink="radio")
+    live = _exchange(_LiveCarrier(3), uplink="air")
+    assert [tuple(map(repr, row)) for row in live] == [tuple(map(repr, row)) for row in line]  # NaN too
+    reports, commands, lost = line[-1]
+    assert reports > 3 * 60 / LINE.cbtc.report_period_s - 10 and commands >= reports - 3 and lost == 0
+    assert all(math.isfinite(row[1]) for row in line[-100:-1])  # every train holds an authority

@@ -826,6 +826,25 @@ def test_live_links_refuse_the_built_in_demonstration_keys(purpose: str) -> None
     assert check_master_key(bytearray(MASTER)) == MASTER
 
 
+def test_only_the_simulated_radio_may_run_on_a_demonstration_key() -> None:
+    """The CBTC radio's endpoint is one for the line and live (``CbtcEndpoint``): built as live
+    builds it, it refuses the demonstration key; only a simulation's end says ``simulated`` (the
+    line's ``CbtcRadio``), and no module of the live processes or the command line ever does."""
+    from pathlib import Path
+
+    import railstop
+    from railstop.link import cbtc_radio
+
+    with pytest.raises(LinkConfigError, match="demonstration key"):
+        cbtc_radio.CbtcEndpoint.zone_controller(cbtc_radio._DEMO_MASTER, trains=3)
+    with pytest.raises(LinkConfigError, match="demonstration key"):
+        cbtc_radio.CbtcEndpoint.train(0, cbtc_radio._DEMO_MASTER)
+    root = Path(railstop.__file__).parent
+    sources = [*(root / "live").glob("*.py"), *(root / "cli").glob("*.py")]
+    assert sources and not [p.name for p in sources if "simulated=True" in p.read_text()]
+    assert "simulated=True" in (root / "link" / "cbtc_radio.py").read_text()
+
+
 def test_simulated_links_keep_their_demonstration_keys() -> None:
     """The simulations go on with their built-in keys (the same bytes as before they were named)."""
     import hashlib

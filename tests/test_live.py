@@ -717,12 +717,11 @@ class _Radios:
     def __init__(self, epoch: float, zc_port: str, trains: int) -> None:
         import socket
 
-        from railstop.link.cbtc_radio import TRAIN_BASE
-        from railstop.live.cbtc import UdpRadio
+        from railstop.link.cbtc_radio import TRAIN_BASE, CbtcEndpoint
 
         self.epoch, self.zc = epoch, ("127.0.0.1", int(zc_port))
         key = bytes.fromhex(KEY)
-        self.radios = {k: UdpRadio(own_id=TRAIN_BASE + k, master_key=key) for k in range(trains)}
+        self.radios = {k: CbtcEndpoint(own_id=TRAIN_BASE + k, master_key=key) for k in range(trains)}
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.02)

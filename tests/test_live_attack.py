@@ -21,10 +21,9 @@ from hypothesis import strategies as st
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.doors import load_doors
-from railstop.link.cbtc_radio import TRAIN_BASE, ZC_ADDRESS, to_telegram
+from railstop.link.cbtc_radio import TRAIN_BASE, ZC_ADDRESS, CbtcEndpoint, to_telegram
 from railstop.link.codec import encode
 from railstop.link.safety import SafePeers
-from railstop.live.cbtc import UdpRadio
 from railstop.live.doors import PLATFORM_BASE, TRAIN_DOORS_BASE, LiveDoors
 from railstop.messages import MovementCommand, PositionReport
 
@@ -129,7 +128,7 @@ def test_a_train_radio_refuses_a_frame_sent_before_its_process_started() -> None
     """The trains' and the zone controller's radios take ``started_s``: a command sent before it is
     refused (``old_session``), one sent after is delivered."""
     zc = SafePeers(ZC_ADDRESS, KEY, max_age_s=1.0, peers=lambda p: True)
-    radio = UdpRadio(own_id=TRAIN_BASE, master_key=KEY, started_s=100.0, peers=lambda p: p == ZC_ADDRESS)
+    radio = CbtcEndpoint(own_id=TRAIN_BASE, master_key=KEY, started_s=100.0, peers=lambda p: p == ZC_ADDRESS)
     cmd = MovementCommand(
         train_id=0,
         authority_m=300.0,
@@ -160,7 +159,7 @@ def test_a_command_frame_sent_to_the_zone_controller_is_refused_and_counted() ->
     counts: dict[str, object] = {}
     try:
         addr = ("127.0.0.1", int(line.split("127.0.0.1:")[1].split()[0]))
-        radio = UdpRadio(own_id=TRAIN_BASE, master_key=KEY, peers=lambda p: p == ZC_ADDRESS)
+        radio = CbtcEndpoint(own_id=TRAIN_BASE, master_key=KEY, peers=lambda p: p == ZC_ADDRESS)
         cmd = MovementCommand(
             train_id=0,
             authority_m=1e4,

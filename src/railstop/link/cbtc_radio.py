@@ -1,16 +1,18 @@
-"""The CBTC train radio of SPEC §4 as a unit: reports up, commands down, as frames on a medium.
+"""The CBTC train radio of SPEC §4: its endpoint and the simulated radio of every train.
 
-Each train has its own link, one :class:`~railstop.link.channel.SimChannel`
-per direction. A :class:`~railstop.messages.PositionReport` handed to the
-radio becomes a ``cbtc-report`` codec frame in an EN 50159 safety frame
-(category 3: radio is an open system, SPEC §5 "needs security"; a key per
-train and direction) and reaches the zone controller when the medium
-delivers it and the safety layer and the codec accept it; a
-:class:`~railstop.messages.MovementCommand` goes down the same way as a
-``cbtc-command``. What the medium loses never arrives; what the safety layer
-refuses is counted by reason. An outage (a train's radio dead from
-``start_s`` to ``end_s``, fault data) loses every frame sent in it, both
-ways.
+:class:`CbtcEndpoint` is one end (the zone controller's or a train's): a
+:class:`~railstop.messages.PositionReport` handed to a train's end becomes a
+``cbtc-report`` codec frame in an EN 50159 safety frame (category 3: radio is
+an open system, SPEC §5 "needs security"; a key per train and direction), a
+:class:`~railstop.messages.MovementCommand` handed to the controller's end a
+``cbtc-command``; a frame received becomes the message again when the safety
+layer and the codec accept it (what they refuse is counted by reason). Live
+operation carries the frames over UDP (``live.cbtc``); :class:`CbtcRadio`
+carries them over a simulated medium, one
+:class:`~railstop.link.channel.SimChannel` per train and direction, between
+the same ends. What the medium loses never arrives. An outage (a train's
+radio dead from ``start_s`` to ``end_s``, fault data) loses every frame sent
+in it, both ways.
 
 A unit of the scheduler (DESIGN rule 5: the link is a unit between two
 others): ``handle`` takes a message, ``next_deadline_s`` is the next
@@ -21,6 +23,7 @@ direction from (seed, stream, train, direction) (DESIGN rule 7).
 from __future__ import annotations
 
 import heapq
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -28,13 +31,21 @@ import numpy as np
 
 from railstop.config.media import ChannelParams
 from railstop.link.channel import SimChannel
-from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
-from railstop.link.safe_channel import SafeChannel
-from railstop.link.safety import SafeReceiver, SafeSender, demo_master_key, link_key, sum_counts
+from railstop.link.codec import CbtcCommand, CbtcReport, Telegram, TelegramError, decode, encode
+from railstop.link.safety import SafePeers, demo_master_key, sum_counts
 from railstop.messages import Message, MovementCommand, Output, PositionReport
 from railstop.streams import Stream, seed_u64
 
-__all__ = ["MAX_AGE_S", "TRAIN_BASE", "ZC_ADDRESS", "CbtcRadio", "RadioCounts", "to_message", "to_telegram"]
+__all__ = [
+    "MAX_AGE_S",
+    "TRAIN_BASE",
+    "ZC_ADDRESS",
+    "CbtcEndpoint",
+    "CbtcRadio",
+    "RadioCounts",
+    "to_message",
+    "to_telegram",
+]
 
 ZC_ADDRESS = 0x0300  # the zone controller's safety-layer id
 TRAIN_BASE = 0x2000  # train k's safety-layer id is TRAIN_BASE + k
@@ -54,9 +65,135 @@ class RadioCounts:
     rejected: dict[str, int]  # by the safety layer / codec, by reason
 
 
+class CbtcEndpoint:
+    """One end of the CBTC radio (SPEC §4): the zone controller's or a train's. Messages handed to
+    it become category-3 frames to send (``outgoing``: (frame, peer id)); frames received become
+    messages (:meth:`ingest`). Pure: whoever holds it carries the frames, a simulated medium
+    (:class:`CbtcRadio`) or UDP sockets (``live.cbtc``). The one endpoint of this radio.
+
+    ``started_s``: when this end (its process) started on the run's clock; frames sent before it
+    are refused (``old_session``: a previous incarnation may have delivered them, EN 50159
+    repetition across restarts). ``peers``: the safety-layer ids that may be heard (default: the
+    zone controller and any train). ``expects``: the one message type this end takes (a zone
+    controller takes reports, a train commands); any other is refused and counted
+    (``unexpected-type``), never a crash (DESIGN rule 9). ``simulated``: a simulation's end, which
+    may use the built-in demonstration key (``link.safety.SafePeers``)."""
+
+    def __init__(
+        self,
+        *,
+        own_id: int,
+        master_key: bytes,
+        name: str = "radio",
+        started_s: float | None = None,
+        peers: Callable[[int], bool] | None = None,
+        expects: type[Message] | None = None,
+        max_age_s: float = MAX_AGE_S,
+        simulated: bool = False,
+    ) -> None:
+        self.name = name
+        self.accepts: tuple[type, ...] = (PositionReport, MovementCommand)
+        self.own_id = own_id
+        self.expects = expects
+        self.outgoing: list[tuple[bytes, int]] = []  # (frame, peer id)
+        self.links = SafePeers(
+            own_id,
+            master_key,
+            max_age_s=max_age_s,
+            peers=peers or (lambda p: p == ZC_ADDRESS or TRAIN_BASE <= p < TRAIN_BASE + 0x1000),
+            started_s=started_s,
+            simulated=simulated,
+        )
+
+    @classmethod
+    def zone_controller(
+        cls,
+        master_key: bytes,
+        *,
+        trains: int = 0x1000,
+        name: str = "radio",
+        started_s: float | None = None,
+        max_age_s: float = MAX_AGE_S,
+        simulated: bool = False,
+    ) -> CbtcEndpoint:
+        """The zone controller's end: it hears trains 0 .. ``trains`` - 1 and takes their reports."""
+        return cls(
+            own_id=ZC_ADDRESS, master_key=master_key, name=name, started_s=started_s,
+            peers=lambda p: TRAIN_BASE <= p < TRAIN_BASE + trains, expects=PositionReport,
+            max_age_s=max_age_s, simulated=simulated,
+        )  # fmt: skip
+
+    @classmethod
+    def train(
+        cls,
+        train_id: int,
+        master_key: bytes,
+        *,
+        name: str = "radio",
+        started_s: float | None = None,
+        max_age_s: float = MAX_AGE_S,
+        simulated: bool = False,
+    ) -> CbtcEndpoint:
+        """Train ``train_id``'s end: it hears the zone controller and takes its commands."""
+        return cls(
+            own_id=TRAIN_BASE + train_id, master_key=master_key, name=name, started_s=started_s,
+            peers=lambda p: p == ZC_ADDRESS, expects=MovementCommand, max_age_s=max_age_s,
+            simulated=simulated,
+        )  # fmt: skip
+
+    def handle(self, message: Message, now_s: float) -> list[Output]:
+        tele = to_telegram(message)
+        if tele is None:
+            return []
+        peer = ZC_ADDRESS if isinstance(message, PositionReport) else TRAIN_BASE + tele.train_id
+        try:
+            payload = encode(tele)
+        except TelegramError as exc:
+            # A value the telegram cannot carry: nothing is sent (the peer sees a missed telegram,
+            # which its supervision handles).
+            self.links.reject(f"encode-{exc.reason}")
+            return []
+        self.outgoing.append((self.links.wrap(payload, peer, now_s), peer))
+        return []
+
+    def next_deadline_s(self) -> float | None:
+        return None
+
+    def on_timer(self, now_s: float) -> list[Output]:
+        return []
+
+    def ingest(self, frame: bytes, now_s: float, *, to: Callable[[int], str]) -> list[Output]:
+        """A received frame: the message it carries for the unit ``to(train_id)`` names, or nothing
+        (refused frames are counted by reason)."""
+        got = self.links.accept(frame, now_s)
+        if got is None:
+            return []
+        try:
+            tele = decode(got[1].payload)
+        except TelegramError as exc:
+            self.links.reject(f"telegram-{exc.reason}")
+            return []
+        msg = to_message(tele)
+        if msg is None or (self.expects is not None and not isinstance(msg, self.expects)):
+            # SPEC §4: reports go up, commands come down; a command sent to the zone controller
+            # (or a report to a train), even under a valid MAC, is refused and counted.
+            self.links.reject("unexpected-type")
+            return []
+        if TRAIN_BASE + msg.train_id not in (got[0], self.own_id):
+            # [interpretation] A telegram names the train whose link carries it: a report from
+            # train k's radio is about train k, a command to train k's radio is for train k. A key
+            # holder's frame naming another train is refused (EN 50159 masquerade, DESIGN rule 10).
+            self.links.reject("train-mismatch")
+            return []
+        return [Output(to=to(msg.train_id), message=msg)]
+
+
 @dataclass(slots=True)
 class CbtcRadio:
-    """The radio of every train. ``outages``: per train index, (start_s, end_s) windows."""
+    """The radio of every train on a simulated medium: the zone controller's
+    :class:`CbtcEndpoint` and one per train (the same ends live operation runs over UDP), and
+    between them one :class:`~railstop.link.channel.SimChannel` per train and direction.
+    ``outages``: per train index, (start_s, end_s) windows in which every frame sent is lost."""
 
     params: ChannelParams
     seed: int
@@ -67,60 +204,80 @@ class CbtcRadio:
     accepts: tuple[type, ...] = (PositionReport, MovementCommand)
     reports_delivered: int = 0
     commands_delivered: int = 0
-    unexpected: int = 0  # a telegram of the wrong type for its direction
-    _links: dict[tuple[int, str], SafeChannel] = field(default_factory=dict)
+    outage_lost: int = 0
+    _zc: CbtcEndpoint | None = None
+    _trains: dict[int, CbtcEndpoint] = field(default_factory=dict)
+    _media: dict[tuple[int, str], SimChannel] = field(default_factory=dict)
+    _sent: dict[str, int] = field(default_factory=lambda: {"up": 0, "down": 0})
     _arrivals: list[tuple[float, int, str]] = field(default_factory=list)
     _scheduled: dict[tuple[int, str], float] = field(default_factory=dict)  # the live heap entry
 
-    def _end(self, train_id: int, direction: str) -> SafeChannel:
-        key = (train_id, direction)
-        end = self._links.get(key)
+    def _zc_end(self) -> CbtcEndpoint:
+        if self._zc is None:
+            self._zc = CbtcEndpoint.zone_controller(
+                _DEMO_MASTER, name=self.zc_name, max_age_s=self.max_age_s, simulated=True
+            )
+        return self._zc
+
+    def _train_end(self, train_id: int) -> CbtcEndpoint:
+        end = self._trains.get(train_id)
         if end is None:
-            train_addr = TRAIN_BASE + train_id
-            src, dst = (train_addr, ZC_ADDRESS) if direction == "up" else (ZC_ADDRESS, train_addr)
-            k = link_key(_DEMO_MASTER, src, dst)
+            end = CbtcEndpoint.train(
+                train_id, _DEMO_MASTER, name=f"cbtc-{train_id}", max_age_s=self.max_age_s, simulated=True
+            )
+            self._trains[train_id] = end
+        return end
+
+    def _medium(self, train_id: int, direction: str) -> SimChannel:
+        key = (train_id, direction)
+        medium = self._media.get(key)
+        if medium is None:
             entropy = [
                 int(seed_u64(self.seed)),
                 int(Stream.CBTC_RADIO),
                 int(train_id),
                 int(direction == "down"),
             ]
-            end = SafeChannel(
-                sender=SafeSender(src, dst, key=k, category=3),
-                channel=SimChannel(self.params, np.random.default_rng(np.random.SeedSequence(entropy))),
-                receiver=SafeReceiver(dst, src, key=k, category=3, max_age_s=self.max_age_s, timeout_s=1e9),
-                outages=tuple(self.outages.get(train_id, ())),
-            )
-            self._links[key] = end
-        return end
+            medium = SimChannel(self.params, np.random.default_rng(np.random.SeedSequence(entropy)))
+            self._media[key] = medium
+        return medium
+
+    def _ends(self) -> list[CbtcEndpoint]:
+        return ([self._zc] if self._zc is not None else []) + list(self._trains.values())
 
     @property
     def counts(self) -> RadioCounts:
-        rejected = sum_counts(end.rejected for end in self._links.values())
-        if self.unexpected:
-            rejected["unexpected-type"] = self.unexpected
-        ends = self._links.items()
+        rejected = sum_counts(end.links.rejected for end in self._ends())
         return RadioCounts(
-            reports_sent=sum(e.sent for (_, d), e in ends if d == "up"),
+            reports_sent=self._sent["up"],
             reports_delivered=self.reports_delivered,
-            commands_sent=sum(e.sent for (_, d), e in ends if d == "down"),
+            commands_sent=self._sent["down"],
             commands_delivered=self.commands_delivered,
-            lost=sum(e.lost for e in self._links.values()),
+            lost=sum(m.stats.lost for m in self._media.values()) + self.outage_lost,
             rejected=rejected,
         )
 
     def handle(self, message: Message, now_s: float) -> list[Output]:
-        tele = to_telegram(message)
-        if tele is None or not isinstance(message, PositionReport | MovementCommand):
+        if isinstance(message, PositionReport):
+            train_id, direction, end = message.train_id, "up", self._train_end(message.train_id)
+        elif isinstance(message, MovementCommand):
+            train_id, direction, end = message.train_id, "down", self._zc_end()
+        else:
             return []
-        direction = "up" if isinstance(tele, CbtcReport) else "down"
-        end = self._end(message.train_id, direction)
-        if end.send(tele, now_s):
-            self._schedule(message.train_id, direction, end)
+        self._sent[direction] += 1
+        end.handle(message, now_s)
+        frames, end.outgoing = end.outgoing, []
+        for frame, _peer in frames:
+            if any(a <= now_s < b for a, b in self.outages.get(train_id, ())):
+                self.outage_lost += 1  # fault injection: nothing gets through
+                continue
+            medium = self._medium(train_id, direction)
+            medium.send(frame, now_s)
+            self._schedule(train_id, direction, medium)
         return []
 
-    def _schedule(self, train_id: int, direction: str, end: SafeChannel) -> None:
-        arrival = end.channel.next_arrival_s()
+    def _schedule(self, train_id: int, direction: str, medium: SimChannel) -> None:
+        arrival = medium.next_arrival_s()
         key = (train_id, direction)
         if arrival is not None and arrival < self._scheduled.get(key, float("inf")):
             self._scheduled[key] = arrival
@@ -136,18 +293,17 @@ class CbtcRadio:
             if self._scheduled.get((train_id, direction)) != when:
                 continue  # superseded by an earlier arrival on the same link
             del self._scheduled[(train_id, direction)]
-            end = self._links[(train_id, direction)]
-            for tele in end.receive(now_s):
-                msg = to_message(tele)
-                if isinstance(msg, PositionReport) and direction == "up":
-                    self.reports_delivered += 1
-                    out.append(Output(to=self.zc_name, message=msg))
-                elif isinstance(msg, MovementCommand) and direction == "down":
-                    self.commands_delivered += 1
-                    out.append(Output(to=f"cbtc-{msg.train_id}", message=msg))
+            medium = self._media[(train_id, direction)]
+            end = self._zc_end() if direction == "up" else self._train_end(train_id)
+            to = self.zc_name if direction == "up" else f"cbtc-{train_id}"
+            for frame in medium.receive(now_s):
+                got = end.ingest(frame, now_s, to=lambda _k: to)  # noqa: B023 (used at once)
+                if direction == "up":
+                    self.reports_delivered += len(got)
                 else:
-                    self.unexpected += 1
-            self._schedule(train_id, direction, end)
+                    self.commands_delivered += len(got)
+                out.extend(got)
+            self._schedule(train_id, direction, medium)
         return out
 
 

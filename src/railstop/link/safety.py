@@ -527,7 +527,8 @@ class SafePeers:
     beyond them is refused, ``too_many_peers``: it stays unheard and its own supervision acts,
     DESIGN rule 10). ``started_s``: when this party (its process) started; its receivers refuse
     frames sent before it (``old_session``: the module docstring's restart rule). None: no such
-    floor. The master key must be a live key (:func:`check_master_key`).
+    floor. The master key must be a live key (:func:`check_master_key`) unless ``simulated`` (a
+    link of a simulation over a simulated medium, where a demonstration key is allowed).
     """
 
     def __init__(
@@ -540,6 +541,7 @@ class SafePeers:
         max_peers: int = MAX_PEERS,
         started_s: float | None = None,
         future_tolerance_s: float = 0.2,
+        simulated: bool = False,
     ) -> None:
         _check_id("own_id", own_id)
         if not callable(peers):
@@ -550,7 +552,9 @@ class SafePeers:
             if _check_time(name, value) < 0.0:
                 raise LinkConfigError(f"{name}: must be >= 0 (got {value!r})")
         self.own_id = own_id
-        self.master_key = check_master_key(master_key)
+        # A simulated link (no attacker: the line simulation's radio) may run on a built-in
+        # demonstration key; every live link passes the check (``simulated`` is never set there).
+        self.master_key = bytes(master_key) if simulated else check_master_key(master_key)
         self.max_age_s = float(max_age_s)
         self.future_tolerance_s = float(future_tolerance_s)
         self.max_peers = max_peers

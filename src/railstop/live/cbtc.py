@@ -49,15 +49,15 @@ from railstop.config.schema import Line, Vehicle
 from railstop.control.line_ato import HOLD_BACK_M, LOOKAHEAD_S, profile_at, static_profile
 from railstop.control.supervision import EbCause
 from railstop.errors import RailstopError
-from railstop.link.cbtc_radio import MAX_AGE_S, TRAIN_BASE, ZC_ADDRESS, to_message, to_telegram
-from railstop.link.codec import TelegramError, decode, encode
+from railstop.link.cbtc_radio import TRAIN_BASE, CbtcEndpoint
 from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_key
-from railstop.link.safety import SafePeers, frame_ids, sum_counts
+from railstop.link.safety import frame_ids, sum_counts
 from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.office import OfficeClient
-from railstop.messages import Message, MovementCommand, OnboardPosition, Output, PositionReport
+from railstop.messages import OnboardPosition, Output, PositionReport
 from railstop.nodes.dwell import DWELL_STEP_S
+from railstop.nodes.train import make_onboard_cbtc
 from railstop.nodes.zone import make_zone_controller
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
 from railstop.quantities import kmh_to_mps
@@ -74,79 +74,6 @@ if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process wi
     from railstop.onboard.cpcs import CpcsState
 
 STEP_S = DWELL_STEP_S  # the plant step (simulated seconds): the dwell's step, one clock (nodes.dwell)
-
-
-class UdpRadio:
-    """The train radio as a unit at one end of real sockets: messages handed to it become frames to
-    send (``outgoing``); frames received become messages (``ingest``). Pure: the driver sends."""
-
-    def __init__(
-        self,
-        *,
-        own_id: int,
-        master_key: bytes,
-        name: str = "radio",
-        started_s: float | None = None,
-        peers: Callable[[int], bool] | None = None,
-        expects: type[Message] | None = None,
-    ) -> None:
-        """``started_s``: when this process started on the run's clock; frames sent before it are
-        refused (``old_session``: a previous incarnation of the process may have delivered them,
-        EN 50159 repetition across restarts). ``peers``: the safety-layer ids that may be heard
-        (default: the zone controller and any train). ``expects``: the one message type this end
-        takes (a zone controller takes reports, a train commands); any other is refused and
-        counted (``unexpected-type``), never a crash (DESIGN rule 9)."""
-        self.name = name
-        self.accepts: tuple[type, ...] = (PositionReport, MovementCommand)
-        self.own_id = own_id
-        self.expects = expects
-        self.outgoing: list[tuple[bytes, int]] = []  # (frame, peer id)
-        self.links = SafePeers(
-            own_id,
-            master_key,
-            max_age_s=MAX_AGE_S,
-            peers=peers or (lambda p: p == ZC_ADDRESS or TRAIN_BASE <= p < TRAIN_BASE + 0x1000),
-            started_s=started_s,
-        )
-
-    def handle(self, message: Message, now_s: float) -> list[Output]:
-        tele = to_telegram(message)
-        if tele is None:
-            return []
-        peer = ZC_ADDRESS if isinstance(message, PositionReport) else TRAIN_BASE + tele.train_id
-        self.outgoing.append((self.links.wrap(encode(tele), peer, now_s), peer))
-        return []
-
-    def next_deadline_s(self) -> float | None:
-        return None
-
-    def on_timer(self, now_s: float) -> list[Output]:
-        return []
-
-    def ingest(self, frame: bytes, now_s: float, *, to: Callable[[int], str]) -> list[Output]:
-        """A received frame: the message it carries for the unit ``to(train_id)`` names, or nothing
-        (refused frames are counted by reason)."""
-        got = self.links.accept(frame, now_s)
-        if got is None:
-            return []
-        try:
-            tele = decode(got[1].payload)
-        except TelegramError as exc:
-            self.links.reject(f"telegram-{exc.reason}")
-            return []
-        msg = to_message(tele)
-        if msg is None or (self.expects is not None and not isinstance(msg, self.expects)):
-            # SPEC §4: reports go up, commands come down; a command sent to the zone controller
-            # (or a report to a train), even under a valid MAC, is refused and counted.
-            self.links.reject("unexpected-type")
-            return []
-        if TRAIN_BASE + msg.train_id not in (got[0], self.own_id):
-            # [interpretation] A telegram names the train whose link carries it: a report from
-            # train k's radio is about train k, a command to train k's radio is for train k. A key
-            # holder's frame naming another train is refused (EN 50159 masquerade, DESIGN rule 10).
-            self.links.reject("train-mismatch")
-            return []
-        return [Output(to=to(msg.train_id), message=msg)]
 
 
 # ---------------------------------------------------------------------- the zone controller
@@ -177,13 +104,7 @@ async def run_zone_controller(
     started (one line)."""
     # Only the operation's trains are peers, only reports are taken, and nothing sent before this
     # process started is delivered (EN 50159 repetition across a restart of the controller).
-    radio = UdpRadio(
-        own_id=ZC_ADDRESS,
-        master_key=master_key,
-        started_s=base.now_s(),
-        peers=lambda p: TRAIN_BASE <= p < TRAIN_BASE + trains,
-        expects=PositionReport,
-    )
+    radio = CbtcEndpoint.zone_controller(master_key, trains=trains, started_s=base.now_s())
     zc = make_zone_controller(line, vehicle, ZoneMode.MINIMAL)
     zc.downlink = radio.name
     started = restore_zone_controller(zc, state, new=new, trains=trains, now_s=base.now_s())
@@ -437,27 +358,13 @@ class _Trains:
         # before this process started (a restarted process never re-delivers a command).
         started_s = base.now_s()
         self.radios = {
-            k: UdpRadio(
-                own_id=TRAIN_BASE + k,
-                master_key=master_key,
-                name=f"radio-{k}",
-                started_s=started_s,
-                peers=lambda p: p == ZC_ADDRESS,
-                expects=MovementCommand,
-            )
+            k: CbtcEndpoint.train(k, master_key, name=f"radio-{k}", started_s=started_s)
             for k in range(trains)
         }
         self.fleet: list[_TrainState] = []
         for k, x in enumerate(initial_positions(line, vehicle, trains, spacing_m)):
             # Silent until localised: its first position (from the plant) starts its reports.
-            unit = OnboardCbtc(
-                train_id=k,
-                direction="R",
-                params=line.cbtc,
-                curve_decel_mps2=vehicle.brake.full_service_mps2,
-                uplink=self.radios[k].name,
-                active=False,
-            )
+            unit = make_onboard_cbtc(line, vehicle, k, uplink=self.radios[k].name)
             ahead = next((i for i, st in enumerate(self.stations) if st > x + 1.0), len(self.stations))
             self.fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
         self.unlocalised_steps = 0  # train-steps held under emergency brake, waiting for the plant's state
@@ -741,7 +648,7 @@ def _localise(t: _TrainState, state: TrainState | None, stations: list[float]) -
     return True
 
 
-def _rejected(radios: Iterable[UdpRadio], misdirected: int) -> dict[str, int]:
+def _rejected(radios: Iterable[CbtcEndpoint], misdirected: int) -> dict[str, int]:
     """The frames the trains' radios refused, by reason, summed over the trains."""
     out: dict[str, int] = {"wrong_destination": misdirected} if misdirected else {}
     return sum_counts((r.links.rejected for r in radios), into=out)

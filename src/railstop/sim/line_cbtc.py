@@ -29,6 +29,7 @@ from railstop.config.schema import Line, Vehicle
 from railstop.link.cbtc_radio import CbtcRadio
 from railstop.link.release_link import OperatorConsole, ReleaseGate
 from railstop.messages import Message, MovementCommand, OnboardPosition, Output
+from railstop.nodes.train import make_onboard_cbtc
 from railstop.nodes.zone import make_zone_controller
 from railstop.onboard.cbtc import OnboardCbtc
 from railstop.units import Unit
@@ -111,20 +112,10 @@ class CbtcSignalling:
     _flagged_at: dict[int, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        p = self.line.cbtc
         self.zc = make_zone_controller(self.line, self.vehicle, self.mode)
         self.radio = CbtcRadio(params=self.radio_params, seed=self.seed, outages=self.outages)
-        brake = self.vehicle.brake
         self.onboard = [
-            OnboardCbtc(
-                train_id=k,
-                direction="R",
-                params=p,
-                curve_decel_mps2=brake.full_service_mps2,
-                uplink=self.radio.name,
-                active=False,
-            )
-            for k in range(self.trains)
+            make_onboard_cbtc(self.line, self.vehicle, k, uplink=self.radio.name) for k in range(self.trains)
         ]
         self.active = [False] * self.trains
         self.true_front = [math.nan] * self.trains
