@@ -135,7 +135,7 @@ def test_the_ato_law_from_a_file_equals_the_built_in_ato(tmp_path: Path) -> None
 def test_a_misbehaving_law_brakes_at_full_service(tmp_path: Path, body: str, what: str) -> None:
     """HZ-LAW-1: whatever the law returns or does, the demand the brakes get is within [0, full
     service], and a law that fails asks for full service."""
-    name = f"bad-{abs(hash(body)) % 10_000}"
+    name = f"bad-{hashlib.sha256(body.encode()).hexdigest()[:12]}"  # one name per body in every run
     law = _write(
         tmp_path / "bad.py",
         f"""

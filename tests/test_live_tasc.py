@@ -13,7 +13,6 @@ from railstop.config.scenario import station_gradient
 from railstop.control.supervision import EB_TIMEOUT, eb_cause_name
 from railstop.link.codec import decode
 from railstop.live.tasc import (
-    OFFICE_COMMAND_FIELDS,
     TASC_DT_S,
     Reading,
     StationTasc,
@@ -22,7 +21,7 @@ from railstop.live.tasc import (
     wired_stop,
 )
 from railstop.onboard.tasc_receiver import CONFIG_CODES, RX_EB_T
-from railstop.sim.engine import run_batch
+from railstop.sim.engine import OFFICE_COMMAND_FIELDS, run_batch
 from railstop.sim.single import run_stop
 from railstop.streams import RunStreams
 

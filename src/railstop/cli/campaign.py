@@ -4,6 +4,7 @@ disturbance set, every controller on identical draws, a rare-event bound, the HT
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -14,13 +15,16 @@ from railstop.cli.common import (
     DriverOpt,
     LawOpt,
     LineOpt,
+    OfficeOpt,
     PlatformOpt,
     SchedulerOpt,
     VehicleOpt,
     fail,
     load_law,
     load_manual_data,
+    office_target,
     out,
+    send_to_office,
     styled,
 )
 from railstop.cli.progress import Reporter, on_interrupt
@@ -248,12 +252,14 @@ def campaign(
     vehicle: VehicleOpt = None,
     driver: DriverOpt = None,
     platform: PlatformOpt = None,
+    office: OfficeOpt = None,
 ) -> None:
     """Monte Carlo campaign: many stops of one controller under a disturbance set."""
     from railstop.config.plausibility import load_checked
 
     law_file = load_law(law)
     try:
+        office_to = office_target(office)  # before the work: a bad --office fails at once
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
@@ -278,6 +284,8 @@ def campaign(
             platform=plat,
             law=law_file,
         )
+        if office_to is not None:
+            row["office_link"] = send_to_office(office_to, [("campaign-result", campaign_report(row))])
     except RailstopError as exc:
         fail(str(exc))
     except OSError as exc:
@@ -293,6 +301,33 @@ def campaign(
         )
     )
     out.print(f"per-run rows: {target}/runs.parquet; summary also in {db}", highlight=False)
+    if office is not None:
+        out.print(f"summary sent to the office at {office} (acknowledged)", highlight=False)
+
+
+def campaign_report(row: dict[str, Any]) -> dict[str, object]:
+    """A campaign's summary as the office stores it (short names: a report is at most 255 bytes on
+    its link): where, which controller and signal form, the draws, the share within the tolerance,
+    the stop error's mean, standard deviation and p99, overruns and emergency brakes."""
+
+    def r(v: object) -> object:
+        return round(float(v), 4) if isinstance(v, int | float) and math.isfinite(float(v)) else None
+
+    return {
+        "station": row["station"],
+        "controller": row["controller"],
+        "form": row["form"],
+        "dist": str(row["disturbances"])[:40],
+        "seed": row["seed"],
+        "runs": row["runs"],
+        "tol": r(row["tolerance_m"]),
+        "within": r(row["within_tolerance"]),
+        "mean": r(row["mean_m"]),
+        "std": r(row["std_m"]),
+        "p99": r(row["p99_abs_m"]),
+        "over": row["overruns"],
+        "eb": row["emergency_brakes"],
+    }
 
 
 def compare_controllers(

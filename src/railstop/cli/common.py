@@ -176,3 +176,72 @@ def stand_on_platform(error_m: float, station: Station) -> None:
             f"--stop-error-m: {error_m:+g} m puts the train off the {station.platform_length_m:g} m "
             f"platform of {station.name}"
         )
+
+
+#: The simulators' (stop, campaign, line run) sender id at the office (the live processes use
+#: 800-802); inside the office's default ``--senders 1-899``.
+SIMULATOR_OFFICE_ID = 810
+
+OfficeOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--office",
+        metavar="HOST:PORT",
+        help="Also send the records to a running management office (SPEC §1 claims 7, 20), with the "
+        "links' key of RAILSTOP_OFFICE_KEY; the local records are written first.",
+    ),
+]
+
+
+def office_target(office: str | None) -> tuple[str, tuple[str, int], bytes] | None:
+    """``--office HOST:PORT`` checked before any work is done: (the option, its address, the links'
+    key from RAILSTOP_OFFICE_KEY), or None without the option; a RailstopError (one line) for a bad
+    address or a missing or bad key."""
+    if office is None:
+        return None
+    from railstop.cli.office import master_key  # lazy: CLI start-up
+
+    address = address_option(office, "--office")
+    if not os.environ.get("RAILSTOP_OFFICE_KEY"):
+        raise RailstopError(
+            f"--office {office}: the office link's master key is needed: set RAILSTOP_OFFICE_KEY (hex, "
+            "the office's key; never on the command line)"
+        )
+    return office, address, master_key(None)
+
+
+def send_to_office(
+    target: tuple[str, tuple[str, int], bytes], reports: list[tuple[str, dict[str, object]]]
+) -> dict[str, object]:
+    """Send ``reports`` ((kind, data) each) to the office of ``target`` (:func:`office_target`) over
+    its authenticated link (``live.office.OfficeClient``: sent again until acknowledged) as sender
+    :data:`SIMULATOR_OFFICE_ID`; the link's counts. A RailstopError (one line) when the office does
+    not acknowledge every report in time: what was written locally stays."""
+    import asyncio
+
+    from railstop.link.udp import EpochClock
+    from railstop.live.office import OfficeClient
+
+    office, address, key = target
+    timeout_s = 5.0 + 0.05 * len(reports)
+
+    async def main() -> dict[str, object]:
+        async with OfficeClient(
+            own_id=SIMULATOR_OFFICE_ID, office=address, master_key=key, clock=EpochClock(0.0)
+        ) as client:
+            for kind, data in reports:
+                client.report(kind, data)
+            drained = await client.drain(timeout_s=timeout_s)
+            return {**client.outbox.counts, "pending": client.pending, "drained": drained}
+
+    try:
+        counts = asyncio.run(main())
+    except OSError as exc:
+        raise RailstopError(f"--office {office}: {exc.strerror or exc}") from None
+    if not counts["drained"]:
+        raise RailstopError(
+            f"--office {office}: {counts['pending']} of {len(reports)} reports not acknowledged within "
+            f"{timeout_s:g} s (is the office serving there, with this key, taking sender "
+            f"{SIMULATOR_OFFICE_ID} and these kinds?); the local records are kept"
+        )
+    return counts

@@ -8,14 +8,25 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli.common import LawOpt, LineOpt, OperationOpt, SchedulerOpt, VehicleOpt, fail, load_law
+from railstop.cli.common import (
+    LawOpt,
+    LineOpt,
+    OfficeOpt,
+    OperationOpt,
+    SchedulerOpt,
+    VehicleOpt,
+    fail,
+    load_law,
+    office_target,
+    send_to_office,
+)
 from railstop.cli.common import out as console
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
     from railstop.config.operation import Operation
     from railstop.config.schema import Line
-    from railstop.sim.line import LineSettings
+    from railstop.sim.line import LineResult, LineSettings
 
 TrainsOpt = Annotated[int | None, typer.Option(min=1, max=200, help="Trains (default: the operation's).")]
 DoorLinkLossOpt = Annotated[
@@ -99,6 +110,7 @@ def run_cmd(
     vehicle: VehicleOpt = None,
     operation: OperationOpt = None,
     law: LawOpt = None,
+    office: OfficeOpt = None,
 ) -> None:
     """Run the trains of the operation over the line: entries, running under the fixed-block
     signals, a station stop by ground TASC at every station, dwells; print the summary. With
@@ -113,6 +125,7 @@ def run_cmd(
         fail(f"--seed: {SEED_RANGE} (got {seed})")
     load_law(law)
     try:
+        target = office_target(office)  # before the work: a bad --office fails at once
         ln = load_line(line)
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
@@ -142,6 +155,8 @@ def run_cmd(
                 + (f", {summary['cbtc']['lost_trains']} lost trains" if summary["cbtc"] else "")
             )
             plot = plot_line(result, plot, title=title, footer=footer(prov, seed=seed))
+        if target is not None:
+            summary["office_link"] = send_to_office(target, line_reports(result, op.controller))
     except RailstopError as exc:
         fail(str(exc))
     if as_json:
@@ -164,6 +179,45 @@ def run_cmd(
     )
     if plot is not None:
         console.print(f"plot: {plot}", highlight=False)
+    if office is not None:
+        n = summary["office_link"]["submitted"]
+        console.print(f"office: {n} stop and dwell results sent to {office} (acknowledged)", highlight=False)
+
+
+def line_reports(result: LineResult, controller: str) -> list[tuple[str, dict[str, object]]]:
+    """A line run's stops and dwells as the office stores them (SPEC §1 claim 7), with the live
+    processes' names: each stop's result, each dwell's."""
+    reports: list[tuple[str, dict[str, object]]] = []
+    for s in result.stops:
+        reports.append(
+            (
+                "stop-result",
+                {
+                    "station": s.station,
+                    "train": s.train,
+                    "controller": controller,
+                    "error_m": round(s.error_m, 3),
+                    "within": bool(s.within_tolerance),
+                    "t_s": round(s.arrive_s, 2),
+                    "eb": s.emergency_brake,
+                },
+            )
+        )
+    for d in result.dwells:
+        reports.append(
+            (
+                "dwell-result",
+                {
+                    "station": d.station,
+                    "train": d.train,
+                    "outcome": d.outcome,
+                    "psc_requests": d.psc_attempts,
+                    "corrections": d.corrections,
+                    "dwell_s": d.dwell_s,
+                },
+            )
+        )
+    return reports
 
 
 @line_app.command("campaign")

@@ -16,12 +16,15 @@ from railstop.cli.common import (
     DriverOpt,
     LawOpt,
     LineOpt,
+    OfficeOpt,
     PlatformOpt,
     VehicleOpt,
     fail,
     load_law,
     load_manual_data,
+    office_target,
     out,
+    send_to_office,
 )
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
@@ -104,6 +107,7 @@ def stop(
     vehicle: VehicleOpt = None,
     driver: DriverOpt = None,
     platform: PlatformOpt = None,
+    office: OfficeOpt = None,
 ) -> None:
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
     from railstop.config.disturbances import load_disturbances
@@ -125,6 +129,7 @@ def stop(
     if no_db and source is not None and source.name == "COMMANDLINE":
         fail("--db and --no-db exclude each other")
     try:
+        target = office_target(office)  # before the work: a bad --office fails at once
         ln, veh = load_checked(line, vehicle)
         st = ln.station(station)
         dist = None if disturbances is None else load_disturbances(disturbances)
@@ -155,15 +160,46 @@ def stop(
                     store.save_dwell(key=f"{result.run_key}|platform-dwell", station=st.name, events=dwell[1])
         if plot is not None:
             plot = write_plot(plot, result, batch, st)
+        sent = None if target is None else send_to_office(target, stop_reports(result, st))
     except RailstopError as exc:
         fail(str(exc))
     if as_json:
-        extra = {} if dwell is None else {"platform_dwell": _dwell_json(dwell[0])}
+        extra: dict[str, object] = {} if dwell is None else {"platform_dwell": _dwell_json(dwell[0])}
+        if sent is not None:
+            extra["office_link"] = sent
         print(json.dumps({**result.summary(), **extra}))
         if not result.stopped:
             raise typer.Exit(1)
         return
     _print_stop(result, st, veh, dwell, plot, None if no_db else db)
+    if sent is not None:
+        out.print(f"office: {sent['submitted']} records sent to {office} (acknowledged)", highlight=False)
+
+
+def stop_reports(result: StopResult, st: Station) -> list[tuple[str, dict[str, object]]]:
+    """A detailed stop as the office stores it (SPEC §1 claims 7, 20): every command the wayside
+    computed, with what went on the air, then the stop's result, as the live stations send them."""
+    from railstop.sim.engine import office_command
+
+    reports: list[tuple[str, dict[str, object]]] = [
+        ("tasc-command", office_command(st.name, 0, rec)) for rec in result.command_log
+    ]
+    reports.append(
+        (
+            "stop-result",
+            {
+                "station": st.name,
+                "train": 0,
+                "controller": result.controller,
+                "error_m": round(result.stop_error_m, 3),
+                "within": bool(result.within_tolerance),
+                "t_s": None if result.stop_time_s is None else round(result.stop_time_s, 2),
+                "seed": result.seed,
+                "run": result.run,
+            },
+        )
+    )
+    return reports
 
 
 def _print_stop(

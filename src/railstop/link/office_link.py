@@ -58,6 +58,7 @@ from railstop.link.safety import (
 KINDS = (
     "tasc-command",
     "stop-result",
+    "campaign-result",  # a campaign's summary (the simulators, SPEC §1 claim 7)
     "dwell-event",
     "dwell-result",
     "zone-event",

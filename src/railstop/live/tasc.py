@@ -83,7 +83,7 @@ from railstop.onboard.tasc_receiver import (
     RX_EB_T,
 )
 from railstop.quantities import kmh_to_mps
-from railstop.sim.engine import command_records, telegram_of
+from railstop.sim.engine import command_records, office_command, telegram_of
 from railstop.wayside.tasc_unit import WP_FORM, SignalForm
 
 FloatArray = NDArray[np.float64]
@@ -248,46 +248,14 @@ class WaysideTasc:
             s.last_sent_s = now_s
 
 
-#: A command's fields in the office's record (SPEC §1 claims 7, 20) and the stop model's names:
-#: when it was computed, from which detector's passage (``age``: how long before), the distance to
-#: the stop, the radar's speed, the measured and required deceleration, the correction gain, the
-#: command, its notch / step, when it takes effect (``eff``: how long after), the emergency-stop
-#: flag.
-OFFICE_COMMAND_FIELDS: dict[str, str] = {
-    "t": "t_s",
-    "det": "detector",
-    "age": "passage_s",
-    "dist": "distance_m",
-    "v": "speed_mps",
-    "a_meas": "measured_decel_mps2",
-    "a_req": "required_decel_mps2",
-    "gain": "gain",
-    "a_cmd": "command_decel_mps2",
-    "notch": "notch",
-    "delta": "delta",
-    "eff": "effect_s",
-    "eb": "emergency",
-}
-
-
 def office_record(
     station: str, train: int, crow: FloatArray, pending: FloatArray, form: int, payload: bytes
 ) -> dict[str, Any]:
-    """A command as the office stores it (SPEC §1 claims 7, 20): the station (``st``) and train
-    (``tr``), the command's inputs and what the unit computed (:data:`OFFICE_COMMAND_FIELDS`, at
-    millimetre / millisecond resolution) and the telegram as it went on the air (``air``: the codec
-    frame in hex). Short names: the office link carries at most 255 bytes a report."""
+    """A command as the office stores it (``sim.engine.office_command``, the simulators' too), with
+    the telegram as it went on the air (``payload``)."""
     rec = command_records(np.append(crow, 0.0)[None, :], SignalForm(form), pending[None, :])[0]
-    out: dict[str, Any] = {"st": station, "tr": train}
-    rec["passage_s"] = rec["t_s"] - rec["passage_s"]
-    rec["effect_s"] -= rec["t_s"]
-    for short, name in OFFICE_COMMAND_FIELDS.items():
-        v = rec[name]
-        if isinstance(v, float):
-            v = round(v, 3) if math.isfinite(v) else None
-        out[short] = v
-    out["air"] = payload.hex()
-    return out
+    rec["air"] = payload.hex()
+    return office_command(station, train, rec)
 
 
 async def run_stations(

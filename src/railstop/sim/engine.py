@@ -13,7 +13,9 @@ the kernel delivered, with the same contents; a disagreement is an error.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -294,7 +296,8 @@ def command_records(rows: FloatArray, form: SignalForm, sends: FloatArray) -> li
         raise SimulationError(f"{len(rows)} command records but {len(sends)} telegrams recorded")
     out = []
     for r, sent in zip(rows, sends, strict=True):
-        message = decode(encode(to_message(telegram_of(sent, form), 0)))  # at the wire's resolution
+        air = encode(to_message(telegram_of(sent, form), 0))
+        message = decode(air)  # at the wire's resolution
         out.append(
             {
                 "run": 0,
@@ -318,8 +321,50 @@ def command_records(rows: FloatArray, form: SignalForm, sends: FloatArray) -> li
                 "telegram": {
                     attr: getattr(message, attr) for f in layout_of(message).fields for attr in f.attributes
                 },
+                "air": air.hex(),  # the codec frame itself
             }
         )
+    return out
+
+
+#: A command's fields in the office's record (SPEC §1 claims 7, 20; short names: a report is at
+#: most 255 bytes on the link) and the command record's names: when it was computed, from which
+#: detector's passage (``age``: how long before), the distance to the stop, the radar's speed, the
+#: measured and required deceleration, the correction gain, the command, its notch / step, when it
+#: takes effect (``eff``: how long after), the emergency-stop flag.
+OFFICE_COMMAND_FIELDS: dict[str, str] = {
+    "t": "t_s",
+    "det": "detector",
+    "age": "passage_s",
+    "dist": "distance_m",
+    "v": "speed_mps",
+    "a_meas": "measured_decel_mps2",
+    "a_req": "required_decel_mps2",
+    "gain": "gain",
+    "a_cmd": "command_decel_mps2",
+    "notch": "notch",
+    "delta": "delta",
+    "eff": "effect_s",
+    "eb": "emergency",
+}
+
+
+def office_command(station: str, train: int, rec: Mapping[str, Any]) -> dict[str, Any]:
+    """A command record (:func:`command_records`) as the office stores it (SPEC §1 claims 7, 20):
+    the station (``st``) and train (``tr``), the command's inputs and what the unit computed
+    (:data:`OFFICE_COMMAND_FIELDS`, at millimetre / millisecond resolution; the passage as its age
+    at the command, the effect as its delay after it) and the telegram as it went on the air
+    (``air``: the codec frame in hex). The live stations and the simulators send the same."""
+    out: dict[str, Any] = {"st": station, "tr": train}
+    values = dict(rec)
+    values["passage_s"] = values["t_s"] - values["passage_s"]
+    values["effect_s"] = values["effect_s"] - values["t_s"]
+    for short, name in OFFICE_COMMAND_FIELDS.items():
+        v = values[name]
+        if isinstance(v, float):
+            v = round(v, 3) if math.isfinite(v) else None
+        out[short] = v
+    out["air"] = values["air"]
     return out
 
 
