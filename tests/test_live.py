@@ -165,18 +165,28 @@ def test_live_run_with_a_radio_outage_loses_and_redetects_the_train(tmp_path: Pa
     assert first.startswith("control-room page at http://127.0.0.1:")
     out = json.loads(last)
     zc, fleet, office = out["zone_controller"], out["trains"], out["office"]
-    assert zc["lost_trains"] == 1 and zc["auto_releases"] == 1 and zc["flagged"] == 0
-    # Train 1 braked on its missed commands. Another train may brake for the same cause only when
-    # the controller itself fell silent: its late steps (a machine whose cores are taken) are the
-    # missed commands of every train, and braking on them is the safe answer (SPEC §4).
+    # A process that fell behind (a machine whose cores are taken) is the one way more than the
+    # outage can happen: its late steps are late reports or commands, and the safe answers to them
+    # (a train lost and its zone set, a train braked on missed commands; SPEC §4) are allowed then.
+    stalled = zc["late_steps"] + fleet["late_steps"] > 0
+    # Every lost train was re-detected inside its zone and released; none flagged.
+    assert zc["lost_trains"] >= 1 and zc["auto_releases"] == zc["lost_trains"] and zc["flagged"] == 0
+    assert zc["lost_trains"] == 1 or stalled, (zc["lost_trains"], zc["late_steps"], fleet["late_steps"])
+    # Train 1 braked on its missed commands; another train only when a process fell behind.
     braked = [b["train"] for b in fleet["emergency_brake_times"]]
     assert 1 in braked and set(fleet["emergency_brakes"]) == {"missed-commands"}, fleet["emergency_brakes"]
-    assert braked == [1] or zc["late_steps"] > 0, (braked, zc["late_steps"])
+    assert braked == [1] or stalled, (braked, zc["late_steps"], fleet["late_steps"])
     assert office["stored"] == fleet["office_link"]["submitted"] + zc["office_link"]["submitted"]
     assert "radio of train 1 dead" in p.stderr and "radio of train 1 restored" in p.stderr
     with open_store(str(tmp_path / "live.db")) as store:
         zones = [r["data"] for r in store.office_reports(kind="zone-event")]
-    assert [(z["train"], z["active"]) for z in zones] == [(1, True), (1, False)]
+    # Every zone set was released after it, train 1's among them; without a stall only train 1's.
+    events = [(z["train"], z["active"]) for z in zones]
+    for k in {k for k, _ in events}:
+        mine = [a for j, a in events if j == k]
+        assert len(mine) % 2 == 0 and mine == [True, False] * (len(mine) // 2), events
+    assert (1, True) in events
+    assert events == [(1, True), (1, False)] or stalled, events
 
 
 def test_live_run_hands_its_key_to_its_processes_only_through_the_environment(tmp_path: Path) -> None:
