@@ -336,3 +336,33 @@ def test_campaign_and_compare_take_a_signal_form(tmp_path: Path) -> None:
     assert p.returncode == 0, p.stderr
     assert {r["form"] for r in json.loads(p.stdout)["controllers"]} == {5}
     _one_line_error(run("campaign", "--form", "9", "--runs", "2", cwd=tmp_path), "--form", "(got 9)")
+
+
+def test_a_form_for_a_controller_that_receives_no_telegrams_is_refused(tmp_path: Path) -> None:
+    """The signal form is that of the wayside TASC's telegrams (SPEC §1 claim 3): an onboard ATO or
+    a driver receives none, so a result labelled with a form would be a false label (one line,
+    exit 2, nothing written)."""
+    p = run("stop", "--controller", "ato", "--form", "3", "--no-db", cwd=tmp_path)
+    _one_line_error(p, "--form", "ato receives none")
+    p = run("campaign", "--controller", "driver-ats", "--form", "2", "--runs", "5", "--out", "c",
+            cwd=tmp_path)  # fmt: skip
+    _one_line_error(p, "--form", "driver-ats")
+    assert not (tmp_path / "c").exists() and not (tmp_path / "railstop.db").exists()
+    ok = run("stop", "--controller", "tasc-pwm", "--form", "3", "--json", "--no-db", cwd=tmp_path)
+    assert ok.returncode == 0 and json.loads(ok.stdout)["form"] == 3
+
+
+def test_resume_without_a_campaign_there_is_refused_not_started_afresh(tmp_path: Path) -> None:
+    """--resume continues a campaign; a folder without one would silently start a new one."""
+    p = run("campaign", "--runs", "5", "--out", "none-yet", "--resume", "--db", "x.db", cwd=tmp_path)
+    _one_line_error(p, "none-yet", "--resume", "no campaign there")
+    assert not (tmp_path / "none-yet").exists()
+    p = run("line", "campaign", "--runs", "1", "--trains", "1", "--duration-s", "100", "--out", "lc",
+            "--resume", cwd=tmp_path)  # fmt: skip
+    _one_line_error(p, "lc", "--resume", "no line campaign there")
+
+
+def test_line_run_under_an_hour_says_so_instead_of_none(tmp_path: Path) -> None:
+    p = run("line", "run", "--trains", "1", "--duration-s", "300", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "None" not in p.stdout and "the run is under an hour" in p.stdout

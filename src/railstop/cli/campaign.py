@@ -28,7 +28,7 @@ from railstop.cli.common import (
     styled,
 )
 from railstop.cli.progress import Reporter, on_interrupt
-from railstop.cli.stop import FormOpt, ToleranceOpt, checked_controller, checked_tolerance
+from railstop.cli.stop import FormOpt, ToleranceOpt, checked_controller, checked_form, checked_tolerance
 
 # The --controller help lists the engine's controllers.
 from railstop.controllers import CONTROLLERS, DRIVER_CONTROLLERS, known_controllers
@@ -264,6 +264,14 @@ def campaign(
         drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
         target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())
+        if resume:
+            from railstop.sim.campaign import MANIFEST  # lazy: CLI start-up (pyarrow)
+
+            if not (target / MANIFEST).is_file():
+                # --resume continues a campaign: a folder without one would silently start afresh.
+                raise RailstopError(
+                    f"{target}: --resume but no campaign there ({MANIFEST}); drop --resume to start one"
+                )
         row = _run_one_campaign(
             ln=ln,
             veh=veh,
@@ -279,7 +287,7 @@ def campaign(
             db=db,
             scheduler=scheduler,
             tolerance_m=checked_tolerance(tolerance_m),
-            form=form,
+            form=checked_form(form, controller),
             driver=drv,
             platform=plat,
             law=law_file,

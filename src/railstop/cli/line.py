@@ -78,6 +78,17 @@ HeadwayOpt = Annotated[
 ]
 
 
+def _per_hour(tph: object) -> str:
+    """The throughput as the text says it: none under an hour of simulated time (the summary's
+    ``trains_per_hour`` is null then, rather than an hour's rate guessed from less)."""
+    return "trains/h: the run is under an hour" if tph is None else f"{tph} trains/h"
+
+
+def _figure(value: object, unit: str, none: str) -> str:
+    """A figure of the summary with its unit, or what its absence means (the JSON's null)."""
+    return none if value is None else f"{value} {unit}"
+
+
 def _link_text(link: dict[str, int]) -> str:
     return f"{link['frames']:,} frames, {link['lost']:,} lost, {link['rejected']:,} refused"
 
@@ -165,8 +176,9 @@ def run_cmd(
     console.print(
         f"{ln.line.name}: {summary['entered']} of {summary['trains']} trains entered, "
         f"{summary['exited']} left "
-        f"the line in {duration_s:g} s ({summary['trains_per_hour']} trains/h, mean delay "
-        f"{summary['mean_delay_s']} s, least separation {summary['min_separation_m']} m); "
+        f"the line in {duration_s:g} s ({_per_hour(summary['trains_per_hour'])}, mean delay "
+        f"{_figure(summary['mean_delay_s'], 's', 'none: no train left the line')}, least separation "
+        f"{_figure(summary['min_separation_m'], 'm', 'none: never two trains on the line')}); "
         f"{summary['stops']} station stops by {op.controller}, {summary['stops_within_tolerance']} within "
         f"the PSD tolerance, p99 |error| {summary['stop_error_p99_m']} m, {summary['emergency_brakes']} "
         f"emergency brakes; mean dwell {summary['mean_dwell_s']} s, {summary['dwell_faults']} dwell faults; "
@@ -301,11 +313,12 @@ def campaign_cmd(
         )
     console.print(table)
     console.print(
-        f"trains/h {summary['trains_per_hour_mean']} (mean over runs), mean delay "
-        f"{summary['mean_delay_s_mean']} s, "
+        f"{_per_hour(summary['trains_per_hour_mean'])} (mean over runs), mean delay "
+        f"{_figure(summary['mean_delay_s_mean'], 's', 'none: no train left the line')}, "
         f"{summary['dwell_faults']} dwell faults, door link {_link_text(summary['door_link'])}, "
         f"{summary['skipped_stops']} skipped stops, least separation "
-        f"{summary['min_separation_m']} m, onboard position p99 {summary['position_error_p99_m_mean']} m "
+        f"{_figure(summary['min_separation_m'], 'm', 'none: never two trains on the line')}, "
+        f"onboard position p99 {summary['position_error_p99_m_mean']} m "
         f"(worst run {summary['position_error_p99_m_worst']} m); runs and summary in {out}",
         highlight=False,
         soft_wrap=True,

@@ -28,7 +28,13 @@ from railstop.cli.common import (
 )
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
-from railstop.controllers import ATO_CONTROLLERS, CONTROLLERS, is_ato_like, known_controllers
+from railstop.controllers import (
+    ATO_CONTROLLERS,
+    CONTROLLERS,
+    TASC_CONTROLLERS,
+    is_ato_like,
+    known_controllers,
+)
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
@@ -62,6 +68,18 @@ def checked_tolerance(value: float | None) -> float | None:
     if value is not None and not (math.isfinite(value) and 0.0 < value <= 2.0):
         fail(f"--tolerance-m: must be more than 0 and at most 2 m (got {value})")
     return value
+
+
+def checked_form(form: int | None, controller: str) -> int | None:
+    """--form checked against the controller: the signal form is that of the wayside TASC's
+    telegrams (SPEC §1 claim 3); an onboard ATO, a law of --law or a driver receives none, and a
+    result labelled with a form it never used would be a false label."""
+    if form is not None and controller not in TASC_CONTROLLERS:
+        fail(
+            f"--form: the signal form of the wayside TASC's telegrams (claim 3); {controller} receives "
+            f"none, so it takes no --form (got {form})"
+        )
+    return form
 
 
 def checked_controller(name: str, option: str = "--controller") -> str:
@@ -128,6 +146,7 @@ def stop(
     source = ctx.get_parameter_source("db")
     if no_db and source is not None and source.name == "COMMANDLINE":
         fail("--db and --no-db exclude each other")
+    checked_form(form, controller)
     try:
         target = office_target(office)  # before the work: a bad --office fails at once
         ln, veh = load_checked(line, vehicle)

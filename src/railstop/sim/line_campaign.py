@@ -121,6 +121,11 @@ def run_line_campaign(
     out = Path(out)
     ident = spec.identity()
     spec_path = out / SPEC_FILE
+    if resume and not spec_path.exists():
+        # --resume continues a campaign: a folder without one would silently start afresh.
+        raise RailstopError(
+            f"{out}: --resume but no line campaign there ({SPEC_FILE}); drop --resume to start one"
+        )
     if spec_path.exists():
         if not resume:
             raise RailstopError(f"{out}: a line campaign is already there; use --resume or another --out")
