@@ -22,7 +22,7 @@ splits them:
 
 Each end knows the other's doors only from the telegrams' bits
 (``control.doors.units_from_link``). Both ends are pure: time is an argument, frames are what
-the caller sends and delivers (:func:`drive_dwell`: over a medium, or wired directly).
+the caller sends and delivers (:class:`DwellRun`: over a medium, or wired directly).
 
 Fail safe (DESIGN rule 10): no reply to a PSC request is a train out of position (position
 correction, then after the last attempt the SPEC §5 fault: emergency brake); with PSC high, no
@@ -645,6 +645,41 @@ class TrainDoors:
         }
 
 
+def dwell_ends(
+    doors: DoorsConfig,
+    *,
+    station: str,
+    side: Side,
+    error_m: float,
+    train_id: int = 1,
+    manual: bool = False,
+    obstruct: int | None = None,
+    psd_jam: int | None = None,
+    model: DoorModel | None = None,
+) -> tuple[TrainDoors, PlatformDoors]:
+    """The two ends of one dwell at a platform of its own, from the stand (t = 0): the train
+    ``train_id`` standing ``error_m`` from the stopping point, in ``manual`` or automatic; fault
+    injection, each a unit on the platform side numbered from 1 (the front): ``obstruct`` a train
+    door obstructed while closing, ``psd_jam`` a PSD unit that fails to close."""
+    model = model or model_for(doors)
+    platform = PlatformDoors(index=0, name=station, side=side, doors=doors, model=model)
+    if psd_jam is not None:
+        platform.jam(psd_jam - 1)
+    train = TrainDoors(
+        train=train_id,
+        station=0,
+        station_name=station,
+        side=side,
+        error_m=error_m,
+        doors=doors,
+        model=model,
+        t0_s=0.0,
+        manual=manual,
+        obstruct=None if obstruct is None else obstruct - 1,
+    )
+    return train, platform
+
+
 def wired_dwell(
     doors: DoorsConfig,
     *,
@@ -663,21 +698,8 @@ def wired_dwell(
     platform falls silent after ``platform_silent_after_s`` (its process died); ``wcc``: the WCC's
     actions, each (at_s, manual, panel_open, panel_close); ``psd_jam``: this PSD unit (1 = front) fails
     to close."""
-    model = model_for(doors)
-    platform = PlatformDoors(index=0, name="P", side=side, doors=doors, model=model)
-    if psd_jam is not None:
-        platform.jam(psd_jam - 1)
-    train = TrainDoors(
-        train=1,
-        station=0,
-        station_name="P",
-        side=side,
-        error_m=error_m,
-        doors=doors,
-        model=model,
-        t0_s=0.0,
-        manual=manual,
-        obstruct=None if obstruct is None else obstruct - 1,
+    train, platform = dwell_ends(
+        doors, station="P", side=side, error_m=error_m, manual=manual, obstruct=obstruct, psd_jam=psd_jam
     )
     run_wired(
         train,

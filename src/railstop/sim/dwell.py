@@ -41,7 +41,7 @@ from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLink, DoorLinkCounts
 from railstop.nodes.doors import DoorModel
-from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, PlatformDoors, TrainDoors, model_for
+from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, dwell_ends, model_for
 from railstop.onboard import cpcs
 from railstop.onboard.stop_confirm import StopPhase
 from railstop.streams import Stream, seed_u64
@@ -213,23 +213,11 @@ class SteppedDwell:
                 raise SimulationError(f"{name}: door units are numbered 1..{n} (got {unit})")
         self._doors, self._station, self._side, self._mode = doors, station, side, mode
         self._stop_error_m, self._obstruct_door, self._psd_fail = stop_error_m, obstruct_door, psd_fail
-        model = model or model_for(doors)
         self.link = link if link is not None else make_door_link(doors, seed=seed)
-        self.platform = PlatformDoors(index=0, name=station, side=side, doors=doors, model=model)
-        if psd_fail is not None:
-            self.platform.jam(psd_fail - 1)
-        self.train = TrainDoors(
-            train=self.link.train_id,
-            station=0,
-            station_name=station,
-            side=side,
-            error_m=stop_error_m,
-            doors=doors,
-            model=model,
-            t0_s=0.0,
-            manual=mode == "manual",
-            obstruct=None if obstruct_door is None else obstruct_door - 1,
-        )
+        self.train, self.platform = dwell_ends(
+            doors, station=station, side=side, error_m=stop_error_m, train_id=self.link.train_id,
+            manual=mode == "manual", obstruct=obstruct_door, psd_jam=psd_fail, model=model,
+        )  # fmt: skip
         self.run = DwellRun(self.train, self.platform, self.link, t0_s=0.0, step_s=DWELL_STEP_S)
         self.timeline: list[DwellEvent] = []
         self._last: dict[str, int | float | str] = {}
