@@ -76,11 +76,18 @@ class Cbtc(Model):
     # protection stops it; the authority behind it ends this much earlier, its zone starts so much
     # further back (assumption: 2 m, a metro's rollback protection).
     rollback_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 2.0
-    # The location uncertainty of the onboard positioning (SPEC §2 chain), reported with every
-    # position where the line's position chain gives no bound of its own: the true front lies
-    # within ± this of the onboard position ([interpretation]: the chain's worst error on this
+    # The location uncertainty reported where no positioning unit gives one (the live trains,
+    # whose position is the plant's; the zone model of `zones verify`): the true front lies within
+    # ± this of the reported position ([interpretation]: the SPEC §2 chain's worst error on this
     # line is about 7 m, docs/position.md; 8 m bounds it).
     position_uncertainty_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] = 8.0
+    # On the line, each train reports its positioning unit's own uncertainty (IEEE 1474.1: from
+    # the positioning's confidence): this many standard deviations of its dead reckoning since
+    # the last fix, plus the bound of the slides it could not bridge ([interpretation]: the
+    # standard asks for a bound held at the system's safety level and gives no number; 5 standard
+    # deviations of a normal error leave 6e-7 outside. The line counts every step at which a
+    # train's true front lay outside: `uncertainty_exceeded`).
+    position_confidence_sigmas: Annotated[float, Field(ge=1.0, le=10.0, allow_inf_nan=False)] = 5.0
 
     # IEEE 1474.1 safe braking model of the onboard overspeed supervision: from the moment the
     # train is over the curve, the supervision takes ``overspeed_detection_s`` to see it and the

@@ -35,7 +35,7 @@ from railstop.config.schema import Line
 from railstop.errors import SimulationError
 from railstop.link.codec import TrackCircuitOccupancy, decode, encode
 from railstop.onboard.positioning import FixOutcome, FixReport, PositioningUnit
-from railstop.sensors.gnss_clock import GnssClock, in_shadow
+from railstop.sensors.gnss_clock import PPM, GnssClock, in_shadow
 from railstop.sensors.track_circuit import TrackCircuitDetector
 from railstop.streams import RunStreams
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
@@ -54,6 +54,12 @@ class ChainSettings:
     repeaters: bool = True  # SPEC §2 satellite-signal repeaters where the line data has them
     holdover_s: float | None = None
     latency_s: float = 0.05  # SPEC typical values: radio latency tens of ms
+
+
+#: The service a line's clocks must hold their time over: a day (a line run lasts at most that).
+SERVICE_DAY_S = 86400.0
+#: The longest a train's clock stays in a GNSS shadow without a repeater ([interpretation]).
+SHADOW_STAY_S = 3600.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -132,6 +138,7 @@ class OccupancyChain:
         self._wayside_disc = np.full(len(circuits), cfg.gnss) & ~in_shadow(
             c_starts, self._sh_start, self._sh_end
         )
+        self._clocks = clocks
         self.wayside_clock = GnssClock.create(
             clocks, wayside_streams, clock_index=1 + np.arange(len(circuits)), disciplined=self._wayside_disc
         )
@@ -206,6 +213,24 @@ class OccupancyChain:
             if (~due).any():
                 keep.append((run[~due], idx[~due], t_occ[~due]))
         self._pending = keep
+
+    def clock_sd_s(self, horizon_s: float = SERVICE_DAY_S) -> FloatArray:
+        """Per circuit (line order), the standard deviation of the time error a fix of it carries:
+        the stamping unit's clock against the train's, as the line data's clocks say (SPEC §2: a
+        disciplined clock within ``disciplined_error_s``; one with no time source drifts at
+        ``free_run_drift_ppm`` since it was last set, ``holdover_s`` before the run) over
+        ``horizon_s`` of service. What an onboard unit can know of the line: which stamping units
+        have no GNSS (its line data) and whether its own receiver has any ([interpretation]: the
+        two clocks' errors independent; a whole service day, so that the bound holds for any
+        run)."""
+        c = self._clocks
+        free = c.free_run_drift_ppm * PPM * (c.holdover_s + horizon_s)
+        wayside = np.where(self._wayside_disc, c.disciplined_error_s, free)
+        # The train's clock free-runs only in a shadow (for the minutes it takes to pass it: an
+        # hour bounds it, a train held there included) or without GNSS at all.
+        in_shadow_s = min(horizon_s, SHADOW_STAY_S) if self._sh_start.size else 0.0
+        onboard = c.disciplined_error_s + c.free_run_drift_ppm * PPM * in_shadow_s if self.cfg.gnss else free
+        return np.sqrt(wayside * wayside + onboard * onboard)
 
     def onboard_time_s(self, t_s: float) -> FloatArray:
         """Every train's GNSS clock reading at true time ``t_s`` (n,)."""

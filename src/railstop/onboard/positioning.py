@@ -81,7 +81,7 @@ position). :class:`PositioningUnit` holds the same arrays for n runs, shape
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple
 
@@ -150,7 +150,11 @@ U_BRIDGE_CUR = 19  # length of the bridge in progress (s)
 U_BRIDGE_T = 20  # seconds bridged since the last fix
 U_BRIDGE_H = 21  # sum over the bridges since the last fix of (length² / 2) (s²)
 U_ACC_VAR = 22  # the accelerometer's bias variance (m²/s⁴), from the settings
-U_SIZE = 23
+U_HOLD_V = 23  # the tachometer speed before the WSP acted unbridged (m/s, odometer units)
+U_SLIDE_M = 24  # bound on the error of the unbridged WSP intervals since the last fix (odometer m)
+U_NOM_D = 25  # the line's nominal detection delay (s), whether learned from or not
+U_FIX_BIAS_M = 26  # the last fix's error its variance does not hold: without the learner, v x delay
+U_SIZE = 27
 # Per-run state, int64 vector ``istate``:
 UI_HEAD = 0  # index of the newest log sample (-1: none yet)
 UI_SAMPLES = 1  # samples logged
@@ -240,6 +244,7 @@ def unit_init_run(
     state[U_P11] = delay_prior_var_s2
     state[U_LAST_T] = -np.inf
     state[U_ACC_VAR] = accel_bias_var
+    state[U_NOM_D] = nominal_delay_s
     return
 
 
@@ -283,6 +288,13 @@ def unit_log_run(
         state[U_BRIDGE_CUR] = 0.0
         if wsp_active:
             state[U_WSP] = 1.0
+            # The bounded slide ([interpretation], for the location uncertainty): while the
+            # wheel slides the train runs between the wheel's speed and the speed before the WSP
+            # acted (it brakes, it does not gain speed); while it slips, between standstill and
+            # the wheel's speed. The wheel's count is off by at most the larger gap.
+            state[U_SLIDE_M] += max(state[U_HOLD_V] - speed_mps, speed_mps) * dt
+        else:
+            state[U_HOLD_V] = speed_mps
     log[LOG_T, head] = clock_time_s
     log[LOG_ODO, head] = odometer_m
     log[LOG_V, head] = state[U_VREF]
@@ -398,17 +410,21 @@ def unit_handle_run(
     state[U_WSP] = 0.0
     state[U_BRIDGE_T] = 0.0
     state[U_BRIDGE_H] = 0.0
+    state[U_SLIDE_M] = 0.0
     if not learn:  # the document's position: the fix as it is
         state[U_CAL_REF] = x
-        state[U_CAL_VAR] = fix_var
+        # SPEC §2 takes the circuit's start as the position at the occupancy time: the train was
+        # the detection delay x its speed past it (docs/position.md), an error with a sign. Its
+        # mean is the line's nominal delay (the bias), its spread the prior's (the variance).
+        sv = vv / state[U_A]
+        state[U_CAL_VAR] = fix_var + sv * sv * state[U_P11]
+        state[U_FIX_BIAS_M] = abs(sv) * state[U_NOM_D]
         return outcome, x, o, vv, doc_before - x, cal_before - x, False, False
     j = -m / (a * a)  # dp'/da
     paa = state[U_P00] + _SCALE_PROCESS_VAR
     pad = state[U_P01]
     pdd = state[U_P11] + _DELAY_PROCESS_VAR_S2
-    noise = ODOMETRY_NOISE_FRAC * m / a
-    q_p = noise * noise + bridged * bridged + drift * drift * state[U_ACC_VAR]
-    ppp = state[U_CAL_VAR] + 2.0 * j * state[U_PPA] + j * j * state[U_P00] + q_p
+    ppp = unit_predicted_var(state, m, a, bridged, drift)
     ppa = state[U_PPA] + j * state[U_P00]
     ppd = state[U_PPD] + j * state[U_P01]
     if untrusted:
@@ -460,6 +476,34 @@ def unit_handle_run(
     state[U_P11] = pdd - k2 * g2
     istate[UI_LEARNED] += 1
     return outcome, x, o, vv, doc_before - x, cal_before - p, True, False
+
+
+@njit_inline
+def unit_predicted_var(state: FloatArray, m: float, a: float, bridged: float, drift: float) -> float:
+    """The variance of the dead-reckoned position ``m`` odometer metres past the last fix (scale
+    ``a``): the fix's variance, the scale's error over the distance, the odometry noise and the
+    bridges' errors (``bridged``: the start speeds' error x the seconds bridged; ``drift``: the
+    bridges' T²/2, x the accelerometer's bias)."""
+    j = -m / (a * a)  # dp'/da
+    noise = ODOMETRY_NOISE_FRAC * m / a
+    q_p = noise * noise + bridged * bridged + drift * drift * state[U_ACC_VAR]
+    return state[U_CAL_VAR] + 2.0 * j * state[U_PPA] + j * j * state[U_P00] + q_p
+
+
+@njit_inline
+def unit_uncertainty_m(state: FloatArray, sigmas: float) -> float:
+    """The location uncertainty of the calibrated position now (IEEE 1474.1: the true front lies
+    within ± this): ``sigmas`` standard deviations of the dead reckoning since the last fix, plus
+    the bound of the unbridged slides since then (their error is bounded, not random:
+    ``unit_log_run``) and, without the learner, the detection delay the fix leaves in.
+    [interpretation] The errors the filter models are taken as Gaussian; a contradiction the
+    filter cannot see (a slide the WSP did not act on, a wrong circuit start) is caught by the
+    gate at the next fix, not by this bound."""
+    a = state[U_A]
+    m = state[U_COMP] - state[U_REF_COMP]
+    bridged = BRIDGE_SPEED_SD_MPS * state[U_BRIDGE_T]
+    var = unit_predicted_var(state, m, a, bridged, state[U_BRIDGE_H])
+    return sigmas * np.sqrt(max(var, 0.0)) + state[U_SLIDE_M] / a + state[U_FIX_BIAS_M]
 
 
 @njit_inline
@@ -550,10 +594,18 @@ def _handle_runs(
     outcome: IntArray,
     out_f: FloatArray,
     out_b: BoolArray,
+    db_time_sd_s: FloatArray,
 ) -> None:
-    """Telegrams in their order (those of one run applied one after the other)."""
+    """Telegrams in their order (those of one run applied one after the other). ``db_time_sd_s``:
+    per circuit of the DB, the error of the clocks that time its telegrams (empty: none beyond
+    the detection delay's spread); it adds to the spread."""
     for k in range(run.size):
         r = run[k]
+        spread = delay_spread_s
+        if db_time_sd_s.size:
+            i = np.searchsorted(db_ids, circuit_id[k])
+            if i < db_ids.size and db_ids[i] == circuit_id[k] and db_time_sd_s[i] > 0.0:
+                spread = np.sqrt(delay_spread_s * delay_spread_s + db_time_sd_s[i] * db_time_sd_s[i])
         res = unit_handle_run(
             state[r],
             istate[r],
@@ -561,7 +613,7 @@ def _handle_runs(
             db_ids,
             db_starts_m,
             db_sd_m,
-            delay_spread_s,
+            spread,
             learn,
             max_extrapolation_s,
             gate_sigma2,
@@ -576,6 +628,13 @@ def _handle_runs(
         out_f[4, k] = res[5]
         out_b[0, k] = res[6]
         out_b[1, k] = res[7]
+    return
+
+
+@njit
+def _uncertainty_runs(state: FloatArray, sigmas: float, out: FloatArray) -> None:
+    for k in range(out.size):
+        out[k] = unit_uncertainty_m(state[k], sigmas)
     return
 
 
@@ -643,22 +702,33 @@ class CircuitDb:
     ids: IntArray  # (C,) sorted
     starts_m: FloatArray  # (C,)
     sd_m: FloatArray  # (C,)
+    # (C,) or (0,): the error of the clocks that time each circuit's telegrams (s, standard deviation)
+    time_sd_s: FloatArray = field(default_factory=lambda: np.empty(0))
 
     @classmethod
     def create(
-        cls, circuits: Sequence[TrackCircuit], boundary_sd_m: Sequence[float] | None, default_sd_m: float
+        cls,
+        circuits: Sequence[TrackCircuit],
+        boundary_sd_m: Sequence[float] | None,
+        default_sd_m: float,
+        time_sd_s: Sequence[float] | FloatArray | None = None,
     ) -> CircuitDb:
-        """``boundary_sd_m``: per circuit (in the order of ``circuits``); ``default_sd_m`` when None."""
+        """``boundary_sd_m``: per circuit (in the order of ``circuits``); ``default_sd_m`` when None.
+        ``time_sd_s``: per circuit, its time-stamping clocks' error (None: none to add)."""
         ids = np.array([c.id for c in circuits], dtype=np.int64)
         starts = np.array([c.start_m for c in circuits], dtype=np.float64)
         sds = np.full(ids.size, default_sd_m) if boundary_sd_m is None else np.asarray(boundary_sd_m)
         if sds.shape != ids.shape or np.any(sds < 0.0):
             raise ValueError("boundary_sd_m needs one non-negative value per circuit")
+        times = np.empty(0) if time_sd_s is None else np.asarray(time_sd_s, dtype=np.float64)
+        if time_sd_s is not None and (times.shape != ids.shape or not np.all(times >= 0.0)):
+            raise ValueError("time_sd_s needs one non-negative value per circuit")
         order = np.argsort(ids)
         return cls(
             ids=np.ascontiguousarray(ids[order]),
             starts_m=np.ascontiguousarray(starts[order]),
             sd_m=np.ascontiguousarray(sds[order], dtype=np.float64),
+            time_sd_s=np.ascontiguousarray(times[order] if times.size else times),
         )
 
 
@@ -693,16 +763,19 @@ class PositioningUnit:
         delay_spread_s: float = 0.0,
         nominal_delay_s: float = 0.0,
         start_sd_m: float | None = None,
+        time_sd_s: Sequence[float] | FloatArray | None = None,
     ) -> None:
         """``boundary_sd_m``: per circuit (in the order of ``circuits``), the uncertainty of its
         start as a fix; ``delay_spread_s``, ``nominal_delay_s``: the detection delay's spread and
         mean (all line data); the nominal delay is the learner's prior, it learns the actual one.
-        ``start_sd_m``: how well the start position is known (None: ``fix_sd_m``, like a fix)."""
+        ``start_sd_m``: how well the start position is known (None: ``fix_sd_m``, like a fix).
+        ``time_sd_s``: per circuit, the error of the clocks that time its telegrams (None: GNSS
+        time, nothing beyond the delay's spread)."""
         if cycle_s <= 0.0:
             raise ValueError(f"cycle_s must be positive, got {cycle_s}")
         if delay_spread_s < 0.0:
             raise ValueError(f"delay_spread_s must not be negative, got {delay_spread_s}")
-        db = CircuitDb.create(circuits, boundary_sd_m, settings.fix_sd_m)
+        db = CircuitDb.create(circuits, boundary_sd_m, settings.fix_sd_m, time_sd_s)
         length = log_length(settings.log_window_s, cycle_s)
         state = np.empty((n, U_SIZE))
         istate = np.empty((n, UI_SIZE), dtype=np.int64)
@@ -758,6 +831,7 @@ class PositioningUnit:
         self.db_ids = db.ids  # SPEC §2 track-circuit DB: ID -> start chainage
         self.db_starts_m = db.starts_m
         self.db_sd_m = db.sd_m
+        self.db_time_sd_s = db.time_sd_s
         self.delay_spread_s = float(delay_spread_s)
         self.settings = settings
         self.n = int(state.shape[0])
@@ -820,6 +894,7 @@ class PositioningUnit:
             outcome,
             out_f,
             out_b,
+            self.db_time_sd_s,
         )
         return FixReport(
             run=run,
@@ -857,6 +932,13 @@ class PositioningUnit:
     def calibrated_m(self) -> FloatArray:
         """Corrected position with the learned scale and delay (beyond SPEC §2)."""
         return self.cal_ref_m + (self.state[:, U_COMP] - self.state[:, U_REF_COMP]) / self.scale_estimate
+
+    def uncertainty_m(self, sigmas: float) -> FloatArray:
+        """Location uncertainty of each run's calibrated position now (``unit_uncertainty_m``):
+        ``sigmas`` standard deviations of its dead reckoning plus its unbridged slides' bound."""
+        out = np.empty(self.n)
+        _uncertainty_runs(self.state, float(sigmas), out)
+        return out
 
     def corrected_speed_mps(self) -> FloatArray:
         """Tachometer speed (bridged while the WSP acts) with the learned scale."""

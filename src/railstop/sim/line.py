@@ -113,10 +113,11 @@ from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
 
-#: The line's model version, in a line campaign's identity: 2 since the line steps the stop model
-#: on its clock (version 1 replayed the stop's recorded trajectory; the trains' positions between
-#: the stop model's steps, and so their odometers and occupancy instants, differ slightly).
-LINE_MODEL_VERSION = 2
+#: The line's model version, in a line campaign's identity: 3 since each CBTC train reports its
+#: positioning unit's own location uncertainty and the unit weighs each fix by the time error of
+#: the clocks that stamped it (2: the line steps the stop model on its clock; 1 replayed the
+#: stop's recorded trajectory).
+LINE_MODEL_VERSION = 3
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
@@ -596,6 +597,7 @@ class LineSimulation:
             delay_spread_s=det.delay_spread_s,
             nominal_delay_s=det.delay_mean_s,
             start_sd_m=self.operation.entry_position_sd_m,
+            time_sd_s=self.chain.clock_sd_s(),
         )
         if self.settings.calibration == "carried":
             # [interpretation] a train in service keeps the scale and delay it learned on its
@@ -1097,6 +1099,8 @@ class LineSimulation:
         while self._restarts_due and now_s >= self._restarts_due[0]:
             self._restarts_due.pop(0)
             out.append(Output(to=cbtc.zc.name, message=ControllerRestart()))  # a fault (data)
+        # IEEE 1474.1: each train reports the location uncertainty of its own positioning.
+        bound = self.positioning.uncertainty_m(self.line.cbtc.position_confidence_sigmas)
         for t in self.trains:
             if t.phase == "gone":
                 if cbtc.active[t.index]:
@@ -1112,6 +1116,7 @@ class LineSimulation:
                 speed_mps=t.v_mps if on else 0.0,
                 true_m=t.x_m,
                 on_line=on,
+                uncertainty_m=float(bound[t.index]),
             )
         cbtc.check_collisions()
         cbtc.sweep_zones(now_s)

@@ -225,6 +225,7 @@ def _cbtc_totals(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
         "restarts",
         "authority_overlaps",
         "collisions",
+        "uncertainty_exceeded",
         "onboard_emergency_brakes",
         "zones",
         "zone_time_s",

@@ -103,6 +103,9 @@ class CbtcSignalling:
     on_line: list[bool] = field(init=False)
     authority_overlaps: int = 0
     collisions: int = 0
+    uncertainty_exceeded: int = 0  # steps with a train's true front outside its reported bound
+    uncertainty_margin_min_m: float = math.inf  # the least (bound - |onboard - true|) on the line
+    uncertainty_max_m: float = 0.0  # the largest bound a train on the line reported
     zones: list[ZoneRecord] = field(default_factory=list)
     _open_zones: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     _checked: _CheckedZc = field(init=False)
@@ -140,13 +143,19 @@ class CbtcSignalling:
     ) -> list[Output]:
         """The train's true position for the checks, and its onboard position for its unit (once
         active; delivered by the clock, which then knows the unit's next report) with its location
-        uncertainty: ``uncertainty_m``, or where the driver gives none the line's declared bound
-        of its position chain (``[cbtc] position_uncertainty_m``, [interpretation])."""
+        uncertainty: ``uncertainty_m`` (the line: its positioning unit's), or where the driver
+        gives none the declared bound (``[cbtc] position_uncertainty_m``, [interpretation])."""
         self.true_front[k] = true_m
         self.on_line[k] = on_line
         if not self.active[k]:
             return []
         u = self.line.cbtc.position_uncertainty_m if uncertainty_m is None else uncertainty_m
+        if on_line:
+            margin = u - abs(onboard_m - true_m)
+            if margin < 0.0:
+                self.uncertainty_exceeded += 1  # the bound the train reports does not hold
+            self.uncertainty_margin_min_m = min(self.uncertainty_margin_min_m, margin)
+            self.uncertainty_max_m = max(self.uncertainty_max_m, u)
         position = OnboardPosition(position_m=onboard_m, speed_mps=speed_mps, uncertainty_m=u)
         return [Output(to=self.onboard[k].name, message=position)]
 
@@ -248,6 +257,9 @@ class CbtcSignalling:
             "releases_refused": int(sum(self.gate.rejected.values())),
             "authority_overlaps": self.authority_overlaps,
             "collisions": self.collisions,
+            "uncertainty_exceeded": self.uncertainty_exceeded,
+            "uncertainty_margin_min_m": _finite_or_none(self.uncertainty_margin_min_m, 3),
+            "uncertainty_max_m": round(self.uncertainty_max_m, 3),
             "onboard_emergency_brakes": int(sum(u.eb_count for u in self.onboard)),
             # By the causes' labels, in their order (EbCause: the JSON keys stay the printed names).
             "onboard_eb_causes": {
@@ -271,3 +283,8 @@ def outage_windows(items: Sequence[tuple[int, float, float]]) -> dict[int, list[
     for train, start, duration in items:
         out.setdefault(train, []).append((start, start + duration))
     return out
+
+
+def _finite_or_none(value: float, digits: int) -> float | None:
+    """A figure for the JSON summary: rounded, or None where no train was ever on the line."""
+    return round(value, digits) if math.isfinite(value) else None
