@@ -323,6 +323,30 @@ VEHICLE_CASES: list[tuple[str, str | bytes, tuple[str, ...]]] = [
         edit(VEHICLE, "tachometer_pulses_per_rev = 100", f"tachometer_pulses_per_rev = {HUGE}"),
         ("tachometer_pulses_per_rev", HUGE),
     ),
+    # Physically impossible vehicles (issue 38): each a value no train has.
+    (
+        "tare-1e308",
+        edit(VEHICLE, "tare_mass_kg = 200000.0", "tare_mass_kg = 1e308"),
+        ("vehicle.tare_mass_kg",),
+    ),
+    (
+        "tare-per-car",
+        edit(VEHICLE, "tare_mass_kg = 200000.0", "tare_mass_kg = 2000.0"),
+        ("tare_mass_kg", "per car"),
+    ),
+    ("length-per-car", edit(VEHICLE, "length_m = 120.0", "length_m = 12.0"), ("length_m", "per car")),
+    ("davis-a-1e12", edit(VEHICLE, "davis_a_n = 2900.0", "davis_a_n = 1e12"), ("vehicle.davis_a_n",)),
+    (
+        "b7-7e300",
+        edit(VEHICLE, "0.714, 0.857, 1.0]", "0.714, 0.857, 7e300]"),
+        ("vehicle.brake.notch_decel_mps2",),
+    ),
+    (
+        "emergency-9g",
+        edit(VEHICLE, "emergency_decel_mps2 = 1.3", "emergency_decel_mps2 = 90.0"),
+        ("emergency_decel_mps2",),
+    ),
+    ("force-1e9", edit(VEHICLE, "max_force_n = 320000.0", "max_force_n = 1e9"), ("max_force_n",)),
 ]
 for name, text, needles in VEHICLE_CASES:
     add(
@@ -333,6 +357,30 @@ for name, text, needles in VEHICLE_CASES:
         files={"v.toml": text},
         needles=("v.toml", *needles),
     )
+add(
+    "stop-train-longer-than-platform",
+    "stop",
+    "--vehicle",
+    "v.toml",
+    files={"v.toml": edit(VEHICLE, "length_m = 120.0", "length_m = 200.0")},
+    needles=("platform_length_m", "shorter than the train"),
+)
+add(
+    "dwell-doors-for-another-train",
+    "dwell",
+    "--vehicle",
+    "v.toml",
+    "--stop-error-m",
+    "0.1",
+    files={
+        "v.toml": edit(
+            edit(edit(VEHICLE, "cars = 6", "cars = 2"), "length_m = 120.0", "length_m = 40.0"),
+            "tare_mass_kg = 200000.0",
+            "tare_mass_kg = 66000.0",
+        )
+    },
+    needles=("train.doors_per_side", "v.toml", "24"),
+)
 add("check-unknown-option", "check", "--lines", "x.toml", needles=("--lines",))
 add("check-extra-argument", "check", "extra", needles=("extra",))
 
@@ -466,9 +514,9 @@ add(
     "--doors",
     "d.toml",
     "--obstruct-door",
-    "2",
-    files={"d.toml": edit(DOORS, "doors_per_side = 24", "doors_per_side = 1")},
-    needles=("--obstruct-door", "1..1"),
+    "7",
+    files={"d.toml": edit(DOORS, "doors_per_side = 24", "doors_per_side = 6")},
+    needles=("--obstruct-door", "1..6"),
 )
 add("dwell-line-missing", "dwell", *GIVEN, "--line", "missing.toml", needles=("missing.toml",))
 add(

@@ -138,7 +138,7 @@ def _line_run(settings: LineSettings, sigmas: float | None = None) -> dict[str, 
     sim = LineSimulation(
         line=line, vehicle=default_vehicle(), operation=load_operation(None, line), seed=3, settings=settings
     )
-    summary = sim.run(1500.0).summary()
+    summary = sim.run(900.0).summary()
     cbtc = summary["cbtc"]
     assert isinstance(cbtc, dict)
     return cbtc

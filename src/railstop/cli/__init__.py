@@ -1,9 +1,9 @@
 """The ``railstop`` command: the app assembled from the command modules of ``railstop.cli``.
 
 One module per command group: ``stop`` (stop, compile), ``campaign`` (campaign, compare, certify,
-report), ``demo``, ``check``, ``hazards``, ``doors`` (and dwell), ``telegram``, ``line``, ``zones``,
-``platform``, ``office``, ``live``, ``position`` (position-run); ``common`` and ``progress`` are
-what they share.
+report), ``demo``, ``check``, ``formats`` (and init), ``hazards``, ``doors`` (and dwell),
+``telegram``, ``line``, ``zones``, ``platform``, ``office``, ``live``, ``position`` (position-run);
+``common`` and ``progress`` are what they share.
 
 Start-up is kept short: the command modules import only what builds the command line
 (typer, the consoles, the controller names its help quotes); every command
@@ -21,7 +21,7 @@ import typer
 from typer.core import TyperCommand, TyperGroup
 
 # The command modules named as modules: ``railstop.cli.stop`` stays the module, not its command.
-from railstop.cli import campaign, check, demo, hazards, stop
+from railstop.cli import campaign, check, demo, formats, hazards, stop
 from railstop.cli.doors import doors_app, dwell
 from railstop.cli.line import line_app
 from railstop.cli.live import live_app
@@ -101,7 +101,9 @@ app.add_typer(zones_app, name="zones")
 app.add_typer(platform_app, name="platform")
 app.add_typer(office_app, name="office")
 app.add_typer(live_app, name="live")
+app.command()(formats.init)
 app.command()(check.check)
+app.command()(formats.formats)
 app.command()(stop.stop)
 app.command(name="compile")(stop.compile_model)
 app.command()(demo.demo)

@@ -16,7 +16,9 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: Operation
     try:
         ln = load_line(line)
         veh = load_vehicle(vehicle)
-        op = load_operation(operation, ln)
+        # The embedded operation names the embedded line's stations: a line of one's own is
+        # judged on its own unless an operation file for it is given too.
+        op = load_operation(operation, ln) if operation is not None or line is None else None
     except RailstopError as exc:
         fail(str(exc))
     problems = plausibility_problems(ln, veh, line_source(line))
@@ -26,13 +28,19 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: Operation
         fail(str(problems[-1]))
     src = str(line) if line else "embedded default line"
     blocks = len(ln.signalling.blocks) if ln.signalling is not None else 0
-    entry = (
-        f"every {op.headway_s:g} s" if op.entries_s is None else f"at {len(op.entries_s)} timetabled times"
-    )
+    if op is None:
+        service = "operation: none given (--operation FILE checks one against this line)"
+    else:
+        entry = (
+            f"every {op.headway_s:g} s"
+            if op.entries_s is None
+            else f"at {len(op.entries_s)} timetabled times"
+        )
+        service = f"operation: {op.trains} trains {entry} ({op.controller})"
     out.print(
         f"ok: {src}: line {ln.line.name!r}, {len(ln.stations)} stations "
         f"({', '.join(s.name for s in ln.stations)}), {len(ln.segments)} segments, {blocks} blocks; "
-        f"vehicle {veh.name!r}; operation: {op.trains} trains {entry} ({op.controller})",
+        f"vehicle {veh.name!r}; {service}",
         highlight=False,
         soft_wrap=True,
     )

@@ -170,6 +170,7 @@ def dwell(
 
     from railstop.config import load_line, load_vehicle
     from railstop.config.doors import load_doors
+    from railstop.config.loader import line_source
     from railstop.sim.dwell import MODES, run_dwell
     from railstop.streams import SEED_RANGE, seed_in_range
 
@@ -181,7 +182,8 @@ def dwell(
     try:
         ln = load_line(line)
         st = ln.station(station)
-        cfg = load_doors(doors)
+        cfg = load_doors(doors).at_station(st, line_source(line))
+        cfg.check_vehicle(load_vehicle(vehicle), str(vehicle) if vehicle else "the embedded vehicle")
         for option, unit in (("--obstruct-door", obstruct_door), ("--psd-fail", psd_fail)):
             if unit is not None and not 1 <= unit <= cfg.doors_per_side:
                 fail(f"{option}: door units are numbered 1..{cfg.doors_per_side} (got {unit})")

@@ -270,6 +270,8 @@ def stations_cmd(
         key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
         ctrl = _tasc_controller(controller)
         door_data = load_doors(doors)
+        for st in ln.stations:  # one PSD tolerance per station: a doors file that differs is refused
+            door_data.at_station(st, "the line file")
         jams = _psd_jams(psd_jam or [], ln, door_data.doors_per_side)
     except RailstopError as exc:
         fail(str(exc))

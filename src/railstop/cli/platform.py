@@ -154,6 +154,7 @@ def dwell_cmd(
 
     from railstop.config import load_line, load_vehicle
     from railstop.config.doors import load_doors
+    from railstop.config.loader import line_source
     from railstop.config.platform import default_platform
     from railstop.controllers import DRIVER_CONTROLLERS
     from railstop.provenance import overrides_sha256
@@ -170,7 +171,7 @@ def dwell_cmd(
     try:
         ln = load_line(line)
         st = ln.station(station)
-        cfg = load_doors(doors)
+        cfg = load_doors(doors).at_station(st, line_source(line))
         drv, plat = load_manual_data(driver, platform)
         data = plat or default_platform()
         variant = (

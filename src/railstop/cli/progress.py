@@ -216,6 +216,21 @@ def _click_exceptions() -> Any:
         return importlib.import_module("click.exceptions")
 
 
+def empty_option(argv: list[str]) -> str | None:
+    """The option given an empty value (``--out ""``, ``--out=``), or None. Every option of
+    railstop takes a path, a name or a number: an empty one is never meant (a path "" would be
+    the current folder, a name "" matches nothing), so it is refused as a class."""
+    for i, arg in enumerate(argv):
+        if arg == "--":
+            return None
+        if arg.startswith("--") and arg.endswith("=") and len(arg) > 3:
+            return arg[:-1]
+        if arg.strip() == "":
+            before = argv[i - 1] if i > 0 else ""
+            return before if before.startswith("-") and "=" not in before else f"argument {i + 1}"
+    return None
+
+
 def run_program(app: Any) -> NoReturn:
     """Run the Typer ``app`` as the ``railstop`` program and exit.
 
@@ -226,6 +241,10 @@ def run_program(app: Any) -> NoReturn:
     """
     exceptions = _click_exceptions()
     install_signal_handlers()
+    empty = empty_option(sys.argv[1:])
+    if empty is not None:  # before any command runs: `--out ""` would be the current folder
+        err.print(f"error: {empty}: an empty value; give one", highlight=False, soft_wrap=True)
+        sys.exit(2)
     code: Any = 0
     try:
         code = app(standalone_mode=False, prog_name="railstop")

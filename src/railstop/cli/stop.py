@@ -316,8 +316,9 @@ def _driver_dwell(
     from railstop.config.platform import default_platform
     from railstop.sim.platform_dwell import dwell_after_stop
 
+    doors = load_doors(None).at_station(station, "the line file")  # the station's PSD tolerance
     return dwell_after_stop(
-        result, batch, station=station, platform=platform or default_platform(), doors=load_doors(None)
+        result, batch, station=station, platform=platform or default_platform(), doors=doors
     )
 
 

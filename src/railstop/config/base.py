@@ -29,7 +29,9 @@ class FieldProblem(ValueError):
 class Stretch(Model):
     """A stretch of the line from ``start_m`` to ``end_m`` (chainage, R direction), not empty."""
 
+    # Chainage where the stretch starts (R direction).
     start_m: FiniteFloat
+    # Chainage where it ends: greater than start_m.
     end_m: FiniteFloat
 
     @model_validator(mode="after")

@@ -111,42 +111,171 @@ class _Spec:
     unit: str
     range: _Range
     block: int  # counter block, see the module docstring; never reuse or renumber
+    meaning: str  # what the parameter is in the stop simulation (one sentence)
 
 
 _PROB = _Range(0.0, 1.0)
 
 _SPECS: dict[str, _Spec] = {
-    "entry_speed_kmh": _Spec("km/h", _Range(0.0, 120.0, lo_open=True), 0),
-    "load_factor": _Spec("0 empty .. 1 crush", _Range(0.0, 1.0), 1),
-    "load_weighing_error_pct": _Spec("%", _Range(-50.0, 50.0), 2),
-    "brake_gain": _Spec("actual / nominal", _Range(0.0, 3.0, lo_open=True), 3),
-    "brake_dead_time_s": _Spec("s", _Range(0.0, 2.0), 4),
-    "brake_time_constant_s": _Spec("s", _Range(0.0, 3.0, lo_open=True), 5),
-    "platform_gradient_permille": _Spec("permille, + uphill", _Range(-60.0, 60.0), 6),
-    "approach_gradient_permille": _Spec("permille, + uphill", _Range(-60.0, 60.0), 7),
-    "wheel_diameter_mm": _Spec("mm", _Range(500.0, 1200.0, lo_open=True, hi_open=True), 8),
-    "odometer_diameter_error_pct": _Spec("%", _Range(-20.0, 20.0), 9),
-    "low_adhesion_probability": _Spec("per run", _PROB, 10),
-    "low_adhesion_mu": _Spec("adhesion coefficient", _Range(0.0, 0.5, lo_open=True), 11),
-    "low_adhesion_length_m": _Spec("m", _Range(0.0, 1000.0, lo_open=True), 12),
-    "radio_latency_ms": _Spec("ms", _Range(0.0, 2000.0), 14),
-    "radio_loss_probability": _Spec("per telegram", _PROB, 15),
-    "sensor_jitter_ms": _Spec("ms, standard deviation", _Range(0.0, 100.0), 16),
-    "sensor_miss_probability": _Spec("per detector passage", _PROB, 17),
-    "doppler_noise_pct": _Spec("%, standard deviation", _Range(0.0, 50.0), 18),
+    "entry_speed_kmh": _Spec(
+        "km/h",
+        _Range(0.0, 120.0, lo_open=True),
+        0,
+        meaning="The train's speed at the run's start, 1.5 s (at least 20 m) before the first detector.",
+    ),
+    "load_factor": _Spec(
+        "0 empty .. 1 crush",
+        _Range(0.0, 1.0),
+        1,
+        meaning="The passenger load: the train's mass is tare + load_factor x the crush payload.",
+    ),
+    "load_weighing_error_pct": _Spec(
+        "%",
+        _Range(-50.0, 50.0),
+        2,
+        meaning="The load-weighing error: the brake ECU sets its force for a mass of actual x (1 + error).",
+    ),
+    "brake_gain": _Spec(
+        "actual / nominal",
+        _Range(0.0, 3.0, lo_open=True),
+        3,
+        meaning="The brakes' actual over nominal effectiveness: it scales every deceleration they deliver.",
+    ),
+    "brake_dead_time_s": _Spec(
+        "s",
+        _Range(0.0, 2.0),
+        4,
+        meaning="The brake's dead time from a new demand to the first response (nominal: the vehicle's).",
+    ),
+    "brake_time_constant_s": _Spec(
+        "s",
+        _Range(0.0, 3.0, lo_open=True),
+        5,
+        meaning="The first-order lag of the brake's build-up (nominal: the vehicle's time_constant_s).",
+    ),
+    "platform_gradient_permille": _Spec(
+        "permille, + uphill",
+        _Range(-60.0, 60.0),
+        6,
+        meaning="The gradient from the platform's start to its end (nominal: the station's mean there).",
+    ),
+    "approach_gradient_permille": _Spec(
+        "permille, + uphill",
+        _Range(-60.0, 60.0),
+        7,
+        meaning=(
+            "The gradient from 150 m before the first detector to the platform's start "
+            "(nominal: the station's mean there)."
+        ),
+    ),
+    "wheel_diameter_mm": _Spec(
+        "mm",
+        _Range(500.0, 1200.0, lo_open=True, hi_open=True),
+        8,
+        meaning="The actual wheel diameter: the tachometer counts its revolutions (nominal: the vehicle's).",
+    ),
+    "odometer_diameter_error_pct": _Spec(
+        "%",
+        _Range(-20.0, 20.0),
+        9,
+        meaning=(
+            "The error of the diameter the odometer assumes, actual x (1 + error): its distances and "
+            "speeds are off by that factor."
+        ),
+    ),
+    "low_adhesion_probability": _Spec(
+        "per run",
+        _PROB,
+        10,
+        meaning=(
+            "The chance that a run meets a low-adhesion patch, which starts uniformly between the first "
+            "detector and 10 m before the stopping point."
+        ),
+    ),
+    "low_adhesion_mu": _Spec(
+        "adhesion coefficient",
+        _Range(0.0, 0.5, lo_open=True),
+        11,
+        meaning="The adhesion coefficient in the low-adhesion patch (the vehicle's adhesion_mu elsewhere).",
+    ),
+    "low_adhesion_length_m": _Spec(
+        "m",
+        _Range(0.0, 1000.0, lo_open=True),
+        12,
+        meaning="The length of the low-adhesion patch (uniform in 30-80 m when not given).",
+    ),
+    "radio_latency_ms": _Spec(
+        "ms",
+        _Range(0.0, 2000.0),
+        14,
+        meaning=(
+            "The radio's latency, added to each braking telegram's delivery and to the track-circuit "
+            "telegrams of the position correction."
+        ),
+    ),
+    "radio_loss_probability": _Spec(
+        "per telegram",
+        _PROB,
+        15,
+        meaning="The chance that a braking telegram's transmission (a cyclic repeat too) is lost.",
+    ),
+    "sensor_jitter_ms": _Spec(
+        "ms, standard deviation",
+        _Range(0.0, 100.0),
+        16,
+        meaning="The standard deviation of a detector's passage time around the true crossing.",
+    ),
+    "sensor_miss_probability": _Spec(
+        "per detector passage",
+        _PROB,
+        17,
+        meaning="The chance that a TASC detector misses the train's passage, per detector.",
+    ),
+    "doppler_noise_pct": _Spec(
+        "%, standard deviation",
+        _Range(0.0, 50.0),
+        18,
+        meaning="The radar's relative speed noise: each sample is v x (1 + noise z), z standard normal.",
+    ),
     # The link's per-frame randomness (the medium's structure, bit rate and
     # cycle, is station data: tasc.medium).
-    "radio_jitter_ms": _Spec("ms, standard deviation per frame", _Range(0.0, 1000.0), 19),
-    "radio_bit_error_rate": _Spec("per bit", _Range(0.0, 0.01), 20),
+    "radio_jitter_ms": _Spec(
+        "ms, standard deviation per frame",
+        _Range(0.0, 1000.0),
+        19,
+        meaning="The standard deviation of a braking frame's latency around radio_latency_ms (clipped at 0).",
+    ),
+    "radio_bit_error_rate": _Spec(
+        "per bit",
+        _Range(0.0, 0.01),
+        20,
+        meaning="The chance of each bit of a braking frame flipping; the receiver refuses a corrupted frame.",
+    ),
     # A radio outage (a fault, DESIGN rule 10): every braking frame sent from this long after
     # the first telegram the train received, for the duration, is lost (0: no outage). With
     # start 0 and a long duration: every telegram after the first is lost.
-    "radio_outage_start_s": _Spec("s after the first telegram received", _Range(0.0, 1000.0), 21),
-    "radio_outage_duration_s": _Spec("s (0: no outage)", _Range(0.0, 1e6), 22),
+    "radio_outage_start_s": _Spec(
+        "s after the first telegram received",
+        _Range(0.0, 1000.0),
+        21,
+        meaning="When a radio outage starts: this long after the first braking telegram the train received.",
+    ),
+    "radio_outage_duration_s": _Spec(
+        "s (0: no outage)",
+        _Range(0.0, 1e6),
+        22,
+        meaning="How long the outage lasts: every braking frame sent in it is lost (0: no outage).",
+    ),
 }
 
 #: Every supported parameter name, in a fixed order (the Parquet column order).
 PARAMETERS: tuple[str, ...] = tuple(_SPECS)
+
+
+def parameter_specs() -> list[tuple[str, str, str, str]]:
+    """Every parameter as (name, unit, physical range, meaning): the file's reference."""
+    return [(name, spec.unit, spec.range.text("x"), spec.meaning) for name, spec in _SPECS.items()]
+
 
 #: Extra columns of the drawn values: does the run meet a patch, and where it starts (inf = none).
 LOW_ADHESION = "low_adhesion"
@@ -204,10 +333,16 @@ class _Model(BaseModel):
 class Distribution(_Model):
     """One parameter's distribution: exactly one of fixed, uniform, normal (+ clip), choice."""
 
+    # {fixed = x}: every run gets x.
     fixed: Finite | None = None
+    # {uniform = [lo, hi]}: lo + (hi - lo) u, u uniform in [0, 1).
     uniform: Annotated[tuple[Finite, Finite], _pair("[lo, hi]")] | None = None
+    # {normal = [mean, sd]}: mean + sd z, z standard normal (sd >= 0); a disturbance parameter also
+    # needs clip.
     normal: Annotated[tuple[Finite, Finite], _pair("[mean, sd]")] | None = None
+    # With normal only: the drawn value is clipped to [lo, hi] (not resampled).
     clip: Annotated[tuple[Finite, Finite], _pair("[lo, hi]")] | None = None
+    # {choice = [a, b, ...]}: one of the listed values, each with the same probability.
     choice: list[Finite] | None = None
 
     @model_validator(mode="before")

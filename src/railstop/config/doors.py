@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from railstop.config.loader import data_text, read_toml, validate
-from railstop.config.schema import FieldProblem, _Model
+from railstop.config.schema import FieldProblem, Station, Vehicle, _Model
 from railstop.errors import ConfigError
 from railstop.quantities import kmh_to_mps
 
@@ -115,29 +115,56 @@ Seconds = Annotated[float, Field(gt=0.0, le=600.0, allow_inf_nan=False)]
 
 
 class ActionRowModel(_Model):
+    # SPEC §5 Table 1: the row's DOA signal, 0 or 1 (manual driving: the door-side selector).
     doa: Bit
+    # The row's DMC signal, 0 or 1: an ATC output in both modes, wired with the zero velocity relay.
     dmc: Bit
+    # The row's DOC signal, 0 or 1 (manual driving: the door-open button).
     doc: Bit
+    # The row's DCC signal, 0 or 1 (manual driving: the door-close button).
     dcc: Bit
+    # What a door that is now closed does for these signals: "open" or "keep-closed" (no command).
     closed: Literal["keep-closed", "open"]
+    # What a door that is now open does: "close" or "keep-open" (no command: a moving door finishes).
     open: Literal["keep-open", "close"]
+    # The same in manual driving, where it differs from open (None: as open).
     open_manual: Literal["keep-open", "close"] | None = None
 
 
 class DoorTiming(_Model):
+    # How long a train door takes to open.
     train_door_open_s: Seconds
+    # How long a train door takes to close.
     train_door_close_s: Seconds
+    # How long a closed train door takes to lock; the camera's lock_confirm_s of the platform data
+    # must be at least this.
     train_door_lock_s: Seconds
+    # How long a platform screen door unit takes to open (SPEC §3: faster than a train door).
     psd_open_s: Seconds
+    # How long a PSD unit takes to close (SPEC §3: faster than a train door).
     psd_close_s: Seconds
+    # How long a closed PSD unit takes to lock.
     psd_lock_s: Seconds
+    # The zero velocity relay confirms standstill this long after the wheels stop; then the stop
+    # confirmation (SPEC §5 PSC request) starts.
     zero_speed_confirm_s: Seconds
+    # SPEC §5: no PSC reply from the WPCS within this long after the request = not in position
+    # (at least two link exchange cycles).
     psc_timeout_s: Seconds
+    # The dwell proper: from the doors fully open to the close command.
     dwell_s: Seconds
+    # Manual driving: the driver acts on a lamp or a door button this long after it lights (or the
+    # stop is confirmed).
     driver_action_s: Seconds
+    # Fault injection (railstop dwell --obstruct-door): the door is obstructed this long into its
+    # closing, inside train_door_close_s; it reopens and holds.
     obstruction_at_s: Seconds
+    # The obstacle is cleared this long after the door was obstructed.
     obstruction_clear_s: Seconds
+    # Fault injection (railstop dwell --psd-fail): the PSD unit jams this long into its closing,
+    # inside psd_close_s.
     psd_jam_at_s: Seconds
+    # Staff isolate a jammed PSD unit (or close by hand one the camera holds open) this long after.
     staff_isolation_s: Seconds
 
     @model_validator(mode="after")
@@ -160,18 +187,39 @@ class DoorTiming(_Model):
         return self
 
 
+#: The most doors a side a car may have (``DoorsConfig.check_vehicle``).
+MAX_DOORS_PER_CAR = 6
+#: The PSD tolerance of a dwell where no station says one (a station's default too: SPEC §1).
+DEFAULT_PSD_TOLERANCE_M = 0.35
+
+
 class StopConfirmModel(_Model):
+    # SPEC §5 precise-stop confirmation: after this many PSC requests that time out, fault and
+    # emergency brake.
     max_psc_attempts: Annotated[int, Field(ge=1, le=10)] = 3
+    # Which stop tolerance the WPCS accepts (it answers PSC only for a train inside it): "psd" =
+    # psd_tolerance_m, "manual-line" = manual_line_tolerance_m.
     tolerance: Literal["psd", "manual-line"] = "psd"
-    psd_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.35
+    # SPEC §1: the stop tolerance of a line with PSD (±0.35 m for the Korean metro). One tolerance
+    # per station: a dwell at a station takes the station's psd_tolerance_m from the line file;
+    # left out here (the embedded file does), a value given must equal it (else an error naming
+    # both files). It serves alone only where no station is known (``doors verify``).
+    psd_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] | None = None
+    # SPEC §3: the door / PSD stop tolerance of the manually driven lines (±500 mm).
     manual_line_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.50
+    # Position correction (SPEC §5, lamps F / R of SPEC §3): the train creeps towards the stopping
+    # point at this speed.
     creep_speed_kmh: Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)]
+    # The longest creep of one correction: it moves by the stop error, at most this.
     creep_max_m: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)]
+    # After the creep, the time to brake to a stand before the zero velocity relay's confirmation.
     creep_settle_s: Seconds
 
     @property
     def tolerance_m(self) -> float:
-        return self.psd_tolerance_m if self.tolerance == "psd" else self.manual_line_tolerance_m
+        if self.tolerance == "manual-line":
+            return self.manual_line_tolerance_m
+        return DEFAULT_PSD_TOLERANCE_M if self.psd_tolerance_m is None else self.psd_tolerance_m
 
     @property
     def creep_speed_mps(self) -> float:
@@ -185,9 +233,15 @@ class DoorLinkModel(_Model):
     medium: Annotated[str, Field(min_length=1, max_length=64)] = "transponder"
     # EN 50159 category: 1 closed system (loop, transponder: security by range), 3 open (radio).
     category: Literal[1, 2, 3] = 1
+    # While PSC is requested or high, each end sends its telegram (door-command up, psd-status down)
+    # once per this cycle.
     exchange_cycle_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.1
+    # The receivers refuse a frame older than this (EN 50159 delay).
     max_age_s: Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)] = 0.3
+    # With PSC high, no valid frame for this long = the link is lost: the train faults and brakes,
+    # the WPCS holds the PSD as it is (at least two exchange cycles).
     supervision_timeout_s: Annotated[float, Field(gt=0.0, le=30.0, allow_inf_nan=False)] = 0.5
+    # The WPCS checks its stop sensors for this long before it answers a PSC request.
     wpcs_processing_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.05
 
     @model_validator(mode="after")
@@ -208,10 +262,16 @@ class DoorLayout(_Model):
 
 
 class DoorsFile(_Model):
+    # SPEC §5 Table 1: the 16 rows, one per combination of (DOA, DMC, DOC, DCC), used as written
+    # (railstop doors verify proves or refutes an edited table).
     action_table: list[ActionRowModel]
+    # The door, PSD and dwell timings.
     timing: DoorTiming
+    # SPEC §5 precise-stop confirmation (PSC) and the position correction.
     stop_confirm: StopConfirmModel
+    # The train's door layout.
     train: DoorLayout
+    # SPEC §5: the train <-> platform door link (door-command up, psd-status down).
     link: DoorLinkModel = DoorLinkModel()
 
     @model_validator(mode="after")
@@ -265,6 +325,39 @@ class DoorsConfig:
                 for r in file.action_table
             )
         )
+
+    def at_station(self, station: Station, line_source: str) -> DoorsConfig:
+        """The door data of a dwell at ``station``: its PSD tolerance is the station's
+        ``psd_tolerance_m`` (one tolerance per station judges the stop, the dwell and the report).
+        A doors file that gives its own, different, is refused naming both files."""
+        sc = self.file.stop_confirm
+        mine = sc.psd_tolerance_m
+        if mine is not None and mine != station.psd_tolerance_m:
+            raise ConfigError(
+                self.source,
+                "stop_confirm.psd_tolerance_m",
+                f"differs from station {station.name!r}'s psd_tolerance_m ({station.psd_tolerance_m:g} m in "
+                f"{line_source}): one tolerance per station; leave it out of the doors file",
+                mine,
+            )
+        if mine == station.psd_tolerance_m:
+            return self
+        stop = sc.model_copy(update={"psd_tolerance_m": station.psd_tolerance_m})
+        return DoorsConfig(self.file.model_copy(update={"stop_confirm": stop}), self.source)
+
+    def check_vehicle(self, vehicle: Vehicle, vehicle_source: str) -> None:
+        """The door layout must be the train's: 1 to ``MAX_DOORS_PER_CAR`` doors a side per car
+        ([interpretation]: a metro car has 2 to 5; one door unit per PSD unit, SPEC §5). A
+        ConfigError naming both files otherwise."""
+        n, cars = self.doors_per_side, vehicle.cars
+        if not cars <= n <= MAX_DOORS_PER_CAR * cars:
+            raise ConfigError(
+                self.source,
+                "train.doors_per_side",
+                f"{n} doors a side for the {cars} cars of {vehicle.name!r} ({vehicle_source}): a car has "
+                f"1 to {MAX_DOORS_PER_CAR} doors a side",
+                n,
+            )
 
     def fingerprint(self) -> str:
         """A short stable digest of the data (part of a dwell's database key)."""

@@ -58,14 +58,25 @@ def _normal_or_fixed(d: Distribution) -> Distribution:
 
 
 class Level(Model):
+    # The share of runs whose driver has this level of skill; the levels' shares add up to 1.
     share: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+    # Perception-reaction time: what a look decides acts this long later; also the wait before a
+    # re-stop.
     reaction_s: Distribution
+    # Time between the driver's looks at speed, distance and marks.
     look_interval_s: Distribution
+    # The run's systematic misjudgement of the distance left, a share of it (Weber's law).
     distance_bias_pct: Distribution
+    # The look-to-look scatter of the judged distance on top of the bias, a share of it.
     distance_noise_pct: Distribution
+    # The scatter (standard deviation) of one reading of the speedometer.
     speed_read_sd_kmh: Distribution
+    # The deceleration the driver plans the stop with.
     planned_decel_mps2: Distribution
+    # Braking starts when the deceleration needed to stop at the mark reaches this share of
+    # planned_decel_mps2 (before it, traction holds the speed).
     brake_start_fraction: Distribution
+    # How far below a speed code the driver aims to pass its point.
     code_margin_kmh: Distribution
 
     @field_validator(*LEVEL_PARAMETERS)
@@ -85,18 +96,31 @@ class Level(Model):
 
 
 class Restop(Model):
+    # SPEC §3 re-stop after the F or R lamp: the driver moves the train at this walking pace.
     creep_speed_kmh: Annotated[float, Field(gt=0.0, le=15.0, allow_inf_nan=False)] = 3.0
+    # The acceleration up to the creep speed.
     creep_accel_mps2: Annotated[float, Field(gt=0.0, le=1.5, allow_inf_nan=False)] = 0.3
+    # The deceleration from the creep speed to a stand.
     creep_decel_mps2: Annotated[float, Field(gt=0.0, le=1.5, allow_inf_nan=False)] = 0.5
+    # The distance the driver moves, judged from the platform marks, is off by this share of the
+    # true distance (standard deviation), per correction.
     judgement_sd_pct: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 15.0
+    # A further error of the judged distance (standard deviation) on top of judgement_sd_pct.
     judgement_floor_sd_m: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.08
+    # Before reversing (the R lamp): the time to set the reverser and get the control room's
+    # permission.
     reverse_setup_s: Annotated[float, Field(ge=0.0, le=600.0, allow_inf_nan=False)] = 8.0
+    # After an emergency brake: the time the driver takes to reset it before moving again.
     eb_reset_s: Annotated[float, Field(ge=0.0, le=600.0, allow_inf_nan=False)] = 20.0
+    # After this many corrections without OK the driver gives up: the PSD stays closed (the train
+    # is counted as not aligned).
     max_restops: Annotated[int, Field(ge=0, le=10)] = 3
 
 
 class DriverFile(Model):
+    # The levels of skill by name (at most 8); a run draws one with their shares.
     levels: dict[str, Level]
+    # How the driver re-stops after the F or R lamp (all levels alike).
     restop: Restop = Field(default_factory=Restop)
 
     @field_validator("levels")

@@ -11,7 +11,6 @@ every named test exists, and ``railstop hazards`` renders the log
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -20,7 +19,8 @@ from typing import Annotated
 from pydantic import Field, StringConstraints, field_validator
 
 from railstop.config.base import Model
-from railstop.config.loader import read_toml, validate
+from railstop.config.files import read_text_file
+from railstop.config.loader import parse_toml, read_toml, validate
 from railstop.errors import ConfigError
 
 HAZARD_ID = re.compile(r"^HZ-([A-Z]+)-(\d{2})$")
@@ -76,7 +76,7 @@ def _files(directory: Path | None) -> list[tuple[str, str]]:
             raise ConfigError(str(directory), "(folder)", "no such folder")
         out = []
         for p in sorted(directory.glob("*.toml")):
-            out.append((str(p), p.read_text(encoding="utf-8")))
+            out.append((str(p), read_text_file(p)))
         return out
     root = resources.files("railstop.data").joinpath("hazards")
     return sorted(
@@ -94,10 +94,7 @@ def load_hazard_log(directory: Path | None = None) -> list[HazardEntry]:
     entries: list[HazardEntry] = []
     seen: dict[str, str] = {}
     for source, text in _files(directory):
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(source, "(toml syntax)", str(exc)) from None
+        data = parse_toml(text, source)
         parsed = validate(HazardFile, data, source)
         areas = {h.area for h in parsed.hazard}
         if len(areas) != 1:

@@ -37,14 +37,20 @@ class Segment(Stretch):
 class Block(Model):
     """A fixed block: consecutive track circuits (listed in running order) and its entry signal."""
 
+    # The block's name, unique on the line (the checks' messages name it).
     id: Annotated[str, Field(min_length=1, max_length=16)]
+    # The track circuits of the block by ID, in running order: consecutive circuits of the line, each
+    # circuit in exactly one block; its occupancy is theirs.
     circuits: list[Annotated[int, Field(ge=1, le=65535)]] = Field(min_length=1)
+    # The name of the signal at the block's entry (unique): it stands at the start of the block's
+    # first circuit and shows proceed only when the block and the overlap are clear.
     signal: Annotated[str, Field(min_length=1, max_length=16)]
 
 
 class Signalling(Model):
     """Fixed-block signalling: the blocks in running order and the safety distances."""
 
+    # The blocks in running order; together they take every track circuit of the line once.
     blocks: list[Block] = Field(min_length=1)
     # The overlap: the stretch beyond a red signal that must be clear as well, for a train
     # that stops a little past it (a common 50-200 m; this line runs ATP to the signal).
@@ -100,9 +106,17 @@ class Cbtc(Model):
     # negative time or acceleration; no guaranteed brake or runaway above 3 m/s² (about 0.3 g,
     # more than wheel on rail can give).
     gebr_mps2: Annotated[float, Field(gt=0.0, le=3.0, allow_inf_nan=False)] = 1.1
+    # Safe braking model: the supervision's time to see the overspeed (the train accelerating at
+    # runaway_accel_mps2).
     overspeed_detection_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.2
+    # Safe braking model: after the detection, the time to cut the propulsion (the train still
+    # accelerating at runaway_accel_mps2).
     propulsion_cutoff_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.5
+    # Safe braking model: after the cut-off, the emergency brake's build-up time (the train coasting;
+    # downhill, accelerating).
     brake_build_up_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = 1.2
+    # Safe braking model: the train's acceleration while the overspeed is detected and the
+    # propulsion cut (plus a downhill gradient).
     runaway_accel_mps2: Annotated[float, Field(ge=0.0, le=3.0, allow_inf_nan=False)] = 1.0
     # The line's ATO aims this far short of the authority's end: the intervention curve keeps its
     # reaction distance (about 1.3 m at a standstill, 4.7 m more than the ATO's 0.7 m/s² approach
@@ -118,7 +132,9 @@ class Cbtc(Model):
 class SpeedLimit(Stretch):
     """A civil speed limit over a stretch of the line."""
 
+    # The civil limit over the stretch; where the line's own limit is lower, the lower one holds.
     limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
+    # Why the limit is there (a curve, a turnout); for the reader, the simulation does not use it.
     reason: Annotated[str, Field(max_length=64)] | None = None
 
 

@@ -10,6 +10,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
+from railstop.config.files import read_text_file
 from railstop.config.schema import FieldProblem, Line, Vehicle, VehicleFile
 from railstop.errors import ConfigError
 
@@ -69,18 +70,18 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(str(path), "(file)", "no such file") from None
-    except OSError as exc:
-        raise ConfigError(str(path), "(file)", f"cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(str(path), "(file)", "not UTF-8 text") from None
+    """A user's TOML file (``railstop.config.files.read_text_file``: a regular file of bounded size)."""
+    return parse_toml(read_text_file(path), str(path))
+
+
+def parse_toml(text: str, source: str) -> dict[str, Any]:
+    """TOML text, or one ConfigError naming ``source`` (a syntax error, nesting too deep)."""
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(path), "(toml syntax)", str(exc)) from None
+        raise ConfigError(source, "(toml syntax)", str(exc)) from None
+    except RecursionError:
+        raise ConfigError(source, "(toml syntax)", "arrays or tables nested too deeply") from None
 
 
 def data_text(name: str) -> tuple[str, dict[str, Any]]:

@@ -43,6 +43,7 @@ class ChannelParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    # The medium's bit rate: a frame's airtime is (8 x its bytes + overhead_bits) / bit_rate_bps.
     bit_rate_bps: Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)]
     # SPEC §5 poll cycle; 0 = the frame leaves as soon as the medium is free.
     cycle_s: Seconds = 0.0
@@ -52,7 +53,10 @@ class ChannelParams(BaseModel):
     burst_enter_probability: Probability = 0.0  # Gilbert–Elliott good -> bad, per frame
     burst_exit_probability: Probability = 0.0  # bad -> good, per frame
     burst_loss_probability: Probability = 0.0  # loss of a frame sent while bad
+    # A delivered frame is sent again straight after the original with this probability, per frame.
     duplicate_probability: Probability = 0.0
+    # A frame is held back by reorder_delay_s with this probability, per frame (frames sent after
+    # it may then arrive first).
     reorder_probability: Probability = 0.0
     reorder_delay_s: Seconds = 0.0  # extra delay of a reordered (held back) frame
     bit_error_rate: Probability = 0.0  # per delivered bit, independent

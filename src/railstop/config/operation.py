@@ -29,19 +29,29 @@ DEFAULT_OPERATION = "operation/default.toml"
 class StationDwell(Model):
     """A station's dwell, where it differs from the operation's default."""
 
+    # The station, as the line names it (any case); an unknown name is refused.
     name: Annotated[str, Field(min_length=1, max_length=64)]
+    # The dwell at this station instead of the operation's dwell_s.
     dwell_s: Annotated[float, Field(ge=5.0, le=600.0, allow_inf_nan=False)]
 
 
 class Operation(Model):
+    # What this operation is for; for the reader, the simulation does not use it.
     description: Annotated[str, Field(max_length=200)] = ""
+    # How many trains enter the line (numbered 0, 1, ... in order of entry).
     trains: Annotated[int, Field(ge=1, le=200)] = 12
+    # The time between two trains' entries (unless entries_s gives a timetable).
     headway_s: Annotated[float, Field(ge=30.0, le=3600.0, allow_inf_nan=False)] = 120.0
+    # When the first train asks to enter; the k-th asks at first_entry_s + k x headway_s.
     first_entry_s: NonNegFloat = 0.0
     # A timetable instead of the headway: the entry times (s), one per train, increasing.
     entries_s: list[NonNegFloat] | None = None
+    # How the trains stop at every station: a controller of the station stop or a law loaded with
+    # --law.
     controller: str = "tasc-pwm"
+    # Where the trains enter (chainage): on the line and before the first station's platform.
     entry_m: FiniteFloat = 0.0
+    # The speed at which a train enters, at most the line's speed limit.
     entry_speed_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] = 60.0
     # How well a train knows its position as it enters (standard deviation): it comes from the
     # section before (a terminal platform or the depot's transfer track) with its position
@@ -50,6 +60,7 @@ class Operation(Model):
     # The dwell at a station: doors open, passengers, doors closed (SPEC §5's sequence runs
     # within it); per station where it differs.
     dwell_s: Annotated[float, Field(ge=5.0, le=600.0, allow_inf_nan=False)] = 30.0
+    # The stations whose dwell differs from dwell_s, each at most once.
     stations: list[StationDwell] = Field(default_factory=list)
 
     @model_validator(mode="after")
@@ -100,10 +111,17 @@ def load_operation(path: str | Path | None, line: Line) -> Operation:
     known = {s.name.lower() for s in line.stations}
     for i, s in enumerate(op.stations):
         if s.name.lower() not in known:
+            hint = (
+                "; the embedded operation is the embedded line's: give --operation FILE for this line "
+                "(railstop init DIR writes one to edit)"
+                if path is None
+                else ""
+            )
             raise ConfigError(
                 source,
                 f"stations[{i}].name",
-                f"no such station on line {line.line.name!r} ({', '.join(st.name for st in line.stations)})",
+                f"no such station on line {line.line.name!r} ({', '.join(st.name for st in line.stations)})"
+                + hint,
                 s.name,
             )
     first = line.stations[0]

@@ -28,11 +28,19 @@ LAMP_NAMES: dict[int, str] = {v: k for k, v in LAMP_CODES.items()}
 
 
 class StopSensors(Model):
+    # SPEC §3: the distance from stop sensor S2 to S1, placed symmetrically about the stopping point
+    # (S2 first in the running direction).
     spacing_m: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.75
+    # SPEC §3: optical or ultrasonic time of flight against a reflector; checked against the list,
+    # not read by the simulation (noise_sd_m sets the sensors' accuracy).
     kind: Literal["optical", "ultrasonic"] = "optical"
+    # Where a sensor sees the train's front: off the truth by this (standard deviation), per scan.
     noise_sd_m: Annotated[float, Field(ge=0.0, le=0.5, allow_inf_nan=False)] = 0.005
+    # The chance that a scan misses a train in front of the sensor (it reads "no train").
     dropout_probability: Annotated[float, Field(ge=0.0, le=0.5, allow_inf_nan=False)] = 0.001
+    # The sensors are scanned once per this period.
     scan_period_s: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = 0.05
+    # A sensor's state changes only after this many equal scans in a row.
     debounce_scans: Annotated[int, Field(ge=1, le=100)] = 3
 
 
@@ -46,12 +54,22 @@ def sensor_positions(stop_point_m: float, spacing_m: float) -> tuple[float, floa
 class DoorCamera(Model):
     """SPEC §3: the CCD camera that shows the PSD control the train doors' shape (open / closed)."""
 
+    # SPEC §3 CCD camera: it delivers a frame once per this period.
     frame_period_s: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.1
+    # Each frame shows the doors as they were this long before it is delivered (grab and compare
+    # with the stored shapes: the camera's detection delay).
     processing_delay_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.3
+    # A frame shows "open" once the leaves are at least this fraction of the way open ("moving"
+    # between shut and this, "closed" only fully shut).
     open_fraction: Annotated[float, Field(gt=0.0, lt=1.0, allow_inf_nan=False)] = 0.3
+    # The chance that a frame is classified as one of the other two shapes (each equally likely).
     misread_probability: Annotated[float, Field(ge=0.0, lt=0.5, allow_inf_nan=False)] = 0.01
+    # The chance that a frame is unreadable or not delivered.
     lost_frame_probability: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.001
+    # The PSD control takes a new shape only after this many equal frames in a row.
     confirm_frames: Annotated[int, Field(ge=1, le=100)] = 3
+    # This many unreadable frames in a row is a lost camera: the PSD is held where it is and the
+    # train is not given departure while it is open (DESIGN rule 10).
     lost_limit_frames: Annotated[int, Field(ge=1, le=1000)] = 10
     # SPEC §3 / §5 order (train doors closed and locked, then the PSD): the camera cannot see the
     # locks, so "closed" frames must go on this long before the doors count as locked.
@@ -64,19 +82,26 @@ class DoorCamera(Model):
 
 
 class LampRow(Model):
+    # SPEC §3 lamp table: whether sensor S2 sees the train, 0 or 1.
     s2: Bit
+    # Whether sensor S1 sees the train, 0 or 1.
     s1: Bit
+    # The lamp for this (S2, S1) at standstill: "F" move forward, "OK" in position (the PSD may
+    # operate; only for S2 = 1, S1 = 0), "R" reverse, "fault" none and the PSD held closed.
     lamp: Lamp
 
 
 class ApproachCode(Model):
     """A speed code from a point on, held until the next one (SPEC §3)."""
 
+    # Where the code starts: this far beyond the home signal, before the stop sensors.
     after_home_m: Annotated[float, Field(ge=0.0, le=2000.0, allow_inf_nan=False)]
+    # The code's speed limit, held until the next code's point.
     limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
 
 
 class ApproachMode(Model):
+    # The mode's speed codes in running order, one per point (empty: no station codes).
     codes: list[ApproachCode] = Field(default_factory=list)
 
     @field_validator("codes")
@@ -91,13 +116,25 @@ class ApproachMode(Model):
 class Approach(Model):
     """The approach of a manually driven train (SPEC §3 figs. 3 and 5), from the home signal."""
 
+    # SPEC §3 fig. 3: the stop sensor S2 stands this far beyond the home signal (the station-entry
+    # signal); the codes' points are measured from the home signal.
     home_to_s2_m: Annotated[float, Field(gt=0.0, le=2000.0, allow_inf_nan=False)] = 204.25
+    # The speed limit before the first code (from the block before the home signal); the driver
+    # aims to run at it.
     approach_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] = 70.0
+    # ATC modes: the permitted speed is the indicated speed plus this; above it the emergency brake
+    # applies at once.
     atc_permitted_margin_kmh: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 5.0
+    # SPEC §3: a train over the limit (ATS) or above the indicated speed (ATC) for this long gets the
+    # emergency brake.
     grace_s: Annotated[float, Field(ge=0.0, le=30.0, allow_inf_nan=False)] = 3.0
+    # SPEC §3 fig. 3: the codes of the ATS accurate stop (controller driver-ats).
     ats: ApproachMode = Field(default_factory=ApproachMode)
+    # SPEC §3 fig. 5, ATC option 1 (controller driver-atc1).
     atc1: ApproachMode = Field(default_factory=ApproachMode)
+    # SPEC §3 fig. 5, ATC option 2 (controller driver-atc2).
     atc2: ApproachMode = Field(default_factory=ApproachMode)
+    # No station codes: the driver stops by the platform marks alone (controller driver-unaided).
     unaided: ApproachMode = Field(default_factory=ApproachMode)
 
     @model_validator(mode="after")
@@ -114,9 +151,13 @@ class Approach(Model):
 
 
 class PlatformFile(Model):
+    # SPEC §3: the two platform stop sensors S2 and S1.
     sensors: StopSensors = Field(default_factory=StopSensors)
+    # SPEC §3: the CCD camera through which the PSD follows the train doors.
     camera: DoorCamera = Field(default_factory=DoorCamera)
+    # SPEC §3: the lamp for each of the four (S2, S1) combinations, once each; only (1, 0) may light OK.
     lamp_table: list[LampRow]
+    # SPEC §3: the approach of a manually driven train from the home signal, per driving mode.
     approach: Approach = Field(default_factory=Approach)
 
     @field_validator("lamp_table")

@@ -5,6 +5,7 @@ it and still be one no train can use; these checks catch that before a stop is
 simulated, each as a :class:`~railstop.errors.ConfigError` naming the line
 file, the field and its value:
 
+- every platform is at least as long as the train (its doors at the platform's doors);
 - every TASC detector, the Doppler radar and the start of the approach lie on
   the line (chainage 0 .. the line's length or the end of its track circuits)
   and after the previous station's stopping point (a zone cannot reach back
@@ -73,6 +74,17 @@ def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[Con
     for i, st in enumerate(line.stations):
         where = f"stations[{i}].tasc"
         zone = st.tasc
+        if vehicle.length_m > st.platform_length_m:
+            # SPEC §1, §5: the train stands at the platform with every door at a platform door.
+            problems.append(
+                ConfigError(
+                    source,
+                    f"stations[{i}].platform_length_m",
+                    f"shorter than the train {vehicle.name!r} ({vehicle.length_m:g} m): "
+                    "its rear doors would open off the platform",
+                    st.platform_length_m,
+                )
+            )
         previous_stop = line.stations[i - 1].stop_point_m if i > 0 else None
         for j, (d, x) in enumerate(zip(zone.detectors_before_stop_m, st.detector_positions_m(), strict=True)):
             field = f"{where}.detectors_before_stop_m[{j}]"

@@ -31,15 +31,23 @@ __all__ = ["FieldProblem", "FiniteFloat", "Fraction", "NonNegFloat", "PositiveFl
 class GradientSegment(Stretch):
     """A constant gradient between two chainages; + is uphill in the R direction."""
 
+    # The gradient over the stretch in per mille, + uphill in the R direction: the gravity force on
+    # the train (the mean under it); level between segments.
     permille: Annotated[float, Field(ge=-60.0, le=60.0, allow_inf_nan=False)]
 
 
 class DopplerRadar(_Model):
     """SPEC §1 speed detection unit: a Doppler sensor at the platform end."""
 
+    # Where the radar stands: this far beyond the stopping point (the platform end), looking back
+    # at the approaching train; its range is counted from there.
     beyond_stop_m: NonNegFloat = 10.0
+    # The radar's sampling period; it must equal the simulation step (the model refuses another).
     sample_period_s: Annotated[float, Field(gt=0.0, le=0.1)] = 0.01
+    # The radar sees a train only within this distance of itself; outside it the sample reads 0.
     range_m: PositiveFloat = 400.0
+    # The wayside fits the deceleration (the slope of a line through the speed samples) over the
+    # radar samples of this window.
     fit_window_s: Annotated[float, Field(gt=0.0, le=10.0)] = 4.0
     # The speed "now" is fitted over a shorter window than the deceleration.
     speed_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 0.3
@@ -52,13 +60,29 @@ class TascZone(_Model):
     (farthest) first; the embodiment of the patent uses five wheel sensors.
     """
 
+    # The nominal speed at which a train enters the TASC zone (the disturbance sets' nominal
+    # entry_speed_kmh); on the line, the speed ceiling at the station stop's hand-over point.
     entry_speed_kmh: Annotated[float, Field(gt=0.0, le=120.0)] = 60.0
+    # SPEC §1: the train detectors' distances before the stopping point, farthest first, strictly
+    # decreasing: at least 2 with a Doppler radar, at least 3 without one (variant 2).
     detectors_before_stop_m: list[PositiveFloat]
+    # SPEC §1: the kind of train detector; checked against the list, not read by the simulation
+    # (every kind gives the same passage times).
     detector_kind: Literal["wheel-sensor", "ultrasonic", "optical", "magnetic", "proximity"] = "wheel-sensor"
+    # SPEC §1 speed detection unit at the platform end (None: no radar, SPEC §1 variant 2: speed
+    # and deceleration from the detectors' passage times).
     doppler: DopplerRadar | None = None
+    # When the wayside computes a new command: "detectors" at each detector passage (SPEC §1);
+    # "continuous" also every continuous_period_s between them (needs the Doppler radar).
     update: Literal["detectors", "continuous"] = "detectors"
+    # With update = "continuous": the period of the wayside's commands between detector passages.
     continuous_period_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
+    # SPEC §1 claim 3: the form of the braking control signal, 1-8 (1 position, 2 distance, 3 time
+    # between detectors, 4 speed, 5 deceleration, 6 required deceleration, 7 brake command,
+    # 8 increase / decrease braking); --form overrides it.
     signal_form: Annotated[int, Field(ge=1, le=8)] = 6
+    # The radio latency the wayside allows for: added to the brake's dead time and lag as the delay
+    # until a new command acts, in its planning and in its overrun guard.
     assumed_link_latency_s: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
     # Identify the brake response (dead time, lag) online from the Doppler radar once the
     # first braking command has acted, and plan with it (beyond SPEC §1: control.brake_ident).
@@ -76,7 +100,11 @@ class TascZone(_Model):
     # unless the medium is a closed system. A telegram older than
     # max_telegram_age_s on arrival is refused as stale.
     medium: str = "radio"
+    # EN 50159 category of the braking telegrams' safety layer: 1 or 2 close each frame with a
+    # CRC-32, 3 with a keyed MAC (a longer frame, more airtime on the medium).
     safety_category: Literal[1, 2, 3] = 3
+    # A telegram older than this on arrival is refused as stale (EN 50159 delay); it also bounds
+    # the frames the link keeps in flight.
     max_telegram_age_s: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
     # Supervision (DESIGN rule 10): once the train has a braking telegram, a telegram (new or a
     # cyclic repeat) must arrive at least this often, else the onboard unit applies the
@@ -126,15 +154,27 @@ class TascZone(_Model):
 
 
 class Station(_Model):
+    # The station's name, unique on the line (any case): --station and the operation file name it.
     name: Annotated[str, Field(min_length=1, max_length=64)]
+    # The stopping point (a chainage): where the train's front should stop; the detectors and the
+    # ATO transponders are placed before it, the stations listed in increasing stop_point_m.
     stop_point_m: FiniteFloat
+    # The platform's length; the platform runs back this far from its end (platform_end_m).
     platform_length_m: PositiveFloat
+    # The side of the platform in the running direction, "L" or "R": the side whose doors and
+    # platform screen doors open at the dwell.
     platform_side: Literal["L", "R"]
+    # Chainage of the platform's end (None: 5 m beyond the stopping point); the overrun guards stop
+    # the train before it.
     platform_end_m: FiniteFloat | None = None
+    # The gradient around the station: segments of constant gradient, not overlapping (the gaps
+    # between them are level); the stop model's track profile.
     gradient: list[GradientSegment] = Field(default_factory=list)
     # How far from the stopping point a stop still lets the platform screen doors open: SPEC §1
     # gives ±35 cm for the Korean metro with PSD, SPEC §3 ±500 mm for manually driven lines.
     psd_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.35
+    # SPEC §1: the station's TASC zone: detectors, Doppler radar, the wayside's settings and the
+    # telegram link.
     tasc: TascZone
     # Position references of the conventional onboard ATO (the baseline TASC
     # replaces): transponders that reset its odometry, metres before the
@@ -183,13 +223,18 @@ class TrackCircuit(Stretch):
     """
 
     id: Annotated[int, Field(ge=1, le=65535)]  # fits the 16 bits of an occupancy telegram
+    # "jointless" (audio-frequency, a tuned zone as boundary) or "insulated" (insulated rail joints):
+    # picks the boundary's uncertainty from the track's detection settings (boundary_sd_*_m).
     kind: Literal["jointless", "insulated"] = "jointless"
 
 
 class Tunnel(Stretch):
     """A GNSS shadow (SPEC §2); ``repeater`` = a satellite-signal repeater covers the whole section."""
 
+    # A name for the shadow (optional): for the reader of the data, the simulation does not use it.
     name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    # True: a satellite-signal repeater covers the whole section, so it is no GNSS shadow and the
+    # clocks in it stay disciplined (SPEC §2).
     repeater: bool = False
 
 
@@ -202,9 +247,15 @@ class TrackCircuitDetection(_Model):
     Values and reasons: docs/position.md.
     """
 
+    # Mean of the delay from the first axle crossing the boundary to the device declaring the
+    # circuit occupied; the onboard learner's nominal detection delay too.
     delay_mean_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.30
+    # Standard deviation of that delay, drawn per passage as normal(mean, spread) clipped at 0.
     delay_spread_s: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = 0.05
+    # Standard deviation of where the first axle is detected against the surveyed start, for a
+    # jointless circuit (its tuned zone is some metres long).
     boundary_sd_jointless_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 1.5
+    # The same for an insulated circuit (a sharp boundary at the rail joints).
     boundary_sd_insulated_m: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 0.2
 
     def boundary_sd_m(self, kind: str) -> float:
@@ -222,17 +273,27 @@ class GnssClocks(_Model):
     ``holdover_s`` before the run.
     """
 
+    # Standard deviation of a GNSS-disciplined clock's error against GNSS time.
     disciplined_error_s: Annotated[float, Field(ge=0.0, le=1e-3, allow_inf_nan=False)] = 1e-7
+    # Standard deviation of a free-running clock's frequency offset, drawn per clock: its error
+    # grows at this rate in a shadow without a repeater.
     free_run_drift_ppm: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 1.0
+    # How long before the run a clock with no time source at all was last set: its error at the
+    # start is its drift times this.
     holdover_s: Annotated[float, Field(ge=0.0, le=3.2e7, allow_inf_nan=False)] = 86400.0
 
 
 class Track(_Model):
     """SPEC §2 line data: track circuits (contiguous from 0), GNSS shadows, detection and clocks."""
 
+    # SPEC §2 track circuits in running order, contiguous from chainage 0 with unique IDs; the
+    # onboard track-circuit DB holds each ID with the chainage of its start.
     circuits: list[TrackCircuit] = Field(default_factory=list)
+    # SPEC §2 GNSS shadows (tunnels, cut-and-cover sections), not overlapping and on the line.
     tunnels: list[Tunnel] = Field(default_factory=list)
+    # SPEC §2 wayside track-circuit device: its detection delay and boundary uncertainty.
     detection: TrackCircuitDetection = Field(default_factory=TrackCircuitDetection)
+    # SPEC §2 GNSS-disciplined clocks of the wayside units and the trains.
     clocks: GnssClocks = Field(default_factory=GnssClocks)
 
     @model_validator(mode="after")
@@ -253,21 +314,28 @@ class Track(_Model):
 
 
 class LineInfo(_Model):
+    # The line's name, shown in reports and messages.
     name: Annotated[str, Field(min_length=1)]
+    # The line's own speed limit: the trains' ceiling where no civil limit is lower; entry speeds
+    # above it are refused.
     speed_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0)] = 80.0
     # Chainage of the end of the line (optional): the track circuits must end exactly there.
     length_m: PositiveFloat | None = None
 
 
 class Line(_Model):
+    # The line's name, speed limit and length.
     line: LineInfo
+    # The stations in increasing stop_point_m, with unique names; the first is the default station.
     stations: list[Station] = Field(min_length=1)
     # SPEC §2 track circuits, GNSS shadows, detection and clocks (empty: no position correction data).
     track: Track = Field(default_factory=Track)
     # The line with many trains (config.layout): segments with IDs (SPEC §4), fixed-block
     # signalling over the track circuits, civil speed limits. Empty / None: a line of single stops.
     segments: list[Segment] = Field(default_factory=list)
+    # Fixed-block signalling over the track circuits (None: no blocks; a line run needs them).
     signalling: Signalling | None = None
+    # Civil speed limits over stretches of the line, not overlapping; the line's own limit elsewhere.
     speed_limits: list[SpeedLimit] = Field(default_factory=list)
     # SPEC §4 moving-block CBTC over the segments (None: the defaults of config.layout.Cbtc).
     cbtc: Cbtc = Field(default_factory=Cbtc)
@@ -339,19 +407,47 @@ class Line(_Model):
         )
 
 
+# Physical bounds of a train on steel rail ([interpretation]: the data must describe a train, not
+# any number; each bound is several times what a metro has). Braking: wheel on rail gives at most
+# about 0.3 g (3 m/s², as the CBTC guaranteed rate's bound); a larger rate is a typing error.
+MAX_BRAKE_MPS2 = 3.0
+BrakeRate = Annotated[float, Field(gt=0.0, le=MAX_BRAKE_MPS2, allow_inf_nan=False)]
+# A car is 5 to 40 m long and weighs (empty) 5 to 100 t: a vehicle outside is not a train.
+CAR_LENGTH_M = (5.0, 40.0)
+CAR_TARE_KG = (5_000.0, 100_000.0)
+
+
 class BrakeModel(_Model):
     """SPEC §1 brake chain: notch table, emergency, PWM map, ECU + actuator dynamics."""
 
-    notch_decel_mps2: list[PositiveFloat]
-    emergency_decel_mps2: PositiveFloat
+    # SPEC §1 fig. 3: the deceleration of each service notch B1..B7, exactly 7, increasing; B7 is full
+    # service.
+    notch_decel_mps2: list[BrakeRate]
+    # The emergency brake's deceleration (wire e), at least the B7 deceleration.
+    emergency_decel_mps2: BrakeRate
+    # The PWM brake command's duty ratios (increasing, at least 2): with pwm_decel_mps2 the map from
+    # duty to service deceleration, interpolated.
     pwm_duty: list[Fraction]
-    pwm_decel_mps2: list[NonNegFloat]
+    # The service deceleration at each duty of pwm_duty (same length, not decreasing).
+    pwm_decel_mps2: list[Annotated[float, Field(ge=0.0, le=MAX_BRAKE_MPS2, allow_inf_nan=False)]]
+    # The PWM carrier frequency: the onboard unit's PWM output (tasc-pwm, tasc-switched-pwm) takes
+    # a new duty once per carrier period.
     pwm_carrier_hz: Annotated[float, Field(gt=0.0, le=2000.0)] = 50.0
+    # The brake's dead time: from a new demand to the first response (whole simulation steps; the
+    # disturbance sets' nominal brake_dead_time_s).
     dead_time_s: Annotated[float, Field(ge=0.0, le=2.0)]
+    # The first-order lag of the brake's build-up (the disturbance sets' nominal
+    # brake_time_constant_s).
     time_constant_s: Annotated[float, Field(gt=0.0, le=3.0)]
-    jerk_limit_mps3: PositiveFloat
+    # The ECU's jerk limiter: the deceleration demand changes at most this fast.
+    jerk_limit_mps3: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)]
+    # The train's own brake controller (config 1, the ATO, the wayside's notch modulation of forms 7
+    # and 8): it updates its notch once per this cycle.
     controller_cycle_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
+    # The train's brake controller holds a notch at least this long before it changes it.
     controller_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.3
+    # The onboard TASC unit's step output (config 2, tasc-step, through the switching unit) holds a
+    # notch at least this long (config 1 holds controller_min_hold_s).
     tasc_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.2
     # Config 2's switching unit (SPEC §1 claims 12-14): the changeover switches' transfer time,
     # break before make: for this long the ECU input is open (000: no service brake).
@@ -401,10 +497,17 @@ class Traction(_Model):
     holds the wheels ``slip_ratio`` faster than the train.
     """
 
-    max_force_n: PositiveFloat
+    # The tractive effort up to base_speed_kmh; above it the power max_force_n x base speed holds.
+    max_force_n: Annotated[float, Field(gt=0.0, le=2e6, allow_inf_nan=False)]
+    # The speed where the constant force gives way to constant power.
     base_speed_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
+    # The acceleration the traction control aims at (load-weighed): the most traction gives.
     max_accel_mps2: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 1.0
+    # The share of the train's weight on motored axles (4M2T: 4/6): sets the adhesion limit in
+    # traction.
     motored_axle_fraction: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = 1.0
+    # While traction demands more than adhesion gives, the anti-slip control holds the wheels this
+    # fraction faster than the train (the tachometer over-reads by it).
     slip_ratio: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.10
 
     @property
@@ -420,15 +523,27 @@ class Positioning(_Model):
     its prior and noise are set here (see onboard/positioning.py).
     """
 
+    # SPEC §2 tachometer: pulses per wheel revolution; the odometer counts whole pulses.
     tachometer_pulses_per_rev: Annotated[int, Field(ge=1, le=10000)] = 100
+    # How long the odometer log (GNSS time, odometer, tachometer speed) reaches back: the occupancy
+    # instant of a telegram is looked up in it (the stop kernel keeps its own 2 s).
     log_window_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)] = 5.0
     # How far past its newest log sample a telegram time may lie (clock offsets) and
     # still be used, extrapolating with the last tachometer speed.
     max_extrapolation_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 1.0
+    # Beyond SPEC §2: learn the odometer's scale and the constant detection delay from the fixes
+    # (false: correct the position only).
     learn: bool = True
+    # The learner's prior standard deviation of the odometer's scale error.
     scale_prior_pct: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)] = 5.0
+    # The learner's prior standard deviation of the constant delay, around the line's nominal
+    # detection delay.
     delay_prior_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = 0.2
+    # Standard deviation of the start position, and of a fix where the line data gives no
+    # boundary uncertainty.
     fix_sd_m: Annotated[float, Field(gt=0.0, le=50.0, allow_inf_nan=False)] = 1.5
+    # A fix further than this many standard deviations from the prediction is not learned from:
+    # the position restarts from it (counted as gated).
     gate_sigma: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = 4.0
     # Beyond SPEC §2: the accelerometer that bridges the odometer while the WSP acts (slide
     # compensation); the standard deviation of its bias after the gradient's gravity is taken
@@ -449,30 +564,74 @@ class Atp(_Model):
     brake's response time.
     """
 
+    # The odometer error the overrun guard counts against itself: this share of the distance since
+    # the last transponder reset.
     odometer_uncertainty_pct: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = 1.5
+    # A fixed position error the overrun guard adds to that.
     position_margin_m: Annotated[float, Field(ge=0.0, le=20.0, allow_inf_nan=False)] = 0.5
+    # The guard applies the emergency brake when stopping before the platform end would need more
+    # than this fraction of full service after the brake's response time.
     guard_decel_fraction: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 1.0
 
 
 class Vehicle(_Model):
+    # The vehicle's name, shown in reports and messages.
     name: Annotated[str, Field(min_length=1)]
+    # The number of cars: the length and the tare mass must be a train's for it (5-40 m and
+    # 5-100 t a car); the simulation itself runs the whole train as one mass.
     cars: Annotated[int, Field(ge=1, le=20)]
+    # The train's length: the gradient force is the mean gradient under it, and on the line its rear
+    # occupies the track behind the front.
     length_m: PositiveFloat
-    tare_mass_kg: PositiveFloat
-    crush_payload_kg: NonNegFloat
+    # The empty train's mass (AW0).
+    tare_mass_kg: Annotated[float, Field(gt=0.0, le=2e6, allow_inf_nan=False)]
+    # The payload of a crush-loaded train (AW0 to AW3): a run's mass is tare + load_factor x this.
+    crush_payload_kg: Annotated[float, Field(ge=0.0, le=2e6, allow_inf_nan=False)]
+    # The equivalent mass of the rotating parts (wheelsets, motors) as a fraction of tare: added to
+    # the mass that is accelerated, not to the weight.
     rotating_mass_factor: Annotated[float, Field(ge=0.0, le=0.5)]
-    davis_a_n: NonNegFloat
-    davis_b_n_per_mps: NonNegFloat
-    davis_c_n_per_mps2: NonNegFloat
+    # Davis running resistance R(v) = A + B v + C v²: the constant term A.
+    davis_a_n: Annotated[float, Field(ge=0.0, le=1e5, allow_inf_nan=False)]
+    # The term B of R(v), in N per m/s.
+    davis_b_n_per_mps: Annotated[float, Field(ge=0.0, le=1e4, allow_inf_nan=False)]
+    # The term C of R(v), in N per (m/s)².
+    davis_c_n_per_mps2: Annotated[float, Field(ge=0.0, le=1e3, allow_inf_nan=False)]
+    # The wheel's diameter: the tachometer's revolutions give the distance with it (the disturbance
+    # sets' nominal wheel_diameter_mm; the odometer error is relative to it).
     wheel_diameter_m: Annotated[float, Field(gt=0.5, lt=1.2)]
+    # The dry rail's adhesion coefficient: it limits braking and traction; a demand above what it
+    # gives slides or slips the wheels (the disturbance sets' nominal low_adhesion_mu).
     adhesion_mu: Annotated[float, Field(gt=0.0, le=0.5)]
+    # While the wheels slide under braking, the wheel-slide protection holds them this fraction
+    # slower than the train (the tachometer under-reads by it).
     slide_slip_ratio: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.15
+    # SPEC §1 brake chain: notch table, emergency, PWM map, ECU and actuator dynamics.
     brake: BrakeModel
     # Needed to drive between stations (position-run); a braking-only vehicle file may omit it.
     traction: Traction | None = None
+    # SPEC §2 onboard position-correction device: tachometer, odometer log and the learner.
     positioning: Positioning = Field(default_factory=Positioning)
+    # The train's own overrun guard around TASC (DESIGN rule 10).
     atp: Atp = Field(default_factory=Atp)
+
+    @model_validator(mode="after")
+    def _a_train(self) -> Vehicle:
+        # Physically a train: its cars 5-40 m long and 5-100 t empty each ([interpretation],
+        # CAR_LENGTH_M, CAR_TARE_KG), so that a length or a mass off by a factor is caught.
+        for name, total, (lo, hi), unit, per in (
+            ("length_m", self.length_m, CAR_LENGTH_M, "m", 1.0),
+            ("tare_mass_kg", self.tare_mass_kg, CAR_TARE_KG, "t", 1000.0),
+        ):
+            car = total / self.cars / per
+            if not lo / per <= car <= hi / per:
+                raise FieldProblem(
+                    name,
+                    f"{car:g} {unit} per car for {self.cars} cars: "
+                    f"a car is {lo / per:g} to {hi / per:g} {unit}",
+                )
+        return self
 
 
 class VehicleFile(_Model):
+    # The vehicle: masses, resistance, brake, traction, positioning and protection.
     vehicle: Vehicle

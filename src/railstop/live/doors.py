@@ -76,6 +76,8 @@ class LiveDoors:
         self.obstructions: dict[int, int] = {}  # fault injection: train -> door (0 = front), next dwell
         self.line = line
         self.doors = doors
+        # Each station's door data (its PSD tolerance), checked before any train runs.
+        self._at = [doors.at_station(st, "the line file") for st in line.stations]
         self.model = model_for(doors)
         self.address = stations
         self.master_key = master_key
@@ -138,7 +140,7 @@ class LiveDoors:
             station_name=st.name,
             side=Side(st.platform_side),
             error_m=error_m,
-            doors=self.doors,
+            doors=self._at[station],  # the station's PSD tolerance
             model=self.model,
             t0_s=now_s,
             carried=carried,
@@ -198,7 +200,13 @@ class Platforms:
         it are refused (``old_session``)."""
         model = model_for(doors)
         self.units = [
-            PlatformDoors(index=i, name=st.name, side=Side(st.platform_side), doors=doors, model=model)
+            PlatformDoors(
+                index=i,
+                name=st.name,
+                side=Side(st.platform_side),
+                doors=doors.at_station(st, "the line file"),  # the station's PSD tolerance
+                model=model,
+            )
             for i, st in enumerate(line.stations)
         ]
         for station, unit in jams:

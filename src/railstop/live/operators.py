@@ -26,6 +26,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from railstop.config.files import read_text_file
 from railstop.errors import ConfigError
 
 ITERATIONS = 600_000  # OWASP's figure for PBKDF2-HMAC-SHA256
@@ -76,17 +77,12 @@ def load_operators(path: str | Path) -> dict[str, Operator]:
     """Operator name -> Operator; a bad (or too open) file raises a ConfigError naming file, field
     and value."""
     file = Path(path)
-    try:
-        text = file.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(str(file), "operators", exc.strerror or str(exc), str(file)) from None
-    except UnicodeDecodeError:
-        raise ConfigError(str(file), "operators", "not UTF-8 text", None) from None
+    text = read_text_file(file, field="operators")
     check_mode(file)
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(file), "operators", f"not TOML: {exc}", None) from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
+        raise ConfigError(str(file), "operators", f"not TOML: {exc or 'nested too deeply'}", None) from None
     table = data.get("operators")
     if not isinstance(table, dict) or not table:
         raise ConfigError(str(file), "operators", "needs an [operators.NAME] table per operator", None)

@@ -539,7 +539,8 @@ class LineSimulation:
         self.stops: list[StopRecord] = []
         self.dwells: list[DwellRecord] = []
         self.doors = load_doors(None)
-        self._doors_for: dict[float, DoorsConfig] = {}
+        self.doors.check_vehicle(self.vehicle, "the vehicle file")  # its doors, the train's
+        self._doors_for: dict[tuple[float, str], DoorsConfig] = {}
         self._stop_models: dict[int, KernelModel] = {}
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
         self.skipped_stops = 0
@@ -979,7 +980,7 @@ class LineSimulation:
     def _dwell(self, train: Train, arrive: float) -> None:
         """The dwell (SPEC §5) of a train standing at its station since ``arrive``."""
         st = self.line.stations[train.next_station]
-        doors = self._doors(self.operation.dwell_at_s(st.name))
+        doors = self._doors(self.operation.dwell_at_s(st.name), st)
         dwell = run_dwell(
             doors=doors,
             station=st.name,
@@ -1044,14 +1045,16 @@ class LineSimulation:
         train.play_t, train.play_x, train.play_v = t, x, v  # driven on sight at a crawl: no slide
         train.phase = "stopping"
 
-    def _doors(self, dwell_s: float) -> DoorsConfig:
-        """The door data with the doors standing open for ``dwell_s``."""
-        cfg = self._doors_for.get(dwell_s)
+    def _doors(self, dwell_s: float, station: Station) -> DoorsConfig:
+        """The door data with the doors standing open for ``dwell_s``, at ``station`` (its PSD
+        tolerance: one per station judges the stop and the dwell)."""
+        cfg = self._doors_for.get((dwell_s, station.name))
         if cfg is None:
             f = self.doors.file
             timing = f.timing.model_copy(update={"dwell_s": dwell_s})
             cfg = DoorsConfig(f.model_copy(update={"timing": timing}), self.doors.source)
-            self._doors_for[dwell_s] = cfg
+            cfg = cfg.at_station(station, f"the line file of {self.line.line.name!r}")
+            self._doors_for[(dwell_s, station.name)] = cfg
         return cfg
 
     def plant(self, now_s: float, dt: float) -> list[Output]:

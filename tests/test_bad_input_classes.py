@@ -1,0 +1,95 @@
+"""Classes of bad input closed once, each by one rule (issue 38), through the real command.
+
+- A data file that is not a regular file of bounded size (a folder, ``/dev/zero``, a named pipe
+  nobody writes, a file larger than any data file) is refused before it is read
+  (``railstop.config.files.read_text_file``): no hang, no memory exhaustion.
+- TOML nested deeper than the parser can follow is a syntax error, not a RecursionError.
+- An empty value for any option or argument is refused before the command runs (``--out ""``
+  would otherwise be the current folder).
+Each: one ``error:`` line naming the file or option, exit code 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from railstop.config.files import MAX_DATA_FILE_BYTES
+
+EXE = [sys.executable, "-m", "railstop.cli"]
+
+
+def run(
+    *args: str, cwd: Path, timeout: float = 60.0, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, check=False, env=env
+    )
+
+
+def one_error(r: subprocess.CompletedProcess[str], *needles: str) -> None:
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr
+    assert "Traceback" not in r.stderr
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+
+
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="no /dev/zero")
+def test_a_device_is_refused_before_it_is_read(tmp_path: Path) -> None:
+    one_error(
+        run("check", "--line", "/dev/zero", cwd=tmp_path, timeout=30), "/dev/zero", "not a regular file"
+    )
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes")
+def test_a_named_pipe_nobody_writes_does_not_hang(tmp_path: Path) -> None:
+    os.mkfifo(tmp_path / "line.toml")
+    one_error(
+        run("check", "--line", "line.toml", cwd=tmp_path, timeout=30), "line.toml", "not a regular file"
+    )
+    os.mkfifo(tmp_path / "ops.toml")
+    env = {**os.environ, "RAILSTOP_OFFICE_KEY": os.urandom(32).hex()}
+    r = run(
+        "office", "serve", "--db", "o.db", "--operators", "ops.toml", "--port", "0", "--http-port", "0",
+        cwd=tmp_path, timeout=30, env=env,
+    )  # fmt: skip
+    one_error(r, "ops.toml", "not a regular file")
+
+
+def test_a_folder_and_a_file_too_large_are_refused(tmp_path: Path) -> None:
+    (tmp_path / "adir").mkdir()
+    one_error(run("check", "--vehicle", "adir", cwd=tmp_path), "adir", "a folder")
+    big = tmp_path / "big.toml"
+    with big.open("wb") as fh:
+        fh.truncate(MAX_DATA_FILE_BYTES + 1)  # sparse: no disk used
+    one_error(run("check", "--line", "big.toml", cwd=tmp_path), "big.toml", "too large")
+
+
+def test_toml_nested_too_deeply_is_a_syntax_error(tmp_path: Path) -> None:
+    (tmp_path / "deep.toml").write_text("a = " + "[" * 50_000 + "]" * 50_000 + "\n", encoding="utf-8")
+    one_error(run("check", "--line", "deep.toml", cwd=tmp_path), "deep.toml", "nested too deeply")
+    one_error(run("campaign", "--disturbances", "deep.toml", "--runs", "5", cwd=tmp_path), "deep.toml")
+
+
+@pytest.mark.parametrize(
+    "args, named",
+    [
+        (("campaign", "--runs", "5", "--out", ""), "--out"),
+        (("campaign", "--runs", "5", "--out="), "--out"),
+        (("compare", "--runs", "5", "--out", " "), "--out"),
+        (("report", ""), "argument 2"),
+        (("check", "--line", ""), "--line"),
+    ],
+    ids=["out-empty", "out-equals", "out-blank", "report-empty", "line-empty"],
+)
+def test_an_empty_value_is_refused_and_nothing_is_written(
+    tmp_path: Path, args: tuple[str, ...], named: str
+) -> None:
+    one_error(run(*args, cwd=tmp_path), named, "empty value")
+    assert list(tmp_path.iterdir()) == []  # not the current folder either
