@@ -378,3 +378,16 @@ def test_cli_zones_verify_violation_exit_1_with_trace(monkeypatch: pytest.Monkey
     assert "authority-clear: " in res.output and "trace:" in res.output
     assert "  -> T1 " in res.output
     assert res.output.rstrip().splitlines()[-1].startswith("states: ")
+
+
+def test_the_search_reports_its_progress_explored_of_found(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``progress(explored, found)`` every PROGRESS_EVERY states: explored grows, never past found
+    (the CLI shows it on stderr while the search runs a minute or two)."""
+    import railstop.verify.zones as zones
+
+    monkeypatch.setattr(zones, "PROGRESS_EVERY", 50)
+    calls: list[tuple[int, int]] = []
+    r = verify(ZoneModel(trains=2, segments=5, max_losses=2), progress=lambda e, f: calls.append((e, f)))
+    assert r.states >= 200 and len(calls) >= 3  # every state is explored once: about states / 50 calls
+    assert [e for e, _ in calls] == [50 * (k + 1) for k in range(len(calls))]
+    assert all(e <= f <= r.states for e, f in calls)

@@ -614,10 +614,13 @@ def report(
     driver: DriverOpt = None,
     platform: PlatformOpt = None,
     law: LawOpt = None,
+    csv: Annotated[
+        bool, typer.Option("--csv", help="Also write each campaign's runs as runs.csv beside runs.parquet.")
+    ] = False,
 ) -> None:
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
     from railstop.config import load_line, load_vehicle
-    from railstop.report.campaign_report import write_report
+    from railstop.report.campaign_report import export_csv, write_report
     from railstop.sim.campaign import read_manifest, replay_profile
 
     try:
@@ -646,8 +649,11 @@ def report(
                 tolerance_m=checked_tolerance(tolerance_m),
                 progress=status.update,
             )
+        tables = export_csv(directory) if csv else []
     except RailstopError as exc:
         fail(str(exc))
     except OSError as exc:
         fail(f"{exc.filename or directory}: {exc.strerror}")
     out.print(f"report: {path}", highlight=False)
+    for table in tables:
+        out.print(f"runs as CSV: {table}", highlight=False)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from railstop.cli.common import fail, out, print_verification
+from railstop.cli.progress import Reporter
 
 if TYPE_CHECKING:
     from railstop.verify.zones import VerifyResult
@@ -57,10 +58,12 @@ def verify_cmd(
     modes = list(ZoneMode) if mode == "both" else [ZoneMode(mode)]
     results = []
     for m in modes:
-        try:
-            results.append(verify(model, mode=m, max_states=MAX_STATES))
-        except RuntimeError as exc:
-            fail(f"{exc}; choose fewer --trains, --segments or --max-losses")
+        # The search runs a minute or two: its progress on stderr (states explored / found so far).
+        with Reporter(f"zones verify ({m.value})", unit="states", enabled=not as_json) as rep:
+            try:
+                results.append(verify(model, mode=m, max_states=MAX_STATES, progress=rep.update))
+            except RuntimeError as exc:
+                fail(f"{exc}; choose fewer --trains, --segments or --max-losses")
     if as_json:
         print(json.dumps({"modes": [r.summary() for r in results]}))
     else:

@@ -116,6 +116,28 @@ def find_campaigns(d: Path) -> list[Path]:
     return found
 
 
+CSV_NAME = "runs.csv"
+
+
+def export_csv(directory: Path) -> list[Path]:
+    """Write each campaign's ``runs.parquet`` as ``runs.csv`` beside it (one row per run, the
+    same columns, a header line); return the files written. For a spreadsheet or a tool that
+    reads no Parquet."""
+    import pyarrow.csv as pacsv
+
+    written = []
+    for c in find_campaigns(directory):
+        runs_path, target = c / RUNS_NAME, c / CSV_NAME
+        try:
+            table = pq.read_table(runs_path)
+        except (OSError, pa.ArrowException) as exc:
+            message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise RailstopError(f"{runs_path}: cannot read: {message}") from None
+        pacsv.write_csv(table, target)
+        written.append(target)
+    return written
+
+
 def _to_numpy(column: pa.ChunkedArray) -> np.ndarray:
     """A parquet column as numpy: nulls become False in booleans and NaN in numbers."""
     kind = column.type

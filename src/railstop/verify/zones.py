@@ -890,6 +890,10 @@ def _coverage_of(world: World, before_counts: tuple[int, ...], step: Step, eb_be
     return keys
 
 
+#: States explored between two calls of ``verify``'s ``progress``.
+PROGRESS_EVERY = 500
+
+
 def verify(
     model: ZoneModel | None = None,
     *,
@@ -899,11 +903,14 @@ def verify(
     controller_factory: ControllerFactory = ZoneController,
     onboard_factory: OnboardFactory = OnboardCbtc,
     max_states: int = 1_000_000,
+    progress: Callable[[int, int], None] | None = None,
 ) -> VerifyResult:
     """Explore every state reachable from the initial one, cycle by cycle, through the real units.
 
     ``controller_factory`` / ``onboard_factory``: build the units (a test passes a broken subclass);
-    ``stop_on_violation``: return at the first violation.
+    ``stop_on_violation``: return at the first violation. ``progress(explored, found)``: called
+    every ``PROGRESS_EVERY`` states explored, with the states found so far (the search's total is
+    known only at its end).
     """
     model = ZoneModel() if model is None else model
     mode = ZoneMode(mode)
@@ -931,8 +938,12 @@ def verify(
             coverage=coverage,
         )
 
+    explored = 0
     while queue:
         snap, world = queue.popleft()
+        explored += 1
+        if progress is not None and explored % PROGRESS_EVERY == 0:
+            progress(explored, len(parent))
         choices = list(world.choices())
         for n, choice in enumerate(choices):
             # The world leaves the queue here: its last choice runs on it, the others on copies.
