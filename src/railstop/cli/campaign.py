@@ -617,6 +617,12 @@ def report(
     csv: Annotated[
         bool, typer.Option("--csv", help="Also write each campaign's runs as runs.csv beside runs.parquet.")
     ] = False,
+    controllers: Annotated[
+        str | None,
+        typer.Option(
+            "--controllers", help="Only these controllers' campaigns, comma-separated (default: all)."
+        ),
+    ] = None,
 ) -> None:
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
     from railstop.config import load_line, load_vehicle
@@ -648,6 +654,9 @@ def report(
                 worst=worst,
                 tolerance_m=checked_tolerance(tolerance_m),
                 progress=status.update,
+                controllers=None
+                if controllers is None
+                else [n.strip() for n in controllers.split(",") if n.strip()],
             )
         tables = export_csv(directory) if csv else []
     except RailstopError as exc:

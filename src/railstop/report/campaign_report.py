@@ -23,7 +23,7 @@ import html
 import json
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -87,7 +87,32 @@ _PANEL_COLUMNS = 4
 _ECDF_POINTS = 4_000
 _ECDF_TAIL_POINTS = 2_000
 # One colour per controller; no green, which marks the PSD tolerance band.
-_CONTROLLER_COLORS = ("tab:blue", "tab:orange", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:cyan")
+#: Controllers side by side in one summary table (more: another table below).
+SUMMARY_COLUMNS = 5
+
+# One colour and line style per controller, the same in every report (green is the tolerance
+# band's): ten distinct colours for the ten built-in controllers, the line style by family (TASC
+# solid, ATO dashed, drivers dotted); a law or an unknown controller takes the next free colour.
+_CONTROLLER_COLORS = (
+    "tab:blue", "tab:orange", "tab:red", "tab:purple", "tab:brown",
+    "tab:pink", "tab:gray", "tab:olive", "tab:cyan", "black",
+)  # fmt: skip
+_EXTRA_COLORS = ("#393b79", "#8c6d31", "#843c39", "#7b4173", "#17becf", "#bcbd22", "#637939", "#e7969c")
+
+
+def controller_style(name: str, index: int) -> tuple[str, str]:
+    """(colour, line style) of a controller in the report's figures (``index``: its place among
+    the report's campaigns, for a controller that is not built in)."""
+    from railstop.controllers import CONTROLLERS
+
+    known = list(CONTROLLERS)
+    if name in known:
+        k = known.index(name)
+        family = "-" if name.startswith("tasc") else "--" if name.startswith("ato") else ":"
+        return _CONTROLLER_COLORS[k % len(_CONTROLLER_COLORS)], family
+    return _EXTRA_COLORS[index % len(_EXTRA_COLORS)], "-."
+
+
 _PROFILE_COLORS = (*_CONTROLLER_COLORS, "tab:olive", "tab:gray", "black")
 
 
@@ -197,6 +222,7 @@ class _Campaign:
     name: str  # the controller, made unique among the campaigns of the report
     slug: str  # the name as a file-name part
     color: str
+    linestyle: str
     manifest: dict[str, Any]
     columns: dict[str, np.ndarray]
     stats: dict[str, float | int]
@@ -264,7 +290,8 @@ def _load_all(paths: list[Path], tolerance_m: float | None) -> list[_Campaign]:
                 path=path,
                 name=name,
                 slug=f"{i + 1}-{slug}",
-                color=_CONTROLLER_COLORS[i % len(_CONTROLLER_COLORS)],
+                color=controller_style(base, i)[0],
+                linestyle=controller_style(base, i)[1],
                 manifest=manifest,
                 columns=columns,
                 stats=stats,
@@ -285,9 +312,10 @@ def write_report(
     worst: int = 5,
     tolerance_m: float | None = None,
     progress: ReportProgress | None = None,
+    controllers: Sequence[str] | None = None,
 ) -> Path:
     """Write ``directory/report.html`` (figures embedded; PNG copies in ``directory/report-files/``)
-    and return its path.
+    and return its path. ``controllers``: only the campaigns of these controllers (None: all).
 
     ``directory`` is a campaign directory or holds campaign directories, one per
     controller. ``replay(campaign_dir, run)`` re-simulates one run and returns
@@ -305,6 +333,16 @@ def write_report(
     if tolerance_m is not None and not (math.isfinite(tolerance_m) and tolerance_m > 0.0):
         raise RailstopError(f"--tolerance-m: must be a positive number of metres (got {tolerance_m})")
     campaigns = _load_all(find_campaigns(directory), tolerance_m)
+    if controllers is not None:
+        names = [str(c.manifest.get("controller") or c.path.name) for c in campaigns]
+        unknown = [n for n in controllers if n not in names]
+        if unknown:
+            raise RailstopError(
+                f"--controllers: no campaign of {', '.join(unknown)} in {directory} "
+                f"(it has: {', '.join(names)})"
+            )
+        campaigns = [c for c, n in zip(campaigns, names, strict=True) if n in controllers]
+    campaigns = _in_controller_order(campaigns)
     files = directory / REPORT_FILES_DIR
     try:
         files.mkdir(exist_ok=True)
@@ -480,18 +518,18 @@ def _abs_error_cdf(campaigns: list[_Campaign]) -> Figure:
         n_max = max(n_max, e.size)
         bulk_max = max(bulk_max, 1.25 * float(np.percentile(e, 99.5)))
         tail_max = max(tail_max, float(x[-1]) * 1.05)
-        cdf_ax.step(x, f, where="post", color=c.color, lw=1.6, label=c.name)
+        cdf_ax.step(x, f, where="post", color=c.color, ls=c.linestyle, lw=1.6, label=c.name)
         # P(|error| > x) is 0 from the largest |error| on: end the log-scale curve there at 1/n.
         exceed = 1.0 - f
         shown = exceed > 0.0
         if shown.any():
             tx = np.append(x[shown], x[-1])
             ty = np.append(exceed[shown], exceed[shown][-1])
-            tail_ax.step(tx, ty, where="post", color=c.color, lw=1.6, label=c.name)
+            tail_ax.step(tx, ty, where="post", color=c.color, ls=c.linestyle, lw=1.6, label=c.name)
     for ax, right in ((cdf_ax, min(bulk_max, tail_max)), (tail_ax, tail_max)):
-        ax.axvline(0.30, color="0.25", ls=":", lw=1.4, label="0.30 m")
+        ax.axvline(0.30, color="tab:green", ls=":", lw=1.4, label="0.30 m")
         for tol in _tolerances(campaigns):
-            ax.axvline(tol, color="black", ls="--", lw=1.2, label=f"{tol:g} m (PSD)")
+            ax.axvline(tol, color="tab:green", ls="--", lw=1.4, label=f"{tol:g} m (PSD)")
         ax.set_xlim(0.0, right)
         ax.set_xlabel("|stop error| (m)")
         ax.grid(True, alpha=0.4)
@@ -585,7 +623,7 @@ def _driver_figures(campaigns: list[_Campaign], parameters: list[str]) -> list[F
             ax.set_visible(False)
         suffix = f" ({number}/{len(groups)})" if len(groups) > 1 else ""
         fig.suptitle(f"what drives the misses{suffix}: stop error against each disturbance", fontsize=12)
-        handles = [Line2D([], [], color=c.color, lw=2.0, label=c.name) for c in campaigns]
+        handles = [Line2D([], [], color=c.color, ls=c.linestyle, lw=2.0, label=c.name) for c in campaigns]
         if len(campaigns) > 1:
             fig.legend(handles=handles, loc="outside lower center", ncol=min(len(campaigns), 6), fontsize=9)
         figures.append(fig)
@@ -636,7 +674,7 @@ def _driver_panel(ax: Axes, campaigns: list[_Campaign], name: str, rng: np.rando
                     zorder=z + 0.5,
                 )
             else:
-                ax.plot(centres, p50, color=c.color, lw=1.8, zorder=z + 0.5)
+                ax.plot(centres, p50, color=c.color, ls=c.linestyle, lw=1.8, zorder=z + 0.5)
                 ax.plot(centres, p1, color=c.color, lw=1.0, ls="--", zorder=z + 0.5)
                 ax.plot(centres, p99, color=c.color, lw=1.0, ls="--", zorder=z + 0.5)
         else:
@@ -901,19 +939,25 @@ def _html(
         *(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in meta),
         "</table>",
         "<h2>Summary</h2>",
-        '<div class="wide"><table class="summary">',
-        "<tr><th></th>"
-        + "".join(
-            f'<th><span class="swatch" style="background:{_e(_hex(c.color))}"></span>{_e(c.name)}</th>'
-            for c in campaigns
-        )
-        + "</tr>",
     ]
-    for label, cell in _stat_rows(tolerances):
-        cells = "".join(f'<td class="num">{_e(cell(c.stats))}</td>' for c in campaigns)
-        out.append(f"<tr><th>{_e(label)}</th>{cells}</tr>")
+    # At most SUMMARY_COLUMNS controllers side by side: with ten, two tables one under the other
+    # instead of one behind a horizontal scroll.
+    for k in range(0, len(campaigns), SUMMARY_COLUMNS):
+        group = campaigns[k : k + SUMMARY_COLUMNS]
+        out += [
+            '<div class="wide"><table class="summary">',
+            "<tr><th></th>"
+            + "".join(
+                f'<th><span class="swatch" style="background:{_e(_hex(c.color))}"></span>{_e(c.name)}</th>'
+                for c in group
+            )
+            + "</tr>",
+        ]
+        for label, cell in _stat_rows(tolerances):
+            cells = "".join(f'<td class="num">{_e(cell(c.stats))}</td>' for c in group)
+            out.append(f"<tr><th>{_e(label)}</th>{cells}</tr>")
+        out.append("</table></div>")
     out += [
-        "</table></div>",
         '<p class="note">A run that did not come to rest counts as outside every band; its error is the '
         "distance to the stopping point at the time limit. Mean, std and percentiles are over all runs. "
         "The bound on P(overrun) is the one-sided 95 % Clopper–Pearson upper bound "
@@ -964,7 +1008,8 @@ def _html(
         if rows.size == 0:
             out.append('<p class="note">The campaign has no runs.</p>')
             continue
-        out += _worst_table(c, rows, [p for p in parameters if p in c.columns])
+        # The parameters that vary in this campaign (a TASC run has no driver level: -1 in all).
+        out += _worst_table(c, rows, [p for p in parameters if p in c.columns and _varies(c.columns[p])])
         if c.name in profile_pngs:
             out.append(
                 _img(
@@ -977,6 +1022,30 @@ def _html(
     out.append(f'<p class="note">{_e(footer_text(written))}</p>')
     out.append("</body></html>")
     return "\n".join(out) + "\n"
+
+
+def _in_controller_order(campaigns: list[_Campaign]) -> list[_Campaign]:
+    """The built-in controllers in their own order (TASC, ATO, drivers), then the others by name."""
+    from railstop.controllers import CONTROLLERS
+
+    known = list(CONTROLLERS)
+
+    def key(c: _Campaign) -> tuple[int, str]:
+        name = str(c.manifest.get("controller") or c.path.name)
+        return (known.index(name) if name in known else len(known), c.name)
+
+    return sorted(campaigns, key=key)
+
+
+def _varies(values: np.ndarray) -> bool:
+    """Whether a column takes more than one value (NaN counted as one)."""
+    if values.size == 0:
+        return False
+    if values.dtype.kind == "f":
+        finite = values[np.isfinite(values)]
+        distinct = np.unique(finite).size + (1 if finite.size < values.size else 0)
+        return distinct > 1
+    return np.unique(values).size > 1
 
 
 def _worst_table(c: _Campaign, rows: np.ndarray, shown: list[str]) -> list[str]:

@@ -32,6 +32,11 @@ RESULT_COLUMNS: tuple[str, ...] = (
     "brake_delay_identified_s",
     "brake_lag_identified_s",
     "detectors_filled",
+    # SPEC §3 manual driving: outcomes of the stop, not disturbances (a driver's first stand, the
+    # re-stops after the F / R lamp, the lamp at the end).
+    "first_stop_error_m",
+    "restops",
+    "lamp",
 )
 # Fixed reference bands of the summary (m), beside the station's own PSD tolerance
 # (Station.psd_tolerance_m: SPEC §1 ±0.35 m, SPEC §3 ±0.50 m for manual lines).
