@@ -23,13 +23,13 @@ install-test: $(BIN)/python
 run: install
 	$(BIN)/railstop demo
 
-# The test modules that mostly wait on the wall clock (live processes at a time scale; about a
-# third of a core): one pytest of their own, one test after another, beside the two workers of the
+# The test modules that mostly wait on the wall clock (live processes at a time scale, the attacks
+# on the live line; about a third of a core): one pytest of their own, one test after another, beside the two workers of the
 # compute-bound rest, so that their waiting overlaps the computing. Both must pass. The rest runs
 # at a lower priority (nice 10), as a wayside computer would run batch work beside its safety
 # processes: the live processes keep their periods; the live tests still hold on a loaded machine
 # (``pytest --busy 2``), but a scheduler stall of a second would make them test the stall.
-WALL_CLOCK_TESTS = tests/test_live.py tests/test_control_room.py
+WALL_CLOCK_TESTS = tests/test_live.py tests/test_control_room.py tests/test_live_attack.py
 
 # Lint, type check and the whole test suite.
 test: install-test
