@@ -194,7 +194,8 @@ def restartable_postgres() -> Iterator[PgCluster]:
 # the end keeps one worker busy while the others idle. The live modules mostly wait on the wall
 # clock, so starting them early also overlaps their waiting with the compute-bound tests (``make
 # test`` runs test_live.py, test_control_room.py and test_live_attack.py in a pytest of their own
-# beside the rest; the order matters when the whole suite runs in one). Only the order changes; every test still runs.
+# beside the rest; the order matters when the whole suite runs in one). Only the order changes;
+# every test still runs.
 
 _SLOW_FIRST = (
     "test_zones_verify.py",

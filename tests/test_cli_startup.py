@@ -123,3 +123,19 @@ def test_help_still_lists_every_command_in_order(tmp_path: Path) -> None:
     assert "Did you mean 'position-run'?" in p.stderr
     p = run("stop", "--help")
     assert p.returncode == 0 and "--no-db" in p.stdout
+
+
+def test_help_lists_position_run_without_building_it(tmp_path: Path) -> None:
+    """The group's help shows ``position-run``'s line from a placeholder: the line model it would
+    import is not loaded; the placeholder's line is the command's own docstring."""
+    import inspect
+
+    from railstop.cli import POSITION_RUN_HELP
+    from railstop.cli.position import position_run
+
+    code, text, loaded, _ = probe(
+        "--help", cwd=tmp_path, watched=("railstop.sim.position_run", "railstop.sim.line")
+    )
+    assert code == 0 and "position-run" in text
+    assert loaded == []
+    assert " ".join((inspect.getdoc(position_run) or "").split()) == POSITION_RUN_HELP

@@ -35,7 +35,13 @@ if TYPE_CHECKING:
     from typer._click import Command, Context
 
 _POSITION_RUN = "position-run"
-_UNBUILT: Command = TyperCommand(name=_POSITION_RUN, hidden=True)
+# Listed by `railstop --help` with this line (the command's own docstring, kept equal by a test in
+# tests/test_cli_startup.py); built only when it is run or asked for its own help.
+POSITION_RUN_HELP = (
+    "One train over the whole line (a one-train line run): raw, corrected (SPEC §2) and calibrated "
+    "position errors."
+)
+_UNBUILT: Command = TyperCommand(name=_POSITION_RUN, help=POSITION_RUN_HELP, short_help=POSITION_RUN_HELP)
 
 
 def _position_run_command() -> Command:
@@ -48,7 +54,8 @@ def _position_run_command() -> Command:
 
 
 class _Group(TyperGroup):
-    """The ``railstop`` group, with ``position-run`` built on first use (help, run or completion)."""
+    """The ``railstop`` group, with ``position-run`` built on first use (run or its own help; the
+    group's help lists its placeholder, so ``railstop --help`` does not import the line model)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -60,10 +67,10 @@ class _Group(TyperGroup):
             if name == "dwell":
                 self.commands[_POSITION_RUN] = _UNBUILT
 
-    def get_command(self, ctx: Context, cmd_name: str) -> Command | None:
-        if self.commands.get(cmd_name) is _UNBUILT:
-            self.commands[cmd_name] = _position_run_command()
-        return super().get_command(ctx, cmd_name)
+    def resolve_command(self, ctx: Context, args: list[str]) -> tuple[str | None, Command | None, list[str]]:
+        if args and self.commands.get(args[0]) is _UNBUILT:
+            self.commands[args[0]] = _position_run_command()
+        return super().resolve_command(ctx, args)
 
 
 app = typer.Typer(
