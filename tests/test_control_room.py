@@ -130,6 +130,7 @@ def test_the_page_shows_trains_moving_and_the_last_stops(
         browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 720})
+            page.clock.install()  # the page's own clock, advanced below (it runs at the real rate)
             page.goto(url)
             assert page.url.endswith("/login")  # nothing is shown without a login
             page.screenshot(path=str(tmp_path / "login.png"))
@@ -155,7 +156,19 @@ def test_the_page_shows_trains_moving_and_the_last_stops(
             # The stop and the login; train states are on the line only.
             assert page.locator('#log div[data-kind="stop-result"]').count() == 1
             assert page.locator('#log div[data-kind="operator-action"]').count() == 1
+            # The log in sentences (issue 38), the record itself only on hover.
+            said = page.inner_text('#log div[data-kind="stop-result"]')
+            assert "Train 4 stopped at Hillcrest, +0.042 m from the stopping point (within" in said, said
+            assert "{" not in said and "{" in (
+                page.get_attribute('#log div[data-kind="stop-result"]', "title") or ""
+            )
+            assert "Operator viewer: login" in page.inner_text('#log div[data-kind="operator-action"]')
+            assert page.inner_text("#status") == "live"  # reports keep coming
             page.screenshot(path=str(tmp_path / "control-room.png"))
+            # No report for a minute: the page says the record is finished instead of "live".
+            page.clock.fast_forward(61_000)
+            page.wait_for_selector("#status.quiet", timeout=10_000)
+            assert "a finished record" in page.inner_text("#status")
         finally:
             browser.close()
     print(f"report-to-page latency: {', '.join(f'{x * 1000:.0f} ms' for x in latencies)}")
@@ -180,6 +193,19 @@ def test_a_page_opened_late_gets_the_history(office: tuple[str, int, str]) -> No
             assert "0.020" in page.locator('#stops tr[data-station="Museum"]').inner_text()
             # The accuracy chart has a dot per stop, green inside the PSD tolerance.
             assert page.locator("#accuracy circle.stop-dot").count() == 3
+            # ... and covers the whole record, not only the last reports the stream starts with:
+            # 250 more stops (the stream's history is the last 200 reports), each counted once.
+            for i in range(250):
+                sender.send("stop-result", {"station": "Riverside", "train": i % 7, "error_m": 0.001 * i,
+                                            "within": True})  # fmt: skip
+            wait_js(
+                page, "document.querySelectorAll('#accuracy circle.stop-dot').length === 253", timeout=20_000
+            )
+            page.reload()
+            wait_js(page, "document.querySelectorAll('#log div').length >= 200", timeout=15_000)
+            wait_js(
+                page, "document.querySelectorAll('#accuracy circle.stop-dot').length === 253", timeout=15_000
+            )
         finally:
             browser.close()
 

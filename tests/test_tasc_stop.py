@@ -36,8 +36,8 @@ def _stop(station: str, controller: str, load: float = 0.0, gain: float = 1.0) -
 # A known miss of the issue's ±0.10 m target, kept visible (strict: the test says so when it
 # passes again). With notches the last command, 6 m before the stop, meets the deceleration's
 # ripple: over entry speeds of 57-63 km/h the nominal stop has a spread of 0.047 m (0.057 m
-# without the identified brake response), and at 60 km/h it ends +0.147 m (README, "Signal
-# forms" benchmark).
+# without the identified brake response), and at 60 km/h it ends +0.147 m (docs/results.md,
+# "Signal forms" benchmark; docs/tasc.md, "Single-stop accuracy").
 KNOWN_MISS = pytest.mark.xfail(
     strict=True,
     reason="tasc-brake-controller at Riverside, nominal: +0.147 m (notch ripple at the last detector)",

@@ -1,4 +1,4 @@
-"""Counter-based random streams, one per run (DESIGN rule 4, adapted).
+"""Counter-based random streams, one per run (DESIGN rule 7, adapted).
 
 Every random number a run uses is a pure function of (seed, run index,
 stream, counter): the i-th Doppler noise sample of run 1234 is the same

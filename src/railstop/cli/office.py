@@ -248,6 +248,7 @@ class _Page:
 
 
 VIEWER = "viewer"  # the one-time login's name (only when the office has no operators file)
+STOP_CHART_MAX = 20_000  # the stop results the page's chart gets at most (the latest ones)
 CREDENTIAL_ENV = "RAILSTOP_OPERATOR_CREDENTIAL"
 
 
@@ -308,6 +309,11 @@ async def _start_page(
     def history(after: int, n: int) -> list[dict[str, Any]]:
         return stores[0].office_reports(after_id=after, limit=n, latest=True) if stores else []
 
+    def stop_history() -> list[dict[str, Any]]:  # the page's stop chart: the whole record
+        return (
+            stores[0].office_reports(kind="stop-result", limit=STOP_CHART_MAX, latest=True) if stores else []
+        )
+
     log = _ActionLog(stores, broadcast)
     desk = None
     if zc is not None or stations is not None:
@@ -321,6 +327,7 @@ async def _start_page(
     hosts, limits = options["hosts"], options["limits"]
     app = make_app(
         history=history,
+        stops=stop_history,
         broadcast=broadcast,
         title=f"railstop control room: {name}",
         line=line_data,

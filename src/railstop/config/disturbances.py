@@ -1,4 +1,4 @@
-"""Disturbance sets: TOML data -> per-run :class:`~railstop.config.scenario.Scenario` (DESIGN rules 3, 4, 6).
+"""Disturbance sets: TOML data -> per-run :class:`~railstop.config.scenario.Scenario` (DESIGN rules 3, 6, 7).
 
 A disturbance file maps parameter names to distributions::
 
@@ -31,7 +31,7 @@ Validation checks the structure, lo <= hi, sd >= 0, a non-empty choice and that
 *every value the distribution can produce* lies within the parameter's physical
 range (uniform bounds, clip bounds, the fixed value, each choice).
 
-Randomness (DESIGN rule 4)
+Randomness (DESIGN rule 7)
 --------------------------
 Every draw is a pure function of (seed, run index, parameter): parameter p
 uses only ``Stream.DISTURBANCE`` with uniform counters in its own block

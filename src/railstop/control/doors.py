@@ -102,7 +102,7 @@ class PsdReport(NamedTuple):
 PHYSICAL_INPUTS: tuple[DoorInput, ...] = (DI.DONE, DI.OBSTRUCT, DI.CLEAR, DI.JAM, DI.ISOLATE)
 
 # A door in one of these states is closed (it may still be locking); any other
-# door counts as open, fail safe (DESIGN rule 7).
+# door counts as open, fail safe (DESIGN rule 10).
 CLOSED_STATES: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.CLOSED, DS.ISOLATED})
 # Closed and locked: what start enable needs (SPEC §5 fig. 7). An isolated unit
 # was closed and locked by hand before staff took it out of the door loop.

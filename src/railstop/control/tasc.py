@@ -329,7 +329,7 @@ def plan_command_1(
     must supply v²/2s (SPEC §1) less what gradient and resistance give over
     the remaining path; dividing by the loop gain turns it into the command.
     If the train is predicted to stop before a new command could act, the
-    brake is held (never released to roll on: DESIGN rule 7).
+    brake is held (never released to roll on: DESIGN rule 10).
     """
     current = history_value_at_1(values, effects, now_s)
     ext_now = external_decel_1(ext, grad, distance_m, speed_mps)

@@ -52,7 +52,7 @@ Loss, duplication, corruption
   sync) are not modelled as corruption: a receiver that loses sync drops the
   frame, which is loss.
 
-Randomness (DESIGN rule 4)
+Randomness (DESIGN rule 7)
 --------------------------
 :class:`SimChannel` takes a ``numpy.random.Generator`` and draws, for every
 ``send()`` whatever its outcome: ``rng.random(5)`` = (Gilbert–Elliott

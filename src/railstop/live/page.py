@@ -10,7 +10,7 @@ Nothing but the login page and its static files is served without a session:
   (``HttpOnly``, ``SameSite=Strict``, ``Secure`` over TLS), which ends after
   :attr:`PageLimits.session_max_s` or :attr:`PageLimits.session_idle_s`
   without a request; ``POST /api/logout`` ends it.
-* ``GET /`` (the page), ``GET /api/line``, ``GET /api/reports?after=ID``,
+* ``GET /`` (the page), ``GET /api/line``, ``GET /api/reports?after=ID``, ``GET /api/stops``,
   ``GET /events`` (a server-sent-event stream: the last reports stored, then
   each as it is stored) need a session.
 * Every command (``POST /api/release``: SPEC §4 step 5; ``POST /api/wcc``:
@@ -461,6 +461,7 @@ class _Office:
     guard: Guard
     hash_slots: asyncio.Semaphore
     clock: Callable[[], float]
+    stops: Callable[[], list[dict[str, Any]]] | None = None
 
     async def record(self, data: dict[str, Any]) -> None:
         if self.audit is not None:
@@ -530,17 +531,20 @@ def make_app(
     audit: Audit | None = None,
     limits: PageLimits | None = None,
     clock: Callable[[], float] = time.monotonic,
+    stops: Callable[[], list[dict[str, Any]]] | None = None,
 ) -> Shield:
     """The page's app behind its :class:`Shield`. ``history(after_id, n)``: the last ``n`` stored
     reports after that id (oldest first); ``line``: what the page draws the line from
     (``length_m``, ``stations``: name, chainage_m); ``operators``: who may log in; ``release``: the
     manual zone release, ``wcc``: the WCC's commands to the stations' WPCS (None: the page offers
-    none); ``audit``: where logins, refusals and replays are recorded."""
+    none); ``audit``: where logins, refusals and replays are recorded; ``stops()``: every
+    stop-result of the record, oldest first (the stop chart covers the whole run, not only the
+    reports of the stream's history)."""
     lim = limits or PageLimits()
     office = _Office(
         history=history, broadcast=broadcast, title=title, line=line, operators=operators,
         release=release, wcc=wcc, audit=audit, lim=lim, guard=Guard(lim),
-        hash_slots=asyncio.Semaphore(lim.hash_checks), clock=clock,
+        hash_slots=asyncio.Semaphore(lim.hash_checks), clock=clock, stops=stops,
     )  # fmt: skip
     app = FastAPI(title=title, docs_url=None, redoc_url=None, openapi_url=None)
 
@@ -656,6 +660,11 @@ def _view_routes(app: FastAPI, office: _Office) -> None:
     async def line_data(request: Request) -> dict[str, Any]:
         office.session(request)
         return office.line
+
+    @app.get("/api/stops")
+    async def all_stops(request: Request) -> list[dict[str, Any]]:
+        office.session(request)
+        return [] if office.stops is None else await asyncio.to_thread(office.stops)
 
     @app.get("/api/reports")
     async def reports(request: Request, after: int = Query(0, ge=0)) -> list[dict[str, Any]]:

@@ -130,7 +130,7 @@ def platform_scan(
     panel_close: bool = False,
 ) -> tuple[WpcsState, str | None]:
     """One WPCS scan (SPEC §5) on what the platform knows of the train; an input the unit does not
-    allow puts it in its safe state (DESIGN rule 7: nothing opens, the train is told) and is
+    allow puts it in its safe state (DESIGN rule 10: nothing opens, the train is told) and is
     returned as the interlock error. The one call of the scan: this wiring, ``nodes.dwell``."""
     try:
         return wpcs.scan(

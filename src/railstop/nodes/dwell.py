@@ -255,7 +255,7 @@ class PlatformDoors:
             panel_open=self.panel_open,
             panel_close=self.panel_close,
         )
-        if error is not None:  # DESIGN rule 7: the WPCS in its safe state, nothing opens, the train is told
+        if error is not None:  # DESIGN rule 10: the WPCS in its safe state, nothing opens, the train is told
             self._interlock(error, now_s)
         self._settled = key if error is None and self.state == before else None
         self._follow(before, now_s)

@@ -14,7 +14,7 @@ Table 1, data). It adds only the rules SPEC states outside the table:
 
 An input a door unit cannot take moves the CPCS to its safe state (``fault``:
 nothing opens, start enable withheld, emergency brake) and raises
-``InterlockError`` (DESIGN rules 2 and 7).
+``InterlockError`` (DESIGN rules 2 and 10).
 """
 
 from __future__ import annotations
@@ -139,7 +139,7 @@ def door_event(
 
 
 def safe(state: CpcsState) -> CpcsState:
-    """DESIGN rule 7: the CPCS's safe state: doors held closed, no start enable, emergency brake."""
+    """DESIGN rule 10: the CPCS's safe state: doors held closed, no start enable, emergency brake."""
     return state._replace(fault=True)
 
 

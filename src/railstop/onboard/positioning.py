@@ -16,7 +16,7 @@ error; corrected position and speed go to the train control. This unit:
   ``max_extrapolation_s``); S40 sets the position at that instant to the
   circuit's start: ``corrected(t) = start + odo(t) - odo(t_occ)``;
 - rejects (does not correct from) a telegram whose circuit is not in the DB
-  or whose time lies outside its log (DESIGN rule 7: no correction is safer
+  or whose time lies outside its log (DESIGN rule 10: no correction is safer
   than a wrong one; the rejection is counted).
 
 Beyond SPEC §2, one **extended Kalman filter** per run over the state

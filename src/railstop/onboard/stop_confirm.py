@@ -115,7 +115,7 @@ def step(
 
 
 def safe(state: StopConfirmState) -> StopConfirmState:
-    """DESIGN rule 7: fault reported, emergency brake."""
+    """DESIGN rule 10: fault reported, emergency brake."""
     return state._replace(phase=StopPhase.FAULT)
 
 

@@ -20,7 +20,7 @@ synchronised. The model of one clock:
 
 Every array may have any shape: (n,) for the onboard clock of n runs, (n, C)
 for the wayside clocks of C track circuits. Randomness comes from
-``RunStreams`` (DESIGN rule 4): ``Stream.CLOCK`` counter ``2 k`` gives clock
+``RunStreams`` (DESIGN rule 7): ``Stream.CLOCK`` counter ``2 k`` gives clock
 k's drift, ``2 k + 1`` its disciplined residual.
 """
 

@@ -145,7 +145,7 @@ def door_event(state: WpcsState, unit: int, inp: DoorInput, doors: DoorTable = D
 
 
 def safe(state: WpcsState) -> WpcsState:
-    """DESIGN rule 7: the WPCS's safe state: nothing opens, the train is told (no start enable)."""
+    """DESIGN rule 10: the WPCS's safe state: nothing opens, the train is told (no start enable)."""
     return state._replace(fault=True)
 
 

@@ -6,7 +6,7 @@ let RELEASE = false;  // the office has a zone controller link and this login ma
 let WCC = false;  // the office has a link to the stations' WPCS and this login may command
 // Everything here is built from the office's reports (GET /events, server-sent events).
 const state = { count: 0, trains: new Map(), stations: new Map(), zones: new Map(), platforms: new Map(),
-  stationIndex: new Map(), length: 1 };
+  stationIndex: new Map(), length: 1, stopIds: new Set(), newest: null, connected: false };
 const svg = (tag, attrs) => { const e = document.createElementNS("http://www.w3.org/2000/svg", tag);
   for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v); return e; };
 const x = (m) => 10 + 980 * Math.max(0, Math.min(1, m / state.length));
@@ -193,6 +193,7 @@ function stopRow(name, st) {
 
 function apply(r) {
   state.count += 1;
+  state.newest = r.received_utc;
   document.getElementById("count").textContent = state.count;
   document.getElementById("last").textContent = `${r.kind} #${r.id}`;
   const d = r.data;
@@ -201,7 +202,7 @@ function apply(r) {
   } else if (r.kind === "stop-result") {
     const st = state.stations.get(d.station) || {};
     st.stop = d; st.received = r.received_utc.slice(11, 19);
-    st.errors = [...(st.errors || []), d.error_m].slice(-50);
+    addStop(r);
     state.stations.set(d.station, st); stopRow(d.station, st); drawAccuracy();
   } else if (r.kind === "zone-event") {
     state.zones.set(d.train, { ...d, since: r.received_utc.slice(11, 19) });
@@ -222,9 +223,67 @@ function apply(r) {
   const log = document.getElementById("log");
   const line = document.createElement("div");
   line.dataset.kind = r.kind;
-  line.textContent = `${r.received_utc.slice(11, 19)} #${r.id} ${r.kind} from ${r.sender_id}: ${JSON.stringify(d)}`;
+  line.textContent = `${r.received_utc.slice(11, 19)} ${sentence(r)}`;
+  line.title = `#${r.id} ${r.kind} from ${r.sender_id}: ${JSON.stringify(d)}`;  // the record itself
   log.prepend(line);
   while (log.children.length > 200) log.lastChild.remove();
+}
+
+// The log in words: what each report says (the record itself on hover). Every value goes in as
+// text (textContent), never as markup.
+const num = (x, digits = 3) => (typeof x === "number" && isFinite(x) ? x.toFixed(digits) : "?");
+const signed = (x, digits = 3) => (typeof x === "number" && x >= 0 ? "+" : "") + num(x, digits);
+function sentence(r) {
+  const d = r.data || {};
+  switch (r.kind) {
+    case "stop-result":
+      return `Train ${d.train} stopped at ${d.station}, ${signed(d.error_m)} m from the stopping point ` +
+        `(${d.within ? "within" : "outside"} the PSD tolerance; ${d.controller}).`;
+    case "dwell-result":
+      if (d.outcome === "start-enable")
+        return `Train ${d.train} at ${d.station}: doors closed and locked, start enable after ${d.dwell_s} s ` +
+          `(${d.psc_requests} PSC request(s), ${d.corrections} correction(s)).`;
+      if (d.outcome === "fault")
+        return `Train ${d.train} at ${d.station}: dwell fault (${d.fault}), emergency brake until the staff reset.`;
+      return `Train ${d.train} at ${d.station}: dwell ${d.outcome}.`;
+    case "dwell-event":
+      return `${d.st}: ${String(d.ev).replaceAll("-", " ")}${d.tr != null ? ` (train ${d.tr})` : ""}; ` +
+        `PSD ${d.psd}, WCC ${d.wcc}.`;
+    case "zone-event":
+      return d.active
+        ? `Train ${d.train} ${d.status}: protection zone ${num(d.start_m, 1)} to ${num(d.end_m, 1)} m.`
+        : `Train ${d.train}: protection zone released.`;
+    case "tasc-command":
+      return `${d.st}, train ${d.tr}: TASC command at detector ${d.det}, ${num(d.dist, 2)} m to go at ` +
+        `${num(d.v * 3.6, 1)} km/h, ${d.eb ? "EMERGENCY BRAKE" : `${num(d.a_cmd, 3)} m/s² (notch ${d.notch})`}.`;
+    case "operator-action": {
+      const what = d.action === "zone-release" ? `release of train ${d.train}'s zone`
+        : d.action === "wcc" ? `WCC ${d.command} at ${d.station}` : d.action;
+      return `Operator ${d.operator ?? "?"}: ${what}${d.result ? `: ${d.result}` : ""}.`;
+    }
+    case "campaign-result":
+      return `Campaign ${d.controller} at ${d.station}, ${d.runs} runs: ${num(100 * d.within, 2)} % within ` +
+        `±${d.tol} m, p99 ${num(d.p99, 3)} m.`;
+    default:
+      return `${r.kind}: ` + Object.entries(d).map(([k, v]) => `${k} ${v}`).join(", ");
+  }
+}
+
+// The stop chart covers the whole record: every stop-result the office holds (GET /api/stops),
+// then each new one; a report met twice (in both) counts once.
+function addStop(r) {
+  if (state.stopIds.has(r.id)) return;
+  state.stopIds.add(r.id);
+  const st = state.stations.get(r.data.station) || {};
+  st.errors = [...(st.errors || []), r.data.error_m];
+  state.stations.set(r.data.station, st);
+}
+
+async function loadStops() {
+  const res = await fetch("/api/stops");
+  if (!res.ok) return;
+  for (const r of await res.json()) addStop(r);
+  drawAccuracy();
 }
 
 async function loadLine() {
@@ -240,13 +299,30 @@ async function loadLine() {
   drawLine(); drawAccuracy(); drawPlatforms();
 }
 
+// "live" only while reports keep coming: an office serving the record of a finished run (or a line
+// that has stopped) says so, with the time of its last report.
+const QUIET_S = 30;
+function showLiveness() {
+  const status = document.getElementById("status");
+  if (!state.connected) return;
+  // received_utc: ISO 8601 to the second, UTC ("2026-11-27T09:38:02+00:00")
+  const age = state.newest ? (Date.now() - Date.parse(state.newest.slice(0, 19) + "Z")) / 1000 : Infinity;
+  if (age <= QUIET_S) { status.textContent = "live"; status.className = "ok"; return; }
+  if (!state.newest) { status.textContent = "live: no report yet"; status.className = "ok"; return; }
+  status.className = "quiet";
+  status.textContent = `no report for ${Math.round(age / 60)} min: a finished record ` +
+    `(last report ${state.newest.slice(0, 19).replace("T", " ")} UTC)`;
+}
+setInterval(showLiveness, 5000);
+
 function connect() {
   const es = new EventSource("/events");
   const status = document.getElementById("status");
   es.addEventListener("report", (e) => apply(JSON.parse(e.data)));
-  es.addEventListener("ready", () => { status.textContent = "live"; status.className = "ok"; });
+  es.addEventListener("ready", () => { state.connected = true; showLiveness(); });
   es.addEventListener("ended", () => { es.close(); window.location.assign("/login"); });
   es.onerror = async () => {
+    state.connected = false;
     status.textContent = "office unreachable: retrying"; status.className = "down";
     // A refused stream is not retried by the browser: a session that has ended goes to the login.
     if (es.readyState === EventSource.CLOSED) {
@@ -271,6 +347,6 @@ async function start() {
     await fetch("/api/logout", { method: "POST", credentials: "same-origin" });
     window.location.assign("/login");
   });
-  await loadLine().then(connect, connect);
+  await loadLine().then(loadStops).then(connect, connect);
 }
 start();
