@@ -37,7 +37,7 @@ test: install-test
 	$(BIN)/mypy src
 	@log=$$(mktemp); \
 	$(BIN)/pytest -q -p no:cacheprovider $(WALL_CLOCK_TESTS) >"$$log" 2>&1 & wall=$$!; \
-	nice -n 10 $(BIN)/pytest -q -n 2 $(addprefix --ignore=,$(WALL_CLOCK_TESTS)); rest=$$?; \
+	nice -n 10 $(BIN)/pytest -q -n 2 --durations=25 $(addprefix --ignore=,$(WALL_CLOCK_TESTS)); rest=$$?; \
 	wait $$wall; walled=$$?; \
 	echo "--- the wall-clock tests ($(WALL_CLOCK_TESTS)), run beside the rest:"; cat "$$log"; rm -f "$$log"; \
 	test $$rest -eq 0 && test $$walled -eq 0

@@ -304,7 +304,7 @@ def test_a_radio_outage_sets_a_zone_that_an_operator_releases_with_his_credentia
                 wait_js(
                     page,
                     "[...document.querySelectorAll('#log div[data-kind=\"zone-event\"]')]"
-                    ".some(d => d.textContent.includes('\"active\":false'))",
+                    ".some(d => d.textContent.includes('protection zone released'))",
                     timeout=10_000,
                 )
                 trains.send_signal(signal.SIGUSR1)  # the radio comes back

@@ -37,7 +37,7 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 def test_the_report_of_ten_controllers_fits_the_page_and_tells_them_apart(tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
 
-    assert run("compare", "--runs", "100", "--out", "cmp", "--db", "c.db", cwd=tmp_path).returncode == 0
+    assert run("compare", "--runs", "40", "--out", "cmp", "--db", "c.db", cwd=tmp_path).returncode == 0
     r = run("report", "cmp", "--worst", "1", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     page_html = (tmp_path / "cmp" / "report.html").read_text(encoding="utf-8")
