@@ -93,3 +93,15 @@ def test_an_empty_value_is_refused_and_nothing_is_written(
 ) -> None:
     one_error(run(*args, cwd=tmp_path), named, "empty value")
     assert list(tmp_path.iterdir()) == []  # not the current folder either
+
+
+def test_a_page_port_in_use_is_one_line_not_a_traceback(tmp_path: Path) -> None:
+    import socket
+
+    env = {**os.environ, "RAILSTOP_OFFICE_KEY": os.urandom(32).hex()}
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        r = run("office", "serve", "--db", "o.db", "--port", "0", "--http-port", port, cwd=tmp_path, env=env)
+    one_error(r, "--http-port", port, "in use")

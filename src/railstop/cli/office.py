@@ -6,6 +6,7 @@ import asyncio
 import json
 import os
 import signal
+import socket
 import sys
 import time
 from pathlib import Path
@@ -347,7 +348,10 @@ async def _start_page(
         config.load()
     except Exception as exc:  # the certificate or key cannot be read: one line
         raise RailstopError(f"--tls-cert / --tls-key: cannot load them ({exc})") from None
-    task = asyncio.create_task(server.serve())
+    # The page's socket is bound here, not by uvicorn: a port in use (or an address this machine
+    # does not have) is one line, where uvicorn would log it and exit the process from its task.
+    listening = _listen(host, port)
+    task = asyncio.create_task(server.serve(sockets=[listening]))
     while not server.started and not task.done():
         await asyncio.sleep(0.02)
     if task.done():
@@ -366,6 +370,22 @@ async def _start_page(
         flush=True,
     )
     return _Page(server, task, broadcast, stores)
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to (host, port) for the page, or a RailstopError naming the option."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except OSError as exc:
+        raise RailstopError(f"--host: cannot listen on {host}: {exc.strerror or exc}") from None
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        raise RailstopError(f"--http-port: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    return sock
 
 
 class _ActionLog:
