@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -235,6 +236,31 @@ def test_live_run_hands_its_key_to_its_processes_only_through_the_environment(tm
     # Office, zone controller, plant and trains: each got the run's one key, a 256-bit one.
     assert len(children) == 4 and len(keys) == 1
     assert len(bytes.fromhex(keys.pop().decode())) == 32
+
+
+def test_live_run_fails_when_one_of_its_processes_dies(tmp_path: Path) -> None:
+    """A line process killed during ``railstop live run`` (here the trains, SIGKILL) makes the run
+    fail: the record of the others is still printed, then one error line naming the process and
+    its exit code, exit code 2 (it used to end with 0 as if nothing had happened)."""
+    with open(tmp_path / "stderr.txt", "w+") as err:
+        run = subprocess.Popen(
+            [*EXE, "live", "run", "--trains", "1", "--duration-s", "6", "--http-port", "0",
+             "--db", str(tmp_path / "live.db"), "--no-tasc"],
+            env=ENV, stdout=subprocess.PIPE, stderr=err, text=True,
+        )  # fmt: skip
+        try:
+            assert run.stdout is not None
+            first = run.stdout.readline()  # every process has started: the pids are in this line
+            match = re.search(r"trains \(pid (\d+)\)", first)
+            assert match, first
+            os.kill(int(match.group(1)), signal.SIGKILL)
+        finally:
+            out, _ = run.communicate(timeout=120)
+        err.seek(0)
+        lines = [x for x in err.read().splitlines() if x.startswith("error:")]
+    assert run.returncode == 2, out
+    assert len(lines) == 1 and "trains (exit code -9)" in lines[0], lines
+    assert '"zone_controller": {' in out  # the others' record is kept
 
 
 def _restricted_run(

@@ -499,8 +499,10 @@ def _run_line(
     psd_jams: list[str] | None = None,
     door_mode: str = "auto",
     zc_state: str | None = None,
+    failed: dict[str, int | None] | None = None,
 ) -> dict[str, object]:
-    """Office (with its page), zone controller, stations (with ``controller``; None: no ground
+    """``failed`` gets the processes that ended before the stop or with a non-zero exit code (their
+    exit codes). Office (with its page), zone controller, stations (with ``controller``; None: no ground
     TASC, point-mass stops) and trains as processes for ``duration_s`` wall seconds; their counts,
     one object per process. ``tasc_loss``: the braking telegrams' injected loss. ``zc_state``: the
     zone controller's durable state file (the run is a new operation; a zone controller started
@@ -538,6 +540,7 @@ def _run_line(
         return proc, first
 
     results: dict[str, object] = {}
+    failed = {} if failed is None else failed
     try:
         st_port = _free_udp_port()
         office_args = ["office", "serve", "--db", db, "--port", "0", "--http-port", str(http_port)]
@@ -611,6 +614,8 @@ def _run_line(
         # trains, missed commands), then the office, which stores what they report as they stop.
         roles = ("office", "zone_controller", "plant", *(("stations",) if controller else ()), "trains")
         by_role = dict(zip(roles, procs, strict=False))
+        # A process that ended before the stop (killed, crashed) ends the run as a failure.
+        early = {role: p.returncode for role, p in by_role.items() if p.poll() is not None}
         for role in ("trains", "zone_controller", "plant", "stations"):
             if role in by_role and by_role[role].poll() is None:
                 by_role[role].send_signal(signal.SIGTERM)
@@ -623,6 +628,8 @@ def _run_line(
             out, _ = p.communicate(timeout=30)
             text = out.strip().splitlines()[-1] if out.strip() else ""
             results[role] = json.loads(text) if text.startswith("{") else text
+            if role in early or p.returncode != 0:
+                failed[role] = p.returncode
     return results
 
 
@@ -682,6 +689,7 @@ def run_cmd(
             _psd_jams(psd_jam, load_line(None), load_doors(None).doors_per_side)  # refused before any start
     except RailstopError as exc:
         fail(str(exc))
+    failed: dict[str, int | None] = {}
     results = _run_line(
         trains=trains,
         duration_s=duration_s,
@@ -696,8 +704,17 @@ def run_cmd(
         psd_jams=list(psd_jam or []),
         door_mode=door_mode,
         zc_state=zc_state,
+        failed=failed,
     )
     print(json.dumps(results))
+    if failed:  # the run's record is printed above; the run itself failed
+        fail(_failed_text(failed))
+
+
+def _failed_text(failed: dict[str, int | None]) -> str:
+    """One line: the processes that ended early or failed, with their exit codes."""
+    parts = [f"{role.replace('_', ' ')} (exit code {code})" for role, code in failed.items()]
+    return f"the live run failed: {', '.join(parts)} ended before the stop or with an error"
 
 
 @live_app.command("demo")
@@ -709,6 +726,7 @@ def demo_cmd(
 ) -> None:
     """Two minutes of six trains with a radio outage of train 2 from 30 s to 50 s: its protection
     zone, its re-detection; prints where to open the page, then what happened."""
+    failed: dict[str, int | None] = {}
     results = _run_line(
         trains=6,
         duration_s=120.0,
@@ -719,7 +737,10 @@ def demo_cmd(
         operators=operators,
         outages=["2:30:20"],
         zc_state=zc_state,
+        failed=failed,
     )
+    if failed:
+        fail(_failed_text(failed))
     zc = results.get("zone_controller")
     fleet = results.get("trains")
     office = results.get("office")
