@@ -682,6 +682,12 @@ def test_credentials_never_come_from_the_command_line_and_the_file_is_private(tm
     secret.write_text("from a file, first line\n")
     assert _cli("office", "add-operator", str(ops), "dave", "--credential-file", str(secret)).returncode == 0
     assert load_operators(ops)["dave"].id == 8
+    # No credential at all is refused whatever its length: blanks, one character repeated.
+    for empty in ("", "\n", " " * 12 + "\n", "x" * 12 + "\n"):
+        secret.write_text(empty)
+        got = _cli("office", "add-operator", str(ops), "erin", "--credential-file", str(secret))
+        assert got.returncode == 2 and got.stderr.count("\n") == 1 and "credential" in got.stderr, empty
+    assert "erin" not in load_operators(ops)
     # Readable by others: the office refuses it in one line.
     ops.chmod(0o644)
     got = _cli(

@@ -128,6 +128,8 @@ def add_operator(
         raise ConfigError(str(file), "name", "a name of letters, digits, _ . -", name)
     if len(secret) < MIN_CREDENTIAL_CHARS:
         raise ConfigError(str(file), "credential", f"at least {MIN_CREDENTIAL_CHARS} characters", None)
+    if len(set(secret.strip())) < 2:  # blanks only, or one character repeated: no credential at all
+        raise ConfigError(str(file), "credential", "more than one distinct character, not only blanks", None)
     existing = load_operators(file) if file.exists() else {}
     if op_id is None:
         op_id = (
