@@ -105,3 +105,19 @@ def test_a_page_port_in_use_is_one_line_not_a_traceback(tmp_path: Path) -> None:
         port = str(taken.getsockname()[1])
         r = run("office", "serve", "--db", "o.db", "--port", "0", "--http-port", port, cwd=tmp_path, env=env)
     one_error(r, "--http-port", port, "in use")
+
+
+def test_an_unusable_cache_folder_is_refused_not_replaced_by_one_in_the_sources(tmp_path: Path) -> None:
+    """RAILSTOP_CACHE_DIR that cannot be written (here a folder under a file: not even root can
+    make it): one line naming it, exit 2; numba's own fallback (a cache beside the package's
+    sources) is never taken."""
+    import railstop
+
+    package = Path(railstop.__file__).parent
+    before = sorted(package.rglob("*.nbi"))
+    blocker = tmp_path / "afile"
+    blocker.write_text("x", encoding="utf-8")
+    env = {**os.environ, "RAILSTOP_CACHE_DIR": str(blocker / "cache")}
+    r = run("stop", "--json", "--no-db", cwd=tmp_path, env=env)
+    one_error(r, "RAILSTOP_CACHE_DIR", str(blocker / "cache"), "cannot write")
+    assert sorted(package.rglob("*.nbi")) == before

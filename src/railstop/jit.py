@@ -31,6 +31,8 @@ from typing import Any, TypeVar
 import numba
 import numpy as np
 
+from railstop.errors import RailstopError
+
 F = TypeVar("F", bound=Callable[..., Any])
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -86,9 +88,28 @@ def cache_dir() -> Path:
     return cache_root() / f"numba-{source_hash()}"
 
 
+def usable_cache_dir() -> Path:
+    """:func:`cache_dir`, created if need be; a RailstopError naming it when it cannot be written.
+    (numba, given a cache folder it cannot write, silently caches next to the package's sources
+    instead: a folder of one's own choosing is never replaced behind one's back.)"""
+    target = cache_dir()
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        probe = target / f".write-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        where = "RAILSTOP_CACHE_DIR" if os.environ.get("RAILSTOP_CACHE_DIR") else "the cache folder"
+        raise RailstopError(
+            f"{where}: {target}: cannot write the compiled stop model there ({exc.strerror or exc}); "
+            "set RAILSTOP_CACHE_DIR to a folder you may write"
+        ) from None
+    return target
+
+
 # numba reads CACHE_DIR when a cached function is decorated, so this must run
 # before any module of JIT_MODULES defines its functions (they import this one).
-numba.config.CACHE_DIR = str(cache_dir())  # type: ignore[attr-defined]
+numba.config.CACHE_DIR = str(usable_cache_dir())  # type: ignore[attr-defined]
 
 
 # ``_nrt`` is a numba target option without a public type stub.

@@ -32,6 +32,7 @@ from typing import Any, NoReturn
 import typer
 
 from railstop.cli.common import err
+from railstop.errors import RailstopError
 
 DEFAULT_STATUS_S = 10.0
 
@@ -263,6 +264,9 @@ def run_program(app: Any) -> NoReturn:
         code = exc.exit_code
     except typer.Abort:
         code = 1
+    except RailstopError as exc:  # one that escaped a command (an import-time check): one line too
+        err.print(f"error: {exc}", highlight=False, soft_wrap=True)
+        code = 2
     except KeyboardInterrupt:  # raised outside Typer's command call
         pass
     if _received:
