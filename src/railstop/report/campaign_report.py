@@ -152,13 +152,8 @@ def export_csv(directory: Path) -> list[Path]:
 
     written = []
     for c in find_campaigns(directory):
-        runs_path, target = c / RUNS_NAME, c / CSV_NAME
-        try:
-            table = pq.read_table(runs_path)
-        except (OSError, pa.ArrowException) as exc:
-            message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise RailstopError(f"{runs_path}: cannot read: {message}") from None
-        pacsv.write_csv(table, target)
+        target = c / CSV_NAME
+        pacsv.write_csv(_read_runs(c / RUNS_NAME), target)
         written.append(target)
     return written
 
@@ -174,6 +169,15 @@ def _to_numpy(column: pa.ChunkedArray) -> np.ndarray:
         filled = pc.fill_null(column.cast(pa.float64()), math.nan)
         return np.asarray(filled.to_numpy(), dtype=np.float64)
     return np.asarray(column.to_numpy(), dtype=object)
+
+
+def _read_runs(runs_path: Path) -> pa.Table:
+    """A campaign's ``runs.parquet`` as a table, or one RailstopError naming the file."""
+    try:
+        return pq.read_table(runs_path)
+    except (OSError, pa.ArrowException) as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RailstopError(f"{runs_path}: cannot read: {message}") from None
 
 
 def load_campaign(c: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -192,11 +196,7 @@ def load_campaign(c: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     kind = manifest.get("kind", "railstop-campaign")
     if kind != "railstop-campaign":
         raise RailstopError(f"{manifest_path}: kind: not a railstop campaign (got {kind!r})")
-    try:
-        table = pq.read_table(runs_path)
-    except (OSError, pa.ArrowException) as exc:
-        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise RailstopError(f"{runs_path}: cannot read: {message}") from None
+    table = _read_runs(runs_path)
     missing = [name for name in _REQUIRED_COLUMNS if name not in table.column_names]
     if missing:
         raise RailstopError(f"{runs_path}: missing column(s) {', '.join(missing)}")
@@ -221,6 +221,7 @@ class _Campaign:
     path: Path
     name: str  # the controller, made unique among the campaigns of the report
     slug: str  # the name as a file-name part
+    controller: str  # the manifest's controller (the folder's name without one)
     color: str
     linestyle: str
     manifest: dict[str, Any]
@@ -272,6 +273,7 @@ def _load_all(paths: list[Path], tolerance_m: float | None) -> list[_Campaign]:
             ok = isinstance(written, (int, float)) and math.isfinite(written) and written > 0
             tol = float(written) if ok and written is not None else DEFAULT_TOLERANCE_M
         base = str(manifest.get("controller") or path.name)
+        color, linestyle = controller_style(base, i)
         seen[base] = seen.get(base, 0) + 1
         name = base if seen[base] == 1 else f"{base} ({path.name})"
         slug = re.sub(r"[^A-Za-z0-9_.-]+", "-", name).strip("-.") or "campaign"
@@ -290,8 +292,9 @@ def _load_all(paths: list[Path], tolerance_m: float | None) -> list[_Campaign]:
                 path=path,
                 name=name,
                 slug=f"{i + 1}-{slug}",
-                color=controller_style(base, i)[0],
-                linestyle=controller_style(base, i)[1],
+                controller=base,
+                color=color,
+                linestyle=linestyle,
                 manifest=manifest,
                 columns=columns,
                 stats=stats,
@@ -334,14 +337,14 @@ def write_report(
         raise RailstopError(f"--tolerance-m: must be a positive number of metres (got {tolerance_m})")
     campaigns = _load_all(find_campaigns(directory), tolerance_m)
     if controllers is not None:
-        names = [str(c.manifest.get("controller") or c.path.name) for c in campaigns]
+        names = [c.controller for c in campaigns]
         unknown = [n for n in controllers if n not in names]
         if unknown:
             raise RailstopError(
                 f"--controllers: no campaign of {', '.join(unknown)} in {directory} "
                 f"(it has: {', '.join(names)})"
             )
-        campaigns = [c for c, n in zip(campaigns, names, strict=True) if n in controllers]
+        campaigns = [c for c in campaigns if c.controller in controllers]
     campaigns = _in_controller_order(campaigns)
     files = directory / REPORT_FILES_DIR
     try:
@@ -1031,8 +1034,7 @@ def _in_controller_order(campaigns: list[_Campaign]) -> list[_Campaign]:
     known = list(CONTROLLERS)
 
     def key(c: _Campaign) -> tuple[int, str]:
-        name = str(c.manifest.get("controller") or c.path.name)
-        return (known.index(name) if name in known else len(known), c.name)
+        return (known.index(c.controller) if c.controller in known else len(known), c.name)
 
     return sorted(campaigns, key=key)
 
