@@ -288,6 +288,19 @@ LINE_CASES: list[tuple[str, str | bytes, tuple[str, ...]]] = [
         ("stations[0].tasc.medium", "pigeon"),
     ),
     ("circuit-id-huge", edit(LINE, "{ id = 101,", "{ id = 70000,"), ("circuits[0].id", "70000")),
+    # A number written as a string is refused, not converted (the schemas are strict): a quoted
+    # value is a typing error somewhere, and the data must say what it means.
+    (
+        "stop-point-string",
+        edit(LINE, "stop_point_m = 1200.0", 'stop_point_m = "1200"'),
+        ("stop_point_m", "'1200'"),
+    ),
+    ("circuit-id-string", edit(LINE, "{ id = 101,", '{ id = "101",'), ("circuits[0].id", "'101'")),
+    (
+        "doppler-flag-string",
+        edit(LINE, "compensate = true", 'compensate = "yes"'),
+        ("cbtc.compensate", "'yes'"),
+    ),
     ("holdover-inf", edit(LINE, "holdover_s = 86400.0", "holdover_s = inf"), ("holdover_s",)),
 ]
 for name, text, needles in LINE_CASES:
@@ -347,6 +360,7 @@ VEHICLE_CASES: list[tuple[str, str | bytes, tuple[str, ...]]] = [
         ("emergency_decel_mps2",),
     ),
     ("force-1e9", edit(VEHICLE, "max_force_n = 320000.0", "max_force_n = 1e9"), ("max_force_n",)),
+    ("cars-string", edit(VEHICLE, "cars = 6", 'cars = "6"'), ("vehicle.cars", "'6'")),
 ]
 for name, text, needles in VEHICLE_CASES:
     add(
@@ -1150,6 +1164,106 @@ add(
     "x.db",
     files={"x.db": "not a database"},
     needles=("x.db",),
+)
+
+# --------------------------------------------------------------------------
+# railstop import railml: the XML, the railML structure, the numbers, the tracks, the output.
+
+RAILML_HEAD = '<railml xmlns="https://www.railml.org/schemas/2016" version="2.3"><infrastructure><tracks>'
+RAILML_TAIL = "</tracks></infrastructure></railml>"
+
+
+def railml_track(body: str, ident: str = "t1", end: str = "500") -> str:
+    return (
+        f'<track id="{ident}"><trackTopology><trackBegin pos="0"/><trackEnd pos="{end}"/></trackTopology>'
+        f"{body}</track>"
+    )
+
+
+RAILML_EDGE = (
+    '<trackElements><platformEdges><platformEdge id="pe" pos="300" length="130" side="right"/>'
+    "</platformEdges></trackElements>"
+)
+RAILML_OK = RAILML_HEAD + railml_track(RAILML_EDGE) + RAILML_TAIL
+IMPORT = ("import", "railml", "in.xml", "--out", "out.toml")
+RAILML_CASES: list[tuple[str, str | bytes, tuple[str, ...]]] = [
+    ("not-xml", "a line, not XML", ("in.xml", "(xml syntax)")),
+    ("binary", BINARY, ("in.xml",)),
+    ("empty", "", ("in.xml",)),
+    ("svg", "<svg xmlns='http://www.w3.org/2000/svg'/>", ("in.xml", "not a railML file")),
+    ("no-namespace", "<railml/>", ("in.xml", "not a railML file")),
+    (
+        "doctype-entity",
+        '<!DOCTYPE railml [<!ENTITY x SYSTEM "file:///etc/passwd">]>'
+        + RAILML_OK.replace('id="pe"', 'id="&x;"'),
+        ("in.xml", "DOCTYPE"),
+    ),
+    (
+        "billion-laughs",
+        '<!DOCTYPE railml [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">]>'
+        + RAILML_OK,
+        ("in.xml", "DOCTYPE"),
+    ),
+    (
+        "no-infrastructure",
+        '<railml xmlns="https://www.railml.org/schemas/2016"/>',
+        ("in.xml", "infrastructure"),
+    ),
+    ("no-tracks", RAILML_HEAD + RAILML_TAIL, ("in.xml", "no tracks")),
+    (
+        "two-tracks",
+        RAILML_HEAD + railml_track(RAILML_EDGE) + railml_track("", "t2") + RAILML_TAIL,
+        ("--track", "t1, t2"),
+    ),
+    ("no-station", RAILML_HEAD + railml_track("") + RAILML_TAIL, ("in.xml", "needs a station")),
+    (
+        "pos-text",
+        RAILML_OK.replace('pos="300"', 'pos="north"'),
+        ("in.xml", "platformEdge 'pe'", "@pos", "'north'"),
+    ),
+    ("pos-nan", RAILML_OK.replace('pos="300"', 'pos="NaN"'), ("in.xml", "@pos", "finite")),
+    ("pos-outside", RAILML_OK.replace('pos="300"', 'pos="9000"'), ("in.xml", "@pos", "outside its track")),
+    ("length-negative", RAILML_OK.replace('length="130"', 'length="-130"'), ("in.xml", "@length")),
+    ("track-end-before-begin", RAILML_OK.replace('<trackEnd pos="500"/>', '<trackEnd pos="-5"/>'), ("@pos",)),
+    ("deep-nesting", RAILML_HEAD + "<a>" * 300 + "</a>" * 300 + RAILML_TAIL, ("in.xml",)),
+]
+for name, text, needles in RAILML_CASES:
+    add(f"import-railml-{name}", *IMPORT, files={"in.xml": text}, needles=needles)
+add("import-railml-missing", *IMPORT, needles=("in.xml", "no such file"))
+add("import-railml-folder", *IMPORT, dirs=["in.xml"], needles=("in.xml", "a folder"))
+add("import-railml-device", "import", "railml", "/dev/zero", "--out", "o.toml", needles=("/dev/zero",))
+add(
+    "import-railml-unknown-track",
+    *IMPORT,
+    "--track",
+    "t7",
+    files={"in.xml": RAILML_OK},
+    needles=("t7", "no such track"),
+)
+add(
+    "import-railml-out-exists",
+    *IMPORT,
+    files={"in.xml": RAILML_OK, "out.toml": "mine"},
+    needles=("out.toml", "never overwrites"),
+)
+add(
+    "import-railml-out-folder",
+    "import",
+    "railml",
+    "in.xml",
+    "--out",
+    "d",
+    files={"in.xml": RAILML_OK},
+    dirs=["d"],
+    needles=("d",),
+)
+add(
+    "import-railml-entry-speed",
+    *IMPORT,
+    "--entry-speed",
+    "900",
+    files={"in.xml": RAILML_OK},
+    needles=("--entry-speed",),
 )
 
 # --------------------------------------------------------------------------

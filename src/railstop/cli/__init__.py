@@ -2,7 +2,8 @@
 
 One module per command group: ``stop`` (stop, compile), ``campaign`` (campaign, compare, certify,
 report), ``demo``, ``check``, ``formats`` (and init), ``hazards``, ``doors`` (and dwell),
-``telegram``, ``line``, ``zones``, ``platform``, ``office``, ``live``, ``position`` (position-run);
+``telegram``, ``line``, ``zones``, ``platform``, ``office``, ``live``, ``importer`` (import railml),
+``position`` (position-run);
 ``common`` and ``progress`` are what they share.
 
 Start-up is kept short: the command modules import only what builds the command line
@@ -23,6 +24,7 @@ from typer.core import TyperCommand, TyperGroup
 # The command modules named as modules: ``railstop.cli.stop`` stays the module, not its command.
 from railstop.cli import campaign, check, demo, formats, hazards, stop
 from railstop.cli.doors import doors_app, dwell
+from railstop.cli.importer import import_app
 from railstop.cli.line import line_app
 from railstop.cli.live import live_app
 from railstop.cli.office import office_app
@@ -108,6 +110,7 @@ app.add_typer(zones_app, name="zones")
 app.add_typer(platform_app, name="platform")
 app.add_typer(office_app, name="office")
 app.add_typer(live_app, name="live")
+app.add_typer(import_app, name="import")
 app.command()(formats.init)
 app.command()(check.check)
 app.command()(formats.formats)

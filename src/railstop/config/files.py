@@ -1,6 +1,6 @@
 """Reading a file a user names: a regular file of bounded size, UTF-8, or one line of error.
 
-Every data file (TOML, the operators file) is read through :func:`read_text_file`, so that the
+Every data file (TOML, the operators file, railML) is read through :func:`read_file_bytes`, so that the
 classes of bad input are closed once: a folder, a device (``/dev/zero``), a named pipe that
 nobody writes (which would block for ever) or a socket is refused before it is opened; a file
 larger than any data file is refused before it is read (a memory exhaustion otherwise); bytes
@@ -21,6 +21,16 @@ MAX_DATA_FILE_BYTES = 16 * 1024 * 1024
 
 def read_text_file(path: str | Path, *, field: str = "(file)", limit: int = MAX_DATA_FILE_BYTES) -> str:
     """The UTF-8 text of the regular file ``path`` (at most ``limit`` bytes)."""
+    raw = read_file_bytes(path, field=field, limit=limit)
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(str(path), field, "not UTF-8 text") from None
+
+
+def read_file_bytes(path: str | Path, *, field: str = "(file)", limit: int = MAX_DATA_FILE_BYTES) -> bytes:
+    """The bytes of the regular file ``path`` (at most ``limit``): an XML file declares its own
+    encoding."""
     name = str(path)
     try:
         info = os.stat(path)
@@ -41,7 +51,4 @@ def read_text_file(path: str | Path, *, field: str = "(file)", limit: int = MAX_
         raise ConfigError(name, field, f"cannot read: {exc.strerror}") from None
     if len(raw) > limit:  # it grew since
         raise ConfigError(name, field, f"too large for a data file (more than {limit} bytes)")
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise ConfigError(name, field, "not UTF-8 text") from None
+    return raw
