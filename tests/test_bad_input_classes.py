@@ -121,3 +121,76 @@ def test_an_unusable_cache_folder_is_refused_not_replaced_by_one_in_the_sources(
     r = run("stop", "--json", "--no-db", cwd=tmp_path, env=env)
     one_error(r, "RAILSTOP_CACHE_DIR", str(blocker / "cache"), "cannot write")
     assert sorted(package.rglob("*.nbi")) == before
+
+
+def _numbers(data: object, path: tuple[object, ...] = ()) -> list[tuple[tuple[object, ...], object]]:
+    """Every number (not a bool) in parsed TOML, with its path; the first of each list only."""
+    if isinstance(data, dict):
+        return [n for k, v in data.items() for n in _numbers(v, (*path, k))]
+    if isinstance(data, list):
+        return _numbers(data[0], (*path, 0)) if data else []
+    if isinstance(data, int | float) and not isinstance(data, bool):
+        return [(path, data)]
+    return []
+
+
+def _quoted(data: object, path: tuple[object, ...]) -> object:
+    """A deep copy of ``data`` with the number at ``path`` written as a string."""
+    import copy
+
+    out = copy.deepcopy(data)
+    cur = out
+    for part in path[:-1]:
+        cur = cur[part]  # type: ignore[index]
+    cur[path[-1]] = str(cur[path[-1]])  # type: ignore[index]
+    return out
+
+
+def test_a_number_written_as_a_string_is_refused_in_every_data_file() -> None:
+    """The schemas are strict: "1200" where 1200 belongs is an error naming the key, never converted
+    (a quoted number is a typing error, and the data must say what it means). Every number of
+    every embedded data file, quoted one at a time."""
+    import tomllib
+    from importlib import resources
+
+    from railstop.config.loader import format_loc, validate
+    from railstop.errors import ConfigError
+    from railstop.report.file_formats import file_formats
+
+    checked = 0
+    for fmt in file_formats():
+        if not fmt.embedded or fmt.root:
+            continue
+        name = fmt.embedded.removeprefix("railstop/data/")
+        data = tomllib.loads(resources.files("railstop.data").joinpath(name).read_text(encoding="utf-8"))
+        validate(fmt.model, data, fmt.embedded)  # the file as it is: valid
+        for path, value in _numbers(data):
+            with pytest.raises(ConfigError) as e:
+                validate(fmt.model, _quoted(data, path), fmt.embedded)  # type: ignore[arg-type]
+            where = format_loc(tuple(p for p in path))  # type: ignore[arg-type]
+            assert where in str(e.value) and repr(str(value)) in str(e.value), (where, str(e.value))
+            checked += 1
+    assert checked > 100, checked
+
+
+def test_a_terminal_that_cannot_show_a_character_gets_a_replacement_not_a_traceback(tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONIOENCODING": "ascii", "LC_ALL": "C"}
+    r = run("stop", "--no-db", cwd=tmp_path, env=env, timeout=120)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "within the PSD tolerance ?0.35 m" in r.stdout  # the ± replaced
+    r = run("formats", "line", cwd=tmp_path, env=env)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_another_programs_database_is_refused_untouched(tmp_path: Path) -> None:
+    import sqlite3
+
+    db = tmp_path / "theirs.db"
+    with sqlite3.connect(db) as con:
+        con.execute("create table customers (id integer primary key, name text)")
+        con.execute("insert into customers values (1, 'x')")
+    before = db.read_bytes()
+    one_error(
+        run("stop", "--db", "theirs.db", cwd=tmp_path), "theirs.db", "not a railstop database", "customers"
+    )
+    assert db.read_bytes() == before

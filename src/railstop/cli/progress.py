@@ -232,6 +232,17 @@ def empty_option(argv: list[str]) -> str | None:
     return None
 
 
+def _tolerate_any_terminal_encoding() -> None:
+    """A terminal or pipe that cannot show a character (ASCII, Latin-1: ``±``, ``‰``, ``§``)
+    gets a replacement for it instead of a UnicodeEncodeError in the middle of a result: the
+    class of "non-UTF-8 terminal" closed for every command at once."""
+    for stream in (sys.stdout, sys.stderr):
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            with contextlib.suppress(ValueError, OSError):
+                reconfigure(errors="replace")
+
+
 def run_program(app: Any) -> NoReturn:
     """Run the Typer ``app`` as the ``railstop`` program and exit.
 
@@ -242,6 +253,7 @@ def run_program(app: Any) -> NoReturn:
     """
     exceptions = _click_exceptions()
     install_signal_handlers()
+    _tolerate_any_terminal_encoding()
     empty = empty_option(sys.argv[1:])
     if empty is not None:  # before any command runs: `--out ""` would be the current folder
         err.print(f"error: {empty}: an empty value; give one", highlight=False, soft_wrap=True)

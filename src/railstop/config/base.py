@@ -15,7 +15,7 @@ FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 class Model(BaseModel):
     """Frozen, and unknown keys are rejected (DESIGN rule 6)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, str_strip_whitespace=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, str_strip_whitespace=True, strict=True)
 
 
 class FieldProblem(ValueError):

@@ -908,7 +908,8 @@ def _check_integrity(engine: Engine, label: str) -> None:
 
 
 def _prepare_schema(engine: Engine, label: str) -> None:
-    """Create the tables of a new file, bring an older one up to ``SCHEMA_VERSION``.
+    """Create the tables of a new file, bring an older one up to ``SCHEMA_VERSION``; refuse a
+    database of another program (tables, none of railstop's) untouched.
 
     A file without ``schema_info`` whose tables exist is version 1. Every
     column added since is nullable: missing ones are added with ``ALTER
@@ -925,6 +926,14 @@ def _prepare_schema(engine: Engine, label: str) -> None:
             )
         if found == SCHEMA_VERSION:
             return
+        if found == 0 and names:
+            # Another program's database (tables, none of ours): refused untouched, not extended
+            # with railstop's tables beside its own.
+            shown = ", ".join(sorted(names)[:5]) + (", ..." if len(names) > 5 else "")
+            raise RailstopError(
+                f"{label}: not a railstop database (it holds other tables: {shown}); railstop never "
+                "writes into another program's database: give a new file"
+            )
         _Base.metadata.create_all(conn)
         added = _add_missing_columns(conn, names, label)
         if found == 0:
