@@ -4,10 +4,12 @@ tests/zygote.py, unless a test needs a fresh interpreter)."""
 from __future__ import annotations
 
 import json
+import re
 import sqlite3
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -366,3 +368,50 @@ def test_line_run_under_an_hour_says_so_instead_of_none(tmp_path: Path) -> None:
     p = run("line", "run", "--trains", "1", "--duration-s", "300", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert "None" not in p.stdout and "the run is under an hour" in p.stdout
+
+
+def _all_help_paths() -> list[tuple[str, ...]]:
+    """Every command and group of ``railstop``, as argv before ``--help``."""
+    import typer
+
+    from railstop.cli import app
+
+    paths: list[tuple[str, ...]] = [()]
+    root = typer.main.get_command(app)
+
+    def walk(group: Any, prefix: tuple[str, ...]) -> None:
+        context = group.context_class(group)
+        for name in group.list_commands(context):
+            paths.append((*prefix, name))
+            cmd = group.get_command(context, name)
+            if hasattr(cmd, "list_commands"):
+                walk(cmd, (*prefix, name))
+
+    walk(root, ())
+    return paths
+
+
+def test_no_help_text_cuts_a_word_at_80_columns(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every --help at 80 columns: no ellipsis (nothing cut), every command's first paragraph
+    and every controller's name whole (a name may wrap at its own hyphen)."""
+    from typer.testing import CliRunner
+
+    from railstop.controllers import CONTROLLERS
+
+    monkeypatch.setenv("COLUMNS", "80")
+    runner = CliRunner()
+    from railstop.cli import app
+
+    seen_controllers = False
+    for path in _all_help_paths():
+        r = runner.invoke(app, [*path, "--help"], prog_name="railstop")
+        assert r.exit_code == 0, (path, r.output)
+        text = r.output
+        cut = [ln for ln in text.splitlines() if ln.rstrip().endswith("...") and "Usage:" not in ln]
+        assert "…" not in text and not cut, (path, cut)
+        joined = re.sub(r"-\n\s+", "-", text)  # a word wrapped at its own hyphen
+        if "--controller " in text and "One of:" in text:
+            seen_controllers = True
+            for name in CONTROLLERS:
+                assert name in joined, (path, name)
+    assert seen_controllers

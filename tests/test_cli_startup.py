@@ -112,7 +112,7 @@ def test_help_still_lists_every_command_in_order(tmp_path: Path) -> None:
     p = run("--help")
     assert p.returncode == 0, p.stderr
     names = ["dwell", "position-run", "check", "stop", "demo", "campaign", "compare", "report", "doors"]
-    where = [p.stdout.find(f"│ {name} ") for name in names]
+    where = [p.stdout.find(f"\n  {name} ") for name in names]
     assert all(i >= 0 for i in where), p.stdout
     assert where == sorted(where), p.stdout
     p = run("position-run", "--help")

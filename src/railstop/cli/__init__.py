@@ -19,10 +19,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from typer.core import TyperCommand, TyperGroup
+from typer.core import TyperCommand
 
 # The command modules named as modules: ``railstop.cli.stop`` stays the module, not its command.
 from railstop.cli import campaign, check, demo, formats, hazards, stop
+from railstop.cli.common import HELP_MARKUP, HelpGroup
 from railstop.cli.doors import doors_app, dwell
 from railstop.cli.importer import import_app
 from railstop.cli.line import line_app
@@ -50,12 +51,12 @@ def _position_run_command() -> Command:
     """``position-run`` as a click command: imports ``railstop.sim.position_run`` for its help."""
     from railstop.cli.position import position_run
 
-    sub = typer.Typer(add_completion=False)
+    sub = typer.Typer(add_completion=False, rich_markup_mode=HELP_MARKUP)
     sub.command(name=_POSITION_RUN)(position_run)
     return typer.main.get_command(sub)
 
 
-class _Group(TyperGroup):
+class _Group(HelpGroup):
     """The ``railstop`` group, with ``position-run`` built on first use (run or its own help; the
     group's help lists its placeholder, so ``railstop --help`` does not import the line model)."""
 
@@ -76,6 +77,7 @@ class _Group(TyperGroup):
 
 
 app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     cls=_Group,
     add_completion=False,
     no_args_is_help=True,

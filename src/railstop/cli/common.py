@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import sys
@@ -12,10 +13,13 @@ from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 import typer
 from rich.console import Console
 from rich.text import Text
+from typer.core import TyperGroup
 
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
+    from typer._click import Context, HelpFormatter
+
     from railstop.config.driver import DriverFile
     from railstop.config.platform import PlatformFile
     from railstop.config.schema import Station
@@ -27,6 +31,25 @@ if TYPE_CHECKING:
 # Wide enough for the demo table when the output is a file or a pipe (unless COLUMNS says).
 out = Console(width=None if sys.stdout.isatty() or "COLUMNS" in os.environ else 160, markup=False)
 err = Console(stderr=True, markup=False)
+
+
+# Every command's --help is click's plain text: paragraphs wrapped to the terminal, nothing cut.
+# Typer's rich panels cut a word longer than their column with an ellipsis (a controller's name, a
+# file name at 80 columns) and keep the docstrings' line breaks; a help text must never lose a word.
+HELP_MARKUP = None
+
+
+class HelpGroup(TyperGroup):
+    """A command group whose list of commands shows each one's first paragraph whole, wrapped
+    (click would cut it at the terminal's width with "...")."""
+
+    def format_commands(self, ctx: Context, formatter: HelpFormatter) -> None:
+        for name in self.list_commands(ctx):
+            cmd = self.get_command(ctx, name)
+            if cmd is not None and not cmd.short_help and cmd.help:
+                first = inspect.cleandoc(cmd.help).split("\n\n", 1)[0]
+                cmd.short_help = " ".join(first.split())
+        super().format_commands(ctx, formatter)
 
 
 def styled(text: str, style: str) -> Text:

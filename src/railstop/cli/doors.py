@@ -10,6 +10,8 @@ from typing import Annotated
 import typer
 
 from railstop.cli.common import (
+    HELP_MARKUP,
+    HelpGroup,
     fail,
     out,
     print_verification,
@@ -20,6 +22,8 @@ from railstop.cli.common import (
 from railstop.errors import RailstopError
 
 doors_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    cls=HelpGroup,
     add_completion=False,
     no_args_is_help=True,
     help="Train doors and platform screen doors (SPEC §5): the door action table and its exhaustive proof.",

@@ -7,9 +7,11 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli.common import VehicleOpt, fail, out
+from railstop.cli.common import HELP_MARKUP, HelpGroup, VehicleOpt, fail, out
 
 import_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    cls=HelpGroup,
     add_completion=False,
     no_args_is_help=True,
     help="Import infrastructure data from other formats as railstop line files.",

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from railstop.cli.common import (
+    HELP_MARKUP,
+    HelpGroup,
     LawOpt,
     LineOpt,
     OfficeOpt,
@@ -94,6 +96,8 @@ def _link_text(link: dict[str, int]) -> str:
 
 
 line_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    cls=HelpGroup,
     add_completion=False,
     no_args_is_help=True,
     help="The line with many trains: fixed-block signalling, station stops by ground TASC, dwells.",

@@ -10,7 +10,9 @@ from typing import Annotated
 import typer
 
 from railstop.cli.common import (
+    HELP_MARKUP,
     DriverOpt,
+    HelpGroup,
     LineOpt,
     PlatformOpt,
     VehicleOpt,
@@ -25,6 +27,8 @@ from railstop.cli.doors import DoorsOpt
 from railstop.errors import RailstopError
 
 platform_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    cls=HelpGroup,
     add_completion=False,
     no_args_is_help=True,
     help="The platform of a manually driven line (SPEC §3): stop sensors, lamps, PSD relay.",

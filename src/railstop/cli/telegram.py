@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli.common import fail, out
+from railstop.cli.common import HELP_MARKUP, HelpGroup, fail, out
 from railstop.errors import TelegramError
 from railstop.link.codec import (
     LAYOUTS,
@@ -22,6 +22,8 @@ from railstop.link.codec import (
 )
 
 telegram_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    cls=HelpGroup,
     no_args_is_help=True,
     help="Encode, decode and list the telegrams (type | payload | CRC-16, big-endian). Types: "
     + ", ".join(TYPES)

@@ -57,7 +57,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from railstop.config.layout import Cbtc
 from railstop.messages import ManualRelease, MovementCommand, OnboardPosition, Output, PositionReport
@@ -261,20 +261,55 @@ def _field_names(cls: type) -> tuple[str, ...]:
     return names
 
 
-def _copy_value(value: object) -> object:
-    cls = type(value)
-    if cls in _ATOMIC or isinstance(value, Enum):
-        return value
-    if isinstance(value, dict):
-        return {k: _copy_value(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [v if type(v) in _ATOMIC else _copy_value(v) for v in value]
-    if isinstance(value, set):
-        return set(value)
+def _identity(value: object) -> object:
+    return value
+
+
+def _copy_dict(value: dict[Any, Any]) -> dict[Any, Any]:
+    return {k: v if type(v) in _ATOMIC else _copy_value(v) for k, v in value.items()}
+
+
+def _copy_list(value: list[Any]) -> list[Any]:
+    return [v if type(v) in _ATOMIC else _copy_value(v) for v in value]
+
+
+def _copier_for(cls: type) -> Callable[[Any], Any]:
+    """How a value of type ``cls`` is copied: decided once per type (the search copies millions)."""
+    if cls in _ATOMIC or issubclass(cls, Enum):
+        return _identity
+    if issubclass(cls, dict):
+        return _copy_dict
+    if issubclass(cls, list):
+        return _copy_list
+    if issubclass(cls, set):
+        return set
     params = getattr(cls, "__dataclass_params__", None)
     if params is not None and not params.frozen:
-        return copy_unit(value)
-    return value  # immutable (frozen dataclasses such as the messages) or shared (parameters, callables)
+        return copy_unit
+    return _identity  # immutable (frozen dataclasses such as the messages) or shared (parameters, callables)
+
+
+_COPIERS: dict[type, Callable[[Any], Any]] = {}
+
+
+def _copy_value(value: object) -> object:
+    cls = type(value)
+    copier = _COPIERS.get(cls)
+    if copier is None:
+        copier = _COPIERS[cls] = _copier_for(cls)
+    return copier(value)
+
+
+_SLOTTED: dict[type, tuple[str, ...]] = {}
+
+
+def _slotted_fields(cls: type) -> tuple[str, ...]:
+    """The fields of ``cls`` kept in slots (the rest, and any extra attribute, are in ``__dict__``)."""
+    names = _SLOTTED.get(cls)
+    if names is None:
+        slots = {n for k in cls.__mro__ for n in getattr(k, "__slots__", ())}
+        names = _SLOTTED[cls] = tuple(n for n in _field_names(cls) if n in slots)
+    return names
 
 
 def copy_unit(unit: _U) -> _U:
@@ -285,15 +320,13 @@ def copy_unit(unit: _U) -> _U:
     faster (tests/test_zones_verify.py compares the two)."""
     cls = type(unit)
     new = cls.__new__(cls)
+    state = getattr(unit, "__dict__", None)
+    if state is not None:  # the fields (and any extra attribute) of a class without slots
+        new.__dict__.update({k: v if type(v) in _ATOMIC else _copy_value(v) for k, v in state.items()})
     setattr_ = object.__setattr__
-    for name in _field_names(cls):
+    for name in _slotted_fields(cls):
         v = getattr(unit, name)
         setattr_(new, name, v if type(v) in _ATOMIC else _copy_value(v))
-    extra = getattr(unit, "__dict__", None)  # a subclass without slots may keep more
-    if extra:
-        for name, v in extra.items():
-            if name not in new.__dict__:
-                new.__dict__[name] = _copy_value(v)
     return new
 
 
@@ -342,6 +375,31 @@ def _onboard_state_names(cls: type) -> tuple[str, ...]:
     if names is None:
         names = _ONBOARD_FIELDS[cls] = tuple(n for n in _field_names(cls) if n not in _ONBOARD_SKIP)
     return names
+
+
+# How a field enters the snapshot: as it is, or its absolute times made ages (decided per class).
+_PLAIN, _WATCHDOG, _REPORT, _ANSWERED, _SENT = range(5)
+_ONBOARD_KINDS = {"_answered_s": _ANSWERED, "watchdog": _WATCHDOG, "_sent": _SENT}
+_PLANS: dict[tuple[str, type], tuple[tuple[str, int], ...]] = {}
+
+
+def _onboard_plan(cls: type) -> tuple[tuple[str, int], ...]:
+    plan = _PLANS.get(("onboard", cls))
+    if plan is None:
+        plan = _PLANS["onboard", cls] = tuple(
+            (n, _ONBOARD_KINDS.get(n, _PLAIN)) for n in _onboard_state_names(cls)
+        )
+    return plan
+
+
+def _record_plan(cls: type) -> tuple[tuple[str, int], ...]:
+    """The controller's record of a train: its watchdog as an age, a kept report without its time."""
+    plan = _PLANS.get(("record", cls))
+    if plan is None:
+        plan = _PLANS["record", cls] = tuple(
+            (n, _WATCHDOG if n == "watchdog" else _REPORT) for n in _field_names(cls)
+        )
+    return plan
 
 
 class World:
@@ -532,18 +590,18 @@ class World:
         rec = self.zc.trains.get(train)
         unit: tuple[object, ...] = ()
         period = self.model.params.report_period_s
+        t_s = self.t_s
         if rec is not None:
             parts: list[object] = []
-            for name in _field_names(type(rec)):
+            for name, kind in _record_plan(type(rec)):
                 v = getattr(rec, name)
-                if name == "watchdog":  # its last report's absolute time -> age in cycles
-                    age = None if math.isinf(v.fed_s) else round((self.t_s - v.fed_s) / period, 6)
-                    v = (age, v.missed)
-                elif isinstance(v, PositionReport):  # its time left out
+                if kind == _WATCHDOG:  # its last report's absolute time -> age in cycles
+                    v = (None if math.isinf(v.fed_s) else round((t_s - v.fed_s) / period, 6), v.missed)
+                elif kind == _REPORT and isinstance(v, PositionReport):  # its time left out
                     v = (v.position_m, v.speed_mps, v.direction)
                 parts.append(_plain(v))
             unit = tuple(parts)
-        onboard = tuple([self._onboard_field(ob, name) for name in _onboard_state_names(type(ob))])
+        onboard = tuple([self._onboard_field(ob, name, kind) for name, kind in _onboard_plan(type(ob))])
         return TrainSnapshot(
             train=train,
             front_m=self.fronts[i],
@@ -552,29 +610,28 @@ class World:
             known_m=self.known[i],
             given_end_m=self.given_end[i],
             intended_end_m=self.intended_end[i],
-            status=self.status(train),
-            zone=self.zone(train),
+            status=TrainStatus.UNKNOWN if rec is None else rec.status,
+            zone=None if rec is None else rec.zone,
             emergency_brake=ob.emergency_brake,
             held_end_m=_num(ob.authority_end_m),
             unit=unit,
             onboard=onboard,
         )
 
-    def _onboard_field(self, ob: OnboardCbtc, name: str) -> object:
+    def _onboard_field(self, ob: OnboardCbtc, name: str, kind: int = 0) -> object:
         """A hashable stand-in for the onboard unit's field, its absolute times made ages in cycles
         (the reports it keeps, the report its authority answers)."""
         v = getattr(ob, name)
+        if kind == _PLAIN:
+            return _plain(v)
         period = self.model.params.report_period_s
-        if name == "_answered_s":
+        if kind == _ANSWERED:
             return None if math.isinf(v) else round((self.t_s - v) / period, 6)
-        if name == "watchdog":  # counted on the report cycle: its feed time is never read
+        if kind == _WATCHDOG:  # counted on the report cycle: its feed time is never read
             return (v.missed, v.fed_in_cycle)
-        if name == "_sent":
-            return tuple(
-                (round((self.t_s - r.time_s) / period, 6), r.position_m, r.speed_mps, r.uncertainty_m)
-                for r in v
-            )
-        return _plain(v)
+        return tuple(  # _SENT
+            (round((self.t_s - r.time_s) / period, 6), r.position_m, r.speed_mps, r.uncertainty_m) for r in v
+        )
 
     # ------------------------------------------------------------------ the choices of a cycle
 
