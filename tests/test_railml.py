@@ -16,6 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bad_inputs import RAILML_HEAD, RAILML_TAIL, railml_track
 from railstop.config.loader import default_vehicle, load_line
 from railstop.config.plausibility import stopping_distance_m
 from railstop.config.railml import detector_layout, import_railml, to_toml
@@ -169,15 +170,8 @@ def _write(tmp_path: Path, name: str, text: str) -> Path:
     return p
 
 
-V2_HEAD = '<railml xmlns="https://www.railml.org/schemas/2016" version="2.3"><infrastructure><tracks>'
-V2_TAIL = "</tracks></infrastructure></railml>"
-
-
-def _track(body: str, end: str = "500", ident: str = "t1") -> str:
-    return (
-        f'<track id="{ident}"><trackTopology><trackBegin pos="0"/><trackEnd pos="{end}"/></trackTopology>'
-        f"{body}</track>"
-    )
+# The small railML 2 texts of the bad-input sweep: a track of 500 m around a body.
+V2_HEAD, V2_TAIL = RAILML_HEAD, RAILML_TAIL
 
 
 EDGE = (
@@ -195,7 +189,7 @@ def test_bad_railml_is_one_error_naming_the_element_and_its_line(tmp_path: Path)
         tmp_path,
         "a.xml",
         V2_HEAD
-        + _track(
+        + railml_track(
             EDGE
             + '</trackElements><ocsElements><signals><signal id="s1"\n pos="twelve"/></signals></ocsElements>'
         )
@@ -208,7 +202,7 @@ def test_bad_railml_is_one_error_naming_the_element_and_its_line(tmp_path: Path)
         tmp_path,
         "b.xml",
         V2_HEAD
-        + _track(
+        + railml_track(
             EDGE + '</trackElements><ocsElements><signals><signal id="s1" pos="900"/></signals></ocsElements>'
         )
         + V2_TAIL,
@@ -219,7 +213,7 @@ def test_bad_railml_is_one_error_naming_the_element_and_its_line(tmp_path: Path)
         tmp_path,
         "c.xml",
         V2_HEAD
-        + _track(
+        + railml_track(
             '<trackElements><platformEdges><platformEdge id="pe" pos="300" length="nan"/></platformEdges>'
             "</trackElements>"
         )
@@ -228,13 +222,15 @@ def test_bad_railml_is_one_error_naming_the_element_and_its_line(tmp_path: Path)
     with pytest.raises(ConfigError, match="not a finite number"):
         _import(nan)
     two = _write(
-        tmp_path, "d.xml", V2_HEAD + _track(EDGE + "</trackElements>") + _track("", ident="t2") + V2_TAIL
+        tmp_path,
+        "d.xml",
+        V2_HEAD + railml_track(EDGE + "</trackElements>") + railml_track("", "t2") + V2_TAIL,
     )
     with pytest.raises(ConfigError, match=r"2 tracks \(t1, t2\): name the ones"):
         _import(two)
     with pytest.raises(ConfigError, match="no such track"):
         _import(two, tracks=["t7"])
-    no_station = _write(tmp_path, "e.xml", V2_HEAD + _track("") + V2_TAIL)
+    no_station = _write(tmp_path, "e.xml", V2_HEAD + railml_track("") + V2_TAIL)
     with pytest.raises(ConfigError, match="a railstop line needs a station"):
         _import(no_station)
     not_railml = _write(tmp_path, "f.xml", "<svg xmlns='http://www.w3.org/2000/svg'/>")
@@ -255,7 +251,7 @@ def test_a_doctype_is_refused_so_entities_are_never_resolved_nor_expanded(tmp_pa
     laughs = "".join(f'<!ENTITY l{i} "{f"&l{i - 1};" * 10}">' for i in range(1, 10))
     bomb = f'<!DOCTYPE railml [<!ENTITY l0 "ha">{laughs}]>'
     for name, dtd, ent in (("xxe.xml", xxe, "x"), ("bomb.xml", bomb, "l9")):
-        body = V2_HEAD + _track(edge.format(ent) + "</platformEdges></trackElements>") + V2_TAIL
+        body = V2_HEAD + railml_track(edge.format(ent) + "</platformEdges></trackElements>") + V2_TAIL
         for encoding in ("utf-8", "utf-16"):
             path = tmp_path / f"{encoding}-{name}"
             path.write_bytes(f'<?xml version="1.0" encoding="{encoding}"?>{dtd}{body}'.encode(encoding))

@@ -23,7 +23,7 @@ from typer.core import TyperCommand
 
 # The command modules named as modules: ``railstop.cli.stop`` stays the module, not its command.
 from railstop.cli import campaign, check, demo, formats, hazards, stop
-from railstop.cli.common import HELP_MARKUP, HelpGroup
+from railstop.cli.common import HELP_MARKUP, HelpGroup, command_group
 from railstop.cli.doors import doors_app, dwell
 from railstop.cli.importer import import_app
 from railstop.cli.line import line_app
@@ -76,12 +76,8 @@ class _Group(HelpGroup):
         return super().resolve_command(ctx, args)
 
 
-app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=_Group,
-    add_completion=False,
-    no_args_is_help=True,
-    help="railstop: precise station stopping for urban rail (ground TASC and its simulator).",
+app = command_group(
+    "railstop: precise station stopping for urban rail (ground TASC and its simulator).", cls=_Group
 )
 
 

@@ -52,6 +52,14 @@ class HelpGroup(TyperGroup):
         super().format_commands(ctx, formatter)
 
 
+def command_group(help: str, cls: type[TyperGroup] = HelpGroup) -> typer.Typer:
+    """A command group of ``railstop`` (the program itself, ``line``, ``live``, ...): plain help that
+    never cuts a word, no shell-completion options, its help when called without a command."""
+    return typer.Typer(
+        rich_markup_mode=HELP_MARKUP, cls=cls, add_completion=False, no_args_is_help=True, help=help
+    )
+
+
 def styled(text: str, style: str) -> Text:
     """``text`` in ``style`` (e.g. "bold red"), never parsed as markup."""
     return Text(text, style=style)

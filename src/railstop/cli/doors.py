@@ -10,8 +10,7 @@ from typing import Annotated
 import typer
 
 from railstop.cli.common import (
-    HELP_MARKUP,
-    HelpGroup,
+    command_group,
     fail,
     out,
     print_verification,
@@ -21,12 +20,8 @@ from railstop.cli.common import (
 )
 from railstop.errors import RailstopError
 
-doors_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="Train doors and platform screen doors (SPEC §5): the door action table and its exhaustive proof.",
+doors_app = command_group(
+    "Train doors and platform screen doors (SPEC §5): the door action table and its exhaustive proof."
 )
 
 DoorsOpt = Annotated[

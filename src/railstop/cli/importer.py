@@ -7,15 +7,9 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli.common import HELP_MARKUP, HelpGroup, VehicleOpt, fail, out
+from railstop.cli.common import VehicleOpt, command_group, fail, out
 
-import_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="Import infrastructure data from other formats as railstop line files.",
-)
+import_app = command_group("Import infrastructure data from other formats as railstop line files.")
 
 
 @import_app.command(name="railml")

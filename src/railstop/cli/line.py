@@ -9,14 +9,13 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from railstop.cli.common import (
-    HELP_MARKUP,
-    HelpGroup,
     LawOpt,
     LineOpt,
     OfficeOpt,
     OperationOpt,
     SchedulerOpt,
     VehicleOpt,
+    command_group,
     fail,
     load_law,
     office_target,
@@ -95,12 +94,8 @@ def _link_text(link: dict[str, int]) -> str:
     return f"{link['frames']:,} frames, {link['lost']:,} lost, {link['rejected']:,} refused"
 
 
-line_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="The line with many trains: fixed-block signalling, station stops by ground TASC, dwells.",
+line_app = command_group(
+    "The line with many trains: fixed-block signalling, station stops by ground TASC, dwells."
 )
 
 

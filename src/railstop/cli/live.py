@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from railstop.cli.common import HELP_MARKUP, HelpGroup, LineOpt, VehicleOpt, address_option, fail
+from railstop.cli.common import LineOpt, VehicleOpt, address_option, command_group, fail
 from railstop.cli.doors import DoorsOpt
 from railstop.cli.office import KEY_ENV, KeyFileOpt, KeyHexOpt, master_key
 from railstop.errors import RailstopError
@@ -33,12 +33,8 @@ if TYPE_CHECKING:
     from railstop.config.schema import Line, Vehicle
     from railstop.live.clock import TimeBase
 
-live_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="The CBTC line live: office, zone controller and trains as processes over UDP on loopback.",
+live_app = command_group(
+    "The CBTC line live: office, zone controller and trains as processes over UDP on loopback."
 )
 
 EpochOpt = Annotated[

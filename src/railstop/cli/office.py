@@ -14,15 +14,11 @@ from typing import Annotated, Any
 
 import typer
 
-from railstop.cli.common import HELP_MARKUP, HelpGroup, LineOpt, address_option, fail
+from railstop.cli.common import LineOpt, address_option, command_group, fail
 from railstop.errors import RailstopError
 
-office_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="The management office: receives the wayside's reports and keeps them in a database.",
+office_app = command_group(
+    "The management office: receives the wayside's reports and keeps them in a database."
 )
 
 KEY_ENV = "RAILSTOP_OFFICE_KEY"

@@ -10,12 +10,11 @@ from typing import Annotated
 import typer
 
 from railstop.cli.common import (
-    HELP_MARKUP,
     DriverOpt,
-    HelpGroup,
     LineOpt,
     PlatformOpt,
     VehicleOpt,
+    command_group,
     fail,
     load_manual_data,
     out,
@@ -26,12 +25,8 @@ from railstop.cli.common import (
 from railstop.cli.doors import DoorsOpt
 from railstop.errors import RailstopError
 
-platform_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="The platform of a manually driven line (SPEC §3): stop sensors, lamps, PSD relay.",
+platform_app = command_group(
+    "The platform of a manually driven line (SPEC §3): stop sensors, lamps, PSD relay."
 )
 
 

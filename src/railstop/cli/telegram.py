@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli.common import HELP_MARKUP, HelpGroup, fail, out
+from railstop.cli.common import command_group, fail, out
 from railstop.errors import TelegramError
 from railstop.link.codec import (
     LAYOUTS,
@@ -21,13 +21,10 @@ from railstop.link.codec import (
     layout_of,
 )
 
-telegram_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    no_args_is_help=True,
-    help="Encode, decode and list the telegrams (type | payload | CRC-16, big-endian). Types: "
+telegram_app = command_group(
+    "Encode, decode and list the telegrams (type | payload | CRC-16, big-endian). Types: "
     + ", ".join(TYPES)
-    + ".",
+    + "."
 )
 
 _SEPARATORS = re.compile(r"[\s:_-]+")

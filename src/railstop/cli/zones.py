@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from railstop.cli.common import HELP_MARKUP, HelpGroup, fail, out, print_verification
+from railstop.cli.common import command_group, fail, out, print_verification
 from railstop.cli.progress import Reporter
 
 if TYPE_CHECKING:
@@ -17,12 +17,8 @@ MODES = ("minimal", "conventional", "both")
 # Beyond this many states the command stops with an error rather than run for hours.
 MAX_STATES = 300_000
 
-zones_app = typer.Typer(
-    rich_markup_mode=HELP_MARKUP,
-    cls=HelpGroup,
-    add_completion=False,
-    no_args_is_help=True,
-    help="CBTC protection zones (SPEC §4): the zone controller's safety rules, proved on a small line.",
+zones_app = command_group(
+    "CBTC protection zones (SPEC §4): the zone controller's safety rules, proved on a small line."
 )
 
 
