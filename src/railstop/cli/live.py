@@ -404,6 +404,7 @@ def trains_cmd(
                 manual=door_mode == "manual",
                 trains=trains,
                 started_s=base.now_s(),  # statuses sent before this process started are refused
+                seed=seed,
             )
             for text in obstruct or []:
                 train_s, _, door_s = text.partition(":")

@@ -214,6 +214,10 @@ class StopConfirmModel(_Model):
     creep_max_m: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)]
     # After the creep, the time to brake to a stand before the zero velocity relay's confirmation.
     creep_settle_s: Seconds
+    # SPEC §5 (SPEC §3 lamps F / R): the creep is a short stop of its own and lands with the stop's
+    # inaccuracy: normal(0, this) about the stopping point, drawn per creep ([interpretation], see
+    # doors.toml); 0: the creep lands exactly.
+    creep_stop_sd_m: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.08
 
     @property
     def tolerance_m(self) -> float:

@@ -18,7 +18,7 @@ from railstop.link.codec import DoorCommand, PsdStatus, TelegramError, decode, e
 from railstop.link.release_link import WCC_ADDRESS, WccGate, wcc_key
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address
-from railstop.nodes.dwell import PlatformDoors, TrainDoors, model_for
+from railstop.nodes.dwell import PlatformDoors, TrainDoors, creep_rng, model_for
 from railstop.onboard.cpcs import CpcsState
 
 SENSORS_ID = 0x0280  # the trackside sensors (the plant that reads them); as live.tasc's
@@ -62,17 +62,21 @@ class LiveDoors:
         manual: bool = False,
         trains: int = MAX_TRAINS,
         started_s: float | None = None,
+        seed: int = 0,
     ) -> None:
         """``manual``: the trains' doors are worked by their drivers (SPEC §5 manual column).
         ``trains``: the trains of this process (0 .. trains - 1): a frame for any other is refused
         before any link state exists. ``started_s``: when this process started on the run's
-        clock; statuses sent before it are refused (``old_session``)."""
+        clock; statuses sent before it are refused (``old_session``). ``seed``: where the
+        correction creeps land (``sim.dwell.creep_rng``, per train and dwell)."""
         if not 1 <= trains <= MAX_TRAINS:
             raise ValueError(f"trains: 1..{MAX_TRAINS} (got {trains})")
         self.trains = trains
         self.started_s = started_s
         self.not_mine = 0  # frames for a train that is not one of this process's (refused)
         self.manual = manual
+        self.seed = seed
+        self.dwells_begun: dict[int, int] = {}  # train -> dwells begun (the creep generator's counter)
         self.obstructions: dict[int, int] = {}  # fault injection: train -> door (0 = front), next dwell
         self.line = line
         self.doors = doors
@@ -134,6 +138,8 @@ class LiveDoors:
         """A train's dwell from its standstill at ``now_s``; ``carried``: its doors as an earlier
         dwell here left them (after that dwell's fault)."""
         st = self.line.stations[station]
+        k = self.dwells_begun.get(train, 0)
+        self.dwells_begun[train] = k + 1
         dwell = TrainDoors(
             train=train,
             station=station,
@@ -146,6 +152,7 @@ class LiveDoors:
             carried=carried,
             manual=self.manual,
             obstruct=self.obstructions.pop(train, None),
+            creep_rng=creep_rng(self.seed, train_id=train, counter=k),
         )
         self.active[train] = dwell
         return dwell

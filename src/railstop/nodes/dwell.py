@@ -38,6 +38,8 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import numpy as np
+
 from railstop.config.doors import DoorsConfig
 from railstop.control.doors import (
     LOCKED_STATES,
@@ -65,6 +67,7 @@ from railstop.nodes.doors import (
 from railstop.onboard import cpcs, stop_confirm
 from railstop.onboard.cpcs import CpcsState
 from railstop.onboard.stop_confirm import StopConfirmState, StopInput, StopPhase
+from railstop.streams import Stream, seed_u64
 from railstop.wayside.wpcs import TrainReport, WpcsState, answers_psc
 
 #: A stop-sensor reading older than this does not put a train in position.
@@ -317,6 +320,18 @@ class PlatformDoors:
 # ---------------------------------------------------------------------- the train
 
 
+def dwell_entropy(seed: int, train_id: int, counter: int) -> list[int]:
+    """The entropy of one dwell's generators (DESIGN rule 7): (seed, stream, train, dwell)."""
+    return [int(seed_u64(seed)), int(Stream.DOOR_LINK), int(train_id), int(counter)]
+
+
+def creep_rng(seed: int = 0, *, train_id: int = 1, counter: int = 0) -> np.random.Generator:
+    """Where a dwell's correction creeps land (SPEC §5): a generator of (seed, train, dwell) only,
+    apart from the door link's of the same dwell (its entropy and a 1); the same in the dwell
+    simulation, the line and the live trains process."""
+    return np.random.default_rng(np.random.SeedSequence([*dwell_entropy(seed, train_id, counter), 1]))
+
+
 @dataclass
 class TrainDoors:
     """A train's dwell at one station (SPEC §5), in automatic operation (the ATC's door sequence) or
@@ -337,6 +352,9 @@ class TrainDoors:
     carried: CpcsState | None = None  # the doors as an earlier dwell here left them (None: all locked)
     manual: bool = False  # driven by a driver (SPEC §5 manual column): his selector and buttons
     obstruct: int | None = None  # fault injection: this platform-side door (0 = front) is obstructed
+    # Where each correction creep lands (normal(0, creep_stop_sd_m) about the stopping point), drawn
+    # from this dwell's generator; None: the creep lands exactly (a unit's check, the verifiers).
+    creep_rng: np.random.Generator | None = None
     cpcs: CpcsState = field(init=False)
     signals: DoorSignals = field(default_factory=DoorSignals)
     due: list[DoorCommand] = field(default_factory=list)
@@ -582,7 +600,13 @@ class TrainDoors:
         self.signals = self.signals._replace(dcc=False)
         self.moving = True
         self.creep_dir = -1.0 if self.error_m > 0.0 else 1.0
-        self.creep_left_m = max(min(abs(self.error_m), self.doors.stop_confirm.creep_max_m), 1e-6)
+        creep = min(abs(self.error_m), self.doors.stop_confirm.creep_max_m)
+        sd = self.doors.stop_confirm.creep_stop_sd_m
+        if self.creep_rng is not None and sd > 0.0:
+            # SPEC §5: the creep is a short stop of its own and lands with a stop's inaccuracy
+            # (short of its aim or past it; a creep that would not move at all barely moves).
+            creep += float(self.creep_rng.normal(0.0, sd))
+        self.creep_left_m = max(creep, 1e-6)
 
     def _react(self, now_s: float) -> None:
         if self.done or self.stop.phase != StopPhase.CONFIRMED:
@@ -656,11 +680,13 @@ def dwell_ends(
     obstruct: int | None = None,
     psd_jam: int | None = None,
     model: DoorModel | None = None,
+    creep: np.random.Generator | None = None,
 ) -> tuple[TrainDoors, PlatformDoors]:
     """The two ends of one dwell at a platform of its own, from the stand (t = 0): the train
     ``train_id`` standing ``error_m`` from the stopping point, in ``manual`` or automatic; fault
     injection, each a unit on the platform side numbered from 1 (the front): ``obstruct`` a train
-    door obstructed while closing, ``psd_jam`` a PSD unit that fails to close."""
+    door obstructed while closing, ``psd_jam`` a PSD unit that fails to close; ``creep``: where the
+    correction creeps land (None: exactly)."""
     model = model or model_for(doors)
     platform = PlatformDoors(index=0, name=station, side=side, doors=doors, model=model)
     if psd_jam is not None:
@@ -676,6 +702,7 @@ def dwell_ends(
         t0_s=0.0,
         manual=manual,
         obstruct=None if obstruct is None else obstruct - 1,
+        creep_rng=creep,
     )
     return train, platform
 
@@ -692,15 +719,17 @@ def wired_dwell(
     manual: bool = False,
     obstruct: int | None = None,
     until_s: float = 600.0,
+    seed: int = 0,
 ) -> tuple[TrainDoors, PlatformDoors]:
     """One dwell with the train's end and the platform's wired directly in this process, each
     frame delivered at the next step (the live units' check against the dwell simulation): the
     platform falls silent after ``platform_silent_after_s`` (its process died); ``wcc``: the WCC's
     actions, each (at_s, manual, panel_open, panel_close); ``psd_jam``: this PSD unit (1 = front) fails
-    to close."""
+    to close; the correction creeps land as the dwell simulation's of ``seed`` (train 1)."""
     train, platform = dwell_ends(
-        doors, station="P", side=side, error_m=error_m, manual=manual, obstruct=obstruct, psd_jam=psd_jam
-    )
+        doors, station="P", side=side, error_m=error_m, manual=manual, obstruct=obstruct, psd_jam=psd_jam,
+        creep=creep_rng(seed, train_id=1),
+    )  # fmt: skip
     run_wired(
         train,
         platform,

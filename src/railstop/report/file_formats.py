@@ -488,7 +488,7 @@ def render_markdown(formats: tuple[FileFormat, ...] | None = None) -> str:
         "check the files (`railstop.config`); a test fails when this page and the code differ. "
         "Every file is TOML. A key the schema does not know is an error (a misspelt key never "
         "passes silently); a value outside its range is an error naming the file, the key and "
-        "the value; a number written as a string (`\"1200\"`) is an error too, never converted. "
+        'the value; a number written as a string (`"1200"`) is an error too, never converted. '
         "Units are SI unless the key's name says otherwise (`_kmh`, `_permille`, "
         "`_pct`, `_ms`, `_mm`). `railstop init DIR` writes a commented copy of each embedded "
         "file to start from.",

@@ -41,10 +41,9 @@ from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLink, DoorLinkCounts
 from railstop.nodes.doors import DoorModel
-from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, dwell_ends, model_for
+from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, creep_rng, dwell_ends, dwell_entropy, model_for
 from railstop.onboard import cpcs
 from railstop.onboard.stop_confirm import StopPhase
-from railstop.streams import Stream, seed_u64
 from railstop.wayside.wpcs import answers_psc
 
 __all__ = [
@@ -165,7 +164,7 @@ def make_door_link(
         raise ConfigError(doors.source, "link.medium", exc.message, cfg.medium) from None
     if loss_probability is not None:
         params = params.replace(loss_probability=loss_probability)
-    entropy = [int(seed_u64(seed)), int(Stream.DOOR_LINK), int(train_id), int(counter)]
+    entropy = dwell_entropy(seed, train_id, counter)
     return DoorLink(
         params=params,
         rng=np.random.default_rng(np.random.SeedSequence(entropy)),
@@ -185,7 +184,8 @@ class SteppedDwell:
     ``obstruct_door`` / ``psd_fail``: the train door / PSD unit (1 = front) on the platform side
     that is obstructed while closing (cleared later) / fails to close (isolated by staff later).
     ``link``: the door link to use (its time starts at the stop); default the door data's link
-    drawn from ``seed``. A dwell that has not ended by ``MAX_DWELL_S`` is "stalled".
+    drawn from ``seed``. ``creep``: where the correction creeps land; default drawn from ``seed``
+    (:func:`creep_rng`). A dwell that has not ended by ``MAX_DWELL_S`` is "stalled".
     """
 
     def __init__(
@@ -201,6 +201,7 @@ class SteppedDwell:
         model: DoorModel | None = None,
         link: DoorLink | None = None,
         seed: int = 0,
+        creep: np.random.Generator | None = None,
     ) -> None:
         if mode not in MODES:
             raise SimulationError(f"mode: must be one of {', '.join(MODES)} (got {mode!r})")
@@ -217,6 +218,7 @@ class SteppedDwell:
         self.train, self.platform = dwell_ends(
             doors, station=station, side=side, error_m=stop_error_m, train_id=self.link.train_id,
             manual=mode == "manual", obstruct=obstruct_door, psd_jam=psd_fail, model=model,
+            creep=creep if creep is not None else creep_rng(seed, train_id=self.link.train_id),
         )  # fmt: skip
         self.run = DwellRun(self.train, self.platform, self.link, t0_s=0.0, step_s=DWELL_STEP_S)
         self.timeline: list[DwellEvent] = []
@@ -372,11 +374,12 @@ def run_dwell(
     model: DoorModel | None = None,
     link: DoorLink | None = None,
     seed: int = 0,
+    creep: np.random.Generator | None = None,
 ) -> DwellResult:
     """Simulate one dwell to its end at once (:class:`SteppedDwell`, its arguments)."""
     dwell = SteppedDwell(
         doors=doors, station=station, platform_side=platform_side, stop_error_m=stop_error_m, mode=mode,
-        obstruct_door=obstruct_door, psd_fail=psd_fail, model=model, link=link, seed=seed,
+        obstruct_door=obstruct_door, psd_fail=psd_fail, model=model, link=link, seed=seed, creep=creep,
     )  # fmt: skip
     dwell.advance_to(math.inf)
     return dwell.result()

@@ -100,6 +100,7 @@ from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Outp
 from railstop.model.build import DRIVER_MODES, KernelModel
 from railstop.model.records import RES_EB, RES_ERROR, RES_RESTOPS, RES_STOPPED, TR_T, TR_V, TR_X
 from railstop.model.run import SteppedStop
+from railstop.nodes.dwell import creep_rng
 from railstop.nodes.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.onboard.positioning import PositioningUnit
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
@@ -981,6 +982,8 @@ class LineSimulation:
         """The dwell (SPEC §5) of a train standing at its station since ``arrive``."""
         st = self.line.stations[train.next_station]
         doors = self._doors(self.operation.dwell_at_s(st.name), st)
+        # A retry after a fault draws its own link and creeps (the first is the station's number).
+        counter = train.next_station + 1000 * train.dwells_here
         dwell = run_dwell(
             doors=doors,
             station=st.name,
@@ -991,10 +994,10 @@ class LineSimulation:
                 doors,
                 seed=self.seed,
                 train_id=train.index,
-                # A retry after a fault draws its own link (the first is the station's number).
-                counter=train.next_station + 1000 * train.dwells_here,
+                counter=counter,
                 loss_probability=self.settings.door_link_loss,
             ),
+            creep=creep_rng(self.seed, train_id=train.index, counter=counter),
         )
         train.dwells_here += 1
         self.dwells.append(
