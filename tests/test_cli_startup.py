@@ -139,3 +139,15 @@ def test_help_lists_position_run_without_building_it(tmp_path: Path) -> None:
     assert code == 0 and "position-run" in text
     assert loaded == []
     assert " ".join((inspect.getdoc(position_run) or "").split()) == POSITION_RUN_HELP
+
+
+def test_help_loads_no_data_model_nor_the_simulation(tmp_path: Path) -> None:
+    """`railstop --help` and `railstop telegram --help` build the command line only: not the data
+    schemas, the media models, the compiler or the simulation (issue 37: start-up). (Typer itself
+    looks at pydantic when it builds a sub-command's parameters.)"""
+    ours = (*HEAVY, "railstop.config", "railstop.link.channel", "numba", "railstop.sim.engine")
+    for args, watched in ((("--help",), (*ours, "pydantic")), (("telegram", "--help"), ours)):
+        code, out, imported, err = probe(*args, cwd=tmp_path, watched=watched)
+        assert code == 0, err
+        assert "Usage: railstop" in out
+        assert imported == [], f"{' '.join(args)} imported {imported}"

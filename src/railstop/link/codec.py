@@ -61,7 +61,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.errors import TelegramError
-from railstop.link.channel import airtime_s, media_preset
 from railstop.link.safety import frame_size
 
 __all__ = [
@@ -1260,7 +1259,10 @@ def layout_markdown() -> str:
     lines.append("Airtime of the bytes alone (ms; preamble and sync words come on top, see")
     lines.append("`railstop.link.channel`). Codec frame / inside a safety frame of category 1-2 / 3:")
     lines.append("")
-    # The bytes alone: the medium without its preamble / sync overhead.
+    # The bytes alone: the medium without its preamble / sync overhead. (The media's models are
+    # imported here, not with the codec: the CLI's help and `telegram` need only the layouts.)
+    from railstop.link.channel import airtime_s, media_preset
+
     media = [(m, media_preset(m).replace(overhead_bits=0)) for m in SMALL_MEDIA]
     head = " | ".join(f"{m} {p.bit_rate_bps / 1000:g} kbit/s" for m, p in media)
     lines.append(f"| type | {head} |")
