@@ -267,3 +267,36 @@ def test_the_command_refuses_bad_files_in_one_line(tmp_path: Path) -> None:
     one_error(run("import", "railml", "x.xml", cwd=tmp_path), "x.xml", "(xml syntax)")
     one_error(run("import", "railml", str(V2), cwd=tmp_path), "--track", "t1, t2, t9")
     assert not (tmp_path / "line.toml").exists()
+
+
+def test_railml_3_a_track_gives_its_net_elements_length_and_a_temporary_limit_is_reported(
+    tmp_path: Path,
+) -> None:
+    """A net element without a length takes its one-element track's physical length; a temporary
+    speed section is mapped (the more restrictive reading) and reported."""
+    text = (
+        '<railML xmlns="https://www.railml.org/schemas/3.1" version="3.1"><infrastructure>'
+        '<topology><netElements><netElement id="ne1"/></netElements></topology>'
+        "<functionalInfrastructure>"
+        '<platformEdges><platformEdge id="pe1"><name name="Quay" language="en"/>'
+        '<linearLocation id="l1"><associatedNetElement netElementRef="ne1" posBegin="300" posEnd="430">'
+        '<linearCoordinateBegin positioningSystemRef="x" measure="0" lateralSide="left"/>'
+        "</associatedNetElement></linearLocation></platformEdge></platformEdges>"
+        '<speeds><speedSection id="tsr" maxSpeed="30" isTemporary="true"><linearLocation id="l2">'
+        '<associatedNetElement netElementRef="ne1" posBegin="100" posEnd="200"/></linearLocation>'
+        "</speedSection></speeds>"
+        '<tracks><track id="t1"><linearLocation id="l3"><associatedNetElement netElementRef="ne1"/>'
+        '</linearLocation><length value="800" type="physical"/></track></tracks>'
+        "</functionalInfrastructure></infrastructure></railML>"
+    )
+    imported = import_railml(_write(tmp_path, "one.xml", text), default_vehicle())
+    assert imported.data["line"]["length_m"] == 800.0
+    (st,) = imported.data["stations"]
+    assert (st["name"], st["platform_side"], st["platform_end_m"], st["stop_point_m"]) == (
+        "Quay",
+        "L",
+        430.0,
+        425.0,
+    )
+    assert imported.data["speed_limits"][0]["limit_kmh"] == 30.0
+    assert any("'tsr': temporary, mapped as permanent" in r for r in imported.report)

@@ -402,10 +402,15 @@ class _Chain:
         if not assoc:
             raise rd.error(track, None, "a track needs a linearLocation with its net elements")
         assoc.sort(key=lambda a: rd.num(a, "sequence", 0.0))
+        # A track of one net element may give the length its net element lacks (its physical
+        # <length>): the element's length is then the track's.
+        own = next((x for x in _kids(track, "length") if x.get("type") in (None, "physical")), None)
         for a in assoc:
             ref = a.get("netElementRef")
             if ref is None:
                 raise rd.error(a, "netElementRef", "missing")
+            if ref not in self.lengths and own is not None and len(assoc) == 1:
+                self.lengths[ref] = rd.num(own, "value")
             length = self.lengths.get(ref)
             pb = rd.num(a, "posBegin", 0.0)
             pe = rd.opt_num(a, "posEnd")
@@ -507,6 +512,13 @@ def read_v3(root: Any, wanted: list[str], source: str, version: str) -> Infrastr
         perf = _first(lines[0], "linePerformance")
         if perf is not None:
             out.line_speed_kmh = rd.opt_num(perf, "maxSpeed")
+    if out.line_speed_kmh is None:
+        # railML 3 speed sections are restrictions over stretches, not a profile of the whole line:
+        # without the line's own speed they cannot give it.
+        out.line_speed_kmh = DEFAULT_LINE_SPEED_KMH
+        out.skipped.append(
+            f"no linePerformance maxSpeed: the line's speed taken as {DEFAULT_LINE_SPEED_KMH:g} km/h"
+        )
     off_line = 0
 
     def on_line(x: float | None) -> bool:
@@ -523,6 +535,11 @@ def read_v3(root: Any, wanted: list[str], source: str, version: str) -> Infrastr
             out.skipped.append(f"speedSection {sec.get('id')!r}: for the other direction")
         else:
             out.speeds.append((st[0], st[1], rd.num(sec, "maxSpeed")))
+            if sec.get("isTemporary") == "true":
+                out.skipped.append(
+                    f"speedSection {sec.get('id')!r}: temporary, mapped as permanent (the more "
+                    "restrictive reading; remove it from the line file if it is not in force)"
+                )
     for gc in _path(infra, "geometry/gradientCurves/gradientCurve"):
         if (gc.get("curveType") or "straight") != "straight":
             out.skipped.append(
@@ -740,7 +757,7 @@ def _stations(
                 )
         else:
             stop = edge.end_m - DEFAULT_STOP_BEFORE_EDGE_END_M
-            where = f"{DEFAULT_STOP_BEFORE_EDGE_END_M:g} m before the edge's end (no stop post on it)"
+            where = f"no stop post on the edge: {DEFAULT_STOP_BEFORE_EDGE_END_M:g} m before its end"
         name = (edge.name or edge.ident)[:64]
         while name in names:
             name = f"{name[:60]} {edge.ident}"[:64]
