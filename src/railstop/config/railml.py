@@ -112,6 +112,7 @@ class Imported:
     data: dict[str, Any]
     report: list[str]
     version: str
+    circuit_sources: tuple[str, ...] = ()  # the railML element that starts each track circuit
 
 
 # --------------------------------------------------------------------------------------------
@@ -520,13 +521,6 @@ def read_v3(root: Any, wanted: list[str], source: str, version: str) -> Infrastr
             f"no linePerformance maxSpeed: the line's speed taken as {DEFAULT_LINE_SPEED_KMH:g} km/h"
         )
     off_line = 0
-
-    def on_line(x: float | None) -> bool:
-        nonlocal off_line
-        if x is None:
-            off_line += 1
-        return x is not None
-
     for sec in _path(fi, "speeds/speedSection"):
         st = chain.stretch(sec)
         if st is None:
@@ -578,20 +572,19 @@ def read_v3(root: Any, wanted: list[str], source: str, version: str) -> Infrastr
         out.edges.append(Edge(plf.get("id") or "?", st[0], st[1], _edge_side(st[3]), name))
     for sig in _path(fi, "signalsIS/signalIS"):
         x, fwd = chain.spot(sig)
-        if not on_line(x):
-            continue
-        if _first(sig, "isTrainMovementSignal") is None:
+        if x is None:
+            off_line += 1
+        elif _first(sig, "isTrainMovementSignal") is None:
             out.skipped.append(f"signalIS {sig.get('id')!r}: not a train movement signal")
         elif not fwd:
             out.skipped.append(f"signalIS {sig.get('id')!r}: for the other direction")
         else:
-            assert x is not None
             out.signals.append((x, sig.get("id") or "?", _name_v3(sig) or sig.get("id") or "?"))
     for tde in _path(fi, "trainDetectionElements/trainDetectionElement"):
         x, _ = chain.spot(tde)
-        if not on_line(x):
+        if x is None:
+            off_line += 1
             continue
-        assert x is not None
         kind = tde.get("type") or ""
         if kind in _WHEEL_V3:
             out.wheel_detectors.append((x, tde.get("id") or "?"))
@@ -601,13 +594,12 @@ def read_v3(root: Any, wanted: list[str], source: str, version: str) -> Infrastr
             out.borders.append((x, _BORDER_V3.get(kind, False), tde.get("id") or "?"))
     for sp in _path(fi, "stoppingPlaces/stoppingPlace"):
         x, fwd = chain.spot(sp)
-        if not on_line(x):
-            continue
-        if not fwd:
+        if x is None:
+            off_line += 1
+        elif not fwd:
             out.skipped.append(f"stoppingPlace {sp.get('id')!r}: for the other direction")
-            continue
-        assert x is not None
-        out.stops.append((x, sp.get("id") or "?"))
+        else:
+            out.stops.append((x, sp.get("id") or "?"))
     if off_line:
         out.skipped.append(f"{off_line} located element(s) not on the chosen tracks")
     return out
@@ -743,7 +735,7 @@ def _stations(
     line_kmh: float,
     report: list[str],
 ) -> list[dict[str, Any]]:
-    stations: list[dict[str, Any]] = []
+    found_at: list[tuple[dict[str, Any], str]] = []  # each station and where its stop comes from
     names: set[str] = set()
     for edge in sorted(inf.edges, key=lambda e: e.end_m):
         on_edge = [(x, i) for x, i in inf.stops if edge.start_m <= x <= edge.end_m + 1e-6]
@@ -766,19 +758,17 @@ def _stations(
         if side is None:
             side = "R"
             inf.skipped.append(f"platform edge {edge.ident!r}: side not given, R (right) assumed")
-        stations.append(
-            {
-                "name": name,
-                "stop_point_m": round(stop, 3),
-                "platform_length_m": round(edge.end_m - edge.start_m, 3),
-                "platform_side": side,
-                "platform_end_m": round(edge.end_m, 3),
-                "_where": where,
-            }
-        )
-    stations.sort(key=lambda s: s["stop_point_m"])
+        station = {
+            "name": name,
+            "stop_point_m": round(stop, 3),
+            "platform_length_m": round(edge.end_m - edge.start_m, 3),
+            "platform_side": side,
+            "platform_end_m": round(edge.end_m, 3),
+        }
+        found_at.append((station, where))
+    found_at.sort(key=lambda sw: sw[0]["stop_point_m"])
     previous = 0.0
-    for st in stations:
+    for st, where in found_at:
         stop = st["stop_point_m"]
         detectors = sorted(
             (
@@ -805,13 +795,13 @@ def _stations(
             "doppler": {"beyond_stop_m": 10.0, "sample_period_s": 0.01},
         }
         report.append(
-            f"station {st['name']!r}: stop at {stop:.1f} m ({st.pop('_where')}), "
+            f"station {st['name']!r}: stop at {stop:.1f} m ({where}), "
             f"platform {st['platform_length_m']:g} m on the "
             f"{'right' if st['platform_side'] == 'R' else 'left'}; "
             f"TASC zone: {how}, Doppler radar assumed 10 m past the stop"
         )
         previous = stop
-    return stations
+    return [st for st, _ in found_at]
 
 
 def _assign_gradients(inf: Infrastructure, stations: list[dict[str, Any]]) -> None:
@@ -870,8 +860,6 @@ def build_line(inf: Infrastructure, vehicle: Vehicle, *, entry_speed_kmh: float,
         f"{_count(len(limits), 'speed limit')} below the line's {line_kmh:g} km/h; "
         f"{_count(n_grad, 'gradient stretch', 'gradient stretches')}"
     )
-    for c, src in zip(circuits, circuit_sources, strict=True):
-        c["_from"] = src
     data: dict[str, Any] = {
         "line": {
             "name": (inf.name or name)[:64],
@@ -886,7 +874,7 @@ def build_line(inf: Infrastructure, vehicle: Vehicle, *, entry_speed_kmh: float,
     if signalling is not None:
         data["signalling"] = signalling
     report.extend(f"not mapped: {s}" for s in inf.skipped)
-    return Imported(data=data, report=report, version=inf.version)
+    return Imported(data=data, report=report, version=inf.version, circuit_sources=tuple(circuit_sources))
 
 
 def import_railml(
@@ -906,7 +894,6 @@ def to_toml(imported: Imported, source: str) -> str:
     import tomli_w
 
     data = imported.data
-    sources = [c.pop("_from") for c in data["track"]["circuits"]]
     text = tomli_w.dumps(data)
     head = [
         f"# Imported from {source} (railML {imported.version}) by `railstop import railml`.",
@@ -914,6 +901,7 @@ def to_toml(imported: Imported, source: str) -> str:
     ]
     head += [f"#   - {line}" for line in imported.report]
     head.append("# The track circuits start at these railML train detection elements:")
-    pairs = [f"{c['id']}={s}" for c, s in zip(data["track"]["circuits"], sources, strict=True)]
+    circuits = data["track"]["circuits"]
+    pairs = [f"{c['id']}={s}" for c, s in zip(circuits, imported.circuit_sources, strict=True)]
     head += ["#   " + ", ".join(pairs[i : i + 6]) for i in range(0, len(pairs), 6)]
     return "\n".join(head) + "\n\n" + text

@@ -68,7 +68,7 @@ class LiveDoors:
         ``trains``: the trains of this process (0 .. trains - 1): a frame for any other is refused
         before any link state exists. ``started_s``: when this process started on the run's
         clock; statuses sent before it are refused (``old_session``). ``seed``: where the
-        correction creeps land (``sim.dwell.creep_rng``, per train and dwell)."""
+        correction creeps land (``nodes.dwell.creep_rng``, per train and dwell)."""
         if not 1 <= trains <= MAX_TRAINS:
             raise ValueError(f"trains: 1..{MAX_TRAINS} (got {trains})")
         self.trains = trains

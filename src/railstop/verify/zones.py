@@ -610,15 +610,15 @@ class World:
             known_m=self.known[i],
             given_end_m=self.given_end[i],
             intended_end_m=self.intended_end[i],
-            status=TrainStatus.UNKNOWN if rec is None else rec.status,
-            zone=None if rec is None else rec.zone,
+            status=self.status(train),
+            zone=self.zone(train),
             emergency_brake=ob.emergency_brake,
             held_end_m=_num(ob.authority_end_m),
             unit=unit,
             onboard=onboard,
         )
 
-    def _onboard_field(self, ob: OnboardCbtc, name: str, kind: int = 0) -> object:
+    def _onboard_field(self, ob: OnboardCbtc, name: str, kind: int) -> object:
         """A hashable stand-in for the onboard unit's field, its absolute times made ages in cycles
         (the reports it keeps, the report its authority answers)."""
         v = getattr(ob, name)
