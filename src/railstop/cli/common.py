@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import inspect
 import math
 import os
 import sys
-from collections.abc import Sequence
+import typing
+from collections import Counter
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
@@ -58,6 +62,49 @@ def command_group(help: str, cls: type[TyperGroup] = HelpGroup) -> typer.Typer:
     return typer.Typer(
         rich_markup_mode=HELP_MARKUP, cls=cls, add_completion=False, no_args_is_help=True, help=help
     )
+
+
+_Command = TypeVar("_Command", bound=Callable[..., Any])
+
+
+def with_option_groups(command: _Command) -> _Command:
+    """Let a command take *option groups*: a parameter annotated with a dataclass whose fields are
+    typer options (an ``Annotated`` type and a default each) stands for those options, which the
+    command line shows in its place; the command receives the dataclass built from them.
+
+    One group is one definition of options that several commands share (the line's settings, a
+    live process's set-up), and one argument for the command instead of one per option."""
+    hints = typing.get_type_hints(command, include_extras=True)
+    groups: dict[str, tuple[type, tuple[str, ...]]] = {}
+    params: list[inspect.Parameter] = []
+    for name, param in inspect.signature(command).parameters.items():
+        hint = hints.get(name, param.annotation)
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            fields = typing.get_type_hints(hint, include_extras=True)
+            names = tuple(f.name for f in dataclasses.fields(hint))
+            for f in dataclasses.fields(hint):
+                if f.default is dataclasses.MISSING:
+                    raise TypeError(f"option group {hint.__name__}: field {f.name} needs a default")
+                params.append(
+                    inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default,
+                                      annotation=fields[f.name])
+                )  # fmt: skip
+            groups[name] = (hint, names)
+        else:
+            params.append(param.replace(kind=inspect.Parameter.KEYWORD_ONLY, annotation=hint))
+    clash = [n for n, c in Counter(p.name for p in params).items() if c > 1]
+    if clash:
+        raise TypeError(f"{command.__name__}: option names given twice: {clash}")
+
+    @functools.wraps(command)
+    def run(**kwargs: Any) -> Any:
+        for name, (group, names) in groups.items():
+            kwargs[name] = group(**{n: kwargs.pop(n) for n in names})
+        return command(**kwargs)
+
+    run.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    run.__annotations__ = {p.name: p.annotation for p in params}
+    return typing.cast("_Command", run)
 
 
 def styled(text: str, style: str) -> Text:

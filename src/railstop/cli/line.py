@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -20,6 +21,7 @@ from railstop.cli.common import (
     load_law,
     office_target,
     send_to_office,
+    with_option_groups,
 )
 from railstop.cli.common import out as console
 from railstop.errors import RailstopError
@@ -79,6 +81,37 @@ HeadwayOpt = Annotated[
 ]
 
 
+@dataclass(frozen=True)
+class LineOptions:
+    """The options of ``line run`` and ``line campaign`` that set the line's door link, positioning,
+    slides, signalling and faults (an option group: one definition for both commands)."""
+
+    door_link_loss: DoorLinkLossOpt = None
+    odometer_error_pct: OdometerErrorOpt = None
+    slide_probability: SlideOpt = 0.0
+    calibration: CalibrationOpt = "carried"
+    signalling: SignallingOpt = "fixed-block"
+    faults: FaultsOpt = None
+
+    def line_settings(self) -> LineSettings:
+        """These options and the faults file as the run's settings."""
+        from railstop.config.faults import load_faults
+        from railstop.sim.line import LineSettings
+
+        fault_data = load_faults(self.faults)
+        return LineSettings(
+            door_link_loss=self.door_link_loss,
+            odometer_error_pct=self.odometer_error_pct,
+            slide_probability=self.slide_probability,
+            calibration=self.calibration,
+            signalling=self.signalling,
+            outages=tuple(fault_data.outages()),
+            random_outages=fault_data.random_outages,
+            zc_restarts=tuple(fault_data.restarts()),
+            radio_changes=fault_data.radio.changes(),
+        )
+
+
 def _per_hour(tph: object) -> str:
     """The throughput as the text says it: none under an hour of simulated time (the summary's
     ``trains_per_hour`` is null then, rather than an hour's rate guessed from less)."""
@@ -100,7 +133,9 @@ line_app = command_group(
 
 
 @line_app.command("run")
+@with_option_groups
 def run_cmd(
+    *,
     trains: TrainsOpt = None,
     headway_s: HeadwayOpt = None,
     duration_s: Annotated[float, typer.Option(min=1.0, max=86400.0, help="Simulated time (s).")] = 3600.0,
@@ -108,12 +143,7 @@ def run_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "nominal",
-    door_link_loss: DoorLinkLossOpt = None,
-    odometer_error_pct: OdometerErrorOpt = None,
-    slide_probability: SlideOpt = 0.0,
-    calibration: CalibrationOpt = "carried",
-    signalling: SignallingOpt = "fixed-block",
-    faults: FaultsOpt = None,
+    settings: LineOptions,
     plot: Annotated[Path | None, typer.Option(help="Write the time-distance diagram (PNG).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     line: LineOpt = None,
@@ -146,9 +176,7 @@ def run_cmd(
             operation=op,
             disturbances=dist,
             seed=seed,
-            settings=_settings(
-                door_link_loss, odometer_error_pct, slide_probability, calibration, signalling, faults
-            ),
+            settings=settings.line_settings(),
         )
         result = sim.run(duration_s)
         summary = result.summary()
@@ -161,7 +189,7 @@ def run_cmd(
                 f"{ln.line.name}: {summary['exited']} of {op.trains} trains through"
                 + (f" ({tph} trains/h)" if tph is not None else "")
                 + f", {summary['stops']} stops by {op.controller} ({disturbances}), "
-                f"{summary['dwell_faults']} dwell faults, {signalling}"
+                f"{summary['dwell_faults']} dwell faults, {settings.signalling}"
                 + (f", {summary['cbtc']['lost_trains']} lost trains" if summary["cbtc"] else "")
             )
             plot = plot_line(result, plot, title=title, footer=footer(prov, seed=seed))
@@ -232,7 +260,9 @@ def line_reports(result: LineResult, controller: str) -> list[tuple[str, dict[st
 
 
 @line_app.command("campaign")
+@with_option_groups
 def campaign_cmd(
+    *,
     runs: Annotated[int, typer.Option(min=1, max=100_000, help="Line runs (run r has seed S + r).")] = 10,
     seed: Annotated[int, typer.Option(help="Seed S of the first run.")] = 1,
     trains: TrainsOpt = None,
@@ -243,12 +273,7 @@ def campaign_cmd(
     disturbances: Annotated[
         str, typer.Option(help="Disturbance set of every station stop: a built-in set or a TOML file.")
     ] = "standard",
-    door_link_loss: DoorLinkLossOpt = None,
-    odometer_error_pct: OdometerErrorOpt = None,
-    slide_probability: SlideOpt = 0.0,
-    calibration: CalibrationOpt = "carried",
-    signalling: SignallingOpt = "fixed-block",
-    faults: FaultsOpt = None,
+    settings: LineOptions,
     workers: Annotated[int, typer.Option(min=1, max=256, help="Processes (default: 1).")] = 1,
     scheduler: SchedulerOpt = None,
     out: Annotated[Path, typer.Option(help="Campaign folder.")] = Path("line-campaign"),
@@ -284,9 +309,7 @@ def campaign_cmd(
             runs=runs,
             seed=seed,
             duration_s=duration_s,
-            settings=_settings(
-                door_link_loss, odometer_error_pct, slide_probability, calibration, signalling, faults
-            ),
+            settings=settings.line_settings(),
             law=law_file,
         )
         summary = run_line_campaign(spec, out, workers=workers, resume=resume, scheduler=scheduler)
@@ -321,32 +344,6 @@ def campaign_cmd(
         f"(worst run {summary['position_error_p99_m_worst']} m); runs and summary in {out}",
         highlight=False,
         soft_wrap=True,
-    )
-
-
-def _settings(
-    door_link_loss: float | None,
-    odometer_error_pct: float | None,
-    slide_probability: float,
-    calibration: str,
-    signalling: str,
-    faults: Path | None,
-) -> LineSettings:
-    """The options and the faults file of ``line run`` and ``line campaign`` as the run's settings."""
-    from railstop.config.faults import load_faults
-    from railstop.sim.line import LineSettings
-
-    fault_data = load_faults(faults)
-    return LineSettings(
-        door_link_loss=door_link_loss,
-        odometer_error_pct=odometer_error_pct,
-        slide_probability=slide_probability,
-        calibration=calibration,
-        signalling=signalling,
-        outages=tuple(fault_data.outages()),
-        random_outages=fault_data.random_outages,
-        zc_restarts=tuple(fault_data.restarts()),
-        radio_changes=fault_data.radio.changes(),
     )
 
 

@@ -18,18 +18,17 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from railstop.cli.common import LineOpt, VehicleOpt, address_option, command_group, fail
+from railstop.cli.common import LineOpt, VehicleOpt, address_option, command_group, fail, with_option_groups
 from railstop.cli.doors import DoorsOpt
 from railstop.cli.office import KEY_ENV, KeyFileOpt, KeyHexOpt, master_key
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
     from railstop.config.schema import Line, Vehicle
     from railstop.live.clock import TimeBase
 
@@ -45,28 +44,41 @@ OfficeOpt = Annotated[str | None, typer.Option(help="The office's UDP address HO
 TrainsOpt = Annotated[int, typer.Option(min=1, max=60, help="Trains on the line.")]
 SpacingOpt = Annotated[float, typer.Option(min=150.0, max=5000.0, help="Between trains at the start.")]
 SeedOpt = Annotated[int, typer.Option(help="Seed of the trains' disturbance draws (one per stop).")]
+OutageOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--outage",
+        help="TRAIN:START_S:DURATION_S: that train's radio dead from START_S simulated seconds after the "
+        "trains' process starts, for DURATION_S (repeatable).",
+    ),
+]
 DisturbancesOpt = Annotated[
     str, typer.Option(help="Disturbance set of the trains' draws (a name or a TOML file).")
 ]
 
 
-def _process_setup(
-    key_file: Path | None,
-    key_hex: str | None,
-    line: Path | None,
-    vehicle: Path | None,
-    epoch: float | None,
-    scale: float,
-) -> tuple[bytes, Line, Vehicle, TimeBase]:
-    """What every live process loads first: the key (--key-file or RAILSTOP_OFFICE_KEY; --key-hex
-    is refused), the line and vehicle data, the time base (the run's epoch, or now). Raises
-    RailstopError with the one-line message."""
-    from railstop.config import load_line, load_vehicle
-    from railstop.live.clock import TimeBase
+@dataclass(frozen=True)
+class ProcessOptions:
+    """The options every live process of a run shares (an option group): the run's time base, the
+    links' key and the line's data."""
 
-    key = master_key(key_file, key_hex)
-    ln, veh = load_line(line), load_vehicle(vehicle)
-    return key, ln, veh, TimeBase(time.time() if epoch is None else epoch, scale)
+    epoch: EpochOpt = None
+    scale: ScaleOpt = 1.0
+    key_file: KeyFileOpt = None
+    key_hex: KeyHexOpt = None
+    line: LineOpt = None
+    vehicle: VehicleOpt = None
+
+    def setup(self) -> tuple[bytes, Line, Vehicle, TimeBase]:
+        """What every live process loads first: the key (--key-file or RAILSTOP_OFFICE_KEY;
+        --key-hex is refused), the line and vehicle data, the time base (the run's epoch, or
+        now). Raises RailstopError with the one-line message."""
+        from railstop.config import load_line, load_vehicle
+        from railstop.live.clock import TimeBase
+
+        key = master_key(self.key_file, self.key_hex)
+        ln, veh = load_line(self.line), load_vehicle(self.vehicle)
+        return key, ln, veh, TimeBase(time.time() if self.epoch is None else self.epoch, self.scale)
 
 
 def _outage(text: str, trains: int) -> tuple[int, float, float]:
@@ -151,16 +163,13 @@ ZcStateOpt = Annotated[
 
 
 @live_app.command("zc")
+@with_option_groups
 def zc_cmd(
+    *,
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the zone controller.")] = 7710,
     trains: TrainsOpt = 4,
-    epoch: EpochOpt = None,
-    scale: ScaleOpt = 1.0,
-    key_file: KeyFileOpt = None,
-    key_hex: KeyHexOpt = None,
+    process: ProcessOptions,
     office: OfficeOpt = None,
-    line: LineOpt = None,
-    vehicle: VehicleOpt = None,
     state: ZcStateOpt = None,
     new: Annotated[
         bool,
@@ -177,7 +186,7 @@ def zc_cmd(
     from railstop.live.cbtc import run_zone_controller
 
     try:
-        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = process.setup()
     except RailstopError as exc:
         fail(str(exc))
 
@@ -245,16 +254,13 @@ def _tasc_controller(controller: str) -> str:
 
 
 @live_app.command("stations")
+@with_option_groups
 def stations_cmd(
+    *,
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the stations.")] = 7720,
     controller: TascControllerOpt = "tasc-pwm",
-    epoch: EpochOpt = None,
-    scale: ScaleOpt = 1.0,
-    key_file: KeyFileOpt = None,
-    key_hex: KeyHexOpt = None,
+    process: ProcessOptions,
     office: OfficeOpt = None,
-    line: LineOpt = None,
-    vehicle: VehicleOpt = None,
     doors: DoorsOpt = None,
     psd_jam: PsdJamOpt = None,
 ) -> None:
@@ -265,7 +271,7 @@ def stations_cmd(
     from railstop.live.tasc import run_stations
 
     try:
-        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = process.setup()
         ctrl = _tasc_controller(controller)
         door_data = load_doors(doors)
         for st in ln.stations:  # one PSD tolerance per station: a doors file that differs is refused
@@ -284,14 +290,13 @@ def stations_cmd(
 
 
 @live_app.command("plant")
+@with_option_groups
 def plant_cmd(
+    *,
     port: Annotated[int, typer.Option(min=0, max=65535, help="UDP port of the plant.")] = 7730,
     trains: TrainsOpt = 4,
     spacing_m: SpacingOpt = 600.0,
-    epoch: EpochOpt = None,
-    scale: ScaleOpt = 1.0,
-    key_file: KeyFileOpt = None,
-    key_hex: KeyHexOpt = None,
+    process: ProcessOptions,
     stations: Annotated[
         str | None,
         typer.Option(
@@ -302,8 +307,6 @@ def plant_cmd(
     controller: TascControllerOpt = "tasc-pwm",
     seed: SeedOpt = 1,
     disturbances: DisturbancesOpt = "standard",
-    line: LineOpt = None,
-    vehicle: VehicleOpt = None,
 ) -> None:
     """The plant as a live process: every train's motion (under its drives from the trains
     process; under ground TASC the stop model's brakes and motion, in lock step with the onboard
@@ -313,7 +316,7 @@ def plant_cmd(
     from railstop.live.plant import Plant, TascPlantData, run_plant
 
     try:
-        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = process.setup()
         stations_at = None if stations is None else address_option(stations, "--stations")
         data = None
         if stations_at is not None:
@@ -336,14 +339,13 @@ def plant_cmd(
 
 
 @live_app.command("trains")
+@with_option_groups
 def trains_cmd(
+    *,
     zc: Annotated[str, typer.Option(help="The zone controller's UDP address HOST:PORT.")] = "127.0.0.1:7710",
     trains: TrainsOpt = 4,
     spacing_m: SpacingOpt = 600.0,
-    epoch: EpochOpt = None,
-    scale: ScaleOpt = 1.0,
-    key_file: KeyFileOpt = None,
-    key_hex: KeyHexOpt = None,
+    process: ProcessOptions,
     office: OfficeOpt = None,
     outage_train: Annotated[
         int | None,
@@ -367,8 +369,6 @@ def trains_cmd(
         str | None,
         typer.Option(help="The plant process's UDP address HOST:PORT (none: the plant runs in this one)."),
     ] = None,
-    line: LineOpt = None,
-    vehicle: VehicleOpt = None,
     doors: DoorsOpt = None,
     door_mode: DoorModeOpt = "auto",
     obstruct: Annotated[
@@ -389,7 +389,7 @@ def trains_cmd(
     from railstop.live.tasc import LiveTasc
 
     try:
-        key, ln, veh, base = _process_setup(key_file, key_hex, line, vehicle, epoch, scale)
+        key, ln, veh, base = process.setup()
         zc_addr = address_option(zc, "--zc")
         plant_addr = None if plant is None else address_option(plant, "--plant")
         windows = [_outage(o, trains) for o in outage or []]
@@ -642,14 +642,6 @@ RunZcStateOpt = Annotated[
 ]
 OperatorsOpt = Annotated[
     str | None, typer.Option(help="Operators file (railstop office add-operator): the page's zone release.")
-]
-OutageOpt = Annotated[
-    list[str] | None,
-    typer.Option(
-        "--outage",
-        help="TRAIN:START_S:DURATION_S: that train's radio dead from START_S simulated seconds after the "
-        "trains' process starts, for DURATION_S (repeatable).",
-    ),
 ]
 
 
