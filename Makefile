@@ -43,4 +43,4 @@ test: install-test
 	test $$rest -eq 0 && test $$walled -eq 0
 
 clean:
-	rm -rf $(VENV) railstop-demo railstop.db .pytest_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) railstop-demo railstop.db railstop.db.zc-state .pytest_cache .ruff_cache .hypothesis
