@@ -6,7 +6,7 @@ value, exit code 2, never a traceback."
 
 :data:`CASES` lists the cases; :func:`run_case` runs one in a folder (its files are created there and
 it is the working directory, so paths in ``argv`` are relative to it) and returns an :class:`Outcome`.
-``tests/test_bad_input_sweep.py`` runs each as a test, ``benchmarks/bad_input_sweep.py`` as a table.
+``tests/e2e/test_bad_input_sweep.py`` runs each as a test, ``benchmarks/bad_input_sweep.py`` as a table.
 
 Every case is quick when refused: a campaign or comparison is given ``--runs 2``, a certification
 ``--runs 100 --tuning-runs 100``, so that an input wrongly accepted costs seconds, not minutes.

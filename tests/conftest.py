@@ -119,7 +119,7 @@ def empty_postgres(postgres_url: str) -> Iterator[str]:
 # ---------------------------------------------------------------------- a loaded machine
 # ``busy``: two CPU-bound processes beside the test (``tests/busy.py``), so that a live test shows
 # it holds when the cores are taken by other work. ``pytest --busy N`` runs N of them beside every
-# test of the session (``pytest --busy 2 tests/test_live.py``: the live suite on a loaded machine).
+# test of the session (``pytest --busy 2 tests/e2e/test_live.py``: the live suite on a loaded machine).
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -193,21 +193,31 @@ def restartable_postgres() -> Iterator[PgCluster]:
 # The slow modules first: pytest-xdist hands out tests in collection order, so a long test left to
 # the end keeps one worker busy while the others idle. The live modules mostly wait on the wall
 # clock, so starting them early also overlaps their waiting with the compute-bound tests (``make
-# test`` runs test_live.py, test_control_room.py and test_live_attack.py in a pytest of their own
-# beside the rest; the order matters when the whole suite runs in one). Only the order changes;
-# every test still runs.
+# test`` runs e2e/test_live.py, e2e/test_control_room.py and e2e/test_live_attack.py in a pytest of
+# their own beside the rest; the order matters when the whole suite runs in one). Only the order
+# changes; every test still runs. The modules are named by their path under ``tests/``.
 
 _SLOW_FIRST = (
-    "test_zones_verify.py",
-    "test_live.py",
-    "test_control_room.py",
-    "test_control_room_security.py",
-    "test_live_attack.py",
-    "test_office_db.py",
-    "test_office.py",
+    "verify/test_zones_verify.py",
+    "e2e/test_live.py",
+    "e2e/test_control_room.py",
+    "e2e/test_control_room_security.py",
+    "e2e/test_live_attack.py",
+    "live/test_office_db.py",
+    "live/test_office.py",
 )
+_TESTS = Path(__file__).resolve().parent
+
+
+def _under_tests(path: Path) -> str:
+    """``path`` relative to ``tests/`` (``e2e/test_live.py``), or as it is when it lies elsewhere."""
+    try:
+        return path.resolve().relative_to(_TESTS).as_posix()
+    except ValueError:
+        return path.as_posix()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     rank = {name: i for i, name in enumerate(_SLOW_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(_SLOW_FIRST)))  # stable: same order within
+    # Stable: the same order within a rank.
+    items.sort(key=lambda item: rank.get(_under_tests(item.path), len(_SLOW_FIRST)))

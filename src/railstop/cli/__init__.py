@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
 _POSITION_RUN = "position-run"
 # Listed by `railstop --help` with this line (the command's own docstring, kept equal by a test in
-# tests/test_cli_startup.py); built only when it is run or asked for its own help.
+# tests/cli/test_cli_startup.py); built only when it is run or asked for its own help.
 POSITION_RUN_HELP = (
     "One train over the whole line (a one-train line run): raw, corrected (SPEC §2) and calibrated "
     "position errors."

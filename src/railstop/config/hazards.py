@@ -3,7 +3,7 @@
 One TOML file per area under ``railstop/data/hazards/`` (``[[hazard]]`` tables).
 DESIGN rule 10: every hazard is in the log with its rule, its unit and the
 tests that show the rule firing. This module only reads and validates the
-files; ``tests/test_hazard_log.py`` checks that every named unit imports and
+files; ``tests/config/test_hazard_log.py`` checks that every named unit imports and
 every named test exists, and ``railstop hazards`` renders the log
 (``railstop.report.hazard_log``) into ``docs/safety/hazard-log.md``.
 """

@@ -28,7 +28,7 @@ own part of the same records, so each runs the stop model's own code.
   :class:`TascStop` wires the two in one process in the stop model's order.
 
 Wired without delay on the stop's clock, the three parts give the campaign's
-run of the same draw bit for bit (``tests/test_live_tasc.py``). Only the clock
+run of the same draw bit for bit (``tests/live/test_live_tasc.py``). Only the clock
 and the transport differ from the stop model: the link's delay is the
 processes' real one (plus the plant's batching of five readings per 50 ms
 step), and its losses are real ones (none on loopback). The train's vehicle

@@ -11,7 +11,7 @@ process, with UDP between them. Each process holds the records of the stop
 own part of them through the compiled entries here, so every process runs the
 stop model's own code (DESIGN rule 1); only the clock and the link differ.
 Wired without delay in one process on the stop's clock, the three parts give
-the campaign's run of the same draw bit for bit (``tests/test_live_tasc.py``).
+the campaign's run of the same draw bit for bit (``tests/live/test_live_tasc.py``).
 """
 
 from __future__ import annotations

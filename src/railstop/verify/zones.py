@@ -317,7 +317,7 @@ def copy_unit(unit: _U) -> _U:
     mutable dataclasses are copied, recursively; everything else is immutable (numbers, strings,
     enums, tuples of those, frozen dataclasses such as the messages) or the line's shared data (the
     parameters, the callables). Equivalent to ``copy.deepcopy`` for the units here, many times
-    faster (tests/test_zones_verify.py compares the two)."""
+    faster (tests/verify/test_zones_verify.py compares the two)."""
     cls = type(unit)
     new = cls.__new__(cls)
     state = getattr(unit, "__dict__", None)

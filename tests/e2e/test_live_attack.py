@@ -27,7 +27,7 @@ from railstop.link.safety import SafePeers
 from railstop.live.doors import PLATFORM_BASE, TRAIN_DOORS_BASE, LiveDoors
 from railstop.messages import MovementCommand, PositionReport
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 KEY = os.urandom(32)
 ENV = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
 

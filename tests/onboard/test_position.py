@@ -550,7 +550,7 @@ def test_cli_position_run_bad_input_one_line_exit_2(
 
 
 def test_cli_position_run_bad_line_file_names_field(tmp_path: Path) -> None:
-    text = (Path(__file__).parent.parent / "src/railstop/data/line.toml").read_text(encoding="utf-8")
+    text = (Path(__file__).parents[2] / "src/railstop/data/line.toml").read_text(encoding="utf-8")
     bad = tmp_path / "line.toml"
     bad.write_text(
         text.replace("{ id = 105, start_m = 870.0,", "{ id = 105, start_m = 875.0,"), encoding="utf-8"

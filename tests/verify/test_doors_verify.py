@@ -152,7 +152,7 @@ def test_cli_doors_verify_exit_0(tmp_path: Path) -> None:
 
 
 def test_cli_doors_verify_broken_file_exit_1(tmp_path: Path) -> None:
-    src = (Path(__file__).parents[1] / "src/railstop/data/doors.toml").read_text(encoding="utf-8")
+    src = (Path(__file__).parents[2] / "src/railstop/data/doors.toml").read_text(encoding="utf-8")
     row = '{ doa = 0, dmc = 1, doc = 1, dcc = 0, closed = "keep-closed", open = "keep-open" }'
     assert row in src
     bad = tmp_path / "doors.toml"

@@ -26,7 +26,7 @@ from zygote import run_cli
 EXE = [sys.executable, "-m", "railstop.cli"]
 
 #: The example law of docs/control-law.md (a file outside the package).
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "laws" / "constant_decel.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "laws" / "constant_decel.py"
 CONSTANT_DECEL = EXAMPLE.read_text()
 
 
@@ -243,7 +243,7 @@ def test_the_line_stops_its_trains_by_a_law_of_the_users_own(tmp_path: Path) -> 
     line runs it (the same stop model as the campaign)."""
     law = _write(tmp_path / "mylaw.py", CONSTANT_DECEL)
     default_op = (
-        Path(__file__).resolve().parents[1] / "src" / "railstop" / "data" / "operation" / "default.toml"
+        Path(__file__).resolve().parents[2] / "src" / "railstop" / "data" / "operation" / "default.toml"
     )
     op = tmp_path / "op.toml"
     op.write_text(default_op.read_text().replace('controller = "tasc-pwm"', 'controller = "constant-decel"'))
@@ -266,7 +266,7 @@ def test_a_line_campaign_runs_a_law_in_its_worker_processes_and_resumes_only_wit
     processes; the campaign records the file's hash and ``--resume`` with another text is refused."""
     law = _write(tmp_path / "mylaw.py", CONSTANT_DECEL)
     default_op = (
-        Path(__file__).resolve().parents[1] / "src" / "railstop" / "data" / "operation" / "default.toml"
+        Path(__file__).resolve().parents[2] / "src" / "railstop" / "data" / "operation" / "default.toml"
     )
     op = tmp_path / "op.toml"
     op.write_text(default_op.read_text().replace('controller = "tasc-pwm"', 'controller = "constant-decel"'))

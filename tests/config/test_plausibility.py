@@ -17,7 +17,7 @@ from railstop.config.schema import Line
 from railstop.sim.single import run_stop
 
 EXE = [sys.executable, "-m", "railstop.cli"]
-LINE_TOML = Path(__file__).resolve().parents[1] / "src" / "railstop" / "data" / "line.toml"
+LINE_TOML = Path(__file__).resolve().parents[2] / "src" / "railstop" / "data" / "line.toml"
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:

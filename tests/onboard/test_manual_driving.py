@@ -50,7 +50,7 @@ def home_signal() -> float:
 
 
 def test_driver_shares_must_add_up_to_one(tmp_path: Path) -> None:
-    text = (Path(__file__).parents[1] / "src/railstop/data/driver.toml").read_text()
+    text = (Path(__file__).parents[2] / "src/railstop/data/driver.toml").read_text()
     bad = tmp_path / "driver.toml"
     bad.write_text(text.replace("share = 0.6", "share = 0.5"))
     with pytest.raises(ConfigError, match=r"levels.*add up to 1"):
@@ -58,7 +58,7 @@ def test_driver_shares_must_add_up_to_one(tmp_path: Path) -> None:
 
 
 def test_a_driver_parameter_must_be_normal_or_fixed_and_respect_its_floor(tmp_path: Path) -> None:
-    text = (Path(__file__).parents[1] / "src/railstop/data/driver.toml").read_text()
+    text = (Path(__file__).parents[2] / "src/railstop/data/driver.toml").read_text()
     bad = tmp_path / "driver.toml"
     bad.write_text(
         text.replace(
@@ -79,7 +79,7 @@ def test_a_driver_parameter_must_be_normal_or_fixed_and_respect_its_floor(tmp_pa
 
 
 def test_a_code_point_must_lie_before_the_stop_sensors(tmp_path: Path) -> None:
-    text = (Path(__file__).parents[1] / "src/railstop/data/platform.toml").read_text()
+    text = (Path(__file__).parents[2] / "src/railstop/data/platform.toml").read_text()
     bad = tmp_path / "platform.toml"
     bad.write_text(text.replace("after_home_m = 170.0", "after_home_m = 210.0"))
     with pytest.raises(ConfigError, match=r"atc2.*not before the stop sensors"):

@@ -65,7 +65,7 @@ def _telegrams(form: SignalForm, controller: str, case: str) -> list[dict[str, A
 
 
 # The one known miss at Riverside, kept visible (strict): form 6 with notches, nominal, ends
-# +0.147 m (the last command meets the deceleration's ripple; see tests/test_tasc_stop.py).
+# +0.147 m (the last command meets the deceleration's ripple; see tests/control/test_tasc_stop.py).
 _KNOWN_MISS = (SignalForm.REQUIRED_DECELERATION, "tasc-brake-controller", "nominal")
 
 

@@ -4,7 +4,7 @@ Everything is real: thread and process pools, a Dask ``LocalCluster`` of two
 worker processes on loopback (one per module, shared by the Dask tests), and
 subprocesses that are killed with SIGKILL. The functions run on workers are
 defined here; pool processes and Dask workers import them from this module
-(``tests/`` is on the ``sys.path`` they inherit from pytest).
+(this module's folder, ``tests/sim/``, is on the ``sys.path`` they inherit from pytest).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ pytestmark = [
 ]
 
 ITEMS = range(12)
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 def seeded_sum(block: int) -> float:

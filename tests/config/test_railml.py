@@ -23,7 +23,7 @@ from railstop.config.railml import detector_layout, import_railml, to_toml
 from railstop.config.schema import Station
 from railstop.errors import ConfigError
 
-DATA = Path(__file__).parent / "data" / "railml"
+DATA = Path(__file__).parents[1] / "data" / "railml"
 V2 = DATA / "two-stations-2.xml"
 V3 = DATA / "two-stations-3.xml"
 EXE = [sys.executable, "-m", "railstop.cli"]

@@ -1,7 +1,7 @@
 """Monte Carlo campaigns end to end: determinism, replay, interrupt/resume, the CLI, the database.
 
 Everything runs for real: campaigns into ``tmp_path``, the ``railstop`` command
-as a process of its own (like ``tests/test_cli.py``; forked from a warm zygote,
+as a process of its own (like ``tests/cli/test_cli.py``; forked from a warm zygote,
 ``tests/zygote.py``, except where a signal is sent to it). Run counts are small; a campaign
 that several assertions need is computed once per test (or cached per module).
 """

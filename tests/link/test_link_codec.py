@@ -755,7 +755,7 @@ def test_loop_telegrams_fit_about_ten_bytes() -> None:
 
 
 def test_docs_telegrams_md_is_up_to_date() -> None:
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "telegrams.md").read_text(encoding="utf-8")
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "telegrams.md").read_text(encoding="utf-8")
     found = re.search(r"<!-- BEGIN layout_markdown\(\) -->\n(.*)<!-- END layout_markdown\(\) -->", doc, re.S)
     assert found, "docs/telegrams.md lacks the generated block"
     assert found.group(1) == layout_markdown(), "regenerate with railstop.link.codec.update_doc"

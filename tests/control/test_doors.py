@@ -110,7 +110,7 @@ def test_table_decide_reads_the_rows_as_they_are() -> None:
 
 
 def test_interpretation_note_is_kept_in_the_data_file() -> None:
-    text = (Path(__file__).parents[1] / "src/railstop/data/doors.toml").read_text(encoding="utf-8")
+    text = (Path(__file__).parents[2] / "src/railstop/data/doors.toml").read_text(encoding="utf-8")
     assert "[interpretation]" in text
     assert "(0,1,1,0)" in text and "transcription error" in text
 
@@ -141,7 +141,7 @@ def test_action_table_object_needs_all_sixteen_rows() -> None:
 
 
 def test_doors_config_loader_errors_name_file_field_value(tmp_path: Path) -> None:
-    src = (Path(__file__).parents[1] / "src/railstop/data/doors.toml").read_text(encoding="utf-8")
+    src = (Path(__file__).parents[2] / "src/railstop/data/doors.toml").read_text(encoding="utf-8")
     dup = tmp_path / "dup.toml"
     dup.write_text(
         src.replace(

@@ -25,7 +25,7 @@ import pytest
 
 from zygote import run_cli
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 PAGES = [README, *sorted((ROOT / "docs").rglob("*.md"))]
 EXE = [sys.executable, "-m", "railstop.cli"]

@@ -3,7 +3,7 @@ reference resolving inside the repository, every abbreviation in the glossary.
 
 The README is the newcomer's page (what railstop is, the two set-up commands, a tour, how to
 model a station, where to read on); everything else lives in ``docs/``. The command examples of
-both are run by ``tests/test_readme_tour.py``.
+both are run by ``tests/e2e/test_readme_tour.py``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 DOCS = ROOT / "docs"
 DOC_PAGES = sorted(DOCS.rglob("*.md"))

@@ -20,7 +20,7 @@ from railstop.config.hazards import HazardEntry, load_hazard_file, load_hazard_l
 from railstop.errors import ConfigError
 from railstop.report.hazard_log import render_markdown
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "safety" / "hazard-log.md"
 ENTRIES = load_hazard_log()
 
@@ -107,14 +107,14 @@ cause = "Something goes wrong."
 rule = "Something stops it."
 unit = "railstop.errors.RailstopError"
 safe_state = "stopped"
-tests = ["tests/test_hazard_log.py::test_every_hazard_names_tests_that_exist"]
+tests = ["tests/config/test_hazard_log.py::test_every_hazard_names_tests_that_exist"]
 """
 
 
 def test_a_hazard_without_a_test_is_refused(tmp_path: Path) -> None:
     assert load_hazard_file(_write(tmp_path, GOOD))[0].id == "HZ-X-01"
     bad = GOOD.replace(
-        'tests = ["tests/test_hazard_log.py::test_every_hazard_names_tests_that_exist"]', "tests = []"
+        'tests = ["tests/config/test_hazard_log.py::test_every_hazard_names_tests_that_exist"]', "tests = []"
     )
     with pytest.raises(ConfigError, match=r"h\.toml: hazard\[0\]\.tests: List should have at least 1 item"):
         load_hazard_file(_write(tmp_path, bad))

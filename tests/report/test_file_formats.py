@@ -29,7 +29,7 @@ from railstop.report.file_formats import (
     unit_of,
 )
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "file-formats.md"
 EXE = [sys.executable, "-m", "railstop.cli"]
 

@@ -28,7 +28,7 @@ def one_line_error(p: subprocess.CompletedProcess[str]) -> str:
 
 
 def test_encode_prints_lowercase_hex() -> None:
-    # Reference frame of docs/telegrams.md (tests/test_link_codec.py checks it by hand).
+    # Reference frame of docs/telegrams.md (tests/link/test_link_codec.py checks it by hand).
     p = run("encode", "tasc-required-decel", "train_id=4660", "detector=2", "required_mps2=0.7")
     assert p.returncode == 0, p.stderr
     assert p.stdout == "9612340202bc85c1\n"
