@@ -17,7 +17,8 @@ from railstop.config.driver import default_driver, load_driver
 from railstop.config.platform import LAMP_CODES, PlatformFile, default_platform, load_platform
 from railstop.control.supervision import EB_OVERSPEED, EB_PERMITTED_SPEED
 from railstop.controllers import DRIVER_CONTROLLERS
-from railstop.errors import ConfigError
+from railstop.errors import ConfigError, SimulationError
+from railstop.onboard.driver import ACT_CREEP_FORWARD, ACT_POWER
 from railstop.sim.campaign import simulate_runs
 from railstop.sim.engine import BatchResult
 
@@ -81,11 +82,15 @@ def test_a_driver_parameter_must_be_normal_or_fixed_and_respect_its_floor(tmp_pa
 def test_a_code_point_must_lie_before_the_stop_sensors(tmp_path: Path) -> None:
     text = (Path(__file__).parents[2] / "src/railstop/data/platform.toml").read_text()
     bad = tmp_path / "platform.toml"
-    bad.write_text(text.replace("after_home_m = 170.0", "after_home_m = 210.0"))
+    bad.write_text(text.replace("after_home_m = -30.0", "after_home_m = 210.0"))
     with pytest.raises(ConfigError, match=r"atc2.*not before the stop sensors"):
         load_platform(bad)
     bad.write_text(text.replace("after_home_m = 70.0", "after_home_m = 170.0"))
     with pytest.raises(ConfigError, match="running order"):
+        load_platform(bad)
+    # Before the home signal, but not before a driver's run starts (300 m before it).
+    bad.write_text(text.replace("after_home_m = -30.0", "after_home_m = -300.0"))
+    with pytest.raises(ConfigError, match="after_home_m"):
         load_platform(bad)
 
 
@@ -110,15 +115,28 @@ def test_a_driver_who_ignores_the_codes_gets_the_emergency_brake_every_time(
     assert (batch.restops == 0).all()  # an incapacitated driver corrects nothing
 
 
-def test_atc_option_1_stops_an_ignoring_driver_inside_the_station_ats_and_option_2_do_not() -> None:
-    # SPEC §3 fig. 5 option 1: even with the emergency brake the train stops within the station.
-    atc1 = runs("driver-atc1", n=300, incapacitated=True)
-    assert (atc1.stop_error_m < 0.0).all()  # short of the stopping point, whatever the draw
-    assert (atc1.stop_error_m > home_signal() - STATION.stop_point_m).all()  # past the home signal
-    # The others let the train in too fast to stop at the platform (why option 1 exists).
-    for controller in ("driver-ats", "driver-atc2"):
-        other = runs(controller, n=300, incapacitated=True)
-        assert (other.stop_error_m > STATION.platform_end - STATION.stop_point_m).mean() > 0.5
+@pytest.mark.parametrize("controller", ["driver-atc1", "driver-atc2"])
+def test_both_atc_options_stop_an_ignoring_driver_inside_the_station_ats_does_not(controller: str) -> None:
+    # SPEC §3 fig. 5 option 1: even with the emergency brake the train stops within the station;
+    # option 2 laid out so that the same holds (code 25 from 170 m into the 200 m AF block that
+    # leads to the home signal: platform.toml [approach.atc2]).
+    atc = runs(controller, n=300, incapacitated=True)
+    assert (atc.stop_error_m < 0.0).all()  # short of the stopping point, whatever the draw
+    assert (atc.stop_error_m > home_signal() - 30.0 - STATION.stop_point_m).all()
+    # ATS lets the train in too fast to stop at the platform (why the ATC options exist).
+    ats = runs("driver-ats", n=300, incapacitated=True)
+    assert (ats.stop_error_m > STATION.platform_end - STATION.stop_point_m).mean() > 0.5
+
+
+def test_atc_option_2_as_written_would_let_an_ignoring_driver_overrun_the_platform() -> None:
+    # Why the layout reads "the home block" as the AF block before the home signal: with code 25
+    # from 170 m beyond the home signal (34.6 m before the stopping point) the emergency brake
+    # from the approach speed ends past the platform end in most runs.
+    data = default_platform().model_dump()
+    data["approach"]["atc2"]["codes"] = [{"after_home_m": 170.0, "limit_kmh": 25.0}]
+    as_written = PlatformFile.model_validate(data)
+    batch = runs("driver-atc2", n=300, incapacitated=True, platform=as_written)
+    assert (batch.stop_error_m > STATION.platform_end - STATION.stop_point_m).mean() > 0.5
 
 
 def test_ats_brakes_three_seconds_after_the_speed_goes_over_the_code() -> None:
@@ -138,6 +156,81 @@ def test_without_station_codes_nothing_stops_an_ignoring_driver() -> None:
     batch = runs("driver-unaided", n=50, incapacitated=True)
     assert not batch.stopped.any()  # the approach limit holds; the train runs through
     assert (batch.emergency_brake == 0).all()
+
+
+def test_a_driver_too_slow_for_the_distance_left_takes_power_below_the_code() -> None:
+    # Option 2's code 25 starts 235 m before the stopping point: drivers who braked below it take
+    # power again (config.driver [running]) instead of coasting down to walking pace far short.
+    took_power = gained = spells = 0
+    for r in range(30):
+        one = runs("driver-atc2", n=1, first=r, record=True)
+        tr = one.trace
+        assert tr is not None
+        action, v, limit = tr.driver_action[:, 0], tr.speed_mps[:, 0], tr.limit_mps[:, 0]
+        powered = action == ACT_POWER
+        took_power += bool(powered.any())
+        # Each spell of power longer than 2 s (the decision acts after the driver's reaction,
+        # the brake releases meanwhile) ends faster than it began, and the train never passes
+        # the code held there.
+        on = np.flatnonzero(powered)
+        for spell in np.split(on, np.flatnonzero(np.diff(on) > 1) + 1) if on.size else []:
+            if tr.t_s[spell[-1], 0] - tr.t_s[spell[0], 0] > 2.0:
+                gained += v[spell[-1]] > v[spell[0]]
+                spells += 1
+        assert (v[powered] <= limit[powered] + 1e-9).all()
+    assert gained >= 0.9 * spells and spells >= 5
+    assert took_power >= 5
+    batch = runs("driver-atc2", n=400)
+    # Every run stands within the simulated time (none left coasting short of the platform).
+    assert batch.stopped.all()
+
+
+def test_a_train_stopped_far_short_is_driven_to_the_platform_not_crept() -> None:
+    # Runs whose first stop is more than 20 m short (the emergency brake at the code point):
+    # the forward correction runs at the held code less the driver's margin, above walking pace.
+    batch = runs("driver-atc2", n=2000)
+    far = np.flatnonzero(batch.first_stop_error_m < -default_driver().restop.drive_beyond_m)
+    assert far.size >= 1
+    one = runs("driver-atc2", n=1, first=int(far[0]), record=True)
+    tr = one.trace
+    assert tr is not None
+    moving = tr.driver_action[:, 0] == ACT_CREEP_FORWARD
+    walking = default_driver().restop.creep_speed_kmh / 3.6
+    top = np.nanmax(tr.speed_mps[moving, 0])
+    assert walking * 2.0 < top <= np.nanmax(tr.limit_mps[moving, 0])
+    assert one.lamp[0] in (OK, F, R)  # the corrections end at the platform's lamps
+
+
+@pytest.mark.parametrize("controller", DRIVER_CONTROLLERS)
+def test_the_signal_open_switch_lets_the_train_run_through_without_stopping(controller: str) -> None:
+    # SPEC §3: with the switch on the station's codes and lamps let the train pass: no stop, no
+    # re-stop, no lamp, no emergency brake; the run ends once its rear has left the platform.
+    batch = runs(controller, n=200, signal_open=True)
+    assert not batch.stopped.any()
+    past = STATION.platform_end + VEHICLE.length_m - STATION.stop_point_m
+    assert (batch.stop_error_m >= past).all()
+    assert (batch.emergency_brake == 0).all() and (batch.restops == 0).all() and (batch.lamp == 0).all()
+    # The same draws with the switch off stop at the platform.
+    assert runs(controller, n=200).stopped.all()
+
+
+def test_the_signal_open_switch_is_a_manual_lines_and_the_stop_command_says_what_passed(
+    tmp_path: Path,
+) -> None:
+    with pytest.raises(SimulationError, match="signal-open switch"):
+        runs("tasc-pwm", n=1, signal_open=True)
+    cli = CliRunner()
+    res = cli.invoke(app, ["stop", "--controller", "driver-atc2", "--signal-open", "--no-db", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["signal_open"] and not out["stopped"] and out["lamp"] is None
+    assert 40.0 < out["passed_kmh"] <= 60.0  # the approach limit held through the station
+    dwell = out["platform_dwell"]
+    assert dwell["outcome"] == "passed" and dwell["first_lamp"] is None and not dwell["psd_opened"]
+    text = cli.invoke(app, ["stop", "--controller", "driver-ats", "--signal-open", "--no-db"])
+    assert text.exit_code == 0 and "ran through without stopping" in text.output
+    refused = cli.invoke(app, ["stop", "--controller", "tasc-pwm", "--signal-open", "--no-db"])
+    assert refused.exit_code == 2 and "driver controller" in refused.output
 
 
 # ----------------------------------------------------------------------------- lamps and re-stops

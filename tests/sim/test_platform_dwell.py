@@ -546,6 +546,22 @@ def test_the_signal_open_switch_passes_the_train_with_no_lamp_and_no_door() -> N
     assert r.departure_s is not None and r.departure_s < TIMING.dwell_s  # no dwell at all
 
 
+def test_a_train_running_through_with_the_switch_on_lights_no_lamp_and_moves_no_door() -> None:
+    # SPEC §3: the signal-open switch lets a train pass the station: it never stands; its front
+    # crosses both stop sensors at speed, no lamp lights, the PSD relay stays off.
+    r = dwell(0.0, signal_open=True, passing_mps=15.0)
+    assert r.outcome == "passed" and r.passing_kmh == pytest.approx(54.0)
+    assert r.first_lamp is None and not r.psd_opened and r.doors_open_s is None
+    assert values(r, "lamp") == {"-"} and values(r, "psd_relay") == {0}
+    assert values(r, "PSD") == {"closed_locked"} and values(r, "train_doors") == {"closed_locked"}
+    assert values(r, "moving") == {1}  # never a stand
+    assert "no lamp lit, PSD closed throughout, train doors inhibited" in dwell_sentence(r)
+    # Running through needs the switch, and a speed.
+    for bad in ({"signal_open": False, "passing_mps": 15.0}, {"signal_open": True, "passing_mps": 0.0}):
+        with pytest.raises(SimulationError, match="passing_mps"):
+            dwell(0.0, **bad)
+
+
 def test_a_station_without_psd_departs_once_the_train_doors_are_locked() -> None:
     r = dwell(0.1, psd=False)
     assert r.outcome == "departed" and r.first_lamp == "OK" and not r.psd_opened

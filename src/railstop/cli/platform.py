@@ -188,8 +188,9 @@ def dwell_cmd(
                 seed=seed,
                 driver=drv,
                 platform=plat,
+                signal_open=signal_open,
             )
-            if not stop.stopped:
+            if not stop.stopped and stop.passed_kmh is None:
                 fail(f"the simulated {controller} stop at {st.name} did not come to rest")
             result, timeline = dwell_after_stop(
                 stop,
@@ -201,13 +202,20 @@ def dwell_cmd(
                 signal_open=signal_open,
                 camera_lost_from_s=camera_lost_s,
             )
-            source = (
-                f"{stop.driver_level} driver's {controller} stop (seed {seed}): first stand "
-                f"{stop.first_stop_error_m:+.3f} m, {stop.restops} re-stop(s), final stand "
-                f"{stop.stop_error_m:+.3f} m"
-            )
+            if stop.passed_kmh is not None:
+                source = (
+                    f"{stop.driver_level} driver's {controller} run through the station (seed {seed}, "
+                    f"signal-open switch): {stop.passed_kmh:.1f} km/h at the stopping point"
+                )
+                xlabel = "time since the front was 30 m before the stopping point (s)"
+            else:
+                source = (
+                    f"{stop.driver_level} driver's {controller} stop (seed {seed}): first stand "
+                    f"{stop.first_stop_error_m:+.3f} m, {stop.restops} re-stop(s), final stand "
+                    f"{stop.stop_error_m:+.3f} m"
+                )
+                xlabel = "time since the train passed 300 m before the home signal (s)"
             key = f"{stop.run_key}|platform-dwell{variant}"
-            xlabel = "time since the train passed 300 m before the home signal (s)"
         else:
             stand_on_platform(error_m, st)
             result = run_platform_dwell(

@@ -7,6 +7,7 @@ The options and checks the stop shares with the campaign commands (``--form``, `
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -25,6 +26,7 @@ from railstop.cli.common import (
     office_target,
     out,
     send_to_office,
+    with_option_groups,
 )
 
 # The --controller help lists the engine's controllers; running a stop needs the engine anyway.
@@ -45,6 +47,22 @@ if TYPE_CHECKING:
     from railstop.sim.platform_dwell import PlatformDwellResult
     from railstop.sim.single import StopResult
     from railstop.store.db import StopRecord
+
+
+@dataclass(frozen=True)
+class ManualOptions:
+    """The options of a manually driven train's stop (SPEC §3; an option group)."""
+
+    driver: DriverOpt = None
+    platform: PlatformOpt = None
+    signal_open: Annotated[
+        bool,
+        typer.Option(
+            "--signal-open",
+            help="The station's signal-open switch is on (SPEC §3; driver controllers): the train runs "
+            "through without stopping, no station code, no lamp, the doors inhibited.",
+        ),
+    ] = False
 
 
 FormOpt = Annotated[
@@ -91,7 +109,9 @@ def checked_controller(name: str, option: str = "--controller") -> str:
     return name
 
 
+@with_option_groups
 def stop(
+    *,
     ctx: typer.Context,
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
     controller: Annotated[
@@ -123,8 +143,7 @@ def stop(
     ] = False,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
-    driver: DriverOpt = None,
-    platform: PlatformOpt = None,
+    manual: ManualOptions,
     office: OfficeOpt = None,
 ) -> None:
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
@@ -152,7 +171,7 @@ def stop(
         ln, veh = load_checked(line, vehicle)
         st = ln.station(station)
         dist = None if disturbances is None else load_disturbances(disturbances)
-        drv, plat = load_manual_data(driver, platform, [controller])
+        drv, plat = load_manual_data(manual.driver, manual.platform, [controller])
         result, batch = run_stop(
             line=ln,
             station=st,
@@ -167,6 +186,7 @@ def stop(
             tolerance_m=checked_tolerance(tolerance_m),
             driver=drv,
             platform=plat,
+            signal_open=manual.signal_open,
         )
         dwell = _driver_dwell(result, batch, st, plat)
         if not no_db:
@@ -187,7 +207,7 @@ def stop(
         if sent is not None:
             extra["office_link"] = sent
         print(json.dumps({**result.summary(), **extra}))
-        if not result.stopped:
+        if not (result.stopped or result.passed_kmh is not None):
             raise typer.Exit(1)
         return
     _print_stop(result, st, veh, dwell, plot, None if no_db else db)
@@ -257,6 +277,23 @@ def _print_stop(
         else f"run {result.run} of {result.disturbances!r} seed {result.seed} "
         f"(load {result.load_factor:.0%}, brake gain {result.brake_gain:.3f}): "
     )
+    if result.signal_open and result.passed_kmh is not None:
+        # SPEC §3 signal-open switch: the train ran through the station.
+        out.print(
+            f"{result.controller} at {result.station}: {drawn}signal-open switch on: the train ran "
+            f"through without stopping, {result.passed_kmh:.1f} km/h at the stopping point, no station "
+            f"code, {result.driver_level} driver",
+            highlight=False,
+            soft_wrap=True,
+        )
+        if dwell is not None:
+            from railstop.sim.platform_dwell import dwell_sentence
+
+            saved = "" if db is None else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
+            out.print(f"platform: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
+        if plot is not None:
+            out.print(f"plot: {plot}", highlight=False)
+        return
     if not result.stopped:
         # Fail safe: a train still moving at the end of the simulated time has no stop error.
         out.print(
@@ -309,8 +346,9 @@ def _print_stop(
 def _driver_dwell(
     result: StopResult, batch: BatchResult, station: Station, platform: PlatformFile | None
 ) -> tuple[PlatformDwellResult, list[DwellEvent]] | None:
-    """SPEC §3: a driver stop that came to rest goes on into its dwell (None for the others)."""
-    if result.driver_level is None or not result.stopped:
+    """SPEC §3: a driver stop that came to rest goes on into its dwell, a run through the station
+    (signal-open switch) into the platform as it passes (None for the others)."""
+    if result.driver_level is None or not (result.stopped or result.passed_kmh is not None):
         return None
     from railstop.config.doors import load_doors
     from railstop.config.platform import default_platform
@@ -353,7 +391,12 @@ def write_plot(path: Path, result: StopResult, batch: BatchResult, station: Stat
             commands=batch.commands,
             title=(
                 f"{result.controller} at {station.name} (load {result.load_factor:.0%}, "
-                f"brake gain {result.brake_gain:.2f}): stop error {result.stop_error_m:+.3f} m"
+                f"brake gain {result.brake_gain:.2f}): "
+                + (
+                    f"ran through at {result.passed_kmh:.1f} km/h (signal-open switch)"
+                    if result.passed_kmh is not None
+                    else f"stop error {result.stop_error_m:+.3f} m"
+                )
             ),
             path=path,
             tolerance_m=result.psd_tolerance_m,

@@ -115,6 +115,19 @@ class Restop(Model):
     # After this many corrections without OK the driver gives up: the PSD stays closed (the train
     # is counted as not aligned).
     max_restops: Annotated[int, Field(ge=0, le=10)] = 3
+    # [interpretation] A forward correction longer than this (a train stopped far short, e.g. by
+    # an emergency brake) is driven at the held code less the driver's margin, not at walking pace.
+    drive_beyond_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] = 20.0
+
+
+class Running(Model):
+    # [interpretation] A train too slow for the distance left to the stopping point (braked early,
+    # below a speed code) is powered up again: the driver takes power at this acceleration (a low
+    # notch, well under the vehicle's full traction) ...
+    power_accel_mps2: Annotated[float, Field(gt=0.0, le=1.5, allow_inf_nan=False)] = 0.4
+    # ... when the speed reads more than this below the speed he aims at: the lowest of the held
+    # code, the next code point's and the speed from which a light brake stops at the mark.
+    power_band_kmh: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)] = 2.0
 
 
 class DriverFile(Model):
@@ -122,6 +135,8 @@ class DriverFile(Model):
     levels: dict[str, Level]
     # How the driver re-stops after the F or R lamp (all levels alike).
     restop: Restop = Field(default_factory=Restop)
+    # How the driver keeps the train moving in the approach (all levels alike).
+    running: Running = Field(default_factory=Running)
 
     @field_validator("levels")
     @classmethod
@@ -167,7 +182,7 @@ LV_WIDTH = 4
 
 
 def driver_arrays(driver: DriverFile) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(level table, re-stop vector) for the compiled driver (onboard.driver)."""
+    """(level table, re-stop and running vector) for the compiled driver (onboard.driver RS_*)."""
     table = np.zeros((len(driver.levels), LV_PARAMS + LV_WIDTH * len(LEVEL_PARAMETERS)))
     cumulative = 0.0
     for i, level in enumerate(driver.levels.values()):
@@ -190,9 +205,12 @@ def driver_arrays(driver: DriverFile) -> tuple[NDArray[np.float64], NDArray[np.f
             r.reverse_setup_s,
             float(r.max_restops),
             r.eb_reset_s,
+            driver.running.power_accel_mps2,
+            kmh_to_mps(driver.running.power_band_kmh),
+            r.drive_beyond_m,
         ]
     )
     return table, restop
 
 
-__all__ = ["DriverFile", "Level", "Restop", "default_driver", "driver_arrays", "load_driver"]
+__all__ = ["DriverFile", "Level", "Restop", "Running", "default_driver", "driver_arrays", "load_driver"]

@@ -91,11 +91,18 @@ class LampRow(Model):
     lamp: Lamp
 
 
+#: A driver's run starts this far before the home signal ([interpretation]: far enough to meet the
+#: codes of the block before it and to settle at the approach limit); no code point may lie before.
+START_BEFORE_HOME_M = 300.0
+
+
 class ApproachCode(Model):
     """A speed code from a point on, held until the next one (SPEC §3)."""
 
-    # Where the code starts: this far beyond the home signal, before the stop sensors.
-    after_home_m: Annotated[float, Field(ge=0.0, le=2000.0, allow_inf_nan=False)]
+    # Where the code starts: this far beyond the home signal (negative: before it, in the block
+    # that leads to it), before the stop sensors and after the start of a driver's run (300 m
+    # before the home signal).
+    after_home_m: Annotated[float, Field(gt=-START_BEFORE_HOME_M, le=2000.0, allow_inf_nan=False)]
     # The code's speed limit, held until the next code's point.
     limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)]
 
@@ -119,9 +126,10 @@ class Approach(Model):
     # SPEC §3 fig. 3: the stop sensor S2 stands this far beyond the home signal (the station-entry
     # signal); the codes' points are measured from the home signal.
     home_to_s2_m: Annotated[float, Field(gt=0.0, le=2000.0, allow_inf_nan=False)] = 204.25
-    # The speed limit before the first code (from the block before the home signal); the driver
-    # aims to run at it.
-    approach_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] = 70.0
+    # The speed limit before the first code (from the block before the home signal; SPEC §3: "60 ->
+    # 45 km/h" at Code 45); the driver aims to run at it less his margin. A run's drawn entry speed
+    # is capped there.
+    approach_limit_kmh: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] = 60.0
     # ATC modes: the permitted speed is the indicated speed plus this; above it the emergency brake
     # applies at once.
     atc_permitted_margin_kmh: Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)] = 5.0

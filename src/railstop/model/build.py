@@ -23,7 +23,13 @@ from railstop.config.driver import (
     default_driver,
     driver_arrays,
 )
-from railstop.config.platform import LAMP_CODES, PlatformFile, default_platform, sensor_positions
+from railstop.config.platform import (
+    LAMP_CODES,
+    START_BEFORE_HOME_M,
+    PlatformFile,
+    default_platform,
+    sensor_positions,
+)
 from railstop.config.scenario import Scenario
 from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
@@ -86,6 +92,7 @@ from railstop.model.records import (
     KP_JERK,
     KP_LENGTH,
     KP_MAX_AGE,
+    KP_PASS,
     KP_QUANT_AGE,
     KP_REPEAT,
     KP_ROTATING,
@@ -105,7 +112,7 @@ from railstop.model.records import (
     StopParams,
 )
 from railstop.onboard.ato import ATO_CORRECTED_LAW, ATO_LAW, ato_params
-from railstop.onboard.driver import RS_EB_RESET
+from railstop.onboard.driver import RS_SIZE
 from railstop.onboard.tasc_receiver import CONFIG_CODES, receiver_params, receiver_window
 from railstop.quantities import kmh_to_mps
 from railstop.wayside.tasc_unit import (
@@ -152,7 +159,6 @@ DRIVER_MODES: dict[str, tuple[str, bool]] = {
     DRIVER_ATC2: ("atc2", True),
     DRIVER_UNAIDED: ("unaided", False),
 }
-START_BEFORE_HOME_M = 300.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -207,9 +213,11 @@ class KernelModel:
         driver: DriverFile | None = None,
         platform: PlatformFile | None = None,
         incapacitated: bool = False,
+        signal_open: bool = False,
     ) -> KernelModel:
         """``driver``, ``platform``: the driver controllers' data (None: the embedded defaults);
-        ``incapacitated``: their driver never brakes (the supervision check of SPEC §3)."""
+        ``incapacitated``: their driver never brakes (the supervision check of SPEC §3);
+        ``signal_open``: the station's signal-open switch is on (SPEC §3): the train runs through."""
         if controller not in known_controllers():
             raise SimulationError(
                 f"unknown controller {controller!r}; choose one of: {', '.join(known_controllers())}"
@@ -260,7 +268,20 @@ class KernelModel:
         wp, window = _wayside_params(station, vehicle, form, dt_s)
         rcfg = controller if controller in CONFIG_CODES else "tasc-brake-controller"
         fp, positioning = _positioning(controller, track, vehicle, dt_s)
+        if signal_open and controller not in DRIVER_MODES:
+            raise SimulationError(
+                f"the signal-open switch is a manually driven line's (SPEC §3): a driver controller, "
+                f"not {controller}"
+            )
         manual: dict[str, Any] = _manual_arrays(kp, controller, station, driver, platform, incapacitated)
+        if signal_open:
+            # SPEC §3: the switch lets the train pass the station (out-of-service run, skip).
+            # [interpretation] It clears the station's codes and darkens its lamps: the approach
+            # limit holds through the station, the driver does not stop, and the run ends when
+            # the train's rear has left the platform.
+            kp[KP_PASS] = station.platform_end + vehicle.length_m
+            manual["code_pos"] = np.zeros(0)
+            manual["code_lim"] = np.zeros(0)
         return cls(
             **manual,
             kp=kp,
@@ -390,7 +411,7 @@ def _manual_arrays(
     if controller not in DRIVER_MODES:
         return {
             "levels": np.zeros((1, LV_PARAMS + LV_WIDTH * len(LEVEL_PARAMETERS))),
-            "rs": np.zeros(RS_EB_RESET + 1),
+            "rs": np.zeros(RS_SIZE),
             "code_pos": np.zeros(0),
             "code_lim": np.zeros(0),
             "lamp_table": np.zeros(4),

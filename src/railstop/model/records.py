@@ -175,7 +175,8 @@ KP_S2 = 31  # the stop sensors' chainages (config.platform sensor_positions) ...
 KP_S1 = 32
 KP_SENSOR_NOISE = 33  # ... and their noise
 KP_START_BEFORE_HOME = 34  # a driver's run starts at least this far before the home signal
-KP_SIZE = 35
+KP_PASS = 35  # SPEC §3 signal-open switch: the run ends when the front passes here (0: a stop)
+KP_SIZE = 36
 
 # Results per run.
 RES_ERROR = 0  # front at rest minus stopping point (+ = overrun)

@@ -93,6 +93,7 @@ from railstop.model.records import (
     KP_JERK,
     KP_LENGTH,
     KP_MAX_AGE,
+    KP_PASS,
     KP_QUANT_AGE,
     KP_REPEAT,
     KP_ROTATING,
@@ -196,12 +197,14 @@ from railstop.onboard.driver import (
     ACT_REVERSE,
     ACT_WAIT,
     DR_LEVEL,
+    DR_MARGIN,
     DR_REACTION,
     DV_ACTION,
     DV_REQUIRED,
     RS_EB_RESET,
     RS_JUDGEMENT_FLOOR,
     RS_MAX,
+    RS_POWER_ACCEL,
     RS_REVERSE_SETUP,
     creep_position_1,
     creep_time_1,
@@ -209,6 +212,7 @@ from railstop.onboard.driver import (
     driver_init_1,
     driver_look_1,
     driver_output_1,
+    move_speed_1,
     restop_judgement_1,
 )
 from railstop.onboard.speed_supervision import SV_ALARM, SV_EB, supervise_1, supervision_init_1
@@ -227,7 +231,7 @@ from railstop.onboard.tasc_receiver import (
     receiver_init_1,
 )
 from railstop.physics.brake import actuator_step_1, decel_to_pwm_1, line_notch, pwm_to_decel_1
-from railstop.physics.train import creep_1, mean_gradient_1, motion_step_1
+from railstop.physics.train import adhesion_limit_1, creep_1, mean_gradient_1, motion_step_1
 from railstop.sensors.wayside import crossing_time_1, passage_1
 from railstop.streams import key_normal, key_normal_zig, key_uniform, stream_key
 from railstop.wayside.tasc_unit import (
@@ -320,10 +324,11 @@ def _record_move(
     wait: float,
     duration: float,
     rs: np.ndarray,
+    top: float,
     limit: float,
     lamp: int,
 ) -> int:
-    """Record a correction of the detailed stop: a wait at the stand, then the move at walking pace."""
+    """Record a correction of the detailed stop: a wait at the stand, then the move at up to ``top``."""
     total = wait + duration
     n = int(np.ceil(total / dt))
     forward = move > 0.0
@@ -332,10 +337,10 @@ def _record_move(
             return rows
         tau = min(i * dt, total)
         moving = tau > wait
-        gone = creep_position_1(abs(move), rs, tau - wait) if moving else 0.0
+        gone = creep_position_1(abs(move), rs, tau - wait, top) if moving else 0.0
         speed = 0.0
         if moving:
-            speed = (creep_position_1(abs(move), rs, min(tau - wait + dt, duration)) - gone) / dt
+            speed = (creep_position_1(abs(move), rs, min(tau - wait + dt, duration), top) - gone) / dt
         for j in range(TR_SIZE):
             trace[rows, j] = np.nan
         trace[rows, TR_T] = t0 + tau
@@ -472,13 +477,16 @@ def stop_init(
     if d.is_driver:
         # [interpretation] a driver's run starts far enough before the home signal to meet its codes.
         x = min(x, kp[KP_HOME] - kp[KP_START_BEFORE_HOME])
+        # SPEC §3: the run's driver. [interpretation] He has run under the approach code before:
+        # at most its limit less his margin on his speedometer (the drawn entry speed caps it).
+        driver_draw_1(s.dr, p.levels, d.k_driver)
+        entry = min(entry, (kp[KP_APPROACH_LIMIT] - s.dr[DR_MARGIN]) / d.tach_scale)
     _reset_state(p, s, x, entry)
     if d.is_ato:
         ato_init_1(s.at, s.mod)
         reset_law_1(s.law_state, s.law_params, p.lp)
     elif d.is_driver:
-        # SPEC §3: the run's driver and the train's ATS / ATC supervision.
-        driver_draw_1(s.dr, p.levels, d.k_driver)
+        # SPEC §3: the driver's state and the train's ATS / ATC supervision.
         driver_init_1(s.dv)
         supervision_init_1(s.sv)
     else:
@@ -686,9 +694,9 @@ def _tasc_control_1(
 @njit_inline
 def _driver_control_1(
     p: StopParams, run: RunParams, s: StopState, t: float, tach_v: float
-) -> tuple[int, bool, bool]:
+) -> tuple[int, bool, bool, float]:
     """SPEC §3 manual driving: the codes, the ATS / ATC supervision, the driver: (notch, braking,
-    emergency brake)."""
+    emergency brake, the traction the driver takes in m/s²)."""
     kp, d, tr, ob = p.kp, run.derived[0], s.train[0], s.onboard[0]
     # The code held since the last point (ATS) / picked up here (ATC).
     code_next = ob.code_next
@@ -704,12 +712,18 @@ def _driver_control_1(
     if eb and ob.eb_cause == 0.0:
         ob.eb_cause = s.sv[SV_EB]
         ob.eb_t_s = t
+    # SPEC §3 signal-open switch (KP_PASS): the driver runs through, no stop ahead.
+    stop_point = kp[KP_STOP] if kp[KP_PASS] <= 0.0 else np.inf
     driver_look_1(
-        s.dv, s.dr, p.table, d.k_driver, t, tr.position_m, tach_v, tr.accel_mps2, kp[KP_STOP],
+        s.dv, s.dr, p.table, d.k_driver, t, tr.position_m, tach_v, tr.accel_mps2, stop_point,
         p.rs[RS_JUDGEMENT_FLOOR], p.code_pos, p.code_lim, limit, d.incapacitated, p.wp[WP_INITIAL_DELAY],
+        p.rs,
     )  # fmt: skip
-    notch, holding = driver_output_1(s.dv, t)
-    return notch, not holding or eb, eb
+    notch, holding, power = driver_output_1(s.dv, t)
+    # Power (config.driver Running): the brakes released, traction at the driver's notch; the
+    # emergency brake cuts it.
+    traction = p.rs[RS_POWER_ACCEL] if power and not eb else 0.0
+    return notch, not holding or eb, eb, traction
 
 
 # --------------------------------------------------------------------------
@@ -750,16 +764,31 @@ def actuator_1(p: StopParams, run: RunParams, s: StopState, k: int, demand: floa
 
 @njit_inline
 def move_1(
-    p: StopParams, run: RunParams, s: StopState, t: float, x: float, v: float, brake_decel: float, hold: bool
+    p: StopParams,
+    run: RunParams,
+    s: StopState,
+    t: float,
+    x: float,
+    v: float,
+    brake_decel: float,
+    hold: bool,
+    traction: float = 0.0,
 ) -> tuple[float, float, bool, bool]:
     """The train's dynamics t -> t + dt from ``x``, ``v``, its standstill, and the jerk while
-    braking: (position, acceleration, sliding, stopped) after the step."""
+    braking: (position, acceleration, sliding, stopped) after the step. ``traction`` (m/s², a
+    driver's power): it moves a standing train and is capped at the adhesion."""
     kp, sc, d, tr, ta = p.kp, run.sc, run.derived[0], s.train[0], s.tally[0]
     dt = kp[KP_DT]
     in_patch = x >= sc[SC_LOW_START] and x < sc[SC_LOW_END]
     mu = sc[SC_LOW_MU] if in_patch else sc[SC_MU]
     bp, gv, ge = run.grad
     stopped = tr.stopped
+    if traction > 0.0:
+        # [interpretation] the traction a driver takes is far below the adhesion on dry rail; on a
+        # low-adhesion patch it is held to it (the anti-slip control), and it releases the brakes.
+        traction = min(traction, adhesion_limit_1(mu, d.static_kg, d.effective_kg))
+        brake_decel -= traction
+        stopped = stopped and brake_decel >= 0.0
     x, v, accel, now_stopped, st, sliding = motion_step_1(
         x, v, stopped, brake_decel, mean_gradient_1(x, kp[KP_LENGTH], bp, gv, ge), mu, hold,
         d.static_kg, d.effective_kg, kp[KP_DAVIS_A], kp[KP_DAVIS_B], kp[KP_DAVIS_C], t, dt,
@@ -774,7 +803,7 @@ def move_1(
     if sliding and not now_stopped:
         ta.slid = True
     # Jerk while moving under braking (not across the traction cut-off or the standstill step).
-    counted = not hold and not now_stopped
+    counted = not hold and traction <= 0.0 and not now_stopped
     jerk = abs(accel - ta.prev_accel_mps2) / dt
     if counted and ta.prev_counted:
         ta.max_jerk_mps3 = max(ta.max_jerk_mps3, jerk)
@@ -915,6 +944,7 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
     x0 = tr.position_m
     v0 = tr.speed_mps
     tach_v = tach_speed_1(run, s)
+    traction = 0.0
     if d.is_ato:
         notch = ato_output_1(
             s.at, p.ap, s.mod, p.table, p.ext, run.grad, k, tach_v, law, s.meas, s.law_state, s.law_params
@@ -923,19 +953,21 @@ def stop_step(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k: 
         braking = s.at[AT_BRAKING] > 0.0
         eb = False
     elif d.is_driver:
-        notch, braking, eb = _driver_control_1(p, run, s, t, tach_v)
+        notch, braking, eb, traction = _driver_control_1(p, run, s, t, tach_v)
         duty = np.nan
     else:
         notch, duty, braking, eb = _tasc_control_1(p, run, s, out, k, t, tach_v)
     if external_eb_1(s, t):
         eb = braking = True
+        traction = 0.0
     demand, ecu_notch = ecu_1(p, s, notch, duty, eb)
     brake_decel = actuator_1(p, run, s, k, demand)
-    x, accel, sliding, stopped = move_1(p, run, s, t, x0, v0, brake_decel, not braking)
+    x, accel, sliding, stopped = move_1(p, run, s, t, x0, v0, brake_decel, not braking, traction)
     sensors_1(p, run, s, out, t, x0, v0, x, accel, sliding)
     if out.rec.on:
         _record_step_1(run, s, out, k, t, dt, demand, brake_decel, ecu_notch, duty)
-    return stopped
+    # The run ends at the stand, or (signal-open switch) once the train has passed the platform.
+    return stopped or 0.0 < p.kp[KP_PASS] <= x
 
 
 # --------------------------------------------------------------------------
@@ -962,9 +994,12 @@ def _restops_1(
         setup = 0.0
         judged = abs(restop_judgement_1(rs, d.k_driver, restops, stop_point - x))
         move = judged if lamp == LAMP_F else -judged
-        duration = creep_time_1(judged, rs)
+        top = move_speed_1(rs, judged, lamp == LAMP_F, ob.limit_mps - s.dr[DR_MARGIN])
+        duration = creep_time_1(judged, rs, top)
         if rec.on:
-            rows = _record_move(rec.trace, rows, dt, t_end, x, move, wait, duration, rs, ob.limit_mps, lamp)
+            rows = _record_move(
+                rec.trace, rows, dt, t_end, x, move, wait, duration, rs, top, ob.limit_mps, lamp
+            )
         x += move
         t_end += wait + duration
         restops += 1

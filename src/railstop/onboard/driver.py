@@ -24,6 +24,10 @@ with the sources they lean on), and every run draws its own driver:
   the deceleration needed, with a hysteresis of a fifth of a notch step;
   with little deceleration needed the driver coasts, and creeps (holds a low
   speed) when the train is slow and still short of the mark;
+* **power**: a train too slow for the distance left (braked early, or
+  below a code) is powered up again at a low notch (``[running]``), up to
+  the lowest of the held code, the next code point's speed and the speed from
+  which a light brake stops at the mark;
 * **codes**: route knowledge gives the code points ahead (ATS oscillators,
   ATC circuits); the held limit / ADU indicated speed is a target at once:
   above it the driver brakes to be below it within about 1.5 s (SPEC §3:
@@ -31,7 +35,8 @@ with the sources they lean on), and every run draws its own driver:
   grace);
 * **re-stop**: at standstill the F / R lamp makes the driver move the train
   (after ``reaction_s``, reversing also ``reverse_setup_s``) by the distance
-  he judges from the platform marks, at walking pace (:func:`creep_move_1`).
+  he judges from the platform marks, at walking pace, or, far short (an
+  emergency brake), at the held code (:func:`move_speed_1`).
 
 An *incapacitated* driver (the supervision check of SPEC §3: "a driver who
 is unconscious ...") never brakes: the train keeps its speed until the
@@ -73,7 +78,9 @@ DV_PENDING_T = 8  # ... and when the hand moves it
 DV_PENDING_HOLD = 9
 DV_REQUIRED = 10  # the deceleration the last look found needed
 DV_ACTION = 11  # ACT_* of the last look
-DV_SIZE = 12
+DV_POWER = 12  # the driver takes power (traction at RS_POWER_ACCEL)
+DV_PENDING_POWER = 13
+DV_SIZE = 14
 
 # What the driver is doing (the approach plot's driver actions).
 ACT_HOLD = 0  # traction holds the speed
@@ -83,6 +90,7 @@ ACT_CREEP_FORWARD = 3
 ACT_REVERSE = 4
 ACT_WAIT = 5  # at a stand: perceiving a lamp, setting up
 ACT_DONE = 6
+ACT_POWER = 7  # traction: the train is too slow for the distance left
 
 # Re-stop parameters (config.driver driver_arrays).
 RS_CREEP_SPEED = 0
@@ -93,6 +101,10 @@ RS_JUDGEMENT_FLOOR = 4
 RS_REVERSE_SETUP = 5
 RS_MAX = 6
 RS_EB_RESET = 7
+RS_POWER_ACCEL = 8  # config.driver Running
+RS_POWER_BAND = 9  # m/s
+RS_DRIVE_BEYOND = 10  # m: a longer forward correction is driven at the held code
+RS_SIZE = 11
 
 # Counters of the run's driver stream.
 _C_LEVEL = 0
@@ -107,6 +119,7 @@ _HYSTERESIS = 0.2  # of a notch step
 _COAST_FRACTION = 0.15  # of the planned deceleration: less needed -> coast
 _CREEP_BELOW_MPS = 2.0  # creep (hold) when slower than this and still short of the mark ...
 _CREEP_SHORT_M = 3.0  # ... by more than this
+_OVER_FRACTION = 1.0  # of the planned deceleration: the least brake over the indicated speed
 
 
 @njit_inline
@@ -145,6 +158,8 @@ def driver_init_1(dv: np.ndarray) -> None:
     dv[DV_PENDING_HOLD] = 1.0
     dv[DV_REQUIRED] = 0.0
     dv[DV_ACTION] = ACT_HOLD
+    dv[DV_POWER] = 0.0
+    dv[DV_PENDING_POWER] = 0.0
 
 
 @njit_inline
@@ -185,9 +200,11 @@ def driver_look_1(
     limit_now: float,
     incapacitated: bool,
     response_s: float,
+    rs: np.ndarray,
 ) -> None:
     """A look at ``t`` (when due): decide the handle, to act ``reaction_s`` later.
-    ``response_s``: the brake's response the driver knows (dead time + build-up)."""
+    ``response_s``: the brake's response the driver knows (dead time + build-up); ``rs``: the
+    re-stop and running parameters (RS_*: creep speed, power)."""
     if t < dv[DV_NEXT_LOOK] - 1e-9:
         return
     dv[DV_NEXT_LOOK] = t + dr[DR_LOOK]
@@ -209,6 +226,10 @@ def driver_look_1(
     held = max(limit_now - margin, 0.5)
     if vp > held:
         need = max(need, (vp - held) / _FIX_S)
+    if v > limit_now:
+        # Over the limit / indicated speed on his speedometer (the ADU shows it; under ATC the
+        # alarm follows the grace): a firm brake, at least the planned deceleration, not a coast.
+        need = max(need, _OVER_FRACTION * dr[DR_PLANNED])
     for i in range(code_pos.size):
         if code_pos[i] > x:
             target = max(code_lim[i] - margin, 0.5)
@@ -227,10 +248,33 @@ def driver_look_1(
         ratio = -accel / table[notch]
         dv[DV_GAIN] += _GAIN_RATE * (min(max(ratio, 0.5), 1.5) - dv[DV_GAIN])
     hold = False
+    power = False
     if need < _COAST_FRACTION * planned:
         choice = 0
-        hold = vp < _CREEP_BELOW_MPS and (stop_point - x) * scale > _CREEP_SHORT_M
-        dv[DV_ACTION] = ACT_HOLD if hold else ACT_COAST
+        # [interpretation] (config.driver Running) Too slow for the distance left: power up to the
+        # aim, the lowest of the held code, each code point's speed ahead, and the speed from which
+        # the coasting share of the planned deceleration stops the train at the mark.
+        light = _COAST_FRACTION * planned
+        short = (stop_point - x) * scale
+        aim = min(held, np.sqrt(2.0 * light * max(short, 0.0)))
+        for i in range(code_pos.size):
+            if code_pos[i] > x:
+                target = max(code_lim[i] - margin, 0.5)
+                aim = min(aim, np.sqrt(target * target + 2.0 * light * (code_pos[i] - x) * scale))
+        if short > _CREEP_SHORT_M:
+            aim = max(aim, min(rs[RS_CREEP_SPEED], held))  # at least walking pace to the mark
+        # Power is taken below aim - band and kept up to aim - band / 4 (a hysteresis against
+        # the scatter of his speed readings; the band at most a quarter of the aim); he judges
+        # the speed power will have given by the time his hand has moved after his next look.
+        band = min(rs[RS_POWER_BAND], 0.25 * aim)
+        powering = dv[DV_PENDING_POWER] > 0.0 if dv[DV_PENDING] >= 0.0 else dv[DV_POWER] > 0.0
+        gain_ahead = min(rs[RS_POWER_ACCEL] * (dr[DR_REACTION] + dr[DR_LOOK]), 0.5 * aim)
+        if vp + gain_ahead < aim - (0.25 if powering else 1.0) * band:
+            power = True
+            dv[DV_ACTION] = ACT_POWER
+        else:
+            hold = vp < _CREEP_BELOW_MPS and short > _CREEP_SHORT_M
+            dv[DV_ACTION] = ACT_HOLD if hold else ACT_COAST
     else:
         want = need / dv[DV_GAIN]
         choice = 0
@@ -243,57 +287,70 @@ def driver_look_1(
         if choice != notch and best > abs(table[notch] - want) - _HYSTERESIS * step:
             choice = notch  # not worth a move
         dv[DV_ACTION] = ACT_BRAKE if choice > 0 else ACT_COAST
-    if choice != notch or hold != (dv[DV_HOLD] > 0.0):
+    if choice != notch or hold != (dv[DV_HOLD] > 0.0) or power != (dv[DV_POWER] > 0.0):
         # A decision already on its way keeps its time (the hand is moving); this look updates it.
         if dv[DV_PENDING] < 0.0:
             dv[DV_PENDING_T] = t + dr[DR_REACTION]
         dv[DV_PENDING] = choice
         dv[DV_PENDING_HOLD] = 1.0 if hold else 0.0
+        dv[DV_PENDING_POWER] = 1.0 if power else 0.0
     else:
         dv[DV_PENDING] = -1.0
         dv[DV_PENDING_T] = np.inf
 
 
 @njit_inline
-def driver_output_1(dv: np.ndarray, t: float) -> tuple[int, bool]:
-    """The handle at ``t`` (a decision acts once its reaction time has passed): (notch, hold)."""
+def driver_output_1(dv: np.ndarray, t: float) -> tuple[int, bool, bool]:
+    """The handle at ``t`` (a decision acts once its reaction time has passed): (notch, hold,
+    power)."""
     if dv[DV_PENDING] >= 0.0 and t >= dv[DV_PENDING_T] - 1e-9:
         dv[DV_NOTCH] = dv[DV_PENDING]
         dv[DV_HOLD] = dv[DV_PENDING_HOLD]
+        dv[DV_POWER] = dv[DV_PENDING_POWER]
         dv[DV_NOTCH_T] = t
         dv[DV_PENDING] = -1.0
         dv[DV_PENDING_T] = np.inf
-    return int(dv[DV_NOTCH]), dv[DV_HOLD] > 0.0
+    return int(dv[DV_NOTCH]), dv[DV_HOLD] > 0.0, dv[DV_POWER] > 0.0
 
 
 @njit_inline
-def _creep_peak_1(distance: float, rs: np.ndarray) -> float:
-    """The top speed of a move of ``distance``: the creep speed, or less if the move is too short."""
-    speed, accel, decel = rs[RS_CREEP_SPEED], rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
-    if distance >= speed * speed * (0.5 / accel + 0.5 / decel):
-        return speed
+def move_speed_1(rs: np.ndarray, distance: float, forward: bool, held: float) -> float:
+    """The top speed of a correction of ``distance`` (> 0): walking pace, but a forward move longer
+    than RS_DRIVE_BEYOND (a train stopped far short, e.g. by an emergency brake) is driven at
+    ``held``, the code held less the driver's margin (config.driver Restop)."""
+    if forward and distance > rs[RS_DRIVE_BEYOND]:
+        return max(rs[RS_CREEP_SPEED], held)
+    return rs[RS_CREEP_SPEED]
+
+
+@njit_inline
+def _creep_peak_1(distance: float, rs: np.ndarray, top: float) -> float:
+    """The peak speed of a move of ``distance``: ``top``, or less if the move is too short."""
+    accel, decel = rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
+    if distance >= top * top * (0.5 / accel + 0.5 / decel):
+        return top
     return np.sqrt(2.0 * distance / (1.0 / accel + 1.0 / decel))
 
 
 @njit_inline
-def creep_time_1(distance: float, rs: np.ndarray) -> float:
-    """Time of a move of ``distance`` (> 0) at walking pace (the re-stop parameters ``rs``):
-    accelerate, creep, brake (a trapezoid, or a triangle when the move is too short to reach the
-    creep speed)."""
+def creep_time_1(distance: float, rs: np.ndarray, top: float) -> float:
+    """Time of a move of ``distance`` (> 0) at up to ``top`` (:func:`move_speed_1`; the re-stop
+    parameters ``rs``): accelerate, run, brake (a trapezoid, or a triangle when the move is too
+    short to reach ``top``)."""
     accel, decel = rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
-    peak = _creep_peak_1(distance, rs)
+    peak = _creep_peak_1(distance, rs, top)
     ramps = 0.5 * peak * peak * (1.0 / accel + 1.0 / decel)
     return peak / accel + peak / decel + (distance - ramps) / peak
 
 
 @njit_inline
-def creep_position_1(distance: float, rs: np.ndarray, tau: float) -> float:
+def creep_position_1(distance: float, rs: np.ndarray, tau: float, top: float) -> float:
     """How far a move of ``distance`` has gone ``tau`` after it started (same profile as creep_time_1)."""
-    total = creep_time_1(distance, rs)
+    total = creep_time_1(distance, rs, top)
     if tau >= total:
         return distance
     accel, decel = rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
-    peak = _creep_peak_1(distance, rs)
+    peak = _creep_peak_1(distance, rs, top)
     t_up = peak / accel
     t_down = peak / decel
     if tau <= t_up:

@@ -12,6 +12,13 @@
   the station"). Above the **permitted** speed (the indicated speed plus
   ``permitted_margin_mps``, [interpretation]: the source names a permitted
   speed above the indicated one without a value) the brake applies at once.
+  [interpretation] SPEC §3's source says the train is then braked
+  automatically ("decelerated"); railstop applies the emergency brake,
+  latched to standstill like the grace's. A service brake released at the
+  indicated speed would let the train of an incapacitated driver run on at
+  the station's code through the platform (the codes never fall to 0 there),
+  and the source's claim that option 1 stops such a train within the station
+  rests on the emergency brake.
 
 The emergency brake is latched to standstill (DESIGN rule 10). No limit
 received yet: the most restrictive, 0 (a train must not run unsupervised).

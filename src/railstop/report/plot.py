@@ -26,7 +26,15 @@ from matplotlib.transforms import blended_transform_factory
 
 from railstop.config.platform import LAMP_NAMES
 from railstop.errors import RailstopError
-from railstop.onboard.driver import ACT_BRAKE, ACT_COAST, ACT_CREEP_FORWARD, ACT_HOLD, ACT_REVERSE, ACT_WAIT
+from railstop.onboard.driver import (
+    ACT_BRAKE,
+    ACT_COAST,
+    ACT_CREEP_FORWARD,
+    ACT_HOLD,
+    ACT_POWER,
+    ACT_REVERSE,
+    ACT_WAIT,
+)
 from railstop.quantities import KMH_PER_MPS
 from railstop.report.figures import write_figure
 from railstop.sim.engine import Trace
@@ -199,6 +207,7 @@ def _stop_zoom(inset: Axes, x: np.ndarray, v_kmh: np.ndarray, final_x: float, to
 _ACTIONS = {
     ACT_HOLD: ("holds speed", "0.75"),
     ACT_COAST: ("coasts", "0.9"),
+    ACT_POWER: ("takes power", "tab:orange"),
     ACT_BRAKE: ("brakes", "tab:blue"),
     ACT_CREEP_FORWARD: ("creeps forward", "tab:green"),
     ACT_REVERSE: ("reverses", "tab:red"),

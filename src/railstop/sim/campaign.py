@@ -184,10 +184,12 @@ def simulate_runs(
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
     incapacitated: bool = False,
+    signal_open: bool = False,
 ) -> tuple[BatchResult, dict[str, np.ndarray]]:
     """Runs ``first_run .. first_run + n - 1`` of a campaign: the drawn values and the batch result.
 
-    ``driver``, ``platform``, ``incapacitated``: the driver controllers' (``run_batch``).
+    ``driver``, ``platform``, ``incapacitated``, ``signal_open``: the driver controllers'
+    (``run_batch``).
 
     ``track``: the line's track circuits (needed by ``ato-corrected``).
     """
@@ -205,6 +207,7 @@ def simulate_runs(
         driver=driver,
         platform=platform,
         incapacitated=incapacitated,
+        signal_open=signal_open,
     )
     return result, drawn
 

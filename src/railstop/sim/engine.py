@@ -193,11 +193,12 @@ def run_batch(
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
     incapacitated: bool = False,
+    signal_open: bool = False,
 ) -> BatchResult:
     """Simulate ``scenario.n`` stops at ``station`` (runs ``streams.run_index``); see the module docstring.
 
     ``track``: the line's track circuits (``ato-corrected`` needs them); ``driver``,
-    ``platform``, ``incapacitated``: the driver controllers' (``KernelModel.create``).
+    ``platform``, ``incapacitated``, ``signal_open``: the driver controllers' (``KernelModel.create``).
     """
     if controller not in known_controllers():
         names = ", ".join(known_controllers())
@@ -219,6 +220,7 @@ def run_batch(
         driver=driver,
         platform=platform,
         incapacitated=incapacitated,
+        signal_open=signal_open,
     )
     res, passages, rec = run_kernel(
         model, scenario, seed=streams.seed, first_run=first, record=record and n == 1

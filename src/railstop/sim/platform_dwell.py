@@ -51,6 +51,7 @@ from railstop.messages import (
     SignalOpenSwitch,
     StopSensorScan,
 )
+from railstop.quantities import KMH_PER_MPS
 from railstop.sensors.door_camera import classify, true_shape
 from railstop.sensors.stop_sensors import sees
 from railstop.sim.dwell import DwellEvent
@@ -80,6 +81,11 @@ SIGNALS: tuple[str, ...] = (
 OUTCOMES = ("departed", "psd-held", "not-aligned", "staff-closed", "passed")
 
 
+#: A train running through (signal-open switch) is followed from this far before the stopping point
+#: to as far beyond it.
+_PASS_FROM_M = 30.0
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PlatformDwellResult:
     station: str
@@ -99,6 +105,7 @@ class PlatformDwellResult:
     camera_misreads: int
     camera_lost_frames: int
     timeline: tuple[DwellEvent, ...]
+    passing_kmh: float | None = None  # signal-open switch: the train ran through at this speed
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -106,6 +113,7 @@ class PlatformDwellResult:
             "stop_error_m": self.stop_error_m,
             "psd": self.psd,
             "signal_open": self.signal_open,
+            "passing_kmh": self.passing_kmh,
             "outcome": self.outcome,
             "first_lamp": self.first_lamp,
             "psd_opened": self.psd_opened,
@@ -175,16 +183,24 @@ def run_platform_dwell(
     psd: bool = True,
     signal_open: bool = False,
     camera_lost_from_s: float | None = None,
+    passing_mps: float | None = None,
 ) -> PlatformDwellResult:
     """One dwell of a manually driven train standing ``stop_error_m`` from the stopping point.
 
     ``seed``, ``counter``: the dwell's random generator (sensor noise and dropouts, camera
     misreads and lost frames) is a function of them only (DESIGN rule 7). ``psd``: the station
     has platform screen doors. ``signal_open``: the signal-open switch is on. ``camera_lost_from_s``:
-    every camera frame from then on is unreadable (fault injection).
+    every camera frame from then on is unreadable (fault injection). ``passing_mps`` (with the
+    switch on): the train does not stand but runs through at this speed, its front from
+    ``_PASS_FROM_M`` before the stopping point to as far beyond it.
     """
     if not math.isfinite(stop_error_m):
         raise SimulationError(f"stop_error_m: must be a finite number (got {stop_error_m!r})")
+    if passing_mps is not None and not (signal_open and math.isfinite(passing_mps) and passing_mps > 0.0):
+        raise SimulationError(
+            f"passing_mps: a train runs through only with the signal-open switch on, at a speed > 0 "
+            f"(got {passing_mps!r})"
+        )
     if camera_lost_from_s is not None and not (math.isfinite(camera_lost_from_s) and camera_lost_from_s >= 0):
         raise SimulationError(f"camera_lost_from_s: must be a time >= 0 (got {camera_lost_from_s!r})")
     if platform.camera.lock_confirm_s < doors.timing.train_door_lock_s:
@@ -208,6 +224,7 @@ def run_platform_dwell(
         psd=psd,
         signal_open=signal_open,
         camera_lost_from_s=camera_lost_from_s,
+        passing_mps=passing_mps,
     )
     run.run()
     return PlatformDwellResult(
@@ -225,6 +242,7 @@ def run_platform_dwell(
         camera_misreads=run.misreads,
         camera_lost_frames=run.lost_frames,
         timeline=tuple(run.timeline),
+        passing_kmh=None if passing_mps is None else round(passing_mps * KMH_PER_MPS, 2),
     )
 
 
@@ -239,6 +257,7 @@ class _PlatformDwell:
         psd: bool,
         signal_open: bool,
         camera_lost_from_s: float | None,
+        passing_mps: float | None = None,
     ) -> None:
         t = doors.timing
         self.timing = t
@@ -278,6 +297,13 @@ class _PlatformDwell:
         self.staff_at_s: float | None = None
         self.staff_closed = False
         self.frames = self.misreads = self.lost_frames = 0
+        self.passing_mps = passing_mps
+        if passing_mps is not None:
+            # SPEC §3 signal-open switch: the train runs through; it never stands.
+            self.front_m = -_PASS_FROM_M
+            self.moving = True
+            self.action = "pass"
+            self.departure_s = round(2.0 * _PASS_FROM_M / passing_mps, 3)
         self.scan_every = max(1, round(self.sensors.scan_period_s / STEP_S))
         self.frame_every = max(1, round(self.camera.frame_period_s / STEP_S))
         self.delay_steps = round(self.camera.processing_delay_s / STEP_S)
@@ -297,6 +323,8 @@ class _PlatformDwell:
 
     def _step(self) -> None:
         now = self.t_s
+        if self.passing_mps is not None:
+            self.front_m += self.passing_mps * STEP_S
         self.doors.step(now, STEP_S)
         self.psd.step(now, STEP_S)
         self.history.append(self.doors.x)
@@ -367,6 +395,8 @@ class _PlatformDwell:
         return self.lamps.departure_permitted and self.doors.locked(self.t_s)
 
     def _driver(self) -> None:
+        if self.action == "pass":
+            return  # running through: nothing to do at the platform
         t = self.timing
         now = self.t_s
         if self.pending is not None and now >= self.pending[0] - 1e-9:
@@ -512,7 +542,25 @@ def dwell_after_stop(
     camera_lost_from_s: float | None = None,
 ) -> tuple[PlatformDwellResult, list[DwellEvent]]:
     """The dwell at a driver stop's final stand and the stop's whole lamp and PSD timeline (its
-    generator: the stop's seed and run, DESIGN rule 7)."""
+    generator: the stop's seed and run, DESIGN rule 7). A run through the station with the
+    signal-open switch on (``result.signal_open``) is the platform as the train passes it: the
+    timeline is the dwell's own, from the train 30 m before the stopping point."""
+    if result.signal_open:
+        if result.passed_kmh is None:
+            raise SimulationError(f"the run at {station.name} never reached the stopping point")
+        dwell = run_platform_dwell(
+            platform=platform,
+            doors=doors,
+            station=station.name,
+            stop_error_m=0.0,
+            seed=result.seed,
+            counter=result.run,
+            psd=psd,
+            signal_open=True,
+            camera_lost_from_s=camera_lost_from_s,
+            passing_mps=result.passed_kmh / KMH_PER_MPS,
+        )
+        return dwell, list(dwell.timeline)
     if not result.stopped:
         raise SimulationError(f"the stop at {station.name} did not come to rest: there is no dwell")
     dwell = run_platform_dwell(
@@ -540,6 +588,15 @@ _OUTCOME_WORDS = {
 
 def dwell_sentence(d: PlatformDwellResult) -> str:
     """One line on a dwell, as the commands print it."""
+    if d.passing_kmh is not None:
+        # SPEC §3 signal-open switch: what the platform did while the train ran through.
+        lamp = "no lamp lit" if d.first_lamp is None else f"lamp {d.first_lamp} lit"
+        psd = "the PSD opened" if d.psd_opened else "PSD closed throughout"
+        doors = "train doors inhibited" if d.doors_open_s is None else "train doors opened"
+        return (
+            f"signal-open switch: the train ran through at {d.passing_kmh:g} km/h, {lamp}, {psd}, {doors}, "
+            f"camera {d.camera_frames} frames"
+        )
     parts = [f"lamp {d.first_lamp or 'none'} at the stand", _OUTCOME_WORDS[d.outcome]]
     if d.doors_open_s is not None:
         parts.append(f"train doors open {d.doors_open_s:g} s after the stand")

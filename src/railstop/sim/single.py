@@ -15,6 +15,7 @@ from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.supervision import eb_cause_name
 from railstop.onboard.tasc_receiver import SWITCH_ONBOARD
 from railstop.provenance import inputs_sha256, overrides_sha256, stamp
+from railstop.quantities import KMH_PER_MPS
 from railstop.sim.engine import BatchResult, run_batch
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import SignalForm
@@ -63,6 +64,11 @@ class StopResult:
     manual_data_sha256: str | None = None
     disturbances: str | None = None  # the set a campaign run was drawn from
     run: int = 0  # the run index within that campaign
+    # SPEC §3 signal-open switch: the train ran through the station (stop_error_m is then where
+    # its front was when the run ended, its rear past the platform) at this speed at the stopping
+    # point (km/h; None: a stop).
+    signal_open: bool = False
+    passed_kmh: float | None = None
     psd_tolerance_m: float = 0.35  # the station's (Station.psd_tolerance_m) unless overridden
     within_tolerance: bool = False  # at rest with |stop error| <= psd_tolerance_m
     inputs_sha256: str = ""  # of the line, vehicle and disturbance data (railstop.provenance)
@@ -99,6 +105,20 @@ def _switch_over_s(batch: BatchResult) -> float | None:
     return round(float(trace.t_s[over[0], 0]) - first, 3) if over.size else None
 
 
+def _passed_kmh(batch: BatchResult, station: Station) -> float | None:
+    """A run through the station (signal-open switch): its speed at the stopping point (km/h;
+    None when it never got there)."""
+    trace = batch.trace
+    if trace is None:
+        return None
+    x, v = trace.position_m[:, 0], trace.speed_mps[:, 0]
+    ok = np.isfinite(x) & np.isfinite(v)
+    x, v = x[ok], v[ok]
+    if x.size == 0 or x[-1] < station.stop_point_m:
+        return None
+    return round(float(np.interp(station.stop_point_m, x, v)) * KMH_PER_MPS, 2)
+
+
 def _manual_outcome(batch: BatchResult, driver: DriverFile | None) -> dict[str, Any]:
     """SPEC §3: what a driver controller's stop adds to the result (nothing for the others)."""
     level = int(batch.driver_level[0])
@@ -127,13 +147,15 @@ def run_stop(
     tolerance_m: float | None = None,
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
+    signal_open: bool = False,
 ) -> tuple[StopResult, BatchResult]:
     """One detailed stop.
 
     Without ``disturbances``: nominal (exact sensors, ideal link) with the load
     and brake gain given. With them: run ``run`` of the campaign of that seed,
     drawn and simulated by the very code the campaign uses. ``driver``, ``platform``: the
-    driver controllers' data (None: the embedded files).
+    driver controllers' data (None: the embedded files). ``signal_open``: the station's
+    signal-open switch is on (SPEC §3, driver controllers): the train runs through.
     """
     if disturbances is None:
         scenario = Scenario.nominal(station, vehicle, load_factor=load_factor, brake_gain=brake_gain)
@@ -148,6 +170,7 @@ def run_stop(
             track=line.track,
             driver=driver,
             platform=platform,
+            signal_open=signal_open,
         )
     else:
         # Lazy (start-up): the campaign module brings pyarrow, which a nominal stop never needs.
@@ -166,6 +189,7 @@ def run_stop(
             track=line.track,
             driver=driver,
             platform=platform,
+            signal_open=signal_open,
         )
         load_factor = float(drawn["load_factor"][0])
         brake_gain = float(drawn["brake_gain"][0])
@@ -209,6 +233,8 @@ def run_stop(
         run=run,
         psd_tolerance_m=tol,
         within_tolerance=bool(batch.stopped[0]) and abs(error) <= tol,
+        signal_open=signal_open,
+        passed_kmh=_passed_kmh(batch, station) if signal_open else None,
         inputs_sha256=inputs,
         frames=dict(batch.link_frames),
         command_log=batch.commands,
