@@ -388,7 +388,7 @@ def test_a_second_process_loads_the_compiled_model_from_the_cache(tmp_path: Path
 def cluster() -> Any:
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0"
     ) as cl:
         yield cl
 

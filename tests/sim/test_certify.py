@@ -182,7 +182,7 @@ def test_bad_settings_are_named(setting: str, value: object, kw: dict[str, Any])
 def cluster() -> Any:
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0"
     ) as cl:
         yield cl
 

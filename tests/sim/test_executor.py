@@ -87,7 +87,7 @@ def cluster() -> Iterator[Any]:
         threads_per_worker=1,
         processes=True,
         host="127.0.0.1",
-        dashboard_address=None,
+        dashboard_address=":0",
     ) as cl:
         yield cl
 
@@ -252,7 +252,7 @@ def test_losing_the_scheduler_fails_in_one_line() -> None:
     """A scheduler that goes away mid-campaign: a RailstopError at once, not a hang."""
     from distributed import LocalCluster
 
-    cl = LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
+    cl = LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0")
     address = cl.scheduler_address
     got = []
     try:

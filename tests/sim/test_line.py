@@ -550,7 +550,7 @@ def test_a_line_campaign_runs_on_a_dask_cluster_with_the_same_rows(tmp_path: Pat
         processes=False,
         protocol="tcp://",
         host="127.0.0.1",
-        dashboard_address=None,
+        dashboard_address=":0",
     ) as cluster:
         dask = _campaign(tmp_path / "dask", "--runs", "2", "--scheduler", cluster.scheduler_address, "--json")
     assert dask.returncode == 0, dask.stderr
