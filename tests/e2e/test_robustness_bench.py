@@ -1,0 +1,92 @@
+"""``benchmarks/robustness.py`` on a few runs: every setting row is there, the shares are shares,
+the JSON parses, and each cell's distribution is one the disturbance file accepts."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("robustness", ROOT / "benchmarks" / "robustness.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+bench = _bench()
+
+ARGS = ["--runs", "20", "--controllers", "tasc-pwm", "--scales", "2"]
+
+
+def _row_names() -> list[str]:
+    swept = [name for name, _ in bench.SWEPT]
+    return [bench.STANDARD_ROW, bench.NO_ADHESION_ROW, *swept, bench.ALL_ROW]
+
+
+def test_json_has_every_setting_and_shares_between_0_and_1(capsys: pytest.CaptureFixture[str]) -> None:
+    assert bench.main([*ARGS, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["runs_per_cell"] == 20 and out["scales"] == [2.0]
+    assert [s["name"] for s in out["settings"]] == _row_names()
+    rows = out["results"]["tasc-pwm"]
+    assert list(rows) == _row_names()
+    for name, cells in rows.items():
+        expected = {"1"} if name in (bench.STANDARD_ROW, bench.NO_ADHESION_ROW) else {"1", "2"}
+        assert set(cells) == expected, name
+        for r in cells.values():
+            assert r["runs"] == 20
+            for key in ("within_tolerance", "within_0_30", "within_0_35"):
+                assert 0.0 <= r[key] <= 1.0
+            assert r["within_0_30"] <= r["within_0_35"]
+            assert 0 <= r["emergency_brakes"] <= 20
+    # The k=1 column of a swept row is the standard set itself, on the same runs.
+    assert rows["brake_gain"]["1"] == rows[bench.STANDARD_ROW]["1"]
+    below = out["below_target_at_2x"]["tasc-pwm"]
+    assert set(below) <= set(_row_names())
+    assert out["wall_s"]["total"] > 0.0
+
+
+def test_tables_print_every_row_and_the_summary(capsys: pytest.CaptureFixture[str]) -> None:
+    assert bench.main(ARGS) == 0
+    text = capsys.readouterr().out
+    table = text.split("tasc-pwm at ", 1)[1]
+    for name in _row_names():
+        line = next(ln for ln in table.splitlines() if ln.startswith(name + " "))
+        shares = [float(x) for x in re.findall(r"(\d+\.\d+)%", line)]
+        assert shares and all(0.0 <= s <= 100.0 for s in shares), line
+    assert "settings below 99 % within ±0.35 m at k=2:" in text
+    assert re.search(r"^  tasc-pwm \(standard set [\d.]+ %\): ", text, re.MULTILINE)
+    assert "wall time" in text
+
+
+def test_scaling_rules_and_clipping() -> None:
+    standard = bench.load_disturbances("standard")
+    # A noise given by its sd: times k.
+    assert bench.scaled("doppler_noise_pct", standard, 2.0).value == {"fixed": 1.0}
+    # A uniform range: widened about its centre; a probability: times k.
+    assert bench.scaled("brake_dead_time_s", standard, 2.0).value["uniform"] == pytest.approx([0.05, 0.65])
+    assert bench.scaled("radio_loss_probability", standard, 3.0).value == pytest.approx(0.06)
+    # A normal: sd times k, the clip widened about its centre.
+    gain = bench.scaled("brake_gain", standard, 2.0).value
+    assert gain["normal"] == pytest.approx([1.0, 0.14]) and gain["clip"] == pytest.approx([0.6, 1.4])
+    # Beyond the physical range: clipped (inside an open bound) and said so.
+    tau = bench.scaled("brake_time_constant_s", standard, 3.0)
+    assert tau.clipped and 0.0 < tau.value["uniform"][0] < 0.15
+    latency = bench.scaled("radio_latency_ms", standard, 2.0)
+    assert latency.clipped and latency.value["uniform"] == pytest.approx([0.0, 110.0])
+    assert bench.scaled("radio_loss_probability", standard, 100.0).value == 1.0
+    # Every cell builds a set the disturbance file's validation accepts.
+    for row in bench.settings(standard, [2.0, 3.0]):
+        for k in row.cells:
+            assert row.build(k).params
