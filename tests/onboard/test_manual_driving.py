@@ -233,6 +233,33 @@ def test_the_signal_open_switch_is_a_manual_lines_and_the_stop_command_says_what
     assert refused.exit_code == 2 and "driver controller" in refused.output
 
 
+def test_ok_lights_only_inside_the_platforms_psd_tolerance_which_judges_a_drivers_stop(
+    tmp_path: Path,
+) -> None:
+    # SPEC §3: ±500 mm on the manually driven lines, the platform's data; an OK-lit stand is
+    # inside it in every run (the PSD never opens with the train out of position) ...
+    tol = default_platform().psd_tolerance_m
+    assert tol == 0.5
+    for controller in DRIVER_CONTROLLERS:
+        batch = runs(controller, n=400)
+        aligned = batch.lamp == OK
+        assert aligned.any() and (np.abs(batch.stop_error_m[aligned]) <= tol).all()
+    # ... and it is what a driver's stop and campaign are judged by (the station's, SPEC §1, for
+    # the others).
+    cli = CliRunner()
+    res = cli.invoke(app, ["stop", "--controller", "driver-ats", "--no-db", "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["psd_tolerance_m"] == tol
+    res = cli.invoke(app, ["stop", "--controller", "tasc-pwm", "--no-db", "--json"])
+    assert json.loads(res.output)["psd_tolerance_m"] == STATION.psd_tolerance_m
+    # A platform whose sensors could light OK outside its tolerance is refused, naming the key.
+    text = (Path(__file__).parents[2] / "src/railstop/data/platform.toml").read_text()
+    bad = tmp_path / "platform.toml"
+    bad.write_text(text.replace("psd_tolerance_m = 0.50", "psd_tolerance_m = 0.35"))
+    with pytest.raises(ConfigError, match=r"sensors\.spacing_m.*outside psd_tolerance_m"):
+        load_platform(bad)
+
+
 # ----------------------------------------------------------------------------- lamps and re-stops
 
 
@@ -260,8 +287,9 @@ def test_the_lamp_at_the_end_says_ok_only_inside_the_sensor_window(controller: s
 def test_a_sensor_fault_at_the_stand_holds_the_psd_and_ends_the_corrections() -> None:
     # Sensors so noisy that S1 can see the front while S2 does not: the lamp table's fault.
     p = default_platform()
+    # (A tolerance wide enough for such noise: the platform file refuses one that is not.)
     noisy = PlatformFile.model_validate(
-        {**p.model_dump(), "sensors": {**p.sensors.model_dump(), "noise_sd_m": 0.5}}
+        {**p.model_dump(), "psd_tolerance_m": 2.0, "sensors": {**p.sensors.model_dump(), "noise_sd_m": 0.5}}
     )
     batch = runs("driver-ats", n=400, platform=noisy)
     fault = batch.lamp == FAULT

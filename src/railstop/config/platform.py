@@ -11,12 +11,16 @@ from __future__ import annotations
 import functools
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
 from railstop.config.base import FieldProblem, Model
 from railstop.config.loader import data_text, read_toml, validate
+from railstop.controllers import DRIVER_CONTROLLERS
+
+if TYPE_CHECKING:
+    from railstop.config.schema import Station
 
 DEFAULT_PLATFORM = "platform.toml"
 
@@ -158,7 +162,17 @@ class Approach(Model):
         return self
 
 
+#: Sensor noise within this many standard deviations counts when the OK window is checked
+#: against the PSD tolerance (``PlatformFile``).
+OK_WINDOW_SIGMAS = 3.0
+
+
 class PlatformFile(Model):
+    # SPEC §3: the door / PSD stop tolerance of the manually driven lines (±500 mm). A driver
+    # controller's stop is judged by it: the station as fitted for manual driving (its sensors,
+    # lamps and PSD); the OK window (half the sensor spacing and 3 sd of their noise) must lie
+    # inside it, or OK could light, and the PSD open, with the train outside the tolerance.
+    psd_tolerance_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = 0.50
     # SPEC §3: the two platform stop sensors S2 and S1.
     sensors: StopSensors = Field(default_factory=StopSensors)
     # SPEC §3: the CCD camera through which the PSD follows the train doors.
@@ -167,6 +181,18 @@ class PlatformFile(Model):
     lamp_table: list[LampRow]
     # SPEC §3: the approach of a manually driven train from the home signal, per driving mode.
     approach: Approach = Field(default_factory=Approach)
+
+    @model_validator(mode="after")
+    def _ok_inside_tolerance(self) -> PlatformFile:
+        half = 0.5 * self.sensors.spacing_m + OK_WINDOW_SIGMAS * self.sensors.noise_sd_m
+        if half > self.psd_tolerance_m + 1e-12:
+            raise FieldProblem(
+                "sensors.spacing_m",
+                f"{self.sensors.spacing_m:g} m apart (noise {self.sensors.noise_sd_m:g} m) the sensors light "
+                f"OK up to ±{half:.3f} m from the stopping point, outside psd_tolerance_m "
+                f"(±{self.psd_tolerance_m:g} m): the PSD could open with the train out of position",
+            )
+        return self
 
     @field_validator("lamp_table")
     @classmethod
@@ -189,6 +215,15 @@ class PlatformFile(Model):
 
     def lamps(self) -> dict[tuple[bool, bool], str]:
         return {(bool(r.s2), bool(r.s1)): r.lamp for r in self.lamp_table}
+
+
+def stop_tolerance(station: Station, controller: str, platform: PlatformFile | None = None) -> float:
+    """The PSD tolerance a stop of ``controller`` at ``station`` is judged by: a driver controller's
+    platform's (SPEC §3, ``platform`` or the embedded one), any other's the station's (the line
+    file's ``psd_tolerance_m``, SPEC §1)."""
+    if controller in DRIVER_CONTROLLERS:
+        return (platform or default_platform()).psd_tolerance_m
+    return station.psd_tolerance_m
 
 
 @functools.cache

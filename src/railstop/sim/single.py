@@ -9,7 +9,7 @@ import numpy as np
 
 from railstop.config.disturbances import DisturbanceSet
 from railstop.config.driver import DriverFile, default_driver
-from railstop.config.platform import LAMP_NAMES, PlatformFile
+from railstop.config.platform import LAMP_NAMES, PlatformFile, stop_tolerance
 from railstop.config.scenario import Scenario
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.supervision import eb_cause_name
@@ -194,7 +194,7 @@ def run_stop(
         load_factor = float(drawn["load_factor"][0])
         brake_gain = float(drawn["brake_gain"][0])
     stop_time = float(batch.stop_time_s[0])
-    tol = station.psd_tolerance_m if tolerance_m is None else tolerance_m
+    tol = stop_tolerance(station, controller, platform) if tolerance_m is None else tolerance_m
     error = round(float(batch.stop_error_m[0]), 6)
     manual = overrides_sha256(driver, platform)
     inputs = inputs_sha256(
