@@ -12,6 +12,7 @@ from railstop.config.disturbances import draw_scenario, load_disturbances
 from railstop.config.scenario import station_gradient
 from railstop.control.supervision import EB_TIMEOUT, eb_cause_name
 from railstop.link.codec import decode
+from railstop.link.tasc_link import OFFICE_COMMAND_FIELDS
 from railstop.live.tasc import (
     TASC_DT_S,
     Reading,
@@ -21,7 +22,7 @@ from railstop.live.tasc import (
     wired_stop,
 )
 from railstop.onboard.tasc_receiver import CONFIG_CODES, RX_EB_T
-from railstop.sim.engine import OFFICE_COMMAND_FIELDS, run_batch
+from railstop.sim.engine import run_batch
 from railstop.sim.single import run_stop
 from railstop.streams import RunStreams
 

@@ -28,6 +28,7 @@ from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.controllers import TASC_PWM
 from railstop.errors import RailstopError, SimulationError
 from railstop.link.codec import quantize
+from railstop.link.tasc_link import command_records
 from railstop.messages import (
     TEL_DELTA,
     TEL_DETECTOR,
@@ -37,7 +38,6 @@ from railstop.messages import (
     TEL_NOTCH,
     TEL_SIZE,
 )
-from railstop.sim.engine import command_records
 from railstop.sim.single import run_stop, station_record, stop_record
 from railstop.store import SCHEMA_VERSION, SENT_FIELDS, STATION_FIELDS, StopRecord, open_store
 from railstop.wayside.tasc_unit import CR_DETECTOR, CR_EMERGENCY, CR_SIZE, SignalForm

@@ -218,7 +218,7 @@ def stop(
 def stop_reports(result: StopResult, st: Station) -> list[tuple[str, dict[str, object]]]:
     """A detailed stop as the office stores it (SPEC §1 claims 7, 20): every command the wayside
     computed, with what went on the air, then the stop's result, as the live stations send them."""
-    from railstop.sim.engine import office_command
+    from railstop.link.tasc_link import office_command
 
     reports: list[tuple[str, dict[str, object]]] = [
         ("tasc-command", office_command(st.name, 0, rec)) for rec in result.command_log

@@ -21,11 +21,15 @@ Two drivers, one result (DESIGN rule 1):
 from __future__ import annotations
 
 import hashlib
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.errors import SimulationError
 from railstop.link.codec import (
     TASC_FORM_TYPES,
     TascBrakeCommand,
@@ -39,12 +43,30 @@ from railstop.link.codec import (
     TascSpeed,
     Telegram,
     decode,
+    encode,
     layout_of,
     quantize,
 )
 from railstop.link.safety import Delivered, SafeReceiver, SafeSender, frame_size, link_key
 from railstop.messages import TEL_FIELDS
-from railstop.wayside.tasc_unit import SignalForm, TascTelegrams, finite_or_none
+from railstop.wayside.tasc_unit import (
+    CR_COMMAND,
+    CR_DECEL,
+    CR_DELTA,
+    CR_DETECTOR,
+    CR_DISTANCE,
+    CR_EFFECT,
+    CR_EMERGENCY,
+    CR_GAIN,
+    CR_NOTCH,
+    CR_PASSAGE,
+    CR_REQUIRED,
+    CR_SPEED,
+    CR_T,
+    SignalForm,
+    TascTelegrams,
+    finite_or_none,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -258,3 +280,107 @@ class ByteLink:
                 got.append(decode(verdict.payload))
         self.in_flight = keep
         return got
+
+
+# --------------------------------------------------------------------------
+# The command records (SPEC §1 claims 8, 20): the database's and the office's, from the stop model's
+# rows, for the simulators and the live stations alike.
+
+
+def command_records(rows: FloatArray, form: SignalForm, sends: FloatArray) -> list[dict[str, Any]]:
+    """The command records of the detailed stop (SPEC §1 claims 8, 20), as the database stores them.
+
+    ``rows`` are the wayside unit's command records (``CR_*``, and the step each was sent in),
+    ``sends`` the telegram vector the kernel put on the air for each (``TEL_*``, one row per
+    record). Claim 20 keeps the history of every computed command; besides its inputs and
+    what the unit computed, each record carries what actually went on the air: the codec
+    type (``telegram_type``) and the decoded message's fields (``telegram``), encoded and
+    decoded as ``check_byte_link`` does, so at the wire's resolution. Signal forms 1-5 carry
+    measurements only: their computed notch never went to the train, their telegram says so.
+    The ATO controllers send nothing and have no records.
+    """
+    if len(rows) != len(sends):
+        raise SimulationError(f"{len(rows)} command records but {len(sends)} telegrams recorded")
+    out = []
+    for r, sent in zip(rows, sends, strict=True):
+        air = encode(to_message(telegram_of(sent, form), 0))
+        message = decode(air)  # at the wire's resolution
+        out.append(
+            {
+                "run": 0,
+                "t_s": float(r[CR_T]),
+                "form": int(form),
+                "detector": int(r[CR_DETECTOR]),
+                "passage_s": float(r[CR_PASSAGE]),
+                "distance_m": float(r[CR_DISTANCE]),
+                "speed_mps": float(r[CR_SPEED]),
+                "measured_decel_mps2": finite_or_none(r[CR_DECEL]),
+                "gain": float(r[CR_GAIN]),
+                "required_decel_mps2": finite_or_none(r[CR_REQUIRED]),
+                "command_decel_mps2": float(r[CR_COMMAND]),
+                "notch": int(r[CR_NOTCH]),
+                "delta": int(r[CR_DELTA]),
+                "effect_s": float(r[CR_EFFECT]),
+                # DESIGN rule 10: the wayside's overrun guard made this an emergency-stop telegram.
+                "emergency": bool(r[CR_EMERGENCY]),
+                # SPEC §1 claim 20: what went on the air for this command.
+                "telegram_type": message.TYPE,
+                "telegram": {
+                    attr: getattr(message, attr) for f in layout_of(message).fields for attr in f.attributes
+                },
+                "air": air.hex(),  # the codec frame itself
+            }
+        )
+    return out
+
+
+#: A command's fields in the office's record (SPEC §1 claims 7, 20; short names: a report is at
+#: most 255 bytes on the link) and the command record's names: when it was computed, from which
+#: detector's passage (``age``: how long before), the distance to the stop, the radar's speed, the
+#: measured and required deceleration, the correction gain, the command, its notch / step, when it
+#: takes effect (``eff``: how long after), the emergency-stop flag.
+OFFICE_COMMAND_FIELDS: dict[str, str] = {
+    "t": "t_s",
+    "det": "detector",
+    "age": "passage_s",
+    "dist": "distance_m",
+    "v": "speed_mps",
+    "a_meas": "measured_decel_mps2",
+    "a_req": "required_decel_mps2",
+    "gain": "gain",
+    "a_cmd": "command_decel_mps2",
+    "notch": "notch",
+    "delta": "delta",
+    "eff": "effect_s",
+    "eb": "emergency",
+}
+
+
+def office_command(station: str, train: int, rec: Mapping[str, Any]) -> dict[str, Any]:
+    """A command record (:func:`command_records`) as the office stores it (SPEC §1 claims 7, 20):
+    the station (``st``) and train (``tr``), the command's inputs and what the unit computed
+    (:data:`OFFICE_COMMAND_FIELDS`, at millimetre / millisecond resolution; the passage as its age
+    at the command, the effect as its delay after it) and the telegram as it went on the air
+    (``air``: the codec frame in hex). The live stations and the simulators send the same."""
+    out: dict[str, Any] = {"st": station, "tr": train}
+    values = dict(rec)
+    values["passage_s"] = values["t_s"] - values["passage_s"]
+    values["effect_s"] = values["effect_s"] - values["t_s"]
+    for short, name in OFFICE_COMMAND_FIELDS.items():
+        v = values[name]
+        if isinstance(v, float):
+            v = round(v, 3) if math.isfinite(v) else None
+        out[short] = v
+    out["air"] = values["air"]
+    return out
+
+
+def telegram_of(row: FloatArray, form: SignalForm) -> TascTelegrams:
+    """One kernel telegram vector as a one-run telegram array (the codec's input)."""
+    values: dict[str, Any] = {}
+    for j, name in enumerate(TEL_FIELDS):
+        if name in ("detector", "notch", "delta", "emergency"):
+            values[name] = np.full(1, int(row[j]), dtype=np.int64)
+        else:
+            values[name] = np.full(1, row[j])
+    return TascTelegrams(form=form, mask=np.ones(1, dtype=bool), **values)

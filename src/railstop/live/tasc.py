@@ -66,7 +66,7 @@ from railstop.control.line_ato import handover_m
 from railstop.control.supervision import EbCause, eb_cause_name
 from railstop.link.codec import TelegramError, decode, encode
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
-from railstop.link.tasc_link import from_message, to_message
+from railstop.link.tasc_link import command_records, from_message, office_command, telegram_of, to_message
 from railstop.link.udp import Address, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import MAX_TRAINS, SENSORS_ID, Platforms
@@ -83,7 +83,6 @@ from railstop.onboard.tasc_receiver import (
     RX_EB_T,
 )
 from railstop.quantities import kmh_to_mps
-from railstop.sim.engine import command_records, office_command, telegram_of
 from railstop.wayside.tasc_unit import WP_FORM, SignalForm
 
 FloatArray = NDArray[np.float64]
@@ -251,7 +250,7 @@ class WaysideTasc:
 def office_record(
     station: str, train: int, crow: FloatArray, pending: FloatArray, form: int, payload: bytes
 ) -> dict[str, Any]:
-    """A command as the office stores it (``sim.engine.office_command``, the simulators' too), with
+    """A command as the office stores it (``link.tasc_link.office_command``, the simulators' too), with
     the telegram as it went on the air (``payload``)."""
     rec = command_records(np.append(crow, 0.0)[None, :], SignalForm(form), pending[None, :])[0]
     rec["air"] = payload.hex()
