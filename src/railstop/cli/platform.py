@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -24,6 +24,9 @@ from railstop.cli.common import (
 )
 from railstop.cli.doors import DoorsOpt
 from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    from railstop.sim.single import StopResult
 
 platform_app = command_group(
     "The platform of a manually driven line (SPEC §3): stop sensors, lamps, PSD relay."
@@ -110,6 +113,22 @@ def verify_cmd(
     print_verification(title="invariants", invariants=INVARIANTS, result=result)
     if result.violations:
         raise typer.Exit(1)
+
+
+def _stop_source(stop: StopResult, controller: str, seed: int) -> tuple[str, str]:
+    """What the dwell of a simulated driver stop starts from, and its plot's time axis."""
+    if stop.passed_kmh is not None:
+        return (
+            f"{stop.driver_level} driver's {controller} run through the station (seed {seed}, "
+            f"signal-open switch): {stop.passed_kmh:.1f} km/h at the stopping point",
+            "time since the front was 30 m before the stopping point (s)",
+        )
+    return (
+        f"{stop.driver_level} driver's {controller} stop (seed {seed}): first stand "
+        f"{stop.first_stop_error_m:+.3f} m, {stop.restops} re-stop(s), final stand "
+        f"{stop.stop_error_m:+.3f} m",
+        "time since the train passed 300 m before the home signal (s)",
+    )
 
 
 @platform_app.command("dwell")
@@ -202,19 +221,7 @@ def dwell_cmd(
                 signal_open=signal_open,
                 camera_lost_from_s=camera_lost_s,
             )
-            if stop.passed_kmh is not None:
-                source = (
-                    f"{stop.driver_level} driver's {controller} run through the station (seed {seed}, "
-                    f"signal-open switch): {stop.passed_kmh:.1f} km/h at the stopping point"
-                )
-                xlabel = "time since the front was 30 m before the stopping point (s)"
-            else:
-                source = (
-                    f"{stop.driver_level} driver's {controller} stop (seed {seed}): first stand "
-                    f"{stop.first_stop_error_m:+.3f} m, {stop.restops} re-stop(s), final stand "
-                    f"{stop.stop_error_m:+.3f} m"
-                )
-                xlabel = "time since the train passed 300 m before the home signal (s)"
+            source, xlabel = _stop_source(stop, controller, seed)
             key = f"{stop.run_key}|platform-dwell{variant}"
         else:
             stand_on_platform(error_m, st)
