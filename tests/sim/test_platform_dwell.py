@@ -562,6 +562,16 @@ def test_a_train_running_through_with_the_switch_on_lights_no_lamp_and_moves_no_
             dwell(0.0, **bad)
 
 
+def test_platform_dwell_with_the_switch_on_runs_a_drivers_train_through(tmp_path: Path) -> None:
+    res = CliRunner().invoke(
+        app, ["platform", "dwell", "--signal-open", "--db", str(tmp_path / "d.db"), "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["outcome"] == "passed" and out["first_lamp"] is None and not out["psd_opened"]
+    assert out["passing_kmh"] > 40.0 and "run through the station" in out["source"]
+
+
 def test_a_station_without_psd_departs_once_the_train_doors_are_locked() -> None:
     r = dwell(0.1, psd=False)
     assert r.outcome == "departed" and r.first_lamp == "OK" and not r.psd_opened
