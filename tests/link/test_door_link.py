@@ -10,7 +10,7 @@ import pytest
 from railstop.config.media import ChannelParams
 from railstop.link.channel import LinkError, media_preset
 from railstop.link.codec import DoorCommand, PsdStatus
-from railstop.link.door_link import DoorLink
+from railstop.link.door_link import PLATFORM_ID, DoorLink
 
 CMD = DoorCommand(
     train_id=7,
@@ -81,17 +81,6 @@ def test_an_outage_loses_every_frame_sent_inside_it_both_ways() -> None:
     assert lk.counts.lost == 4
 
 
-def test_the_train_supervision_times_out_without_status_frames() -> None:
-    lk = link(timeout_s=0.5, outage=(1.0, math.inf))
-    lk.send_status(STATUS, 0.9)
-    drain(lk, 1.0)
-    assert not lk.train_timed_out(1.2)
-    for k in range(1, 10):
-        lk.send_status(STATUS, 1.0 + 0.1 * k)  # all lost
-    drain(lk, 3.0)
-    assert lk.train_timed_out(1.6)
-
-
 def test_corrupted_frames_are_refused_by_reason_and_counted() -> None:
     noisy = media_preset("transponder").replace(bit_error_rate=5e-3)
     lk = link(noisy, seed=3)
@@ -111,9 +100,13 @@ def test_a_keyed_link_refuses_frames_of_another_train() -> None:
         link(category=3),
         DoorLink(params=media_preset("transponder"), rng=np.random.default_rng(1), train_id=8, category=3),
     )
-    frame = other.up.sender.wrap(b"\x00" * 4, 1.0)
-    verdict = mine.up.receiver.accept(frame, 1.0)
-    assert getattr(verdict, "reason", None) in ("bad_mac", "wrong_source")
+    frame = other.train_end.frame(CMD, PLATFORM_ID, 1.0)
+    assert frame is not None
+    assert mine.platform_end.receive(frame, 1.0) is None
+    assert mine.platform_end.rejected == {"unknown_peer": 1}  # refused before any key is tried
+    # Train 8's own platform end takes it.
+    got = other.platform_end.receive(frame, 1.0)
+    assert got is not None and got[1] == CMD
 
 
 @pytest.mark.parametrize(

@@ -31,8 +31,9 @@ import numpy as np
 
 from railstop.config.media import ChannelParams
 from railstop.link.channel import SimChannel
-from railstop.link.codec import CbtcCommand, CbtcReport, Telegram, TelegramError, decode, encode
-from railstop.link.safety import SafePeers, demo_master_key, sum_counts
+from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
+from railstop.link.endpoint import Endpoint
+from railstop.link.safety import demo_master_key, sum_counts
 from railstop.messages import Message, MovementCommand, Output, PositionReport
 from railstop.streams import Stream, seed_u64
 
@@ -53,6 +54,8 @@ MAX_AGE_S = 1.0  # a radio frame older than this is stale
 # The simulated radio's built-in demonstration master key (no attacker in a simulation). Public:
 # the live links (SafePeers) refuse it; a deployment loads its keys from its key management.
 _DEMO_MASTER = demo_master_key("CBTC radio")
+# The telegram that carries each message this radio takes.
+_TELEGRAM_OF: dict[type[Message], type[Telegram]] = {PositionReport: CbtcReport, MovementCommand: CbtcCommand}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -96,14 +99,16 @@ class CbtcEndpoint:
         self.own_id = own_id
         self.expects = expects
         self.outgoing: list[tuple[bytes, int]] = []  # (frame, peer id)
-        self.links = SafePeers(
+        self.end = Endpoint(
             own_id,
-            master_key,
-            max_age_s=max_age_s,
             peers=peers or (lambda p: p == ZC_ADDRESS or TRAIN_BASE <= p < TRAIN_BASE + 0x1000),
+            max_age_s=max_age_s,
+            master_key=master_key,
+            expects=() if expects is None else (_TELEGRAM_OF[expects],),
             started_s=started_s,
             simulated=simulated,
         )
+        self.links = self.end.links
 
     @classmethod
     def zone_controller(
@@ -146,14 +151,9 @@ class CbtcEndpoint:
         if tele is None:
             return []
         peer = ZC_ADDRESS if isinstance(message, PositionReport) else TRAIN_BASE + tele.train_id
-        try:
-            payload = encode(tele)
-        except TelegramError as exc:
-            # A value the telegram cannot carry: nothing is sent (the peer sees a missed telegram,
-            # which its supervision handles).
-            self.links.reject(f"encode-{exc.reason}")
-            return []
-        self.outgoing.append((self.links.wrap(payload, peer, now_s), peer))
+        frame = self.end.frame(tele, peer, now_s)
+        if frame is not None:  # None: a value the telegram cannot carry (counted; the peer's
+            self.outgoing.append((frame, peer))  # supervision sees a missed telegram)
         return []
 
     def next_deadline_s(self) -> float | None:
@@ -165,19 +165,14 @@ class CbtcEndpoint:
     def ingest(self, frame: bytes, now_s: float, *, to: Callable[[int], str]) -> list[Output]:
         """A received frame: the message it carries for the unit ``to(train_id)`` names, or nothing
         (refused frames are counted by reason)."""
-        got = self.links.accept(frame, now_s)
+        # SPEC §4: reports go up, commands come down; a command sent to the zone controller (or a
+        # report to a train), even under a valid MAC, is refused and counted (the end's types).
+        got = self.end.receive(frame, now_s)
         if got is None:
             return []
-        try:
-            tele = decode(got[1].payload)
-        except TelegramError as exc:
-            self.links.reject(f"telegram-{exc.reason}")
-            return []
-        msg = to_message(tele)
-        if msg is None or (self.expects is not None and not isinstance(msg, self.expects)):
-            # SPEC §4: reports go up, commands come down; a command sent to the zone controller
-            # (or a report to a train), even under a valid MAC, is refused and counted.
-            self.links.reject("unexpected-type")
+        msg = to_message(got[1])
+        if msg is None:
+            self.links.reject("unexpected-type")  # not a CBTC telegram (an end that takes any)
             return []
         if TRAIN_BASE + msg.train_id not in (got[0], self.own_id):
             # [interpretation] A telegram names the train whose link carries it: a report from

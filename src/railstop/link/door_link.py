@@ -30,8 +30,8 @@ from railstop.config.media import ChannelParams
 from railstop.control.doors import LOCKED_STATES, DoorSignals, DoorState, door_mask
 from railstop.link.channel import LinkError, SimChannel
 from railstop.link.codec import DoorCommand, PsdStatus, Telegram
-from railstop.link.safe_channel import SafeChannel
-from railstop.link.safety import SafeReceiver, SafeSender, demo_master_key, link_key, sum_counts
+from railstop.link.endpoint import Endpoint
+from railstop.link.safety import demo_master_key, sum_counts
 
 __all__ = ["DoorLink", "DoorLinkCounts", "Received", "command_signals", "door_command", "psd_status"]
 
@@ -133,11 +133,14 @@ class DoorLinkCounts:
 
 @dataclass(slots=True)
 class DoorLink:
-    """Both directions of one train's door link at one platform.
+    """Both directions of one train's door link at one platform: the train's and the platform's
+    :class:`~railstop.link.endpoint.Endpoint` (the ends the live door link runs too) and one
+    :class:`~railstop.link.channel.SimChannel` per direction between them.
 
-    ``max_age_s``: the receivers refuse frames older than this (EN 50159
-    delay); ``start_s``: the link comes up then (the receivers' time-outs count
-    from it).
+    ``max_age_s``: the receivers refuse frames older than this (EN 50159 delay); ``start_s``:
+    the link comes up then (no frame is sent before it); ``outage``: every frame sent inside
+    ``[start_s, end_s)`` is lost, both ways (fault injection). ``timeout_s`` is the door data's
+    supervision time-out, kept for the record: the units supervise their peer's silence.
     """
 
     params: ChannelParams
@@ -148,8 +151,13 @@ class DoorLink:
     timeout_s: float = 0.5
     start_s: float = 0.0
     outage: tuple[float, float] | None = None
-    up: SafeChannel = field(init=False)  # train -> platform
-    down: SafeChannel = field(init=False)  # platform -> train
+    train_addr: int = field(init=False)  # the train's safety-layer id
+    train_end: Endpoint = field(init=False)
+    platform_end: Endpoint = field(init=False)
+    up: SimChannel = field(init=False)  # train -> platform
+    down: SimChannel = field(init=False)  # platform -> train
+    sent: dict[str, int] = field(init=False)  # telegrams handed to the link, per direction
+    outage_lost: int = 0
 
     def __post_init__(self) -> None:
         start, end = self.outage if self.outage is not None else (0.0, 0.0)
@@ -157,34 +165,44 @@ class DoorLink:
             raise LinkError(f"outage: needs a finite start_s <= end_s (inf: for good) (got {self.outage!r})")
         if not 0 <= int(self.train_id) <= 0xEFFF:
             raise LinkError(f"train_id: must be in 0..{0xEFFF} (got {self.train_id!r})")
-        train_addr = 0x1000 + int(self.train_id)
-        self.up = self._direction(train_addr, PLATFORM_ID)
-        self.down = self._direction(PLATFORM_ID, train_addr)
+        self.train_addr = 0x1000 + int(self.train_id)
+        key = _DEMO_MASTER if self.category == 3 else None
+        self.train_end = self._end(self.train_addr, PLATFORM_ID, key, PsdStatus)
+        self.platform_end = self._end(PLATFORM_ID, self.train_addr, key, DoorCommand)
+        self.up = SimChannel(self.params, self.rng)
+        self.down = SimChannel(self.params, self.rng)
+        self.sent = {"up": 0, "down": 0}
 
-    def _direction(self, src: int, dst: int) -> SafeChannel:
-        key = link_key(_DEMO_MASTER, src, dst) if self.category == 3 else None
-        return SafeChannel(
-            sender=SafeSender(src, dst, key=key, category=self.category),
-            channel=SimChannel(self.params, self.rng),
-            receiver=SafeReceiver(
-                dst,
-                src,
-                key=key,
-                category=self.category,
-                max_age_s=self.max_age_s,
-                timeout_s=self.timeout_s,
-                start_s=self.start_s,
-            ),
-            outages=() if self.outage is None else (self.outage,),
+    def _end(self, own: int, peer: int, key: bytes | None, takes: type[Telegram]) -> Endpoint:
+        return Endpoint(
+            own,
+            peers=lambda p: p == peer,
+            max_age_s=self.max_age_s,
+            category=self.category,
+            master_key=key,
+            expects=(takes,),
+            simulated=True,
         )
+
+    def _send(
+        self, end: Endpoint, peer: int, medium: SimChannel, way: str, msg: Telegram, now_s: float
+    ) -> None:
+        self.sent[way] += 1
+        frame = end.frame(msg, peer, now_s)
+        if frame is None:
+            return  # a value the telegram cannot carry: nothing sent (counted by the end)
+        if self.outage is not None and self.outage[0] <= now_s < self.outage[1]:
+            self.outage_lost += 1  # fault injection: nothing gets through
+            return
+        medium.send(frame, now_s)
 
     def send_command(self, msg: DoorCommand, now_s: float) -> None:
         """Train -> platform."""
-        self.up.send(msg, now_s)
+        self._send(self.train_end, PLATFORM_ID, self.up, "up", msg, now_s)
 
     def send_status(self, msg: PsdStatus, now_s: float) -> None:
         """Platform -> train."""
-        self.down.send(msg, now_s)
+        self._send(self.platform_end, self.train_addr, self.down, "down", msg, now_s)
 
     def next_arrival_s(self) -> float | None:
         """When the next frame in flight (either way) arrives, or None."""
@@ -193,24 +211,25 @@ class DoorLink:
 
     def deliver(self, now_s: float) -> list[Received]:
         """The telegrams that have arrived by ``now_s`` and passed the safety layer and the codec."""
-        return [
-            Received(to=to, telegram=msg, at_s=now_s)
-            for to, d in (("platform", self.up), ("train", self.down))
-            for msg in d.receive(now_s)
-        ]
-
-    def train_timed_out(self, now_s: float) -> bool:
-        """No valid status frame has reached the train for longer than ``timeout_s``."""
-        return self.down.receiver.timed_out(now_s)
+        out: list[Received] = []
+        for to, medium, end in (
+            ("platform", self.up, self.platform_end),
+            ("train", self.down, self.train_end),
+        ):
+            for frame in medium.receive(now_s):
+                got = end.receive(frame, now_s)
+                if got is not None:
+                    out.append(Received(to=to, telegram=got[1], at_s=now_s))
+        return out
 
     @property
     def counts(self) -> DoorLinkCounts:
-        rejected = sum_counts(d.rejected for d in (self.up, self.down))
+        rejected = sum_counts(end.rejected for end in (self.train_end, self.platform_end))
         return DoorLinkCounts(
-            commands_sent=self.up.sent,
-            commands_delivered=self.up.delivered,
-            status_sent=self.down.sent,
-            status_delivered=self.down.delivered,
-            lost=self.up.lost + self.down.lost,
+            commands_sent=self.sent["up"],
+            commands_delivered=self.platform_end.delivered,
+            status_sent=self.sent["down"],
+            status_delivered=self.train_end.delivered,
+            lost=self.up.stats.lost + self.down.stats.lost + self.outage_lost,
             rejected=rejected,
         )

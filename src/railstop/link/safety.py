@@ -511,7 +511,8 @@ PEER_REASONS = (*REASONS, "unknown_peer", "too_many_peers", "error")
 
 
 class SafePeers:
-    """Category-3 links of one party with any number of peers over a shared transport (one socket):
+    """The links of one party with any number of peers over a shared transport (one socket, one
+    simulated medium; category 3 unless ``category`` says 1 or 2, a CRC-32 and no key):
     ``wrap(payload, peer, now_s)`` gives the frame for ``peer`` (its own sequence and key per
     direction), ``accept(frame, now_s)`` checks a received frame with the receiver of the peer it
     names and gives (peer, payload), or None: the reason it was refused is counted in
@@ -534,7 +535,7 @@ class SafePeers:
     def __init__(
         self,
         own_id: int,
-        master_key: bytes,
+        master_key: bytes | None,
         *,
         max_age_s: float,
         peers: Callable[[int], bool],
@@ -542,8 +543,10 @@ class SafePeers:
         started_s: float | None = None,
         future_tolerance_s: float = 0.2,
         simulated: bool = False,
+        category: int = 3,
     ) -> None:
         _check_id("own_id", own_id)
+        _check_category(category)
         if not callable(peers):
             raise LinkConfigError("peers: a function of a source id is needed")
         if not isinstance(max_peers, int) or isinstance(max_peers, bool) or max_peers < 1:
@@ -552,9 +555,20 @@ class SafePeers:
             if _check_time(name, value) < 0.0:
                 raise LinkConfigError(f"{name}: must be >= 0 (got {value!r})")
         self.own_id = own_id
-        # A simulated link (no attacker: the line simulation's radio) may run on a built-in
-        # demonstration key; every live link passes the check (``simulated`` is never set there).
-        self.master_key = bytes(master_key) if simulated else check_master_key(master_key)
+        self.category = category
+        if category != 3:
+            # Categories 1 and 2 (a closed transmission system): a CRC-32, no key (_check_key).
+            if master_key is not None:
+                raise LinkConfigError(f"master_key: category {category} uses a CRC-32, not a key")
+            self.master_key = b""
+        else:
+            # A simulated link (no attacker: the line simulation's radio) may run on a built-in
+            # demonstration key; every live link passes the check (``simulated`` is never set there).
+            if simulated and isinstance(master_key, bytes | bytearray):
+                self.master_key = bytes(master_key)
+            else:
+                self.master_key = check_master_key(master_key)
+        self._code_len = code_bytes(category)
         self.max_age_s = float(max_age_s)
         self.future_tolerance_s = float(future_tolerance_s)
         self.max_peers = max_peers
@@ -562,7 +576,7 @@ class SafePeers:
         self.known = peers
         self._tx: dict[int, SafeSender] = {}
         self._rx: dict[int, SafeReceiver] = {}
-        self._vc = VERSION << 4 | 3
+        self._vc = VERSION << 4 | category
         self.sent = 0
         self.delivered = 0
         self.rejected: dict[str, int] = {}
@@ -575,10 +589,14 @@ class SafePeers:
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
+    def _key(self, src: int, dst: int) -> bytes | None:
+        """The key of the direction ``src`` -> ``dst`` (category 3), or None (a CRC-32)."""
+        return link_key(self.master_key, src, dst) if self.category == 3 else None
+
     def wrap(self, payload: bytes, peer: int, now_s: float) -> bytes:
         if peer not in self._tx:
-            key = link_key(self.master_key, self.own_id, peer)
-            self._tx[peer] = SafeSender(self.own_id, peer, key=key, category=3)
+            key = self._key(self.own_id, peer)
+            self._tx[peer] = SafeSender(self.own_id, peer, key=key, category=self.category)
         frame = self._tx[peer].wrap(payload, now_s)
         self.sent += 1
         return frame
@@ -600,11 +618,12 @@ class SafePeers:
             self.reject("malformed")
             return None
         n = len(data)
-        if n < HEADER_BYTES + MAC_BYTES:
+        code_len = self._code_len
+        if n < HEADER_BYTES + code_len:
             self.reject("malformed")
             return None
         vc, src, dst, _seq, _ts, length = HEADER.unpack_from(data)
-        if vc != self._vc or length != n - HEADER_BYTES - MAC_BYTES:
+        if vc != self._vc or length != n - HEADER_BYTES - code_len:
             self.reject("malformed")
             return None
         if src == self.own_id:
@@ -618,11 +637,12 @@ class SafePeers:
             return None
         rx = self._rx.get(src)
         if rx is None:
-            # A peer not heard yet: its MAC first, so that no state exists for a forged source.
-            key = link_key(self.master_key, src, self.own_id)
-            body, code = data[: n - MAC_BYTES], data[n - MAC_BYTES :]
-            if not hmac.compare_digest(code, _safety_code(3, key, body)):
-                self.reject("bad_mac")
+            # A peer not heard yet: its MAC (CRC) first, so that no state exists for a forged
+            # (corrupted) source.
+            key = self._key(src, self.own_id)
+            body, code = data[: n - code_len], data[n - code_len :]
+            if not hmac.compare_digest(code, _safety_code(self.category, key, body)):
+                self.reject("bad_mac" if self.category == 3 else "corrupt")
                 return None
             if len(self._rx) >= self.max_peers:
                 self.reject("too_many_peers")
@@ -631,7 +651,7 @@ class SafePeers:
                 self.own_id,
                 src,
                 key=key,
-                category=3,
+                category=self.category,
                 max_age_s=self.max_age_s,
                 timeout_s=1e9,  # the units above supervise their peers' silence
                 start_s=now_s,

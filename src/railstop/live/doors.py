@@ -15,6 +15,7 @@ from railstop.config.doors import DoorsConfig
 from railstop.config.schema import Line
 from railstop.control.doors import Side
 from railstop.link.codec import DoorCommand, PsdStatus, TelegramError, decode, encode
+from railstop.link.endpoint import Endpoint
 from railstop.link.release_link import WCC_ADDRESS, WccGate, wcc_key
 from railstop.link.safety import SafePeers, frame_ids, sum_counts
 from railstop.link.udp import Address
@@ -87,20 +88,22 @@ class LiveDoors:
         self.master_key = master_key
         n = len(line.stations)
         self._is_platform = lambda p: PLATFORM_BASE <= p < PLATFORM_BASE + n
-        self._links: dict[int, SafePeers] = {}
+        self._links: dict[int, Endpoint] = {}
         self.active: dict[int, TrainDoors] = {}
         self.results: list[dict[str, Any]] = []
         self.unexpected = 0
 
-    def _link(self, train: int) -> SafePeers:
-        """Train ``train``'s link (one of this process's trains: the callers check)."""
+    def _link(self, train: int) -> Endpoint:
+        """Train ``train``'s end of the door link (one of this process's trains: the callers
+        check); it takes ``psd-status`` telegrams only."""
         if train not in self._links:
-            self._links[train] = SafePeers(
+            self._links[train] = Endpoint(
                 TRAIN_DOORS_BASE + train,
-                self.master_key,
+                master_key=self.master_key,
                 max_age_s=self.doors.link.max_age_s,
                 peers=self._is_platform,
                 started_s=self.started_s,
+                expects=(PsdStatus,),
             )
         return self._links[train]
 
@@ -118,17 +121,13 @@ class LiveDoors:
             # for it (a forged header must not make the process hold state; DESIGN rule 9).
             self.not_mine += 1
             return
-        got = self._link(train).accept(frame, now_s)
+        got = self._link(train).receive(frame, now_s)
         if got is None:
-            return
+            return  # refused by the safety layer, the codec or its type: counted by the end
         dwell = self.active.get(train)
-        try:
-            status = decode(got[1].payload)
-        except TelegramError:
-            self._link(train).reject("codec")
-            return
+        status = got[1]
         if dwell is None or not isinstance(status, PsdStatus) or got[0] - PLATFORM_BASE != dwell.station:
-            self.unexpected += 1
+            self.unexpected += 1  # no dwell here, or a status from another platform
             return
         dwell.receive(status, now_s)
 
@@ -162,8 +161,8 @@ class LiveDoors:
         ``TrainDoors.creep_mps``): the frames to send to the stations process."""
         dwell.step(now_s, step_s)
         platform = PLATFORM_BASE + dwell.station
-        link = self._link(dwell.train)
-        frames = [link.wrap(encode(cmd), platform, now_s) for cmd in dwell.due]
+        end = self._link(dwell.train)
+        frames = [f for cmd in dwell.due if (f := end.frame(cmd, platform, now_s)) is not None]
         dwell.due.clear()
         if dwell.done:
             self.active.pop(dwell.train, None)
