@@ -196,6 +196,41 @@ def test_config3_superimposes_on_the_trains_own_demand() -> None:
     assert np.any(demand[took] > own[took] + 0.1)
 
 
+def test_config3_the_trains_own_step_is_released_at_the_hand_over_its_carrier_stays() -> None:
+    """SPEC §1 claims 15, 25: the zero-crossing detector needs the train's own PWM signal; the
+    train's own controller keeps its carrier (the released duty, 10 %) and releases its initial
+    step once TASC's first command is in ([interpretation]: the OR could only add to it)."""
+    result, _, tr = _stop(TASC_PWM, _with_initial(LINE.station("Riverside"), 2))
+    own = tr.own_demand_mps2[:, 0]
+    told = np.flatnonzero(np.isfinite(tr.target_decel_mps2[:, 0]))[0]
+    assert own[:told].max() == pytest.approx(VEHICLE.brake.notch_decel_mps2[1], abs=0.02)
+    after = own[told + 1 :]  # from the step after the first command was taken
+    assert np.all(after[np.isfinite(after)] == 0.0)
+    moving = tr.speed_mps[:, 0] > 0.0
+    released = VEHICLE.brake.pwm_duty[1]
+    assert np.nanmin(tr.duty[moving, 0]) >= released - 1e-12  # never a dead line while running
+    assert result.within_tolerance and result.emergency_brake is None
+
+
+def test_config3_with_the_trains_own_step_stops_as_well_as_without_it() -> None:
+    """Before the hand-over, B2 kept under the OR stopped 30 % of the standard set short (69.9 %
+    within ±0.35 m at Riverside); with it, as many runs stop within the tolerance as without
+    the train's own step."""
+    from railstop.config.disturbances import load_disturbances
+    from railstop.sim.campaign import simulate_runs
+
+    standard = load_disturbances("standard")
+    shares = []
+    for notch in (0, 2):
+        station = _with_initial(LINE.station("Riverside"), notch)
+        batch, _ = simulate_runs(
+            station=station, vehicle=VEHICLE, controller=TASC_PWM, disturbances=standard, seed=5,
+            first_run=0, n=1000, track=LINE.track,
+        )  # fmt: skip
+        shares.append(float(np.mean(np.abs(batch.stop_error_m) <= station.psd_tolerance_m)))
+    assert shares[1] >= 0.995 and shares[1] >= shares[0] - 0.003, shares
+
+
 # ---------------------------------------------------------------- config 2's switching unit
 
 

@@ -293,9 +293,22 @@ def own_command_1(
 ) -> tuple[float, float]:
     """The train's own brake command (SPEC §1; tasc.initial_brake_notch) as (duty, deceleration
     demanded): a step, or on a PWM train that step's deceleration as a duty (NaN on a step train).
-    It changes only at the zone's transponders, so it is computed when it changes, not every step."""
+    It changes only at the zone's transponders and at the hand-over, so it is computed when it
+    changes, not every step.
+
+    [interpretation] A PWM brake line in service always carries its carrier: released, the duty
+    is the top of the range that brakes nothing (10 % on the embedded EMU), never 0 % (a dead
+    line). Configuration 3's zero-crossing detector locks to that carrier (SPEC §1 claims 15, 25)."""
     if pwm_train:
-        duty = decel_to_pwm_1(table[notch], pwm_duty, pwm_decel)
+        if notch == 0:
+            duty = 0.0
+            for j in range(pwm_duty.size):
+                if pwm_decel[j] <= 0.0:
+                    duty = pwm_duty[j]
+                else:
+                    break
+        else:
+            duty = decel_to_pwm_1(table[notch], pwm_duty, pwm_decel)
         return duty, pwm_to_decel_1(duty, pwm_duty, pwm_decel)
     return np.nan, table[line_notch(notch)]
 
@@ -655,8 +668,15 @@ def tasc_onboard_1(
     ob, d, se = s.onboard[0], run.derived[0], s.sense[0]
     if se.transponder_m == se.transponder_m:  # not NaN: the train's own ATP saw a transponder
         receiver_fix_1(s.rx, p.rp, se.transponder_m)
-        ob.own_notch = int(p.kp[KP_INITIAL_NOTCH])
+        if s.rx[RX_ACTIVE] == 0.0:
+            ob.own_notch = int(p.kp[KP_INITIAL_NOTCH])
         se.transponder_m = np.nan
+    if s.rx[RX_ACTIVE] > 0.0:
+        # [interpretation] The hand-over: once TASC's first command is in, the train's own
+        # controller releases its initial step (its carrier stays, at the released duty). Configs
+        # 1 and 2 replace the train's command anyway; config 3's OR could otherwise only add to it,
+        # and a step it kept would be a floor the onboard unit cannot go below.
+        ob.own_notch = 0
     own_notch = ob.own_notch
     if own_notch != ob.own_for:
         ob.own_duty, ob.own_demand_mps2 = own_command_1(
