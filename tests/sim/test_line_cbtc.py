@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from railstop.clock import SimClock
@@ -16,12 +17,20 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
 from railstop.config.faults import RandomOutages
 from railstop.config.operation import Operation
+from railstop.control.line_ato import HOLD_BACK_M, handover_m
 from railstop.errors import SimulationError
 from railstop.link.cbtc_radio import TRAIN_BASE, ZC_ADDRESS, CbtcEndpoint, CbtcRadio
 from railstop.link.channel import media_preset
 from railstop.messages import MovementCommand, OnboardPosition, Output, PositionReport
 from railstop.nodes.train import make_onboard_cbtc
 from railstop.nodes.zone import make_zone_controller
+from railstop.onboard.restricted_mode import (
+    RESTRICTED_AFTER_S,
+    RESTRICTED_M,
+    RESTRICTED_MPS,
+    SIGHT_M,
+    RestrictedMode,
+)
 from railstop.sim.line import LineSimulation
 from railstop.wayside.zone_controller import ZoneMode
 
@@ -369,3 +378,122 @@ def test_the_line_and_live_radios_carry_the_same_exchange() -> None:
     reports, commands, lost = line[-1]
     assert reports > 3 * 60 / LINE.cbtc.report_period_s - 10 and commands >= reports - 3 and lost == 0
     assert all(math.isfinite(row[1]) for row in line[-100:-1])  # every train holds an authority
+
+
+def test_the_restricted_mode_rule_step_by_step() -> None:
+    """SPEC §4 restricted mode (``onboard.restricted_mode``, the one rule of the line's and the live
+    trains): the emergency brake first, a stand of 20 s, on sight at 15 km/h at most, standing while
+    the train ahead's rear is within 150 m or the place to stop is reached, at most 400 m; the radio
+    back, the driver stops at the service rate and leaves the train to its ATP."""
+    rule = RestrictedMode(brake_mps2=1.0)
+    state = {"now_s": 0.0, "step_s": 0.1, "position_m": 1000.0, "speed_mps": 0.0}
+    step = lambda **kw: rule.step(**{**state, "radio_dead": True, "emergency_brake": True, **kw})  # noqa: E731
+    assert rule.step(**state, radio_dead=False, emergency_brake=False) is None  # the ATP drives
+    assert step(emergency_brake=False) is None  # the commands not yet missed twice: not braked
+    assert step(speed_mps=5.0) is None  # still braking under the emergency brake
+    wait = step()  # at a stand: he asks for leave
+    assert wait is not None and wait.stand and wait.decel_mps2 == 1.0
+    assert step(now_s=RESTRICTED_AFTER_S - 0.1) == wait
+    go = step(now_s=RESTRICTED_AFTER_S)
+    assert go is not None and go.target_mps == pytest.approx(RESTRICTED_MPS) and go.accel_mps2 > 0.0
+    # The train ahead's rear within the sight distance, or the place to stop reached: he stands.
+    assert step(now_s=30.0, ahead_m=1000.0 + SIGHT_M).stand  # type: ignore[union-attr]
+    assert step(now_s=30.0, stop_m=1000.0).stand  # type: ignore[union-attr]
+    near = step(now_s=30.0, ahead_m=1000.0 + SIGHT_M + 5.0)
+    assert near is not None and 0.0 < near.target_mps < RESTRICTED_MPS  # braking on his curve
+    # 400 m at most (counted from the speed each step).
+    moving = RestrictedMode(brake_mps2=1.0)
+    moving.step(**{**state, "radio_dead": True, "emergency_brake": True})
+    n = 0
+    while not (d := moving.step(**{**state, "now_s": 21.0 + n * 0.1, "speed_mps": RESTRICTED_MPS,
+                                   "radio_dead": True, "emergency_brake": True})).stand:  # fmt: skip
+        n += 1
+    assert moving.run_m == pytest.approx(RESTRICTED_M, abs=RESTRICTED_MPS * 0.1) and moving.moves == 1
+    # The radio back while moving: he stops at the service rate; at a stand the ATP has it again.
+    back = moving.step(**{**state, "speed_mps": 2.0, "radio_dead": False, "emergency_brake": True})
+    assert back is not None and back.stand and d.decel_mps2 == back.decel_mps2 == 1.0
+    assert moving.step(**state, radio_dead=False, emergency_brake=True) is None
+    assert moving.left_m == RESTRICTED_M and moving.leave_at_s is None
+
+
+def test_a_lost_train_moves_on_sight_and_is_found_outside_its_zone_held_for_the_operator() -> None:
+    """Issue 36, SPEC §4 re-detection outside the zone on the line: train 3 stands queued 35 m
+    behind train 2 (waiting before Riverside) when its radio dies for 150 s. Its emergency brake,
+    20 s, then its driver moves it in restricted mode (``onboard.restricted_mode``): not while
+    train 2's rear is within the sight distance, then on sight at 15 km/h at most, 150 m behind it,
+    up to where the trains wait for Riverside's platform, out of its protection zone. The radio
+    back, its report falls outside the zone: flagged and held (authority 0) until the operator's
+    release 180 s later. Train 4, behind, never enters the zone; nothing overlaps or collides."""
+    k, start, end = 3, 235.0, 385.0
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=Operation(trains=5, headway_s=60.0),
+        signalling="cbtc",
+        outages=[(k, start, end - start)],
+    )
+    result = sim.run(700.0)
+    c = result.summary()["cbtc"]
+    assert (
+        c["lost_trains"] == 1 and c["flagged"] == 1 and c["auto_releases"] == 0 and c["manual_releases"] == 1
+    )
+    assert c["restricted_moves"] == 1 and c["authority_overlaps"] == 0 and c["collisions"] == 0
+    assert sim.cbtc is not None
+    (zone,) = sim.cbtc.zones
+    release = LINE.cbtc.operator_release_s
+    assert zone.train == k and start < zone.set_s < start + 2.0
+    # Flagged at its first report after the outage; the operator's release 180 s later.
+    assert end + release <= zone.released_s < end + release + 2.0
+    length = VEHICLE.length_m
+    t, x = (np.array(a) for a in result.samples[k])
+
+    def front(j: int, at: np.ndarray) -> np.ndarray:
+        tj, xj = result.samples[j]
+        return np.interp(at, tj, xj, left=np.nan, right=np.inf)
+
+    lost = (t >= start) & (t < end)
+    tl, xl = t[lost], x[lost]
+    speed = np.diff(xl) / np.diff(tl)
+    ahead_rear = front(2, tl) - length
+    moving = np.nonzero(speed > 0.0)[0] + 1
+    assert moving.size > 100 and xl.max() - xl[0] > 100.0, "it moved while lost"
+    assert speed.max() <= RESTRICTED_MPS + 1e-9  # never above 15 km/h
+    assert xl.max() - xl[0] <= RESTRICTED_M  # at most 400 m
+    assert tl[moving[0]] >= start + RESTRICTED_AFTER_S  # after the wait
+    # Never closer than the sight distance to the train ahead's rear while it moved: it stood
+    # while train 2 waited 35 m ahead.
+    assert (ahead_rear[moving] - xl[moving]).min() >= SIGHT_M - 0.5
+    assert (ahead_rear[0] - xl[0]) < SIGHT_M
+    # It stopped where the trains wait for Riverside's platform, out of its zone.
+    riverside = LINE.stations[0]
+    hold = handover_m(riverside.detector_positions_m()[0], riverside.tasc.entry_speed_kmh / 3.6) - HOLD_BACK_M
+    assert zone.end_m < xl.max() <= hold + 0.5
+    # Held while flagged: it did not move from the radio's return to the operator's release.
+    held = (t >= end) & (t < zone.released_s)
+    assert np.ptp(x[held]) < 0.01
+    # The safety property: train 4, behind the lost train, never entered its zone.
+    during = np.arange(zone.set_s, zone.released_s, 0.1)
+    follower = front(4, during)
+    assert np.nanmax(follower) < zone.start_m
+    # And no train ever overlapped the lost train.
+    for j in range(5):
+        if j != k:
+            other = front(j, t)
+            sep = np.where(other > x, other - length - x, x - length - other)
+            assert np.nanmin(sep) > 0.0
+
+
+def test_a_lost_train_in_restricted_mode_runs_at_most_400_m() -> None:
+    """Train 1's radio dead for 200 s between Hillcrest and Museum with the line ahead free: its
+    driver runs the 400 m of restricted mode, then stands; back inside its long zone (its authority
+    reached far ahead), the zone is released automatically."""
+    sim, s = run("cbtc", trains=3, duration_s=700.0, outages=[(1, 400.0, 200.0)])
+    c = s["cbtc"]
+    assert c["restricted_moves"] == 1 and RESTRICTED_M - 1.0 < c["restricted_m"] <= RESTRICTED_M + 0.5
+    assert c["lost_trains"] == c["auto_releases"] == 1 and c["flagged"] == 0 and c["collisions"] == 0
+    t, x = np.array(sim.trains[1].samples_t), np.array(sim.trains[1].samples_x)
+    lost = (t >= 400.0) & (t < 600.0)
+    xl = x[lost]
+    stood = np.nonzero(np.diff(xl) == 0.0)[0][0]  # its emergency brake's stand
+    assert RESTRICTED_M - 1.0 < xl.max() - xl[stood] <= RESTRICTED_M + 0.5
+    assert np.diff(xl)[stood:].max() / 0.1 <= RESTRICTED_MPS + 1e-9

@@ -60,7 +60,7 @@ from railstop.nodes.dwell import DWELL_STEP_S
 from railstop.nodes.train import make_onboard_cbtc
 from railstop.nodes.zone import make_zone_controller
 from railstop.onboard.cbtc import OnboardCbtc, permitted_speed_mps
-from railstop.quantities import kmh_to_mps
+from railstop.onboard.restricted_mode import RestrictedMode
 from railstop.wayside.zone_controller import ZoneController, ZoneMode
 
 # Lazy imports (start-up): live.plant and live.tasc load the compiled model, onboard.tasc_receiver
@@ -306,15 +306,13 @@ class _TrainState:
     k: int
     unit: OnboardCbtc
     x_m: float  # where the plant says the train is
+    restricted: RestrictedMode  # its driver's restricted mode while its radio is dead (SPEC §4)
     v_mps: float = 0.0
     next_station: int = 0
     dwell_until_s: float = -math.inf
     last_state_s: float = -math.inf
     eb_reported: bool = False
     stopped_at: int | None = None  # the station it has just stopped at (reported once)
-    restricted_at_s: float | None = None  # restricted mode (radio dead): may start moving then
-    restricted_left_m: float = 400.0
-    restricted_moving: bool = False
     tasc: TascOnboard | None = None  # the station stop under ground TASC in progress
     visits: int = 0  # station stops begun (the disturbance draw of each)
     arrived: tuple[int, float] | None = None  # stopped at a platform (station, error): its dwell begins
@@ -366,7 +364,8 @@ class _Trains:
             # Silent until localised: its first position (from the plant) starts its reports.
             unit = make_onboard_cbtc(line, vehicle, k, uplink=self.radios[k].name)
             ahead = next((i for i, st in enumerate(self.stations) if st > x + 1.0), len(self.stations))
-            self.fleet.append(_TrainState(k=k, unit=unit, x_m=x, next_station=ahead))
+            restricted = RestrictedMode(brake_mps2=vehicle.brake.full_service_mps2)
+            self.fleet.append(_TrainState(k=k, unit=unit, x_m=x, restricted=restricted, next_station=ahead))
         self.unlocalised_steps = 0  # train-steps held under emergency brake, waiting for the plant's state
         self.local: Plant | None = None
         if plant is None:
@@ -682,9 +681,15 @@ def _move(
     turn = _turn(t, now_s, stations, fleet, reentry)
     if turn is not None:
         return turn
-    restricted = _restricted(t, now_s, step_s, radio_dead, fleet, vehicle)
+    # SPEC §4, restricted mode (onboard.restricted_mode, the line's lost trains too): with the radio
+    # dead its driver moves the train on sight, 150 m behind the train ahead's rear.
+    ahead = min((o.x_m - vehicle.length_m for o in fleet if o.x_m > t.x_m), default=math.inf)
+    restricted = t.restricted.step(
+        now_s=now_s, step_s=step_s, position_m=t.x_m, speed_mps=t.v_mps, radio_dead=radio_dead,
+        emergency_brake=unit.emergency_brake, ahead_m=ahead,
+    )  # fmt: skip
     if restricted is not None:
-        return restricted
+        return Drive(restricted.target_mps, restricted.accel_mps2, restricted.decel_mps2)
     if unit.emergency_brake:
         return emergency_drive(vehicle)
     if now_s < t.dwell_until_s:
@@ -850,44 +855,6 @@ def _state_cause(unit_cause: EbCause | None, plant_lost: bool, dwell_fault: bool
 
 DWELL_FAULT_HOLD_S = 60.0  # after a dwell's fault, the train stands this long before it tries again
 EB_RESET_S = 10.0  # after a TASC emergency stop short of the platform, the train stands this long
-RESTRICTED_AFTER_S = 20.0  # at a stand with a dead radio, the driver asks and gets leave after this
-RESTRICTED_MPS = kmh_to_mps(15.0)  # on sight, ATP cut out
-RESTRICTED_M = 400.0  # at most this far (to the next place where he can call in)
-SIGHT_M = 150.0  # he stops this far behind the train ahead (he can see it)
-
-
-def _restricted(
-    t: _TrainState, now_s: float, step_s: float, dead: bool, fleet: list[_TrainState], vehicle: Vehicle
-) -> Drive | None:
-    """A train whose radio is dead drives on in restricted mode: at a stand after its emergency
-    brake it waits ``RESTRICTED_AFTER_S``, then its driver, with the ATP cut out, moves it on sight
-    at 15 km/h for up to ``RESTRICTED_M``, stopping ``SIGHT_M`` behind the train ahead; when the
-    radio comes back he stops and cuts the ATP in again. [interpretation] SPEC §4 says only that a
-    lost train may move while lost (so that it is re-detected outside its zone and held for the
-    operator); this is the usual degraded mode that moves it. Returns the drive when he drives it."""
-    from railstop.live.plant import Drive  # lazy (start-up), see the top
-
-    brake = vehicle.brake
-    if not dead:
-        t.restricted_at_s, t.restricted_left_m = None, RESTRICTED_M
-        if t.v_mps > 0.0 and t.restricted_moving:
-            return Drive(0.0, 0.0, brake.full_service_mps2)  # he stops: ATP back in
-        t.restricted_moving = False
-        return None
-    if not t.unit.emergency_brake:
-        return None
-    if t.restricted_at_s is None:
-        if t.v_mps > 0.0:
-            return None  # still braking
-        t.restricted_at_s = now_s + RESTRICTED_AFTER_S
-    if now_s < t.restricted_at_s or t.restricted_left_m <= 0.0:
-        return Drive(0.0, 0.0, brake.full_service_mps2)
-    ahead = min((o.x_m - vehicle.length_m for o in fleet if o.x_m > t.x_m), default=math.inf)
-    room = min(t.restricted_left_m, ahead - SIGHT_M - t.x_m)
-    target = min(RESTRICTED_MPS, permitted_speed_mps(max(room, 0.0), brake.full_service_mps2 * 0.5, 0.5))
-    t.restricted_left_m -= t.v_mps * step_s
-    t.restricted_moving = True
-    return Drive(target, 0.3, brake.full_service_mps2)
 
 
 def _turn(

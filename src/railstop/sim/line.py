@@ -103,6 +103,7 @@ from railstop.model.run import SteppedStop
 from railstop.nodes.dwell import creep_rng
 from railstop.nodes.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.onboard.positioning import PositioningUnit
+from railstop.onboard.restricted_mode import RestrictedDrive
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
@@ -114,11 +115,12 @@ from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
 
-#: The line's model version, in a line campaign's identity: 3 since each CBTC train reports its
-#: positioning unit's own location uncertainty and the unit weighs each fix by the time error of
-#: the clocks that stamped it (2: the line steps the stop model on its clock; 1 replayed the
-#: stop's recorded trajectory).
-LINE_MODEL_VERSION = 3
+#: The line's model version, in a line campaign's identity: 4 since a CBTC train whose radio is
+#: dead is moved by its driver in restricted mode (3: each CBTC train reports its positioning
+#: unit's own location uncertainty and the unit weighs each fix by the time error of the clocks
+#: that stamped it; 2: the line steps the stop model on its clock; 1 replayed the stop's recorded
+#: trajectory).
+LINE_MODEL_VERSION = 4
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
@@ -799,6 +801,18 @@ class LineSimulation:
         # holds the traction at it, the wheel ahead of the train).
         low = any(s0 <= train.x_m < s1 for s0, s1, _ in train.patches)
         eb = self.cbtc is not None and self.cbtc.emergency_brake(train.index)  # SPEC §4: onboard EB
+        drive = self._restricted(train, now_s, dt)
+        if drive is not None:
+            # Restricted mode (SPEC §4 lost trains, onboard.restricted_mode): its driver has cut
+            # the ATP out and drives on sight; his demand through the same speed law and plant.
+            eb = False
+            a = (
+                -drive.decel_mps2
+                if drive.stand
+                else demand_mps2(
+                    v, drive.target_mps, min(drive.accel_mps2, traction_mps2(params, v)), drive.decel_mps2
+                )
+            )
         plant_step(
             plant,
             params,
@@ -855,6 +869,36 @@ class LineSimulation:
             train.phase = "gone"
             train.exited_s = now_s
             train.plant = None
+
+    def _restricted(self, train: Train, now_s: float, dt: float) -> RestrictedDrive | None:
+        """Restricted mode under CBTC (SPEC §4 lost trains; ``onboard.restricted_mode``, the rule
+        live operation's trains follow): what the driver of a train whose radio is dead does this
+        step, None when its ATO and onboard unit drive it. He sees the true world: his train's
+        front, the rear of the train ahead. [interpretation] He stops short of the next station where
+        the ATO waits for a platform (``HOLD_BACK_M`` before its hand-over point): the stop there
+        is ground TASC's (SPEC §1), which he leaves to the train once its radio is back."""
+        cbtc = self.cbtc
+        if cbtc is None:
+            return None
+        dead = cbtc.radio_dead(train.index, now_s)
+        ahead = stop = math.inf
+        if dead:  # (only then does he look: the other trains are not looked at every step)
+            length = self.vehicle.length_m
+            on_line = (t for t in self.trains if t is not train and t.phase in ON_LINE)
+            ahead = min((t.x_m - length for t in on_line if t.x_m > train.x_m), default=math.inf)
+            if train.next_station < len(self.line.stations):
+                entry = self.line.stations[train.next_station].tasc.entry_speed_kmh * MPS_PER_KMH
+                stop = handover_m(self.first_detector_m[train.next_station], entry) - HOLD_BACK_M
+        return cbtc.restricted[train.index].step(
+            now_s=now_s,
+            step_s=dt,
+            position_m=train.x_m,
+            speed_mps=train.v_mps,
+            radio_dead=dead,
+            emergency_brake=cbtc.emergency_brake(train.index),
+            ahead_m=ahead,
+            stop_m=stop,
+        )
 
     def _stop_model(self, station_index: int) -> KernelModel:
         """The stop model of a station (built once: a model holds no run's state)."""

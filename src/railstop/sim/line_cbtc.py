@@ -15,6 +15,12 @@ train ahead, or into another train's protection zone, at the moment it is
 granted) and **collisions** (a front past the true rear of the train ahead).
 Every zone the controller sets is recorded (train, extent, set and release
 times) for the time-distance diagram.
+
+A train whose radio is dead (an outage of the faults) is moved by its driver in
+**restricted mode** (``onboard.restricted_mode``, the rule live operation's
+trains follow): after its emergency brake and a wait, on sight at 15 km/h for
+up to 400 m; one driver per train here (``CbtcSignalling.restricted``, asked by
+the line's plant step with :meth:`CbtcSignalling.radio_dead`).
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from railstop.messages import Message, MovementCommand, OnboardPosition, Output
 from railstop.nodes.train import make_onboard_cbtc
 from railstop.nodes.zone import make_zone_controller
 from railstop.onboard.cbtc import OnboardCbtc
+from railstop.onboard.restricted_mode import RestrictedMode
 from railstop.units import Unit
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode
 
@@ -98,6 +105,7 @@ class CbtcSignalling:
     zc: ZoneController = field(init=False)
     radio: CbtcRadio = field(init=False)
     onboard: list[OnboardCbtc] = field(init=False)
+    restricted: list[RestrictedMode] = field(init=False)  # each train's driver, radio dead
     active: list[bool] = field(init=False)
     true_front: list[float] = field(init=False)
     on_line: list[bool] = field(init=False)
@@ -120,6 +128,8 @@ class CbtcSignalling:
         self.onboard = [
             make_onboard_cbtc(self.line, self.vehicle, k, uplink=self.radio.name) for k in range(self.trains)
         ]
+        brake = self.vehicle.brake.full_service_mps2
+        self.restricted = [RestrictedMode(brake_mps2=brake) for _ in range(self.trains)]
         self.active = [False] * self.trains
         self.true_front = [math.nan] * self.trains
         self.on_line = [False] * self.trains
@@ -177,6 +187,12 @@ class CbtcSignalling:
 
     def emergency_brake(self, k: int) -> bool:
         return self.onboard[k].emergency_brake
+
+    def radio_dead(self, k: int, now_s: float) -> bool:
+        """Whether train ``k``'s radio is dead now: an outage of the faults, which its driver knows
+        of (no network in the cab, as live operation's dead radios); the medium's losses and bursts
+        are not (the train's unit brakes on them, its driver waits for the next command)."""
+        return any(a <= now_s < b for a, b in self.outages.get(k, ()))
 
     def check_collisions(self) -> None:
         fronts = sorted((self.true_front[k], k) for k in range(self.trains) if self.on_line[k])
@@ -266,6 +282,9 @@ class CbtcSignalling:
                 cause.label: sum(u.eb_causes.get(cause, 0) for u in self.onboard)
                 for cause in sorted({c for u in self.onboard for c in u.eb_causes}, key=lambda c: c.label)
             },
+            # Restricted mode (radio dead): the movements its drivers began, the distance they ran.
+            "restricted_moves": int(sum(d.moves for d in self.restricted)),
+            "restricted_m": round(sum(d.run_m for d in self.restricted), 1),
             "radio_lost": r.lost,
             "radio_rejected": int(sum(r.rejected.values())),
             "zones": len(self.zones),
