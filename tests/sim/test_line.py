@@ -13,7 +13,7 @@ import pytest
 
 from railstop.clock import SimClock
 from railstop.config import default_line, default_vehicle
-from railstop.config.disturbances import draw_scenario, load_disturbances
+from railstop.config.disturbances import DisturbanceSet, draw_scenario, load_disturbances
 from railstop.config.operation import Operation, load_operation
 from railstop.config.scenario import station_gradient
 from railstop.control.line_ato import (
@@ -365,8 +365,8 @@ def test_bad_position_settings_are_refused(kwargs: dict[str, object], field: str
 
 
 def test_a_dwell_fault_holds_the_train_until_the_staff_recover_it() -> None:
-    """Every braking telegram after the first lost: each stop ends by emergency brake far short of
-    the platform, its dwell in the SPEC §5 fault path (no start enable), so the train stands with
+    """No braking telegram ever delivered: each stop ends by emergency brake short of the
+    stopping point, its dwell in the SPEC §5 fault path (no start enable), so the train stands with
     its doors closed and the trains behind wait at red signals (DESIGN rule 10). After the staff's
     reset (FAULT_HOLD_S) it is driven onto the platform and its second dwell gives start enable."""
     from railstop.sim.line import FAULT_HOLD_S
@@ -375,7 +375,11 @@ def test_a_dwell_fault_holds_the_train_until_the_staff_recover_it() -> None:
         line=LINE,
         vehicle=VEHICLE,
         operation=Operation(trains=3, headway_s=120.0),
-        disturbances=load_disturbances("outage-after-first"),
+        disturbances=DisturbanceSet.from_dict(
+            {**load_disturbances("outage-after-first").to_dict(), "radio_loss_probability": 1.0},
+            name="no-telegram",
+            source="test",
+        ),
     )
     s = sim.run(1200.0).summary()
     assert s["emergency_brakes"] == s["stops"] == s["dwell_faults"] >= 3
@@ -385,12 +389,12 @@ def test_a_dwell_fault_holds_the_train_until_the_staff_recover_it() -> None:
     assert [d.outcome for d in first[:4]] == ["fault", "start-enable"] * 2
     assert first[0].station == first[1].station == LINE.stations[0].name
     assert first[0].corrections == 2 and first[1].corrections == 0
-    # It stood short of the platform (held, its emergency brake applied) for the reset's time.
+    # It stood short of its stopping point (held, its emergency brake applied) for the reset's time.
     tr = sim.trains[0]
     longest, since = 0.0, None
     ts, xs = tr.samples_t, tr.samples_x
     for t0, x0, t1, x1 in zip(ts[:-1], xs[:-1], ts[1:], xs[1:], strict=True):
-        standing = x1 == x0 and x1 < LINE.stations[0].platform_start
+        standing = x1 == x0 and x1 < LINE.stations[0].stop_point_m - 1.0
         since = (t0 if since is None else since) if standing else None
         if since is not None:
             longest = max(longest, t1 - since)

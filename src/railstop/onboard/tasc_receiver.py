@@ -43,6 +43,8 @@ from railstop.control.tasc import (
     REG_WEIGHTS,
     Approach,
     BrakeCurves,
+    clip_1,
+    external_path_integral_1,
     fit_ring_1,
     gain_update_1,
     gain_value_1,
@@ -53,6 +55,7 @@ from railstop.control.tasc import (
     modelled_means_1,
     plan_command_1,
     regression_taus_1,
+    required_decel_1,
 )
 from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP, TASC_SWITCHED_PWM
 from railstop.jit import njit_inline, njit_step
@@ -157,8 +160,11 @@ RX_PREV_ODO = 29  # ... at the last passage (forms 1-3) or measurement (form 5) 
 RX_SCALE = 30  # forms 1-3, 5: true over tachometer distance, from the wayside's measurements
 RX_WIN_START = 31  # forms 1-5: the start of the measurement interval (the last command's effect)
 RX_SUMS = 32  # ... the running line fit of the tachometer's speed over it (control.tasc)
-RX_SIZE = RX_SUMS + FIT_SUMS
+RX_DEGRADED = RX_SUMS + FIT_SUMS  # 1: the telegrams stopped after a command; the unit finishes the stop
+RX_ODO_SCALE = RX_DEGRADED + 1  # true over odometer distance between the last two transponders (1: none)
+RX_SIZE = RX_ODO_SCALE + 1
 
+_SCALE_MIN_M = 50.0  # the odometer's scale is taken only over at least this between transponders
 GUARD_DECEL_TAU_S = 0.3  # smoothing of the onboard guard's deceleration from the tachometer
 
 
@@ -215,6 +221,7 @@ def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e:
     rx[RX_PREV_V] = np.nan
     rx[RX_PREV_REF] = np.nan
     rx[RX_PREV_DET] = -1.0
+    rx[RX_ODO_SCALE] = 1.0
     rx[RX_COMB_DECEL] = np.nan
     rx[RX_PREV_ODO] = np.nan
     rx[RX_SCALE] = 1.0
@@ -500,6 +507,10 @@ def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float) -> None:
     """The train's own ATP reset its odometer at a transponder at ``position_m``. At the first
     one (the zone's start, SPEC §1: the first detector) it knows it is in the TASC zone and the
     telegram supervision starts."""
+    if np.isfinite(rx[RX_FIX_POS]) and rx[RX_SINCE_FIX] > _SCALE_MIN_M:
+        # Two transponders at known chainages: the odometer's scale over the stretch between
+        # them (SPEC §2: the wheel's diameter is what the odometer gets wrong), for degraded mode.
+        rx[RX_ODO_SCALE] = (position_m - rx[RX_FIX_POS]) / rx[RX_SINCE_FIX]
     rx[RX_FIX_POS] = position_m
     rx[RX_SINCE_FIX] = 0.0
     if position_m >= rp[RP_ZONE_START] - 1e-9:
@@ -531,9 +542,15 @@ def receiver_supervise_1(
     if rx[RX_IN_ZONE] > 0.0 and rx[RX_LAST_RX] == -np.inf and rx[RX_FIX_POS] + since - unc >= rp[RP_FIRST_BY]:
         rx[RX_LAST_RX] = now_s
     if rx[RX_IN_ZONE] > 0.0 and rx[RX_LAST_RX] > -np.inf and now_s - rx[RX_LAST_RX] > rp[RP_TIMEOUT] + 1e-9:
-        # DESIGN rule 10: braking telegrams stopped arriving inside the zone.
-        _apply_eb_1(rx, EB_TIMEOUT, now_s)
-        return True
+        # DESIGN rule 10: braking telegrams stopped arriving inside the zone. [interpretation]
+        # (degraded mode) A train that has had a braking command and knows its position from a
+        # transponder finishes the stop on its own odometry (receiver_degraded_1), the overrun
+        # guard below still watching it; one the wayside never spoke to brakes at once.
+        if rx[RX_ACTIVE] > 0.0 and np.isfinite(rx[RX_FIX_POS]):
+            rx[RX_DEGRADED] = 1.0
+        else:
+            _apply_eb_1(rx, EB_TIMEOUT, now_s)
+            return True
     if np.isfinite(rx[RX_FIX_POS]):
         # The overrun guard on the train's own odometry, its possible error counted against it
         # (the train may be further on than the odometer says).
@@ -548,6 +565,30 @@ def receiver_supervise_1(
             _apply_eb_1(rx, EB_ONBOARD_GUARD, now_s)
             return True
     return False
+
+
+@njit_inline
+def receiver_degraded_1(
+    rx: FloatArray, rp: FloatArray, brake: BrakeCurves, approach: Approach, speed_mps: float
+) -> None:
+    """Degraded mode (the telegrams stopped after a command): the unit's own target by the
+    wayside's law (SPEC §1: v² / 2s less what gradient and resistance give over the path) from
+    where its odometry puts the train (the last transponder and the odometer since, at the scale
+    the last two transponders gave), as the train's ATO would; the overrun guard, which counts the
+    odometry's possible error against the train, brakes harder when it must."""
+    scale = rx[RX_ODO_SCALE]
+    left = rp[RP_STOP] - (rx[RX_FIX_POS] + scale * rx[RX_SINCE_FIX])
+    v = scale * speed_mps
+    if left > 0.05:
+        need = required_decel_1(left, v)
+        need -= external_path_integral_1(approach.ext, approach.grad, left, v) / left
+        target = clip_1(need, 0.0, rp[RP_MAX_DECEL])
+    else:
+        target = rp[RP_MAX_DECEL] if v > 0.0 else 0.0
+    rx[RX_TARGET] = target
+    rx[RX_FIXED_NOTCH] = -1.0  # forms 7, 8: the unit's own target now, not the wayside's notch
+    rx[RX_FIXED_DUTY] = np.nan
+    rx[RX_ONBOARD_DUTY] = decel_to_pwm_1(target, brake.pwm_duty, brake.pwm_decel)
 
 
 @njit_inline
@@ -580,12 +621,15 @@ def receiver_cycle_1(
     if copy:
         receiver_alive_1(rx, now_s)
     elif new:
+        rx[RX_DEGRADED] = 0.0  # the wayside speaks again: its commands rule
         receiver_receive_1(
             rx, rp, mod, tach, hist_v, hist_e, taus, brake, approach, telegram, now_s,
         )  # fmt: skip
     receiver_observe_1(rx, rp, tach, speed_mps, now_s)
     # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
     eb = receiver_supervise_1(rx, rp, now_s, odometer_m, speed_mps)
+    if rx[RX_DEGRADED] > 0.0 and not eb:
+        receiver_degraded_1(rx, rp, brake, approach, speed_mps)
     config = int(rp[RP_CONFIG])
     switch_pos = receiver_switch_1(rx, rp) if config in (CFG_STEP, CFG_SWITCHED_PWM) else -1
     if config in (CFG_PWM, CFG_SWITCHED_PWM):

@@ -99,7 +99,8 @@ DISK_BYTES_PER_VALUE = 8
 # the home signal, the driver takes power when too slow and drives a long correction at the
 # code, the signal-open switch; a driver's stop judged by the platform's PSD tolerance (SPEC §3
 # ±500 mm). The train's own initial brake step is released at TASC's hand-over (config 3 with
-# tasc.initial_brake_notch > 0); with the default 0, the TASC controllers' numbers are unchanged.
+# tasc.initial_brake_notch > 0); degraded mode after a lost link (a train that had a command
+# finishes its stop on its odometry). Runs with neither are unchanged.
 MODEL_VERSION = 9
 
 
