@@ -163,10 +163,14 @@ def summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
 
     tols = sorted({float(t) for r in rows if isinstance(t := r.get("tolerance_m"), (int, float))})
     tol = f"{tols[0]:g}" if len(tols) == 1 else "tol"
-    # The station's PSD tolerance, and the fixed reference bands that differ from it.
+    # The PSD tolerance each stop is judged by, and the fixed reference bands that differ from it
+    # (all of them when the controllers' tolerances differ: a driver's is the platform's).
+    from railstop.stats.summary import BANDS_M  # lazy: numpy and the data schemas (start-up)
+
+    fixed = BANDS_M if len(tols) > 1 else (0.30, 0.50)
     bands = [
         (f"within_{band:.2f}".replace(".", "_"), f"±{band:.2f}")
-        for band in (0.30, 0.50)
+        for band in fixed
         if not (len(tols) == 1 and abs(band - tols[0]) < 1e-9)
     ]
     cols = (
