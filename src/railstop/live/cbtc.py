@@ -54,6 +54,7 @@ from railstop.link.release_link import OPERATOR_ADDRESS, ReleaseGate, release_ke
 from railstop.link.safety import frame_ids, sum_counts
 from railstop.link.udp import Address, UdpEndpoint, local_for, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
+from railstop.live.drive import HOLD, STOP_SENSOR_SPAN_M, Drive, emergency_drive
 from railstop.live.office import OfficeClient
 from railstop.messages import OnboardPosition, Output, PositionReport
 from railstop.nodes.dwell import DWELL_STEP_S
@@ -68,7 +69,7 @@ from railstop.wayside.zone_controller import ZoneController, ZoneMode
 # process (run_zone_controller) starts without them.
 if TYPE_CHECKING:  # ground TASC loads the stop kernel: only a trains process with --stations needs it
     from railstop.live.doors import LiveDoors
-    from railstop.live.plant import Drive, PlantPort, TrainState
+    from railstop.live.plant import PlantPort, TrainState
     from railstop.live.tasc import FloatArray, LiveTasc, TascOnboard
     from railstop.nodes.dwell import TrainDoors
     from railstop.onboard.cpcs import CpcsState
@@ -429,7 +430,6 @@ class _Trains:
     def step(self, now_s: float, step_s: float) -> list[Output]:
         """One plant step: the radios' frames out, the plant's step, every train's drive and
         reports; the onboard positions for the CBTC units."""
-        from railstop.live.plant import emergency_drive  # lazy (start-up), see the top
 
         ep, zc, port, tasc = self.ep, self.zc, self.port, self.tasc
         assert ep is not None and zc is not None
@@ -471,7 +471,6 @@ class _Trains:
     def _drive(self, t: _TrainState, state: TrainState | None, now_s: float, step_s: float) -> Drive | None:
         """The train's drive this step (None: the plant goes on as it is), after taking the
         plant's state of it."""
-        from railstop.live.plant import Drive, emergency_drive  # lazy (start-up), see the top
 
         port, tasc, doors = self.port, self.tasc, self.doors
         fresh = state is not None and state.fresh
@@ -633,7 +632,6 @@ def _localise(t: _TrainState, state: TrainState | None, stations: list[float]) -
     does not know whether it was done). [interpretation] SPEC §2 keeps the position in the train;
     here the trains' process holds no memory of it, and the plant stands for the train's own
     sensors."""
-    from railstop.live.plant import STOP_SENSOR_SPAN_M  # lazy (start-up), see the top
 
     if state is None:
         return False
@@ -669,7 +667,6 @@ def _move(
     """The driving the ATO does under the onboard unit's limits, as the drive to the plant. With
     ground TASC it runs at the station's entry speed to the hand-over point, where the stop is
     taken over (``_tasc_step``); short of an authority there, it stops where it aims."""
-    from railstop.live.plant import HOLD, Drive, emergency_drive  # lazy (start-up), see the top
 
     unit = t.unit
     brake = vehicle.brake
@@ -811,7 +808,6 @@ def _dwell_step(
     brake) the train stands ``DWELL_FAULT_HOLD_S``, then its confirmation begins again
     [interpretation]: staff reset the ATC; SPEC §5 says nothing of the recovery. Returns the
     drive that holds (or creeps) the train, None when no dwell holds it."""
-    from railstop.live.plant import HOLD, Drive  # lazy (start-up), see the top
 
     carried = None
     if t.retry is not None and now_s >= t.dwell_until_s:
@@ -863,7 +859,6 @@ def _turn(
     """After its dwell at the last station a train leaves service there and comes back into service
     at ``reentry_m`` once that stretch is clear (the line has one direction): the drive that
     relocates it, or holds it until then; None before its last station's dwell has ended."""
-    from railstop.live.plant import HOLD, Drive  # lazy (start-up), see the top
 
     if t.next_station < len(stations) or now_s < t.dwell_until_s or t.unit.emergency_brake:
         return None

@@ -60,6 +60,7 @@ from railstop.link.safety import MAX_PAYLOAD_BYTES, SafePeers
 from railstop.link.udp import Address, UdpEndpoint, open_endpoint
 from railstop.live.clock import TimeBase, WallClock
 from railstop.live.doors import PLATFORM_BASE, SENSORS_ID, pack_stop_sensed
+from railstop.live.drive import HOLD, STOP_SENSOR_SPAN_M, Drive, emergency_drive
 from railstop.live.tasc import (
     STATION_BASE,
     TASC_DT_S,
@@ -80,10 +81,6 @@ PLANT_STEP_S = TASC_DT_S  # the plant's step: the stop model's (10 ms)
 SENSOR_EVERY = 5  # trackside readings go out every 5 plant steps (50 ms), as one frame per train
 DRIVE_TIMEOUT_S = 0.5  # no drive for this long: every train's emergency brake (fail safe)
 SENSE_TIMEOUT_S = 0.5  # no plant state for this long: the trains process brakes every train
-#: The platform's stop sensors see a train whose front stands within this of the stopping point
-#: [interpretation]: they span the precise-stop zone and a correction's reach beyond it; SPEC §5
-#: needs only that a train outside the tolerance is seen as not in position.
-STOP_SENSOR_SPAN_M = 5.0
 #: The trains' load between TASC stops (a stop draws its own) [interpretation]: half way from empty
 #: to crush, as the line simulation's trains enter.
 LOAD_FACTOR = 0.5
@@ -122,29 +119,6 @@ def initial_positions(line: Line, vehicle: Vehicle, trains: int, spacing_m: floa
 
 def line_end_m(line: Line) -> float:
     return line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
-
-
-@dataclass(frozen=True, slots=True)
-class Drive:
-    """What the ATO and the CBTC unit ask of a train's traction and brakes: reach ``target_mps``
-    (signed: a correction may back, from a stand) with at most ``accel_mps2`` of traction from
-    below or ``decel_mps2`` of braking from above (inf: as hard as the train can, full service at
-    most); ``emergency``: the emergency brake (the plant's emergency path); ``relocate_m``: the
-    train leaves service and comes back there (the line has one direction), NaN otherwise."""
-
-    target_mps: float
-    accel_mps2: float
-    decel_mps2: float
-    relocate_m: float = math.nan
-    emergency: bool = False
-
-
-HOLD = Drive(0.0, 0.0, math.inf)  # standing (the holding brake)
-
-
-def emergency_drive(vehicle: Vehicle) -> Drive:
-    """The emergency brake as a drive: to a stand through the plant's emergency brake."""
-    return Drive(0.0, 0.0, vehicle.brake.emergency_decel_mps2, emergency=True)
 
 
 def drive_demand(drive: Drive, plant: PlantState) -> tuple[float, bool]:
