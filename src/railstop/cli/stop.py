@@ -277,7 +277,7 @@ def _print_stop(
         else f"run {result.run} of {result.disturbances!r} seed {result.seed} "
         f"(load {result.load_factor:.0%}, brake gain {result.brake_gain:.3f}): "
     )
-    if result.signal_open and result.passed_kmh is not None:
+    if result.passed_kmh is not None:
         # SPEC §3 signal-open switch: the train ran through the station.
         out.print(
             f"{result.controller} at {result.station}: {drawn}signal-open switch on: the train ran "
@@ -286,13 +286,7 @@ def _print_stop(
             highlight=False,
             soft_wrap=True,
         )
-        if dwell is not None:
-            from railstop.sim.platform_dwell import dwell_sentence
-
-            saved = "" if db is None else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
-            out.print(f"platform: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
-        if plot is not None:
-            out.print(f"plot: {plot}", highlight=False)
+        _print_dwell_and_plot("platform", dwell, plot, db)
         return
     if not result.stopped:
         # Fail safe: a train still moving at the end of the simulated time has no stop error.
@@ -334,11 +328,19 @@ def _print_stop(
         wayside.append(f"{result.detectors_filled} missed detector passage(s) filled in from the Doppler")
     if wayside:
         out.print("wayside: " + "; ".join(wayside), highlight=False, soft_wrap=True)
+    _print_dwell_and_plot("dwell", dwell, plot, db)
+
+
+def _print_dwell_and_plot(
+    label: str, dwell: tuple[PlatformDwellResult, list[DwellEvent]] | None, plot: Path | None, db: Path | None
+) -> None:
+    """The lines after a driver's stop or run through: its dwell (``label``: what it is) and where
+    its timeline and the plot went."""
     if dwell is not None:
         from railstop.sim.platform_dwell import dwell_sentence
 
         saved = "" if db is None else f"; lamp and PSD timeline ({len(dwell[1])} events) saved to {db}"
-        out.print(f"dwell: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
+        out.print(f"{label}: {dwell_sentence(dwell[0])}{saved}", highlight=False, soft_wrap=True)
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)
 

@@ -171,6 +171,18 @@ def external_path_integral_1(
 
 
 @njit_step
+def brake_need_1(
+    ext: FloatArray, grad: tuple[FloatArray, FloatArray, FloatArray], distance_m: float, speed_mps: float
+) -> float:
+    """SPEC §1: the deceleration the brake must give to stop from ``speed`` in ``distance``: v² / 2s
+    less what gradient and resistance give over the path (+inf at or past the stopping point)."""
+    need = required_decel_1(distance_m, speed_mps)
+    if distance_m > 0.0:
+        need -= external_path_integral_1(ext, grad, distance_m, speed_mps) / distance_m
+    return need
+
+
+@njit_step
 def history_push_1(values: FloatArray, effects: FloatArray, value_mps2: float, effect_s: float) -> None:
     """Append one command (the oldest drops out when the history is full)."""
     count = 0
@@ -340,9 +352,7 @@ def plan_command_1(
         s_t, v_t = history_predict_1(
             values, effects, distance_m, speed_mps, now_s, now_s + delay, gain, ext_now
         )
-        need = required_decel_1(s_t, v_t)
-        if s_t > 0.0:
-            need -= external_path_integral_1(ext, grad, s_t, v_t) / s_t
+        need = brake_need_1(ext, grad, s_t, v_t)
         ramp = abs(clip_1(need / gain, 0.0, max_decel_mps2) - current) / (2.0 * jerk_limit_mps3)
         delay = base_delay_s + ramp
     command = current if v_t <= 0.0 else clip_1(need / gain, 0.0, max_decel_mps2)

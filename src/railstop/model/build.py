@@ -273,15 +273,9 @@ class KernelModel:
                 f"the signal-open switch is a manually driven line's (SPEC §3): a driver controller, "
                 f"not {controller}"
             )
-        manual: dict[str, Any] = _manual_arrays(kp, controller, station, driver, platform, incapacitated)
-        if signal_open:
-            # SPEC §3: the switch lets the train pass the station (out-of-service run, skip).
-            # [interpretation] It clears the station's codes and darkens its lamps: the approach
-            # limit holds through the station, the driver does not stop, and the run ends when
-            # the train's rear has left the platform.
-            kp[KP_PASS] = station.platform_end + vehicle.length_m
-            manual["code_pos"] = np.zeros(0)
-            manual["code_lim"] = np.zeros(0)
+        manual: dict[str, Any] = _manual_arrays(
+            kp, controller, station, vehicle, driver, platform, incapacitated, signal_open
+        )
         return cls(
             **manual,
             kp=kp,
@@ -403,11 +397,14 @@ def _manual_arrays(
     kp: FloatArray,
     controller: str,
     station: Station,
+    vehicle: Vehicle,
     driver: DriverFile | None,
     platform: PlatformFile | None,
     incapacitated: bool,
+    signal_open: bool,
 ) -> dict[str, FloatArray]:
-    """The driver controllers' arrays (SPEC §3), and their kernel parameters set in ``kp``."""
+    """The driver controllers' arrays (SPEC §3), and their kernel parameters set in ``kp``.
+    ``signal_open``: the station's signal-open switch is on."""
     if controller not in DRIVER_MODES:
         return {
             "levels": np.zeros((1, LV_PARAMS + LV_WIDTH * len(LEVEL_PARAMETERS))),
@@ -422,6 +419,13 @@ def _manual_arrays(
     approach = platform.approach
     home = platform.home_signal_m(station.stop_point_m)
     codes = getattr(approach, mode).codes
+    if signal_open:
+        # SPEC §3: the switch lets the train pass the station (out-of-service run, skip).
+        # [interpretation] It clears the station's codes and darkens its lamps: the approach limit
+        # holds through the station, the driver does not stop, and the run ends when the train's
+        # rear has left the platform.
+        codes = []
+        kp[KP_PASS] = station.platform_end + vehicle.length_m
     kp[KP_HOME] = home
     kp[KP_APPROACH_LIMIT] = kmh_to_mps(approach.approach_limit_kmh)
     kp[KP_GRACE] = approach.grace_s

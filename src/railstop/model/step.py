@@ -202,7 +202,6 @@ from railstop.onboard.driver import (
     DV_ACTION,
     DV_REQUIRED,
     RS_EB_RESET,
-    RS_JUDGEMENT_FLOOR,
     RS_MAX,
     RS_POWER_ACCEL,
     RS_REVERSE_SETUP,
@@ -668,8 +667,7 @@ def tasc_onboard_1(
     ob, d, se = s.onboard[0], run.derived[0], s.sense[0]
     if se.transponder_m == se.transponder_m:  # not NaN: the train's own ATP saw a transponder
         receiver_fix_1(s.rx, p.rp, se.transponder_m)
-        if s.rx[RX_ACTIVE] == 0.0:
-            ob.own_notch = int(p.kp[KP_INITIAL_NOTCH])
+        ob.own_notch = int(p.kp[KP_INITIAL_NOTCH])
         se.transponder_m = np.nan
     if s.rx[RX_ACTIVE] > 0.0:
         # [interpretation] The hand-over: once TASC's first command is in, the train's own
@@ -736,8 +734,7 @@ def _driver_control_1(
     stop_point = kp[KP_STOP] if kp[KP_PASS] <= 0.0 else np.inf
     driver_look_1(
         s.dv, s.dr, p.table, d.k_driver, t, tr.position_m, tach_v, tr.accel_mps2, stop_point,
-        p.rs[RS_JUDGEMENT_FLOOR], p.code_pos, p.code_lim, limit, d.incapacitated, p.wp[WP_INITIAL_DELAY],
-        p.rs,
+        p.code_pos, p.code_lim, limit, d.incapacitated, p.wp[WP_INITIAL_DELAY], p.rs,
     )  # fmt: skip
     notch, holding, power = driver_output_1(s.dv, t)
     # Power (config.driver Running): the brakes released, traction at the driver's notch; the

@@ -194,7 +194,6 @@ def driver_look_1(
     v: float,
     accel: float,
     stop_point: float,
-    floor_sd: float,
     code_pos: np.ndarray,
     code_lim: np.ndarray,
     limit_now: float,
@@ -204,7 +203,7 @@ def driver_look_1(
 ) -> None:
     """A look at ``t`` (when due): decide the handle, to act ``reaction_s`` later.
     ``response_s``: the brake's response the driver knows (dead time + build-up); ``rs``: the
-    re-stop and running parameters (RS_*: creep speed, power)."""
+    re-stop and running parameters (RS_*: the judgement's floor, creep speed, power)."""
     if t < dv[DV_NEXT_LOOK] - 1e-9:
         return
     dv[DV_NEXT_LOOK] = t + dr[DR_LOOK]
@@ -219,7 +218,7 @@ def driver_look_1(
     # reaction_s, the brake after its response), at the deceleration felt now.
     felt = max(-accel, 0.0)
     ahead = dr[DR_REACTION] + response_s
-    d_stop = (stop_point - x) * scale + floor_sd * key_normal(key, c + 2)
+    d_stop = (stop_point - x) * scale + rs[RS_JUDGEMENT_FLOOR] * key_normal(key, c + 2)
     need = _need_ahead_1(vp, felt, ahead, 0.0, d_stop)
     # The speed codes: the held one at once, the points ahead by route knowledge.
     margin = dr[DR_MARGIN]

@@ -43,8 +43,8 @@ from railstop.control.tasc import (
     REG_WEIGHTS,
     Approach,
     BrakeCurves,
+    brake_need_1,
     clip_1,
-    external_path_integral_1,
     fit_ring_1,
     gain_update_1,
     gain_value_1,
@@ -55,7 +55,6 @@ from railstop.control.tasc import (
     modelled_means_1,
     plan_command_1,
     regression_taus_1,
-    required_decel_1,
 )
 from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP, TASC_SWITCHED_PWM
 from railstop.jit import njit_inline, njit_step
@@ -580,9 +579,7 @@ def receiver_degraded_1(
     left = rp[RP_STOP] - (rx[RX_FIX_POS] + scale * rx[RX_SINCE_FIX])
     v = scale * speed_mps
     if left > 0.05:
-        need = required_decel_1(left, v)
-        need -= external_path_integral_1(approach.ext, approach.grad, left, v) / left
-        target = clip_1(need, 0.0, rp[RP_MAX_DECEL])
+        target = clip_1(brake_need_1(approach.ext, approach.grad, left, v), 0.0, rp[RP_MAX_DECEL])
     else:
         target = rp[RP_MAX_DECEL] if v > 0.0 else 0.0
     rx[RX_TARGET] = target
