@@ -3,28 +3,18 @@ run on the real tree (it must run and find the ``cli`` package at the top of the
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 import textwrap
 from pathlib import Path
-from types import ModuleType
 
 import pytest
+
+from bench_loader import load_benchmark
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("architecture", ROOT / "benchmarks" / "architecture.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
-
-
-arch = _bench()
+arch = load_benchmark("architecture")
 
 LONG_BODY = 119  # lines after the def line: the function is 120 lines long
 MANY = 21  # parameters of pkg.physics.train:many

@@ -4,7 +4,6 @@ data. Real processes and real sockets on loopback."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import signal
@@ -13,12 +12,12 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from bench_loader import load_benchmark
 from railstop.config import default_line, default_vehicle
 from railstop.config.doors import load_doors
 from railstop.link.cbtc_radio import TRAIN_BASE, ZC_ADDRESS, CbtcEndpoint, to_telegram
@@ -27,17 +26,8 @@ from railstop.link.safety import SafePeers
 from railstop.live.doors import PLATFORM_BASE, TRAIN_DOORS_BASE, LiveDoors
 from railstop.messages import MovementCommand, PositionReport
 
-ROOT = Path(__file__).resolve().parents[2]
 KEY = os.urandom(32)
 ENV = {**os.environ, "RAILSTOP_OFFICE_KEY": KEY.hex()}
-
-
-def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("live_attack", ROOT / "benchmarks" / "live_attack.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _free_port() -> int:
@@ -242,7 +232,7 @@ def test_a_reduced_attack_crashes_nothing_and_delivers_nothing_it_should_not(tmp
     after a kill -9 restart of the zone controller) against the five processes of a two-train line.
     No process crashes, no frame is delivered that should not be, no train moves without authority,
     and every attack datagram is refused or dropped where it is counted."""
-    f = _bench().run(
+    f = load_benchmark("live_attack").run(
         seconds=16.0, trains=2, spacing_m=800.0, flood_rate=0.0, flood_s=0.0, junk_per_target=40,
         restarts=("zone_controller",), workdir=tmp_path, settle_s=3.0, say=lambda *_: None,
     )  # fmt: skip

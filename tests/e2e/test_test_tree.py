@@ -4,7 +4,7 @@ A test module sits in ``tests/<package>/`` for a package of ``src/railstop/``, i
 ``tests/foundations/`` for the top-level modules of ``src/railstop/`` (``streams.py``,
 ``quantities.py``, ...), or in ``tests/e2e/`` when it drives the whole system; ``tests/``
 itself keeps only the shared helpers (``conftest.py``, ``zygote.py``, ``bad_inputs.py``,
-``busy.py``) and ``tests/data/``. Test modules are imported by their basename (pytest's
+``busy.py``, ``bench_loader.py``) and ``tests/data/``. Test modules are imported by their basename (pytest's
 ``prepend`` import mode, no ``__init__.py``), so no two may share one. The paths that name test
 modules outside them (the Makefile's wall-clock modules, the suite's order in ``conftest.py``)
 must name modules that exist.
