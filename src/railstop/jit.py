@@ -21,6 +21,7 @@ fills it (``make install`` runs it once).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import platform
 import sys
@@ -146,3 +147,40 @@ def njit_inline(fn: F) -> F:
     """:func:`njit_step` for a small function called every step: numba inlines it into its
     callers, so no call passes array descriptors (seven machine words each) through the stack."""
     return _numba_njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")(fn)
+
+
+# --------------------------------------------------------------------------
+# Scalar maths that both targets compile (issue: one source for the CPU and the GPU).
+# The compiled model does its scalar maths through ``math`` (which numba compiles for the CPU and
+# numba-cuda for the GPU, to the same LLVM intrinsics on the CPU as numpy's scalar functions);
+# numpy's ``rint`` and ``ceil`` have no ``math`` counterpart that keeps a float (``math.ceil``
+# returns an int, undefined for NaN), hence these two.
+
+_TWO52 = 4503599627370496.0  # 2**52: from here on every float64 is an integer
+
+
+@njit_inline
+def rint_1(x: float) -> float:
+    """``numpy.rint`` of a scalar: the nearest integer, halves to even; NaN and inf unchanged.
+
+    Adding and then subtracting 2**52 rounds in the current (round-to-nearest-even) mode: the sum
+    lies where float64's spacing is exactly 1. Exact, and bit-identical to ``numpy.rint`` for
+    every float64, signed zeros included (a test checks it)."""
+    if x >= 0.0:
+        if x < _TWO52:
+            return math.copysign((x + _TWO52) - _TWO52, x)
+        return x
+    if x > -_TWO52:
+        return math.copysign((x - _TWO52) + _TWO52, x)
+    return x  # -inf, a large negative integer, or NaN (every comparison false)
+
+
+@njit_inline
+def ceil_1(x: float) -> float:
+    """``numpy.ceil`` of a scalar (a float; NaN and inf unchanged, ``ceil(-0.5)`` is -0.0)."""
+    r = rint_1(x)
+    if r < x:
+        r += 1.0
+    if r == 0.0:
+        return math.copysign(0.0, x)
+    return r

@@ -178,7 +178,7 @@ def key_normal(key: np.uint64, counter: int | np.integer) -> float:
     bits = key_bits(key, counter)
     u1 = (float(bits >> np.uint64(32)) + 0.5) * (1.0 / 4294967296.0)
     u2 = float(bits & _U_LOW32) * (1.0 / 4294967296.0)
-    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
 # The ziggurat of the standard normal (Marsaglia & Tsang 2000, "The ziggurat method for generating
@@ -235,14 +235,14 @@ def key_normal_zig(key: np.uint64, counter: int | np.integer) -> float:
                 bits = _next_bits(bits)
                 u2 = (float(bits >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
                 bits = _next_bits(bits)
-                t = -np.log(u1) / ZIGGURAT_R
-                if -2.0 * np.log(u2) > t * t:
+                t = -math.log(u1) / ZIGGURAT_R
+                if -2.0 * math.log(u2) > t * t:
                     return sign * (ZIGGURAT_R + t)
         # The wedge between the layer's inner rectangle and the curve.
         y = _ZIG_F[layer] + float(bits >> np.uint64(11)) * (1.0 / 9007199254740992.0) * (
             _ZIG_F[layer + 1] - _ZIG_F[layer]
         )
-        if y < np.exp(-0.5 * x * x):
+        if y < math.exp(-0.5 * x * x):
             return sign * x
         bits = _next_bits(bits)
 

@@ -40,6 +40,8 @@ allocated, so one identification costs about 20 µs.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -124,11 +126,11 @@ def response_misfit_1(
     size = ring.size
     steps = 0
     for j in range(HISTORY):
-        if not np.isfinite(effects[j]):
+        if not math.isfinite(effects[j]):
             break
         scratch[j] = np.nan
         steps += 1
-    decay = np.exp(-stride * dt_s / lag_s)
+    decay = math.exp(-stride * dt_s / lag_s)
     n = 0.0
     sx = 0.0
     sxx = 0.0
@@ -144,7 +146,7 @@ def response_misfit_1(
             u = t - (effects[j] + shift_s - lag_s)
             if u > 0.0:
                 e = scratch[j]
-                e = np.exp(-u / lag_s) if np.isnan(e) else e * decay
+                e = math.exp(-u / lag_s) if math.isnan(e) else e * decay
                 scratch[j] = e
                 q += (values[j] - prev) * (u - lag_s * (1.0 - e))
             prev = values[j]
@@ -262,7 +264,7 @@ def _neighbour_1(
 def _parabola_min_1(x1: float, step: float, f0: float, f1: float, f2: float) -> float:
     """Abscissa of the minimum of the parabola through (x1 - step, f0), (x1, f1), (x1 + step, f2)
     (x1 if the three do not bracket a minimum)."""
-    if not (np.isfinite(f0) and np.isfinite(f1) and np.isfinite(f2)):
+    if not (math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)):
         return x1
     curv = f0 - 2.0 * f1 + f2
     if curv <= 0.0 or f1 > f0 or f1 > f2:
@@ -311,7 +313,7 @@ def identify_response_1(
                                 values, effects, delay_s, onset, lag, COARSE_STRIDE, scratch)  # fmt: skip
             if f < best:
                 best, c_on, c_lag = f, onset, lag
-    if not np.isfinite(best):
+    if not math.isfinite(best):
         return np.nan, np.nan, np.nan
     # The fine grid: 3 x 3 around the coarse best at FINE_STEP_S, its criteria kept in
     # scratch[FINE + 3 i + j] for the parabolas.
@@ -326,7 +328,7 @@ def identify_response_1(
             scratch[FINE + 3 * i + j] = f
             if f < best:
                 best, bi, bj, gain = f, i, j, g
-    if not np.isfinite(best):
+    if not math.isfinite(best):
         return np.nan, np.nan, np.nan
     # A parabola along each axis through the best point and its neighbours (from the fine grid,
     # or one more candidate where the best point is on its edge).

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import hashlib
 import linecache
+import math
 import re
 import sys
 from collections.abc import Callable
@@ -314,6 +315,6 @@ def reset_law_1(state: np.ndarray, params: np.ndarray, nominal: np.ndarray) -> N
 @njit_inline
 def safe_demand_1(demand: float, full_service_mps2: float) -> float:
     """HZ-LAW-01: the law's demand within [0, full service]; not a number (or infinite): full service."""
-    if not np.isfinite(demand):
+    if not math.isfinite(demand):
         return full_service_mps2 if not demand < 0.0 else 0.0
     return min(max(demand, 0.0), full_service_mps2)

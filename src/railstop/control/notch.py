@@ -19,6 +19,8 @@ this is railstop's model of a competent one.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -62,7 +64,7 @@ def motion_under_lag_1(
     v0_mps: float, a0_mps2: float, c_mps2: float, tau_s: float, t_s: float
 ) -> tuple[float, float, float]:
     """Speed, distance and deceleration after t with deceleration a(t) = c + (a0 - c)e^(-t/τ)."""
-    decay = np.exp(-t_s / tau_s)
+    decay = math.exp(-t_s / tau_s)
     gap = a0_mps2 - c_mps2
     v = v0_mps - c_mps2 * t_s - gap * tau_s * (1.0 - decay)
     x = v0_mps * t_s - 0.5 * c_mps2 * t_s * t_s - gap * tau_s * (t_s - tau_s * (1.0 - decay))
@@ -161,7 +163,7 @@ def modulator_update_1(
     modulator runs on the target alone.
     """
     target = clip_1(target_mps2, 0.0, table[table.size - 1])
-    alpha = 1.0 - np.exp(-dt_s / response_s)
+    alpha = 1.0 - math.exp(-dt_s / response_s)
     notch = int(state[MOD_NOTCH])
     state[MOD_APPLIED] += (table[notch] - state[MOD_APPLIED]) * alpha
     state[MOD_TARGET] += (target - state[MOD_TARGET]) * alpha

@@ -23,6 +23,7 @@ per cent, which a single-window gain would pass straight into the command.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -187,7 +188,7 @@ def history_push_1(values: FloatArray, effects: FloatArray, value_mps2: float, e
     """Append one command (the oldest drops out when the history is full)."""
     count = 0
     for j in range(HISTORY):
-        if np.isfinite(effects[j]):
+        if math.isfinite(effects[j]):
             count += 1
     if count >= HISTORY:
         for j in range(HISTORY - 1):
@@ -218,10 +219,10 @@ def history_response_at_1(values: FloatArray, effects: FloatArray, t_s: float, l
     prev = 0.0
     tau = max(lag_s, 1e-6)
     for j in range(HISTORY):
-        if not np.isfinite(effects[j]):
+        if not math.isfinite(effects[j]):
             break
         since = t_s - (effects[j] - lag_s)
-        total += (values[j] - prev) * (1.0 - np.exp(-max(since, 0.0) / tau))
+        total += (values[j] - prev) * (1.0 - math.exp(-max(since, 0.0) / tau))
         prev = values[j]
     return total
 
@@ -304,7 +305,7 @@ def modelled_means_1(
     window the train moves 20 m, and the mean gradient under it can change by
     a few per mille meanwhile.
     """
-    a = decel_mps2 if np.isfinite(decel_mps2) else 0.0
+    a = decel_mps2 if math.isfinite(decel_mps2) else 0.0
     cmd = 0.0
     ext_mean = 0.0
     for i in range(SAMPLES):
@@ -379,7 +380,7 @@ def gain_update_1(
     onboard planner of forms 1-5 both close the loop with this, then plan with
     :func:`plan_command_1`.
     """
-    if expected_brake_mps2 >= 0.05 and np.isfinite(measured_decel_mps2):
+    if expected_brake_mps2 >= 0.05 and math.isfinite(measured_decel_mps2):
         num += expected_brake_mps2 * (measured_decel_mps2 - external_mps2)
         den += expected_brake_mps2 * expected_brake_mps2
     return num, den

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from railstop.config.schema import Track, Vehicle
 from railstop.errors import SimulationError
-from railstop.jit import njit, njit_step
+from railstop.jit import njit, njit_step, rint_1
 from railstop.link.codec import TrackCircuitOccupancy, layout_of
 from railstop.onboard.positioning import (
     LOG_ROWS,
@@ -292,7 +292,7 @@ def fixes_step_run(
         # latency; the codec carries the time at its resolution (half to even, as the codec rounds).
         # A newer occupancy replaces a telegram still on its way.
         istate[FXI_PENDING_CIRCUIT] = tc_ids[nxt]
-        state[FX_PENDING_TIME] = np.rint(occupied * gnss_counts_per_s) / gnss_counts_per_s
+        state[FX_PENDING_TIME] = rint_1(occupied * gnss_counts_per_s) / gnss_counts_per_s
         state[FX_PENDING_ARRIVAL] = occupied + latency_s
         istate[FXI_NEXT] = nxt + 1
     if not state[FX_PENDING_ARRIVAL] <= now + 1e-9:

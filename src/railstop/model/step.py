@@ -27,6 +27,7 @@ reference counting, so taking an array out of a record costs nothing.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -34,7 +35,7 @@ import numpy as np
 from railstop.control.law import reset_law_1
 from railstop.control.supervision import EB_CBTC
 from railstop.control.tasc import Approach, BrakeCurves
-from railstop.jit import njit_inline, njit_step
+from railstop.jit import ceil_1, njit_inline, njit_step, rint_1
 from railstop.messages import (
     TEL_DELTA,
     TEL_DETECTOR,
@@ -272,17 +273,17 @@ def quantize_telegram_1(
         elif carried[j] == 0:
             out[j] = np.nan
         elif quant[j] > 0.0:
-            out[j] = np.rint(tele[j] * quant[j]) / quant[j]
+            out[j] = rint_1(tele[j] * quant[j]) / quant[j]
         else:
             out[j] = tele[j]
     if form == 4:
-        measured = np.rint(tele[TEL_MEASURED] * quant[TEL_MEASURED]) / quant[TEL_MEASURED]
+        measured = rint_1(tele[TEL_MEASURED] * quant[TEL_MEASURED]) / quant[TEL_MEASURED]
         # [interpretation] The passage is never after the measurement that reports it: the step's
         # passage is time-stamped within the step (and the sensor's jitter) while the wayside
         # computes at the step's start; the codec's age field is unsigned (tasc_link agrees).
-        age = max(0.0, np.rint((tele[TEL_MEASURED] - tele[TEL_PASSAGE]) * quant_age) / quant_age)
+        age = max(0.0, rint_1((tele[TEL_MEASURED] - tele[TEL_PASSAGE]) * quant_age) / quant_age)
         out[TEL_MEASURED] = measured
-        out[TEL_SPEED] = np.rint(tele[TEL_SPEED] * quant[TEL_SPEED]) / quant[TEL_SPEED]
+        out[TEL_SPEED] = rint_1(tele[TEL_SPEED] * quant[TEL_SPEED]) / quant[TEL_SPEED]
         out[TEL_PASSAGE] = measured - age
 
 
@@ -342,7 +343,7 @@ def _record_move(
 ) -> int:
     """Record a correction of the detailed stop: a wait at the stand, then the move at up to ``top``."""
     total = wait + duration
-    n = int(np.ceil(total / dt))
+    n = int(ceil_1(total / dt))
     forward = move > 0.0
     for i in range(1, n + 1):
         if rows >= trace.shape[0]:
@@ -409,11 +410,11 @@ def _derive_run(p: StopParams, run: RunParams, seed_keys: UintArray, run_index: 
     d.tach_scale = d.assumed_m / d.wheel_m
     d.slide_slip = kp[KP_SLIDE_SLIP]
     # Actuator: dead time (whole steps), jerk limiter, first-order lag.
-    d.delay_steps = int(np.rint(sc[SC_DEAD_TIME] / dt))
-    d.lag_alpha = 1.0 - np.exp(-dt / sc[SC_TAU])
+    d.delay_steps = int(rint_1(sc[SC_DEAD_TIME] / dt))
+    d.lag_alpha = 1.0 - math.exp(-dt / sc[SC_TAU])
     d.jerk_step_mps2 = kp[KP_JERK] * dt
     ber = sc[SC_BER]
-    d.corrupt_p = -np.expm1(kp[KP_FRAME_BITS] * np.log1p(-ber)) if ber > 0.0 else 0.0
+    d.corrupt_p = -math.expm1(kp[KP_FRAME_BITS] * math.log1p(-ber)) if ber > 0.0 else 0.0
 
 
 @njit_inline
@@ -609,8 +610,8 @@ def _transmit_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k
     arrival = t + (u * cycle + kp[KP_AIRTIME] + max(0.0, sc[SC_LATENCY] + jitter * z))
     # The step that receives the frame, and the safety layer's age check there (ms).
     dt = kp[KP_DT]
-    receive_s = np.ceil((arrival - 1e-9) / dt) * dt
-    stale = np.rint(receive_s * 1000.0) - np.rint(t * 1000.0) > kp[KP_MAX_AGE] * 1000.0
+    receive_s = ceil_1((arrival - 1e-9) / dt) * dt
+    stale = rint_1(receive_s * 1000.0) - rint_1(t * 1000.0) > kp[KP_MAX_AGE] * 1000.0
     n_fl = ln.in_flight
     if not (lost or corrupt or stale) and n_fl < s.fl_arr.size:
         s.fl_arr[n_fl] = arrival
@@ -688,7 +689,7 @@ def tasc_onboard_1(
     )  # fmt: skip
     ob.eb = eb
     ob.switch_pos = switch_pos
-    braking = np.isfinite(s.rx[RX_FIRST_RX]) or eb or own_notch > 0
+    braking = math.isfinite(s.rx[RX_FIRST_RX]) or eb or own_notch > 0
     return notch, duty, braking, eb
 
 
@@ -1066,11 +1067,11 @@ def stop_finish(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, r
     else:
         res[RES_EB] = 0.0 if d.is_ato else s.rx[RX_EB]
         res[RES_EB_T] = np.nan if d.is_ato else s.rx[RX_EB_T] - passages[0]
-    if res[RES_EB] == 0.0 and np.isfinite(ob.external_eb_t_s):
+    if res[RES_EB] == 0.0 and math.isfinite(ob.external_eb_t_s):
         # Braked from outside only: the cause is the CBTC unit's (the stop's own units did not).
         res[RES_EB] = EB_CBTC
         res[RES_EB_T] = ob.external_eb_t_s - passages[0]
-    identified = not onboard_only and np.isfinite(s.ws[WS_ID_GAIN])
+    identified = not onboard_only and math.isfinite(s.ws[WS_ID_GAIN])
     res[RES_ID_DELAY] = s.ws[WS_DELAY] if identified else np.nan
     res[RES_ID_LAG] = s.ws[WS_LAG] if identified else np.nan
     res[RES_FILLED] = 0.0 if onboard_only else s.ws[WS_FILLED]

@@ -36,6 +36,7 @@ transponder layout and the law are railstop's choice of a fair baseline.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -185,7 +186,7 @@ def ato_law_function(meas: NDArray[np.void], state: FloatArray, params: NDArray[
     if distance <= 0.0:  # at or past its stopping point with speed left: full service
         return full
     v = speed
-    v_pattern = np.sqrt(2.0 * curve * ahead)
+    v_pattern = math.sqrt(2.0 * curve * ahead)
     ratio = v / v_pattern if v_pattern > 0.0 else 1.0
     train = curve * ratio - (v_pattern - v) / ATO_REJOIN_S
     if v > v_pattern:

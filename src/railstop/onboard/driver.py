@@ -45,6 +45,8 @@ supervision stops it.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from railstop.config.driver import LV_CUMULATIVE, LV_PARAMS, LV_WIDTH
@@ -255,11 +257,11 @@ def driver_look_1(
         # the coasting share of the planned deceleration stops the train at the mark.
         light = _COAST_FRACTION * planned
         short = (stop_point - x) * scale
-        aim = min(held, np.sqrt(2.0 * light * max(short, 0.0)))
+        aim = min(held, math.sqrt(2.0 * light * max(short, 0.0)))
         for i in range(code_pos.size):
             if code_pos[i] > x:
                 target = max(code_lim[i] - margin, 0.5)
-                aim = min(aim, np.sqrt(target * target + 2.0 * light * (code_pos[i] - x) * scale))
+                aim = min(aim, math.sqrt(target * target + 2.0 * light * (code_pos[i] - x) * scale))
         if short > _CREEP_SHORT_M:
             aim = max(aim, min(rs[RS_CREEP_SPEED], held))  # at least walking pace to the mark
         # Power is taken below aim - band and kept up to aim - band / 4 (a hysteresis against
@@ -328,7 +330,7 @@ def _creep_peak_1(distance: float, rs: np.ndarray, top: float) -> float:
     accel, decel = rs[RS_CREEP_ACCEL], rs[RS_CREEP_DECEL]
     if distance >= top * top * (0.5 / accel + 0.5 / decel):
         return top
-    return np.sqrt(2.0 * distance / (1.0 / accel + 1.0 / decel))
+    return math.sqrt(2.0 * distance / (1.0 / accel + 1.0 / decel))
 
 
 @njit_inline

@@ -80,6 +80,7 @@ position). :class:`PositioningUnit` holds the same arrays for n runs, shape
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -271,9 +272,9 @@ def unit_log_run(
     head = (istate[UI_HEAD] + 1) % log.shape[1]
     istate[UI_HEAD] = head
     istate[UI_SAMPLES] += 1
-    dt = clock_time_s - state[U_LAST_T] if np.isfinite(state[U_LAST_T]) else 0.0
+    dt = clock_time_s - state[U_LAST_T] if math.isfinite(state[U_LAST_T]) else 0.0
     dt = max(dt, 0.0)
-    bridge = wsp_active and np.isfinite(accel_mps2) and istate[UI_SAMPLES] > 1
+    bridge = wsp_active and math.isfinite(accel_mps2) and istate[UI_SAMPLES] > 1
     if bridge:
         v0 = state[U_VREF]
         v1 = max(v0 + state[U_A] * accel_mps2 * dt, 0.0)  # odometer units: a x true
@@ -335,7 +336,7 @@ def unit_odometer_at_run(
         if log[LOG_T, (first + i) % length] <= clock_time_s:
             count += 1
     i = count - 1  # last sample at or before t; -1 = before the log
-    if not np.isfinite(log[LOG_T, (first + max(i, 0)) % length]):  # slots never written: -inf
+    if not math.isfinite(log[LOG_T, (first + max(i, 0)) % length]):  # slots never written: -inf
         i = -1
     if i < 0:
         return _STALE, np.nan, np.nan, np.nan
@@ -503,7 +504,7 @@ def unit_uncertainty_m(state: FloatArray, sigmas: float) -> float:
     m = state[U_COMP] - state[U_REF_COMP]
     bridged = BRIDGE_SPEED_SD_MPS * state[U_BRIDGE_T]
     var = unit_predicted_var(state, m, a, bridged, state[U_BRIDGE_H])
-    return sigmas * np.sqrt(max(var, 0.0)) + state[U_SLIDE_M] / a + state[U_FIX_BIAS_M]
+    return sigmas * math.sqrt(max(var, 0.0)) + state[U_SLIDE_M] / a + state[U_FIX_BIAS_M]
 
 
 @njit_inline
@@ -605,7 +606,7 @@ def _handle_runs(
         if db_time_sd_s.size:
             i = np.searchsorted(db_ids, circuit_id[k])
             if i < db_ids.size and db_ids[i] == circuit_id[k] and db_time_sd_s[i] > 0.0:
-                spread = np.sqrt(delay_spread_s * delay_spread_s + db_time_sd_s[i] * db_time_sd_s[i])
+                spread = math.sqrt(delay_spread_s * delay_spread_s + db_time_sd_s[i] * db_time_sd_s[i])
         res = unit_handle_run(
             state[r],
             istate[r],

@@ -67,7 +67,7 @@ def supervise_1(
             supervision_init_1(sv)
         return
     if v > limit:
-        if np.isnan(sv[SV_OVER_SINCE]):
+        if math.isnan(sv[SV_OVER_SINCE]):
             sv[SV_OVER_SINCE] = now
         # SPEC §3 ATC: above the permitted speed the brake applies at once ([interpretation]).
         if atc and v > limit + margin_mps:

@@ -26,6 +26,7 @@ measurement completed by its own tachometer and station data.
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 
 import numpy as np
@@ -293,7 +294,7 @@ def receiver_receive_1(
     if int(rp[RP_CONFIG]) in (CFG_PWM, CFG_SWITCHED_PWM):
         duty = rx[RX_FIXED_DUTY]
         rx[RX_ONBOARD_DUTY] = (
-            duty if np.isfinite(duty) else decel_to_pwm_1(rx[RX_TARGET], pwm_duty, pwm_decel)
+            duty if math.isfinite(duty) else decel_to_pwm_1(rx[RX_TARGET], pwm_duty, pwm_decel)
         )
 
 
@@ -338,13 +339,13 @@ def _receiver_plan_1(
     form = int(rp[RP_FORM])
     det = int(tele[TEL_DETECTOR])
     lag = now_s - tele[TEL_MEASURED]
-    a_tach = tach_a if np.isfinite(tach_a) else 0.0
+    a_tach = tach_a if math.isfinite(tach_a) else 0.0
     if form <= 3 and det != int(rx[RX_PREV_DET]):
         # A new passage: the tachometer's distance at it (back from now at the present speed).
         odo_pass = rx[RX_ODO] - tach_v * (now_s - tele[TEL_PASSAGE])
         interval = tele[TEL_INTERVAL]
         prev = int(rx[RX_PREV_DET])
-        if prev == det - 1 and np.isfinite(interval) and interval > 0.0 and np.isfinite(rx[RX_PREV_ODO]):
+        if prev == det - 1 and math.isfinite(interval) and interval > 0.0 and math.isfinite(rx[RX_PREV_ODO]):
             tach_mean = (odo_pass - rx[RX_PREV_ODO]) / interval
             true_mean = (det_to_stop[prev] - det_to_stop[det]) / interval
             if tach_mean > 0.5:
@@ -354,9 +355,9 @@ def _receiver_plan_1(
     elif form == 5:
         odo_meas = rx[RX_ODO] - tach_v * lag
         d_m = tele[TEL_DISTANCE]
-        if np.isfinite(rx[RX_PREV_ODO]) and odo_meas - rx[RX_PREV_ODO] > 5.0:
+        if math.isfinite(rx[RX_PREV_ODO]) and odo_meas - rx[RX_PREV_ODO] > 5.0:
             rx[RX_SCALE] = (rx[RX_PREV_REF] - d_m) / (odo_meas - rx[RX_PREV_ODO])
-        if not np.isfinite(rx[RX_PREV_ODO]) or odo_meas - rx[RX_PREV_ODO] > 5.0:
+        if not math.isfinite(rx[RX_PREV_ODO]) or odo_meas - rx[RX_PREV_ODO] > 5.0:
             rx[RX_PREV_ODO] = odo_meas
             rx[RX_PREV_REF] = d_m
     scale = rx[RX_SCALE]
@@ -365,16 +366,16 @@ def _receiver_plan_1(
     if form == 4:
         v_m = tele[TEL_SPEED]
         d_m = tele[TEL_DISTANCE]
-        if np.isfinite(rx[RX_PREV_V]) and rx[RX_PREV_REF] - d_m > 1.0:
+        if math.isfinite(rx[RX_PREV_V]) and rx[RX_PREV_REF] - d_m > 1.0:
             rx[RX_COMB_DECEL] = (rx[RX_PREV_V] ** 2 - v_m**2) / (2.0 * (rx[RX_PREV_REF] - d_m))
             rx[RX_PREV_V] = v_m
             rx[RX_PREV_REF] = d_m
-        elif not np.isfinite(rx[RX_PREV_V]):
+        elif not math.isfinite(rx[RX_PREV_V]):
             rx[RX_PREV_V] = v_m
             rx[RX_PREV_REF] = d_m
-        a_est = rx[RX_COMB_DECEL] if np.isfinite(rx[RX_COMB_DECEL]) else a_tach
+        a_est = rx[RX_COMB_DECEL] if math.isfinite(rx[RX_COMB_DECEL]) else a_tach
         speed = v_m - a_est * lag
-    elif form == 5 and np.isfinite(tele[TEL_DECEL]) and not np.isfinite(tach_a):
+    elif form == 5 and math.isfinite(tele[TEL_DECEL]) and not math.isfinite(tach_a):
         # The wayside's deceleration stands in only where the tachometer has none: it is the mean
         # over the wayside's own interval, which the onboard unit's model of its commands does
         # not match (measured: with it the form-5 stops ended up to 0.38 m short).
@@ -506,7 +507,7 @@ def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float) -> None:
     """The train's own ATP reset its odometer at a transponder at ``position_m``. At the first
     one (the zone's start, SPEC §1: the first detector) it knows it is in the TASC zone and the
     telegram supervision starts."""
-    if np.isfinite(rx[RX_FIX_POS]) and rx[RX_SINCE_FIX] > _SCALE_MIN_M:
+    if math.isfinite(rx[RX_FIX_POS]) and rx[RX_SINCE_FIX] > _SCALE_MIN_M:
         # Two transponders at known chainages: the odometer's scale over the stretch between
         # them (SPEC §2: the wheel's diameter is what the odometer gets wrong), for degraded mode.
         rx[RX_ODO_SCALE] = (position_m - rx[RX_FIX_POS]) / rx[RX_SINCE_FIX]
@@ -525,9 +526,9 @@ def receiver_supervise_1(
     ``odometer_m``: the distance the odometer counted in the last step; ``speed_mps``: the
     tachometer's speed (both carry the odometer's diameter error).
     """
-    if np.isfinite(rx[RX_FIX_POS]):
+    if math.isfinite(rx[RX_FIX_POS]):
         rx[RX_SINCE_FIX] += odometer_m
-    if np.isfinite(rx[RX_TACH_PREV]):
+    if math.isfinite(rx[RX_TACH_PREV]):
         dt = rp[RP_DT]
         alpha = dt / (GUARD_DECEL_TAU_S + dt)
         rx[RX_TACH_DECEL] += alpha * ((rx[RX_TACH_PREV] - speed_mps) / dt - rx[RX_TACH_DECEL])
@@ -545,12 +546,12 @@ def receiver_supervise_1(
         # (degraded mode) A train that has had a braking command and knows its position from a
         # transponder finishes the stop on its own odometry (receiver_degraded_1), the overrun
         # guard below still watching it; one the wayside never spoke to brakes at once.
-        if rx[RX_ACTIVE] > 0.0 and np.isfinite(rx[RX_FIX_POS]):
+        if rx[RX_ACTIVE] > 0.0 and math.isfinite(rx[RX_FIX_POS]):
             rx[RX_DEGRADED] = 1.0
         else:
             _apply_eb_1(rx, EB_TIMEOUT, now_s)
             return True
-    if np.isfinite(rx[RX_FIX_POS]):
+    if math.isfinite(rx[RX_FIX_POS]):
         # The overrun guard on the train's own odometry, its possible error counted against it
         # (the train may be further on than the odometer says).
         position = rx[RX_FIX_POS] + since + unc

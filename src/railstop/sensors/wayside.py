@@ -9,6 +9,8 @@ samples with their relative noise, from the run's random streams.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -31,7 +33,7 @@ def crossing_time_1(x0_m: float, v0_mps: float, accel_mps2: float, target_m: flo
     d = target_m - x0_m
     disc = max(v0_mps * v0_mps + 2.0 * accel_mps2 * d, 0.0)
     # Root of a/2 t² + v0 t - d = 0, written to stay accurate as a -> 0.
-    denom = v0_mps + np.sqrt(disc)
+    denom = v0_mps + math.sqrt(disc)
     return 2.0 * d / denom if denom > 0.0 else 0.0
 
 

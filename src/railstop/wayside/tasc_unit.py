@@ -11,6 +11,7 @@ claim 3. Time is an argument; it draws no random numbers and does no I/O
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -303,7 +304,7 @@ def wayside_observe_1(
     ``doppler_mps`` is NaN when there is no sample this step. When due, the
     caller calls :func:`wayside_command_1` in the same step.
     """
-    if wp[WP_HAS_DOPPLER] > 0.0 and np.isfinite(doppler_mps):
+    if wp[WP_HAS_DOPPLER] > 0.0 and math.isfinite(doppler_mps):
         window = dbuf.size
         col = int(ws[WS_COL]) + 1
         if col == window:
@@ -317,7 +318,7 @@ def wayside_observe_1(
         ws[WS_TRAVEL] += doppler_mps * wp[WP_DT]
     if (
         wp[WP_HAS_DOPPLER] > 0.0
-        and np.isfinite(doppler_mps)
+        and math.isfinite(doppler_mps)
         and ws[WS_EMERGENCY] == 0.0
         and ws[WS_LAST_DET] >= 0.0
         and not passed
@@ -373,7 +374,7 @@ def wayside_identify_1(
     ws[WS_ID_DONE] = 1.0
     step = 0.0
     for j in range(hist_v.size):
-        if np.isfinite(hist_e[j]):
+        if math.isfinite(hist_e[j]):
             step = max(step, hist_v[j])
     if step < MIN_STEP_MPS2:
         return
@@ -395,11 +396,11 @@ def wayside_identify_1(
         wp[WP_LAG],
         scratch,
     )
-    if not np.isfinite(delay):
+    if not math.isfinite(delay):
         return
     shift = delay - ws[WS_DELAY]
     for j in range(hist_e.size):
-        if np.isfinite(hist_e[j]):
+        if math.isfinite(hist_e[j]):
             hist_e[j] += shift
     ws[WS_DELAY] = delay
     ws[WS_LAG] = lag
@@ -494,7 +495,7 @@ def _wayside_measure_1(
 def _modulator_cycle_1(ws: FloatArray, wp: FloatArray, table: FloatArray, speed_mps: float) -> int:
     """Forms 7, 8: one cycle of the wayside's notch modulator on its target (``speed_mps`` NaN: no
     speed, the end phase is not planned), timed as the train's brake controller would be."""
-    has_speed = np.isfinite(speed_mps)
+    has_speed = math.isfinite(speed_mps)
     return modulator_update_1(
         ws[WS_MOD : WS_MOD + MOD_SIZE],
         table,
@@ -547,7 +548,7 @@ def wayside_modulate_1(
     its notch changed, with the new telegram in ``tele`` (the last command's, with the new notch or
     step) and its record in ``record``. Time-driven, so it runs without a Doppler radar too (the
     end phase then has no speed)."""
-    if wp[WP_MODULATE] == 0.0 or ws[WS_EMERGENCY] > 0.0 or not np.isfinite(ws[WS_TARGET]):
+    if wp[WP_MODULATE] == 0.0 or ws[WS_EMERGENCY] > 0.0 or not math.isfinite(ws[WS_TARGET]):
         return False
     if now_s + 1e-9 < ws[WS_MOD_NEXT]:
         return False
@@ -587,7 +588,7 @@ def wayside_command_1(
     record (CR_*: SPEC §1 claims 8, 20) into ``record``; True when the telegram is to be sent."""
     table, pwm_duty, pwm_decel = brake.table, brake.pwm_duty, brake.pwm_decel
     det_to_stop, ext, grad = approach.det_to_stop, approach.ext, approach.grad
-    if wp[WP_INITIAL_DECEL] > 0.0 and not np.isfinite(hist_e[0]):
+    if wp[WP_INITIAL_DECEL] > 0.0 and not math.isfinite(hist_e[0]):
         # The train's own initial brake step from the zone's first transponder, at the first
         # detector (tasc.initial_brake_notch): the wayside's database knows it, so its model of
         # the train brakes from that passage on instead of holding the speed. [interpretation]
@@ -595,7 +596,7 @@ def wayside_command_1(
         # into the empty history (a form-8 command that changes no notch is planned, not sent).
         first_x = wp[WP_STOP] - det_to_stop[0]
         for j in range(3):
-            if pass_x[j] == first_x and np.isfinite(pass_t[j]):
+            if pass_x[j] == first_x and math.isfinite(pass_t[j]):
                 history_push_1(hist_v, hist_e, wp[WP_INITIAL_DECEL], pass_t[j] + wp[WP_INITIAL_DELAY])
                 ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], pass_t[j])
     speed, decel, distance, cmd_mean, ext_mean = _wayside_measure_1(
@@ -615,7 +616,7 @@ def wayside_command_1(
         new_passage,
     )
     interval = pass_t[2] - pass_t[1]
-    ws[WS_DECEL] = decel if np.isfinite(decel) else 0.0
+    ws[WS_DECEL] = decel if math.isfinite(decel) else 0.0
     if ws[WS_EMERGENCY] == 0.0 and overrun_guard_1(
         speed,
         ws[WS_DECEL],
