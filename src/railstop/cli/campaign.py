@@ -50,10 +50,46 @@ DisturbancesOpt = Annotated[
         "or a TOML file."
     ),
 ]
+# Runs per chunk by default: a chunk is the unit of resume; on a GPU it is one kernel launch, which
+# needs hundreds of thousands of runs to fill the device.
+CPU_CHUNK = 10_000
+GPU_CHUNK = 500_000
+
+
+def chunk_for(chunk_size: int | None, device: str) -> int:
+    """``--chunk-size``, or the device's default."""
+    if chunk_size is not None:
+        return chunk_size
+    return GPU_CHUNK if device == "gpu" else CPU_CHUNK
+
+
+def checked_device(device: str, controllers: tuple[str, ...]) -> str:
+    """``--device`` for ``controllers``: refused before any work if the device cannot run them."""
+    from railstop.sim.campaign import check_device  # lazy: CLI start-up (pyarrow)
+
+    loaded = [c for c in controllers if c not in CONTROLLERS]
+    check_device(device, law_loaded=bool(loaded) and device == "gpu")
+    return device
+
+
 WorkersOpt = Annotated[
     int | None, typer.Option(min=1, help="Worker threads in this process (default: the CPU count).")
 ]
-ChunkOpt = Annotated[int, typer.Option(min=1, help="Runs per chunk (results do not depend on it).")]
+ChunkOpt = Annotated[
+    int | None,
+    typer.Option(
+        min=1,
+        help=f"Runs per chunk (results do not depend on it; default {CPU_CHUNK:,}, with --device gpu "
+        f"{GPU_CHUNK:,}: one launch each).",
+    ),
+]
+DeviceOpt = Annotated[
+    str,
+    typer.Option(
+        help="Where the stop model runs: cpu, or gpu (an NVIDIA GPU through numba-cuda: pip install "
+        "'railstop[gpu]'; results equal the CPU's within 1e-9 m, docs/gpu.md)."
+    ),
+]
 
 
 def _run_one_campaign(
@@ -76,6 +112,7 @@ def _run_one_campaign(
     driver: DriverFile | None = None,
     platform: PlatformFile | None = None,
     law: LawFile | None = None,
+    device: str = "cpu",
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
@@ -98,6 +135,7 @@ def _run_one_campaign(
         platform=platform if spec_controller in DRIVER_CONTROLLERS else None,
         # Only a campaign of one of the file's laws records the file.
         law=law if law is not None and spec_controller not in CONTROLLERS else None,
+        device=device,
     )
     n_workers = workers or os.cpu_count() or 1
 
@@ -247,7 +285,8 @@ def campaign(
         typer.Option("--out", help="Campaign folder (default: campaign-STATION-CONTROLLER-sSEED)."),
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
-    chunk_size: ChunkOpt = 10_000,
+    chunk_size: ChunkOpt = None,
+    device: DeviceOpt = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
     tolerance_m: ToleranceOpt = None,
@@ -264,6 +303,7 @@ def campaign(
     law_file = load_law(law)
     try:
         office_to = office_target(office)  # before the work: a bad --office fails at once
+        checked_device(device, (controller,))
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
@@ -287,7 +327,7 @@ def campaign(
             workers=workers,
             out_dir=target,
             resume=resume,
-            chunk_size=chunk_size,
+            chunk_size=chunk_for(chunk_size, device),
             db=db,
             scheduler=scheduler,
             tolerance_m=checked_tolerance(tolerance_m),
@@ -295,6 +335,7 @@ def campaign(
             driver=drv,
             platform=plat,
             law=law_file,
+            device=device,
         )
         if office_to is not None:
             row["office_link"] = send_to_office(office_to, [("campaign-result", campaign_report(row))])
@@ -362,6 +403,7 @@ def compare_controllers(
     platform: PlatformFile | None = None,
     controllers: tuple[str, ...] = CONTROLLERS,
     law: LawFile | None = None,
+    device: str = "cpu",
 ) -> list[dict[str, object]]:
     """The ``controllers`` (default: every built-in one) on identical draws (same seed, same
     disturbance set); ``driver`` and ``platform`` go to the driver controllers, ``law`` (the
@@ -386,6 +428,7 @@ def compare_controllers(
             driver=driver,
             platform=platform,
             law=law,
+            device=device,
         )
         for ctrl in controllers
     ]
@@ -412,7 +455,8 @@ def compare(
         Path | None, typer.Option("--out", help="Folder (default: compare-STATION-sSEED); one campaign each.")
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted comparison in --out.")] = False,
-    chunk_size: ChunkOpt = 10_000,
+    chunk_size: ChunkOpt = None,
+    device: DeviceOpt = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summaries).")] = Path(
         "railstop.db"
@@ -437,6 +481,7 @@ def compare(
     law_file = load_law(law)
     names = checked_controllers(controllers)
     try:
+        checked_device(device, names)
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, names)
         st = ln.station(station)
@@ -452,7 +497,7 @@ def compare(
             scheduler=scheduler,
             out_dir=target,
             resume=resume,
-            chunk_size=chunk_size,
+            chunk_size=chunk_for(chunk_size, device),
             db=db,
             tolerance_m=checked_tolerance(tolerance_m),
             form=form,
@@ -460,6 +505,7 @@ def compare(
             platform=plat,
             controllers=names,
             law=law_file,
+            device=device,
         )
     except RailstopError as exc:
         fail(str(exc))
@@ -502,8 +548,19 @@ def certify(
     ] = 1e-6,
     runs: Annotated[int, typer.Option(min=1, help="Estimation runs.")] = 1_000_000,
     method: Annotated[
-        str, typer.Option(help="is: importance sampling (tuned proposal); mc: plain Monte Carlo.")
+        str,
+        typer.Option(
+            help="is: importance sampling (tuned proposal); mc: plain Monte Carlo; stratified: plain "
+            "Monte Carlo in strata of the low-adhesion patch, whose probability is exact."
+        ),
     ] = "is",
+    hazard: Annotated[
+        str,
+        typer.Option(
+            help="overrun: stop error > --threshold-m; platform-end: the front past the platform's end."
+        ),
+    ] = "overrun",
+    device: DeviceOpt = "cpu",
     tuning_runs: Annotated[int, typer.Option(min=100, help="Tuning runs per cross-entropy level.")] = 4_000,
     defensive: Annotated[
         float,
@@ -518,21 +575,38 @@ def certify(
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
 ) -> None:
-    """Bound P(stop error > threshold) by importance sampling: estimate, interval, bound."""
+    """Bound P(stop error > threshold) or P(front past the platform end): estimate and bound."""
     from railstop.config.disturbances import load_disturbances
     from railstop.config.plausibility import load_checked
     from railstop.sim.certify import CertifyError, CertifySpec
     from railstop.sim.certify import certify as run_certify
+    from railstop.sim.strata import HAZARDS, stratified_certify
 
     try:
+        if hazard not in HAZARDS:
+            raise CertifyError("hazard", f"must be one of {', '.join(HAZARDS)} (got {hazard!r})")
+        if method not in ("is", "mc", "stratified"):
+            raise CertifyError("method", f"must be is, mc or stratified (got {method!r})")
+        if device != "cpu" and method != "stratified":
+            raise CertifyError("device", f"{device} runs --method stratified only (got --method {method})")
+        if hazard == "platform-end" and threshold_m is not None:
+            raise CertifyError("threshold_m", "the platform end sets the threshold; drop --threshold-m")
+        checked_device(device, (controller,))
         ln, veh = load_checked(line, vehicle)
+        st = ln.station(station)
+        if hazard == "platform-end":
+            # The front past the platform's end: a stop error beyond the end's distance past the
+            # stopping point.
+            threshold = st.platform_end - st.stop_point_m
+        else:
+            threshold = st.psd_tolerance_m if threshold_m is None else threshold_m
         spec = CertifySpec(
             line=ln,
             vehicle=veh,
-            station=ln.station(station).name,
+            station=st.name,
             controller=checked_controller(controller),
             disturbances=load_disturbances(disturbances),
-            threshold_m=ln.station(station).psd_tolerance_m if threshold_m is None else threshold_m,
+            threshold_m=threshold,
             seed=seed,
         )
         label = f"certify {controller} at {spec.station}"
@@ -542,27 +616,32 @@ def certify(
                 status.stage(f"{label}, {stage}")
                 status.update(done, total)
 
-            result = run_certify(
-                spec,
-                runs=runs,
-                target=target,
-                confidence=confidence,
-                method=method,
-                defensive=defensive,
-                tuning_runs=tuning_runs,
-                workers=workers or os.cpu_count() or 1,
-                scheduler=scheduler,
-                progress=progress,
-            )
+            common: dict[str, Any] = {
+                "runs": runs,
+                "target": target,
+                "confidence": confidence,
+                "workers": workers or os.cpu_count() or 1,
+                "scheduler": scheduler,
+                "progress": progress,
+            }
+            if method == "stratified":
+                row = stratified_certify(spec, hazard=hazard, device=device, **common).to_dict()
+            else:
+                row = run_certify(
+                    spec, method=method, defensive=defensive, tuning_runs=tuning_runs, **common
+                ).to_dict()
+                row["hazard"] = hazard
     except CertifyError as exc:
         fail(f"--{exc.setting.replace('_', '-')}: {exc.detail}")
     except RailstopError as exc:
         fail(str(exc))
-    row = result.to_dict()
     if as_json:
         print(json.dumps(row))
         return
-    _print_certificate(row)
+    if method == "stratified":
+        _print_strata(row)
+    else:
+        _print_certificate(row)
 
 
 def _print_certificate(row: dict[str, Any]) -> None:
@@ -571,7 +650,7 @@ def _print_certificate(row: dict[str, Any]) -> None:
 
     conf = f"{100 * row['confidence']:g} %"
     table = Table(
-        title=f"P(stop error > {row['threshold_m']:g} m): {row['controller']} at {row['station']} "
+        title=f"{_hazard_label(row)}: {row['controller']} at {row['station']} "
         f"({row['disturbances']}, seed {row['seed']})"
     )
     table.add_column("", style="bold")
@@ -595,6 +674,50 @@ def _print_certificate(row: dict[str, Any]) -> None:
     ):
         table.add_row(key, value)
     out.print(table)
+    verdict, sign = (
+        (styled("certified", "green"), "<=") if row["certified"] else (styled("not certified", "red"), ">")
+    )
+    out.print(
+        Text.assemble(verdict, f": upper bound {row['upper_bound']:.2e} {sign} target {row['target']:.1e}")
+    )
+
+
+def _hazard_label(row: dict[str, Any]) -> str:
+    if row.get("hazard") == "platform-end":
+        return f"P(front past the platform end, stop error > {row['threshold_m']:.2f} m)"
+    return f"P(stop error > {row['threshold_m']:g} m)"
+
+
+def _print_strata(row: dict[str, Any]) -> None:
+    from rich.table import Table
+    from rich.text import Text
+
+    conf = f"{100 * row['confidence']:g} %"
+    table = Table(
+        title=f"{_hazard_label(row)}: {row['controller']} at {row['station']} ({row['disturbances']}, "
+        f"seed {row['seed']}, stratified, {row['device']})"
+    )
+    for col, justify in (("stratum", "left"), ("probability", "right"), ("runs", "right")):
+        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    for col in ("hits", "never stood", "largest error m", "bound (its share of δ)"):
+        table.add_column(col, justify="right")
+    for s in row["strata"]:
+        table.add_row(
+            s["stratum"],
+            f"{s['weight']:g}",
+            f"{s['runs']:,}",
+            f"{s['hits']:,}",
+            f"{s['not_stopped']:,}",
+            f"{s['max_error_m']:+.3f}",
+            f"{s['upper_bound']:.3e}",
+        )
+    out.print(table)
+    out.print(
+        f"estimate {row['estimate']:.3e}; {conf} upper bound {row['upper_bound']:.3e} (the strata's bounds "
+        f"weighted by their exact probabilities); {row['runs']:,} runs in {row['elapsed_s']:.1f} s "
+        f"({row['runs_per_s']:,.0f} runs/s)",
+        highlight=False,
+    )
     verdict, sign = (
         (styled("certified", "green"), "<=") if row["certified"] else (styled("not certified", "red"), ">")
     )

@@ -653,7 +653,7 @@ _TO_SCENARIO: dict[str, tuple[str, float]] = {
 
 
 def draw_scenario(
-    dist: DisturbanceSet, station: Station, vehicle: Vehicle, streams: RunStreams
+    dist: DisturbanceSet, station: Station, vehicle: Vehicle, streams: RunStreams, patch: bool | None = None
 ) -> tuple[Scenario, dict[str, np.ndarray]]:
     """The scenario of ``streams.n`` runs and the drawn values per parameter (file units).
 
@@ -661,7 +661,8 @@ def draw_scenario(
     (nominal values for parameters the set does not name), plus ``low_adhesion``
     (bool: the run meets a patch) and ``low_adhesion_start_m`` (inf = no patch).
     ``low_adhesion_mu`` and ``low_adhesion_length_m`` hold the drawn values of
-    every run, whether or not it meets a patch.
+    every run, whether or not it meets a patch. ``patch``: True / False forces a patch on every
+    run / on none (a certification stratum); None draws it with the set's probability.
     """
     n = streams.n
     p = dist.params
@@ -680,6 +681,10 @@ def draw_scenario(
         hit = streams.uniform(Stream.DISTURBANCE, counter_base("low_adhesion_probability")) < prob
     else:
         hit = np.zeros(n, dtype=bool)
+    if patch is not None:
+        # A stratum of the certification (railstop.sim.strata): every run with a patch, or none;
+        # the patch's place, adhesion and length keep their draws.
+        hit = np.full(n, patch)
     lo, hi = patch_start_range(station)
     start = lo + (hi - lo) * streams.uniform(Stream.DISTURBANCE, counter_base(LOW_ADHESION_START))
     values[LOW_ADHESION] = hit

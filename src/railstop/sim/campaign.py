@@ -49,6 +49,7 @@ from railstop.config.schema import Line, Station, Track, Vehicle
 from railstop.control.law import LawFile
 from railstop.controllers import known_controllers
 from railstop.errors import RailstopError
+from railstop.model.gpu import DEVICES, gpu_unavailable
 from railstop.provenance import inputs_sha256, manifest_sha256, overrides_sha256, stamp
 from railstop.quantities import KMH_PER_MPS
 from railstop.sim.engine import BatchResult, run_batch
@@ -125,6 +126,10 @@ class CampaignSpec:
     platform: PlatformFile | None = None
     # The file of a stop-control law loaded by the user (railstop.control.law; None: built in).
     law: LawFile | None = None
+    # Where the stop model runs (railstop.model.gpu DEVICES). In the manifest when not the CPU:
+    # the GPU's numbers equal the CPU's within a bound, not always to the bit, so a campaign is
+    # resumed on the device that began it.
+    device: str = "cpu"
 
     def tolerance(self) -> float:
         """The PSD tolerance the runs are judged by: the one given, else a driver controller's
@@ -158,6 +163,8 @@ class CampaignSpec:
             out["manual_data_sha256"] = manual
         if self.law is not None:  # the same: a built-in controller's campaign keeps its identity
             out["law"] = self.law.manifest()
+        if self.device != "cpu":  # the same: a CPU campaign keeps its identity
+            out["device"] = self.device
         return out
 
     def identity(self) -> str:
@@ -193,16 +200,20 @@ def simulate_runs(
     platform: PlatformFile | None = None,
     incapacitated: bool = False,
     signal_open: bool = False,
+    device: str = "cpu",
+    patch: bool | None = None,
 ) -> tuple[BatchResult, dict[str, np.ndarray]]:
     """Runs ``first_run .. first_run + n - 1`` of a campaign: the drawn values and the batch result.
 
     ``driver``, ``platform``, ``incapacitated``, ``signal_open``: the driver controllers'
     (``run_batch``).
 
-    ``track``: the line's track circuits (needed by ``ato-corrected``).
+    ``track``: the line's track circuits (needed by ``ato-corrected``); ``device``: where the
+    stop model runs (``cpu`` or ``gpu``, :mod:`railstop.model.gpu`); ``patch``: a low-adhesion
+    patch forced on every run or on none (``draw_scenario``; a certification stratum).
     """
     streams = RunStreams.for_runs(seed, first_run, n)
-    scenario, drawn = draw_scenario(disturbances, station, vehicle, streams)
+    scenario, drawn = draw_scenario(disturbances, station, vehicle, streams, patch)
     result = run_batch(
         station=station,
         vehicle=vehicle,
@@ -216,6 +227,7 @@ def simulate_runs(
         platform=platform,
         incapacitated=incapacitated,
         signal_open=signal_open,
+        device=device,
     )
     return result, drawn
 
@@ -284,6 +296,7 @@ def simulate_block(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
         track=spec.line.track,
         driver=spec.driver,
         platform=spec.platform,
+        device=spec.device,
     )
     return _chunk_table(first, result, drawn)
 
@@ -437,6 +450,22 @@ def _check_spec(spec: CampaignSpec) -> None:
         raise RailstopError(
             f"--runs and the chunk size must be at least 1 (got {spec.runs}, {spec.chunk_size})"
         )
+    check_device(spec.device, law_loaded=spec.law is not None)
+
+
+def check_device(device: str, *, law_loaded: bool = False) -> None:
+    """Refuse a device the stop model cannot run on here, before any work (``--device``)."""
+    if device not in DEVICES:
+        raise RailstopError(f"--device: {device!r} is not one of {', '.join(DEVICES)}")
+    if device == "gpu":
+        why = gpu_unavailable()
+        if why is not None:
+            raise RailstopError(f"--device gpu: {why}")
+        if law_loaded:
+            raise RailstopError(
+                "--device gpu: a law loaded from a file runs on the CPU only (the GPU can neither "
+                "check its indices nor catch its errors); drop --device gpu"
+            )
 
 
 def _prepare(spec: CampaignSpec, out: Path, resume: bool) -> set[int]:
@@ -500,7 +529,8 @@ def _executed(
         execute(
             functools.partial(simulate_block, spec),
             _blocks(spec, todo, spec.chunks - len(finished), 1 if scheduler else workers),
-            workers=workers,
+            # One thread feeds the GPU: it runs a whole chunk at once.
+            workers=1 if spec.device == "gpu" else workers,
             scheduler=scheduler,
         )
     ) as results:
@@ -521,6 +551,11 @@ def _blocks(
     most ``BLOCK_RUNS`` runs, and into more when there are fewer chunks than workers so that
     every worker is busy (a run's result does not depend on its block, so the chunk files are
     the same)."""
+    if spec.device == "gpu":
+        # A GPU runs a chunk in one launch (one thread per run): the more runs, the fuller it is.
+        for k in todo:
+            yield k, *spec.chunk_range(k)
+        return
     split = max(1, -(-workers // max(n_todo, 1)))
     for k in todo:
         for a, b in blocks(*spec.chunk_range(k), split, BLOCK_RUNS):

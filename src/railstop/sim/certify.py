@@ -295,6 +295,16 @@ class CertifySpec:
     seed: int = 1
     form: int | None = None
 
+    def to_dict(self) -> dict[str, Any]:
+        """What a certificate reports of its question (its own keys follow)."""
+        return {
+            "station": self.station,
+            "controller": self.controller,
+            "disturbances": self.disturbances.name,
+            "seed": self.seed,
+            "threshold_m": self.threshold_m,
+        }
+
 
 @dataclass(frozen=True)
 class BlockResult:
@@ -548,13 +558,8 @@ class CertifyResult:
         return self.upper <= self.target
 
     def to_dict(self) -> dict[str, Any]:
-        st = self.spec
         return {
-            "station": st.station,
-            "controller": st.controller,
-            "disturbances": st.disturbances.name,
-            "seed": st.seed,
-            "threshold_m": st.threshold_m,
+            **self.spec.to_dict(),
             "method": self.method,
             "runs": self.runs,
             "tuning_runs": self.tuning_runs,

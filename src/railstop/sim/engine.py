@@ -43,6 +43,7 @@ from railstop.link.tasc_link import (
 )
 from railstop.messages import TEL_FIELDS
 from railstop.model.build import KernelModel
+from railstop.model.gpu import run_on
 from railstop.model.records import (
     LA_ARRIVAL,
     LA_CORRUPT,
@@ -83,7 +84,7 @@ from railstop.model.records import (
     TR_V,
     TR_X,
 )
-from railstop.model.run import KernelRecord, run_kernel
+from railstop.model.run import KernelRecord
 from railstop.streams import RunStreams
 from railstop.wayside.tasc_unit import SignalForm, TascTelegrams
 
@@ -181,8 +182,11 @@ def run_batch(
     platform: PlatformFile | None = None,
     incapacitated: bool = False,
     signal_open: bool = False,
+    device: str = "cpu",
 ) -> BatchResult:
     """Simulate ``scenario.n`` stops at ``station`` (runs ``streams.run_index``); see the module docstring.
+
+    ``device``: ``cpu``, or ``gpu`` (:mod:`railstop.model.gpu`; no recording there).
 
     ``track``: the line's track circuits (``ato-corrected`` needs them); ``driver``,
     ``platform``, ``incapacitated``, ``signal_open``: the driver controllers' (``KernelModel.create``).
@@ -209,8 +213,8 @@ def run_batch(
         incapacitated=incapacitated,
         signal_open=signal_open,
     )
-    res, passages, rec = run_kernel(
-        model, scenario, seed=streams.seed, first_run=first, record=record and n == 1
+    res, passages, rec = run_on(
+        device, model, scenario, seed=streams.seed, first_run=first, record=record and n == 1
     )
     trace = None
     commands: list[dict[str, Any]] = []

@@ -1,0 +1,454 @@
+"""The station stop on an NVIDIA GPU: the CPU's model, compiled by numba-cuda for the device.
+
+One source, two targets. The CUDA kernel here holds no model of its own: each
+GPU thread runs one run through :func:`railstop.model.run.simulate_run`, the
+function the CPU's ``simulate_block`` calls, which numba-cuda compiles again
+for the device from the same Python source (every per-step function of the
+stop is a plain scalar function of named records, :mod:`railstop.model.records`).
+What differs is only where a run's state lives: on the CPU in arrays allocated
+once per block (:func:`railstop.model.records.new_state`), here in each
+thread's local memory (``cuda.local.array`` of the same dtypes and shapes,
+which the kernel factory fixes as constants per model: the longest dead time,
+the radar window, the tachometer's window, the frames in flight, the
+positioning log, the track circuits). :data:`STATE_FIELDS` is that one list
+of work arrays; a test checks it against ``StopState`` so that a field added
+to the state cannot be forgotten here.
+
+Exactness policy **[interpretation]** (the issue asks for a stated bound):
+
+- the model's scalar maths is ``math.*`` (and :func:`railstop.jit.rint_1`,
+  ``ceil_1``), which both targets compile;
+- the kernel is compiled with FMA contraction off (``fastmath`` off, and
+  NVVM's ``fma`` option 0) so that ``a * b + c`` rounds twice on the device
+  as on the CPU;
+- ``exp``, ``log``, ``cos``, ``expm1`` and ``log1p`` come from CUDA's
+  libdevice on the device and from the C library on the CPU; both are
+  within 1-2 ulp of the exact result, but not always the same ulp. A run's
+  results are therefore equal to the CPU's within a bound, not always to
+  the bit: the stated bound is 1e-9 m on the stop error and 1e-9 s on the
+  stop time of every run whose discrete events (emergency brake, notch
+  changes, commands) agree, and the share of runs whose events differ at
+  most 1e-3 (one ulp can move a threshold decision).
+  ``benchmarks/gpu_throughput.py`` measures both on a GPU (one H200: no
+  discrete result differed in 100,000 runs of the ten controllers, the
+  largest difference was 3.4e-12 m; docs/gpu.md); the tests check the
+  wiring bit for bit in numba's CUDA simulator.
+
+What runs on the GPU: the built-in controllers (a law loaded from a user's
+file runs on the CPU only: on the CPU it is compiled with bounds checks and
+wrapped so that its errors become a full-service demand, which the device
+cannot do; HZ-LAW-01 holds only there), without recording (the detailed
+stop is one run, on the CPU). The scenario is drawn on the host (its
+counter-based streams, :mod:`railstop.streams`) and copied over: a few
+hundred bytes per run against ~4,500 steps of work.
+
+Optional: numba-cuda is the extra ``railstop[gpu]``; without it (or without
+a GPU) :func:`gpu_unavailable` says why and ``--device gpu`` exits 2 with
+that line. ``NUMBA_ENABLE_CUDASIM=1`` runs the same kernel in numba's CUDA
+simulator (each thread in Python, the model's functions through their CPU
+compilation): what CI tests, on a few runs.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba.core.errors import NumbaPerformanceWarning
+
+from railstop.config.scenario import Scenario
+from railstop.control.law import LAW_PARAMS_DTYPE, LAW_STATE_SIZE, MEASUREMENTS_DTYPE
+from railstop.control.notch import MOD_SIZE
+from railstop.control.tasc import HISTORY, SAMPLES
+from railstop.controllers import CONTROLLERS, is_corrected
+from railstop.errors import SimulationError
+from railstop.messages import TEL_SIZE
+from railstop.model.build import KernelModel, control_law_of, scenario_arrays, stop_params
+from railstop.model.fixes import FX_SIZE, FXI_SIZE
+from railstop.model.records import (
+    KP_DT,
+    KP_IN_FLIGHT,
+    LA_SIZE,
+    LINK_DTYPE,
+    ONBOARD_DTYPE,
+    RC_SIZE,
+    RES_SIZE,
+    RUN_DTYPE,
+    SC_DEAD_TIME,
+    SC_ENTRY_SPEED,
+    SENSE_DTYPE,
+    STREAMS,
+    TALLY_DTYPE,
+    TR_SIZE,
+    TRAIN_DTYPE,
+    FloatArray,
+    Recording,
+    RunParams,
+    StopOutputs,
+    StopState,
+)
+from railstop.model.run import KernelRecord, run_kernel, simulate_block, simulate_run
+from railstop.onboard.ato import AT_SIZE
+from railstop.onboard.driver import DR_SIZE, DV_SIZE
+from railstop.onboard.positioning import LOG_ROWS
+from railstop.onboard.speed_supervision import SV_SIZE
+from railstop.onboard.tasc_receiver import RX_SIZE
+from railstop.streams import seed_key, seed_u64
+from railstop.wayside.tasc_unit import CR_SIZE, WS_SIZE
+
+#: Threads per block. Measured for tasc-pwm on one H200 (1,000,000 runs, kernel alone; the
+#: kernel uses 255 registers and 7,984 bytes of local memory per thread): 32: 195,460 runs/s,
+#: 64: 200,699, 128: 209,736, 256: 224,476 (benchmarks/gpu_throughput.py --sweep-threads).
+THREADS_PER_BLOCK = 256
+#: The dead time's ring is a multiple of this many steps (one kernel for every chunk's draws).
+RING_QUANTUM = 64
+
+
+def _numpy_shim() -> None:
+    """numba-cuda 0.30 reads ``numpy.row_stack``, which numpy 2.5 removed (``vstack`` under its old
+    name); set before numba-cuda is imported."""
+    if not hasattr(np, "row_stack"):
+        setattr(np, "row_stack", np.vstack)  # noqa: B010 (numpy 2.5 stubs lack the name)
+
+
+def cuda_simulated() -> bool:
+    """Whether numba's CUDA simulator stands in for a GPU (``NUMBA_ENABLE_CUDASIM=1``)."""
+    return os.environ.get("NUMBA_ENABLE_CUDASIM", "") == "1"
+
+
+def gpu_unavailable() -> str | None:
+    """Why ``--device gpu`` cannot run here (None: it can): no numba-cuda, or no GPU."""
+    _numpy_shim()
+    try:
+        from numba import cuda
+    except ImportError:  # pragma: no cover - numba always ships numba.cuda's shim
+        return "numba-cuda is not installed (pip install 'railstop[gpu]')"
+    try:
+        import numba_cuda  # noqa: F401
+    except ImportError:
+        if not cuda_simulated():
+            return "numba-cuda is not installed (pip install 'railstop[gpu]')"
+    if cuda_simulated():
+        return None
+    try:
+        if not cuda.is_available():
+            return "no CUDA GPU is available (numba-cuda finds no device or driver)"
+    except Exception as exc:  # the driver's own errors come in many kinds
+        return (
+            f"no CUDA GPU is available ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+        )
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class Shapes:
+    """The constant shapes of one run's work arrays (each GPU thread's local memory)."""
+
+    ring: int
+    window: int
+    tach_window: int
+    in_flight: int
+    log_len: int
+    circuits: int
+
+    @classmethod
+    def of(cls, model: KernelModel, sc: FloatArray) -> Shapes:
+        # The dead time's ring needs the longest delay + 1 steps; any longer ring gives the same
+        # results (brake.actuator_step_1 indexes it modulo its length, as the CPU's blocks of
+        # different maxima do). Rounded up to RING_QUANTUM so that the chunks of a campaign, each
+        # with its own longest draw, share one compiled kernel.
+        need = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1 if sc.shape[0] else 1
+        return cls(
+            ring=-(-max(need, 1) // RING_QUANTUM) * RING_QUANTUM,
+            window=model.window,
+            tach_window=model.tach_window,
+            in_flight=max(int(model.kp[KP_IN_FLIGHT]), 1),
+            log_len=model.log_len,
+            circuits=model.tc_starts.size,
+        )
+
+
+#: The work arrays of one run, in ``StopState``'s order: (field, shape, dtype). A shape is a
+#: number, or the name of a :class:`Shapes` field. The CPU allocates them in ``new_state``; the
+#: kernel below as each thread's local arrays. A test checks this list against ``new_state``.
+def state_fields() -> tuple[tuple[str, tuple[int | str, ...], Any], ...]:
+    f8, i8 = np.float64, np.int64
+    return (
+        ("train", (1,), TRAIN_DTYPE),
+        ("onboard", (1,), ONBOARD_DTYPE),
+        ("link", (1,), LINK_DTYPE),
+        ("sense", (1,), SENSE_DTYPE),
+        ("tally", (1,), TALLY_DTYPE),
+        ("ring", ("ring",), f8),
+        ("ws", (WS_SIZE,), f8),
+        ("dbuf", ("window",), f8),
+        ("wh_v", (HISTORY,), f8),
+        ("wh_e", (HISTORY,), f8),
+        ("pass_t", (3,), f8),
+        ("pass_x", (3,), f8),
+        ("tele", (TEL_SIZE,), f8),
+        ("crow", (CR_SIZE,), f8),
+        ("taus", (SAMPLES,), f8),
+        ("weights", (SAMPLES,), f8),
+        ("pending", (TEL_SIZE,), f8),
+        ("fl_arr", ("in_flight",), f8),
+        ("fl_seq", ("in_flight",), i8),
+        ("rx", (RX_SIZE,), f8),
+        ("tach", ("tach_window",), f8),
+        ("rh_v", (HISTORY,), f8),
+        ("rh_e", (HISTORY,), f8),
+        ("mod", (MOD_SIZE,), f8),
+        ("at", (AT_SIZE,), f8),
+        ("meas", (1,), MEASUREMENTS_DTYPE),
+        ("law_state", (LAW_STATE_SIZE,), f8),
+        ("law_params", (1,), LAW_PARAMS_DTYPE),
+        ("fx", (FX_SIZE,), f8),
+        ("fxi", (FXI_SIZE,), i8),
+        ("flog", (LOG_ROWS, "log_len"), f8),
+        ("fbound", ("circuits",), f8),
+        ("fdelay", ("circuits",), f8),
+        ("dr", (DR_SIZE,), f8),
+        ("dv", (DV_SIZE,), f8),
+        ("sv", (SV_SIZE,), f8),
+    )
+
+
+def _shape(shape: tuple[int | str, ...], shapes: Shapes) -> tuple[int, ...]:
+    return tuple(s if isinstance(s, int) else int(getattr(shapes, s)) for s in shape)
+
+
+def _host(value: Any) -> Any:
+    """In numba's CUDA simulator: the numpy array behind a simulated device array (tuples and
+    named tuples element by element), which the model's CPU compilation takes."""
+    if isinstance(value, tuple):
+        items = [_host(v) for v in value]
+        return type(value)(*items) if hasattr(value, "_fields") else tuple(items)
+    return getattr(value, "_ary", value)
+
+
+def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
+    """The kernel's Python source for ``shapes``: one local array per work array, zeroed (the
+    telegram on the air NaN, as ``new_state`` has it), then the run (generated, so that the one
+    list of work arrays makes both the CPU's state and the device's)."""
+    fields = state_fields()
+    lines = [
+        "def stop_kernel(seed, seed_keys, first_run, p, sc, gv, ge, res, passages, rec_arrays,"
+        " rec_counters):",
+        "    r = cuda.grid(1)",
+        "    if r >= sc.shape[0]:",
+        "        return",
+    ]
+    if simulated:
+        lines.append(
+            "    seed_keys, p, sc, gv, ge, res, passages, rec_arrays, rec_counters = HOST("
+            "(seed_keys, p, sc, gv, ge, res, passages, rec_arrays, rec_counters))"
+        )
+    for i, (name, shape, _) in enumerate(fields):
+        dims = _shape(shape, shapes)
+        lines.append(f"    {name} = cuda.local.array({dims!r}, DTYPES[{i}])")
+        if name in ("train", "onboard", "link", "sense", "tally", "meas", "law_params"):
+            continue  # records: stop_init sets every field it reads
+        flat = "".join(f"[{chr(105 + d)}]" for d in range(len(dims)))  # [i][j]
+        fill = "NAN" if name == "pending" else "0"
+        indent = "    "
+        for d, n in enumerate(dims):
+            lines.append(f"{indent}for {chr(105 + d)} in range({n}):")
+            indent += "    "
+        lines.append(f"{indent}{name}{flat.replace('][', ', ')} = {fill}")
+    args = ", ".join(name for name, _, _ in fields)
+    lines += [
+        f"    s = StopState({args})",
+        "    derived = cuda.local.array(1, RUN_DTYPE)",
+        "    run = RunParams(sc[r], (p.bp, gv[r], ge[r]), derived)",
+        "    rec = Recording(False, rec_arrays[0], rec_arrays[1], rec_arrays[2], rec_arrays[3],"
+        " rec_arrays[4], rec_counters)",
+    ]
+    if simulated:
+        # The simulator runs this body in Python and the model through its CPU compilation: the
+        # CPU's block of one run on this thread's state (simulate_block makes the same
+        # simulate_run call as the line above, through its cached compiled signature).
+        lines.append(
+            "    simulate_block(seed, first_run + r, p, sc[r : r + 1], gv[r : r + 1], ge[r : r + 1], s,"
+            " res[r : r + 1], passages[r : r + 1], rec, LAW)"
+        )
+    else:
+        lines.append(
+            "    simulate_run(p, run, s, StopOutputs(res[r], passages[r], rec), seed_keys, first_run + r,"
+            " LAW)"
+        )
+    return "\n".join(lines) + "\n"
+
+
+_KERNELS: dict[tuple[Shapes, str], Any] = {}
+
+
+def _fma_off() -> None:
+    """Compile without contracting ``a * b + c`` into one fused multiply-add (the exactness
+    policy above): NVVM contracts by default, and numba-cuda's ``cuda.jit`` has no option for it,
+    so NVVM's compile call gets ``fma=0`` unless the caller asked for fast maths.
+    **[interpretation]** this wraps numba-cuda's ``nvvm.compile_ir`` (its module function, which
+    its code generator calls by name); a later numba-cuda that renames it leaves FMA on, which
+    the equality check (``benchmarks/gpu_throughput.py``) would show as a wider difference."""
+    from numba.cuda.cudadrv import nvvm
+
+    compile_ir = nvvm.compile_ir
+    if getattr(compile_ir, "railstop_fma_off", False):
+        return
+
+    def compile_ir_fma_off(llvmir: Any, **options: Any) -> Any:
+        if not options.get("fastmath"):
+            options.setdefault("fma", False)
+        return compile_ir(llvmir, **options)
+
+    compile_ir_fma_off.railstop_fma_off = True  # type: ignore[attr-defined]
+    nvvm.compile_ir = compile_ir_fma_off
+
+
+def _kernel(shapes: Shapes, controller: str) -> Any:
+    """The compiled (on first launch) CUDA kernel for ``shapes`` and ``controller``'s law: one
+    kernel per controller and shapes (numba-cuda specialises it; the CPU's one compiled model
+    takes the law as a function pointer, which the device has not)."""
+    key = (shapes, control_law_of(controller).name)
+    if key not in _KERNELS:
+        from numba import cuda, njit
+
+        if not cuda_simulated():
+            _fma_off()
+        law = control_law_of(controller)
+        namespace: dict[str, Any] = {
+            "cuda": cuda,
+            "NAN": np.nan,
+            "DTYPES": tuple(dtype for _, _, dtype in state_fields()),
+            "RUN_DTYPE": RUN_DTYPE,
+            "StopState": StopState,
+            "RunParams": RunParams,
+            "Recording": Recording,
+            "StopOutputs": StopOutputs,
+            "simulate_run": simulate_run,
+            "simulate_block": simulate_block,
+            # The simulator runs the kernel in Python and the model through its CPU compilation:
+            # the CPU's law (a function pointer) keeps the model's compiled signature, cached.
+            "LAW": law.compiled() if cuda_simulated() else njit(error_model="numpy")(law.function),
+        }
+        namespace["HOST"] = _host
+        source = _kernel_source(shapes, simulated=cuda_simulated())
+        exec(compile(source, f"<railstop gpu kernel {key[1]}>", "exec"), namespace)
+        _KERNELS[key] = cuda.jit(fastmath=False, opt=True)(namespace["stop_kernel"])
+    return _KERNELS[key]
+
+
+def check_gpu_model(model: KernelModel) -> None:
+    """Refuse what the device does not run (a ``SimulationError`` naming it)."""
+    if model.controller not in CONTROLLERS:
+        raise SimulationError(
+            f"{model.controller}: a law loaded from a file runs on the CPU only (the GPU cannot check "
+            "its indices nor catch its errors); run it without --device gpu"
+        )
+
+
+def run_kernel_gpu(
+    model: KernelModel,
+    scenario: Scenario,
+    *,
+    seed: int,
+    first_run: int,
+    timings: dict[str, float] | None = None,
+    threads_per_block: int = THREADS_PER_BLOCK,
+) -> tuple[FloatArray, FloatArray]:
+    """``run_kernel`` on the GPU: (results (n, RES_SIZE), true passage times (n, D)), no recording.
+
+    ``threads_per_block``: the launch's block size (the results do not depend on it).
+    ``timings``, if given, gets the seconds of each stage: ``compile`` (the kernel's first launch
+    for its shapes and law, 0 after), ``to_device``, ``kernel``, ``to_host``."""
+    why = gpu_unavailable()
+    if why is not None:
+        raise SimulationError(f"--device gpu: {why}")
+    check_gpu_model(model)
+    import numba
+    from numba import cuda
+
+    sc, bp, gv, ge = scenario_arrays(scenario)
+    n = scenario.n
+    if is_corrected(model.controller) and n:
+        start = model.det_pos[0] - np.maximum(20.0, 1.5 * sc[:, SC_ENTRY_SPEED])
+        if np.any(start < model.tc_starts[0]):
+            raise SimulationError("ato-corrected: the approach starts before the first track circuit")
+    res = np.empty((n, RES_SIZE))
+    passages = np.empty((n, model.det_pos.size))
+    if n == 0:
+        return res, passages
+    clock = time.perf_counter
+    t0 = clock()
+    shapes = Shapes.of(model, sc)
+    kernel = _kernel(shapes, model.controller)
+    keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
+    p = stop_params(model, bp)
+    d_p = type(p)(*(cuda.to_device(np.ascontiguousarray(a)) for a in p))
+    rec_arrays = tuple(
+        cuda.to_device(np.zeros(shape))
+        for shape in ((1, TR_SIZE), (1, CR_SIZE + 1), (1, TEL_SIZE), (1, LA_SIZE), (1,))
+    )
+    d_res = cuda.device_array((n, RES_SIZE))
+    d_pass = cuda.device_array((n, model.det_pos.size))
+    args = (
+        seed_u64(seed),
+        cuda.to_device(keys),
+        first_run,
+        d_p,
+        cuda.to_device(sc),
+        cuda.to_device(np.ascontiguousarray(gv)),
+        cuda.to_device(np.ascontiguousarray(ge)),
+        d_res,
+        d_pass,
+        rec_arrays,
+        cuda.to_device(np.zeros(RC_SIZE, dtype=np.int64)),
+    )
+    compiled = bool(kernel.overloads) or cuda_simulated()
+    if not compiled:
+        kernel.compile(tuple(numba.typeof(a) for a in args))
+    cuda.synchronize()
+    t1 = clock()
+    blocks = (n + threads_per_block - 1) // threads_per_block
+    with warnings.catch_warnings():
+        # A small block of runs fills few of the GPU's multiprocessors: slower, not wrong.
+        warnings.simplefilter("ignore", NumbaPerformanceWarning)
+        kernel[blocks, threads_per_block](*args)
+    cuda.synchronize()
+    t2 = clock()
+    d_res.copy_to_host(res)
+    d_pass.copy_to_host(passages)
+    t3 = clock()
+    if timings is not None:
+        timings["compile_and_to_device"] = t1 - t0
+        timings["kernel"] = t2 - t1
+        timings["to_host"] = t3 - t2
+    return res, passages
+
+
+#: Where the stop model runs: the CPU (numba, threads or processes) or an NVIDIA GPU (numba-cuda).
+DEVICES = ("cpu", "gpu")
+
+
+def run_on(
+    device: str,
+    model: KernelModel,
+    scenario: Scenario,
+    *,
+    seed: int,
+    first_run: int,
+    record: bool = False,
+) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
+    """:func:`railstop.model.run.run_kernel` on ``device`` (the detailed stop, ``record``, runs on
+    the CPU only): (results (n, RES_SIZE), true passage times (n, D), record of run 0)."""
+    if device == "cpu":
+        return run_kernel(model, scenario, seed=seed, first_run=first_run, record=record)
+    if device != "gpu":
+        raise SimulationError(f"device {device!r}: one of {', '.join(DEVICES)}")
+    if record:
+        raise SimulationError("the detailed stop (its recording) runs on the CPU")
+    res, passages = run_kernel_gpu(model, scenario, seed=seed, first_run=first_run)
+    return res, passages, None

@@ -1,0 +1,147 @@
+"""The stop model on a GPU (railstop.model.gpu), tested in numba's CUDA simulator (CI has no GPU).
+
+In the simulator each GPU thread runs in Python and the model through its CPU
+compilation, so the runs are bit-identical to the CPU's: these tests check the
+kernel's wiring (each thread's work arrays, its run, its rows of the outputs)
+and the campaign's ``--device gpu`` path end to end. What only a GPU shows
+(libdevice's last bits, the throughput) is measured by
+``benchmarks/gpu_throughput.py`` on a GPU machine.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from railstop.config import default_line, default_vehicle
+from railstop.model.build import KernelModel
+from railstop.model.gpu import Shapes, _kernel_source, state_fields
+from railstop.model.records import StopState
+from railstop.model.run import block_state
+
+EXE = [sys.executable, "-m", "railstop.cli"]
+
+
+def _model(controller: str) -> KernelModel:
+    line = default_line()
+    return KernelModel.create(
+        station=line.stations[0],
+        vehicle=default_vehicle(),
+        controller=controller,
+        form=None,
+        dt_s=0.01,
+        max_time_s=150.0,
+        track=line.track,
+    )
+
+
+@pytest.mark.parametrize("controller", ["tasc-pwm", "ato-corrected", "driver-atc2"])
+def test_the_kernels_work_arrays_are_the_cpus(controller: str) -> None:
+    """One list of work arrays: each thread's local arrays have the CPU state's fields, shapes and
+    dtypes, so a field added to the state cannot be missing on the device."""
+    model = _model(controller)
+    sc = np.zeros((1, 21))
+    sc[0, 4] = 0.4  # a dead time of 0.4 s: a ring of 41 steps at least ...
+    shapes = Shapes.of(model, sc)
+    assert shapes.ring == 64  # ... rounded up: every chunk's draws share one kernel
+    sc[0, 4] = 0.7
+    assert Shapes.of(model, sc).ring == 128
+    cpu = block_state(model, shapes.ring)
+    fields = state_fields()
+    assert [name for name, _, _ in fields] == list(StopState._fields)
+    for name, shape, dtype in fields:
+        arr = getattr(cpu, name)
+        dims = tuple(s if isinstance(s, int) else getattr(shapes, s) for s in shape)
+        assert arr.shape == dims, name
+        assert arr.dtype == np.dtype(dtype), name
+    source = _kernel_source(shapes)
+    compile(source, "<kernel>", "exec")  # the generated kernel is valid Python
+    assert f"cuda.local.array({(shapes.ring,)!r}" in source
+
+
+def _railstop(args: list[str], cwd: Path, *, simulated: bool) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ)
+    if simulated:
+        env["NUMBA_ENABLE_CUDASIM"] = "1"
+    else:
+        env.pop("NUMBA_ENABLE_CUDASIM", None)
+    return subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+def test_compare_on_the_simulated_gpu_equals_the_cpu(tmp_path: Path) -> None:
+    """``compare --device gpu`` (TASC, ATO with SPEC §2 corrections, a driver) in the CUDA
+    simulator: every run's row equal to the CPU's, chunks of several runs and a chunk cut short."""
+    common = ["compare", "--controllers", "tasc-pwm,ato-corrected,driver-ats", "--runs", "5"]
+    common += ["--chunk-size", "3", "--seed", "11", "--json"]
+    cpu = _railstop([*common, "--out", "cpu", "--db", "cpu.db"], tmp_path, simulated=False)
+    assert cpu.returncode == 0, cpu.stderr
+    gpu = _railstop([*common, "--out", "gpu", "--db", "gpu.db", "--device", "gpu"], tmp_path, simulated=True)
+    assert gpu.returncode == 0, gpu.stderr
+    for controller in ("tasc-pwm", "ato-corrected", "driver-ats"):
+        a = pq.read_table(tmp_path / "cpu" / controller / "runs.parquet")
+        b = pq.read_table(tmp_path / "gpu" / controller / "runs.parquet")
+        assert a.num_rows == b.num_rows == 5
+        assert a.column_names == b.column_names
+        for name in a.column_names:
+            x, y = a.column(name).to_numpy(), b.column(name).to_numpy()
+            same = np.array_equal(x, y, equal_nan=True) if x.dtype.kind == "f" else np.array_equal(x, y)
+            assert same, (controller, name, x, y)
+        manifest = json.loads((tmp_path / "gpu" / controller / "campaign.json").read_text())
+        assert manifest["device"] == "gpu"
+        assert "device" not in json.loads((tmp_path / "cpu" / controller / "campaign.json").read_text())
+
+
+def test_a_gpu_campaign_is_resumed_on_the_gpu_only(tmp_path: Path) -> None:
+    args = ["campaign", "--runs", "4", "--chunk-size", "2", "--out", "c", "--db", "c.db", "--json"]
+    first = _railstop([*args, "--device", "gpu"], tmp_path, simulated=True)
+    assert first.returncode == 0, first.stderr
+    again = _railstop([*args, "--resume"], tmp_path, simulated=False)
+    assert again.returncode == 2, again.stderr
+    assert "Traceback" not in again.stderr and "device" in again.stderr, again.stderr
+
+
+def _one_line(p: subprocess.CompletedProcess[str], *needles: str) -> None:
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), p.stderr
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def test_no_gpu_is_one_line_before_any_work(tmp_path: Path) -> None:
+    """On a machine without a GPU (CI), ``--device gpu`` says why, exit 2, and writes nothing."""
+    p = _railstop(
+        ["campaign", "--runs", "3", "--device", "gpu", "--out", "c", "--db", "c.db"],
+        tmp_path,
+        simulated=False,
+    )
+    _one_line(p, "--device gpu", "GPU")
+    assert not (tmp_path / "c").exists() and not (tmp_path / "c.db").exists()
+
+
+def test_an_unknown_device_is_one_line(tmp_path: Path) -> None:
+    p = _railstop(["compare", "--runs", "3", "--device", "tpu"], tmp_path, simulated=False)
+    _one_line(p, "--device", "tpu", "cpu, gpu")
+
+
+def test_a_loaded_law_is_refused_on_the_gpu(tmp_path: Path) -> None:
+    law = tmp_path / "law.py"
+    law.write_text(
+        "from railstop.control.law import control_law\n\n"
+        "@control_law(name='coast')\n"
+        "def coast(meas, state, params):\n"
+        "    return params[0].full_service_mps2 if meas[0].distance_m < 100.0 else 0.0\n"
+    )
+    p = _railstop(
+        ["campaign", "--law", str(law), "--controller", "coast", "--runs", "3", "--device", "gpu"],
+        tmp_path,
+        simulated=True,
+    )
+    _one_line(p, "--device gpu", "CPU only")
