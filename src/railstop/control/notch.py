@@ -43,13 +43,20 @@ MOD_E1 = 3  # speed error integral (m/s)
 MOD_E2 = 4  # position error integral (m)
 MOD_HELD = 5  # time the notch has been held (s)
 MOD_CHANGES = 6
-MOD_SIZE = 7
+# The response's smoothing factor 1 - exp(-dt/τ) and the (dt, τ) it was computed for: the response
+# time changes only when the wayside identifies it, so the exponential is computed once per change
+# rather than every controller cycle (the same value to the bit).
+MOD_ALPHA = 7
+MOD_ALPHA_DT = 8
+MOD_ALPHA_TAU = 9
+MOD_SIZE = 10
 
 
 @njit_step
 def modulator_init_1(state: FloatArray) -> None:
     state[:] = 0.0
     state[MOD_HELD] = np.inf
+    state[MOD_ALPHA_TAU] = np.nan  # no factor yet (NaN equals no response time)
 
 
 @njit_step
@@ -81,7 +88,12 @@ def stopping_distance_under_lag_1(v0_mps: float, a0_mps2: float, c_mps2: float, 
     t = v0 / max(0.5 * (a0 + c), 1e-3)
     for _ in range(8):
         v, _x, a = motion_under_lag_1(v0, a0, c, tau_s, t)
-        t = max(t + v / max(a, 1e-3), 0.0)
+        t_next = max(t + v / max(a, 1e-3), 0.0)
+        if t_next == t:
+            # Converged to the bit: every further iteration would return this t again (an exact
+            # fixed point of a deterministic step), so stopping here changes no result.
+            break
+        t = t_next
     return motion_under_lag_1(v0, a0, c, tau_s, t)[1]
 
 
@@ -163,7 +175,11 @@ def modulator_update_1(
     modulator runs on the target alone.
     """
     target = clip_1(target_mps2, 0.0, table[table.size - 1])
-    alpha = 1.0 - math.exp(-dt_s / response_s)
+    if state[MOD_ALPHA_DT] != dt_s or state[MOD_ALPHA_TAU] != response_s:
+        state[MOD_ALPHA] = 1.0 - math.exp(-dt_s / response_s)
+        state[MOD_ALPHA_DT] = dt_s
+        state[MOD_ALPHA_TAU] = response_s
+    alpha = state[MOD_ALPHA]
     notch = int(state[MOD_NOTCH])
     state[MOD_APPLIED] += (table[notch] - state[MOD_APPLIED]) * alpha
     state[MOD_TARGET] += (target - state[MOD_TARGET]) * alpha
