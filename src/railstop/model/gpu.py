@@ -230,6 +230,12 @@ def _host(value: Any) -> Any:
     return getattr(value, "_ary", value)
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    view = a.view()
+    view.flags.writeable = False
+    return view
+
+
 def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
     """The kernel's Python source for ``shapes``: one local array per work array, zeroed (the
     telegram on the air NaN, as ``new_state`` has it), then the run (generated, so that the one
@@ -237,7 +243,7 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
     fields = state_fields()
     lines = [
         "def stop_kernel(seed, seed_keys, first_run, p, sc, gv, ge, res, passages, rec_arrays,"
-        " rec_counters):",
+        " rec_counters, grad_read_only):",
         "    r = cuda.grid(1)",
         "    if r >= sc.shape[0]:",
         "        return",
@@ -247,6 +253,9 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
             "    seed_keys, p, sc, gv, ge, res, passages, rec_arrays, rec_counters = HOST("
             "(seed_keys, p, sc, gv, ge, res, passages, rec_arrays, rec_counters))"
         )
+        # A broadcast gradient is read-only on the host: the CPU's compiled signature has that type
+        # (a writable copy would be another type, compiled again).
+        lines.append("    gv, ge = (READ_ONLY(gv), READ_ONLY(ge)) if grad_read_only else (gv, ge)")
     for i, (name, shape, _) in enumerate(fields):
         dims = _shape(shape, shapes)
         lines.append(f"    {name} = cuda.local.array({dims!r}, DTYPES[{i}])")
@@ -335,6 +344,7 @@ def _kernel(shapes: Shapes, controller: str) -> Any:
             "LAW": law.compiled() if cuda_simulated() else njit(error_model="numpy")(law.function),
         }
         namespace["HOST"] = _host
+        namespace["READ_ONLY"] = _read_only
         source = _kernel_source(shapes, simulated=cuda_simulated())
         exec(compile(source, f"<railstop gpu kernel {key[1]}>", "exec"), namespace)
         _KERNELS[key] = cuda.jit(fastmath=False, opt=True)(namespace["stop_kernel"])
@@ -406,6 +416,7 @@ def run_kernel_gpu(
         d_pass,
         rec_arrays,
         cuda.to_device(np.zeros(RC_SIZE, dtype=np.int64)),
+        int(not (gv.flags.writeable and ge.flags.writeable)),  # the simulator's alone
     )
     compiled = bool(kernel.overloads) or cuda_simulated()
     if not compiled:
