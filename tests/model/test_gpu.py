@@ -126,6 +126,26 @@ def test_no_gpu_is_one_line_before_any_work(tmp_path: Path) -> None:
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.db").exists()
 
 
+def test_a_driver_error_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A GPU that fails after the start-up check (here: a machine with no driver, told that it has
+    a GPU) is a SimulationError of one line, not the driver's traceback (HZ-GPU-03)."""
+    from numba import cuda
+
+    import railstop.model.gpu as gpu
+    from railstop.config.scenario import Scenario
+    from railstop.errors import SimulationError
+
+    if gpu.cuda_simulated() or cuda.is_available():
+        pytest.skip("this machine has a GPU (or the simulator): the launch would succeed")
+    monkeypatch.setattr(gpu, "gpu_unavailable", lambda: None)
+    model = _model("tasc-pwm")
+    scenario = Scenario.nominal(default_line().stations[0], default_vehicle())
+    with pytest.raises(SimulationError) as err:
+        gpu.run_kernel_gpu(model, scenario, seed=1, first_run=0)
+    message = str(err.value)
+    assert message.startswith("--device gpu: the GPU failed (") and "\n" not in message, message
+
+
 def test_an_unknown_device_is_one_line(tmp_path: Path) -> None:
     p = _railstop(["compare", "--runs", "3", "--device", "tpu"], tmp_path, simulated=False)
     _one_line(p, "--device", "tpu", "cpu, gpu")

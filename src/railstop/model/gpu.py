@@ -58,7 +58,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba.core.errors import NumbaPerformanceWarning
+from numba.core.errors import NumbaError, NumbaPerformanceWarning
 
 from railstop.config.scenario import Scenario
 from railstop.control.law import LAW_PARAMS_DTYPE, LAW_STATE_SIZE, MEASUREMENTS_DTYPE
@@ -108,6 +108,14 @@ THREADS_PER_BLOCK = 256
 RING_QUANTUM = 64
 
 
+def _one_line(exc: BaseException) -> str:
+    """An error of the driver on one line: its kind and its words (the driver's messages run over
+    several lines, the first often empty of meaning), at most 200 characters."""
+    words = " ".join(str(exc).split())
+    text = f"{type(exc).__name__}: {words}" if words else type(exc).__name__
+    return text if len(text) <= 200 else text[:199] + "…"
+
+
 def _numpy_shim() -> None:
     """numba-cuda 0.30 reads ``numpy.row_stack``, which numpy 2.5 removed (``vstack`` under its old
     name); set before numba-cuda is imported."""
@@ -138,9 +146,7 @@ def gpu_unavailable() -> str | None:
         if not cuda.is_available():
             return "no CUDA GPU is available (numba-cuda finds no device or driver)"
     except Exception as exc:  # the driver's own errors come in many kinds
-        return (
-            f"no CUDA GPU is available ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
-        )
+        return f"no CUDA GPU is available ({_one_line(exc)})"
     return None
 
 
@@ -372,14 +378,14 @@ def run_kernel_gpu(
     """``run_kernel`` on the GPU: (results (n, RES_SIZE), true passage times (n, D)), no recording.
 
     ``threads_per_block``: the launch's block size (the results do not depend on it).
-    ``timings``, if given, gets the seconds of each stage: ``compile`` (the kernel's first launch
-    for its shapes and law, 0 after), ``to_device``, ``kernel``, ``to_host``."""
+    ``timings``, if given, gets the seconds of each stage: ``compile_and_to_device`` (the
+    kernel's compilation on its first launch for its shapes and law, and the copies to the
+    device), ``kernel`` and ``to_host``. An error of the GPU or its driver is a
+    :class:`SimulationError` of one line (HZ-GPU-03)."""
     why = gpu_unavailable()
     if why is not None:
         raise SimulationError(f"--device gpu: {why}")
     check_gpu_model(model)
-    import numba
-    from numba import cuda
 
     sc, bp, gv, ge = scenario_arrays(scenario)
     n = scenario.n
@@ -391,6 +397,32 @@ def run_kernel_gpu(
     passages = np.empty((n, model.det_pos.size))
     if n == 0:
         return res, passages
+    try:
+        _launch(model, (sc, bp, gv, ge), res, passages, seed, first_run, timings, threads_per_block)
+    except (SimulationError, NumbaError):
+        raise  # our own refusals, and numba's typing and compilation errors (a defect, not the GPU)
+    except Exception as exc:  # the CUDA driver's and runtime's errors come in many kinds
+        raise SimulationError(f"--device gpu: the GPU failed ({_one_line(exc)})") from None
+    return res, passages
+
+
+def _launch(
+    model: KernelModel,
+    draws: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+    res: FloatArray,
+    passages: FloatArray,
+    seed: int,
+    first_run: int,
+    timings: dict[str, float] | None,
+    threads_per_block: int,
+) -> None:
+    """Copy the draws and the station's parameters to the device, run the kernel, copy the
+    results back into ``res`` and ``passages``."""
+    import numba
+    from numba import cuda
+
+    sc, bp, gv, ge = draws
+    n = sc.shape[0]
     clock = time.perf_counter
     t0 = clock()
     shapes = Shapes.of(model, sc)
@@ -437,7 +469,6 @@ def run_kernel_gpu(
         timings["compile_and_to_device"] = t1 - t0
         timings["kernel"] = t2 - t1
         timings["to_host"] = t3 - t2
-    return res, passages
 
 
 #: Where the stop model runs: the CPU (numba, threads or processes) or an NVIDIA GPU (numba-cuda).
