@@ -10,7 +10,7 @@ once per block (:func:`railstop.model.records.new_state`), here in each
 thread's local memory (``cuda.local.array`` of the same dtypes and shapes,
 which the kernel factory fixes as constants per model: the longest dead time,
 the radar window, the tachometer's window, the frames in flight, the
-positioning log, the track circuits). :data:`STATE_FIELDS` is that one list
+positioning log, the track circuits). :func:`state_fields` is that one list
 of work arrays; a test checks it against ``StopState`` so that a field added
 to the state cannot be forgotten here.
 
@@ -40,7 +40,7 @@ wrapped so that its errors become a full-service demand, which the device
 cannot do; HZ-LAW-01 holds only there), without recording (the detailed
 stop is one run, on the CPU). The scenario is drawn on the host (its
 counter-based streams, :mod:`railstop.streams`) and copied over: a few
-hundred bytes per run against ~4,500 steps of work.
+hundred bytes per run against thousands of 10 ms steps of work.
 
 Optional: numba-cuda is the extra ``railstop[gpu]``; without it (or without
 a GPU) :func:`gpu_unavailable` says why and ``--device gpu`` exits 2 with
@@ -178,10 +178,10 @@ class Shapes:
         )
 
 
-#: The work arrays of one run, in ``StopState``'s order: (field, shape, dtype). A shape is a
-#: number, or the name of a :class:`Shapes` field. The CPU allocates them in ``new_state``; the
-#: kernel below as each thread's local arrays. A test checks this list against ``new_state``.
 def state_fields() -> tuple[tuple[str, tuple[int | str, ...], Any], ...]:
+    """The work arrays of one run, in ``StopState``'s order: (field, shape, dtype). A shape is a
+    number, or the name of a :class:`Shapes` field. The CPU allocates them in ``new_state``; the
+    kernel below as each thread's local arrays. A test checks this list against ``new_state``."""
     f8, i8 = np.float64, np.int64
     return (
         ("train", (1,), TRAIN_DTYPE),

@@ -725,6 +725,7 @@ def spec_from_manifest(
         driver=driver,
         platform=platform,
         law=law_file,
+        device=str(manifest.get("device", "cpu")),
     )
 
 
@@ -760,7 +761,8 @@ def replay_profile(
     law: Path | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run ``run`` of the campaign in ``out`` again with recording: (distance to the stop m, speed
-    km/h); ``law``: the law file of a campaign of a loaded law."""
+    km/h); ``law``: the law file of a campaign of a loaded law. The recording runs on the CPU, a
+    GPU campaign's run too (its numbers agree with the GPU's within railstop.model.gpu's bound)."""
     spec = spec_from_manifest(
         read_manifest(out),
         line,
