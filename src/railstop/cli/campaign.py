@@ -754,7 +754,7 @@ def report(
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
     from railstop.config import load_line, load_vehicle
     from railstop.report.campaign_report import export_csv, find_campaigns, write_report
-    from railstop.sim.campaign import MANIFEST, read_manifest, replay_profile, spec_from_manifest
+    from railstop.sim.campaign import MANIFEST, law_of_manifest, read_manifest, replay_profile
 
     try:
         ln = load_line(line)
@@ -762,21 +762,13 @@ def report(
         drv, plat = load_manual_data(driver, platform)
         wanted = None if controllers is None else {n.strip() for n in controllers.split(",") if n.strip()}
         if worst > 0:
-            # Every campaign whose worst runs will be replayed can be, before the first figure: a
-            # missing law file or other data is refused in one line, with nothing half written.
+            # A campaign of a loaded law replays its worst runs by that law's file: refused before
+            # the first figure when it is missing (one line, nothing half drawn).
             for campaign_dir in find_campaigns(directory):
                 manifest = read_manifest(campaign_dir)
                 if wanted is None or manifest.get("controller") in wanted:
-                    manual = manifest.get("manual_data_sha256") is not None
-                    spec_from_manifest(
-                        manifest,
-                        ln,
-                        veh,
-                        str(campaign_dir / MANIFEST),
-                        driver=drv if manual else None,
-                        platform=plat if manual else None,
-                        law=law if "law" in manifest else None,
-                    )
+                    given = law if "law" in manifest else None
+                    law_of_manifest(manifest, given, str(campaign_dir / MANIFEST))
 
         def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
             manifest = read_manifest(campaign_dir)

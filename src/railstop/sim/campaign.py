@@ -695,7 +695,7 @@ def spec_from_manifest(
 ) -> CampaignSpec:
     """The campaign a manifest describes, with the line, vehicle (and driver, platform, law file)
     data it was run on."""
-    law_file = _law_of_manifest(manifest, law, source)
+    law_file = law_of_manifest(manifest, law, source)
     if manifest.get("model_version") != MODEL_VERSION:
         raise RailstopError(
             f"{source}: the campaign was made by stop model version {manifest.get('model_version', 1)}; "
@@ -729,7 +729,7 @@ def spec_from_manifest(
     )
 
 
-def _law_of_manifest(manifest: dict[str, Any], law: Path | None, source: str) -> LawFile | None:
+def law_of_manifest(manifest: dict[str, Any], law: Path | None, source: str) -> LawFile | None:
     """The law file of a campaign's manifest: the one given (``--law``), which must be the one
     the campaign ran."""
     recorded = manifest.get("law")
