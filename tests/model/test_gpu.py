@@ -22,8 +22,8 @@ import pytest
 
 from railstop.config import default_line, default_vehicle
 from railstop.model.build import KernelModel
-from railstop.model.gpu import Shapes, _kernel_source, state_fields
-from railstop.model.records import StopState
+from railstop.model.gpu import Shapes, _kernel_source
+from railstop.model.records import STATE_FIELDS, StopState, state_shape
 from railstop.model.run import block_state
 
 EXE = [sys.executable, "-m", "railstop.cli"]
@@ -54,16 +54,16 @@ def test_the_kernels_work_arrays_are_the_cpus(controller: str) -> None:
     sc[0, 4] = 0.7
     assert Shapes.of(model, sc).ring == 128
     cpu = block_state(model, shapes.ring)
-    fields = state_fields()
-    assert [name for name, _, _ in fields] == list(StopState._fields)
-    for name, shape, dtype in fields:
-        arr = getattr(cpu, name)
-        dims = tuple(s if isinstance(s, int) else getattr(shapes, s) for s in shape)
-        assert arr.shape == dims, name
-        assert arr.dtype == np.dtype(dtype), name
+    assert [name for name, _, _, _ in STATE_FIELDS] == list(StopState._fields)
     source = _kernel_source(shapes)
     compile(source, "<kernel>", "exec")  # the generated kernel is valid Python
-    assert f"cuda.local.array({(shapes.ring,)!r}" in source
+    for i, (name, shape, dtype, _) in enumerate(STATE_FIELDS):
+        arr = getattr(cpu, name)
+        dims = state_shape(shape, shapes.sizes())
+        assert arr.shape == dims, name
+        assert arr.dtype == dtype, name
+        assert f"    {name} = cuda.local.array({dims!r}, DTYPES[{i}])" in source, name
+    assert "    pending[i] = NAN" in source and "    ring[i] = 0.0" in source
 
 
 def _railstop(args: list[str], cwd: Path, *, simulated: bool) -> subprocess.CompletedProcess[str]:

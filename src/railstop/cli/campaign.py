@@ -578,15 +578,13 @@ def certify(
     """Bound P(stop error > threshold) or P(front past the platform end): estimate and bound."""
     from railstop.config.disturbances import load_disturbances
     from railstop.config.plausibility import load_checked
-    from railstop.sim.certify import CertifyError, CertifySpec
+    from railstop.sim.certify import CertifyError, CertifySpec, check_setting
     from railstop.sim.certify import certify as run_certify
     from railstop.sim.strata import HAZARDS, stratified_certify
 
     try:
-        if hazard not in HAZARDS:
-            raise CertifyError("hazard", f"must be one of {', '.join(HAZARDS)} (got {hazard!r})")
-        if method not in ("is", "mc", "stratified"):
-            raise CertifyError("method", f"must be is, mc or stratified (got {method!r})")
+        check_setting("hazard", hazard, hazard in HAZARDS, f"must be one of {', '.join(HAZARDS)}")
+        check_setting("method", method, method in ("is", "mc", "stratified"), "must be is, mc or stratified")
         if device != "cpu" and method != "stratified":
             raise CertifyError("device", f"{device} runs --method stratified only (got --method {method})")
         if hazard == "platform-end" and threshold_m is not None:

@@ -10,9 +10,9 @@ once per block (:func:`railstop.model.records.new_state`), here in each
 thread's local memory (``cuda.local.array`` of the same dtypes and shapes,
 which the kernel factory fixes as constants per model: the longest dead time,
 the radar window, the tachometer's window, the frames in flight, the
-positioning log, the track circuits). :func:`state_fields` is that one list
-of work arrays; a test checks it against ``StopState`` so that a field added
-to the state cannot be forgotten here.
+positioning log, the track circuits). Both are made from one list of work
+arrays, :data:`railstop.model.records.STATE_FIELDS`, so a field added to the
+state cannot be forgotten here.
 
 Exactness policy **[interpretation]** (the issue asks for a stated bound):
 
@@ -51,6 +51,7 @@ compilation): what CI tests, on a few runs.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 import warnings
@@ -61,44 +62,37 @@ import numpy as np
 from numba.core.errors import NumbaError, NumbaPerformanceWarning
 
 from railstop.config.scenario import Scenario
-from railstop.control.law import LAW_PARAMS_DTYPE, LAW_STATE_SIZE, MEASUREMENTS_DTYPE
-from railstop.control.notch import MOD_SIZE
-from railstop.control.tasc import HISTORY, SAMPLES
-from railstop.controllers import CONTROLLERS, is_corrected
+from railstop.controllers import CONTROLLERS
 from railstop.errors import SimulationError
 from railstop.messages import TEL_SIZE
-from railstop.model.build import KernelModel, control_law_of, scenario_arrays, stop_params
-from railstop.model.fixes import FX_SIZE, FXI_SIZE
+from railstop.model.build import KernelModel, control_law_of, stop_params
 from railstop.model.records import (
-    KP_DT,
-    KP_IN_FLIGHT,
     LA_SIZE,
-    LINK_DTYPE,
-    ONBOARD_DTYPE,
     RC_SIZE,
     RES_SIZE,
     RUN_DTYPE,
-    SC_DEAD_TIME,
-    SC_ENTRY_SPEED,
-    SENSE_DTYPE,
+    STATE_FIELDS,
+    STATE_SIZES,
     STREAMS,
-    TALLY_DTYPE,
     TR_SIZE,
-    TRAIN_DTYPE,
     FloatArray,
     Recording,
     RunParams,
     StopOutputs,
     StopState,
+    state_shape,
 )
-from railstop.model.run import KernelRecord, run_kernel, simulate_block, simulate_run
-from railstop.onboard.ato import AT_SIZE
-from railstop.onboard.driver import DR_SIZE, DV_SIZE
-from railstop.onboard.positioning import LOG_ROWS
-from railstop.onboard.speed_supervision import SV_SIZE
-from railstop.onboard.tasc_receiver import RX_SIZE
+from railstop.model.run import (
+    KernelRecord,
+    model_draws,
+    ring_steps,
+    run_kernel,
+    simulate_block,
+    simulate_run,
+    state_sizes,
+)
 from railstop.streams import seed_key, seed_u64
-from railstop.wayside.tasc_unit import CR_SIZE, WS_SIZE
+from railstop.wayside.tasc_unit import CR_SIZE
 
 #: Threads per block. Measured for tasc-pwm on one H200 (1,000,000 runs, kernel alone; the
 #: kernel uses 255 registers and 7,984 bytes of local memory per thread): 32: 195,460 runs/s,
@@ -152,7 +146,8 @@ def gpu_unavailable() -> str | None:
 
 @dataclass(frozen=True, slots=True)
 class Shapes:
-    """The constant shapes of one run's work arrays (each GPU thread's local memory)."""
+    """The constant shapes of one run's work arrays (each GPU thread's local memory): the CPU's
+    sizes (``model.run.state_sizes``), the dead time's ring rounded up."""
 
     ring: int
     window: int
@@ -163,68 +158,15 @@ class Shapes:
 
     @classmethod
     def of(cls, model: KernelModel, sc: FloatArray) -> Shapes:
-        # The dead time's ring needs the longest delay + 1 steps; any longer ring gives the same
-        # results (brake.actuator_step_1 indexes it modulo its length, as the CPU's blocks of
-        # different maxima do). Rounded up to RING_QUANTUM so that the chunks of a campaign, each
-        # with its own longest draw, share one compiled kernel.
-        need = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1 if sc.shape[0] else 1
-        return cls(
-            ring=-(-max(need, 1) // RING_QUANTUM) * RING_QUANTUM,
-            window=model.window,
-            tach_window=model.tach_window,
-            in_flight=max(int(model.kp[KP_IN_FLIGHT]), 1),
-            log_len=model.log_len,
-            circuits=model.tc_starts.size,
-        )
+        # The ring needs the longest delay + 1 steps; any longer ring gives the same results
+        # (brake.actuator_step_1 indexes it modulo its length, as the CPU's blocks of different
+        # maxima do). Rounded up to RING_QUANTUM so that the chunks of a campaign, each with its
+        # own longest draw, share one compiled kernel.
+        ring = -(-ring_steps(model, sc) // RING_QUANTUM) * RING_QUANTUM
+        return cls(**state_sizes(model, ring))
 
-
-def state_fields() -> tuple[tuple[str, tuple[int | str, ...], Any], ...]:
-    """The work arrays of one run, in ``StopState``'s order: (field, shape, dtype). A shape is a
-    number, or the name of a :class:`Shapes` field. The CPU allocates them in ``new_state``; the
-    kernel below as each thread's local arrays. A test checks this list against ``new_state``."""
-    f8, i8 = np.float64, np.int64
-    return (
-        ("train", (1,), TRAIN_DTYPE),
-        ("onboard", (1,), ONBOARD_DTYPE),
-        ("link", (1,), LINK_DTYPE),
-        ("sense", (1,), SENSE_DTYPE),
-        ("tally", (1,), TALLY_DTYPE),
-        ("ring", ("ring",), f8),
-        ("ws", (WS_SIZE,), f8),
-        ("dbuf", ("window",), f8),
-        ("wh_v", (HISTORY,), f8),
-        ("wh_e", (HISTORY,), f8),
-        ("pass_t", (3,), f8),
-        ("pass_x", (3,), f8),
-        ("tele", (TEL_SIZE,), f8),
-        ("crow", (CR_SIZE,), f8),
-        ("taus", (SAMPLES,), f8),
-        ("weights", (SAMPLES,), f8),
-        ("pending", (TEL_SIZE,), f8),
-        ("fl_arr", ("in_flight",), f8),
-        ("fl_seq", ("in_flight",), i8),
-        ("rx", (RX_SIZE,), f8),
-        ("tach", ("tach_window",), f8),
-        ("rh_v", (HISTORY,), f8),
-        ("rh_e", (HISTORY,), f8),
-        ("mod", (MOD_SIZE,), f8),
-        ("at", (AT_SIZE,), f8),
-        ("meas", (1,), MEASUREMENTS_DTYPE),
-        ("law_state", (LAW_STATE_SIZE,), f8),
-        ("law_params", (1,), LAW_PARAMS_DTYPE),
-        ("fx", (FX_SIZE,), f8),
-        ("fxi", (FXI_SIZE,), i8),
-        ("flog", (LOG_ROWS, "log_len"), f8),
-        ("fbound", ("circuits",), f8),
-        ("fdelay", ("circuits",), f8),
-        ("dr", (DR_SIZE,), f8),
-        ("dv", (DV_SIZE,), f8),
-        ("sv", (SV_SIZE,), f8),
-    )
-
-
-def _shape(shape: tuple[int | str, ...], shapes: Shapes) -> tuple[int, ...]:
-    return tuple(s if isinstance(s, int) else int(getattr(shapes, s)) for s in shape)
+    def sizes(self) -> dict[str, int]:
+        return {name: int(getattr(self, name)) for name in STATE_SIZES}
 
 
 def _host(value: Any) -> Any:
@@ -243,10 +185,10 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 
 
 def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
-    """The kernel's Python source for ``shapes``: one local array per work array, zeroed (the
-    telegram on the air NaN, as ``new_state`` has it), then the run (generated, so that the one
-    list of work arrays makes both the CPU's state and the device's)."""
-    fields = state_fields()
+    """The kernel's Python source for ``shapes``: one local array per work array of
+    ``records.STATE_FIELDS``, set to its initial value as ``new_state`` sets it, then the run
+    (generated, so that the one list of work arrays makes both the CPU's state and the device's)."""
+    sizes = shapes.sizes()
     lines = [
         "def stop_kernel(seed, seed_keys, first_run, p, sc, gv, ge, res, passages, rec_arrays,"
         " rec_counters, grad_read_only):",
@@ -262,19 +204,19 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
         # A broadcast gradient is read-only on the host: the CPU's compiled signature has that type
         # (a writable copy would be another type, compiled again).
         lines.append("    gv, ge = (READ_ONLY(gv), READ_ONLY(ge)) if grad_read_only else (gv, ge)")
-    for i, (name, shape, _) in enumerate(fields):
-        dims = _shape(shape, shapes)
+    for i, (name, shape, dtype, fill) in enumerate(STATE_FIELDS):
+        dims = state_shape(shape, sizes)
         lines.append(f"    {name} = cuda.local.array({dims!r}, DTYPES[{i}])")
-        if name in ("train", "onboard", "link", "sense", "tally", "meas", "law_params"):
+        if dtype.names is not None:
             continue  # records: stop_init sets every field it reads
-        flat = "".join(f"[{chr(105 + d)}]" for d in range(len(dims)))  # [i][j]
-        fill = "NAN" if name == "pending" else "0"
+        index = ", ".join(chr(105 + d) for d in range(len(dims)))  # i, j
         indent = "    "
         for d, n in enumerate(dims):
             lines.append(f"{indent}for {chr(105 + d)} in range({n}):")
             indent += "    "
-        lines.append(f"{indent}{name}{flat.replace('][', ', ')} = {fill}")
-    args = ", ".join(name for name, _, _ in fields)
+        value = "NAN" if math.isnan(fill) else (str(int(fill)) if dtype.kind in "iu" else repr(float(fill)))
+        lines.append(f"{indent}{name}[{index}] = {value}")
+    args = ", ".join(name for name, _, _, _ in STATE_FIELDS)
     lines += [
         f"    s = StopState({args})",
         "    derived = cuda.local.array(1, RUN_DTYPE)",
@@ -337,7 +279,7 @@ def _kernel(shapes: Shapes, controller: str) -> Any:
         namespace: dict[str, Any] = {
             "cuda": cuda,
             "NAN": np.nan,
-            "DTYPES": tuple(dtype for _, _, dtype in state_fields()),
+            "DTYPES": tuple(dtype for _, _, dtype, _ in STATE_FIELDS),
             "RUN_DTYPE": RUN_DTYPE,
             "StopState": StopState,
             "RunParams": RunParams,
@@ -387,12 +329,8 @@ def run_kernel_gpu(
         raise SimulationError(f"--device gpu: {why}")
     check_gpu_model(model)
 
-    sc, bp, gv, ge = scenario_arrays(scenario)
+    sc, bp, gv, ge = model_draws(model, scenario)
     n = scenario.n
-    if is_corrected(model.controller) and n:
-        start = model.det_pos[0] - np.maximum(20.0, 1.5 * sc[:, SC_ENTRY_SPEED])
-        if np.any(start < model.tc_starts[0]):
-            raise SimulationError("ato-corrected: the approach starts before the first track circuit")
     res = np.empty((n, RES_SIZE))
     passages = np.empty((n, model.det_pos.size))
     if n == 0:

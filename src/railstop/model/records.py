@@ -536,48 +536,70 @@ def new_record(dtype: np.dtype[np.void]) -> RecordArray:
     return np.zeros(1, dtype=dtype)
 
 
-def new_state(
-    *, ring_size: int, window: int, tach_window: int, in_flight: int, log_len: int, circuits: int
-) -> StopState:
-    """The state buffers of a block of runs: ``ring_size`` steps of dead time, the radar buffer of
-    ``window`` samples, the tachometer's ``tach_window``, ``in_flight`` frames in the air, the
-    positioning log of ``log_len`` entries over ``circuits`` track circuits."""
-    return StopState(
-        train=new_record(TRAIN_DTYPE),
-        onboard=new_record(ONBOARD_DTYPE),
-        link=new_record(LINK_DTYPE),
-        sense=new_record(SENSE_DTYPE),
-        tally=new_record(TALLY_DTYPE),
-        ring=np.zeros(ring_size),
-        ws=np.zeros(WS_SIZE),
-        dbuf=np.zeros(window),
-        wh_v=np.zeros(HISTORY),
-        wh_e=np.zeros(HISTORY),
-        pass_t=np.zeros(3),
-        pass_x=np.zeros(3),
-        tele=np.zeros(TEL_SIZE),
-        crow=np.zeros(CR_SIZE),
-        taus=np.zeros(SAMPLES),
-        weights=np.zeros(SAMPLES),
+#: The sizes a state's arrays take from the model and the block (``new_state``'s arguments).
+STATE_SIZES = ("ring", "window", "tach_window", "in_flight", "log_len", "circuits")
+
+#: The state's work arrays, in ``StopState``'s order: (field, shape, dtype, initial value). A
+#: shape's entry is a number or one of :data:`STATE_SIZES`. The one list of them: the CPU's
+#: :func:`new_state` and the GPU kernel's local arrays (railstop.model.gpu) are both made from it.
+STATE_FIELDS: tuple[tuple[str, tuple[int | str, ...], np.dtype, float], ...] = tuple(
+    (name, shape, np.dtype(dtype), fill)
+    for name, shape, dtype, fill in (
+        ("train", (1,), TRAIN_DTYPE, 0.0),
+        ("onboard", (1,), ONBOARD_DTYPE, 0.0),
+        ("link", (1,), LINK_DTYPE, 0.0),
+        ("sense", (1,), SENSE_DTYPE, 0.0),
+        ("tally", (1,), TALLY_DTYPE, 0.0),
+        ("ring", ("ring",), np.float64, 0.0),
+        ("ws", (WS_SIZE,), np.float64, 0.0),
+        ("dbuf", ("window",), np.float64, 0.0),
+        ("wh_v", (HISTORY,), np.float64, 0.0),
+        ("wh_e", (HISTORY,), np.float64, 0.0),
+        ("pass_t", (3,), np.float64, 0.0),
+        ("pass_x", (3,), np.float64, 0.0),
+        ("tele", (TEL_SIZE,), np.float64, 0.0),
+        ("crow", (CR_SIZE,), np.float64, 0.0),
+        ("taus", (SAMPLES,), np.float64, 0.0),
+        ("weights", (SAMPLES,), np.float64, 0.0),
         # The telegram on the air: none yet (a run's first command replaces it).
-        pending=np.full(TEL_SIZE, np.nan),
-        fl_arr=np.zeros(max(in_flight, 1)),
-        fl_seq=np.zeros(max(in_flight, 1), dtype=np.int64),
-        rx=np.zeros(RX_SIZE),
-        tach=np.zeros(tach_window),
-        rh_v=np.zeros(HISTORY),
-        rh_e=np.zeros(HISTORY),
-        mod=np.zeros(MOD_SIZE),
-        at=np.zeros(AT_SIZE),
-        meas=np.zeros(1, dtype=MEASUREMENTS_DTYPE),
-        law_state=np.zeros(LAW_STATE_SIZE),
-        law_params=np.zeros(1, dtype=LAW_PARAMS_DTYPE),
-        fx=np.zeros(FX_SIZE),
-        fxi=np.zeros(FXI_SIZE, dtype=np.int64),
-        flog=np.zeros((LOG_ROWS, log_len)),
-        fbound=np.zeros(circuits),
-        fdelay=np.zeros(circuits),
-        dr=np.zeros(DR_SIZE),
-        dv=np.zeros(DV_SIZE),
-        sv=np.zeros(SV_SIZE),
+        ("pending", (TEL_SIZE,), np.float64, np.nan),
+        ("fl_arr", ("in_flight",), np.float64, 0.0),
+        ("fl_seq", ("in_flight",), np.int64, 0.0),
+        ("rx", (RX_SIZE,), np.float64, 0.0),
+        ("tach", ("tach_window",), np.float64, 0.0),
+        ("rh_v", (HISTORY,), np.float64, 0.0),
+        ("rh_e", (HISTORY,), np.float64, 0.0),
+        ("mod", (MOD_SIZE,), np.float64, 0.0),
+        ("at", (AT_SIZE,), np.float64, 0.0),
+        ("meas", (1,), MEASUREMENTS_DTYPE, 0.0),
+        ("law_state", (LAW_STATE_SIZE,), np.float64, 0.0),
+        ("law_params", (1,), LAW_PARAMS_DTYPE, 0.0),
+        ("fx", (FX_SIZE,), np.float64, 0.0),
+        ("fxi", (FXI_SIZE,), np.int64, 0.0),
+        ("flog", (LOG_ROWS, "log_len"), np.float64, 0.0),
+        ("fbound", ("circuits",), np.float64, 0.0),
+        ("fdelay", ("circuits",), np.float64, 0.0),
+        ("dr", (DR_SIZE,), np.float64, 0.0),
+        ("dv", (DV_SIZE,), np.float64, 0.0),
+        ("sv", (SV_SIZE,), np.float64, 0.0),
     )
+)
+
+
+def state_shape(shape: tuple[int | str, ...], sizes: dict[str, int]) -> tuple[int, ...]:
+    """A :data:`STATE_FIELDS` shape with its named sizes filled in from ``sizes``."""
+    return tuple(d if isinstance(d, int) else int(sizes[d]) for d in shape)
+
+
+def new_state(sizes: dict[str, int]) -> StopState:
+    """The state buffers of a block of runs (:data:`STATE_FIELDS`), ``sizes`` naming each of
+    :data:`STATE_SIZES`: the dead time's ring in steps, the radar buffer's samples, the
+    tachometer's window, the frames in the air, the positioning log's entries, the track
+    circuits."""
+    arrays = []
+    for _, shape, dtype, fill in STATE_FIELDS:
+        arr = np.zeros(state_shape(shape, sizes), dtype=dtype)
+        if fill != 0.0:
+            arr[...] = fill
+        arrays.append(arr)
+    return StopState(*arrays)

@@ -129,16 +129,41 @@ class KernelRecord:
     deliveries: NDArray[np.int64]  # steps at which the pending telegram was delivered
 
 
+def state_sizes(model: KernelModel, ring_size: int) -> dict[str, int]:
+    """The sizes of the state's arrays (records.STATE_SIZES) for ``model``, its dead time's ring
+    ``ring_size`` steps long."""
+    return {
+        "ring": ring_size,
+        "window": model.window,
+        "tach_window": model.tach_window,
+        "in_flight": max(int(model.kp[KP_IN_FLIGHT]), 1),  # at least one slot
+        "log_len": model.log_len,
+        "circuits": model.tc_starts.size,
+    }
+
+
 def block_state(model: KernelModel, ring_size: int) -> StopState:
     """The state buffers of a block of runs of ``model`` (``ring_size``: the longest dead time in steps)."""
-    return new_state(
-        ring_size=ring_size,
-        window=model.window,
-        tach_window=model.tach_window,
-        in_flight=int(model.kp[KP_IN_FLIGHT]),
-        log_len=model.log_len,
-        circuits=model.tc_starts.size,
-    )
+    return new_state(state_sizes(model, ring_size))
+
+
+def ring_steps(model: KernelModel, sc: FloatArray) -> int:
+    """The dead time's ring the draws ``sc`` need: their longest dead time in steps, plus one."""
+    return int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1 if sc.shape[0] else 1
+
+
+def model_draws(
+    model: KernelModel, scenario: Scenario
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``scenario`` as the model's arrays (``scenario_arrays``), refused where ``model`` cannot
+    run it: ``ato-corrected`` needs the approach to start on the line's track circuits."""
+    sc, bp, gv, ge = scenario_arrays(scenario)
+    if is_corrected(model.controller) and scenario.n:
+        # The train was corrected at the last circuit boundary behind its start (SPEC §2).
+        start = model.det_pos[0] - np.maximum(20.0, 1.5 * sc[:, SC_ENTRY_SPEED])
+        if np.any(start < model.tc_starts[0]):
+            raise SimulationError("ato-corrected: the approach starts before the first track circuit")
+    return sc, bp, gv, ge
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,12 +181,7 @@ class _Buffers:
 
 
 def _buffers(model: KernelModel, scenario: Scenario, record: bool) -> _Buffers:
-    sc, bp, gv, ge = scenario_arrays(scenario)
-    if is_corrected(model.controller) and scenario.n:
-        # The train was corrected at the last circuit boundary behind its start (SPEC §2).
-        start = model.det_pos[0] - np.maximum(20.0, 1.5 * sc[:, SC_ENTRY_SPEED])
-        if np.any(start < model.tc_starts[0]):
-            raise SimulationError("ato-corrected: the approach starts before the first track circuit")
+    sc, bp, gv, ge = model_draws(model, scenario)
     n = scenario.n
     rows = int(model.kp[KP_STEPS]) if record else 1
     if record and model.controller in DRIVER_MODES:
@@ -175,7 +195,6 @@ def _buffers(model: KernelModel, scenario: Scenario, record: bool) -> _Buffers:
         deliveries=np.zeros(rows),
         counters=np.zeros(RC_SIZE, dtype=np.int64),
     )
-    ring_size = int(np.rint(np.max(sc[:, SC_DEAD_TIME]) / model.kp[KP_DT])) + 1 if n else 1
     return _Buffers(
         sc=sc,
         bp=bp,
@@ -184,7 +203,7 @@ def _buffers(model: KernelModel, scenario: Scenario, record: bool) -> _Buffers:
         rec=rec,
         res=np.empty((n, RES_SIZE)),
         passages=np.empty((n, model.det_pos.size)),
-        state=block_state(model, ring_size),
+        state=block_state(model, ring_steps(model, sc)),
     )
 
 

@@ -391,7 +391,7 @@ def sample_block(
             (1.0 - q) / (1.0 - t.p)
         )
     stopped = res[:, RES_STOPPED] > 0.0
-    score = np.where(stopped, res[:, RES_ERROR], np.inf)  # [interpretation] never stood still: a hit
+    score = hazard_score(stopped, res[:, RES_ERROR])
     alpha = proposal.defensive
     with np.errstate(over="ignore"):
         weight = 1.0 / (alpha + (1.0 - alpha) * np.exp(log_r))
@@ -585,9 +585,26 @@ class CertifyResult:
         }
 
 
-def _check(name: str, value: object, ok: bool, what: str) -> None:
+def check_setting(name: str, value: object, ok: bool, what: str) -> None:
+    """A certification setting that is not ``ok``: a CertifyError naming it and its value."""
     if not ok:
         raise CertifyError(name, f"{what} (got {value!r})")
+
+
+def check_question(spec: CertifySpec, target: float, confidence: float) -> None:
+    """The settings every certification method shares: the target, the confidence, the
+    threshold and the seed."""
+    check_setting("target", target, 0.0 < target < 1.0, "must be strictly between 0 and 1")
+    check_setting("confidence", confidence, 0.0 < confidence < 1.0, "must be strictly between 0 and 1")
+    check_setting("threshold_m", spec.threshold_m, math.isfinite(spec.threshold_m), "must be a finite number")
+    check_setting("seed", spec.seed, seed_in_range(spec.seed), SEED_RANGE)
+
+
+def hazard_score(stopped: NDArray[np.bool_], error_m: FloatArray) -> FloatArray:
+    """The score a hit is judged by: the stop error, +inf for a run that never stood still (or
+    whose error is not a number): [interpretation] its stopping point is unknown, so it counts
+    against the design whatever the threshold (fail safe)."""
+    return np.where(stopped & np.isfinite(error_m), error_m, np.inf)
 
 
 def certify(
@@ -612,20 +629,12 @@ def certify(
     """
     # Estimation runs are numbered 0 .. runs - 1 and tuning runs from TUNING_FIRST_RUN on, within
     # the random streams' 64-bit range: the two must not overlap, nor run past 2^63.
-    _check("runs", runs, 1 <= runs <= TUNING_FIRST_RUN, "must be between 1 and 2^40")
-    _check("target", target, 0.0 < target < 1.0, "must be strictly between 0 and 1")
-    _check("confidence", confidence, 0.0 < confidence < 1.0, "must be strictly between 0 and 1")
-    _check("method", method, method in ("is", "mc"), "must be is or mc")
-    _check("defensive", defensive, 0.0 < defensive <= 1.0, "must be in (0, 1]")
+    check_setting("runs", runs, 1 <= runs <= TUNING_FIRST_RUN, "must be between 1 and 2^40")
+    check_question(spec, target, confidence)
+    check_setting("method", method, method in ("is", "mc"), "must be is or mc")
+    check_setting("defensive", defensive, 0.0 < defensive <= 1.0, "must be in (0, 1]")
     most = (RUN_LIMIT - TUNING_FIRST_RUN) // max_levels  # every level's runs get their own numbers
-    _check("tuning_runs", tuning_runs, 100 <= tuning_runs <= most, f"must be between 100 and {most}")
-    _check("threshold_m", spec.threshold_m, math.isfinite(spec.threshold_m), "must be a finite number")
-    _check(
-        "seed",
-        spec.seed,
-        seed_in_range(spec.seed),
-        SEED_RANGE,
-    )
+    check_setting("tuning_runs", tuning_runs, 100 <= tuning_runs <= most, f"must be between 100 and {most}")
     t0 = time.perf_counter()
 
     def stage(name: str, total: int) -> Callable[[int], None] | None:

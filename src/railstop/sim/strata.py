@@ -52,10 +52,9 @@ import numpy as np
 
 from railstop.config.disturbances import probability
 from railstop.sim.campaign import check_device, simulate_runs
-from railstop.sim.certify import CertifyError, CertifySpec
+from railstop.sim.certify import CertifySpec, check_question, check_setting, hazard_score
 from railstop.sim.executor import blocks, execute
 from railstop.stats.bounds import clopper_pearson_upper
-from railstop.streams import SEED_RANGE, seed_in_range
 
 #: The patch stratum's runs start here (the no-patch stratum's at 0; the importance sampler's
 #: tuning runs at 2^40).
@@ -165,10 +164,11 @@ def _block(
         device=device,
         patch=patch,
     )
-    stood = result.stopped & np.isfinite(result.stop_error_m)
-    hit = ~stood | (np.where(stood, result.stop_error_m, 0.0) > spec.threshold_m)
-    errors = result.stop_error_m[stood]
-    return int(np.sum(hit)), int(np.sum(~stood)), float(np.max(errors)) if errors.size else math.nan
+    score = hazard_score(result.stopped, result.stop_error_m)
+    stood = np.isfinite(score)
+    errors = score[stood]
+    hits = int(np.sum(score > spec.threshold_m))
+    return hits, int(np.sum(~stood)), float(np.max(errors)) if errors.size else math.nan
 
 
 def stratified_certify(
@@ -185,18 +185,9 @@ def stratified_certify(
 ) -> StratifiedResult:
     """Bound P(hit) stratum by stratum (see the module docstring); ``spec.threshold_m`` is the
     hazard's threshold (the caller sets it for ``platform-end``)."""
-    if not 1 <= runs <= PATCH_FIRST_RUN:
-        raise CertifyError("runs", f"must be between 1 and 2^41 (got {runs!r})")
-    if not 0.0 < target < 1.0:
-        raise CertifyError("target", f"must be strictly between 0 and 1 (got {target!r})")
-    if not 0.0 < confidence < 1.0:
-        raise CertifyError("confidence", f"must be strictly between 0 and 1 (got {confidence!r})")
-    if hazard not in HAZARDS:
-        raise CertifyError("hazard", f"must be one of {', '.join(HAZARDS)} (got {hazard!r})")
-    if not math.isfinite(spec.threshold_m):
-        raise CertifyError("threshold_m", f"must be a finite number (got {spec.threshold_m!r})")
-    if not seed_in_range(spec.seed):
-        raise CertifyError("seed", f"{SEED_RANGE} (got {spec.seed!r})")
+    check_setting("runs", runs, 1 <= runs <= PATCH_FIRST_RUN, "must be between 1 and 2^41")
+    check_question(spec, target, confidence)
+    check_setting("hazard", hazard, hazard in HAZARDS, f"must be one of {', '.join(HAZARDS)}")
     check_device(device)
     t0 = time.perf_counter()
     p = probability(spec.disturbances, "low_adhesion_probability")
@@ -205,8 +196,7 @@ def stratified_certify(
         layout = [("no patch", 1.0 - p, False, 0), ("low-adhesion patch", p, True, PATCH_FIRST_RUN)]
     else:
         layout = [("patch" if p >= 1.0 else "no patch", 1.0, None, 0)]
-    if runs < len(layout):
-        raise CertifyError("runs", f"at least one per stratum, {len(layout)} (got {runs!r})")
+    check_setting("runs", runs, runs >= len(layout), f"at least one per stratum, {len(layout)}")
     sizes = allocation([w for _, w, _, _ in layout], runs)
     level = 1.0 - (1.0 - confidence) / len(layout)  # Bonferroni: each stratum at 1 - δ/k
     most = GPU_BLOCK_RUNS if device == "gpu" else CPU_BLOCK_RUNS
