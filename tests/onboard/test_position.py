@@ -29,8 +29,10 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.operation import load_operation
 from railstop.config.schema import GnssClocks, Line, Positioning, TrackCircuit, TrackCircuitDetection
 from railstop.errors import SimulationError
+from railstop.nodes.occupancy_chain import ChainSettings
 from railstop.onboard.positioning import FixOutcome, PositioningUnit
 from railstop.sensors.gnss_clock import GnssClock, in_shadow
+from railstop.sim.line import PositionSettings
 from railstop.sim.position_run import PositionRunResult, PositionRunSettings, run_position
 from railstop.streams import RunStreams
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegram, TimestampUnit
@@ -482,6 +484,58 @@ def test_same_seed_same_run(note_run: PositionRunResult) -> None:
     again = run_position(LINE, VEHICLE, PositionRunSettings())
     assert again.summary() == note_run.summary()
     assert np.array_equal(again.calibrated_m, note_run.calibrated_m)
+
+
+@pytest.fixture(scope="module")
+def same_path_run() -> PositionRunResult:
+    """The note's run with every SPEC §2 chain setting fed its path."""
+    return run_position(LINE, VEHICLE, PositionRunSettings(same_path=True))
+
+
+def test_same_path_chains_never_drive_and_share_the_draws(
+    note_run: PositionRunResult, same_path_run: PositionRunResult
+) -> None:
+    res = same_path_run
+    # The other chains never touch the train: its path and its own positions are the note run's.
+    assert np.array_equal(res.true_m, note_run.true_m)
+    assert np.array_equal(res.calibrated_m, note_run.calibrated_m)
+    assert res.same_path_names[0] == "GNSS time, repeaters"
+    # The chain of the train's own setting, fed the same path, repeats it bit for bit: the same
+    # devices, clocks and radio draws, so the rows differ only by their setting.
+    assert np.array_equal(res.same_path_corrected_m[0], note_run.corrected_m)
+    assert np.array_equal(res.same_path_calibrated_m[0], note_run.calibrated_m)
+    rows = res.summary()["same_path"]
+    assert [r["setting"] for r in rows] == res.same_path_names
+    for key in ("corrected_p99_abs_m", "calibrated_p99_abs_m", "calibrated_max_abs_m"):
+        assert rows[0][key] == note_run.summary()[key]
+
+
+def test_same_path_settings_act_only_where_the_document_says(same_path_run: PositionRunResult) -> None:
+    res = same_path_run
+    names = res.same_path_names
+    x = res.true_m[:, 0]
+    tunnel_start = min(a for a, _, repeater in res.tunnels if repeater)  # the Hillcrest tunnel
+    before = x < tunnel_start - 300.0  # a fix's telegram arrives after the train passed the boundary
+    base = res.same_path_corrected_m[names.index("GNSS time, repeaters")]
+    # Without repeaters: the same positions until the first tunnel with a repeater (every clock
+    # disciplined there either way), different after it (that tunnel is a shadow now).
+    for name in ("no repeaters", "no repeaters, week holdover"):
+        other = res.same_path_corrected_m[names.index(name)]
+        assert np.array_equal(other[before, 0], base[before, 0])
+        assert not np.array_equal(other[~before, 0], base[~before, 0])
+    # Without GNSS every clock free-runs from the start: positions differ from the first fix.
+    no_gnss = res.same_path_corrected_m[names.index("no GNSS")]
+    assert not np.array_equal(no_gnss[before, 0], base[before, 0])
+    # A clock set a week ago drifts seven times as far as one set a day ago (SPEC §2 free-running):
+    # on the same path its corrected positions are worse.
+    rows = {r["setting"]: r for r in res.summary()["same_path"]}
+    for day, week in (("no repeaters", "no repeaters, week holdover"), ("no GNSS", "no GNSS, week holdover")):
+        assert rows[week]["corrected_p99_abs_m"] > rows[day]["corrected_p99_abs_m"]
+
+
+def test_same_path_needs_the_recording() -> None:
+    with pytest.raises(SimulationError, match="same_path"):
+        PositionSettings(same_path=(ChainSettings(),))
 
 
 def test_no_learning_gives_the_document_method() -> None:

@@ -183,6 +183,15 @@ def position_run(
             f"{_default(_LINE_DATA)}",
         ),
     ] = None,
+    same_path: Annotated[
+        bool,
+        typer.Option(
+            "--same-path",
+            help="Also run the SPEC §2 chain with and without GNSS time and repeaters (a day's and a "
+            "week's holdover) on this run's own path, so the table shows what each setting alone "
+            "changes.",
+        ),
+    ] = False,
     plot: Annotated[
         Path | None, typer.Option(help="Write a PNG of the errors against chainage here.")
     ] = None,
@@ -227,6 +236,7 @@ def position_run(
             gnss=not no_gnss,
             repeaters=not no_repeaters,
             learn=not no_learning,
+            same_path=same_path,
             **values,
         )
         result = run_position(
@@ -298,6 +308,24 @@ def _print_summary(s: dict[str, Any], plot: Path | None) -> None:
         highlight=False,
         soft_wrap=True,
     )
+    if "same_path" in s:
+        out.print(
+            "  on this run's path (the train driven as above):\n"
+            f"    {'setting':30s} {'corrected p99 / max':>22s} {'calibrated p99 / max':>22s} "
+            f"{'after stop 1':>13s}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        for row in s["same_path"]:
+            after = row["calibrated_p99_abs_after_first_stop_m"]
+            cor, cal = "corrected", "calibrated"
+            out.print(
+                f"    {row['setting']:30s} {row[f'{cor}_p99_abs_m']:9.2f} / {row[f'{cor}_max_abs_m']:6.2f} m "
+                f"{row[f'{cal}_p99_abs_m']:9.2f} / {row[f'{cal}_max_abs_m']:6.2f} m "
+                f"{'–' if after is None else f'{after:.2f} m':>13s}",
+                highlight=False,
+                soft_wrap=True,
+            )
     if plot is not None:
         out.print(f"plot: {plot}", highlight=False)
 

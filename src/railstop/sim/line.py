@@ -101,8 +101,8 @@ from railstop.model.build import DRIVER_MODES, KernelModel
 from railstop.model.records import RES_EB, RES_ERROR, RES_RESTOPS, RES_STOPPED, TR_T, TR_V, TR_X
 from railstop.model.run import SteppedStop
 from railstop.nodes.dwell import creep_rng
-from railstop.nodes.occupancy_chain import ChainSettings, FixRecord, OccupancyChain, fix_records
-from railstop.onboard.positioning import PositioningUnit
+from railstop.nodes.occupancy_chain import Arrivals, ChainSettings, FixRecord, OccupancyChain, fix_records
+from railstop.onboard.positioning import FixReport, PositioningUnit
 from railstop.onboard.restricted_mode import RestrictedDrive
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
@@ -169,7 +169,11 @@ class PositionSettings:
     clocks' holdover and the radio's latency (``nodes.occupancy_chain``). ``learn`` /
     ``accelerometer``: the onboard learner and the accelerometer's bridge over slides (beyond
     SPEC §2). ``record``: keep every train's true, raw, corrected and calibrated position every
-    step and every fix (for ``position-run``).
+    step and every fix (for ``position-run``). ``same_path``: other settings of the chain, each
+    fed the same path as the train's own (its devices, clocks and radio drawn from the same
+    streams, its positioning unit logging the same odometer); they never drive the train, so
+    their recorded positions show what the setting alone changes (SPEC §2's repeaters and GNSS
+    time compared on identical paths).
     """
 
     wheel_diameter_m: float | None = None
@@ -182,8 +186,11 @@ class PositionSettings:
     learn: bool = True
     accelerometer: bool = True
     record: bool = False
+    same_path: tuple[ChainSettings, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.same_path and not self.record:
+            raise SimulationError("same_path: the other chains' positions are kept only when recorded")
         if not 0.0 <= self.slip_probability <= 1.0:
             raise SimulationError(f"slip_probability: a probability in [0, 1] (got {self.slip_probability})")
         for name in ("slides", "slips"):
@@ -345,6 +352,8 @@ class Train:
     slide_m: float = 0.0  # true distance run while sliding / slipping
     slip_m: float = 0.0
     trace: list[tuple[float, float, float, float, float, float]] = field(default_factory=list)
+    # The same path's corrected and calibrated position by each ``PositionSettings.same_path`` chain.
+    same_path_trace: list[tuple[float, ...]] = field(default_factory=list)
     slides: int = 0  # slide events: slides that started
     last_slide_s: float = -np.inf  # the last step it slid
     x_onboard_m: float = 0.0  # where the train believes its front is (SPEC §2 positioning)
@@ -477,6 +486,24 @@ class LineResult:
         }
 
 
+def _feed_chain(
+    chain: OccupancyChain,
+    unit: PositioningUnit,
+    now_s: float,
+    motion: dict[str, Any],
+    log: dict[str, Any],
+) -> tuple[FixReport | None, Arrivals]:
+    """One step of a SPEC §2 chain and the positioning unit it feeds: the trains' ``motion`` over
+    the step (the devices detect, the wayside stamps), the unit's ``log`` at the onboard clock,
+    then the telegrams that reached the trains by ``now_s`` (the fixes' report, None if none)."""
+    chain.advance(**motion)
+    unit.log(clock_time_s=chain.onboard_time_s(now_s), **log)
+    got = chain.arrivals(now_s)
+    if not got.size:
+        return None, got
+    return unit.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s), got
+
+
 class LineSimulation:
     def __init__(
         self,
@@ -578,19 +605,30 @@ class LineSimulation:
         )
         self._place_patches()
         det = self.line.track.detection
-        circuits = self.line.track.circuits
-        self.circuit_sd = [det.boundary_sd_m(c.kind) for c in circuits]
+        self.circuit_sd = [det.boundary_sd_m(c.kind) for c in self.line.track.circuits]
+        self.chain, self.positioning = self._chain_and_unit(pos.chain)
+        # The other chains on the same path (never driving): the same streams, so the same draws.
+        self.same_path = [self._chain_and_unit(c) for c in pos.same_path]
+        self.position_errors: list[float] = []
+        self.fixes: list[FixRecord] = []
+
+    def _chain_and_unit(self, settings: ChainSettings) -> tuple[OccupancyChain, PositioningUnit]:
+        """The SPEC §2 chain of ``settings`` and the trains' positioning units it feeds."""
+        n = len(self.trains)
+        veh = self.vehicle
+        pos = self.settings.position
+        det = self.line.track.detection
         # SPEC §2 S10-S30: every train's passage of the devices (its own boundaries and delays),
         # one wayside (its GNSS clocks shared by every train), the radio and the onboard clocks.
-        self.chain = OccupancyChain(
+        chain = OccupancyChain(
             self.line,
             train_streams=self.train_streams,
             wayside_streams=RunStreams.for_runs(self.seed, WAYSIDE_RUN, 1),
             start_position_m=np.full(n, self.operation.entry_m),
-            settings=pos.chain,
+            settings=settings,
         )
-        self.positioning = PositioningUnit(
-            circuits=circuits,
+        unit = PositioningUnit(
+            circuits=self.line.track.circuits,
             settings=veh.positioning.model_copy(update={"learn": veh.positioning.learn and pos.learn}),
             n=n,
             cycle_s=self.clock.step_s,
@@ -601,7 +639,7 @@ class LineSimulation:
             delay_spread_s=det.delay_spread_s,
             nominal_delay_s=det.delay_mean_s,
             start_sd_m=self.operation.entry_position_sd_m,
-            time_sd_s=self.chain.clock_sd_s(),
+            time_sd_s=chain.clock_sd_s(),
         )
         if self.settings.calibration == "carried":
             # [interpretation] a train in service keeps the scale and delay it learned on its
@@ -612,11 +650,10 @@ class LineSimulation:
                 1.0 + CARRIED_SCALE_SD * st.normal(Stream.ACCELEROMETER, 1)
             )
             delay = det.delay_mean_s + CARRIED_DELAY_SD_S * st.normal(Stream.ACCELEROMETER, 2)
-            self.positioning.carry_calibration(
+            unit.carry_calibration(
                 scale=scale, scale_sd=CARRIED_SCALE_SD, delay_s=delay, delay_sd_s=CARRIED_DELAY_SD_S
             )
-        self.position_errors: list[float] = []
-        self.fixes: list[FixRecord] = []
+        return chain, unit
 
     def _place_patches(self) -> None:
         """Low-adhesion patches (wet leaves, ``low_mu``), drawn per train (``Stream.ADHESION``,
@@ -686,32 +723,31 @@ class LineSimulation:
             t.slide_m += float(moved[t.index]) if t.sliding else 0.0
             t.slip_m += float(moved[t.index]) if t.slipping else 0.0
         v0 = np.array([v for _, _, v in before])
-        self.chain.advance(
-            t0_s=now_s - dt,
-            dt_s=dt,
-            x0_m=x0,
-            v0_mps=v0,
+        motion = {
+            "t0_s": now_s - dt,
+            "dt_s": dt,
+            "x0_m": x0,
+            "v0_mps": v0,
             # The uniform acceleration that carries the front from x0 at v0 to x1 in the step: the
             # ATO's own step, and for a stop played back from its trajectory the motion that
             # meets both ends (the devices see the front cross where it is).
-            accel_mps2=np.where(on_line, 2.0 * (moved - v0 * dt) / (dt * dt), 0.0),
-            x1_m=x1,
-        )
-        self.positioning.log(
-            clock_time_s=self.chain.onboard_time_s(now_s),
-            odometer_m=self.tacho.odometer_m(),
-            speed_mps=self.tacho.speed_mps(np.array([t.v_mps for t in self.trains]), creep),
-            wsp_active=sliding | slipping,
+            "accel_mps2": np.where(on_line, 2.0 * (moved - v0 * dt) / (dt * dt), 0.0),
+            "x1_m": x1,
+        }
+        log = {
+            "odometer_m": self.tacho.odometer_m(),
+            "speed_mps": self.tacho.speed_mps(np.array([t.v_mps for t in self.trains]), creep),
+            "wsp_active": sliding | slipping,
             # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
             # It belongs to the calibration: without the learner the calibrated position is the
             # document's (no bridge either).
-            accel_mps2=np.asarray(accel) + self.accel_bias if pos.accelerometer and pos.learn else None,
-        )
-        got = self.chain.arrivals(now_s)
-        if got.size:
-            rep = self.positioning.handle(run=got.run, circuit_id=got.circuit_id, gnss_time_s=got.gnss_time_s)
-            if pos.record:
-                self.fixes += fix_records(rep, got, self.positioning, now_s)
+            "accel_mps2": np.asarray(accel) + self.accel_bias if pos.accelerometer and pos.learn else None,
+        }
+        rep, got = _feed_chain(self.chain, self.positioning, now_s, motion, log)
+        if rep is not None and pos.record:
+            self.fixes += fix_records(rep, got, self.positioning, now_s)
+        for chain, unit in self.same_path:
+            _feed_chain(chain, unit, now_s, motion, log)
         est = self.positioning.calibrated_m()
         for t in self.trains:
             t.x_onboard_m = float(est[t.index])
@@ -720,10 +756,13 @@ class LineSimulation:
         if pos.record:
             raw = self.operation.entry_m + self.tacho.odometer_m()
             cor = self.positioning.corrected_m()
+            other = [(u.corrected_m(), u.calibrated_m()) for _, u in self.same_path]
             for t in self.trains:
                 if t.phase in ON_LINE:
                     i = t.index
                     t.trace.append((now_s, t.x_m, t.v_mps, float(raw[i]), float(cor[i]), float(est[i])))
+                    if other:
+                        t.same_path_trace.append(tuple(float(a[i]) for pair in other for a in pair))
 
     # ------------------------------------------------------------------ the plant
 

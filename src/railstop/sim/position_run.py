@@ -45,6 +45,18 @@ BoolArray = NDArray[np.bool_]
 
 MAX_TIME_S = 3600.0  # a run that has not left the line by then is an error
 CHAINAGE_STEP_M = 1.0  # grid of the error-against-chainage statistics
+#: A week: the holdover of a clock set long ago (the stale case of SPEC §2's free-running clocks).
+WEEK_S = 7 * 86400.0
+
+#: ``same_path``: the chain settings a run compares on its own path (SPEC §2: what GNSS time and
+#: the repeaters in the tunnels buy), each with the line data's holdover or a week's.
+SAME_PATH_CHAINS: dict[str, dict[str, Any]] = {
+    "GNSS time, repeaters": {},
+    "no repeaters": {"repeaters": False},
+    "no GNSS": {"gnss": False},
+    "no repeaters, week holdover": {"repeaters": False, "holdover_s": WEEK_S},
+    "no GNSS, week holdover": {"gnss": False, "holdover_s": WEEK_S},
+}
 
 
 class SettingError(SimulationError):
@@ -141,6 +153,8 @@ class PositionRunSettings:
     accelerometer: bool = True  # the slide compensation's accelerometer (beyond SPEC §2)
     holdover_s: float | None = None  # age of a clock with no time source; None = the line's data
     telegram_latency_s: float = 0.05  # SPEC typical values: radio latency tens of ms
+    # Also run every chain of SAME_PATH_CHAINS on this run's own path (they never drive the train).
+    same_path: bool = False
 
     def __post_init__(self) -> None:
         check_streams(self.seed, self.run)
@@ -186,6 +200,10 @@ class PositionRunResult:
     tunnels: list[tuple[float, float, bool]] = field(default_factory=list)  # (start, end, repeater)
     stops_m: FloatArray = field(default_factory=lambda: np.zeros(0))
     station_names: list[str] = field(default_factory=list)
+    # SAME_PATH_CHAINS on the run's path: (K, T, n) corrected and calibrated, K = the settings.
+    same_path_names: list[str] = field(default_factory=list)
+    same_path_corrected_m: FloatArray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    same_path_calibrated_m: FloatArray = field(default_factory=lambda: np.zeros((0, 0, 0)))
 
     @property
     def n(self) -> int:
@@ -193,29 +211,49 @@ class PositionRunResult:
 
     def errors_vs_chainage(self, run: int = 0) -> dict[str, FloatArray]:
         """Errors (estimate - true) on a 1 m grid of true chainage, from the start to the end of the run."""
+        return self.on_grid(
+            run, {"raw": self.raw_m, "corrected": self.corrected_m, "calibrated": self.calibrated_m}
+        )
+
+    def on_grid(self, run: int, estimates: dict[str, FloatArray]) -> dict[str, FloatArray]:
+        """``estimates`` (each (T, n)) less the truth, on a 1 m grid of the run's true chainage."""
         x = self.true_m[:, run]
         xs, first = np.unique(x, return_index=True)  # the position only grows; standstills collapse
         grid = np.arange(xs[0], xs[-1] + 1e-9, CHAINAGE_STEP_M)
         out = {"chainage_m": grid}
-        for key, est in (
-            ("raw", self.raw_m),
-            ("corrected", self.corrected_m),
-            ("calibrated", self.calibrated_m),
-        ):
-            err = est[first, run] - xs
-            out[key] = np.interp(grid, xs, err)
+        for key, est in estimates.items():
+            out[key] = np.interp(grid, xs, est[first, run] - xs)
         return out
+
+    def _accuracy(self, run: int, corrected: FloatArray, calibrated: FloatArray) -> dict[str, float | None]:
+        """p99 (over the chainage grid) and max (over every sample) of the corrected and calibrated
+        errors; the calibrated p99 once the train has left its first station."""
+        x = self.true_m[:, run]
+        grid = self.on_grid(run, {"corrected": corrected, "calibrated": calibrated})
+        warm = grid["chainage_m"] > (self.stops_m[0] if self.stops_m.size else np.inf)
+
+        def r(v: float) -> float:
+            return round(float(v), 3)
+
+        return {
+            "corrected_p99_abs_m": r(np.percentile(np.abs(grid["corrected"]), 99)),
+            "corrected_max_abs_m": r(np.max(np.abs(corrected[:, run] - x))),
+            "calibrated_p99_abs_m": r(np.percentile(np.abs(grid["calibrated"]), 99)),
+            "calibrated_max_abs_m": r(np.max(np.abs(calibrated[:, run] - x))),
+            # Once the train has left its first station: what a train that has learned keeps.
+            "calibrated_p99_abs_after_first_stop_m": r(np.percentile(np.abs(grid["calibrated"][warm]), 99))
+            if warm.any()
+            else None,
+        }
 
     def summary(self, run: int = 0) -> dict[str, Any]:
         if not 0 <= run < self.n:
             raise SimulationError(f"run: no run {run} in a result of {self.n} runs")
         x = self.true_m[:, run]
-        err = {k: getattr(self, f"{k}_m")[:, run] - x for k in ("raw", "corrected", "calibrated")}
-        grid = self.errors_vs_chainage(run)
+        raw_err = self.raw_m[:, run] - x
         mine = [f for f in self.fixes if f.run == run]
         accepted = [f for f in mine if f.outcome == FixOutcome.ACCEPTED.name.lower()]
         braking = self.patch_is_braking
-        warm = grid["chainage_m"] > (self.stops_m[0] if self.stops_m.size else np.inf)
         has_patch = np.isfinite(self.patch_start_m[run])
 
         def r(v: float, nd: int = 3) -> float:
@@ -236,16 +274,9 @@ class PositionRunResult:
             "slip_patches": int(np.sum(has_patch & ~braking)),
             "slide_distance_m": r(self.slide_distance_m[run], 1),
             "slip_distance_m": r(self.slip_distance_m[run], 1),
-            "raw_final_m": r(err["raw"][-1]),
-            "raw_max_abs_m": r(np.max(np.abs(err["raw"]))),
-            "corrected_p99_abs_m": r(np.percentile(np.abs(grid["corrected"]), 99)),
-            "corrected_max_abs_m": r(np.max(np.abs(err["corrected"]))),
-            "calibrated_p99_abs_m": r(np.percentile(np.abs(grid["calibrated"]), 99)),
-            "calibrated_max_abs_m": r(np.max(np.abs(err["calibrated"]))),
-            # Once the train has left its first station: what a train that has learned keeps.
-            "calibrated_p99_abs_after_first_stop_m": r(np.percentile(np.abs(grid["calibrated"][warm]), 99))
-            if warm.any()
-            else None,
+            "raw_final_m": r(raw_err[-1]),
+            "raw_max_abs_m": r(np.max(np.abs(raw_err))),
+            **self._accuracy(run, self.corrected_m, self.calibrated_m),
             "corrections": len(accepted),
             "rejected": len(mine) - len(accepted),
             "learned_intervals": sum(f.learned for f in mine),
@@ -257,6 +288,22 @@ class PositionRunResult:
             ),
             "detection_delay_mean_s": self.detection_delay_mean_s,
             "telegram_via_codec": self.telegram_via_codec,
+            # SPEC §2 settings compared on this run's own path (only with ``same_path``).
+            **(
+                {
+                    "same_path": [
+                        {"setting": name, **self._accuracy(run, cor, cal)}
+                        for name, cor, cal in zip(
+                            self.same_path_names,
+                            self.same_path_corrected_m,
+                            self.same_path_calibrated_m,
+                            strict=True,
+                        )
+                    ]
+                }
+                if self.same_path_names
+                else {}
+            ),
         }
 
     def settings_dict(self) -> dict[str, Any]:
@@ -371,6 +418,13 @@ def run_position(
 
 def line_settings(cfg: PositionRunSettings) -> LineSettings:
     """The line's settings of a position run: one train starting cold, its positioning recorded."""
+    same_path = (
+        tuple(
+            ChainSettings(latency_s=cfg.telegram_latency_s, **change) for change in SAME_PATH_CHAINS.values()
+        )
+        if cfg.same_path
+        else ()
+    )
     return LineSettings(
         odometer_error_pct=cfg.diameter_error_pct,
         slide_probability=cfg.slide_probability or 0.0,
@@ -391,6 +445,7 @@ def line_settings(cfg: PositionRunSettings) -> LineSettings:
             learn=cfg.learn,
             accelerometer=cfg.accelerometer,
             record=True,
+            same_path=same_path,
         ),
     )
 
@@ -403,12 +458,15 @@ def _result(line: Line, cfg: PositionRunSettings, runs: list[LineSimulation]) ->
     longest = max(traces, key=len)
     t_count = len(longest)
 
-    def col(k: int) -> FloatArray:
+    def col(k: int, of: list[FloatArray] = traces) -> FloatArray:
         out = np.empty((t_count, n))
-        for r, tr in enumerate(traces):
+        for r, tr in enumerate(of):
             out[: len(tr), r] = tr[:, k]
             out[len(tr) :, r] = tr[-1, k]
         return out
+
+    names = list(SAME_PATH_CHAINS) if cfg.same_path else []
+    others = [np.asarray(sim.trains[0].same_path_trace, dtype=np.float64) for sim in runs] if names else []
 
     speed = col(2)
     for r, tr in enumerate(traces):
@@ -447,4 +505,7 @@ def _result(line: Line, cfg: PositionRunSettings, runs: list[LineSimulation]) ->
         tunnels=[(t.start_m, t.end_m, t.repeater and cfg.repeaters) for t in line.track.tunnels],
         stops_m=np.array([st.stop_point_m for st in line.stations], dtype=np.float64),
         station_names=[st.name for st in line.stations],
+        same_path_names=names,
+        same_path_corrected_m=np.array([col(2 * k, others) for k in range(len(names))]),
+        same_path_calibrated_m=np.array([col(2 * k + 1, others) for k in range(len(names))]),
     )
