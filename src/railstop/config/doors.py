@@ -330,6 +330,11 @@ class DoorsConfig:
             )
         )
 
+    def with_dwell(self, dwell_s: float) -> DoorsConfig:
+        """The same door data with the doors standing open for ``dwell_s`` (an operation's dwell)."""
+        timing = self.file.timing.model_copy(update={"dwell_s": dwell_s})
+        return DoorsConfig(self.file.model_copy(update={"timing": timing}), self.source)
+
     def at_station(self, station: Station, line_source: str) -> DoorsConfig:
         """The door data of a dwell at ``station``: its PSD tolerance is the station's
         ``psd_tolerance_m`` (one tolerance per station judges the stop, the dwell and the report).

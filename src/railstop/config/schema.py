@@ -393,6 +393,11 @@ class Line(_Model):
         return self.track.circuits
 
     @property
+    def end_m(self) -> float:
+        """Where the line ends: its length, else the end of its track circuits (0 without either)."""
+        return self.line.length_m if self.line.length_m is not None else float(self.track.end_m or 0.0)
+
+    @property
     def tunnels(self) -> list[Tunnel]:
         return self.track.tunnels
 

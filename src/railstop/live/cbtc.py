@@ -344,14 +344,14 @@ class _Trains:
         doors: LiveDoors | None,
         plant: Address | None,
     ) -> None:
-        from railstop.live.plant import Plant, PlantPort, TascPlantData, initial_positions, line_end_m  # lazy
+        from railstop.live.plant import Plant, PlantPort, TascPlantData, initial_positions  # lazy
 
         self.line, self.vehicle, self.dwell_s, self.office = line, vehicle, dwell_s, office
         self.state_period_s, self.tasc, self.doors = state_period_s, tasc, doors
         self.dead = outage if outage is not None else set()
         self.order = sorted(range(len(line.stations)), key=lambda i: line.stations[i].stop_point_m)
         self.stations = [line.stations[i].stop_point_m for i in self.order]
-        end_m = line_end_m(line)
+        end_m = line.end_m
         # Each train talks to the zone controller with its own safety-layer id.
         # Each train hears only the zone controller, takes only commands, and refuses what was sent
         # before this process started (a restarted process never re-delivers a command).

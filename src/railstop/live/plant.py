@@ -106,7 +106,7 @@ _HEAD = struct.Struct(">B H")
 def initial_positions(line: Line, vehicle: Vehicle, trains: int, spacing_m: float) -> list[float]:
     """Where the trains start: train k ``spacing_m`` behind train k - 1, the first 300 m before the
     line's end; ValueError if they do not fit (none closer to the line's start than its length)."""
-    end_m = line_end_m(line)
+    end_m = line.end_m
     out = []
     for k in range(trains):
         x = end_m - 300.0 - k * spacing_m
@@ -115,10 +115,6 @@ def initial_positions(line: Line, vehicle: Vehicle, trains: int, spacing_m: floa
             raise ValueError(f"--trains / --spacing-m: {fit}")
         out.append(x)
     return out
-
-
-def line_end_m(line: Line) -> float:
-    return line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
 
 
 def drive_demand(drive: Drive, plant: PlantState) -> tuple[float, bool]:

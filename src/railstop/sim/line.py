@@ -535,7 +535,7 @@ class LineSimulation:
         self.operation = operation
         self.dist = disturbances if disturbances is not None else load_disturbances("nominal")
         self.seed = seed
-        self.end_m = line.line.length_m if line.line.length_m is not None else float(line.track.end_m or 0.0)
+        self.end_m = line.end_m
         brake = vehicle.brake
         self.brake_mps2 = brake.full_service_mps2
         self.plan_mps2 = PLANNING_SHARE * brake.full_service_mps2
@@ -1136,10 +1136,8 @@ class LineSimulation:
         tolerance: one per station judges the stop and the dwell)."""
         cfg = self._doors_for.get((dwell_s, station.name))
         if cfg is None:
-            f = self.doors.file
-            timing = f.timing.model_copy(update={"dwell_s": dwell_s})
-            cfg = DoorsConfig(f.model_copy(update={"timing": timing}), self.doors.source)
-            cfg = cfg.at_station(station, f"the line file of {self.line.line.name!r}")
+            where = f"the line file of {self.line.line.name!r}"
+            cfg = self.doors.with_dwell(dwell_s).at_station(station, where)
             self._doors_for[(dwell_s, station.name)] = cfg
         return cfg
 
