@@ -75,6 +75,15 @@ def test_a_radio_outage_makes_a_lost_train_whose_zone_is_released_when_it_report
     # The zone covers the train where it stopped: from its rear's segment to its authority's end.
     assert z.start_m % 100.0 == 0.0 and z.end_m % 100.0 == 0.0 and z.end_m - z.start_m >= 200.0
     assert s["exited"] == 4
+    # The delay split: the lost train's own delay apart from the others' (journey against the
+    # quickest of the run); the lost train, braked and held, is the most delayed.
+    journeys = [t.exited_s - t.request_s for t in sim.trains]
+    delays = [j - min(journeys) for j in journeys]
+    assert c["mean_delay_lost_trains_s"] == pytest.approx(delays[1], abs=0.01)
+    others = [d for k, d in enumerate(delays) if k != 1]
+    assert c["mean_delay_other_trains_s"] == pytest.approx(sum(others) / 3, abs=0.01)
+    assert delays[1] > max(others)
+    assert s["mean_delay_s"] == pytest.approx(sum(delays) / 4, abs=0.01)
 
 
 def test_the_conventional_zone_is_whole_blocks_and_never_smaller() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -26,6 +27,7 @@ from railstop.cli.common import (
     out,
     send_to_office,
     styled,
+    with_option_groups,
 )
 from railstop.cli.progress import Reporter, on_interrupt
 from railstop.cli.stop import FormOpt, ToleranceOpt, checked_controller, checked_form, checked_tolerance
@@ -90,6 +92,17 @@ DeviceOpt = Annotated[
         "'railstop[gpu]'; results equal the CPU's within 1e-9 m, docs/gpu.md)."
     ),
 ]
+
+
+@dataclass(frozen=True)
+class ExecutionOptions:
+    """Where and how a campaign's chunks run: threads, a Dask scheduler, the chunk size, the
+    device (an option group of ``campaign`` and ``compare``; their results do not depend on it)."""
+
+    workers: WorkersOpt = None
+    scheduler: SchedulerOpt = None
+    chunk_size: ChunkOpt = None
+    device: DeviceOpt = "cpu"
 
 
 def _run_one_campaign(
@@ -269,7 +282,9 @@ def summary_table(title: str, rows: list[dict[str, object]]) -> RenderableType:
     return Group(title, Columns(blocks), caption)
 
 
+@with_option_groups
 def campaign(
+    *,
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
     controller: Annotated[
         str, typer.Option(help=f"One of: {', '.join(CONTROLLERS)}, or a law of --law.")
@@ -278,15 +293,12 @@ def campaign(
     runs: Annotated[int, typer.Option(min=1, help="Number of stops.")] = 10_000,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     disturbances: DisturbancesOpt = "standard",
-    workers: WorkersOpt = None,
-    scheduler: SchedulerOpt = None,
+    execution: ExecutionOptions,
     out_dir: Annotated[
         Path | None,
         typer.Option("--out", help="Campaign folder (default: campaign-STATION-CONTROLLER-sSEED)."),
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
-    chunk_size: ChunkOpt = None,
-    device: DeviceOpt = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
     tolerance_m: ToleranceOpt = None,
@@ -303,7 +315,7 @@ def campaign(
     law_file = load_law(law)
     try:
         office_to = office_target(office)  # before the work: a bad --office fails at once
-        checked_device(device, (controller,))
+        checked_device(execution.device, (controller,))
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
@@ -324,18 +336,18 @@ def campaign(
             runs=runs,
             seed=seed,
             disturbances=disturbances,
-            workers=workers,
+            workers=execution.workers,
             out_dir=target,
             resume=resume,
-            chunk_size=chunk_for(chunk_size, device),
+            chunk_size=chunk_for(execution.chunk_size, execution.device),
             db=db,
-            scheduler=scheduler,
+            scheduler=execution.scheduler,
             tolerance_m=checked_tolerance(tolerance_m),
             form=checked_form(form, controller),
             driver=drv,
             platform=plat,
             law=law_file,
-            device=device,
+            device=execution.device,
         )
         if office_to is not None:
             row["office_link"] = send_to_office(office_to, [("campaign-result", campaign_report(row))])
@@ -444,19 +456,18 @@ def checked_controllers(text: str | None) -> tuple[str, ...]:
     return tuple(checked_controller(name, "--controllers") for name in names)
 
 
+@with_option_groups
 def compare(
+    *,
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
     runs: Annotated[int, typer.Option(min=1, help="Stops per controller.")] = 10_000,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     disturbances: DisturbancesOpt = "standard",
-    workers: WorkersOpt = None,
-    scheduler: SchedulerOpt = None,
+    execution: ExecutionOptions,
     out_dir: Annotated[
         Path | None, typer.Option("--out", help="Folder (default: compare-STATION-sSEED); one campaign each.")
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted comparison in --out.")] = False,
-    chunk_size: ChunkOpt = None,
-    device: DeviceOpt = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summaries).")] = Path(
         "railstop.db"
@@ -481,7 +492,7 @@ def compare(
     law_file = load_law(law)
     names = checked_controllers(controllers)
     try:
-        checked_device(device, names)
+        checked_device(execution.device, names)
         ln, veh = load_checked(line, vehicle)
         drv, plat = load_manual_data(driver, platform, names)
         st = ln.station(station)
@@ -493,11 +504,11 @@ def compare(
             runs=runs,
             seed=seed,
             disturbances=disturbances,
-            workers=workers,
-            scheduler=scheduler,
+            workers=execution.workers,
+            scheduler=execution.scheduler,
             out_dir=target,
             resume=resume,
-            chunk_size=chunk_for(chunk_size, device),
+            chunk_size=chunk_for(execution.chunk_size, execution.device),
             db=db,
             tolerance_m=checked_tolerance(tolerance_m),
             form=form,
@@ -505,7 +516,7 @@ def compare(
             platform=plat,
             controllers=names,
             law=law_file,
-            device=device,
+            device=execution.device,
         )
     except RailstopError as exc:
         fail(str(exc))

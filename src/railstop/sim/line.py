@@ -479,10 +479,31 @@ class LineResult:
             "position_calibration": self.calibration,
             "slide_events": self.slide_events,
             "signalling": self.signalling,
-            "cbtc": self.cbtc,
+            "cbtc": self._cbtc_summary(fastest),
             "duration_s": self.duration_s,
             "wall_s": round(self.wall_s, 3),
             "sim_to_wall": round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else None,
+        }
+
+    def _cbtc_summary(self, fastest_s: float) -> dict[str, Any] | None:
+        """The CBTC summary with the delay split (SPEC §4): the mean delay of the trains that were
+        lost (a protection zone was set for them) and of the others, which the zones held up."""
+        if self.cbtc is None:
+            return None
+        lost = {z.train for z in self.zones}
+        delays = {
+            i: x - r - fastest_s
+            for i, (x, r) in enumerate(zip(self.exit_s, self.request_s, strict=True))
+            if np.isfinite(x)
+        }
+
+        def mean(rows: list[float]) -> float | None:
+            return round(float(np.mean(rows)), 2) if rows else None
+
+        return {
+            **self.cbtc,
+            "mean_delay_lost_trains_s": mean([d for i, d in delays.items() if i in lost]),
+            "mean_delay_other_trains_s": mean([d for i, d in delays.items() if i not in lost]),
         }
 
 
