@@ -1,6 +1,7 @@
 """A CBTC line's capacity: its minimum headway from its data, and what the simulated line sustains.
 
     python benchmarks/cbtc_capacity.py [--trains 20] [--headways 100 105 110 115 120] [--dwell-s 25]
+        [--handover platform-clear|predictive]
 
 First the analytic minimum headway of every platform (``railstop.sim.capacity``: the nominal
 dwell, the leader's clearing, the system's delays, the follower's approach from the hand-over),
@@ -11,7 +12,10 @@ nominal set) with ``--trains`` trains entering at each headway of ``--headways``
 consecutive arrivals at the busiest platform (over the trains after the first three, which meet
 an empty line), whether the line kept the entry headway (that median within 2 % of it), the
 trains per hour and the mean delay. ``--dwell-s`` sets every station's dwell (the operation's
-own otherwise: 30 s, 40 s at Hillcrest).
+own otherwise: 30 s, 40 s at Hillcrest). ``--handover predictive``: the line's opt-in rule that
+hands a follower to its station stop behind a leaving train (``LineSettings.handover``), with
+its own analytic minimum; the EB column counts the onboard units' emergency brakes (a failed
+prediction), "unsafe" the authority overlaps and collisions.
 """
 
 from __future__ import annotations
@@ -36,6 +40,11 @@ def main() -> None:
     ap.add_argument("--headways", type=float, nargs="+", default=[100.0, 105.0, 110.0, 115.0, 120.0])
     ap.add_argument("--dwell-s", type=float, default=None)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--handover",
+        default="platform-clear",
+        help="platform-clear (the line's rule) or predictive (LineSettings.handover)",
+    )
     args = ap.parse_args()
     line, vehicle = load_line(None), load_vehicle(None)
     operation = load_operation(None, line)
@@ -46,9 +55,10 @@ def main() -> None:
                 "stations": [StationDwell(name=s.name, dwell_s=args.dwell_s) for s in operation.stations],
             }
         )
-    rows = minimum_headways(line, vehicle, operation)
+    rows = minimum_headways(line, vehicle, operation, handover=args.handover)
     print(
-        f"analytic minimum headway ({operation.controller}, dwell {operation.dwell_s:g} s"
+        f"analytic minimum headway ({operation.controller}, hand-over {args.handover}, "
+        f"dwell {operation.dwell_s:g} s"
         f"{'' if args.dwell_s is not None else ', Hillcrest 40 s'}; location uncertainty "
         f"{line.cbtc.position_uncertainty_m:g} m):"
     )
@@ -65,19 +75,24 @@ def main() -> None:
     print(f"line: {worst.headway_s:.2f} s at {worst.station} ({worst.trains_per_hour:.2f} trains/h)")
     print()
     print(
-        f"simulated line, {args.trains} trains, cbtc, nominal set, seed {args.seed}: the busiest platform's "
-        "median arrival interval"
+        f"simulated line, {args.trains} trains, cbtc, hand-over {args.handover}, nominal set, "
+        f"seed {args.seed}: "
+        "the busiest platform's median arrival interval"
     )
     print(
         f"{'entry headway':>13s} {'busiest':>10s} {'interval':>9s} {'kept':>5s} {'vs analytic':>11s} "
-        f"{'trains/h':>9s} {'mean delay':>10s} {'wall':>6s}"
+        f"{'trains/h':>9s} {'mean delay':>10s} {'EB':>4s} {'unsafe':>6s} {'wall':>6s}"
     )
     kept_best = None
     for headway in [*args.headways, 90.0]:
         t0 = time.perf_counter()
         op = operation.model_copy(update={"trains": args.trains, "headway_s": headway})
         sim = LineSimulation(
-            line=line, vehicle=vehicle, operation=op, seed=args.seed, settings=LineSettings(signalling="cbtc")
+            line=line,
+            vehicle=vehicle,
+            operation=op,
+            seed=args.seed,
+            settings=LineSettings(signalling="cbtc", handover=args.handover),
         )
         summary = sim.run(max(3600.0, headway * args.trains + 900.0)).summary()
         intervals = {}
@@ -91,10 +106,12 @@ def main() -> None:
         kept = interval <= KEPT * headway
         if kept and (kept_best is None or headway < kept_best):
             kept_best = headway
+        c = summary["cbtc"]
         print(
             f"{headway:12.1f}s {busiest:>10s} {interval:8.1f}s {'yes' if kept else 'no':>5s} "
             f"{interval / worst.headway_s - 1.0:+10.1%} {summary['trains_per_hour']:9.2f} "
-            f"{summary['mean_delay_s']:9.1f}s {time.perf_counter() - t0:5.0f}s",
+            f"{summary['mean_delay_s']:9.1f}s {c['onboard_emergency_brakes']:4d} "
+            f"{c['authority_overlaps'] + c['collisions']:4d} {time.perf_counter() - t0:5.0f}s",
             flush=True,
         )
     if kept_best is None:

@@ -1,4 +1,5 @@
-"""The CBTC line's analytic minimum headway (``railstop.sim.capacity``) against its data and the line.
+"""The CBTC line's analytic minimum headway (``railstop.sim.capacity``) against its data and the line,
+and the predictive hand-over that lets a follower start its station stop behind a leaving train.
 
 - the clearing distance is the train's length, the rollback allowance, the safety margin and
   both trains' uncertainty (the zone controller's authority rule); the clearing time is no less
@@ -11,12 +12,17 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.operation import StationDwell, load_operation
+from railstop.errors import SimulationError
+from railstop.onboard.cbtc import approach_within_authority
 from railstop.sim.capacity import PlatformHeadway, minimum_headways
 from railstop.sim.line import LineSettings, LineSimulation
 
@@ -79,10 +85,92 @@ def test_the_minimum_is_a_lower_bound_of_the_simulated_line(headways: list[Platf
     )
     sim.run(1500.0)
     intervals = []
-    for st in LINE.stations:
-        arrivals = sorted(s.arrive_s for s in sim.stops if s.station == st.name)
+    for station in LINE.stations:
+        arrivals = sorted(s.arrive_s for s in sim.stops if s.station == station.name)
         if len(arrivals) >= 4:
             intervals.append(float(np.median(np.diff(arrivals))))
     assert intervals
     # Entries faster than any platform serves: the busiest is no quicker than its minimum.
     assert max(intervals) >= 0.99 * least
+
+
+# --------------------------------------------------------------------------
+# The predictive hand-over (LineSettings.handover = "predictive", HZ-CBTC-19)
+
+
+def _approach(authority_m: float, advance_mps: float, speed_mps: float = 16.0) -> bool:
+    return approach_within_authority(
+        front_m=0.0,
+        speed_mps=speed_mps,
+        hold_to_m=20.0,
+        stop_m=350.0,
+        authority_m=authority_m,
+        advance_mps=advance_mps,
+        params=LINE.cbtc,
+        margin_m=10.0,
+    )
+
+
+def test_an_authority_that_stands_short_of_the_stop_never_hands_over() -> None:
+    # The train ahead dwells: its authority does not advance, whatever its end now.
+    for end in (100.0, 200.0, 300.0, 349.0, 355.0):
+        assert not _approach(end, 0.0)
+    assert not _approach(float("nan"), 5.0) and not _approach(200.0, float("inf"))
+    # Far beyond the stop, standing or not: the approach fits.
+    assert _approach(350.0 + 400.0, 0.0)
+
+
+@given(
+    end=st.floats(150.0, 500.0),
+    rate=st.floats(0.0, 25.0),
+    more=st.floats(0.0, 10.0),
+    speed=st.floats(5.0, 20.0),
+)
+def test_a_faster_or_longer_authority_never_hands_over_later(
+    end: float, rate: float, more: float, speed: float
+) -> None:
+    if _approach(end, rate, speed):
+        assert _approach(end + more, rate, speed)
+        assert _approach(end, rate + more, speed)
+
+
+def _predictive_line(headway_s: float) -> tuple[LineSimulation, dict[str, Any]]:
+    op = OPERATION.model_copy(update={"trains": 7, "headway_s": headway_s})
+    settings = LineSettings(signalling="cbtc", handover="predictive")
+    sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, seed=1, settings=settings)
+    return sim, sim.run(1500.0).summary()
+
+
+def test_a_predictive_line_serves_trains_closer_than_the_platform_clear_rule_can() -> None:
+    clear_min = max(h.headway_s for h in minimum_headways(LINE, VEHICLE, OPERATION))
+    predictive = minimum_headways(LINE, VEHICLE, OPERATION, handover="predictive")
+    assert max(h.headway_s for h in predictive) < clear_min - 5.0
+    sim, s = _predictive_line(100.0)  # below the platform-clear minimum (102.3 s), above the predictive
+    c = s["cbtc"]
+    assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and c["onboard_emergency_brakes"] == 0
+    assert s["stops"] == s["stops_within_tolerance"] == 28 and s["skipped_stops"] == 0
+    for station in LINE.stations:
+        arrivals = sorted(r.arrive_s for r in sim.stops if r.station == station.name)
+        # Every pair of trains after the first ones closer than the platform-clear rule's lower
+        # bound: no follower waited for the platform to clear.
+        assert float(np.max(np.diff(arrivals)[2:])) < clear_min
+
+
+def test_a_failed_prediction_is_braked_by_the_onboard_unit() -> None:
+    """HZ-CBTC-19: fed faster than it can serve, the leaving trains are soon queued themselves, an
+    authority stops advancing as predicted, and the onboard unit brakes the follower's stop: never
+    an overlap or a collision, and every stop outside the tolerance ended by that brake."""
+    predictive = minimum_headways(LINE, VEHICLE, OPERATION, handover="predictive")
+    sim, s = _predictive_line(0.8 * max(h.headway_s for h in predictive))
+    c = s["cbtc"]
+    assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and s["skipped_stops"] == 0
+    missed = [r for r in sim.stops if not r.within_tolerance]
+    assert missed and c["onboard_emergency_brakes"] >= len(missed)
+    assert all(r.emergency_brake is not None for r in missed)
+
+
+def test_the_predictive_hand_over_needs_cbtc() -> None:
+    with pytest.raises(SimulationError, match="handover"):
+        LineSettings(handover="predictive")
+    with pytest.raises(SimulationError, match="handover"):
+        LineSettings(signalling="cbtc", handover="soon")

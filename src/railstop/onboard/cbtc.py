@@ -100,6 +100,48 @@ def safe_braking_distance_m(speed_mps: float, params: Cbtc, gradient_permille: f
     return speed_mps * t_r + 0.5 * a_r * t_r * t_r + v1 * t_b + 0.5 * a_b * t_b * t_b + v2 * v2 / (2.0 * b)
 
 
+def approach_within_authority(
+    *,
+    front_m: float,
+    speed_mps: float,
+    hold_to_m: float,
+    stop_m: float,
+    authority_m: float,
+    advance_mps: float,
+    params: Cbtc,
+    margin_m: float,
+    samples: int = 64,
+) -> bool:
+    """Whether a station stop's approach stays within an authority that advances: the train from
+    ``front_m`` at ``speed_mps`` holds its speed to ``hold_to_m`` (the first detector) and then
+    brakes uniformly to a stand at ``stop_m``; the authority's end, ``authority_m`` now, advances
+    at ``advance_mps``. True when at every sampled instant the end lies at least the safe braking
+    distance (:func:`safe_braking_distance_m`) and ``margin_m`` ahead of the front, and at least
+    ``margin_m`` beyond the stopping point once the train stands. [interpretation] A prediction
+    for capacity (the line's ``handover = "predictive"``), not a safety function: the onboard
+    unit supervises the authority it actually has throughout."""
+    if not (math.isfinite(authority_m) and math.isfinite(advance_mps) and speed_mps > 0.0):
+        return False
+    hold = max(hold_to_m - front_m, 0.0)
+    brake_m = stop_m - max(hold_to_m, front_m)
+    if brake_m <= 0.0:
+        return authority_m >= stop_m + margin_m
+    t_hold = hold / speed_mps
+    decel = speed_mps * speed_mps / (2.0 * brake_m)
+    t_end = t_hold + speed_mps / decel
+    for k in range(samples + 1):
+        t = t_end * k / samples
+        if t <= t_hold:
+            x, v = front_m + speed_mps * t, speed_mps
+        else:
+            tb = t - t_hold
+            x = front_m + hold + speed_mps * tb - 0.5 * decel * tb * tb
+            v = max(speed_mps - decel * tb, 0.0)
+        if authority_m + advance_mps * t - x < safe_braking_distance_m(v, params) + margin_m:
+            return False
+    return authority_m + advance_mps * t_end >= stop_m + margin_m
+
+
 def intervention_speed_mps(distance_m: float, params: Cbtc, gradient_permille: float = 0.0) -> float:
     """The emergency brake intervention speed: the highest speed whose safe braking distance
     (:func:`safe_braking_distance_m`) is within ``distance_m`` (0 where none is)."""

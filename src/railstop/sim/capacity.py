@@ -28,6 +28,7 @@ behind the train ahead, plus the time the platform is occupied), taken from this
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,9 +40,11 @@ from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import handover_m, profile_at, static_profile
 from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
+from railstop.onboard.cbtc import approach_within_authority
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
 from railstop.sim.dwell import run_dwell
+from railstop.sim.line import ENTRY_MARGIN_M, HANDOVERS
 from railstop.sim.single import run_stop
 
 FloatArray = NDArray[np.float64]
@@ -95,8 +98,15 @@ def minimum_headways(
     uncertainty_m: float | None = None,
     step_s: float = 0.1,
     doors: DoorsConfig | None = None,
+    handover: str = "platform-clear",
 ) -> list[PlatformHeadway]:
     """Every station's minimum headway under the line's CBTC (in the line's order).
+
+    ``handover``: the line's rule (``LineSettings.handover``): "platform-clear" (the clearing
+    ends when the follower's authority reaches the stopping point) or "predictive" (it ends when
+    the authority, advancing at the leader's speed, keeps ahead of the follower's whole approach
+    from the hand-over point: ``onboard.cbtc.approach_within_authority``, at the leader's exact
+    speed where the line estimates it over the last two seconds, so still a lower bound).
 
     ``uncertainty_m``: the location uncertainty each train reports (None: the line data's declared
     bound, ``cbtc.position_uncertainty_m``; a line train reports its positioning unit's, smaller);
@@ -117,14 +127,37 @@ def minimum_headways(
     profile = static_profile(line, line.end_m, vehicle.brake.full_service_mps2)
     gradient = track_gradient(line)
     params = PlantParams.create(vehicle, load_factor=LOAD_FACTOR, dt_s=CLEAR_STEP_S, gradient=gradient)
+    if handover not in HANDOVERS:
+        raise SimulationError(f"handover: one of {', '.join(HANDOVERS)} (got {handover!r})")
     out = []
     for st in line.stations:
         dwell_doors = door_data.with_dwell(operation.dwell_at_s(st.name)).at_station(st, "the line file")
+        v_entry = st.tasc.entry_speed_kmh * MPS_PER_KMH
+        first = st.detector_positions_m()[0]
+
+        def released(
+            run_m: float, leader_mps: float, st: Station = st, v: float = v_entry, d1: float = first
+        ) -> bool:
+            if run_m >= clear_m:
+                return True
+            if handover == "platform-clear":
+                return False
+            return approach_within_authority(
+                front_m=handover_m(d1, v),
+                speed_mps=v,
+                hold_to_m=d1,
+                stop_m=st.stop_point_m,
+                authority_m=st.stop_point_m + run_m - clear_m,
+                advance_mps=leader_mps,
+                params=cbtc,
+                margin_m=ENTRY_MARGIN_M,
+            )
+
         out.append(
             PlatformHeadway(
                 station=st.name,
                 dwell_s=_dwell_s(dwell_doors, st),
-                clear_s=_clear_s(params, profile, st.stop_point_m, clear_m),
+                clear_s=_clear_s(params, profile, st.stop_point_m, released),
                 system_s=system_s,
                 approach_s=_approach_s(line, st, vehicle, operation.controller),
                 clear_m=clear_m,
@@ -142,23 +175,21 @@ def _dwell_s(doors: DoorsConfig, station: Station) -> float:
     return res.start_enable_s
 
 
-def _clear_s(params: PlantParams, profile: FloatArray, stop_m: float, clear_m: float) -> float:
+def _clear_s(
+    params: PlantParams, profile: FloatArray, stop_m: float, released: Callable[[float, float], bool]
+) -> float:
     """The leader from a stand at ``stop_m`` at full traction (under the static speed limits) until
-    its front has run ``clear_m``."""
+    ``released(distance its front has run, its speed)`` (the follower may be handed over)."""
     plant = PlantState.create(params, x_m=stop_m)
     t = 0.0
-    while plant.x_m - stop_m < clear_m:
+    while not released(plant.x_m - stop_m, plant.v_mps):
         if t > CLEAR_LIMIT_S:
             raise SimulationError(
-                f"the train does not run {clear_m:.0f} m from {stop_m:.0f} m within {CLEAR_LIMIT_S:.0f} s"
+                f"the follower is not released within {CLEAR_LIMIT_S:.0f} s of the leader's start"
             )
         limit = profile_at(profile, plant.x_m)
         demand = traction_mps2(params, plant.v_mps) if plant.v_mps < limit else 0.0
-        x0 = plant.x_m
         plant_step(plant, params, demand_mps2=demand, t_s=t)
-        if plant.x_m - stop_m >= clear_m:  # the crossing inside the step, linearly
-            frac = (stop_m + clear_m - x0) / max(plant.x_m - x0, 1e-12)
-            return t + frac * params.dt_s
         t += params.dt_s
     return t
 

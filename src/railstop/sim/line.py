@@ -102,6 +102,7 @@ from railstop.model.records import RES_EB, RES_ERROR, RES_RESTOPS, RES_STOPPED, 
 from railstop.model.run import SteppedStop
 from railstop.nodes.dwell import creep_rng
 from railstop.nodes.occupancy_chain import Arrivals, ChainSettings, FixRecord, OccupancyChain, fix_records
+from railstop.onboard.cbtc import approach_within_authority
 from railstop.onboard.positioning import FixReport, PositioningUnit
 from railstop.onboard.restricted_mode import RestrictedDrive
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
@@ -153,6 +154,12 @@ SLIDE_GAP_S = 2.0
 GONE_CHECK_S = 10.0
 #: How a train's onboard positioning starts: with the calibration of its earlier trips, or cold.
 CALIBRATIONS = ("carried", "cold")
+#: When a CBTC train is handed to the station stop: once its authority reaches the stopping point
+#: (the platform is clear), or also once its authority, advancing at the rate it has over the last
+#: AUTH_RATE_WINDOW_S, keeps ahead of the stop's approach by the safe braking distance (the train
+#: ahead is leaving; ``onboard.cbtc.approach_within_authority``).
+HANDOVERS = ("platform-clear", "predictive")
+AUTH_RATE_WINDOW_S = 2.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -221,7 +228,8 @@ class LineSettings:
     duration_s): that train's CBTC radio is dead then (a fault); ``random_outages``: more, drawn
     per train from the seed; ``zc_restarts``: times the zone controller restarts;
     ``radio_medium`` / ``radio_changes``: the CBTC radio's medium and its values changed (loss,
-    bursts; a fault).
+    bursts; a fault). ``handover``: when a CBTC train is handed to the station stop
+    (:data:`HANDOVERS`; "predictive" is a capacity option beyond SPEC §4, HZ-CBTC-19).
     """
 
     odometer_error_pct: float | None = None
@@ -235,6 +243,7 @@ class LineSettings:
     radio_medium: str = "cbtc-radio"
     radio_changes: Mapping[str, float] = field(default_factory=dict)
     position: PositionSettings = field(default_factory=PositionSettings)
+    handover: str = "platform-clear"
 
     def __post_init__(self) -> None:
         # Sequences given as lists are kept as tuples (the settings are a value).
@@ -264,6 +273,11 @@ class LineSettings:
                 raise SimulationError(f"{name}: a probability in [0, 1] (got {prob})")
         if self.calibration not in CALIBRATIONS:
             raise SimulationError(f"calibration: one of {', '.join(CALIBRATIONS)} (got {self.calibration!r})")
+        if self.handover not in HANDOVERS:
+            raise SimulationError(f"handover: one of {', '.join(HANDOVERS)} (got {self.handover!r})")
+        if self.handover != "platform-clear" and not self.signalling.startswith("cbtc"):
+            got = f"{self.handover!r} with {self.signalling!r}"
+            raise SimulationError(f"handover: predictive needs CBTC signalling (got {got})")
         self.radio_params()  # an unknown medium or a bad change is refused now, not in a worker
 
     def radio_params(self) -> ChannelParams:
@@ -285,6 +299,7 @@ class LineSettings:
             "radio_changes": dict(self.radio_changes),
             # Only when changed: a campaign's identity stays that of the line's own positioning.
             **({} if self.position == PositionSettings() else {"position": repr(self.position)}),
+            **({} if self.handover == "platform-clear" else {"handover": self.handover}),
         }
 
 
@@ -360,6 +375,7 @@ class Train:
     samples_t: list[float] = field(default_factory=list)
     samples_x: list[float] = field(default_factory=list)
     dwells_here: int = 0  # dwells begun at its current station (a dwell fault's retries)
+    auth_log: list[tuple[float, float]] = field(default_factory=list)  # (time, authority end), CBTC
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -804,6 +820,32 @@ class LineSimulation:
         self._occupied = occ
         return out
 
+    def _authority_keeps_ahead(self, train: Train, auth_m: float, now_s: float, st: Station) -> bool:
+        """``handover = "predictive"``: the authority's end advances (the train ahead is leaving) fast
+        enough that the station stop's approach from here keeps the safe braking distance (and a
+        margin) behind it to the end, at the rate it advanced over the last AUTH_RATE_WINDOW_S.
+        [interpretation] Beyond SPEC §4, a capacity option: the onboard unit's supervision still
+        brakes the stop if the authority stops advancing (HZ-CBTC-19)."""
+        log = train.auth_log
+        log.append((now_s, auth_m))
+        while log and log[0][0] < now_s - AUTH_RATE_WINDOW_S - 1e-9:
+            log.pop(0)
+        t0, a0 = log[0]
+        if now_s - t0 < 0.5 * AUTH_RATE_WINDOW_S or not math.isfinite(auth_m) or not math.isfinite(a0):
+            return False
+        rate = max((auth_m - a0) / (now_s - t0), 0.0)
+        first = self.first_detector_m[train.next_station]
+        return approach_within_authority(
+            front_m=train.x_onboard_m,
+            speed_mps=train.v_mps,
+            hold_to_m=first,
+            stop_m=st.stop_point_m,
+            authority_m=auth_m,
+            advance_mps=rate,
+            params=self.line.cbtc,
+            margin_m=ENTRY_MARGIN_M,
+        )
+
     def _start_plant(self, train: Train, v_mps: float) -> tuple[PlantState, PlantParams]:
         """The train's plant where it is, at ``v_mps``, its brakes released, for its load now (the
         last station stop's draw)."""
@@ -831,6 +873,8 @@ class LineSimulation:
             # SPEC §4: the movement authority of the zone controller's last command.
             auth = self.cbtc.authority_end_m(train.index)
             platform_clear = st_next is not None and auth >= st_next.stop_point_m
+            if self.settings.handover == "predictive" and st_next is not None:
+                platform_clear = platform_clear or self._authority_keeps_ahead(train, auth, now_s, st_next)
         target = auth
         # Past the station's first detector without its stop begun: the hand-over was missed (the
         # platform was not clear when the train passed it, e.g. its authority shrank at a zone
