@@ -10,7 +10,9 @@ authority reaches the stopping point, so one platform serves one train per cycle
 2. **clearing**: start enable to the leader's front having run the train's length, the
    rollback allowance, both uncertainties and the safety margin, so that the follower's
    authority reaches the stopping point (the plant from standstill: the traction curve, the
-   running resistance and the track's gradient, under the line's speed limits);
+   running resistance and the track's gradient, under the line's speed limits); with the
+   line's opt-in predictive hand-over, until the authority, advancing at the leader's speed,
+   keeps ahead of the follower's whole approach (``handover="predictive"``, HZ-CBTC-19);
 3. **system**: the follower hears of it: the leader's next report (a report period at worst),
    the zone controller's processing and the radio's latency, and the line's step;
 4. **approach**: the follower, at the hand-over point at the station's TASC entry speed at
