@@ -769,13 +769,13 @@ def report(
         ln = load_line(line)
         veh = load_vehicle(vehicle)
         drv, plat = load_manual_data(driver, platform)
-        wanted = None if controllers is None else {n.strip() for n in controllers.split(",") if n.strip()}
+        chosen = None if controllers is None else [n.strip() for n in controllers.split(",") if n.strip()]
         if worst > 0:
             # A campaign of a loaded law replays its worst runs by that law's file: refused before
             # the first figure when it is missing (one line, nothing half drawn).
             for campaign_dir in find_campaigns(directory):
                 manifest = read_manifest(campaign_dir)
-                if wanted is None or manifest.get("controller") in wanted:
+                if chosen is None or manifest.get("controller") in chosen:
                     given = law if "law" in manifest else None
                     law_of_manifest(manifest, given, str(campaign_dir / MANIFEST))
 
@@ -799,9 +799,7 @@ def report(
                 worst=worst,
                 tolerance_m=checked_tolerance(tolerance_m),
                 progress=status.update,
-                controllers=None
-                if controllers is None
-                else [n.strip() for n in controllers.split(",") if n.strip()],
+                controllers=chosen,
             )
         tables = export_csv(directory) if csv else []
     except RailstopError as exc:

@@ -456,10 +456,7 @@ class LineResult:
     def summary(self) -> dict[str, Any]:
         """The JSON of ``railstop line run``."""
         errors = np.array([abs(s.error_m) for s in self.stops])
-        journeys = [(x - r) for x, r in zip(self.exit_s, self.request_s, strict=True) if np.isfinite(x)]
-        # A train's delay: its journey (from asking to enter to leaving the line) against the
-        # quickest journey of the run (the first train's, on an empty line, in practice).
-        fastest = min(journeys) if journeys else np.nan
+        delays = self._delays()
         exits = sorted(x for x in self.exit_s if np.isfinite(x))
         tph = (len(exits) - 1) / (exits[-1] - exits[0]) * 3600.0 if len(exits) >= 2 else None
         return {
@@ -474,7 +471,7 @@ class LineResult:
             "stop_error_p99_m": round(float(np.percentile(errors, 99.0)), 4) if errors.size else None,
             "stop_error_max_m": round(float(errors.max()), 4) if errors.size else None,
             "trains_per_hour": round(tph, 2) if tph is not None else None,
-            "mean_delay_s": round(float(np.mean([j - fastest for j in journeys])), 2) if journeys else None,
+            "mean_delay_s": round(float(np.mean(list(delays.values()))), 2) if delays else None,
             "emergency_brakes": int(sum(s.emergency_brake is not None for s in self.stops)),
             "mean_dwell_s": round(float(np.mean([d.dwell_s for d in self.dwells])), 2)
             if self.dwells
@@ -495,23 +492,27 @@ class LineResult:
             "position_calibration": self.calibration,
             "slide_events": self.slide_events,
             "signalling": self.signalling,
-            "cbtc": self._cbtc_summary(fastest),
+            "cbtc": self._cbtc_summary(delays),
             "duration_s": self.duration_s,
             "wall_s": round(self.wall_s, 3),
             "sim_to_wall": round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else None,
         }
 
-    def _cbtc_summary(self, fastest_s: float) -> dict[str, Any] | None:
+    def _delays(self) -> dict[int, float]:
+        """Each train that left the line: its delay, its journey (from asking to enter to leaving
+        the line) against the quickest journey of the run (the first train's, on an empty line,
+        in practice)."""
+        pairs = enumerate(zip(self.exit_s, self.request_s, strict=True))
+        journeys = {i: x - r for i, (x, r) in pairs if np.isfinite(x)}
+        fastest = min(journeys.values(), default=np.nan)
+        return {i: j - fastest for i, j in journeys.items()}
+
+    def _cbtc_summary(self, delays: dict[int, float]) -> dict[str, Any] | None:
         """The CBTC summary with the delay split (SPEC §4): the mean delay of the trains that were
         lost (a protection zone was set for them) and of the others, which the zones held up."""
         if self.cbtc is None:
             return None
         lost = {z.train for z in self.zones}
-        delays = {
-            i: x - r - fastest_s
-            for i, (x, r) in enumerate(zip(self.exit_s, self.request_s, strict=True))
-            if np.isfinite(x)
-        }
 
         def mean(rows: list[float]) -> float | None:
             return round(float(np.mean(rows)), 2) if rows else None
