@@ -148,7 +148,7 @@ def main() -> None:
     ap.add_argument("--save-cpu-rows", type=Path, default=None)
     ap.add_argument("--sweep-threads", default="", help="block sizes to time, e.g. 32,64,128,256")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--lock", type=Path, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--lock", type=Path, default=None, help="a lock file: one process at a time on the GPU")
     a = ap.parse_args()
     controllers = [c for c in a.controllers.split(",") if c]
     if a.save_cpu_rows is not None:
@@ -171,7 +171,7 @@ def main() -> None:
     dev = cuda.get_current_device()
     name = getattr(dev, "name", b"numba's CUDA simulator")
     print(f"device: {name.decode() if isinstance(name, bytes) else name}, cc {dev.compute_capability}")
-    lock = Path(tempfile.mkdtemp()) / "gpu.lock"
+    lock = a.lock if a.lock is not None else Path(tempfile.mkdtemp()) / "gpu.lock"
     base = [sys.executable, __file__, "--runs", str(a.runs), "--launch", str(a.launch)]
     base += ["--check-runs", str(a.check_runs), "--lock", str(lock), "--sweep-threads", a.sweep_threads]
     if a.cpu_rows is not None:

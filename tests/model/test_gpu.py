@@ -165,3 +165,45 @@ def test_a_loaded_law_is_refused_on_the_gpu(tmp_path: Path) -> None:
         simulated=True,
     )
     _one_line(p, "--device gpu", "CPU only")
+
+
+_ORDER_CHECK = """
+import numpy as np
+from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import draw_scenario, load_disturbances
+from railstop.model.build import KernelModel
+from railstop.model.gpu import launch_order, run_kernel_gpu
+from railstop.model.run import run_kernel, scenario_arrays
+from railstop.streams import RunStreams
+
+line, vehicle = default_line(), default_vehicle()
+station = line.stations[0]
+model = KernelModel.create(station=station, vehicle=vehicle, controller="tasc-pwm", form=None,
+                           dt_s=0.01, max_time_s=150.0, track=line.track)
+scenario = draw_scenario(load_disturbances("standard"), station, vehicle, RunStreams.for_runs(3, 10, 6))[0]
+order = launch_order(scenario_arrays(scenario)[0], "tasc-pwm")
+assert sorted(order.tolist()) == list(range(6)) and order.tolist() != list(range(6)), order
+assert launch_order(scenario_arrays(scenario)[0], "ato").tolist() == list(range(6))
+cpu, cpu_pass, _ = run_kernel(model, scenario, seed=3, first_run=10)
+for order in ("auto", "drawn", "entry-speed"):
+    res, passages = run_kernel_gpu(model, scenario, seed=3, first_run=10, order=order)
+    assert np.array_equal(res, cpu, equal_nan=True), order
+    assert np.array_equal(passages, cpu_pass, equal_nan=True), order
+print("OK")
+"""
+
+
+def test_the_launch_order_does_not_change_a_run(tmp_path: Path) -> None:
+    """The host hands a TASC controller's runs to the threads by entry speed (model.gpu.launch_order,
+    a warp's runs then take about as many steps; the others as drawn); each thread still runs its
+    own row and run index, so the rows equal the CPU's in either order (simulator)."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    p = subprocess.run(
+        [sys.executable, "-c", _ORDER_CHECK],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert p.returncode == 0 and p.stdout.strip().endswith("OK"), p.stderr[-2000:]

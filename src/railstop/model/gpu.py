@@ -60,9 +60,10 @@ from typing import Any
 
 import numpy as np
 from numba.core.errors import NumbaError, NumbaPerformanceWarning
+from numpy.typing import NDArray
 
 from railstop.config.scenario import Scenario
-from railstop.controllers import CONTROLLERS
+from railstop.controllers import CONTROLLERS, TASC_CONTROLLERS
 from railstop.errors import SimulationError
 from railstop.messages import TEL_SIZE
 from railstop.model.build import KernelModel, control_law_of, stop_params
@@ -71,6 +72,7 @@ from railstop.model.records import (
     RC_SIZE,
     RES_SIZE,
     RUN_DTYPE,
+    SC_ENTRY_SPEED,
     STATE_FIELDS,
     STATE_SIZES,
     STREAMS,
@@ -94,7 +96,7 @@ from railstop.model.run import (
 from railstop.streams import seed_key, seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE
 
-#: Threads per block. Measured for tasc-pwm on one H200 (1,000,000 runs, kernel alone; the
+#: Threads per block. Measured for tasc-pwm on one H200 (1,000,000 runs as drawn, kernel alone; the
 #: kernel uses 255 registers and 7,984 bytes of local memory per thread): 32: 195,460 runs/s,
 #: 64: 200,699, 128: 209,736, 256: 224,476 (benchmarks/gpu_throughput.py --sweep-threads).
 THREADS_PER_BLOCK = 256
@@ -190,11 +192,14 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
     (generated, so that the one list of work arrays makes both the CPU's state and the device's)."""
     sizes = shapes.sizes()
     lines = [
-        "def stop_kernel(seed, seed_keys, first_run, p, sc, gv, ge, res, passages, rec_arrays,"
+        "def stop_kernel(seed, seed_keys, first_run, order, p, sc, gv, ge, res, passages, rec_arrays,"
         " rec_counters, grad_read_only):",
-        "    r = cuda.grid(1)",
-        "    if r >= sc.shape[0]:",
+        "    g = cuda.grid(1)",
+        "    if g >= sc.shape[0]:",
         "        return",
+        # Thread g runs the draws' row order[g] (its run index, its results' row): the host
+        # orders the runs so that a warp's runs take about as many steps (launch_order).
+        "    r = order[g]",
     ]
     if simulated:
         lines.append(
@@ -240,7 +245,19 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
     return "\n".join(lines) + "\n"
 
 
-_KERNELS: dict[tuple[Shapes, str], Any] = {}
+@dataclass(frozen=True, slots=True)
+class KernelOptions:
+    """How the kernel is compiled (the results do not depend on it): ``max_registers`` caps the
+    registers per thread (None: the compiler's choice, 255 for the stop model; fewer let more
+    threads be resident per multiprocessor, at the price of spills to local memory);
+    ``lineinfo`` maps the machine code to the model's Python lines for a profiler (Nsight
+    Compute's source view) without changing the code."""
+
+    max_registers: int | None = None
+    lineinfo: bool = False
+
+
+_KERNELS: dict[tuple[Shapes, str, KernelOptions], Any] = {}
 
 
 def _fma_off() -> None:
@@ -265,11 +282,11 @@ def _fma_off() -> None:
     nvvm.compile_ir = compile_ir_fma_off
 
 
-def _kernel(shapes: Shapes, controller: str) -> Any:
+def _kernel(shapes: Shapes, controller: str, options: KernelOptions = KernelOptions()) -> Any:
     """The compiled (on first launch) CUDA kernel for ``shapes`` and ``controller``'s law: one
     kernel per controller and shapes (numba-cuda specialises it; the CPU's one compiled model
     takes the law as a function pointer, which the device has not)."""
-    key = (shapes, control_law_of(controller).name)
+    key = (shapes, control_law_of(controller).name, options)
     if key not in _KERNELS:
         from numba import cuda, njit
 
@@ -295,7 +312,12 @@ def _kernel(shapes: Shapes, controller: str) -> Any:
         namespace["READ_ONLY"] = _read_only
         source = _kernel_source(shapes, simulated=cuda_simulated())
         exec(compile(source, f"<railstop gpu kernel {key[1]}>", "exec"), namespace)
-        _KERNELS[key] = cuda.jit(fastmath=False, opt=True)(namespace["stop_kernel"])
+        extra: dict[str, Any] = {}
+        if options.max_registers is not None and not cuda_simulated():
+            extra["max_registers"] = int(options.max_registers)
+        if options.lineinfo and not cuda_simulated():
+            extra["lineinfo"] = True
+        _KERNELS[key] = cuda.jit(fastmath=False, opt=True, **extra)(namespace["stop_kernel"])
     return _KERNELS[key]
 
 
@@ -316,10 +338,14 @@ def run_kernel_gpu(
     first_run: int,
     timings: dict[str, float] | None = None,
     threads_per_block: int = THREADS_PER_BLOCK,
+    order: str = "auto",
+    options: KernelOptions = KernelOptions(),
 ) -> tuple[FloatArray, FloatArray]:
     """``run_kernel`` on the GPU: (results (n, RES_SIZE), true passage times (n, D)), no recording.
 
-    ``threads_per_block``: the launch's block size (the results do not depend on it).
+    ``threads_per_block``: the launch's block size; ``order``: how the runs are handed to the
+    threads (:func:`launch_order`); ``options``: how the kernel is compiled. The results
+    depend on none of them.
     ``timings``, if given, gets the seconds of each stage: ``compile_and_to_device`` (the
     kernel's compilation on its first launch for its shapes and law, and the copies to the
     device), ``kernel`` and ``to_host``. An error of the GPU or its driver is a
@@ -335,8 +361,20 @@ def run_kernel_gpu(
     passages = np.empty((n, model.det_pos.size))
     if n == 0:
         return res, passages
+    rows = launch_order(sc, model.controller, order)
     try:
-        _launch(model, (sc, bp, gv, ge), res, passages, seed, first_run, timings, threads_per_block)
+        _launch(
+            model,
+            (sc, bp, gv, ge),
+            rows,
+            res,
+            passages,
+            seed,
+            first_run,
+            timings,
+            threads_per_block,
+            options,
+        )
     except (SimulationError, NumbaError):
         raise  # our own refusals, and numba's typing and compilation errors (a defect, not the GPU)
     except Exception as exc:  # the CUDA driver's and runtime's errors come in many kinds
@@ -344,15 +382,41 @@ def run_kernel_gpu(
     return res, passages
 
 
+#: How a launch hands its runs to the threads (:func:`launch_order`).
+ORDERS = ("auto", "drawn", "entry-speed")
+
+
+def launch_order(sc: FloatArray, controller: str, how: str = "auto") -> NDArray[np.int64]:
+    """The order in which a launch hands its runs to the threads (thread g runs row order[g]):
+    ``drawn``, ``entry-speed``, or ``auto``: by entry speed for the TASC controllers, as drawn
+    for the others.
+
+    A warp's 32 threads run in lockstep until the last of their runs stands, so a warp costs the
+    steps of its longest run. The entry speed sets most of a stop's length (on the standard set
+    its correlation with tasc-pwm's stop time is -0.79), so neighbours in this order take about
+    as many steps. Measured on one H200 (``benchmarks/gpu_profile.py``, 1,000,000 runs, kernel
+    alone; docs/gpu.md): tasc-pwm 228,723 -> 274,239 runs/s, tasc-step 168,826 -> 214,991; but
+    ato 1,762,202 -> 1,501,789 and driver-atc2 775,026 -> 663,238, so ``auto`` keeps the drawn
+    order for those. Each thread still runs its own row and run index: the results are the same
+    in any order. Stable, so equal speeds keep their order."""
+    if how not in ORDERS:
+        raise SimulationError(f"launch order {how!r}: one of {', '.join(ORDERS)}")
+    if how == "entry-speed" or (how == "auto" and controller in TASC_CONTROLLERS):
+        return np.argsort(sc[:, SC_ENTRY_SPEED], kind="stable").astype(np.int64)
+    return np.arange(sc.shape[0], dtype=np.int64)
+
+
 def _launch(
     model: KernelModel,
     draws: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+    order: NDArray[np.int64],
     res: FloatArray,
     passages: FloatArray,
     seed: int,
     first_run: int,
     timings: dict[str, float] | None,
     threads_per_block: int,
+    options: KernelOptions,
 ) -> None:
     """Copy the draws and the station's parameters to the device, run the kernel, copy the
     results back into ``res`` and ``passages``."""
@@ -364,7 +428,7 @@ def _launch(
     clock = time.perf_counter
     t0 = clock()
     shapes = Shapes.of(model, sc)
-    kernel = _kernel(shapes, model.controller)
+    kernel = _kernel(shapes, model.controller, options)
     keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
     p = stop_params(model, bp)
     d_p = type(p)(*(cuda.to_device(np.ascontiguousarray(a)) for a in p))
@@ -378,6 +442,7 @@ def _launch(
         seed_u64(seed),
         cuda.to_device(keys),
         first_run,
+        cuda.to_device(np.ascontiguousarray(order, dtype=np.int64)),
         d_p,
         cuda.to_device(sc),
         cuda.to_device(np.ascontiguousarray(gv)),

@@ -1,0 +1,175 @@
+"""Where the stop kernel's time goes on a GPU: compile options and the runs' order, side by side.
+
+    python benchmarks/gpu_profile.py [--controller tasc-pwm] [--runs 1000000]
+                                     [--variants default,regs128,regs96]
+    python benchmarks/gpu_profile.py --one default --profile --runs 40000 --lineinfo   # under a profiler
+
+For each variant (``default``: the compiler's registers; ``regsN``: at most N
+registers per thread, ``railstop.model.gpu.KernelOptions``), compiled side by
+side in processes of their own and timed one at a time on the GPU (a lock
+file): the kernel's time for the same ``--runs`` runs (standard set at the
+default station, seed 1) handed to the threads
+
+- ``natural``: in their order;
+- ``ordered``: by entry speed (``model.gpu.launch_order``: the default for the
+  TASC controllers, whatever the controller here);
+- ``alike``: every thread the draws of run 0 (its own run index, so its own
+  noise): how fast the kernel is when a warp's runs take nearly the same path,
+  an upper bound for any order of the real runs.
+
+Printed per variant: registers and local memory per thread, runs/s of each
+order, and whether the ordered and natural results are identical. ``--one``
+runs one variant's warm-up and one launch, for Nsight Compute to profile
+(``ncu --launch-skip 1 --launch-count 1 -k regex:stop_kernel``); ``--lineinfo``
+maps its machine code to the model's Python lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gpu_throughput import SEED, _draw, _setup
+
+
+def _options(variant: str, lineinfo: bool):  # type: ignore[no-untyped-def]
+    from railstop.model.gpu import KernelOptions
+
+    if variant == "default":
+        return KernelOptions(lineinfo=lineinfo)
+    if variant.startswith("regs") and variant[4:].isdigit():
+        return KernelOptions(max_registers=int(variant[4:]), lineinfo=lineinfo)
+    raise SystemExit(f"gpu_profile: variant {variant!r}: default or regsN (e.g. regs128)")
+
+
+def _alike(scenario, n: int):  # type: ignore[no-untyped-def]
+    """The scenario with every run given run 0's draws (the gradient: run 0's, broadcast)."""
+    import dataclasses
+
+    from railstop.config.gradient import GradientProfile
+
+    fields = {}
+    for f in dataclasses.fields(scenario):
+        value = getattr(scenario, f.name)
+        if isinstance(value, GradientProfile):
+            value = GradientProfile.create(value.breakpoints_m, value.values_permille[:1])
+        elif isinstance(value, np.ndarray) and value.ndim == 1:
+            value = np.repeat(value[:1], n)
+        fields[f.name] = value
+    return dataclasses.replace(scenario, **fields)
+
+
+def one(controller: str, variant: str, runs: int, lineinfo: bool, lock: Path | None, profile: bool) -> dict:
+    from railstop.model import gpu
+
+    options = _options(variant, lineinfo)
+    station, vehicle, dist, model = _setup(controller)
+    out: dict = {"controller": controller, "variant": variant}
+    t = time.perf_counter()
+    gpu.run_kernel_gpu(model, _draw(station, vehicle, dist, 0, 64), seed=SEED, first_run=0, options=options)
+    out["compile_s"] = round(time.perf_counter() - t, 1)
+    for kernel in gpu._KERNELS.values():
+        try:
+            out["registers"] = [int(o.regs_per_thread) for o in kernel.overloads.values()]
+            out["local_bytes"] = [int(o.local_mem_per_thread) for o in kernel.overloads.values()]
+        except Exception as exc:  # numba's simulator has no such figures
+            out["resources"] = f"{type(exc).__name__}: {exc}"
+    scenario = _draw(station, vehicle, dist, 0, runs)
+    timings: dict[str, float] = {}
+    held = open(lock, "w") if lock is not None else None  # noqa: SIM115
+    try:
+        if held is not None:
+            fcntl.flock(held, fcntl.LOCK_EX)  # one variant at a time on the GPU
+        if profile:  # one launch, for the profiler
+            gpu.run_kernel_gpu(model, scenario, seed=SEED, first_run=0, timings=timings, options=options)
+            out["kernel_s"] = round(timings["kernel"], 3)
+            return out
+        results = {}
+        for name, sc, order in (
+            ("natural", scenario, "drawn"),
+            ("ordered", scenario, "entry-speed"),
+            ("alike", _alike(scenario, runs), "drawn"),
+        ):
+            res, _ = gpu.run_kernel_gpu(
+                model, sc, seed=SEED, first_run=0, timings=timings, order=order, options=options
+            )
+            out[f"{name}_runs_per_s"] = round(runs / timings["kernel"])
+            results[name] = res
+        out["ordered_equals_natural"] = bool(
+            np.array_equal(results["ordered"], results["natural"], equal_nan=True)
+        )
+        out["mean_stop_time_s"] = float(np.nanmean(results["natural"][:, 1]))
+    finally:
+        if held is not None:
+            held.close()
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--controller", default="tasc-pwm")
+    ap.add_argument("--runs", type=int, default=1_000_000)
+    ap.add_argument("--variants", default="default")
+    ap.add_argument("--lineinfo", action="store_true")
+    ap.add_argument("--one", default=None, help="one variant in this process (for a profiler)")
+    ap.add_argument("--profile", action="store_true", help="with --one: one launch of --runs runs")
+    ap.add_argument("--lock", type=Path, default=None, help="a lock file: one process at a time on the GPU")
+    a = ap.parse_args()
+    if a.one is not None:
+        result = one(a.controller, a.one, a.runs, a.lineinfo, a.lock, profile=a.profile)
+        print("RESULT " + json.dumps(result), flush=True)
+        return
+    from railstop.model.gpu import gpu_unavailable
+
+    why = gpu_unavailable()
+    if why is not None:
+        print(f"gpu_profile: {why}", file=sys.stderr)
+        raise SystemExit(2)
+    lock = a.lock if a.lock is not None else Path(tempfile.mkdtemp()) / "gpu.lock"
+    base = [
+        sys.executable,
+        __file__,
+        "--controller",
+        a.controller,
+        "--runs",
+        str(a.runs),
+        "--lock",
+        str(lock),
+    ]
+    variants = [v for v in a.variants.split(",") if v]
+    procs = {v: subprocess.Popen([*base, "--one", v], stdout=subprocess.PIPE, text=True) for v in variants}
+    print(f"{a.controller}, {a.runs:,} runs: kernel runs/s by the order of the runs")
+    print(
+        f"{'variant':10s} {'regs':>5s} {'local B':>8s} {'compile s':>9s} "
+        f"{'natural':>10s} {'ordered':>10s} {'alike':>10s}"
+    )
+    for v, proc in procs.items():
+        stdout, _ = proc.communicate()
+        lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
+        if proc.returncode != 0 or not lines:
+            print(f"{v:10s} failed (exit {proc.returncode})")
+            continue
+        r = json.loads(lines[-1][len("RESULT ") :])
+        regs = (r.get("registers") or ["-"])[0]
+        local = (r.get("local_bytes") or ["-"])[0]
+        print(
+            f"{v:10s} {regs!s:>5s} {local!s:>8s} "
+            f"{r['compile_s']:9.1f} {r['natural_runs_per_s']:10,d} {r['ordered_runs_per_s']:10,d} "
+            f"{r['alike_runs_per_s']:10,d}  ordered = natural: {r['ordered_equals_natural']}"
+        )
+        print("  " + json.dumps(r), flush=True)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    main()
