@@ -143,11 +143,30 @@ def test_help_lists_position_run_without_building_it(tmp_path: Path) -> None:
 
 def test_help_loads_no_data_model_nor_the_simulation(tmp_path: Path) -> None:
     """`railstop --help` and `railstop telegram --help` build the command line only: not the data
-    schemas, the media models, the compiler or the simulation (issue 37: start-up). (Typer itself
-    looks at pydantic when it builds a sub-command's parameters.)"""
-    ours = (*HEAVY, "railstop.config", "railstop.link.channel", "numba", "railstop.sim.engine")
+    schemas, the media models, the codec, numpy, the event loop, the compiler or the simulation
+    (issue 37: start-up). (Typer itself looks at pydantic when it builds a sub-command's
+    parameters.)"""
+    ours = (
+        *HEAVY,
+        "railstop.config",
+        "railstop.link.channel",
+        "railstop.link.codec",
+        "numba",
+        "numpy",
+        "asyncio",
+        "railstop.sim.engine",
+    )
     for args, watched in ((("--help",), (*ours, "pydantic")), (("telegram", "--help"), ours)):
         code, out, imported, err = probe(*args, cwd=tmp_path, watched=watched)
         assert code == 0, err
         assert "Usage: railstop" in out
         assert imported == [], f"{' '.join(args)} imported {imported}"
+
+
+def test_the_telegram_help_names_the_codecs_types() -> None:
+    """``railstop telegram --help`` lists the types from a constant (no codec, no numpy at start-up):
+    the codec's own types, in its order."""
+    from railstop.cli.telegram import TYPE_NAMES
+    from railstop.link.codec import TYPES
+
+    assert TYPE_NAMES == tuple(TYPES)

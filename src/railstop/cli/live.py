@@ -11,7 +11,6 @@ options: the run's ``--epoch``, ``--scale`` and key; a zone controller with its
 
 from __future__ import annotations
 
-import asyncio
 import json
 import os
 import signal
@@ -29,6 +28,8 @@ from railstop.cli.office import KEY_ENV, KeyFileOpt, KeyHexOpt, master_key
 from railstop.errors import RailstopError
 
 if TYPE_CHECKING:
+    import asyncio
+
     from railstop.config.schema import Line, Vehicle
     from railstop.live.clock import TimeBase
 
@@ -94,6 +95,7 @@ def _outage(text: str, trains: int) -> tuple[int, float, float]:
 
 def _serve(coro_factory: object) -> None:
     """Run a live process until SIGTERM / SIGINT; print its counts as one JSON line."""
+    import asyncio  # lazy: CLI start-up (the event loop only for the live processes)
 
     from railstop.live.clock import GcWatch
 
@@ -442,6 +444,8 @@ def trains_cmd(
         set_radio(outage_train, outage_train not in dead)
 
     async def run(stop: asyncio.Event) -> object:
+        import asyncio
+
         loop = asyncio.get_running_loop()
         if outage_train is not None:
             loop.add_signal_handler(signal.SIGUSR1, toggle)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 import os
 import signal
@@ -10,12 +9,15 @@ import socket
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from railstop.cli.common import LineOpt, address_option, command_group, fail
 from railstop.errors import RailstopError
+
+if TYPE_CHECKING:
+    import asyncio
 
 office_app = command_group(
     "The management office: receives the wayside's reports and keeps them in a database."
@@ -175,6 +177,8 @@ def serve_cmd(
     length = ln.line.length_m or max(st.stop_point_m for st in ln.stations) + 500.0
     line_data = {"name": ln.line.name, "length_m": length, "stations": station_list}
 
+    import asyncio  # lazy: CLI start-up (the event loop only for the serving processes)
+
     async def main() -> dict[str, object]:
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
@@ -298,6 +302,8 @@ async def _start_page(
     stations: tuple[str, int] | None,
     options: dict[str, Any],
 ) -> _Page:
+    import asyncio
+
     import uvicorn
 
     from railstop.live.page import Broadcast, make_app, page_config
@@ -398,6 +404,8 @@ class _ActionLog:
         self.actions = iter(range(1, 1 << 62))
 
     async def log(self, data: dict[str, Any]) -> None:
+        import asyncio
+
         from railstop.live.office import OFFICE_ID
 
         if not self.stores:
