@@ -30,7 +30,6 @@ import argparse
 import fcntl
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -39,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gpu_throughput import SEED, _draw, _setup
+from gpu_throughput import SEED, _draw, _setup, side_by_side
 
 
 def _options(variant: str, lineinfo: bool):  # type: ignore[no-untyped-def]
@@ -147,19 +146,12 @@ def main() -> None:
         str(lock),
     ]
     variants = [v for v in a.variants.split(",") if v]
-    procs = {v: subprocess.Popen([*base, "--one", v], stdout=subprocess.PIPE, text=True) for v in variants}
     print(f"{a.controller}, {a.runs:,} runs: kernel runs/s by the order of the runs")
     print(
         f"{'variant':10s} {'regs':>5s} {'local B':>8s} {'compile s':>9s} "
         f"{'natural':>10s} {'ordered':>10s} {'alike':>10s}"
     )
-    for v, proc in procs.items():
-        stdout, _ = proc.communicate()
-        lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
-        if proc.returncode != 0 or not lines:
-            print(f"{v:10s} failed (exit {proc.returncode})")
-            continue
-        r = json.loads(lines[-1][len("RESULT ") :])
+    for v, r in side_by_side(base, variants, 10):
         regs = (r.get("registers") or ["-"])[0]
         local = (r.get("local_bytes") or ["-"])[0]
         print(

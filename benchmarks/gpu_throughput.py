@@ -29,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -138,6 +139,19 @@ def one(
     return out
 
 
+def side_by_side(base: list[str], names: list[str], width: int) -> Iterator[tuple[str, dict]]:
+    """Run ``base --one NAME`` for every name at once (each compiles in a process of its own), then
+    yield each one's result (its last ``RESULT`` line) in order; a failure is printed and skipped."""
+    procs = {n: subprocess.Popen([*base, "--one", n], stdout=subprocess.PIPE, text=True) for n in names}
+    for name, proc in procs.items():
+        stdout, _ = proc.communicate()
+        lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
+        if proc.returncode != 0 or not lines:
+            print(f"{name:{width}s} failed (exit {proc.returncode})")
+            continue
+        yield name, json.loads(lines[-1][len("RESULT ") :])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=2_000_000)
@@ -176,16 +190,9 @@ def main() -> None:
     base += ["--check-runs", str(a.check_runs), "--lock", str(lock), "--sweep-threads", a.sweep_threads]
     if a.cpu_rows is not None:
         base += ["--cpu-rows", str(a.cpu_rows)]
-    procs = {c: subprocess.Popen([*base, "--one", c], stdout=subprocess.PIPE, text=True) for c in controllers}
     head = f"{'controller':22s} {'compile s':>9s} {'kernel runs/s':>14s} {'end-to-end':>11s}"
     print(f"{head}  equality on the check runs")
-    for c, proc in procs.items():
-        stdout, _ = proc.communicate()
-        lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
-        if proc.returncode != 0 or not lines:
-            print(f"{c:22s} failed (exit {proc.returncode})")
-            continue
-        r = json.loads(lines[-1][len("RESULT ") :])
+    for c, r in side_by_side(base, controllers, 22):
         print(
             f"{c:22s} {r['compile_s']:9.1f} {r['kernel_runs_per_s']:14,d} {r['end_to_end_runs_per_s']:11,d}  "
             f"{r['bit_identical']}/{r['check_runs']} bit-identical, {r['discrete_differs']} differ in a "

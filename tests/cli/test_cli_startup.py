@@ -169,4 +169,4 @@ def test_the_telegram_help_names_the_codecs_types() -> None:
     from railstop.cli.telegram import TYPE_NAMES
     from railstop.link.codec import TYPES
 
-    assert TYPE_NAMES == tuple(TYPES)
+    assert tuple(TYPES) == TYPE_NAMES
