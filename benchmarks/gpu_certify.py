@@ -16,9 +16,9 @@ runs).
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
 import os
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -29,6 +29,9 @@ from railstop.config.disturbances import load_disturbances
 from railstop.sim.campaign import CampaignSpec, run_campaign
 from railstop.sim.certify import CertifySpec
 from railstop.sim.strata import stratified_certify
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gpu_throughput import gpu_lock
 
 
 def main() -> None:
@@ -58,51 +61,51 @@ def main() -> None:
         spec, runs=1_000, target=1e-6, hazard="platform-end", device=a.device, workers=a.workers
     )
     print(f"first call (compiles the {a.device} model): {time.perf_counter() - t:.1f} s", flush=True)
-    held = open(a.lock, "w") if a.lock is not None else None  # noqa: SIM115
-    if held is not None:
-        fcntl.flock(held, fcntl.LOCK_EX)  # other benchmarks' timing not on the GPU meanwhile
-    for hazard, s in (
-        ("platform-end", spec),
-        ("overrun", replace(spec, threshold_m=station.psd_tolerance_m)),
-    ):
-        r = stratified_certify(
-            s, runs=a.certify_runs, target=1e-6, hazard=hazard, device=a.device, workers=a.workers
-        ).to_dict()
-        strata = ", ".join(
-            f"{x['stratum']}: {x['hits']:,} hits of {x['runs']:,} (max {x['max_error_m']:+.2f} m)"
-            for x in r["strata"]
-        )
-        print(
-            f"certify {hazard} ({r['threshold_m']:.2f} m): estimate {r['estimate']:.3e}, 95 % bound "
-            f"{r['upper_bound']:.3e}, {r['runs']:,} runs in {r['elapsed_s']:.1f} s "
-            f"({r['runs_per_s']:,.0f} runs/s); {strata}",
-            flush=True,
-        )
-        print("  " + json.dumps(r), flush=True)
-    if a.campaign_runs:
-        cspec = CampaignSpec(
-            line=line,
-            vehicle=vehicle,
-            station=station.name,
-            controller=a.controller,
-            runs=a.campaign_runs,
-            seed=1,
-            disturbances=dist,
-            chunk_size=a.chunk_size,
-            device=a.device,
-        )
-        with tempfile.TemporaryDirectory() as tmp:
-            t = time.perf_counter()
-            outcome = run_campaign(cspec, Path(tmp) / "c", workers=a.workers)
-            wall = time.perf_counter() - t
-        sm = outcome.summary
-        print(
-            f"campaign {a.controller} {a.campaign_runs:,} runs on {a.device}: {wall:.1f} s end to end "
-            f"({a.campaign_runs / wall:,.0f} runs/s; simulation {sm['runs_per_s']:,.0f} runs/s); "
-            f"within the PSD tolerance {sm['within_tolerance']:.4%}",
-            flush=True,
-        )
-        print("  " + json.dumps({k: v for k, v in sm.items() if not isinstance(v, dict | list)}), flush=True)
+    with gpu_lock(a.lock):  # other benchmarks' timing not on the GPU meanwhile
+        for hazard, s in (
+            ("platform-end", spec),
+            ("overrun", replace(spec, threshold_m=station.psd_tolerance_m)),
+        ):
+            r = stratified_certify(
+                s, runs=a.certify_runs, target=1e-6, hazard=hazard, device=a.device, workers=a.workers
+            ).to_dict()
+            strata = ", ".join(
+                f"{x['stratum']}: {x['hits']:,} hits of {x['runs']:,} (max {x['max_error_m']:+.2f} m)"
+                for x in r["strata"]
+            )
+            print(
+                f"certify {hazard} ({r['threshold_m']:.2f} m): estimate {r['estimate']:.3e}, 95 % bound "
+                f"{r['upper_bound']:.3e}, {r['runs']:,} runs in {r['elapsed_s']:.1f} s "
+                f"({r['runs_per_s']:,.0f} runs/s); {strata}",
+                flush=True,
+            )
+            print("  " + json.dumps(r), flush=True)
+        if a.campaign_runs:
+            cspec = CampaignSpec(
+                line=line,
+                vehicle=vehicle,
+                station=station.name,
+                controller=a.controller,
+                runs=a.campaign_runs,
+                seed=1,
+                disturbances=dist,
+                chunk_size=a.chunk_size,
+                device=a.device,
+            )
+            with tempfile.TemporaryDirectory() as tmp:
+                t = time.perf_counter()
+                outcome = run_campaign(cspec, Path(tmp) / "c", workers=a.workers)
+                wall = time.perf_counter() - t
+            sm = outcome.summary
+            print(
+                f"campaign {a.controller} {a.campaign_runs:,} runs on {a.device}: {wall:.1f} s end to end "
+                f"({a.campaign_runs / wall:,.0f} runs/s; simulation {sm['runs_per_s']:,.0f} runs/s); "
+                f"within the PSD tolerance {sm['within_tolerance']:.4%}",
+                flush=True,
+            )
+            print(
+                "  " + json.dumps({k: v for k, v in sm.items() if not isinstance(v, dict | list)}), flush=True
+            )
 
 
 if __name__ == "__main__":

@@ -27,18 +27,16 @@ maps its machine code to the model's Python lines.
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gpu_throughput import SEED, _draw, _setup, side_by_side
+from gpu_throughput import SEED, _draw, compiled, gpu_lock, side_by_side
 
 
 def _options(variant: str, lineinfo: bool):  # type: ignore[no-untyped-def]
@@ -57,38 +55,25 @@ def _alike(scenario, n: int):  # type: ignore[no-untyped-def]
 
     from railstop.config.gradient import GradientProfile
 
-    fields = {}
+    changes = {}
     for f in dataclasses.fields(scenario):
         value = getattr(scenario, f.name)
         if isinstance(value, GradientProfile):
-            value = GradientProfile.create(value.breakpoints_m, value.values_permille[:1])
+            changes[f.name] = GradientProfile.create(value.breakpoints_m, value.values_permille[:1])
         elif isinstance(value, np.ndarray) and value.ndim == 1:
-            value = np.repeat(value[:1], n)
-        fields[f.name] = value
-    return dataclasses.replace(scenario, **fields)
+            changes[f.name] = np.repeat(value[:1], n)
+    return scenario.with_values(**changes)
 
 
 def one(controller: str, variant: str, runs: int, lineinfo: bool, lock: Path | None, profile: bool) -> dict:
     from railstop.model import gpu
 
     options = _options(variant, lineinfo)
-    station, vehicle, dist, model = _setup(controller)
-    out: dict = {"controller": controller, "variant": variant}
-    t = time.perf_counter()
-    gpu.run_kernel_gpu(model, _draw(station, vehicle, dist, 0, 64), seed=SEED, first_run=0, options=options)
-    out["compile_s"] = round(time.perf_counter() - t, 1)
-    for kernel in gpu._KERNELS.values():
-        try:
-            out["registers"] = [int(o.regs_per_thread) for o in kernel.overloads.values()]
-            out["local_bytes"] = [int(o.local_mem_per_thread) for o in kernel.overloads.values()]
-        except Exception as exc:  # numba's simulator has no such figures
-            out["resources"] = f"{type(exc).__name__}: {exc}"
+    station, vehicle, dist, model, out = compiled(controller, options)
+    out["variant"] = variant
     scenario = _draw(station, vehicle, dist, 0, runs)
     timings: dict[str, float] = {}
-    held = open(lock, "w") if lock is not None else None  # noqa: SIM115
-    try:
-        if held is not None:
-            fcntl.flock(held, fcntl.LOCK_EX)  # one variant at a time on the GPU
+    with gpu_lock(lock):  # one variant at a time on the GPU
         if profile:  # one launch, for the profiler
             gpu.run_kernel_gpu(model, scenario, seed=SEED, first_run=0, timings=timings, options=options)
             out["kernel_s"] = round(timings["kernel"], 3)
@@ -104,13 +89,10 @@ def one(controller: str, variant: str, runs: int, lineinfo: bool, lock: Path | N
             )
             out[f"{name}_runs_per_s"] = round(runs / timings["kernel"])
             results[name] = res
-        out["ordered_equals_natural"] = bool(
-            np.array_equal(results["ordered"], results["natural"], equal_nan=True)
-        )
-        out["mean_stop_time_s"] = float(np.nanmean(results["natural"][:, 1]))
-    finally:
-        if held is not None:
-            held.close()
+    out["ordered_equals_natural"] = bool(
+        np.array_equal(results["ordered"], results["natural"], equal_nan=True)
+    )
+    out["mean_stop_time_s"] = float(np.nanmean(results["natural"][:, 1]))
     return out
 
 

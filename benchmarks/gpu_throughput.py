@@ -30,6 +30,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -74,30 +75,50 @@ def cpu_rows(controller: str, n: int) -> np.ndarray:
     return res
 
 
-def one(
-    controller: str, runs: int, launch: int, check_runs: int, rows: Path | None, lock: Path, sweep: list[int]
-) -> dict:
-    from railstop.model.gpu import run_kernel_gpu
+def compiled(controller: str, options=None) -> tuple:  # type: ignore[no-untyped-def]
+    """Set up ``controller`` (``_setup``) and compile its kernel with a launch of 64 runs:
+    (station, vehicle, disturbances, model, figures: the compilation's seconds and the kernel's
+    registers and local bytes per thread, which numba's simulator does not have)."""
+    from railstop.model import gpu
 
     station, vehicle, dist, model = _setup(controller)
     out: dict = {"controller": controller}
     t = time.perf_counter()
-    timings: dict[str, float] = {}
-    run_kernel_gpu(model, _draw(station, vehicle, dist, 0, 64), seed=SEED, first_run=0, timings=timings)
+    extra = {} if options is None else {"options": options}
+    gpu.run_kernel_gpu(model, _draw(station, vehicle, dist, 0, 64), seed=SEED, first_run=0, **extra)
     out["compile_s"] = round(time.perf_counter() - t, 1)
-    from railstop.model import gpu
-
     for kernel in gpu._KERNELS.values():  # the kernel's resources per thread (not in the simulator)
         try:
             out["registers"] = [int(o.regs_per_thread) for o in kernel.overloads.values()]
             out["local_bytes"] = [int(o.local_mem_per_thread) for o in kernel.overloads.values()]
         except Exception as exc:  # numba's simulator has no such figures
             out["resources"] = f"{type(exc).__name__}: {exc}"
+    return station, vehicle, dist, model, out
+
+
+@contextmanager
+def gpu_lock(path: Path | None) -> Iterator[None]:
+    """Hold the lock file ``path`` (None: no lock) while timing, so that the benchmarks' processes
+    time their launches one at a time on the GPU."""
+    if path is None:
+        yield
+        return
+    with open(path, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        yield
+
+
+def one(
+    controller: str, runs: int, launch: int, check_runs: int, rows: Path | None, lock: Path, sweep: list[int]
+) -> dict:
+    from railstop.model.gpu import run_kernel_gpu
+
+    station, vehicle, dist, model, out = compiled(controller)
+    timings: dict[str, float] = {}
     expected = (
         np.load(rows)[controller][:check_runs] if rows is not None else cpu_rows(controller, check_runs)
     )
-    with open(lock, "w") as held:
-        fcntl.flock(held, fcntl.LOCK_EX)  # one controller at a time on the GPU
+    with gpu_lock(lock):  # one controller at a time on the GPU
         stages = {"draw": 0.0, "compile_and_to_device": 0.0, "kernel": 0.0, "to_host": 0.0}
         t_all = time.perf_counter()
         first = 0
