@@ -184,3 +184,62 @@ def ceil_1(x: float) -> float:
     if r == 0.0:
         return math.copysign(0.0, x)
     return r
+
+
+# --------------------------------------------------------------------------
+# Work arrays on the stack (issue 37: the run's state in registers).
+#
+# An array the kernel receives as an argument may, for all LLVM knows, overlap every other
+# argument: a store into one forces every value read from another to be read again, so the
+# run's state makes a round trip through memory at every step. An array on the compiled
+# function's own stack overlaps nothing, and one indexed only at constant offsets (a record's
+# fields, a unit's named slots) is taken apart into registers (LLVM's scalar replacement). The
+# same machine arithmetic runs either way: the results are the same to the bit.
+
+
+def _stack_buffer(builder: Any, nbytes: int) -> Any:
+    """``nbytes`` of stack (16-byte aligned) reserved in the function's entry block, as numba's
+    ``cgutils.alloca_once`` reserves its temporaries (so a loop does not grow the stack), and set
+    to zero where it is taken (so each run starts from zeroed memory, as a fresh array does)."""
+    from llvmlite import ir
+
+    with builder.goto_entry_block():
+        buf = builder.alloca(ir.ArrayType(ir.IntType(64), max((nbytes + 7) // 8, 1)))
+        buf.align = 16
+    builder.store(buf.type.pointee(None), buf)
+    return buf
+
+
+def stack_array_value(
+    context: Any, builder: Any, arrty: Any, shape: tuple[int, ...], fill: float = 0.0
+) -> Any:
+    """The LLVM value of a C-contiguous array of numba type ``arrty`` and constant ``shape`` whose
+    memory is this function's stack, zeroed, then set to ``fill`` where that is not zero (for the
+    intrinsics that build such arrays: ``model.run.state_on_stack``)."""
+    from llvmlite import ir
+    from numba.core import types
+
+    llty = context.get_data_type(arrty.dtype)
+    itemsize = context.get_abi_sizeof(llty)
+    count = int(np.prod(shape)) if shape else 1
+    data = builder.bitcast(_stack_buffer(builder, count * itemsize), llty.as_pointer())
+    if fill != 0.0:
+        value = context.get_constant(arrty.dtype, fill)
+        for i in range(count):
+            builder.store(value, builder.gep(data, [ir.Constant(ir.IntType(64), i)]))
+    intp = context.get_value_type(types.intp)
+    strides: list[int] = []
+    step = itemsize
+    for n in reversed(shape):
+        strides.insert(0, step)
+        step *= n
+    ary = context.make_array(arrty)(context, builder)
+    context.populate_array(
+        ary,
+        data=data,
+        shape=[ir.Constant(intp, n) for n in shape],
+        strides=[ir.Constant(intp, s) for s in strides],
+        itemsize=ir.Constant(intp, itemsize),
+        meminfo=None,
+    )
+    return ary._getvalue()

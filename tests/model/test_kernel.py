@@ -36,7 +36,7 @@ from railstop.config.scenario import Scenario
 from railstop.control.supervision import EbCause
 from railstop.errors import SimulationError
 from railstop.jit import JIT_MODULES
-from railstop.model.build import KernelModel
+from railstop.model.build import KernelModel, compiled_law, stop_params
 from railstop.model.records import (
     LA_LOST,
     RES_EB,
@@ -44,11 +44,11 @@ from railstop.model.records import (
     RES_ERROR,
     RES_STOPPED,
 )
-from railstop.model.run import SteppedStop, compiled_for, run_kernel, run_stepped
+from railstop.model.run import SteppedStop, _buffers, compiled_for, run_kernel, run_stepped, simulate_block
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
 from railstop.sim.single import run_stop
-from railstop.streams import RunStreams
+from railstop.streams import RunStreams, seed_u64
 from railstop.wayside.tasc_unit import SignalForm
 
 LINE = default_line()
@@ -199,6 +199,41 @@ def test_the_step_driven_from_python_equals_the_compiled_run() -> None:
         assert none is None and chunks > 10
         np.testing.assert_array_equal(res_chunked[0], res_block[3])
         np.testing.assert_array_equal(passages_chunked[0], passages_block[3])
+
+
+def test_the_compiled_run_keeps_the_constant_shape_state_on_its_stack() -> None:
+    """``simulate_run`` works on copies of the state's arrays of constant shape on its own stack
+    (``state_on_stack``, so that LLVM may keep them in registers): the block's own arrays of that
+    kind are left as ``new_state`` made them, while the arrays the model sizes (the radar buffer,
+    the dead time's ring) are the block's and are written. The stepped run works on the block's
+    arrays throughout and equals the compiled run bit for bit (the test above)."""
+    st = LINE.station("Riverside")
+    model = KernelModel.create(
+        station=st, vehicle=VEHICLE, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
+    scenario, _ = draw_scenario(HARSH, st, VEHICLE, RunStreams.for_runs(5, 0, 2))
+    b = _buffers(model, scenario, False)
+    before = {name: np.copy(getattr(b.state, name)) for name in b.state._fields}
+    simulate_block(
+        seed_u64(5),
+        0,
+        stop_params(model, b.bp),
+        b.sc,
+        b.gv,
+        b.ge,
+        b.state,
+        b.res,
+        b.passages,
+        b.rec,
+        compiled_law(model),
+    )
+    assert np.all(b.res[:, RES_STOPPED] > 0.0)
+    for name in ("train", "onboard", "link", "tally"):  # records: field by field (not the padding)
+        assert getattr(b.state, name).tolist() == before[name].tolist(), name
+    for name in ("ws", "rx", "mod", "pending"):
+        assert getattr(b.state, name).tobytes() == before[name].tobytes(), name
+    assert np.isnan(b.state.pending).all()  # the telegram on the air: none, as new_state set it
+    assert np.any(b.state.dbuf != before["dbuf"]) and np.any(b.state.ring != before["ring"])
 
 
 def test_an_emergency_brake_from_outside_stops_a_stepped_stop_short_with_its_cause() -> None:

@@ -1,12 +1,13 @@
 """The station stop on an NVIDIA GPU: the CPU's model, compiled by numba-cuda for the device.
 
 One source, two targets. The CUDA kernel here holds no model of its own: each
-GPU thread runs one run through :func:`railstop.model.run.simulate_run`, the
-function the CPU's ``simulate_block`` calls, which numba-cuda compiles again
+GPU thread runs one run through :func:`railstop.model.run.run_steps`, the
+run loop the CPU's ``simulate_run`` runs, which numba-cuda compiles again
 for the device from the same Python source (every per-step function of the
 stop is a plain scalar function of named records, :mod:`railstop.model.records`).
 What differs is only where a run's state lives: on the CPU in arrays allocated
-once per block (:func:`railstop.model.records.new_state`), here in each
+once per block (:func:`railstop.model.records.new_state`), those of constant
+shape on ``simulate_run``'s stack for each run (``state_on_stack``), here in each
 thread's local memory (``cuda.local.array`` of the same dtypes and shapes,
 which the kernel factory fixes as constants per model: the longest dead time,
 the radar window, the tachometer's window, the frames in flight, the
@@ -89,8 +90,8 @@ from railstop.model.run import (
     model_draws,
     ring_steps,
     run_kernel,
+    run_steps,
     simulate_block,
-    simulate_run,
     state_sizes,
 )
 from railstop.streams import seed_key, seed_u64
@@ -231,16 +232,17 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
     ]
     if simulated:
         # The simulator runs this body in Python and the model through its CPU compilation: the
-        # CPU's block of one run on this thread's state (simulate_block makes the same
-        # simulate_run call as the line above, through its cached compiled signature).
+        # CPU's block of one run on this thread's state (simulate_block runs the same run loop
+        # as the line below, through its cached compiled signature).
         lines.append(
             "    simulate_block(seed, first_run + r, p, sc[r : r + 1], gv[r : r + 1], ge[r : r + 1], s,"
             " res[r : r + 1], passages[r : r + 1], rec, LAW)"
         )
     else:
+        # The CPU's run loop on this thread's local arrays (the CPU's simulate_run puts them on
+        # its stack first, which the device's local arrays already are).
         lines.append(
-            "    simulate_run(p, run, s, StopOutputs(res[r], passages[r], rec), seed_keys, first_run + r,"
-            " LAW)"
+            "    run_steps(p, run, s, StopOutputs(res[r], passages[r], rec), seed_keys, first_run + r, LAW)"
         )
     return "\n".join(lines) + "\n"
 
@@ -302,7 +304,7 @@ def _kernel(shapes: Shapes, controller: str, options: KernelOptions = KernelOpti
             "RunParams": RunParams,
             "Recording": Recording,
             "StopOutputs": StopOutputs,
-            "simulate_run": simulate_run,
+            "run_steps": run_steps,
             "simulate_block": simulate_block,
             # The simulator runs the kernel in Python and the model through its CPU compilation:
             # the CPU's law (a function pointer) keeps the model's compiled signature, cached.
