@@ -2,10 +2,14 @@
 
     python benchmarks/campaign_throughput.py [--runs 20000] [--workers K] [--reference-runs 2000]
                                              [--numpy-engine-commit SHA] [--controllers tasc-pwm,ato,...]
+                                             [--step-runs 200]
 
 For each controller: a real campaign (standard disturbance set, default
 station, chunks of ``--chunk-size``, ``--workers`` threads) into a temporary
-folder, timed end to end (draws, kernel, Parquet chunks, summary); and the
+folder, timed end to end (draws, kernel, Parquet chunks, summary), with the mean
+steps of its first ``--step-runs`` runs (each run again alone, its trace
+recorded: the trace's rows are its steps) and from both the wall time per
+run and step on one worker (``ns/run-step``); and the
 numpy array engine the kernel replaced (``railstop.sim.reference``, deleted
 from the tree once the kernel reproduced it: it is taken from git at
 ``--numpy-engine-commit``, the last commit that has it, exported to a
