@@ -135,9 +135,14 @@ def test_timeout_close_and_misuse() -> None:
 KEY_HEX = "000102030405060708090a0b0c0d0e0f101112131415161718191a1b1c1d1e1f"
 
 
+# The key files live in one folder that is removed when the test process ends (finalizer of
+# TemporaryDirectory): no key is left behind in the machine's temporary folder.
+KEY_DIR = tempfile.TemporaryDirectory(prefix="railstop-keys-")
+
+
 def write_key(text: str) -> str:
     """A key file holding ``text`` (mode 0600, as the tool asks): the key never goes on a command line."""
-    fd, path = tempfile.mkstemp(prefix="railstop-key-")
+    fd, path = tempfile.mkstemp(prefix="key-", dir=KEY_DIR.name)
     with os.fdopen(fd, "w") as fh:
         fh.write(text)
     os.chmod(path, 0o600)
