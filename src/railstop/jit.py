@@ -117,6 +117,14 @@ numba.config.CACHE_DIR = str(usable_cache_dir())  # type: ignore[attr-defined]
 _numba_njit: Any = numba.njit
 
 
+def as_python() -> bool:
+    """True when numba compiles nothing (``NUMBA_DISABLE_JIT=1``): the model then runs as plain
+    Python, a stop in about a second and a half, for study without a compile of minutes. The few
+    places that build what only compiled code can (an intrinsic, a C callback, records read by
+    attribute) build their Python equivalents instead."""
+    return bool(getattr(numba.config, "DISABLE_JIT", False))
+
+
 def njit(fn: F) -> F:
     """Compile ``fn`` in nopython mode, without the GIL, with numpy's error model, cached on disk.
 

@@ -15,9 +15,13 @@ from railstop.control.notch import (
     MOD_E1,
     MOD_E2,
     MOD_HELD,
+    MOD_NOW,
+    MOD_RING_SIZE,
     MOD_SIZE,
     MOD_TARGET,
     modulator_init_1,
+    modulator_pipeline_1,
+    modulator_restart_1,
     modulator_update_1,
     stopping_distance_under_lag_1,
 )
@@ -118,25 +122,103 @@ def test_short_speed_window_follows_a_rippling_deceleration() -> None:
 
 
 def test_end_phase_picks_the_notch_that_stops_nearest() -> None:
-    """Near standstill the modulator judges notches by the predicted stopping point."""
+    """Near standstill the modulator judges notches by the predicted stopping point, one dead time
+    ahead, where the notch chosen now starts to act."""
     table = np.array([0.0, 0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0])  # notch 0 released
-    hold, response = 0.5, 0.8
+    hold, dead, lag = 0.5, 0.35, 0.45
     mod = np.empty(MOD_SIZE)
     modulator_init_1(mod)
     target = 0.5
     # Settle on the target far from the stop (no speed: plain sigma-delta).
     for _ in range(50):
-        modulator_update_1(mod, table, hold, response, target, True, 0.1, 0.0, False)
+        modulator_update_1(mod, table, hold, dead, lag, target, True, 0.1, 0.0, False)
     # Now 0.6 m/s from standstill: the end phase decides; its choice must be
     # the notch whose plan stops nearer the target trajectory's stop.
     mod[MOD_HELD] = 10.0
     speed = 0.6
-    chosen = modulator_update_1(mod, table, hold, response, target, True, 0.1, speed, True)
+    before = mod.copy()
+    chosen = modulator_update_1(mod, table, hold, dead, lag, target, True, 0.1, speed, True)
     assert chosen in (3, 4)
-    goal = stopping_distance_under_lag_1(speed - mod[MOD_E1], mod[MOD_TARGET], target, 0.8) - mod[MOD_E2]
+    # The state the choice was made on: this cycle's update without the choice.
+    seen = before.copy()
+    modulator_update_1(seen, table, hold, dead, lag, target, True, 0.1, 0.0, False)
+    v_dead = modulator_pipeline_1(seen, speed, 0.0, 1)[0]
+    goal = stopping_distance_under_lag_1(v_dead - seen[MOD_E1], seen[MOD_TARGET], target, lag) - seen[MOD_E2]
     miss = {
-        n: abs(stopping_distance_under_lag_1(speed, mod[MOD_APPLIED], table[n], 0.8) - goal) for n in (3, 4)
+        n: abs(stopping_distance_under_lag_1(v_dead, seen[MOD_APPLIED], table[n], lag) - goal) for n in (3, 4)
     }
     # Holding the chosen notch to standstill is never the clearly worse of the two.
     other = 7 - chosen
     assert miss[chosen] <= miss[other] + 0.05
+
+def _brake_chain(notch_decels: np.ndarray, cycle: float, dead: float, lag: float, fine: float) -> np.ndarray:
+    """The brakes as the plant has them, integrated finely: the notch held over each cycle, seen
+    one dead time later, through a first-order lag (the reference for the modulator's model)."""
+    t = np.arange(0.0, notch_decels.size * cycle, fine)
+    held = notch_decels[np.clip(np.floor((t - dead) / cycle + 1e-9).astype(int), -1, None)]
+    held[t < dead] = 0.0
+    a = np.zeros_like(t)
+    for i in range(1, t.size):
+        a[i] = held[i - 1] + (a[i - 1] - held[i - 1]) * np.exp(-fine / lag)
+    return a
+
+
+def _drive(mod: np.ndarray, table: np.ndarray, targets: list[float], dead: float, lag: float) -> list[int]:
+    return [modulator_update_1(mod, table, 0.3, dead, lag, tg, True, 0.1, 0.0, False) for tg in targets]
+
+
+TABLE = np.array([0.0, 0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0])
+
+
+@settings(max_examples=25, deadline=None)
+@given(dead=st.floats(0.0, 1.5), lag=st.floats(0.1, 1.0), seed=st.integers(0, 2**31 - 1))
+def test_the_modulators_brake_model_is_dead_time_then_lag(dead: float, lag: float, seed: int) -> None:
+    """The response the modulator models now, and the speed it predicts one dead time ahead, are
+    those of the plant's brakes (a dead time, then a first-order lag) fed its own notches."""
+    rng = np.random.default_rng(seed)
+    mod = np.empty(MOD_SIZE)
+    modulator_init_1(mod)
+    targets = list(rng.uniform(0.0, 1.0, 40))
+    notches = _drive(mod, TABLE, targets, dead, lag)
+    cycle, fine = 0.1, 1e-4
+    chain = _brake_chain(TABLE[notches], cycle, dead, lag, fine)
+    # MOD_NOW is the response at the start of the last cycle (the last call's own time).
+    assert abs(mod[MOD_NOW] - chain[round((len(notches) - 1) * cycle / fine)]) < 2e-3
+    # The pipeline: from then to one dead time later, the speed lost is the response's integral.
+    more = _brake_chain(TABLE[notches + [notches[-1]] * 40], cycle, dead, lag, fine)
+    start = round((len(notches) - 1) * cycle / fine)
+    span = round(dead / fine)
+    lost = float(np.sum(more[start : start + span]) * fine)
+    v_end, e1, e2 = modulator_pipeline_1(mod, 10.0, 0.0, 1)
+    assert abs((10.0 - v_end) - lost) < 2e-3
+    assert abs(e1 - (v_end - 10.0)) < 1e-12  # against no braking, the speed lost is all of e1
+    assert e2 <= 1e-12  # braking can only put the train behind a plan of none
+
+
+def test_a_new_target_starts_from_the_braking_not_yet_felt() -> None:
+    """A release just before a new target arrives is still in the dead time when it comes: the
+    sender, who measured the train before it acted, planned with the braking going on. The
+    restart carries that shortfall (the train will be faster and ahead of the plan), and a
+    restart with nothing in flight against the plan carries none."""
+    dead, lag = 0.35, 0.45
+    mod = np.empty(MOD_SIZE)
+    modulator_init_1(mod)
+    _drive(mod, TABLE, [0.429] * 60, dead, lag)  # notch 3 held: the target is notch 3 exactly
+    modulator_restart_1(mod)
+    assert abs(mod[MOD_E1]) < 1e-5 and abs(mod[MOD_E2]) < 1e-5  # both settled on notch 3
+    for _ in range(3):  # three cycles of notch 2 (the sigma-delta's release), then notch 3 again
+        mod[MOD_HELD] = 10.0
+        modulator_update_1(mod, TABLE, 0.3, dead, lag, 0.2, True, 0.1, 0.0, False)
+    mod[MOD_TARGET] = 0.429
+    modulator_restart_1(mod)
+    assert mod[MOD_E1] > 0.01 and mod[MOD_E2] > 0.0
+
+
+def test_a_dead_time_beyond_the_ring_is_added_to_the_lag() -> None:
+    """The ring holds MOD_RING_SIZE - 2 cycles; a longer dead time keeps that many and adds the rest
+    to the lag, so the modelled response still converges to the notch held."""
+    mod = np.empty(MOD_SIZE)
+    modulator_init_1(mod)
+    dead = (MOD_RING_SIZE + 5) * 0.1
+    notches = _drive(mod, TABLE, [0.5] * 400, dead, 0.4)
+    assert abs(mod[MOD_NOW] - np.mean(TABLE[notches[-100:]])) < 0.1

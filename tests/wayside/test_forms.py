@@ -64,9 +64,13 @@ def _telegrams(form: SignalForm, controller: str, case: str) -> list[dict[str, A
     return commands
 
 
-# The one known miss at Riverside, kept visible (strict): form 6 with notches, nominal, ends
-# +0.147 m (the last command meets the deceleration's ripple; see tests/control/test_tasc_stop.py).
-_KNOWN_MISS = (SignalForm.REQUIRED_DECELERATION, "tasc-brake-controller", "nominal")
+# The one known miss at Riverside, kept visible (strict): form 8 on the switched PWM train,
+# nominal, ends +0.320 m. The wayside's modulator stepped the train down to notch 2 in the
+# 10 ms step of the last detector's passage, whose command wanted more braking (notches 3-4);
+# form 8 moves the train one notch per 0.3 s, so it reached notch 4 only 0.6 s later, 5 m from
+# the stop (docs/results.md, "Signal forms"; on the standard set form 8 keeps 98.8 % within
+# ±0.30 m).
+_KNOWN_MISS = (SignalForm.INCREASE_DECREASE, "tasc-switched-pwm", "nominal")
 
 
 @pytest.mark.parametrize(
@@ -77,7 +81,7 @@ _KNOWN_MISS = (SignalForm.REQUIRED_DECELERATION, "tasc-brake-controller", "nomin
             controller,
             case,
             id=f"form{int(form)}-{controller}-{case}",
-            marks=[pytest.mark.xfail(strict=True, reason="+0.147 m: notch ripple at the last detector")]
+            marks=[pytest.mark.xfail(strict=True, reason="+0.320 m: a step down at the last passage")]
             if (form, controller, case) == _KNOWN_MISS
             else [],
         )

@@ -69,7 +69,7 @@ from numba.core.errors import NumbaError
 from railstop.config.schema import Vehicle
 from railstop.controllers import CONTROLLERS, register_law
 from railstop.errors import ConfigError
-from railstop.jit import njit_inline
+from railstop.jit import as_python, njit_inline
 
 #: The measurements the law gets each cycle (one record; see the module docstring).
 MEASUREMENTS_DTYPE = np.dtype(
@@ -128,6 +128,10 @@ class ControlLaw:
         demand NaN, which the model turns into full service. numba cannot catch an error of a C
         callback itself, so the callback wraps the law in ``try``. A built-in law is railstop's
         own code, compiled as it stands (the model's clamp still applies)."""
+        if not self._compiled and as_python():
+            # The model run as Python (NUMBA_DISABLE_JIT=1, for study): the law as Python too (a C
+            # callback is compiled whatever that setting says).
+            self._compiled.append(self.function)
         if not self._compiled and self.source == "railstop":
             # A built-in law (the ATO's): railstop's own code, compiled once into the on-disk
             # cache (a guard is a closure, which numba cannot cache: compiling it anew cost every
@@ -290,7 +294,9 @@ def law_params(vehicle: Vehicle, dt_s: float) -> np.ndarray:
     lp[0]["response_s"] = brake.dead_time_s + brake.time_constant_s
     lp[0]["jerk_limit_mps3"] = brake.jerk_limit_mps3
     lp[0]["cycle_s"] = controller_cycle_steps(vehicle, dt_s) * dt_s
-    return lp
+    # The model run as Python (NUMBA_DISABLE_JIT=1): a record array, whose element takes its fields
+    # as attributes as a compiled record does.
+    return lp.view(np.recarray) if as_python() else lp
 
 
 def controller_cycle_steps(vehicle: Vehicle, dt_s: float) -> int:

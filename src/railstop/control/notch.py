@@ -15,6 +15,20 @@ stop the train (a two-move look-ahead: this notch for the minimum hold, then
 either notch until standstill).
 **[interpretation]** SPEC §1 leaves the brake controller's own logic open;
 this is railstop's model of a competent one.
+
+The modulator's model of the brakes is the plant's own: a dead time, then a
+first-order lag. A notch chosen now acts only after the dead time, so the
+modulator works on the braking as it will be one dead time from now: its
+error integrators compare the lagged notches with the lagged target in that
+frame, and it keeps the notches still in the dead time (a ring, one entry
+per cycle) to know the braking between now and then. When a new target
+arrives, the part of the error the sender could not have measured, the
+braking already commanded and not yet felt against the previous target,
+starts the integrators (**[interpretation]**: the sender measured the train
+before those notches acted). An earlier model folded the dead time into the
+lag (one lag of dead time + lag), which times the alternation and the end
+phase a dead time early: at Riverside, nominal, a short release just before
+the last command ended that stop +0.147 m.
 """
 
 from __future__ import annotations
@@ -25,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.control.tasc import clip_1
-from railstop.jit import njit_step
+from railstop.jit import njit_inline, njit_step
 
 FloatArray = NDArray[np.float64]
 
@@ -37,33 +51,95 @@ FloatArray = NDArray[np.float64]
 # deceleration of notches 0..7 (0 for notch 0).
 
 MOD_NOTCH = 0
-MOD_APPLIED = 1  # modelled brake response to the notches (m/s²)
-MOD_TARGET = 2  # modelled response to the target (m/s²)
+MOD_APPLIED = 1  # modelled brake response to the notches one dead time from now (m/s²)
+MOD_TARGET = 2  # modelled response to the target, in the same frame (m/s²)
 MOD_E1 = 3  # speed error integral (m/s)
 MOD_E2 = 4  # position error integral (m)
 MOD_HELD = 5  # time the notch has been held (s)
 MOD_CHANGES = 6
-# The response's smoothing factor 1 - exp(-dt/τ) and the (dt, τ) it was computed for: the response
-# time changes only when the wayside identifies it, so the exponential is computed once per change
-# rather than every controller cycle (the same value to the bit).
+# The response's constants, computed when the cycle, the dead time or the lag change (the wayside's
+# identification changes them), not every controller cycle: the smoothing factor of one cycle
+# 1 - exp(-dt/τ), the decays over the dead time's fraction of a cycle f and over the rest of the
+# cycle, and the (dt, dead time, lag) they were computed for.
 MOD_ALPHA = 7
 MOD_ALPHA_DT = 8
-MOD_ALPHA_TAU = 9
-MOD_SIZE = 10
+MOD_ALPHA_TAU = 9  # the lag they were computed for
+MOD_ALPHA_DEAD = 10  # the dead time they were computed for
+MOD_TAU = 11  # the lag of the model: the brakes' lag, plus any dead time beyond the ring
+MOD_CYCLES = 12  # m: whole cycles of dead time (at most MOD_RING_SIZE - 2)
+MOD_FRAC = 13  # f: the dead time's rest (s)
+MOD_DECAY_F = 14  # exp(-f/τ)
+MOD_DECAY_REST = 15  # exp(-(dt - f)/τ)
+MOD_DECAY_CYCLE = 16  # exp(-dt/τ)
+MOD_NOW = 17  # modelled brake response now (m/s²)
+MOD_HEAD = 18  # the ring's entry of the notch held over the last cycle
+MOD_RING = 19  # the notches' decelerations, one entry per cycle, newest at MOD_HEAD
+MOD_RING_SIZE = 64  # 6.2 s of dead time at the default 0.1 s cycle
+MOD_SIZE = MOD_RING + MOD_RING_SIZE
 
 
 @njit_step
 def modulator_init_1(state: FloatArray) -> None:
     state[:] = 0.0
     state[MOD_HELD] = np.inf
-    state[MOD_ALPHA_TAU] = np.nan  # no factor yet (NaN equals no response time)
+    state[MOD_ALPHA_TAU] = np.nan  # no constants yet (NaN equals no lag)
+
+
+@njit_inline
+def _held_1(state: FloatArray, ago: int) -> float:
+    """The deceleration of the notch held ``ago`` cycles before the last one (0: the last)."""
+    j = int(state[MOD_HEAD]) - ago
+    if j < 0:
+        j += MOD_RING_SIZE
+    return state[MOD_RING + j]
+
+
+@njit_inline
+def _lag_segment_1(
+    v: float, x: float, a: float, c: float, t: float, decay: float, tau: float
+) -> tuple[float, float, float]:
+    """Speed, distance and deceleration after ``t`` under a(t) = c + (a - c)e^(-t/τ) (``decay`` =
+    e^(-t/τ)), from speed ``v`` and distance ``x``."""
+    gap = a - c
+    v_end = v - c * t - gap * tau * (1.0 - decay)
+    x_end = x + v * t - 0.5 * c * t * t - gap * tau * (t - tau * (1.0 - decay))
+    return v_end, x_end, c + gap * decay
+
+
+@njit_step
+def modulator_pipeline_1(
+    state: FloatArray, speed_mps: float, assumed_mps2: float, pushed: int
+) -> tuple[float, float, float]:
+    """The braking already commanded and not yet felt: from the last cycle to one dead time
+    after it, the train's speed at its end (from ``speed_mps``), and the speed and distance it
+    gains against a deceleration of ``assumed_mps2`` held throughout (e1, e2 of that interval).
+    ``pushed``: 1 once the last cycle's own notch is in the ring, 0 while it is being chosen."""
+    tau = state[MOD_TAU]
+    dt = state[MOD_ALPHA_DT]
+    m = int(state[MOD_CYCLES])
+    f = state[MOD_FRAC]
+    v, x, a = _lag_segment_1(
+        speed_mps, 0.0, state[MOD_NOW], _held_1(state, m + pushed), f, state[MOD_DECAY_F], tau
+    )
+    for ago in range(m - 1, -1, -1):
+        v, x, a = _lag_segment_1(v, x, a, _held_1(state, ago + pushed), dt, state[MOD_DECAY_CYCLE], tau)
+    span = m * dt + f
+    v_plan = speed_mps - assumed_mps2 * span
+    x_plan = speed_mps * span - 0.5 * assumed_mps2 * span * span
+    return v, v - v_plan, x - x_plan
 
 
 @njit_step
 def modulator_restart_1(state: FloatArray) -> None:
-    """A new target arrived: the integrators restart (the target already contains the past error)."""
+    """A new target arrived: the integrators restart (the target already contains the error the
+    sender measured) from the error of the braking already commanded and not yet felt, against
+    the previous target that the sender assumed would go on."""
     state[MOD_E1] = 0.0
     state[MOD_E2] = 0.0
+    if state[MOD_ALPHA_TAU] == state[MOD_ALPHA_TAU]:  # the model has run a cycle: it has a ring
+        _, e1, e2 = modulator_pipeline_1(state, 0.0, state[MOD_TARGET], 1)
+        state[MOD_E1] = e1
+        state[MOD_E2] = e2
 
 
 @njit_step
@@ -115,30 +191,33 @@ def _end_choice_1(
     state: FloatArray,
     table: FloatArray,
     min_hold_s: float,
-    response_s: float,
     speed_mps: float,
     target: float,
     lo: int,
     hi: int,
 ) -> int:
     """The first move of the best two-move plan (this notch for the minimum hold, then either
-    notch until standstill), judged by the predicted stop against where the target stops the train."""
-    tau = response_s
+    notch until standstill), judged by the predicted stop against where the target stops the
+    train. Both are judged one dead time from now, where the notch chosen now starts to act:
+    the train's speed there follows from the notches already commanded."""
+    tau = state[MOD_TAU]
     applied = state[MOD_APPLIED]
-    # The train is e2 ahead of the target trajectory and e1 faster.
+    v_dead = modulator_pipeline_1(state, speed_mps, 0.0, 0)[0]
+    if v_dead <= 0.0:  # the train stands before this choice acts
+        return int(state[MOD_NOTCH])
+    # The train is e2 ahead of the target trajectory and e1 faster (one dead time from now).
     goal = (
-        stopping_distance_under_lag_1(speed_mps - state[MOD_E1], state[MOD_TARGET], target, tau)
-        - state[MOD_E2]
+        stopping_distance_under_lag_1(v_dead - state[MOD_E1], state[MOD_TARGET], target, tau) - state[MOD_E2]
     )
     best = np.inf
     choice = lo
     for first in (lo, hi):
-        v1, x1, a1 = motion_under_lag_1(speed_mps, applied, table[first], tau, min_hold_s)
+        v1, x1, a1 = motion_under_lag_1(v_dead, applied, table[first], tau, min_hold_s)
         for second in (lo, hi):
             if v1 > 0.0:
                 whole = x1 + stopping_distance_under_lag_1(max(v1, 0.0), a1, table[second], tau)
             else:  # stops inside the first hold: where the first notch alone stops it
-                whole = stopping_distance_under_lag_1(speed_mps, applied, table[first], tau)
+                whole = stopping_distance_under_lag_1(v_dead, applied, table[first], tau)
             miss = abs(whole - goal)
             if miss < best - 1e-12:
                 best = miss
@@ -146,12 +225,37 @@ def _end_choice_1(
     return choice
 
 
+@njit_inline
+def _response_constants_1(state: FloatArray, dt_s: float, dead_s: float, lag_s: float) -> None:
+    """The model's constants for this cycle, dead time and lag. A dead time longer than the ring
+    holds (MOD_RING_SIZE - 2 cycles) is modelled as that many cycles and the rest added to the
+    lag (**[interpretation]**: the earlier model's approximation, for that rest only)."""
+    cycles = math.floor(dead_s / dt_s)
+    frac = dead_s - cycles * dt_s
+    tau = lag_s
+    if cycles > MOD_RING_SIZE - 2:
+        tau += (cycles - (MOD_RING_SIZE - 2)) * dt_s + frac
+        cycles = MOD_RING_SIZE - 2
+        frac = 0.0
+    state[MOD_TAU] = tau
+    state[MOD_CYCLES] = cycles
+    state[MOD_FRAC] = frac
+    state[MOD_DECAY_CYCLE] = math.exp(-dt_s / tau)
+    state[MOD_ALPHA] = 1.0 - state[MOD_DECAY_CYCLE]
+    state[MOD_DECAY_F] = math.exp(-frac / tau)
+    state[MOD_DECAY_REST] = math.exp(-(dt_s - frac) / tau)
+    state[MOD_ALPHA_DT] = dt_s
+    state[MOD_ALPHA_DEAD] = dead_s
+    state[MOD_ALPHA_TAU] = lag_s
+
+
 @njit_step
 def modulator_update_1(
     state: FloatArray,
     table: FloatArray,
     min_hold_s: float,
-    response_s: float,
+    dead_s: float,
+    lag_s: float,
     target_mps2: float,
     active: bool,
     dt_s: float,
@@ -164,10 +268,10 @@ def modulator_update_1(
     matters for the stopping point is the position error, the double integral
     of (target - applied) deceleration, so the modulator keeps that double
     integral near zero (a first-order modulator only bounds the speed error).
-    "Applied" is the notch deceleration passed through a first-order model of
-    the brake response (time constant ``response_s`` = dead time + lag), so the
-    alternation is timed against what the brakes will really do. The
-    integrators restart whenever a new target arrives
+    "Applied" is the notch deceleration through the brakes' response, a dead time
+    ``dead_s`` and a first-order lag ``lag_s``, so the alternation is timed against
+    what the brakes will really do: the integrators work one dead time ahead (see
+    the module docstring). The integrators restart whenever a new target arrives
     (:func:`modulator_restart_1`): the wayside computed it from the train's
     measured state, which already contains the past error. With ``use_speed``
     (the train's measured speed ``speed_mps``) the end phase is planned against
@@ -175,27 +279,34 @@ def modulator_update_1(
     modulator runs on the target alone.
     """
     target = clip_1(target_mps2, 0.0, table[table.size - 1])
-    if state[MOD_ALPHA_DT] != dt_s or state[MOD_ALPHA_TAU] != response_s:
-        state[MOD_ALPHA] = 1.0 - math.exp(-dt_s / response_s)
-        state[MOD_ALPHA_DT] = dt_s
-        state[MOD_ALPHA_TAU] = response_s
+    if state[MOD_ALPHA_DT] != dt_s or state[MOD_ALPHA_DEAD] != dead_s or state[MOD_ALPHA_TAU] != lag_s:
+        _response_constants_1(state, dt_s, max(dead_s, 0.0), lag_s)
     alpha = state[MOD_ALPHA]
     notch = int(state[MOD_NOTCH])
+    # The last cycle's notch, one dead time ahead; the response now, from the notches of one dead
+    # time ago (the fraction f of the cycle on the older one).
+    m = int(state[MOD_CYCLES])
+    older = _held_1(state, m + 1)
+    newer = _held_1(state, m)
+    now = older + (state[MOD_NOW] - older) * state[MOD_DECAY_F]
+    state[MOD_NOW] = newer + (now - newer) * state[MOD_DECAY_REST]
     state[MOD_APPLIED] += (table[notch] - state[MOD_APPLIED]) * alpha
     state[MOD_TARGET] += (target - state[MOD_TARGET]) * alpha
     state[MOD_E1] += (state[MOD_TARGET] - state[MOD_APPLIED]) * dt_s
     state[MOD_E2] += state[MOD_E1] * dt_s
     lo = min(max(int(np.searchsorted(table, target, side="right")) - 1, 0), 7)
     hi = min(lo + 1, 7)
-    # Look ahead one response time: brake more when the position error
-    # (train ahead of the plan: e2 > 0) would otherwise still grow.
-    horizon = response_s + min_hold_s
+    # Look ahead one lag and a hold: brake more when the position error (train ahead of the
+    # plan: e2 > 0) would otherwise still grow.
+    horizon = state[MOD_TAU] + min_hold_s
     want = hi if state[MOD_E2] + state[MOD_E1] * horizon > 0.0 else lo
     can_change = state[MOD_HELD] + 1e-9 >= min_hold_s
     # End phase: within two look-ahead horizons of standstill.
-    end_phase = target > 0.0 and speed_mps / max(target, 0.05) <= 2.0 * (min_hold_s + response_s)
+    end_phase = target > 0.0 and speed_mps / max(target, 0.05) <= 2.0 * (
+        min_hold_s + max(dead_s, 0.0) + lag_s
+    )
     if use_speed and can_change and active and end_phase:
-        want = _end_choice_1(state, table, min_hold_s, response_s, speed_mps, target, lo, hi)
+        want = _end_choice_1(state, table, min_hold_s, speed_mps, target, lo, hi)
     if table[lo] == target:
         want = lo
     new = want if (notch < lo or notch > hi or can_change) else notch
@@ -208,4 +319,9 @@ def modulator_update_1(
     else:
         state[MOD_HELD] += dt_s
     state[MOD_NOTCH] = new
+    head = int(state[MOD_HEAD]) + 1
+    if head >= MOD_RING_SIZE:
+        head = 0
+    state[MOD_HEAD] = head
+    state[MOD_RING + head] = table[new]
     return new

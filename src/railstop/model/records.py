@@ -53,7 +53,7 @@ compiled:
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,6 +62,7 @@ from railstop.config.platform import LAMP_CODES
 from railstop.control.law import LAW_PARAMS_DTYPE, LAW_STATE_SIZE, MEASUREMENTS_DTYPE
 from railstop.control.notch import MOD_SIZE
 from railstop.control.tasc import HISTORY, SAMPLES
+from railstop.jit import as_python
 from railstop.messages import TEL_SIZE
 from railstop.model.fixes import FX_SIZE, FXI_SIZE
 from railstop.onboard.ato import AT_SIZE
@@ -531,9 +532,12 @@ class StopOutputs(NamedTuple):
     rec: Recording
 
 
-def new_record(dtype: np.dtype[np.void]) -> RecordArray:
-    """A zeroed record of ``dtype`` (a one-element structured array)."""
-    return np.zeros(1, dtype=dtype)
+def new_record(dtype: np.dtype[np.void], shape: int | tuple[int, ...] = 1) -> RecordArray:
+    """A zeroed record of ``dtype`` (a one-element structured array; ``shape``: that many). With
+    the model run as Python (``NUMBA_DISABLE_JIT=1``) a numpy record array, whose elements take
+    their fields as attributes as a compiled record does."""
+    arr = np.zeros(shape, dtype=dtype)
+    return arr.view(np.recarray) if as_python() and dtype.names else arr
 
 
 #: The sizes a state's arrays take from the model and the block (``new_state``'s arguments).
@@ -596,9 +600,10 @@ def new_state(sizes: dict[str, int]) -> StopState:
     :data:`STATE_SIZES`: the dead time's ring in steps, the radar buffer's samples, the
     tachometer's window, the frames in the air, the positioning log's entries, the track
     circuits."""
-    arrays = []
+    arrays: list[NDArray[Any]] = []
     for _, shape, dtype, fill in STATE_FIELDS:
-        arr = np.zeros(state_shape(shape, sizes), dtype=dtype)
+        dims = state_shape(shape, sizes)
+        arr: NDArray[Any] = new_record(dtype, dims) if dtype.names else np.zeros(dims, dtype=dtype)
         if fill != 0.0:
             arr[...] = fill
         arrays.append(arr)

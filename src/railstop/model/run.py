@@ -42,14 +42,14 @@ from typing import Any
 
 import numpy as np
 from numba.core import types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 from numpy.typing import NDArray
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.scenario import Scenario
 from railstop.controllers import is_corrected
 from railstop.errors import SimulationError
-from railstop.jit import cache_dir, njit, njit_inline, njit_step, stack_array_value
+from railstop.jit import as_python, cache_dir, njit, njit_inline, njit_step, stack_array_value
 from railstop.messages import TEL_SIZE
 from railstop.model.build import DRIVER_MODES, KernelModel, compiled_law, scenario_arrays, stop_params
 from railstop.model.records import (
@@ -76,6 +76,7 @@ from railstop.model.records import (
     StopParams,
     StopState,
     UintArray,
+    new_record,
     new_state,
 )
 from railstop.model.step import stop_finish, stop_init, stop_step
@@ -84,7 +85,7 @@ from railstop.wayside.tasc_unit import CR_SIZE
 
 
 @intrinsic
-def state_on_stack(typingctx: Any, state: Any) -> Any:
+def _state_on_stack(typingctx: Any, state: Any) -> Any:
     """``state_on_stack(s)`` in compiled code: the state ``s`` with every work array of constant
     shape (:data:`~railstop.model.records.STATE_FIELDS`: the records, the units' slots, the
     histories) replaced by one on the calling function's stack, set to its initial value as
@@ -105,6 +106,37 @@ def state_on_stack(typingctx: Any, state: Any) -> Any:
         return context.make_tuple(builder, state, values)
 
     return state(state), codegen
+
+
+def _state_on_stack_py(state: StopState) -> StopState:
+    """What :func:`_state_on_stack` does, for the model run as Python (``NUMBA_DISABLE_JIT=1``,
+    where an intrinsic cannot run): fresh arrays of constant shape set as ``new_state`` sets
+    them, the model-sized ones kept."""
+    fresh: list[Any] = []
+    for value, (_, shape, dtype, fill) in zip(state, STATE_FIELDS, strict=True):
+        if all(isinstance(d, int) for d in shape):
+            arr = new_record(dtype, tuple(int(d) for d in shape))
+            arr[...] = fill
+            fresh.append(arr)
+        else:
+            fresh.append(value)
+    return StopState(*fresh)
+
+
+state_on_stack = _state_on_stack_py if as_python() else _state_on_stack
+
+
+def new_run_record() -> NDArray[np.void]:
+    """A run's derived record (``RUN_DTYPE``), zeroed: a record array when run as Python."""
+    return new_record(RUN_DTYPE)
+
+
+@overload(new_run_record)
+def _new_run_record_compiled() -> Any:
+    def impl() -> NDArray[np.void]:
+        return np.zeros(1, dtype=RUN_DTYPE)
+
+    return impl
 
 
 @njit_inline
@@ -166,7 +198,7 @@ def simulate_block(
     seed_keys = np.empty(STREAMS.size, dtype=np.uint64)
     for i in range(STREAMS.size):
         seed_keys[i] = seed_key(seed, STREAMS[i])
-    derived = np.zeros(1, dtype=RUN_DTYPE)
+    derived = new_run_record()
     for r in range(sc.shape[0]):
         run = RunParams(sc[r], (p.bp, gv[r], ge[r]), derived)
         rec_r = Recording(
@@ -352,7 +384,7 @@ class StopRecords:
         # Writable copies of the gradient's rows (a draw may broadcast one read-only profile): a
         # read-only array is another type to numba, and each type another compilation of the step.
         grad = (b.bp, np.array(b.gv[0], dtype=np.float64), np.array(b.ge[0], dtype=np.float64))
-        self.run = RunParams(b.sc[0], grad, np.zeros(1, dtype=RUN_DTYPE))
+        self.run = RunParams(b.sc[0], grad, new_record(RUN_DTYPE))
         self.state = b.state
         self.out = StopOutputs(b.res[0], b.passages[0], b.rec)
         self.dt_s = float(model.kp[KP_DT])

@@ -63,7 +63,9 @@ AP_RESPONSE = 2  # dead time + lag (the modulator's brake model and the curve's 
 AP_DT = 3
 AP_MAX_DECEL = 4
 AP_STOP = 5
-AP_SIZE = 6
+AP_DEAD = 6  # the brakes' dead time and lag (the modulator's brake model)
+AP_LAG = 7
+AP_SIZE = 8
 
 AT_ACTIVE = 0
 AT_DISTANCE = 1  # odometric distance to the stopping point
@@ -84,6 +86,8 @@ def ato_params(vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray
     ap[AP_DT] = dt_s
     ap[AP_MAX_DECEL] = brake.full_service_mps2
     ap[AP_STOP] = stop_point_m
+    ap[AP_DEAD] = brake.dead_time_s
+    ap[AP_LAG] = brake.time_constant_s
     return ap
 
 
@@ -147,7 +151,8 @@ def ato_output_1(
             mod,
             table,
             ap[AP_MIN_HOLD],
-            ap[AP_RESPONSE],
+            ap[AP_DEAD],
+            ap[AP_LAG],
             at[AT_TARGET],
             active,
             cycle * ap[AP_DT],

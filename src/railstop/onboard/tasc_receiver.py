@@ -125,7 +125,8 @@ RP_POS_MARGIN = 16  # ... plus this (m)
 RP_ZONE_START = 17  # the first transponder (chainage): the train knows it is in the TASC zone
 RP_FIRST_BY = 18  # the detector (chainage) by which the first telegram must have come
 RP_TRANSFER_STEPS = 19  # config 2: steps the changeover switches take (break before make)
-RP_SIZE = 20
+RP_DEAD = 20  # the brakes' dead time (the modulator's model: this, then the lag RP_LAG)
+RP_SIZE = 21
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -180,6 +181,7 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     rp[RP_PWM_STEPS] = max(1, round(1.0 / (brake.pwm_carrier_hz * dt_s)))
     rp[RP_MIN_HOLD] = brake.controller_min_hold_s if cfg1 else brake.tasc_min_hold_s
     rp[RP_RESPONSE] = brake.dead_time_s + brake.time_constant_s
+    rp[RP_DEAD] = brake.dead_time_s
     rp[RP_DT] = dt_s
     rp[RP_MAX_DECEL] = brake.full_service_mps2
     rp[RP_LAG] = brake.time_constant_s
@@ -473,7 +475,8 @@ def receiver_step_output_1(
             mod,
             table,
             rp[RP_MIN_HOLD],
-            rp[RP_RESPONSE],
+            rp[RP_DEAD],
+            rp[RP_LAG],
             rx[RX_TARGET],
             rx[RX_ACTIVE] > 0.0,
             cycle * rp[RP_DT],

@@ -500,7 +500,8 @@ def _modulator_cycle_1(ws: FloatArray, wp: FloatArray, table: FloatArray, speed_
         ws[WS_MOD : WS_MOD + MOD_SIZE],
         table,
         wp[WP_MOD_HOLD],
-        ws[WS_DELAY],
+        ws[WS_DELAY] - ws[WS_LAG],  # radio and dead time: the equivalent dead time less the lag
+        ws[WS_LAG],
         ws[WS_TARGET],
         True,
         wp[WP_MOD_CYCLE],
