@@ -147,11 +147,7 @@ def motion_under_lag_1(
     v0_mps: float, a0_mps2: float, c_mps2: float, tau_s: float, t_s: float
 ) -> tuple[float, float, float]:
     """Speed, distance and deceleration after t with deceleration a(t) = c + (a0 - c)e^(-t/τ)."""
-    decay = math.exp(-t_s / tau_s)
-    gap = a0_mps2 - c_mps2
-    v = v0_mps - c_mps2 * t_s - gap * tau_s * (1.0 - decay)
-    x = v0_mps * t_s - 0.5 * c_mps2 * t_s * t_s - gap * tau_s * (t_s - tau_s * (1.0 - decay))
-    return v, x, c_mps2 + gap * decay
+    return _lag_segment_1(v0_mps, 0.0, a0_mps2, c_mps2, t_s, math.exp(-t_s / tau_s), tau_s)
 
 
 @njit_step
@@ -279,8 +275,9 @@ def modulator_update_1(
     modulator runs on the target alone.
     """
     target = clip_1(target_mps2, 0.0, table[table.size - 1])
-    if state[MOD_ALPHA_DT] != dt_s or state[MOD_ALPHA_DEAD] != dead_s or state[MOD_ALPHA_TAU] != lag_s:
-        _response_constants_1(state, dt_s, max(dead_s, 0.0), lag_s)
+    dead = max(dead_s, 0.0)
+    if state[MOD_ALPHA_DT] != dt_s or state[MOD_ALPHA_DEAD] != dead or state[MOD_ALPHA_TAU] != lag_s:
+        _response_constants_1(state, dt_s, dead, lag_s)
     alpha = state[MOD_ALPHA]
     notch = int(state[MOD_NOTCH])
     # The last cycle's notch, one dead time ahead; the response now, from the notches of one dead
@@ -302,9 +299,7 @@ def modulator_update_1(
     want = hi if state[MOD_E2] + state[MOD_E1] * horizon > 0.0 else lo
     can_change = state[MOD_HELD] + 1e-9 >= min_hold_s
     # End phase: within two look-ahead horizons of standstill.
-    end_phase = target > 0.0 and speed_mps / max(target, 0.05) <= 2.0 * (
-        min_hold_s + max(dead_s, 0.0) + lag_s
-    )
+    end_phase = target > 0.0 and speed_mps / max(target, 0.05) <= 2.0 * (min_hold_s + dead + lag_s)
     if use_speed and can_change and active and end_phase:
         want = _end_choice_1(state, table, min_hold_s, speed_mps, target, lo, hi)
     if table[lo] == target:

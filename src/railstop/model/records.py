@@ -532,10 +532,11 @@ class StopOutputs(NamedTuple):
     rec: Recording
 
 
-def new_record(dtype: np.dtype[np.void], shape: int | tuple[int, ...] = 1) -> RecordArray:
-    """A zeroed record of ``dtype`` (a one-element structured array; ``shape``: that many). With
-    the model run as Python (``NUMBA_DISABLE_JIT=1``) a numpy record array, whose elements take
-    their fields as attributes as a compiled record does."""
+def new_record(dtype: np.dtype[Any], shape: int | tuple[int, ...] = 1) -> RecordArray:
+    """A zeroed record of ``dtype`` (a one-element structured array; ``shape``: that many; a
+    plain dtype gives a plain zeroed array). With the model run as Python
+    (``NUMBA_DISABLE_JIT=1``) a numpy record array, whose elements take their fields as
+    attributes as a compiled record does."""
     arr = np.zeros(shape, dtype=dtype)
     return arr.view(np.recarray) if as_python() and dtype.names else arr
 
@@ -595,16 +596,24 @@ def state_shape(shape: tuple[int | str, ...], sizes: dict[str, int]) -> tuple[in
     return tuple(d if isinstance(d, int) else int(sizes[d]) for d in shape)
 
 
+def constant_shape(shape: tuple[int | str, ...]) -> tuple[int, ...] | None:
+    """A :data:`STATE_FIELDS` shape when no size in it is the model's to set, else None."""
+    return tuple(int(d) for d in shape) if all(isinstance(d, int) for d in shape) else None
+
+
+def state_array(dims: tuple[int, ...], dtype: np.dtype[Any], fill: float) -> NDArray[Any]:
+    """One work array of the state, as a run starts from it: zeroed, then set to ``fill``."""
+    arr: NDArray[Any] = new_record(dtype, dims)
+    if fill != 0.0:
+        arr[...] = fill
+    return arr
+
+
 def new_state(sizes: dict[str, int]) -> StopState:
     """The state buffers of a block of runs (:data:`STATE_FIELDS`), ``sizes`` naming each of
     :data:`STATE_SIZES`: the dead time's ring in steps, the radar buffer's samples, the
     tachometer's window, the frames in the air, the positioning log's entries, the track
     circuits."""
-    arrays: list[NDArray[Any]] = []
-    for _, shape, dtype, fill in STATE_FIELDS:
-        dims = state_shape(shape, sizes)
-        arr: NDArray[Any] = new_record(dtype, dims) if dtype.names else np.zeros(dims, dtype=dtype)
-        if fill != 0.0:
-            arr[...] = fill
-        arrays.append(arr)
-    return StopState(*arrays)
+    return StopState(
+        *(state_array(state_shape(shape, sizes), dtype, fill) for _, shape, dtype, fill in STATE_FIELDS)
+    )

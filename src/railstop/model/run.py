@@ -76,8 +76,10 @@ from railstop.model.records import (
     StopParams,
     StopState,
     UintArray,
+    constant_shape,
     new_record,
     new_state,
+    state_array,
 )
 from railstop.model.step import stop_finish, stop_init, stop_step
 from railstop.streams import seed_key, seed_u64
@@ -98,8 +100,8 @@ def _state_on_stack(typingctx: Any, state: Any) -> Any:
     def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
         values = []
         for i, (_, shape, _, fill) in enumerate(STATE_FIELDS):
-            if all(isinstance(d, int) for d in shape):
-                dims = tuple(int(d) for d in shape)
+            dims = constant_shape(shape)
+            if dims is not None:
                 values.append(stack_array_value(context, builder, field_types[i], dims, fill))
             else:
                 values.append(builder.extract_value(args[0], i))
@@ -114,12 +116,8 @@ def _state_on_stack_py(state: StopState) -> StopState:
     them, the model-sized ones kept."""
     fresh: list[Any] = []
     for value, (_, shape, dtype, fill) in zip(state, STATE_FIELDS, strict=True):
-        if all(isinstance(d, int) for d in shape):
-            arr = new_record(dtype, tuple(int(d) for d in shape))
-            arr[...] = fill
-            fresh.append(arr)
-        else:
-            fresh.append(value)
+        dims = constant_shape(shape)
+        fresh.append(value if dims is None else state_array(dims, dtype, fill))
     return StopState(*fresh)
 
 
