@@ -30,9 +30,9 @@ Exactness policy **[interpretation]** (the issue asks for a stated bound):
   stop time of every run whose discrete events (emergency brake, notch
   changes, commands) agree, and the share of runs whose events differ at
   most 1e-3 (one ulp can move a threshold decision).
-  ``benchmarks/gpu_throughput.py`` measures both on a GPU (one H200: no
-  discrete result differed in 100,000 runs of the ten controllers, the
-  largest difference was 3.4e-12 m; docs/gpu.md); the tests check the
+  ``benchmarks/gpu_throughput.py`` measures both on a GPU (one H200, stop
+  models 9 and 10: no discrete result differed in 100,000 runs of the ten
+  controllers, the largest difference was 3.4e-12 m; docs/gpu.md); the tests check the
   wiring bit for bit in numba's CUDA simulator.
 
 What runs on the GPU: the built-in controllers (a law loaded from a user's
@@ -97,9 +97,10 @@ from railstop.model.run import (
 from railstop.streams import seed_key, seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE
 
-#: Threads per block. Measured for tasc-pwm on one H200 (1,000,000 runs as drawn, kernel alone; the
-#: kernel uses 255 registers and 7,984 bytes of local memory per thread): 32: 195,460 runs/s,
-#: 64: 200,699, 128: 209,736, 256: 224,476 (benchmarks/gpu_throughput.py --sweep-threads).
+#: Threads per block. Measured for tasc-pwm on one H200 (stop model 9, 1,000,000 runs as drawn,
+#: kernel alone; the kernel used 255 registers and 7,984 bytes of local memory per thread):
+#: 32: 195,460 runs/s, 64: 200,699, 128: 209,736, 256: 224,476
+#: (benchmarks/gpu_throughput.py --sweep-threads).
 THREADS_PER_BLOCK = 256
 #: The dead time's ring is a multiple of this many steps (one kernel for every chunk's draws).
 RING_QUANTUM = 64
@@ -397,8 +398,8 @@ def launch_order(sc: FloatArray, controller: str, how: str = "auto") -> NDArray[
     steps of its longest run. The entry speed sets most of a stop's length (on the standard set
     its correlation with tasc-pwm's stop time is -0.79), so neighbours in this order take about
     as many steps. Measured on one H200 (``benchmarks/gpu_profile.py``, 1,000,000 runs, kernel
-    alone; docs/gpu.md): tasc-pwm 228,723 -> 274,239 runs/s, tasc-step 168,826 -> 214,991; but
-    ato 1,762,202 -> 1,501,789 and driver-atc2 775,026 -> 663,238, so ``auto`` keeps the drawn
+    alone, stop model 10; docs/gpu.md): tasc-pwm 218,108 -> 259,354 runs/s, tasc-step 147,120 ->
+    187,167; but ato 1,751,891 -> 1,551,174 and driver-atc2 774,013 -> 661,666, so ``auto`` keeps the drawn
     order for those. Each thread still runs its own row and run index: the results are the same
     in any order. Stable, so equal speeds keep their order."""
     if how not in ORDERS:
