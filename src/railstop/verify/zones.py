@@ -285,7 +285,7 @@ def _copier_for(cls: type) -> Callable[[Any], Any]:
         return set
     params = getattr(cls, "__dataclass_params__", None)
     if params is not None and not params.frozen:
-        return copy_unit
+        return _unit_copier_of(cls)
     return _identity  # immutable (frozen dataclasses such as the messages) or shared (parameters, callables)
 
 
@@ -318,16 +318,46 @@ def copy_unit(unit: _U) -> _U:
     enums, tuples of those, frozen dataclasses such as the messages) or the line's shared data (the
     parameters, the callables). Equivalent to ``copy.deepcopy`` for the units here, many times
     faster (tests/verify/test_zones_verify.py compares the two)."""
-    cls = type(unit)
-    new = cls.__new__(cls)
-    state = getattr(unit, "__dict__", None)
-    if state is not None:  # the fields (and any extra attribute) of a class without slots
-        new.__dict__.update({k: v if type(v) in _ATOMIC else _copy_value(v) for k, v in state.items()})
-    setattr_ = object.__setattr__
+    return _unit_copier_of(type(unit))(unit)
+
+
+_UNIT_COPIERS: dict[type, Callable[[Any], Any]] = {}
+
+
+def _unit_copier_of(cls: type) -> Callable[[Any], Any]:
+    copier = _UNIT_COPIERS.get(cls)
+    if copier is None:
+        copier = _UNIT_COPIERS[cls] = _unit_copier(cls)
+    return copier
+
+
+_COPY_DICT = (
+    "    new.__dict__.update({k: v if type(v) in ATOMIC else COPY(v) for k, v in unit.__dict__.items()})"
+)
+
+
+def _generated(name: str, lines: list[str], namespace: dict[str, Any]) -> Callable[..., Any]:
+    """The function ``name`` defined by ``lines`` (Python source) in ``namespace``."""
+    exec(compile("\n".join(lines) + "\n", f"<railstop.verify.zones {name}>", "exec"), namespace)
+    fn: Callable[..., Any] = namespace[name]
+    return fn
+
+
+def _unit_copier(cls: type) -> Callable[[Any], Any]:
+    """:func:`copy_unit` for ``cls``, written out once per class: one statement per field, the
+    shared decisions (which fields, how a value is copied) taken here rather than per copy (the
+    search copies units hundreds of thousands of times)."""
+    plain_set = getattr(cls, "__setattr__", object.__setattr__) is object.__setattr__
+    lines = ["def copy_unit_of(unit):", "    new = CLS.__new__(CLS)"]
+    if cls.__dictoffset__:  # the fields (and any extra attribute) of a class without slots
+        lines.append(_COPY_DICT)
     for name in _slotted_fields(cls):
-        v = getattr(unit, name)
-        setattr_(new, name, v if type(v) in _ATOMIC else _copy_value(v))
-    return new
+        lines.append(f"    v = unit.{name}")
+        value = "v if type(v) in ATOMIC else COPY(v)"
+        lines.append(f"    new.{name} = {value}" if plain_set else f"    SET(new, {name!r}, {value})")
+    lines.append("    return new")
+    namespace = {"CLS": cls, "ATOMIC": _ATOMIC, "COPY": _copy_value, "SET": object.__setattr__}
+    return _generated("copy_unit_of", lines, namespace)
 
 
 def _num(x: float) -> float | None:
@@ -378,7 +408,7 @@ def _onboard_state_names(cls: type) -> tuple[str, ...]:
 
 
 # How a field enters the snapshot: as it is, or its absolute times made ages (decided per class).
-_PLAIN, _WATCHDOG, _REPORT, _ANSWERED, _SENT = range(5)
+_PLAIN, _WATCHDOG, _REPORT, _ANSWERED, _SENT, _WATCHDOG_AGE = range(6)
 _ONBOARD_KINDS = {"_answered_s": _ANSWERED, "watchdog": _WATCHDOG, "_sent": _SENT}
 _PLANS: dict[tuple[str, type], tuple[tuple[str, int], ...]] = {}
 
@@ -392,12 +422,74 @@ def _onboard_plan(cls: type) -> tuple[tuple[str, int], ...]:
     return plan
 
 
+#: The types ``_plain`` returns as they are (a float may be NaN, which it makes None).
+_AS_IS = _ATOMIC - {float}
+
+
+def _plain_expression(value: str) -> str:
+    """``_plain(value)`` as an expression, with its common cases inline (``value`` a name)."""
+    v = value
+    return (
+        f"{v} if type({v}) in AS_IS else (None if {v} != {v} else {v}) if type({v}) is float else PLAIN({v})"
+    )
+
+
+_SnapshotFn = Callable[[Any, float, float], tuple[object, ...]]
+
+
+def _snapshot_fn(plan: tuple[tuple[str, int], ...], name: str) -> _SnapshotFn:
+    """The hashable stand-in of a unit's fields by ``plan`` (each field's kind), written out once
+    per class: ``fn(unit, t_s, report period)`` (the search takes one per train and transition)."""
+    lines = [f"def {name}(unit, t_s, period):"]
+    parts = []
+    for i, (field_name, kind) in enumerate(plan):
+        lines.append(f"    v = unit.{field_name}")
+        if kind == _PLAIN:
+            lines.append(f"    p{i} = {_plain_expression('v')}")
+        elif kind == _ANSWERED:  # an absolute time -> its age in cycles
+            lines.append(f"    p{i} = None if isinf(v) else round((t_s - v) / period, 6)")
+        elif kind == _WATCHDOG_AGE:  # the controller's: its last report's absolute time -> age
+            age = "None if isinf(v.fed_s) else round((t_s - v.fed_s) / period, 6)"
+            lines.append(f"    p{i} = ({age}, v.missed)")
+        elif kind == _WATCHDOG:  # the onboard's, counted on the report cycle: its feed time is never read
+            lines.append(f"    p{i} = (v.missed, v.fed_in_cycle)")
+        elif kind == _REPORT:  # a kept report without its time
+            lines.append("    if isinstance(v, REPORT):")
+            lines.append("        v = (v.position_m, v.speed_mps, v.direction)")
+            lines.append(f"    p{i} = {_plain_expression('v')}")
+        else:  # _SENT: the reports sent, their times made ages
+            lines.append(
+                f"    p{i} = tuple([(round((t_s - r.time_s) / period, 6), r.position_m, r.speed_mps,"
+                " r.uncertainty_m) for r in v])"
+            )
+        parts.append(f"p{i}")
+    lines.append(f"    return ({', '.join(parts)}{',' if len(parts) == 1 else ''})")
+    namespace = {"AS_IS": _AS_IS, "PLAIN": _plain, "isinf": math.isinf, "REPORT": PositionReport}
+    return _generated(name, lines, namespace)
+
+
+_SNAPSHOT_FNS: dict[tuple[str, type], _SnapshotFn] = {}
+
+
+def _snapshot_of(role: str, unit: object, t_s: float, period: float) -> tuple[object, ...]:
+    """The snapshot of ``unit`` in its ``role`` (``"onboard"`` or ``"record"``, its plan)."""
+    cls = type(unit)
+    fn = _SNAPSHOT_FNS.get((role, cls))
+    if fn is None:
+        if role == "onboard":
+            fn = _snapshot_fn(_onboard_plan(cls), "onboard_snapshot")
+        else:
+            fn = _snapshot_fn(_record_plan(cls), "record_snapshot")
+        _SNAPSHOT_FNS[role, cls] = fn
+    return fn(unit, t_s, period)
+
+
 def _record_plan(cls: type) -> tuple[tuple[str, int], ...]:
     """The controller's record of a train: its watchdog as an age, a kept report without its time."""
     plan = _PLANS.get(("record", cls))
     if plan is None:
         plan = _PLANS["record", cls] = tuple(
-            (n, _WATCHDOG if n == "watchdog" else _REPORT) for n in _field_names(cls)
+            (n, _WATCHDOG_AGE if n == "watchdog" else _REPORT) for n in _field_names(cls)
         )
     return plan
 
@@ -588,20 +680,9 @@ class World:
         i = train - 1
         ob = self.onboards[i]
         rec = self.zc.trains.get(train)
-        unit: tuple[object, ...] = ()
         period = self.model.params.report_period_s
-        t_s = self.t_s
-        if rec is not None:
-            parts: list[object] = []
-            for name, kind in _record_plan(type(rec)):
-                v = getattr(rec, name)
-                if kind == _WATCHDOG:  # its last report's absolute time -> age in cycles
-                    v = (None if math.isinf(v.fed_s) else round((t_s - v.fed_s) / period, 6), v.missed)
-                elif kind == _REPORT and isinstance(v, PositionReport):  # its time left out
-                    v = (v.position_m, v.speed_mps, v.direction)
-                parts.append(_plain(v))
-            unit = tuple(parts)
-        onboard = tuple([self._onboard_field(ob, name, kind) for name, kind in _onboard_plan(type(ob))])
+        unit = () if rec is None else _snapshot_of("record", rec, self.t_s, period)
+        onboard = _snapshot_of("onboard", ob, self.t_s, period)
         return TrainSnapshot(
             train=train,
             front_m=self.fronts[i],
@@ -616,21 +697,6 @@ class World:
             held_end_m=_num(ob.authority_end_m),
             unit=unit,
             onboard=onboard,
-        )
-
-    def _onboard_field(self, ob: OnboardCbtc, name: str, kind: int) -> object:
-        """A hashable stand-in for the onboard unit's field, its absolute times made ages in cycles
-        (the reports it keeps, the report its authority answers)."""
-        v = getattr(ob, name)
-        if kind == _PLAIN:
-            return _plain(v)
-        period = self.model.params.report_period_s
-        if kind == _ANSWERED:
-            return None if math.isinf(v) else round((self.t_s - v) / period, 6)
-        if kind == _WATCHDOG:  # counted on the report cycle: its feed time is never read
-            return (v.missed, v.fed_in_cycle)
-        return tuple(  # _SENT
-            (round((self.t_s - r.time_s) / period, 6), r.position_m, r.speed_mps, r.uncertainty_m) for r in v
         )
 
     # ------------------------------------------------------------------ the choices of a cycle
