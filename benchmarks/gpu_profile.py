@@ -5,7 +5,8 @@
     python benchmarks/gpu_profile.py --one default --profile --runs 40000 --lineinfo   # under a profiler
 
 For each variant (``default``: the compiler's registers; ``regsN``: at most N
-registers per thread, ``railstop.model.gpu.KernelOptions``), compiled side by
+registers per thread; ``draws-L``: the draws laid out as ``L``, one of
+``rows``, ``launch-order``, ``columns``; ``railstop.model.gpu.KernelOptions``), compiled side by
 side in processes of their own and timed one at a time on the GPU (a lock
 file): the kernel's time for the same ``--runs`` runs (standard set at the
 default station, seed 1) handed to the threads
@@ -18,7 +19,8 @@ default station, seed 1) handed to the threads
   an upper bound for any order of the real runs.
 
 Printed per variant: registers and local memory per thread, runs/s of each
-order, and whether the ordered and natural results are identical. ``--one``
+order, whether the ordered and natural results are identical, and whether each
+variant's results equal the first variant's (the options change no result). ``--one``
 runs one variant's warm-up and one launch, for Nsight Compute to profile
 (``ncu --launch-skip 1 --launch-count 1 -k regex:stop_kernel``); ``--lineinfo``
 maps its machine code to the model's Python lines.
@@ -40,13 +42,18 @@ from gpu_throughput import SEED, _draw, compiled, gpu_lock, side_by_side
 
 
 def _options(variant: str, lineinfo: bool):  # type: ignore[no-untyped-def]
-    from railstop.model.gpu import KernelOptions
+    from railstop.model.gpu import DRAW_LAYOUTS, KernelOptions
 
     if variant == "default":
         return KernelOptions(lineinfo=lineinfo)
+    if variant.startswith("draws-") and variant[len("draws-") :] in DRAW_LAYOUTS:  # in device memory
+        return KernelOptions(lineinfo=lineinfo, draws=variant[len("draws-") :])
     if variant.startswith("regs") and variant[4:].isdigit():
         return KernelOptions(max_registers=int(variant[4:]), lineinfo=lineinfo)
-    raise SystemExit(f"gpu_profile: variant {variant!r}: default or regsN (e.g. regs128)")
+    raise SystemExit(
+        f"gpu_profile: variant {variant!r}: default, regsN (e.g. regs128) or draws-L, L one of "
+        f"{', '.join(DRAW_LAYOUTS)}"
+    )
 
 
 def _alike(scenario, n: int):  # type: ignore[no-untyped-def]
@@ -65,7 +72,15 @@ def _alike(scenario, n: int):  # type: ignore[no-untyped-def]
     return scenario.with_values(**changes)
 
 
-def one(controller: str, variant: str, runs: int, lineinfo: bool, lock: Path | None, profile: bool) -> dict:
+def one(
+    controller: str,
+    variant: str,
+    runs: int,
+    lineinfo: bool,
+    lock: Path | None,
+    profile: bool,
+    save: Path | None = None,
+) -> dict:
     from railstop.model import gpu
 
     options = _options(variant, lineinfo)
@@ -93,6 +108,8 @@ def one(controller: str, variant: str, runs: int, lineinfo: bool, lock: Path | N
         np.array_equal(results["ordered"], results["natural"], equal_nan=True)
     )
     out["mean_stop_time_s"] = float(np.nanmean(results["natural"][:, 1]))
+    if save is not None:  # for the comparison between variants
+        np.save(save, results["natural"])
     return out
 
 
@@ -105,9 +122,11 @@ def main() -> None:
     ap.add_argument("--one", default=None, help="one variant in this process (for a profiler)")
     ap.add_argument("--profile", action="store_true", help="with --one: one launch of --runs runs")
     ap.add_argument("--lock", type=Path, default=None, help="a lock file: one process at a time on the GPU")
+    ap.add_argument("--save-dir", type=Path, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one is not None:
-        result = one(a.controller, a.one, a.runs, a.lineinfo, a.lock, profile=a.profile)
+        save = None if a.save_dir is None else a.save_dir / f"{a.one}.npy"
+        result = one(a.controller, a.one, a.runs, a.lineinfo, a.lock, profile=a.profile, save=save)
         print("RESULT " + json.dumps(result), flush=True)
         return
     from railstop.model.gpu import gpu_unavailable
@@ -117,6 +136,7 @@ def main() -> None:
         print(f"gpu_profile: {why}", file=sys.stderr)
         raise SystemExit(2)
     lock = a.lock if a.lock is not None else Path(tempfile.mkdtemp()) / "gpu.lock"
+    saved = Path(tempfile.mkdtemp())
     base = [
         sys.executable,
         __file__,
@@ -126,22 +146,30 @@ def main() -> None:
         str(a.runs),
         "--lock",
         str(lock),
+        "--save-dir",
+        str(saved),
     ]
     variants = [v for v in a.variants.split(",") if v]
+    for v in variants:
+        _options(v, a.lineinfo)  # a variant this benchmark does not know: one line, before any work
     print(f"{a.controller}, {a.runs:,} runs: kernel runs/s by the order of the runs")
     print(
-        f"{'variant':10s} {'regs':>5s} {'local B':>8s} {'compile s':>9s} "
+        f"{'variant':18s} {'regs':>5s} {'local B':>8s} {'compile s':>9s} "
         f"{'natural':>10s} {'ordered':>10s} {'alike':>10s}"
     )
-    for v, r in side_by_side(base, variants, 10):
+    for v, r in side_by_side(base, variants, 18):
         regs = (r.get("registers") or ["-"])[0]
         local = (r.get("local_bytes") or ["-"])[0]
         print(
-            f"{v:10s} {regs!s:>5s} {local!s:>8s} "
+            f"{v:18s} {regs!s:>5s} {local!s:>8s} "
             f"{r['compile_s']:9.1f} {r['natural_runs_per_s']:10,d} {r['ordered_runs_per_s']:10,d} "
             f"{r['alike_runs_per_s']:10,d}  ordered = natural: {r['ordered_equals_natural']}"
         )
         print("  " + json.dumps(r), flush=True)
+    done = [v for v in variants if (saved / f"{v}.npy").exists()]
+    for v in done[1:]:
+        same = np.array_equal(np.load(saved / f"{v}.npy"), np.load(saved / f"{done[0]}.npy"), equal_nan=True)
+        print(f"{v}: results identical to {done[0]}'s: {same}")
 
 
 if __name__ == "__main__":

@@ -172,7 +172,7 @@ import numpy as np
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import draw_scenario, load_disturbances
 from railstop.model.build import KernelModel
-from railstop.model.gpu import launch_order, run_kernel_gpu
+from railstop.model.gpu import DRAW_LAYOUTS, KernelOptions, launch_order, run_kernel_gpu
 from railstop.model.run import run_kernel, scenario_arrays
 from railstop.streams import RunStreams
 
@@ -184,11 +184,16 @@ scenario = draw_scenario(load_disturbances("standard"), station, vehicle, RunStr
 order = launch_order(scenario_arrays(scenario)[0], "tasc-pwm")
 assert sorted(order.tolist()) == list(range(6)) and order.tolist() != list(range(6)), order
 assert launch_order(scenario_arrays(scenario)[0], "ato").tolist() == list(range(6))
-cpu, cpu_pass, _ = run_kernel(model, scenario, seed=3, first_run=10)
-for order in ("auto", "drawn", "entry-speed"):
-    res, passages = run_kernel_gpu(model, scenario, seed=3, first_run=10, order=order)
-    assert np.array_equal(res, cpu, equal_nan=True), order
-    assert np.array_equal(passages, cpu_pass, equal_nan=True), order
+for name in ("standard", "nominal"):  # per-run gradients, and one gradient for all (read-only)
+    scenario = draw_scenario(load_disturbances(name), station, vehicle, RunStreams.for_runs(3, 10, 6))[0]
+    cpu, cpu_pass, _ = run_kernel(model, scenario, seed=3, first_run=10)
+    for order in ("auto", "drawn", "entry-speed"):
+        for draws in DRAW_LAYOUTS:
+            res, passages = run_kernel_gpu(
+                model, scenario, seed=3, first_run=10, order=order, options=KernelOptions(draws=draws)
+            )
+            assert np.array_equal(res, cpu, equal_nan=True), (name, order, draws)
+            assert np.array_equal(passages, cpu_pass, equal_nan=True), (name, order, draws)
 print("OK")
 """
 
@@ -196,7 +201,8 @@ print("OK")
 def test_the_launch_order_does_not_change_a_run(tmp_path: Path) -> None:
     """The host hands a TASC controller's runs to the threads by entry speed (model.gpu.launch_order,
     a warp's runs then take about as many steps; the others as drawn); each thread still runs its
-    own row and run index, so the rows equal the CPU's in either order (simulator)."""
+    own row and run index, so the rows equal the CPU's in either order and with the draws laid out
+    in any of the layouts (rows as drawn, rows or columns in launch order; simulator)."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
     p = subprocess.run(
         [sys.executable, "-c", _ORDER_CHECK],

@@ -188,16 +188,37 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return view
 
 
-def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
+def _column_as_row(a: np.ndarray, g: int, read_only: bool) -> np.ndarray:
+    """In numba's CUDA simulator: column ``g`` of the draws laid out by columns, as the one-row
+    block the CPU's compiled model takes (read-only where the CPU's signature has it so)."""
+    row = np.ascontiguousarray(a[:, g])[None, :]
+    return _read_only(row) if read_only else row
+
+
+#: How a launch lays the runs' draws out in device memory (:class:`KernelOptions`).
+DRAW_LAYOUTS = ("rows", "launch-order", "columns")
+
+
+def _kernel_source(shapes: Shapes, simulated: bool = False, draws: str = "rows") -> str:
     """The kernel's Python source for ``shapes``: one local array per work array of
     ``records.STATE_FIELDS``, set to its initial value as ``new_state`` sets it, then the run
-    (generated, so that the one list of work arrays makes both the CPU's state and the device's)."""
+    (generated, so that the one list of work arrays makes both the CPU's state and the device's).
+    ``draws``: how the draws are laid out (:class:`KernelOptions`)."""
     sizes = shapes.sizes()
+    # Where thread g finds its run's draws: row order[g] of the drawn rows, row g of the rows
+    # copied in launch order, or column g of the columns copied in launch order.
+    at = "r" if draws == "rows" else "g"
+    if draws == "columns":
+        sc_run, gv_run, ge_run = "sc[:, g]", "gv[:, g]", "ge[:, g]"
+        sim_rows = "COLUMN(sc, g, False), COLUMN(gv, g, grad_read_only), COLUMN(ge, g, grad_read_only)"
+    else:
+        sc_run, gv_run, ge_run = f"sc[{at}]", f"gv[{at}]", f"ge[{at}]"
+        sim_rows = f"sc[{at} : {at} + 1], gv[{at} : {at} + 1], ge[{at} : {at} + 1]"
     lines = [
         "def stop_kernel(seed, seed_keys, first_run, order, p, sc, gv, ge, res, passages, rec_arrays,"
         " rec_counters, grad_read_only):",
         "    g = cuda.grid(1)",
-        "    if g >= sc.shape[0]:",
+        "    if g >= order.shape[0]:",  # one thread per run
         "        return",
         # Thread g runs the draws' row order[g] (its run index, its results' row): the host
         # orders the runs so that a warp's runs take about as many steps (launch_order).
@@ -227,7 +248,7 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
     lines += [
         f"    s = StopState({args})",
         "    derived = cuda.local.array(1, RUN_DTYPE)",
-        "    run = RunParams(sc[r], (p.bp, gv[r], ge[r]), derived)",
+        f"    run = RunParams({sc_run}, (p.bp, {gv_run}, {ge_run}), derived)",
         "    rec = Recording(False, rec_arrays[0], rec_arrays[1], rec_arrays[2], rec_arrays[3],"
         " rec_arrays[4], rec_counters)",
     ]
@@ -236,7 +257,7 @@ def _kernel_source(shapes: Shapes, simulated: bool = False) -> str:
         # CPU's block of one run on this thread's state (simulate_block runs the same run loop
         # as the line below, through its cached compiled signature).
         lines.append(
-            "    simulate_block(seed, first_run + r, p, sc[r : r + 1], gv[r : r + 1], ge[r : r + 1], s,"
+            f"    simulate_block(seed, first_run + r, p, {sim_rows}, s,"
             " res[r : r + 1], passages[r : r + 1], rec, LAW)"
         )
     else:
@@ -254,10 +275,20 @@ class KernelOptions:
     registers per thread (None: the compiler's choice, 255 for the stop model; fewer let more
     threads be resident per multiprocessor, at the price of spills to local memory);
     ``lineinfo`` maps the machine code to the model's Python lines for a profiler (Nsight
-    Compute's source view) without changing the code."""
+    Compute's source view) without changing the code; ``draws``: how the runs' draws lie in
+    device memory, one of :data:`DRAW_LAYOUTS`: ``rows`` as drawn (thread g reads row
+    ``order[g]``), ``launch-order`` (the rows copied in launch order: thread g reads row g, so a
+    warp reads neighbouring rows), ``columns`` (one column per run, in launch order: the threads
+    of a warp read neighbouring words of each draw, one coalesced load). Each thread reads the
+    same numbers in every layout."""
 
     max_registers: int | None = None
     lineinfo: bool = False
+    draws: str = "rows"
+
+    def __post_init__(self) -> None:
+        if self.draws not in DRAW_LAYOUTS:
+            raise SimulationError(f"draws layout {self.draws!r}: one of {', '.join(DRAW_LAYOUTS)}")
 
 
 _KERNELS: dict[tuple[Shapes, str, KernelOptions], Any] = {}
@@ -313,7 +344,8 @@ def _kernel(shapes: Shapes, controller: str, options: KernelOptions = KernelOpti
         }
         namespace["HOST"] = _host
         namespace["READ_ONLY"] = _read_only
-        source = _kernel_source(shapes, simulated=cuda_simulated())
+        namespace["COLUMN"] = _column_as_row
+        source = _kernel_source(shapes, simulated=cuda_simulated(), draws=options.draws)
         exec(compile(source, f"<railstop gpu kernel {key[1]}>", "exec"), namespace)
         extra: dict[str, Any] = {}
         if options.max_registers is not None and not cuda_simulated():
@@ -432,6 +464,11 @@ def _launch(
     t0 = clock()
     shapes = Shapes.of(model, sc)
     kernel = _kernel(shapes, model.controller, options)
+    grad_read_only = int(not (gv.flags.writeable and ge.flags.writeable))  # the simulator's alone
+    if options.draws != "rows":  # copied in launch order (thread g reads its run's draws at g)
+        sc, gv, ge = sc[order], gv[order], ge[order]
+        if options.draws == "columns":
+            sc, gv, ge = (np.ascontiguousarray(a.T) for a in (sc, gv, ge))
     keys = np.array([seed_key(seed_u64(seed), int(k)) for k in STREAMS], dtype=np.uint64)
     p = stop_params(model, bp)
     d_p = type(p)(*(cuda.to_device(np.ascontiguousarray(a)) for a in p))
@@ -454,7 +491,7 @@ def _launch(
         d_pass,
         rec_arrays,
         cuda.to_device(np.zeros(RC_SIZE, dtype=np.int64)),
-        int(not (gv.flags.writeable and ge.flags.writeable)),  # the simulator's alone
+        grad_read_only,
     )
     compiled = bool(kernel.overloads) or cuda_simulated()
     if not compiled:
