@@ -59,13 +59,12 @@ ATO_LEAD_FRACTION = 0.15  # of the brake's equivalent dead time: how far ahead t
 
 AP_CYCLE_STEPS = 0
 AP_MIN_HOLD = 1
-AP_RESPONSE = 2  # dead time + lag (the modulator's brake model and the curve's lead)
-AP_DT = 3
-AP_MAX_DECEL = 4
-AP_STOP = 5
-AP_DEAD = 6  # the brakes' dead time and lag (the modulator's brake model)
-AP_LAG = 7
-AP_SIZE = 8
+AP_DT = 2
+AP_MAX_DECEL = 3
+AP_STOP = 4
+AP_DEAD = 5  # the brakes' dead time and lag (the modulator's brake model)
+AP_LAG = 6
+AP_SIZE = 7
 
 AT_ACTIVE = 0
 AT_DISTANCE = 1  # odometric distance to the stopping point
@@ -82,7 +81,6 @@ def ato_params(vehicle: Vehicle, stop_point_m: float, dt_s: float) -> FloatArray
     ap = np.zeros(AP_SIZE)
     ap[AP_CYCLE_STEPS] = controller_cycle_steps(vehicle, dt_s)
     ap[AP_MIN_HOLD] = brake.controller_min_hold_s
-    ap[AP_RESPONSE] = brake.dead_time_s + brake.time_constant_s
     ap[AP_DT] = dt_s
     ap[AP_MAX_DECEL] = brake.full_service_mps2
     ap[AP_STOP] = stop_point_m

@@ -397,29 +397,14 @@ _ONBOARD_SKIP = frozenset(
 )
 
 
-_ONBOARD_FIELDS: dict[type, tuple[str, ...]] = {}
-
-
-def _onboard_state_names(cls: type) -> tuple[str, ...]:
-    names = _ONBOARD_FIELDS.get(cls)
-    if names is None:
-        names = _ONBOARD_FIELDS[cls] = tuple(n for n in _field_names(cls) if n not in _ONBOARD_SKIP)
-    return names
-
-
 # How a field enters the snapshot: as it is, or its absolute times made ages (decided per class).
 _PLAIN, _WATCHDOG, _REPORT, _ANSWERED, _SENT, _WATCHDOG_AGE = range(6)
 _ONBOARD_KINDS = {"_answered_s": _ANSWERED, "watchdog": _WATCHDOG, "_sent": _SENT}
-_PLANS: dict[tuple[str, type], tuple[tuple[str, int], ...]] = {}
 
 
 def _onboard_plan(cls: type) -> tuple[tuple[str, int], ...]:
-    plan = _PLANS.get(("onboard", cls))
-    if plan is None:
-        plan = _PLANS["onboard", cls] = tuple(
-            (n, _ONBOARD_KINDS.get(n, _PLAIN)) for n in _onboard_state_names(cls)
-        )
-    return plan
+    """The onboard unit's state: its fields but the running counters and absolute times."""
+    return tuple((n, _ONBOARD_KINDS.get(n, _PLAIN)) for n in _field_names(cls) if n not in _ONBOARD_SKIP)
 
 
 #: The types ``_plain`` returns as they are (a float may be NaN, which it makes None).
@@ -472,7 +457,8 @@ _SNAPSHOT_FNS: dict[tuple[str, type], _SnapshotFn] = {}
 
 
 def _snapshot_of(role: str, unit: object, t_s: float, period: float) -> tuple[object, ...]:
-    """The snapshot of ``unit`` in its ``role`` (``"onboard"`` or ``"record"``, its plan)."""
+    """The snapshot of ``unit`` in its ``role`` (``"onboard"`` or ``"record"``, its plan); the
+    plan and its function are made once per class."""
     cls = type(unit)
     fn = _SNAPSHOT_FNS.get((role, cls))
     if fn is None:
@@ -486,12 +472,7 @@ def _snapshot_of(role: str, unit: object, t_s: float, period: float) -> tuple[ob
 
 def _record_plan(cls: type) -> tuple[tuple[str, int], ...]:
     """The controller's record of a train: its watchdog as an age, a kept report without its time."""
-    plan = _PLANS.get(("record", cls))
-    if plan is None:
-        plan = _PLANS["record", cls] = tuple(
-            (n, _WATCHDOG_AGE if n == "watchdog" else _REPORT) for n in _field_names(cls)
-        )
-    return plan
+    return tuple((n, _WATCHDOG_AGE if n == "watchdog" else _REPORT) for n in _field_names(cls))
 
 
 class World:
