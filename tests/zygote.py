@@ -41,6 +41,8 @@ PRELOAD = (
     "railstop.sim.line",
     "railstop.sim.certify",
     "railstop.report.campaign_report",
+    "railstop.store",  # SQLAlchemy: about a second of every command that writes its database
+    "scipy.special",  # the bounds' quantiles (imported when a campaign sums up)
 )
 
 

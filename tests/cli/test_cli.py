@@ -173,15 +173,10 @@ def test_names_with_brackets_are_printed_literally(tmp_path: Path) -> None:
         _one_line_error(p, f"'{name}?'", name)
 
 
-@pytest.mark.parametrize("columns", [80, 120])
-def test_summary_tables_never_cut_a_number(tmp_path: Path, columns: int) -> None:
-    """At 80 or 120 columns the compare table shows every number whole (a vertical layout when
-    the one-line-per-controller table does not fit), never an ellipsis."""
-    import os
-
-    from railstop.cli.campaign import _fmt
-
-    out_dir = tmp_path / "cmp"
+@pytest.fixture(scope="module")
+def compared(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, tuple[str, ...], list[dict[str, Any]]]:
+    """One compare of every controller in two chunks (run, then resumed), shared by the widths."""
+    tmp_path = tmp_path_factory.mktemp("compare")
     args = (
         "compare",
         "--runs",
@@ -189,14 +184,27 @@ def test_summary_tables_never_cut_a_number(tmp_path: Path, columns: int) -> None
         "--chunk-size",
         "100",
         "--out",
-        str(out_dir),
+        str(tmp_path / "cmp"),
         "--db",
         str(tmp_path / "c.db"),
     )
     first = run(*args, "--json", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     resumed = run(*args, "--resume", "--json", cwd=tmp_path)
-    rows = json.loads(resumed.stdout)["controllers"]
+    return tmp_path, args, json.loads(resumed.stdout)["controllers"]
+
+
+@pytest.mark.parametrize("columns", [80, 120])
+def test_summary_tables_never_cut_a_number(
+    compared: tuple[Path, tuple[str, ...], list[dict[str, Any]]], columns: int
+) -> None:
+    """At 80 or 120 columns the compare table shows every number whole (a vertical layout when
+    the one-line-per-controller table does not fit), never an ellipsis."""
+    import os
+
+    from railstop.cli.campaign import _fmt
+
+    tmp_path, args, rows = compared
     env = {**os.environ, "COLUMNS": str(columns)}
     p = subprocess.run(
         [*EXE, *args, "--resume"], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env

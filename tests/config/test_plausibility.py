@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -15,13 +14,13 @@ from railstop.config.loader import validate
 from railstop.config.plausibility import BRAKE_MARGIN, plausibility_problems, stopping_distance_m
 from railstop.config.schema import Line
 from railstop.sim.single import run_stop
+from zygote import run_cli
 
-EXE = [sys.executable, "-m", "railstop.cli"]
 LINE_TOML = Path(__file__).resolve().parents[2] / "src" / "railstop" / "data" / "line.toml"
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    return run_cli(*args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 def line_data() -> dict[str, Any]:

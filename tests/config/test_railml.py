@@ -8,7 +8,6 @@ must give the same line. The round trip runs the real command: import, `railstop
 from __future__ import annotations
 
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -22,17 +21,15 @@ from railstop.config.plausibility import stopping_distance_m
 from railstop.config.railml import detector_layout, import_railml, to_toml
 from railstop.config.schema import Station
 from railstop.errors import ConfigError
+from zygote import run_cli
 
 DATA = Path(__file__).parents[1] / "data" / "railml"
 V2 = DATA / "two-stations-2.xml"
 V3 = DATA / "two-stations-3.xml"
-EXE = [sys.executable, "-m", "railstop.cli"]
 
 
 def run(*args: str, cwd: Path, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, check=False
-    )
+    return run_cli(*args, cwd=cwd, timeout=timeout)  # forked from a warm zygote (tests/zygote.py)
 
 
 def one_error(r: subprocess.CompletedProcess[str], *needles: str) -> str:

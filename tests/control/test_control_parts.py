@@ -151,6 +151,7 @@ def test_end_phase_picks_the_notch_that_stops_nearest() -> None:
     other = 7 - chosen
     assert miss[chosen] <= miss[other] + 0.05
 
+
 def _brake_chain(notch_decels: np.ndarray, cycle: float, dead: float, lag: float, fine: float) -> np.ndarray:
     """The brakes as the plant has them, integrated finely: the notch held over each cycle, seen
     one dead time later, through a first-order lag (the reference for the modulator's model)."""

@@ -14,12 +14,12 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from railstop.controllers import CONTROLLERS
+from zygote import run_cli
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(
@@ -27,11 +27,10 @@ pytestmark = pytest.mark.skipif(
     reason="no chromium on this machine (Debian package chromium)",
 )
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
-EXE = [sys.executable, "-m", "railstop.cli"]
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=600, check=False)
+    return run_cli(*args, cwd=cwd, timeout=600)  # forked from a warm zygote (tests/zygote.py)
 
 
 def test_the_report_of_ten_controllers_fits_the_page_and_tells_them_apart(tmp_path: Path) -> None:

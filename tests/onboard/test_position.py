@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +35,7 @@ from railstop.sim.line import PositionSettings
 from railstop.sim.position_run import PositionRunResult, PositionRunSettings, run_position
 from railstop.streams import RunStreams
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegram, TimestampUnit
+from zygote import run_cli
 
 DT = 0.05
 LINE = default_line()
@@ -558,11 +558,9 @@ def test_settings_and_line_checks() -> None:
 # --------------------------------------------------------------------------
 # The command, end to end through a subprocess
 
-EXE = [sys.executable, "-m", "railstop.cli"]
-
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    return run_cli(*args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 def test_cli_position_run_json_and_plot(tmp_path: Path) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -28,17 +27,15 @@ from railstop.report.file_formats import (
     tables,
     unit_of,
 )
+from zygote import run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "file-formats.md"
-EXE = [sys.executable, "-m", "railstop.cli"]
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "COLUMNS": "200"}  # the tables' keys unfolded
-    return subprocess.run(
-        [*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False, env=env
-    )
+    return run_cli(*args, cwd=cwd, env=env)  # forked from a warm zygote of its own COLUMNS
 
 
 @pytest.mark.parametrize("fmt", file_formats(), ids=lambda f: f.name)

@@ -5,16 +5,15 @@ from __future__ import annotations
 import csv
 import math
 import subprocess
-import sys
 from pathlib import Path
 
 import pyarrow.parquet as pq
 
-EXE = [sys.executable, "-m", "railstop.cli"]
+from zygote import run_cli
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    return run_cli(*args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 def test_the_csv_holds_every_run_and_column_of_the_parquet(tmp_path: Path) -> None:

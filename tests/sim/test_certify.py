@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -27,6 +25,7 @@ from railstop.sim.certify import (
     sample_block,
 )
 from railstop.stats.bounds import clopper_pearson
+from zygote import run_cli
 
 LINE = load_line(None)
 VEHICLE = load_vehicle(None)
@@ -198,17 +197,25 @@ def test_on_dask_equals_the_local_run(cluster: Any) -> None:
 
 
 def test_command_json_and_errors(tmp_path: Path) -> None:
-    exe = [sys.executable, "-m", "railstop.cli", "certify"]
-    args = ["--controller", CONTROLLER, "--threshold-m", "0.3", "--runs", "1500", "--tuning-runs", "300"]
-    p = subprocess.run([*exe, *args, "--json"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    args = ["--controller", CONTROLLER, "--threshold-m", "0.3", "--runs", "600", "--tuning-runs", "150"]
+    p = run_cli("certify", *args, "--json", cwd=tmp_path, timeout=300)
     assert p.returncode == 0, p.stderr
     row = json.loads(p.stdout)
-    assert row["runs"] == 1500 and row["controller"] == CONTROLLER and row["threshold_m"] == 0.3
+    assert row["runs"] == 600 and row["controller"] == CONTROLLER and row["threshold_m"] == 0.3
     for key in ("hits", "ess_hits", "max_weight_share", "estimate", "interval", "upper_bound", "certified"):
         assert key in row
     assert row["interval"][0] <= row["estimate"] <= row["interval"][1]
-    bad = subprocess.run(
-        [*exe, "--target", "2"], cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False
-    )
+    bad = run_cli("certify", "--target", "2", cwd=tmp_path, timeout=300)
     assert bad.returncode == 2
     assert bad.stderr.strip().splitlines() == ["error: --target: must be strictly between 0 and 1 (got 2.0)"]
+
+
+def test_the_tilt_test_s_chi_square_quantile_is_scipy_stats_chi2_ppf() -> None:
+    """The cross-entropy step's chi-square test takes its quantile from scipy.special (scipy.stats
+    loads slowly): the same as scipy.stats' chi2.ppf (to 1e-12)."""
+    from scipy.stats import chi2
+
+    for df in range(1, 64):
+        for q in (0.9, 0.95, 0.99, 1.0 - certify_module.TILT_TEST_LEVEL):
+            got = certify_module._chi2_quantile(q, df)
+            assert got == pytest.approx(float(chi2.ppf(q, df)), rel=1e-12, abs=0.0), (df, q)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +30,10 @@ from railstop.sim.engine import run_batch
 from railstop.sim.line import LineSimulation, PositionSettings
 from railstop.streams import RunStreams
 from railstop.wayside.interlocking import FixedBlockInterlocking
+from zygote import run_cli
 
 LINE = default_line()
 VEHICLE = default_vehicle()
-RAILSTOP = str(Path(sys.executable).with_name("railstop"))
 KMH = 1.0 / 3.6
 
 
@@ -458,12 +457,7 @@ def test_the_run_is_a_function_of_the_seed() -> None:
 
 def test_line_run_through_the_cli(tmp_path: Path) -> None:
     png = tmp_path / "line.png"
-    p = subprocess.run(
-        [RAILSTOP, "line", "run", "--trains", "3", "--duration-s", "900", "--json", "--plot", str(png)],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    p = run_cli("line", "run", "--trains", "3", "--duration-s", "900", "--json", "--plot", str(png))
     assert p.returncode == 0, p.stderr
     s = json.loads(p.stdout)
     for key in (
@@ -483,9 +477,7 @@ def test_line_run_through_the_cli(tmp_path: Path) -> None:
 def test_line_run_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
     bad = tmp_path / "op.toml"
     bad.write_text('controller = "magic"\n', encoding="utf-8")
-    p = subprocess.run(
-        [RAILSTOP, "line", "run", "--operation", str(bad)], capture_output=True, text=True, check=False
-    )
+    p = run_cli("line", "run", "--operation", str(bad))
     assert p.returncode == 2
     lines = (p.stdout + p.stderr).strip().splitlines()
     assert len(lines) == 1 and f"{bad}: controller:" in lines[0] and "Traceback" not in p.stderr
@@ -495,12 +487,7 @@ def test_line_run_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
 
 
 def _campaign(tmp: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [RAILSTOP, "line", "campaign", "--trains", "2", "--duration-s", "700", "--out", str(tmp), *args],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    return run_cli("line", "campaign", "--trains", "2", "--duration-s", "700", "--out", str(tmp), *args)
 
 
 def test_a_line_campaign_pools_its_runs_and_resumes(tmp_path: Path) -> None:
@@ -513,10 +500,9 @@ def test_a_line_campaign_pools_its_runs_and_resumes(tmp_path: Path) -> None:
     rows = [json.loads(line) for line in (out / "runs.jsonl").read_text(encoding="utf-8").splitlines()]
     assert sorted(r["run"] for r in rows) == [0, 1, 2]
     # Run r is the line run of seed S + r, reproduced alone.
-    alone = subprocess.run(
-        [RAILSTOP, "line", "run", "--trains", "2", "--duration-s", "700", "--seed", "3", "--json",
-         "--disturbances", "standard"],
-        capture_output=True, text=True, check=False,
+    alone = run_cli(
+        "line", "run", "--trains", "2", "--duration-s", "700", "--seed", "3", "--json",
+        "--disturbances", "standard",
     )  # fmt: skip
     row2 = next(r for r in rows if r["run"] == 2)["summary"]
     again = json.loads(alone.stdout)

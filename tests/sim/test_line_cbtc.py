@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,10 +31,10 @@ from railstop.onboard.restricted_mode import (
 )
 from railstop.sim.line import LineSimulation
 from railstop.wayside.zone_controller import ZoneMode
+from zygote import run_cli
 
 LINE = default_line()
 VEHICLE = default_vehicle()
-RAILSTOP = str(Path(sys.executable).with_name("railstop"))
 
 
 def run(
@@ -124,26 +122,20 @@ def test_bad_settings_raise_naming_the_field(kw: dict[str, object], needle: str)
 def test_cli_line_run_cbtc_with_a_faults_file(tmp_path: Path) -> None:
     faults = tmp_path / "faults.toml"
     faults.write_text("[[radio_outage]]\ntrain = 0\nstart_s = 200.0\nduration_s = 15.0\n", encoding="utf-8")
-    p = subprocess.run(
-        [
-            RAILSTOP,
-            "line",
-            "run",
-            "--trains",
-            "2",
-            "--duration-s",
-            "600",
-            "--signalling",
-            "cbtc",
-            "--faults",
-            str(faults),
-            "--json",
-        ],
+    p = run_cli(
+        "line",
+        "run",
+        "--trains",
+        "2",
+        "--duration-s",
+        "600",
+        "--signalling",
+        "cbtc",
+        "--faults",
+        str(faults),
+        "--json",
         cwd=tmp_path,
-        capture_output=True,
-        text=True,
         timeout=300,
-        check=False,
     )
     assert p.returncode == 0, p.stderr
     s = json.loads(p.stdout)
@@ -163,25 +155,19 @@ def test_cli_line_run_cbtc_with_a_faults_file(tmp_path: Path) -> None:
 def test_cli_bad_faults_file_one_line_exit_2(text: str, needle: str, tmp_path: Path) -> None:
     faults = tmp_path / "faults.toml"
     faults.write_text(text, encoding="utf-8")
-    p = subprocess.run(
-        [
-            RAILSTOP,
-            "line",
-            "run",
-            "--trains",
-            "1",
-            "--duration-s",
-            "10",
-            "--signalling",
-            "cbtc",
-            "--faults",
-            str(faults),
-        ],
+    p = run_cli(
+        "line",
+        "run",
+        "--trains",
+        "1",
+        "--duration-s",
+        "10",
+        "--signalling",
+        "cbtc",
+        "--faults",
+        str(faults),
         cwd=tmp_path,
-        capture_output=True,
-        text=True,
         timeout=300,
-        check=False,
     )
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2 and len(lines) == 1 and needle in p.stderr and str(faults) in p.stderr, p.stderr

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -47,6 +46,7 @@ from railstop.sim.platform_dwell import (
 from railstop.sim.single import run_stop
 from railstop.store import open_store
 from railstop.wayside.platform import PlatformUnit, PsdFollower
+from zygote import run_cli
 
 PLATFORM, _ = load_platform()
 DOORS = load_doors(None)
@@ -114,13 +114,7 @@ def psd_locked(value: Any) -> bool:
 
 
 def cli(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "railstop.cli", *args],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    return run_cli(*args, cwd=tmp_path)  # forked from a warm zygote (tests/zygote.py)
 
 
 def one_error_line(proc: subprocess.CompletedProcess[str]) -> str:

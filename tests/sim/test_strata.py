@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +17,7 @@ from railstop.sim.certify import CertifyError, CertifySpec
 from railstop.sim.strata import PATCH_FIRST_RUN, allocation, stratified_certify
 from railstop.stats.bounds import clopper_pearson_upper
 from railstop.streams import RunStreams
+from zygote import run_cli
 
 LINE = load_line(None)
 VEHICLE = load_vehicle(None)
@@ -112,8 +112,7 @@ def test_bad_settings_are_named(setting: str, kw: dict[str, Any]) -> None:
 
 
 def _certify(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    exe = [sys.executable, "-m", "railstop.cli", "certify"]
-    return subprocess.run([*exe, *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+    return run_cli("certify", *args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 def test_command_platform_end(tmp_path: Path) -> None:

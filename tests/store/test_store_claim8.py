@@ -15,7 +15,6 @@ import dataclasses
 import json
 import sqlite3
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -41,11 +40,11 @@ from railstop.messages import (
 from railstop.sim.single import run_stop, station_record, stop_record
 from railstop.store import SCHEMA_VERSION, SENT_FIELDS, STATION_FIELDS, StopRecord, open_store
 from railstop.wayside.tasc_unit import CR_DETECTOR, CR_EMERGENCY, CR_SIZE, SignalForm
+from zygote import run_cli
 
 LINE = default_line()
 VEHICLE = default_vehicle()
 RIVERSIDE = LINE.station("Riverside")
-EXE = [sys.executable, "-m", "railstop.cli"]
 
 # Schema version 1 exactly as railstop wrote it (SQLite; ``{id}`` is the key's type).
 OLD_LAYOUT = """
@@ -412,7 +411,7 @@ def test_a_file_of_a_newer_schema_is_refused_untouched(tmp_path: Path) -> None:
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    return run_cli(*args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 def test_railstop_stop_writes_the_station_and_the_telegrams(tmp_path: Path) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import subprocess
-import sys
 from pathlib import Path
 from types import MappingProxyType
 
@@ -22,15 +21,15 @@ from railstop.control.doors import (
 from railstop.nodes.doors import DoorModel
 from railstop.onboard.stop_confirm import STOP_TRANSITIONS, StopInput, StopPhase
 from railstop.verify.doors import INVARIANTS, all_controls, verify
+from zygote import run_cli
 
-EXE = [sys.executable, "-m", "railstop.cli"]
 CFG = load_doors()
 MODEL = DoorModel(actions=CFG.actions, max_psc_attempts=CFG.stop_confirm.max_psc_attempts)
 DS = DoorState
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    return run_cli(*args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,6 @@ import json
 import math
 import random
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -30,13 +29,13 @@ from railstop.verify.zones import (
     verify,
 )
 from railstop.wayside.zone_controller import TrainStatus, ZoneController, ZoneMode, _Train
+from zygote import run_cli
 
-EXE = [sys.executable, "-m", "railstop.cli"]
 MODEL = ZoneModel()  # 3 trains, 6 segments of 100 m, up to 3 reports lost in a row
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    return run_cli(*args, cwd=cwd)  # forked from a warm zygote (tests/zygote.py)
 
 
 # ---------------------------------------------------------------------- the real controller

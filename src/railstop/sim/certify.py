@@ -439,6 +439,15 @@ def _sample(
 # --------------------------------------------------------------------------- tuning
 
 
+def _chi2_quantile(q: float, df: int) -> float:
+    """The q-quantile of the chi-square law of ``df`` degrees of freedom: 2 P^-1(df/2, q), P the
+    regularized lower incomplete gamma function (what scipy.stats' chi2.ppf computes; the tests
+    compare them), from scipy.special: scipy.stats takes over a second to import."""
+    from scipy.special import gammaincinv  # lazy (start-up)
+
+    return 2.0 * float(gammaincinv(df / 2.0, q))
+
+
 def _refit(proposal: Proposal, blocks: list[BlockResult], level: float, smoothing: float) -> Proposal:
     """One cross-entropy step: the proposal fitted to the runs with score >= level, weighted by f/g."""
     score = np.concatenate([b.score for b in blocks])
@@ -452,8 +461,6 @@ def _refit(proposal: Proposal, blocks: list[BlockResult], level: float, smoothin
     # chance: a chi-square test at 1 % on the elite's effective size (Kish), else it keeps f.
     # [interpretation] Fitting every coordinate to a few dozen elite runs tilts the ones that do
     # not matter by noise, which only spreads the weights.
-    from scipy.stats import chi2
-
     n_eff = total**2 / float(np.sum(w**2))
     probs: list[tuple[float, ...]] = []
     for j, (c, old) in enumerate(zip(proposal.coords, proposal.probs, strict=True)):
@@ -461,7 +468,7 @@ def _refit(proposal: Proposal, blocks: list[BlockResult], level: float, smoothin
         width = np.diff(edges)
         fitted = np.bincount(_bins(edges, u[:, j]), weights=w, minlength=width.size) / total
         statistic = n_eff * float(np.sum((fitted - width) ** 2 / width))
-        if statistic < chi2.ppf(1.0 - TILT_TEST_LEVEL, width.size - 1):
+        if statistic < _chi2_quantile(1.0 - TILT_TEST_LEVEL, width.size - 1):
             fitted = width
         new = (1.0 - smoothing) * np.asarray(old) + smoothing * fitted
         new = np.maximum(new, BIN_FLOOR * width)

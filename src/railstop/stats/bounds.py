@@ -18,7 +18,7 @@ approximation anywhere:
   :func:`empirical_bernstein_upper`).
 
 All functions are pure; scipy is imported only inside the functions that need
-it (it takes half a second to import and the campaign code imports the report).
+it, and only ``scipy.special`` (``scipy.stats`` takes over a second to import).
 
 References
 ----------
@@ -140,10 +140,8 @@ def clopper_pearson(k: SupportsIndex, n: SupportsIndex, confidence: float = 0.95
     delta = 1.0 - _confidence(confidence)
     if n == 0:
         return 0.0, 1.0
-    from scipy.stats import beta  # lazy (start-up): scipy.stats takes over half a second to load
-
-    lower = 0.0 if k == 0 else float(beta.ppf(delta / 2.0, k, n - k + 1))
-    upper = 1.0 if k == n else float(beta.ppf(1.0 - delta / 2.0, k + 1, n - k))
+    lower = 0.0 if k == 0 else _beta_quantile(delta / 2.0, k, n - k + 1)
+    upper = 1.0 if k == n else _beta_quantile(1.0 - delta / 2.0, k + 1, n - k)
     return lower, upper
 
 
@@ -159,9 +157,17 @@ def clopper_pearson_upper(k: SupportsIndex, n: SupportsIndex, confidence: float 
     confidence = _confidence(confidence)
     if k >= n:
         return 1.0
-    from scipy.stats import beta  # lazy (start-up): scipy.stats takes over half a second to load
+    return _beta_quantile(confidence, k + 1, n - k)
 
-    return float(beta.ppf(confidence, k + 1, n - k))
+
+def _beta_quantile(q: float, a: float, b: float) -> float:
+    """The q-quantile of Beta(a, b): the inverse of the regularized incomplete beta function,
+    which is what ``scipy.stats.beta.ppf`` computes (the same numbers: the tests compare them),
+    without loading ``scipy.stats`` (about 1.4 s of every campaign's start-up on the 2-core
+    machine, against 0.4 s for ``scipy.special``, which numba loads anyway)."""
+    from scipy.special import betaincinv  # lazy (start-up)
+
+    return float(betaincinv(a, b, q))
 
 
 # --------------------------------------------------------------------------- stratified sampling
