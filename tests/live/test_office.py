@@ -29,6 +29,7 @@ from railstop.link.office_link import (
 )
 from railstop.link.safety import link_key
 from railstop.store import open_store
+from zygote import run_cli
 
 KEY = bytes(range(32))
 OFFICE = 900
@@ -357,10 +358,10 @@ def _private_key_file(where: Path, text: str = KEY.hex() + "\n", mode: int = 0o6
 def _serve(tmp_path: Path, *args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     """``railstop office serve`` that is expected to refuse its options (it stops at once)."""
     base = {k: v for k, v in os.environ.items() if k != "RAILSTOP_OFFICE_KEY"}
-    return subprocess.run(
-        [sys.executable, "-m", "railstop.cli", "office", "serve", "--db", str(tmp_path / "o.db"),
-         "--port", "0", *args],
-        capture_output=True, text=True, timeout=60, env={**base, **(env or {})}, stdin=subprocess.DEVNULL,
+    # Forked from a warm zygote (tests/zygote.py; stdin /dev/null): it refuses before it serves.
+    return run_cli(
+        "office", "serve", "--db", str(tmp_path / "o.db"), "--port", "0", *args,
+        timeout=60, env={**base, **(env or {})},
     )  # fmt: skip
 
 
@@ -397,10 +398,7 @@ def test_a_key_on_the_command_line_is_refused_whatever_else_is_given(tmp_path: P
             "--key-hex", "command line", "--key-file", "RAILSTOP_OFFICE_KEY",
         )  # fmt: skip
         assert KEY.hex() not in line
-    live = subprocess.run(
-        [sys.executable, "-m", "railstop.cli", "live", "zc", "--port", "0", "--new", "--key-hex", KEY.hex()],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+    live = run_cli("live", "zc", "--port", "0", "--new", "--key-hex", KEY.hex(), timeout=60)
     line = _refused(live, "--key-hex", "--key-file")
     assert KEY.hex() not in line and "zone controller on" not in live.stderr
 
@@ -453,10 +451,7 @@ def test_new_key_writes_a_private_random_key_that_the_office_reads_and_never_ove
     from railstop.cli.office import read_key_file
 
     def new_key(path: Path) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "railstop.cli", "office", "new-key", "--out", str(path)],
-            capture_output=True, text=True, timeout=60,
-        )  # fmt: skip
+        return run_cli("office", "new-key", "--out", str(path), timeout=60)
 
     a, b = tmp_path / "a.key", tmp_path / "b.key"
     made = new_key(a)
