@@ -198,24 +198,13 @@ def test_on_dask_equals_the_local_run(cluster: Any) -> None:
 
 def test_command_json_and_errors(tmp_path: Path) -> None:
     args = ["--controller", CONTROLLER, "--threshold-m", "0.3", "--runs", "600", "--tuning-runs", "150"]
-    p = run_cli("certify", *args, "--json", cwd=tmp_path, timeout=300)
+    p = run_cli("certify", *args, "--json", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     row = json.loads(p.stdout)
     assert row["runs"] == 600 and row["controller"] == CONTROLLER and row["threshold_m"] == 0.3
     for key in ("hits", "ess_hits", "max_weight_share", "estimate", "interval", "upper_bound", "certified"):
         assert key in row
     assert row["interval"][0] <= row["estimate"] <= row["interval"][1]
-    bad = run_cli("certify", "--target", "2", cwd=tmp_path, timeout=300)
+    bad = run_cli("certify", "--target", "2", cwd=tmp_path)
     assert bad.returncode == 2
     assert bad.stderr.strip().splitlines() == ["error: --target: must be strictly between 0 and 1 (got 2.0)"]
-
-
-def test_the_tilt_test_s_chi_square_quantile_is_scipy_stats_chi2_ppf() -> None:
-    """The cross-entropy step's chi-square test takes its quantile from scipy.special (scipy.stats
-    loads slowly): the same as scipy.stats' chi2.ppf (to 1e-12)."""
-    from scipy.stats import chi2
-
-    for df in range(1, 64):
-        for q in (0.9, 0.95, 0.99, 1.0 - certify_module.TILT_TEST_LEVEL):
-            got = certify_module._chi2_quantile(q, df)
-            assert got == pytest.approx(float(chi2.ppf(q, df)), rel=1e-12, abs=0.0), (df, q)

@@ -540,3 +540,16 @@ def test_the_beta_quantile_is_scipy_stats_beta_ppf() -> None:
                     if a > 0 and b > 0:
                         want = float(beta.ppf(q, a, b))
                         assert _beta_quantile(q, a, b) == pytest.approx(want, rel=1e-12, abs=0.0), (q, a, b)
+
+
+def test_the_chi_square_quantile_is_scipy_stats_chi2_ppf() -> None:
+    """Certify's tilt test takes the chi-square quantile from scipy.special (scipy.stats loads
+    slowly): the same as scipy.stats' chi2.ppf (to 1e-12)."""
+    from scipy.stats import chi2
+
+    from railstop.sim.certify import TILT_TEST_LEVEL
+    from railstop.stats.bounds import chi2_quantile
+
+    for df in range(1, 64):
+        for q in (0.9, 0.95, 0.99, 1.0 - TILT_TEST_LEVEL):
+            assert chi2_quantile(q, df) == pytest.approx(float(chi2.ppf(q, df)), rel=1e-12, abs=0.0), (df, q)

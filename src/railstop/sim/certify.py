@@ -107,7 +107,7 @@ from railstop.model.records import (
 from railstop.model.run import run_kernel
 from railstop.sim.engine import DT_S, MAX_TIME_S
 from railstop.sim.executor import blocks, execute
-from railstop.stats.bounds import betting_upper, clopper_pearson, clopper_pearson_upper
+from railstop.stats.bounds import betting_upper, chi2_quantile, clopper_pearson, clopper_pearson_upper
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, Stream, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
 
@@ -439,15 +439,6 @@ def _sample(
 # --------------------------------------------------------------------------- tuning
 
 
-def _chi2_quantile(q: float, df: int) -> float:
-    """The q-quantile of the chi-square law of ``df`` degrees of freedom: 2 P^-1(df/2, q), P the
-    regularized lower incomplete gamma function (what scipy.stats' chi2.ppf computes; the tests
-    compare them), from scipy.special: scipy.stats takes over a second to import."""
-    from scipy.special import gammaincinv  # lazy (start-up)
-
-    return 2.0 * float(gammaincinv(df / 2.0, q))
-
-
 def _refit(proposal: Proposal, blocks: list[BlockResult], level: float, smoothing: float) -> Proposal:
     """One cross-entropy step: the proposal fitted to the runs with score >= level, weighted by f/g."""
     score = np.concatenate([b.score for b in blocks])
@@ -468,7 +459,7 @@ def _refit(proposal: Proposal, blocks: list[BlockResult], level: float, smoothin
         width = np.diff(edges)
         fitted = np.bincount(_bins(edges, u[:, j]), weights=w, minlength=width.size) / total
         statistic = n_eff * float(np.sum((fitted - width) ** 2 / width))
-        if statistic < _chi2_quantile(1.0 - TILT_TEST_LEVEL, width.size - 1):
+        if statistic < chi2_quantile(1.0 - TILT_TEST_LEVEL, width.size - 1):
             fitted = width
         new = (1.0 - smoothing) * np.asarray(old) + smoothing * fitted
         new = np.maximum(new, BIN_FLOOR * width)

@@ -55,6 +55,7 @@ __all__ = [
     "ImportanceSamplingBound",
     "StratifiedBound",
     "betting_upper",
+    "chi2_quantile",
     "clopper_pearson",
     "clopper_pearson_upper",
     "empirical_bernstein_upper",
@@ -168,6 +169,15 @@ def _beta_quantile(q: float, a: float, b: float) -> float:
     from scipy.special import betaincinv  # lazy (start-up)
 
     return float(betaincinv(a, b, q))
+
+
+def chi2_quantile(q: float, df: int) -> float:
+    """The q-quantile of the chi-square law of ``df`` degrees of freedom: 2 P^-1(df/2, q), P the
+    regularized lower incomplete gamma function (what ``scipy.stats.chi2.ppf`` computes; the tests
+    compare them), from ``scipy.special`` for the reason :func:`_beta_quantile` gives."""
+    from scipy.special import gammaincinv  # lazy (start-up)
+
+    return 2.0 * float(gammaincinv(df / 2.0, q))
 
 
 # --------------------------------------------------------------------------- stratified sampling
