@@ -29,7 +29,7 @@ run: install
 # at a lower priority (nice 10), as a wayside computer would run batch work beside its safety
 # processes: the live processes keep their periods; the live tests still hold on a loaded machine
 # (``pytest --busy 2``), but a scheduler stall of a second would make them test the stall.
-WALL_CLOCK_TESTS = tests/e2e/test_live.py tests/e2e/test_control_room.py tests/e2e/test_live_attack.py
+WALL_CLOCK_TESTS = tests/e2e/test_live.py tests/e2e/test_control_room.py tests/e2e/test_live_attack.py tests/live/test_live_plant.py
 
 # Lint, type check and the whole test suite.
 test: install-test

@@ -193,8 +193,9 @@ def restartable_postgres() -> Iterator[PgCluster]:
 # The slow modules first: pytest-xdist hands out tests in collection order, so a long test left to
 # the end keeps one worker busy while the others idle. The live modules mostly wait on the wall
 # clock, so starting them early also overlaps their waiting with the compute-bound tests (``make
-# test`` runs e2e/test_live.py, e2e/test_control_room.py and e2e/test_live_attack.py in a pytest of
-# their own beside the rest; the order matters when the whole suite runs in one). Only the order
+# test`` runs e2e/test_live.py, e2e/test_control_room.py, e2e/test_live_attack.py and
+# live/test_live_plant.py in a pytest of their own beside the rest; the order matters when the whole
+# suite runs in one). Only the order
 # changes; every test still runs. The modules are named by their path under ``tests/``.
 
 _SLOW_FIRST = (
