@@ -6,17 +6,20 @@ Runs ``railstop compare`` in-process (identical draws for every controller)
 and prints the issue's targets next to the measured figures:
 tasc-pwm >= 99.9 % within ±0.30 m, tasc-step >= 99.5 % within ±0.35 m,
 overrun_ci95_upper <= 1e-4 for tasc-pwm; ato reported beside them.
-A finished campaign folder is resumed, not recomputed.
+A finished campaign folder is resumed, not recomputed; one made by another stop model (or
+other settings) is refused in one line (exit 2): remove it or pass another --out.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
+from railstop.errors import RailstopError
 from railstop.sim.campaign import CampaignSpec, run_campaign
 from railstop.sim.engine import CONTROLLERS
 
@@ -72,4 +75,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except RailstopError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -23,6 +23,7 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.operation import StationDwell, load_operation
 from railstop.errors import SimulationError
 from railstop.onboard.cbtc import approach_within_authority
+from railstop.sim import line as line_module
 from railstop.sim.capacity import PlatformHeadway, minimum_headways
 from railstop.sim.line import LineSettings, LineSimulation
 
@@ -167,6 +168,28 @@ def test_a_failed_prediction_is_braked_by_the_onboard_unit() -> None:
     missed = [r for r in sim.stops if not r.within_tolerance]
     assert missed and c["onboard_emergency_brakes"] >= len(missed)
     assert all(r.emergency_brake is not None for r in missed)
+
+
+def test_a_train_held_short_is_not_driven_onto_an_occupied_platform(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """HZ-CBTC-20: 20 trains entering every 96 s under the predictive hand-over (the case the
+    capacity benchmark found): a follower's stop, braked short by its onboard unit, faults its
+    dwell; the staff's recovery on sight then waits until the train still standing at the platform
+    is gone. Without that wait the recovery drove the follower into it (a collision, a negative
+    separation)."""
+
+    def run() -> dict[str, Any]:
+        op = OPERATION.model_copy(update={"trains": 20, "headway_s": 96.0})
+        settings = LineSettings(signalling="cbtc", handover="predictive")
+        sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, seed=1, settings=settings)
+        return sim.run(1600.0).summary()
+
+    s = run()
+    assert s["dwell_faults"] >= 1 and s["cbtc"]["collisions"] == 0 and s["min_separation_m"] > 0.0
+    monkeypatch.setattr(line_module, "RECOVERY_SIGHT_M", -math.inf)  # the rule off: drive at once
+    unguarded = run()
+    assert unguarded["cbtc"]["collisions"] > 0 and unguarded["min_separation_m"] < 0.0
 
 
 def test_the_predictive_hand_over_needs_cbtc() -> None:

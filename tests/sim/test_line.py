@@ -26,6 +26,7 @@ from railstop.control.line_ato import (
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import InterlockError, SimulationError
 from railstop.messages import BROADCAST, CircuitOccupancy, Message, Output, SignalAspects
+from railstop.sim.campaign import MODEL_VERSION
 from railstop.sim.engine import run_batch
 from railstop.sim.line import LineSimulation, PositionSettings
 from railstop.streams import RunStreams
@@ -528,6 +529,13 @@ def test_a_line_campaign_refuses_to_mix_settings(tmp_path: Path) -> None:
     assert p.returncode == 2 and "already there" in p.stderr + p.stdout
     q = _campaign(out, "--runs", "2", "--resume")
     assert q.returncode == 2 and "other settings" in q.stderr + q.stdout
+    # Runs of another stop model (the line steps it in every stop) are not mixed in either.
+    spec_file = out / "campaign.json"
+    ident = json.loads(spec_file.read_text(encoding="utf-8"))
+    assert ident["model_version"] == MODEL_VERSION
+    spec_file.write_text(json.dumps({**ident, "model_version": MODEL_VERSION - 1}), encoding="utf-8")
+    r = _campaign(out, "--runs", "1", "--resume")
+    assert r.returncode == 2 and "other settings" in r.stderr + r.stdout
 
 
 def test_a_line_campaign_runs_on_a_dask_cluster_with_the_same_rows(tmp_path: Path) -> None:

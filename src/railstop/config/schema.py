@@ -49,7 +49,8 @@ class DopplerRadar(_Model):
     # The wayside fits the deceleration (the slope of a line through the speed samples) over the
     # radar samples of this window.
     fit_window_s: Annotated[float, Field(gt=0.0, le=10.0)] = 4.0
-    # The speed "now" is fitted over a shorter window than the deceleration.
+    # The speed "now" is the mean of the samples of this shorter window, carried forward to the
+    # newest sample with the deceleration's slope.
     speed_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 0.3
 
 

@@ -73,7 +73,8 @@ MOD_DECAY_REST = 15  # exp(-(dt - f)/τ)
 MOD_DECAY_CYCLE = 16  # exp(-dt/τ)
 MOD_NOW = 17  # modelled brake response now (m/s²)
 MOD_HEAD = 18  # the ring's entry of the notch held over the last cycle
-MOD_RING = 19  # the notches' decelerations, one entry per cycle, newest at MOD_HEAD
+MOD_RAMP = 19  # the target as the modulator follows it: ramped where the notches are rate-limited
+MOD_RING = 20  # the notches' decelerations, one entry per cycle, newest at MOD_HEAD
 MOD_RING_SIZE = 64  # 6.2 s of dead time at the default 0.1 s cycle
 MOD_SIZE = MOD_RING + MOD_RING_SIZE
 
@@ -257,6 +258,7 @@ def modulator_update_1(
     dt_s: float,
     speed_mps: float,
     use_speed: bool,
+    ramp_mps3: float,
 ) -> int:
     """Advance one modulator by ``dt_s`` (the controller's cycle) and return the notch to apply.
 
@@ -273,6 +275,11 @@ def modulator_update_1(
     (the train's measured speed ``speed_mps``) the end phase is planned against
     the predicted stopping point (see the module docstring); without it the
     modulator runs on the target alone.
+
+    ``ramp_mps3`` > 0: the notch moves at most one step per minimum hold (SPEC §1 form 8, one
+    notch per telegram), and the target is followed as a ramp of that rate, the build-up the
+    sender planned with (its jerk limit): the integrators compare the notches with the ramp,
+    not with a step the notches cannot make (**[interpretation]**).
     """
     target = clip_1(target_mps2, 0.0, table[table.size - 1])
     dead = max(dead_s, 0.0)
@@ -288,7 +295,12 @@ def modulator_update_1(
     now = older + (state[MOD_NOW] - older) * state[MOD_DECAY_F]
     state[MOD_NOW] = newer + (now - newer) * state[MOD_DECAY_REST]
     state[MOD_APPLIED] += (table[notch] - state[MOD_APPLIED]) * alpha
-    state[MOD_TARGET] += (target - state[MOD_TARGET]) * alpha
+    if ramp_mps3 > 0.0:
+        step = ramp_mps3 * dt_s
+        state[MOD_RAMP] += clip_1(target - state[MOD_RAMP], -step, step)
+    else:
+        state[MOD_RAMP] = target
+    state[MOD_TARGET] += (state[MOD_RAMP] - state[MOD_TARGET]) * alpha
     state[MOD_E1] += (state[MOD_TARGET] - state[MOD_APPLIED]) * dt_s
     state[MOD_E2] += state[MOD_E1] * dt_s
     lo = min(max(int(np.searchsorted(table, target, side="right")) - 1, 0), 7)
@@ -304,7 +316,11 @@ def modulator_update_1(
         want = _end_choice_1(state, table, min_hold_s, speed_mps, target, lo, hi)
     if table[lo] == target:
         want = lo
-    new = want if (notch < lo or notch > hi or can_change) else notch
+    if ramp_mps3 > 0.0:
+        # One notch per hold, towards the notch wanted.
+        new = notch + (1 if want > notch else (-1 if want < notch else 0)) if can_change else notch
+    else:
+        new = want if (notch < lo or notch > hi or can_change) else notch
     if not active:
         new = 0
     if new != notch:

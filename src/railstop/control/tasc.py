@@ -421,14 +421,25 @@ def fit_ring_1(
     """Speed now and deceleration from the newest ``count`` speed samples of a ring buffer.
 
     The deceleration is minus the slope of a line through all ``count``
-    samples; the speed now comes from a line through the newest
-    ``speed_samples`` only: the end of a long line misses the last part of a
-    deceleration that ripples (a brake alternating two notches) by a few
-    cm/s, which near the stop is several per cent of the speed.
+    samples. The speed now is the mean of the newest ``speed_samples`` (the
+    speed at their middle) carried forward to the newest sample's time with
+    that long line's slope. A short window follows a deceleration that
+    ripples (a brake alternating two notches): the end of the long line
+    misses its last part by a few cm/s, which near the stop is several per
+    cent of the speed. Within the short window the mean is the estimate of
+    least variance: a line fitted through the short window alone extrapolates
+    its own slope, and its value at the end has four times the variance of the
+    mean (stop model 11; **[interpretation]** SPEC §1 measures the speed with
+    the Doppler radar and leaves the estimator open).
     """
     v_now, slope = line_fit_1(ring, newest, count, dt_s)
     if speed_samples < ring.size and count >= 2:
-        v_now, _ = line_fit_1(ring, newest, min(count, max(speed_samples, 2)), dt_s)
+        m = min(count, max(speed_samples, 2))
+        size = ring.size
+        sv = 0.0
+        for a in range(m):
+            sv += ring[(newest - a) % size]
+        v_now = sv / m + slope * (m - 1) * dt_s / 2.0
     return v_now, -slope
 
 

@@ -156,6 +156,7 @@ def ato_output_1(
             cycle * ap[AP_DT],
             speed_mps,
             True,
+            0.0,
         )
     return int(at[AT_NOTCH])
 

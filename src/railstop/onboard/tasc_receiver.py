@@ -482,6 +482,7 @@ def receiver_step_output_1(
             cycle * rp[RP_DT],
             speed_mps,
             True,
+            0.0,
         )
         rx[RX_NOTCH] = rx[RX_FIXED_NOTCH] if rx[RX_FIXED_NOTCH] >= 0.0 else notch
     return int(rx[RX_NOTCH])

@@ -107,7 +107,12 @@ DISK_BYTES_PER_VALUE = 8
 # from the braking commanded and not yet felt: every run of tasc-brake-controller, tasc-step,
 # ato, ato-corrected and of forms 7 and 8 changes; the PWM controllers' forms 1-6 and the
 # drivers are unchanged (tasc-pwm, 10,000 standard runs: the same summary to the bit).
-MODEL_VERSION = 10
+# 11: the speed now from a ring of speed samples (the wayside's Doppler, the onboard unit's
+# tachometer: control.tasc.fit_ring_1) is the mean of the short window carried forward with the
+# long window's slope, no longer a line fitted through the short window alone (a quarter of its
+# variance): every run of a controller that measures with the Doppler changes. Form 8's modulator
+# moves one notch per hold along the ramp its plan assumed (control.notch, ramp_mps3).
+MODEL_VERSION = 11
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

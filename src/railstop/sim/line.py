@@ -104,7 +104,7 @@ from railstop.nodes.dwell import creep_rng
 from railstop.nodes.occupancy_chain import Arrivals, ChainSettings, FixRecord, OccupancyChain, fix_records
 from railstop.onboard.cbtc import approach_within_authority
 from railstop.onboard.positioning import FixReport, PositioningUnit
-from railstop.onboard.restricted_mode import RestrictedDrive
+from railstop.onboard.restricted_mode import SIGHT_M, RestrictedDrive
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
 from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
@@ -138,6 +138,11 @@ FAULT_HOLD_S = 60.0
 #: A train held short of the platform is driven onto it at this speed (on sight, by the staff).
 RECOVERY_MPS = 10.0 * MPS_PER_KMH
 RECOVERY_ACCEL_MPS2 = 0.3
+#: HZ-CBTC-20: the staff drive on sight, so they start the move onto the platform only once the
+#: train ahead's rear is this far beyond the stopping point (restricted mode's sight distance), and
+#: look again every RECOVERY_RECHECK_S until it is.
+RECOVERY_SIGHT_M = SIGHT_M
+RECOVERY_RECHECK_S = 1.0
 #: Adhesion on a low-adhesion patch between stations (wet leaves, as position-run's).
 LOW_MU = 0.05
 #: What one trip leaves of the learned scale and delay (standard deviations): a train in service
@@ -1176,9 +1181,20 @@ class LineSimulation:
         """After a dwell fault and the staff's reset ([interpretation], ``FAULT_HOLD_S``): a train
         short of the platform by more than the tolerance is driven onto the stopping point on sight
         (``RECOVERY_MPS``); then its confirmation starts again (a new dwell, its correction creeps
-        included). A platform whose link stays dead faults it again: it stays, fail safe."""
+        included). A platform whose link stays dead faults it again: it stays, fail safe.
+
+        HZ-CBTC-20: on sight means the staff stop short of what they see. A train held short of a
+        platform that another train still occupies (under the predictive hand-over the follower
+        may start its stop while the train ahead stands at the platform; a failed prediction
+        brakes it short) stays held until the train ahead's rear is ``RECOVERY_SIGHT_M`` beyond the
+        stopping point ([interpretation]: SPEC §5 says nothing of the recovery; the distance is
+        restricted mode's, the one rule of this line for moves on sight)."""
+        st = self.line.stations[train.next_station - 1]
+        ahead = [t.x_m for t in self.trains if t is not train and t.phase in ON_LINE and t.x_m > train.x_m]
+        if ahead and min(ahead) - self.vehicle.length_m < st.stop_point_m + RECOVERY_SIGHT_M:
+            train.until_s = now_s + RECOVERY_RECHECK_S
+            return
         train.next_station -= 1
-        st = self.line.stations[train.next_station]
         gap = st.stop_point_m - train.x_m
         t, x, v = np.array([now_s]), np.array([train.x_m]), np.array([0.0])
         if gap > st.psd_tolerance_m:

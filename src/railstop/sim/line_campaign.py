@@ -26,6 +26,7 @@ from railstop.config.operation import Operation
 from railstop.config.schema import Line, Vehicle
 from railstop.control.law import LawFile
 from railstop.errors import RailstopError
+from railstop.sim.campaign import MODEL_VERSION
 from railstop.sim.executor import execute
 from railstop.sim.line import LINE_MODEL_VERSION, LineSettings, LineSimulation
 
@@ -65,6 +66,9 @@ class LineCampaignSpec:
             # Absent from the campaigns of version 1 (its stops replayed a recorded trajectory):
             # a --resume across versions is refused rather than mixing their runs.
             "line_model_version": LINE_MODEL_VERSION,
+            # The line steps the stop model in every station stop: runs of another stop model
+            # stop otherwise, so a --resume across stop models is refused too.
+            "model_version": MODEL_VERSION,
         }
 
 

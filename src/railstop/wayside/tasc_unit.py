@@ -507,6 +507,7 @@ def _modulator_cycle_1(ws: FloatArray, wp: FloatArray, table: FloatArray, speed_
         wp[WP_MOD_CYCLE],
         speed_mps if has_speed else 0.0,
         has_speed,
+        wp[WP_JERK] if int(wp[WP_FORM]) == 8 else 0.0,
     )
 
 
