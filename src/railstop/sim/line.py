@@ -980,6 +980,13 @@ class LineSimulation:
             train.exited_s = now_s
             train.plant = None
 
+    def _rear_ahead_m(self, train: Train) -> float:
+        """The true rear of the nearest train on the line ahead of ``train`` (inf: none), what a
+        driver moving on sight sees."""
+        length = self.vehicle.length_m
+        on_line = (t for t in self.trains if t is not train and t.phase in ON_LINE)
+        return min((t.x_m - length for t in on_line if t.x_m > train.x_m), default=math.inf)
+
     def _restricted(self, train: Train, now_s: float, dt: float) -> RestrictedDrive | None:
         """Restricted mode under CBTC (SPEC §4 lost trains; ``onboard.restricted_mode``, the rule
         live operation's trains follow): what the driver of a train whose radio is dead does this
@@ -993,9 +1000,7 @@ class LineSimulation:
         dead = cbtc.radio_dead(train.index, now_s)
         ahead = stop = math.inf
         if dead:  # (only then does he look: the other trains are not looked at every step)
-            length = self.vehicle.length_m
-            on_line = (t for t in self.trains if t is not train and t.phase in ON_LINE)
-            ahead = min((t.x_m - length for t in on_line if t.x_m > train.x_m), default=math.inf)
+            ahead = self._rear_ahead_m(train)
             if train.next_station < len(self.line.stations):
                 entry = self.line.stations[train.next_station].tasc.entry_speed_kmh * MPS_PER_KMH
                 stop = handover_m(self.first_detector_m[train.next_station], entry) - HOLD_BACK_M
@@ -1190,8 +1195,7 @@ class LineSimulation:
         stopping point ([interpretation]: SPEC §5 says nothing of the recovery; the distance is
         restricted mode's, the one rule of this line for moves on sight)."""
         st = self.line.stations[train.next_station - 1]
-        ahead = [t.x_m for t in self.trains if t is not train and t.phase in ON_LINE and t.x_m > train.x_m]
-        if ahead and min(ahead) - self.vehicle.length_m < st.stop_point_m + RECOVERY_SIGHT_M:
+        if self._rear_ahead_m(train) < st.stop_point_m + RECOVERY_SIGHT_M:
             train.until_s = now_s + RECOVERY_RECHECK_S
             return
         train.next_station -= 1
