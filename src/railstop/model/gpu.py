@@ -279,8 +279,10 @@ class KernelOptions:
     device memory, one of :data:`DRAW_LAYOUTS`: ``rows`` as drawn (thread g reads row
     ``order[g]``), ``launch-order`` (the rows copied in launch order: thread g reads row g, so a
     warp reads neighbouring rows), ``columns`` (one column per run, in launch order: the threads
-    of a warp read neighbouring words of each draw, one coalesced load). Each thread reads the
-    same numbers in every layout."""
+    of a warp read neighbouring words of each draw, one coalesced load: the fastest of the three
+    in every order for the two controllers measured on one H200, docs/gpu.md, but not yet the
+    default, its throughput for every controller unmeasured). Each thread reads the same numbers
+    in every layout."""
 
     max_registers: int | None = None
     lineinfo: bool = False
@@ -430,10 +432,11 @@ def launch_order(sc: FloatArray, controller: str, how: str = "auto") -> NDArray[
     steps of its longest run. The entry speed sets most of a stop's length (on the standard set
     its correlation with tasc-pwm's stop time is -0.79), so neighbours in this order take about
     as many steps. Measured on one H200 (``benchmarks/gpu_profile.py``, 1,000,000 runs, kernel
-    alone, stop model 10; docs/gpu.md): tasc-pwm 218,108 -> 259,354 runs/s, tasc-step 147,120 ->
-    187,167; but ato 1,751,891 -> 1,551,174 and driver-atc2 774,013 -> 661,666, so ``auto`` keeps the drawn
-    order for those. Each thread still runs its own row and run index: the results are the same
-    in any order. Stable, so equal speeds keep their order."""
+    alone, the draws in rows; docs/gpu.md): tasc-pwm 223,632 -> 270,801 runs/s (stop model 11),
+    tasc-step 147,120 -> 187,167 (model 10); but ato 1,780,967 -> 1,581,039 (model 11) and
+    driver-atc2 774,013 -> 661,666 (model 10), so ``auto`` keeps the drawn order for those. Each
+    thread still runs its own row and run index: the results are the same in any order. Stable,
+    so equal speeds keep their order."""
     if how not in ORDERS:
         raise SimulationError(f"launch order {how!r}: one of {', '.join(ORDERS)}")
     if how == "entry-speed" or (how == "auto" and controller in TASC_CONTROLLERS):
