@@ -69,6 +69,8 @@ class Stream(IntEnum):
     DRIVER = 17  # SPEC §3 the human driver of a run: counter 0 level, 1.. parameters, looks, re-stops
     STOP_SENSORS = 18  # SPEC §3 platform stop sensors at a stand: counter 2k S2, 2k + 1 S1 of stand k
     PLATFORM_DWELL = 19  # SPEC §3 a manual line's dwell: a generator per (seed, dwell); sensors, camera
+    LINK_FAULTS = 20  # SPEC §5 medium, frame c: 4c burst chain, 4c+1 burst loss, 4c+2 dup, 4c+3 reorder
+    LINK_FLIPS = 21  # SPEC §5 bit errors of frame c's copy j: a key per 2c + j, counter 0.. (link.channel)
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:
@@ -245,6 +247,48 @@ def key_normal_zig(key: np.uint64, counter: int | np.integer) -> float:
         if y < math.exp(-0.5 * x * x):
             return sign * x
         bits = _next_bits(bits)
+
+
+# --------------------------------------------------------------------------
+# The same numbers once more, as plain Python integers, for the units that run in the interpreter
+# (the simulated media of link.channel): a numba function called from Python costs microseconds
+# and a compilation, an integer mix a few hundred nanoseconds. Bit-identical to the above (a test).
+
+_P_MASK = 0xFFFFFFFFFFFFFFFF
+_P_GOLDEN = 0x9E3779B97F4A7C15
+_P_M1 = 0xBF58476D1CE4E5B9
+_P_M2 = 0x94D049BB133111EB
+
+
+def py_mix64(z: int) -> int:
+    """:func:`mix64` on a Python integer in [0, 2^64)."""
+    z = ((z ^ (z >> 30)) * _P_M1) & _P_MASK
+    z = ((z ^ (z >> 27)) * _P_M2) & _P_MASK
+    return z ^ (z >> 31)
+
+
+def py_seed_key(seed: int, stream: int) -> int:
+    """:func:`seed_key` of ``seed`` (any int, reduced to 64 bits as :func:`seed_u64`)."""
+    return py_mix64(((seed & _P_MASK) * _P_GOLDEN + stream) & _P_MASK)
+
+
+def py_stream_key(seed_stream_key: int, run: int) -> int:
+    """:func:`stream_key`: run ``run``'s key of a stream (``run`` any int, taken mod 2^64)."""
+    return py_mix64(seed_stream_key ^ (((run & _P_MASK) * _P_GOLDEN) & _P_MASK))
+
+
+def py_key_uniform(key: int, counter: int) -> float:
+    """:func:`key_uniform`: uniform in [0, 1)."""
+    bits = py_mix64((key + (counter + 1) * _P_GOLDEN) & _P_MASK)
+    return (bits >> 11) * (1.0 / 9007199254740992.0)
+
+
+def py_key_normal(key: int, counter: int) -> float:
+    """:func:`key_normal`: standard normal (Box–Muller on the two halves of one draw)."""
+    bits = py_mix64((key + (counter + 1) * _P_GOLDEN) & _P_MASK)
+    u1 = ((bits >> 32) + 0.5) * (1.0 / 4294967296.0)
+    u2 = (bits & 0xFFFFFFFF) * (1.0 / 4294967296.0)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
 def seed_u64(seed: int) -> np.uint64:

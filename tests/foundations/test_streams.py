@@ -207,3 +207,47 @@ def test_ziggurat_normal_has_the_normal_distribution() -> None:
         assert abs(seen - p) < 4.0 * np.sqrt(p * (1.0 - p) / n), (i, seen, p)
     # keyed: the same key and counter give the same number
     assert np.array_equal(z[:1000], _draws("key_normal_zig", 1000))
+
+
+# --------------------------------------------------------------------------- plain Python integers
+
+
+@given(
+    st.integers(-(2**70), 2**70), st.integers(0, 2**40), st.sampled_from(list(Stream)), st.integers(0, 2**40)
+)
+@FAST
+def test_python_integer_draws_equal_the_array_draws(
+    seed: int, run: int, stream: Stream, counter: int
+) -> None:
+    """The interpreter's draws (link.channel's media) are the streams' numbers, bit for bit."""
+    from railstop.streams import py_key_normal, py_key_uniform, py_seed_key, py_stream_key
+
+    key = py_stream_key(py_seed_key(seed, int(stream)), run)
+    rs = RunStreams.for_runs(seed, run, 1)
+    assert py_key_uniform(key, counter) == rs.uniform(stream, counter)[0]
+    assert py_key_normal(key, counter) == rs.normal(stream, counter)[0]
+    assert 0.0 <= py_key_uniform(key, counter) < 1.0
+
+
+def test_python_integer_draws_equal_the_compiled_draws() -> None:
+    """... and equal the compiled model's scalar draws (its stop runs' radio keys)."""
+    import numba
+
+    import railstop.streams as streams
+
+    @numba.njit(cache=False)
+    def draws(key0: np.uint64, run: int, n: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+        key = streams.stream_key(key0, run)
+        u, z = np.empty(n), np.empty(n)
+        for c in range(n):
+            u[c], z[c] = streams.key_uniform(key, c), streams.key_normal(key, c)
+        return u, z
+
+    for seed, run in ((1, 0), (-3, 2**62 + 7), (2**64 - 1, 12345)):
+        # (a key handed back to Python is an int: typed uint64 again, as the kernel holds it)
+        key0 = np.uint64(streams.seed_key(streams.seed_u64(seed), int(Stream.RADIO_LOSS)))
+        u, z = draws(key0, run, 200)
+        key = streams.py_stream_key(streams.py_seed_key(seed, int(Stream.RADIO_LOSS)), run)
+        assert int(key0) == streams.py_seed_key(seed, int(Stream.RADIO_LOSS))
+        assert [streams.py_key_uniform(key, c) for c in range(200)] == list(u)
+        assert [streams.py_key_normal(key, c) for c in range(200)] == list(z)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from railstop.config.media import ChannelParams
@@ -38,7 +37,7 @@ STATUS = PsdStatus(
 def link(params: ChannelParams | None = None, seed: int = 1, **kw: object) -> DoorLink:
     return DoorLink(
         params=params or media_preset("transponder"),
-        rng=np.random.default_rng(seed),
+        seed=seed,
         train_id=7,
         **kw,  # type: ignore[arg-type]
     )
@@ -98,7 +97,7 @@ def test_a_keyed_link_refuses_frames_of_another_train() -> None:
     """Category 3: a frame wrapped for train 8 is refused by train 7's platform end."""
     mine, other = (
         link(category=3),
-        DoorLink(params=media_preset("transponder"), rng=np.random.default_rng(1), train_id=8, category=3),
+        DoorLink(params=media_preset("transponder"), seed=1, train_id=8, category=3),
     )
     frame = other.train_end.frame(CMD, PLATFORM_ID, 1.0)
     assert frame is not None
@@ -120,7 +119,7 @@ def test_a_keyed_link_refuses_frames_of_another_train() -> None:
 def test_bad_settings_raise_naming_the_field(kw: dict[str, object], needle: str) -> None:
     args: dict[str, object] = {
         "params": media_preset("transponder"),
-        "rng": np.random.default_rng(1),
+        "seed": 1,
         "train_id": 7,
     }
     args.update(kw)

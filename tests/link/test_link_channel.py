@@ -16,6 +16,7 @@ from railstop.config.media import ChannelParams, load_media
 from railstop.errors import ConfigError, RailstopError
 from railstop.link.channel import (
     LinkError,
+    LinkStreams,
     SimChannel,
     airtime_s,
     corruption_probability,
@@ -25,8 +26,14 @@ from railstop.link.channel import (
     propagation_delay_s,
     stationary_loss_probability,
 )
+from railstop.streams import Stream, py_key_normal, py_key_uniform
 
 Z = 5.0  # tolerance in standard deviations
+
+
+def keys(seed: int) -> LinkStreams:
+    """A test link's counter-based streams."""
+    return LinkStreams.for_link(seed, Stream.DOOR_LINK, 99)
 
 
 def frame(i: int, n_bytes: int = 12) -> bytes:
@@ -47,7 +54,7 @@ def drain(ch: SimChannel) -> list[tuple[float, bytes]]:
 
 
 def send_all(params: ChannelParams, seed: int, n: int, spacing_s: float = 0.01, n_bytes: int = 12):
-    ch = SimChannel(params, np.random.default_rng(seed))
+    ch = SimChannel(params, keys(seed))
     for i in range(n):
         ch.send(frame(i, n_bytes), i * spacing_s)
     return ch, drain(ch)
@@ -113,7 +120,7 @@ def test_airtime_by_hand() -> None:
 
 def test_isolated_frame_arrives_after_airtime_plus_latency() -> None:
     p = ChannelParams(bit_rate_bps=2400.0, overhead_bits=40, latency_s=0.01)
-    ch = SimChannel(p, np.random.default_rng(0))
+    ch = SimChannel(p, keys(0))
     ch.send(bytes(10), 1.0)
     assert ch.next_arrival_s() == pytest.approx(1.0 + 0.05 + 0.01, abs=1e-12)
     assert ch.receive(1.0599) == []
@@ -145,18 +152,19 @@ def test_one_model_vectorised_delay_equals_simchannel() -> None:
     layout = np.random.default_rng(99)
     send_s = 2.0 * np.arange(n) + layout.random(n)  # isolated frames: >= 1 s apart
     sizes = layout.integers(1, 40, n)
-    ch = SimChannel(p, np.random.default_rng(seed))
+    ch = SimChannel(p, keys(seed))
     for i in range(n):
         ch.send(frame(i, int(sizes[i]) + 4), float(send_s[i]))
     arrived = {index(f): t for t, f in drain(ch)}
 
-    # Replay the documented draws: per send rng.random(5), then rng.standard_normal().
-    g = np.random.default_rng(seed)
-    u5 = np.empty((n, 5))
+    # Replay the documented draws: frame i's loss, reorder and jitter at counter i of its streams.
+    k = keys(seed)
+    u5 = np.zeros((n, 5))
     z = np.empty(n)
     for i in range(n):
-        u5[i] = g.random(5)
-        z[i] = g.standard_normal()
+        u5[i, 2] = py_key_uniform(k.loss, i)
+        u5[i, 4] = py_key_uniform(k.faults, 4 * i + 3)
+        z[i] = py_key_normal(k.latency, i)
     kept = ~(u5[:, 2] < p.loss_probability)
     reordered = u5[:, 4] < p.reorder_probability
     next_slot = np.ceil(send_s / cycle) * cycle
@@ -217,7 +225,7 @@ def test_mean_delivery_delay_matches_simulation() -> None:
     n, n_bytes = 20000, 10
     layout = np.random.default_rng(5)
     send_s = np.arange(n) * 1.0 + layout.random(n)  # phase in the cycle uniform
-    ch = SimChannel(p, np.random.default_rng(6))
+    ch = SimChannel(p, keys(6))
     for i in range(n):
         ch.send(frame(i, n_bytes), float(send_s[i]))
     arrived = {index(f): t for t, f in drain(ch)}
@@ -364,7 +372,7 @@ def test_cycle_slots_one_frame_per_slot() -> None:
     # 10 bytes at 2400 bit/s: airtime 1/30 s; slots every 0.25 s (loop, SPEC §5).
     p = ChannelParams(bit_rate_bps=2400.0, cycle_s=0.25)
     air = 80 / 2400
-    ch = SimChannel(p, np.random.default_rng(0))
+    ch = SimChannel(p, keys(0))
     sends = [0.01, 0.02, 0.03, 0.6, 1.25]
     for i, t in enumerate(sends):
         ch.send(frame(i, 10), t)
@@ -378,7 +386,7 @@ def test_cycle_slots_one_frame_per_slot() -> None:
 def test_cycle_slots_one_per_slot_even_with_zero_airtime() -> None:
     # Empty frames and no overhead take no time on the medium: only the slot rule spaces them.
     p = ChannelParams(bit_rate_bps=2400.0, cycle_s=0.25)
-    ch = SimChannel(p, np.random.default_rng(0))
+    ch = SimChannel(p, keys(0))
     for t in (0.0, 0.0, 0.1):
         ch.send(b"", t)
     assert airtime_s(p, 0) == 0.0
@@ -389,7 +397,7 @@ def test_cycle_slots_with_phase_and_long_airtime() -> None:
     # 10 bytes at 100 bit/s = 0.8 s on the medium, longer than the 0.25 s cycle:
     # the next frame waits for the medium, then for the next slot.
     p = ChannelParams(bit_rate_bps=100.0, cycle_s=0.25)
-    ch = SimChannel(p, np.random.default_rng(0), slot_phase_s=0.1)
+    ch = SimChannel(p, keys(0), slot_phase_s=0.1)
     ch.send(frame(0, 10), 0.0)  # slot 0.1, on air until 0.9
     ch.send(frame(1, 10), 0.05)  # medium free at 0.9 -> slot 1.1, arrives 1.9
     got = drain(ch)
@@ -426,7 +434,7 @@ def test_reordering_only_with_reorder_probability() -> None:
 
 def test_receive_pops_each_frame_once() -> None:
     p = ChannelParams(bit_rate_bps=1e6, latency_s=0.1)
-    ch = SimChannel(p, np.random.default_rng(0))
+    ch = SimChannel(p, keys(0))
     for i in range(3):
         ch.send(frame(i), 0.01 * i)
     assert ch.receive(0.05) == []
@@ -441,7 +449,7 @@ def test_receive_pops_each_frame_once() -> None:
 
 
 def test_bad_inputs_raise() -> None:
-    ch = SimChannel(ChannelParams(bit_rate_bps=1e6), np.random.default_rng(0))
+    ch = SimChannel(ChannelParams(bit_rate_bps=1e6), keys(0))
     ch.send(b"x", 1.0)
     with pytest.raises(LinkError, match="backwards"):
         ch.send(b"y", 0.5)
@@ -454,8 +462,14 @@ def test_bad_inputs_raise() -> None:
         delivery_delay_s(p, 10, 1.5, 0.0)
     with pytest.raises(LinkError, match="n_bytes"):
         airtime_s(p, -1)
-    with pytest.raises(LinkError, match="Generator"):
-        SimChannel(p, 42)  # type: ignore[arg-type]
+    with pytest.raises(LinkError, match="LinkStreams"):
+        SimChannel(p, np.random.default_rng(0))  # type: ignore[arg-type]
+    with pytest.raises(LinkError, match="outage"):
+        SimChannel(p, keys(0), outages=[(2.0, 1.0)])
+    with pytest.raises(LinkError, match="outages"):
+        SimChannel(p, keys(0), outages=3)
+    with pytest.raises(LinkError, match="64-bit key"):
+        LinkStreams(loss=-1, latency=0, corrupt=0, faults=0, flips=0)
     assert issubclass(LinkError, RailstopError)
 
 
@@ -568,7 +582,7 @@ def test_safety_layer_rejects_what_the_channel_damages() -> None:
     p = media_preset("loop").replace(bit_error_rate=1e-3, duplicate_probability=0.05, loss_probability=0.05)
     tx = SafeSender(1, 2, category=1)
     rx = SafeReceiver(2, 1, category=1, max_age_s=1.0, timeout_s=2.0)
-    ch = SimChannel(p, np.random.default_rng(21))
+    ch = SimChannel(p, keys(21))
     n = 3000
     sent = []
     for i in range(n):
@@ -590,3 +604,138 @@ def test_safety_layer_rejects_what_the_channel_damages() -> None:
     assert rx.counts["delivered"] + rx.counts["repeated"] == clean_copies
     assert delivered == sorted(set(delivered))
     assert rx.deletions == delivered[-1] - len(delivered)
+
+
+# --------------------------------------------------------------------------
+# Counter-based streams, outages, the stop model's medium
+
+
+def test_a_frames_fate_depends_on_its_counter_only() -> None:
+    """Frame c's loss, corruption and jitter come from counter c of the link's streams: the same
+    whatever the send times, and independent of the other direction's traffic (DESIGN rule 7)."""
+    p = ChannelParams(
+        bit_rate_bps=1e6, latency_s=0.05, jitter_s=0.01, loss_probability=0.2, bit_error_rate=2e-3
+    )
+    a, b = SimChannel(p, keys(4)), SimChannel(p, keys(4))
+    fate_a = [a.send(frame(i), 1.0 * i) for i in range(500)]  # isolated: no queueing, no FIFO floor
+    fate_b = [b.send(frame(i), 7.0 + 3.0 * i) for i in range(500)]
+    assert [x is None for x in fate_a] == [x is None for x in fate_b]
+    delays_a = [x - 1.0 * i for i, x in enumerate(fate_a) if x is not None]
+    delays_b = [x - (7.0 + 3.0 * i) for i, x in enumerate(fate_b) if x is not None]
+    np.testing.assert_allclose(delays_a, delays_b, rtol=0, atol=1e-12)
+    assert [f for _, f in drain(a)] == [f for _, f in drain(b)]  # the same bits flipped
+    assert 0 < a.stats.lost < 500 and a.stats.corrupted > 0
+    # Another link (another train, direction or dwell) draws other numbers.
+    c = SimChannel(p, LinkStreams.for_link(4, Stream.DOOR_LINK, 98))
+    assert [c.send(frame(i), 1.0 * i) is None for i in range(500)] != [x is None for x in fate_a]
+
+
+def test_an_outage_loses_every_frame_sent_in_it_and_nothing_else() -> None:
+    p = ChannelParams(bit_rate_bps=1e6, latency_s=0.01)
+    ch = SimChannel(p, keys(1), outages=[(1.0, 2.0), (5.0, math.inf)])
+    times = [0.5, 0.999, 1.0, 1.5, 1.999, 2.0, 4.9, 5.0, 60.0]
+    got = [ch.send(frame(i), t) for i, t in enumerate(times)]
+    assert [g is None for g in got] == [False, False, True, True, True, False, False, True, True]
+    s = ch.stats
+    assert s.sent == 9 and s.lost == s.lost_in_outage == 5
+    assert [index(f) for _, f in drain(ch)] == [0, 1, 5, 6]
+    # A frame sent in the outage takes no counter's draws away from the others: frame 5 meets
+    # counter 5's numbers as it would without the outage.
+    free = SimChannel(p, keys(1))
+    assert [free.send(frame(i), t) for i, t in enumerate(times)][5] == got[5]
+
+
+def test_bit_flips_are_exact_for_a_high_error_rate() -> None:
+    """The first flip by inversion and geometric gaps after it: with BER 0.1 on 8-byte frames
+    the number of flipped bits per copy is Binomial(64, 0.1) (mean and variance) and every bit
+    position is hit equally often."""
+    ber, n_bytes, n = 0.1, 8, 20000
+    p = ChannelParams(bit_rate_bps=1e6, bit_error_rate=ber)
+    _, out = send_all(p, seed=3, n=n, n_bytes=n_bytes)
+    base = [frame(i, n_bytes) for i in range(n)]
+    flips = np.array(
+        [
+            [((a ^ b) >> (7 - j)) & 1 for a, b in zip(f, base[i], strict=True) for j in range(8)]
+            for i, (_, f) in enumerate(out)
+        ]
+    )
+    per = flips.sum(axis=1)
+    bits = 8 * n_bytes
+    within(per.mean(), bits * ber, math.sqrt(bits * ber * (1 - ber) / n))
+    within(per.var(), bits * ber * (1 - ber), bits * ber * (1 - ber) * math.sqrt(2.0 / n) * 1.5)
+    hits = flips.mean(axis=0)
+    assert np.all(np.abs(hits - ber) < Z * math.sqrt(ber * (1 - ber) / n))
+    assert SimChannel(p.replace(bit_error_rate=1.0), keys(0)).send(b"\x00\xff", 0.0) is not None
+
+
+def test_the_stop_models_attempts_meet_the_same_fate_on_this_medium() -> None:
+    """One medium (issue: one link): the stop kernel's telegram attempts of a campaign run and this
+    medium's frames of the same run's streams (``LinkStreams.for_run``) are lost, corrupted and
+    delayed alike, attempt by attempt, on a radio with loss, jitter and bit errors."""
+    from railstop.config import default_line, default_vehicle
+    from railstop.config.disturbances import DisturbanceSet, draw_scenario
+    from railstop.model.build import KernelModel
+    from railstop.model.records import (
+        KP_AIRTIME,
+        KP_DT,
+        KP_FRAME_BITS,
+        LA_ARRIVAL,
+        LA_CORRUPT,
+        LA_LOST,
+        LA_STEP,
+        SC_BER,
+        SC_JITTER,
+        SC_LATENCY,
+        SC_LOSS,
+    )
+    from railstop.model.run import model_draws, run_kernel
+    from railstop.streams import RunStreams
+
+    line, vehicle = default_line(), default_vehicle()
+    station = line.station("Riverside")
+    assert media_preset(station.tasc.medium).cycle_s == 0.0
+    bad_radio = DisturbanceSet.from_dict(
+        {
+            "radio_latency_ms": {"uniform": [40.0, 120.0]},
+            "radio_loss_probability": 0.2,
+            "radio_jitter_ms": {"fixed": 30.0},
+            "radio_bit_error_rate": {"fixed": 0.002},
+        },
+        name="bad-radio",
+    )
+    model = KernelModel.create(
+        station=station, vehicle=vehicle, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
+    checked = {"lost": 0, "corrupt": 0, "held": 0, "frames": 0}
+    for seed, run in ((3, 0), (3, 17), (11, 2**40 + 5)):
+        scenario, _ = draw_scenario(bad_radio, station, vehicle, RunStreams.for_runs(seed, run, 1))
+        _, _, rec = run_kernel(model, scenario, seed=seed, first_run=run, record=True)
+        assert rec is not None
+        sc = model_draws(model, scenario)[0][0]
+        params = media_preset(station.tasc.medium).replace(
+            latency_s=float(sc[SC_LATENCY]),
+            jitter_s=float(sc[SC_JITTER]),
+            loss_probability=float(sc[SC_LOSS]),
+            bit_error_rate=float(sc[SC_BER]),
+            burst_enter_probability=0.0,
+            duplicate_probability=0.0,
+            reorder_probability=0.0,
+        )
+        n_bytes = int(model.kp[KP_FRAME_BITS]) // 8
+        assert float(airtime_s(params, n_bytes)) == model.kp[KP_AIRTIME]
+        ch = SimChannel(params, LinkStreams.for_run(seed, run))
+        floor = -math.inf  # the medium keeps frames in order; the kernel's receiver drops overtaken ones
+        for a in rec.attempts:
+            corrupted = ch.stats.corrupted
+            arrival = ch.send(bytes(n_bytes), a[LA_STEP] * model.kp[KP_DT])
+            assert (arrival is None) == bool(a[LA_LOST])
+            if arrival is None:
+                checked["lost"] += 1
+                continue
+            assert (ch.stats.corrupted > corrupted) == bool(a[LA_CORRUPT])
+            checked["corrupt"] += bool(a[LA_CORRUPT])
+            assert arrival == max(a[LA_ARRIVAL], floor)
+            checked["held"] += arrival > a[LA_ARRIVAL]
+            floor = arrival
+            checked["frames"] += 1
+    assert min(checked.values()) > 0, checked  # every path compared

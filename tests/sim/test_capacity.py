@@ -170,26 +170,58 @@ def test_a_failed_prediction_is_braked_by_the_onboard_unit() -> None:
     assert all(r.emergency_brake is not None for r in missed)
 
 
-def test_a_train_held_short_is_not_driven_onto_an_occupied_platform(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """HZ-CBTC-20: 20 trains entering every 96 s under the predictive hand-over (the case the
-    capacity benchmark found): a follower's stop, braked short by its onboard unit, faults its
-    dwell; the staff's recovery on sight then waits until the train still standing at the platform
-    is gone. Without that wait the recovery drove the follower into it (a collision, a negative
-    separation)."""
-
-    def run() -> dict[str, Any]:
-        op = OPERATION.model_copy(update={"trains": 20, "headway_s": 96.0})
-        settings = LineSettings(signalling="cbtc", handover="predictive")
-        sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, seed=1, settings=settings)
-        return sim.run(1600.0).summary()
-
-    s = run()
+def test_a_train_held_short_is_not_driven_onto_an_occupied_platform() -> None:
+    """HZ-CBTC-20 on the line: 20 trains entering every 96 s under the predictive hand-over (the
+    case the capacity benchmark found): failed predictions brake followers' stops short and fault
+    their dwells, and the staff's recoveries on sight drive nobody into a train still standing at
+    the platform: no collision, a positive least separation. (The run that found the collision,
+    line model 4's draws, drove a recovery into the train ahead; with line model 5's draws this
+    run's recoveries meet a clear platform, so the rule's firing is shown by the test below.)"""
+    op = OPERATION.model_copy(update={"trains": 20, "headway_s": 96.0})
+    settings = LineSettings(signalling="cbtc", handover="predictive")
+    sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, seed=1, settings=settings)
+    s = sim.run(1600.0).summary()
     assert s["dwell_faults"] >= 1 and s["cbtc"]["collisions"] == 0 and s["min_separation_m"] > 0.0
-    monkeypatch.setattr(line_module, "RECOVERY_SIGHT_M", -math.inf)  # the rule off: drive at once
-    unguarded = run()
-    assert unguarded["cbtc"]["collisions"] > 0 and unguarded["min_separation_m"] < 0.0
+
+
+def test_the_recovery_on_sight_waits_while_the_platform_is_occupied(monkeypatch: pytest.MonkeyPatch) -> None:
+    """HZ-CBTC-20, the rule alone: a follower held short of Riverside (a dwell fault) while the
+    train ahead still stands at the platform is not driven on; it is rechecked every
+    ``RECOVERY_RECHECK_S`` and driven onto the stopping point once the train ahead's rear is
+    ``RECOVERY_SIGHT_M`` beyond it. With the rule off the move it plans ends inside the train
+    ahead."""
+    op = OPERATION.model_copy(update={"trains": 2})
+    sim = LineSimulation(
+        line=LINE,
+        vehicle=VEHICLE,
+        operation=op,
+        seed=1,
+        settings=LineSettings(signalling="cbtc", handover="predictive"),
+    )
+    stop = LINE.stations[0].stop_point_m
+    leader, follower = sim.trains
+    length = VEHICLE.length_m
+
+    def held_short() -> None:
+        leader.phase, leader.x_m = "dwelling", stop  # standing at the platform
+        follower.phase, follower.x_m, follower.next_station = "held", stop - 30.0, 1
+
+    held_short()
+    sim._recover(follower, 500.0)
+    assert follower.phase == "held" and follower.next_station == 1
+    assert follower.until_s == 500.0 + line_module.RECOVERY_RECHECK_S
+    leader.phase, leader.x_m = "running", stop + length + line_module.RECOVERY_SIGHT_M - 1.0  # not yet
+    sim._recover(follower, 501.0)
+    assert follower.phase == "held"
+    leader.x_m = stop + length + line_module.RECOVERY_SIGHT_M + 1.0  # its rear out of sight's reach
+    sim._recover(follower, 502.0)
+    assert follower.phase == "stopping" and follower.next_station == 0
+    assert follower.play_x[-1] == stop and follower.play_v[-1] == 0.0
+    # The rule off: the same held train is driven at once, to a front inside the train ahead.
+    held_short()
+    monkeypatch.setattr(line_module, "RECOVERY_SIGHT_M", -math.inf)
+    sim._recover(follower, 500.0)
+    assert follower.phase == "stopping" and follower.play_x[-1] > leader.x_m - length
 
 
 def test_the_predictive_hand_over_needs_cbtc() -> None:

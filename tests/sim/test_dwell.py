@@ -339,7 +339,7 @@ def test_a_lost_psc_reply_is_a_timeout_and_all_lost_is_the_fault_path() -> None:
     assert (ok.psc_attempts, one.psc_attempts) == (1, 2)
     assert one.start_enable_s is not None and ok.start_enable_s is not None
     assert one.start_enable_s > ok.start_enable_s  # the time-out and the second attempt
-    assert one.link is not None and one.link.lost > 0 and ok.link is not None and ok.link.lost == 0
+    assert one.link is not None and ok.link is not None and one.link.lost > ok.link.lost  # the outage
     for dead in (with_link(outage=(0.0, 3600.0)), with_link(loss_probability=1.0)):
         assert dead.outcome == "fault" and dead.start_enable_s is None and dead.fault and dead.emergency_brake
         assert dead.psc_attempts == SC.max_psc_attempts
@@ -369,15 +369,12 @@ def test_link_lost_with_psc_high_is_the_fault_path() -> None:
 def test_corrupt_frames_are_rejected_counted_and_never_delivered() -> None:
     """Bit errors on the medium: the safety layer refuses the damaged frames by reason; the dwell
     goes on with the good ones (SPEC §5 CRC, EN 50159 corruption)."""
-    import numpy as np
 
     from railstop.link.channel import media_preset
     from railstop.link.door_link import DoorLink
 
     noisy = media_preset("transponder").replace(bit_error_rate=3e-4)
-    link = DoorLink(
-        params=noisy, rng=np.random.default_rng(7), train_id=3, timeout_s=LINK.supervision_timeout_s
-    )
+    link = DoorLink(params=noisy, seed=7, train_id=3, timeout_s=LINK.supervision_timeout_s)
     r = dwell(0.02, link=link)
     assert r.link is not None
     assert r.link.rejected.get("corrupt", 0) > 10

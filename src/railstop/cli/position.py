@@ -7,13 +7,13 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, NoReturn, TypeVar
 
 import typer
 
 from railstop.cli.common import LineOpt, VehicleOpt, fail, out
 from railstop.config import load_line, load_vehicle
-from railstop.config.disturbances import load_disturbances
+from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
 from railstop.sim.position_run import (
@@ -219,17 +219,10 @@ def position_run(
         check_streams(seed_n, run_n)
         ln = _load("--line", line, load_line)
         veh = _load("--vehicle", vehicle, load_vehicle)
-        values: dict[str, Any] = {}
         dist = None  # the station stops draw from the set given (default: the line's nominal)
         if disturbances is not None:
             dist = _load("--disturbances", disturbances, load_disturbances)
-            values.update(disturbance_overrides(dist, ln, veh, seed=seed_n, run=run_n))
-        drawn = set(values)
-        for key, value in explicit.items():
-            values[key] = value
-            # A count given on the command line replaces the set's per-zone chance.
-            if key in ("slides", "slips"):
-                values.pop(f"{key[:-1]}_probability", None)
+        values, drawn = _setting_values(dist, explicit, ln, veh, seed_n, run_n)
         settings = PositionRunSettings(
             seed=seed_n,
             run=run_n,
@@ -249,20 +242,50 @@ def position_run(
         if plot is not None:
             plot = _write_plot(result, plot, ln, veh, settings, disturbances)
     except SettingError as exc:
-        option = _OPTION_OF.get(exc.setting)
-        if option is not None and option in given:
-            fail(f"{option}: {exc.detail} (got {_shown(given[option])})")
-        if exc.setting in drawn:
-            fail(f"--disturbances: {disturbances}: {exc}")
-        if option is not None:
-            fail(f"{option}: {exc.detail} (got {exc.value!r}, the default)")
-        fail(str(exc))
+        _fail_setting(exc, given, drawn, disturbances)
     except RailstopError as exc:
         fail(str(exc))
     if as_json:
         print(json.dumps(summary))
         return
     _print_summary(summary, plot)
+
+
+def _setting_values(
+    dist: DisturbanceSet | None,
+    explicit: dict[str, Any],
+    ln: Line,
+    veh: Vehicle,
+    seed: int,
+    run: int,
+) -> tuple[dict[str, Any], set[str]]:
+    """The run's settings: those the disturbance set draws for the run, then the options given
+    (which win); and the names the set drew."""
+    values: dict[str, Any] = {}
+    if dist is not None:
+        values.update(disturbance_overrides(dist, ln, veh, seed=seed, run=run))
+    drawn = set(values)
+    for key, value in explicit.items():
+        values[key] = value
+        # A count given on the command line replaces the set's per-zone chance.
+        if key in ("slides", "slips"):
+            values.pop(f"{key[:-1]}_probability", None)
+    return values, drawn
+
+
+def _fail_setting(
+    exc: SettingError, given: dict[str, str], drawn: set[str], disturbances: str | None
+) -> NoReturn:
+    """A refused setting as one line naming where it came from: the option given, the disturbance
+    set's draw, or the default."""
+    option = _OPTION_OF.get(exc.setting)
+    if option is not None and option in given:
+        fail(f"{option}: {exc.detail} (got {_shown(given[option])})")
+    if exc.setting in drawn:
+        fail(f"--disturbances: {disturbances}: {exc}")
+    if option is not None:
+        fail(f"{option}: {exc.detail} (got {exc.value!r}, the default)")
+    fail(str(exc))
 
 
 def _write_plot(

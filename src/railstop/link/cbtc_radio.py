@@ -16,8 +16,9 @@ in it, both ways.
 
 A unit of the scheduler (DESIGN rule 5: the link is a unit between two
 others): ``handle`` takes a message, ``next_deadline_s`` is the next
-arrival, ``on_timer`` delivers. Randomness: one generator per train and
-direction from (seed, stream, train, direction) (DESIGN rule 7).
+arrival, ``on_timer`` delivers. Randomness: the counter-based streams of
+(seed, stream, train, direction) (DESIGN rule 7,
+:meth:`~railstop.link.channel.LinkStreams.for_link`).
 """
 
 from __future__ import annotations
@@ -27,15 +28,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-import numpy as np
-
 from railstop.config.media import ChannelParams
-from railstop.link.channel import SimChannel
+from railstop.link.channel import LinkStreams, SimChannel
 from railstop.link.codec import CbtcCommand, CbtcReport, Telegram
 from railstop.link.endpoint import Endpoint
 from railstop.link.safety import demo_master_key, sum_counts
 from railstop.messages import Message, MovementCommand, Output, PositionReport
-from railstop.streams import Stream, seed_u64
+from railstop.streams import Stream
 
 __all__ = [
     "MAX_AGE_S",
@@ -199,7 +198,6 @@ class CbtcRadio:
     accepts: tuple[type, ...] = (PositionReport, MovementCommand)
     reports_delivered: int = 0
     commands_delivered: int = 0
-    outage_lost: int = 0
     _zc: CbtcEndpoint | None = None
     _trains: dict[int, CbtcEndpoint] = field(default_factory=dict)
     _media: dict[tuple[int, str], SimChannel] = field(default_factory=dict)
@@ -227,13 +225,9 @@ class CbtcRadio:
         key = (train_id, direction)
         medium = self._media.get(key)
         if medium is None:
-            entropy = [
-                int(seed_u64(self.seed)),
-                int(Stream.CBTC_RADIO),
-                int(train_id),
-                int(direction == "down"),
-            ]
-            medium = SimChannel(self.params, np.random.default_rng(np.random.SeedSequence(entropy)))
+            streams = LinkStreams.for_link(self.seed, Stream.CBTC_RADIO, train_id, int(direction == "down"))
+            # An outage (a train's radio dead) loses every frame sent in it, both ways.
+            medium = SimChannel(self.params, streams, outages=self.outages.get(train_id, ()))
             self._media[key] = medium
         return medium
 
@@ -248,7 +242,7 @@ class CbtcRadio:
             reports_delivered=self.reports_delivered,
             commands_sent=self._sent["down"],
             commands_delivered=self.commands_delivered,
-            lost=sum(m.stats.lost for m in self._media.values()) + self.outage_lost,
+            lost=sum(m.stats.lost for m in self._media.values()),
             rejected=rejected,
         )
 
@@ -263,9 +257,6 @@ class CbtcRadio:
         end.handle(message, now_s)
         frames, end.outgoing = end.outgoing, []
         for frame, _peer in frames:
-            if any(a <= now_s < b for a, b in self.outages.get(train_id, ())):
-                self.outage_lost += 1  # fault injection: nothing gets through
-                continue
             medium = self._medium(train_id, direction)
             medium.send(frame, now_s)
             self._schedule(train_id, direction, medium)

@@ -50,17 +50,43 @@ Loss, duplication, corruption
   ``bit_error_rate`` — the receiver's CRC / MAC must catch it (SPEC §5 CRC-16;
   the EN 50159 safety layer). Errors in the ``overhead_bits`` (preamble,
   sync) are not modelled as corruption: a receiver that loses sync drops the
-  frame, which is loss.
+  frame, which is loss;
+* an outage (fault data: a radio dead from ``start_s`` to ``end_s``) loses
+  every frame sent in it; such a frame never takes the medium nor advances the
+  burst chain (the transmitter is dead), and is counted as lost and as
+  ``lost_in_outage``. The stop kernel's outage (``SC_OUTAGE_*``) is the same
+  rule.
 
-Randomness (DESIGN rule 7)
---------------------------
-:class:`SimChannel` takes a ``numpy.random.Generator`` and draws, for every
-``send()`` whatever its outcome: ``rng.random(5)`` = (Gilbert–Elliott
-transition, loss while bad, independent loss, duplicate, reorder) and then
-one ``rng.standard_normal()`` for the jitter. Only when ``bit_error_rate > 0``
-does it draw more: for each delivered copy ``rng.binomial(8 n, BER)`` flips
-at ``rng.choice(8 n, k, replace=False)`` bit positions. The same seed gives
-the same frames, arrival times and statistics.
+Randomness (DESIGN rule 7): counter-based streams
+--------------------------------------------------
+A medium draws from the project's counter-based streams (``railstop.streams``),
+never from a generator's sequence: frame ``c`` (the c-th ``send()``, counted
+from 0 whatever its fate) uses the numbers of counter ``c``, so what happens
+to a frame depends on (seed, link, c) only, not on the draws of the frames
+before it nor on the other direction's. :class:`LinkStreams` holds a link's
+keys, one per role:
+
+* ``loss``: ``uniform(c)`` below ``loss_probability`` loses the frame;
+* ``latency``: ``normal(c)`` is the jitter's z;
+* ``corrupt``: ``uniform(2c)`` below the frame's corruption probability
+  corrupts the first copy, ``uniform(2c + 1)`` places its first flipped bit;
+* ``faults``: ``uniform(4c)`` the Gilbert–Elliott transition, ``4c + 1`` the
+  loss while bad, ``4c + 2`` duplication, ``4c + 3`` reordering;
+* ``flips``: the key ``stream_key(flips, 2c + j)`` gives copy j's further
+  flipped bits (counter 0 whether the duplicate, j = 1, is corrupted, 1 its
+  first flipped bit, 2.. the gaps to the next flip).
+
+The first three are the stop model's radio streams: :meth:`LinkStreams.for_run`
+gives a campaign run's keys, and for a medium without a poll cycle, bursts,
+duplication or reordering the stop kernel's telegram attempt ``c`` and this
+medium's frame ``c`` are lost, corrupted and delayed alike (a test compares
+them attempt by attempt). :meth:`LinkStreams.for_link` gives any other link's
+keys from (seed, owner stream, identity), e.g. the door link of a train's n-th
+dwell. The bit flips are exact for independent errors of rate BER per bit:
+given at least one flip, the first flipped bit J has P(J = j) ∝ (1 − BER)^j
+BER, drawn by inverting its distribution, and the gaps between flips are
+geometric. Every draw is a few integer operations in Python
+(``streams.py_key_uniform``), bit-identical to the compiled model's.
 """
 
 from __future__ import annotations
@@ -76,6 +102,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from railstop.config.media import MEDIA_FILE, ChannelParams, load_media
 from railstop.errors import ConfigError, RailstopError
+from railstop.streams import (
+    Stream,
+    py_key_normal,
+    py_key_uniform,
+    py_mix64,
+    py_seed_key,
+    py_stream_key,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -219,44 +253,115 @@ def stationary_loss_probability(params: ChannelParams) -> float:
 # The event-by-event driver
 
 
+@dataclass(frozen=True, slots=True)
+class LinkStreams:
+    """The counter-based stream keys of one link direction (module docstring: which draw is which).
+
+    ``loss``, ``latency``, ``corrupt``: the stop model's radio streams of a run
+    (:meth:`for_run`) or a link's own (:meth:`for_link`); ``faults`` and
+    ``flips``: the draws the stop model has no use for (bursts, duplicates,
+    reordering, further bit flips)."""
+
+    loss: int
+    latency: int
+    corrupt: int
+    faults: int
+    flips: int
+
+    def __post_init__(self) -> None:
+        for name in ("loss", "latency", "corrupt", "faults", "flips"):
+            v = getattr(self, name)
+            if type(v) is not int or not 0 <= v < 2**64:
+                raise LinkError(f"LinkStreams.{name}: a 64-bit key (got {v!r})")
+
+    @classmethod
+    def for_run(cls, seed: int, run: int) -> LinkStreams:
+        """Run ``run``'s radio keys of the stop model (``model.step``: ``k_loss``, ``k_latency``,
+        ``k_corrupt``), so that this medium draws what a campaign's run draws."""
+
+        def key(stream: Stream) -> int:
+            return py_stream_key(py_seed_key(seed, int(stream)), run)
+
+        return cls(
+            loss=key(Stream.RADIO_LOSS),
+            latency=key(Stream.RADIO_LATENCY),
+            corrupt=key(Stream.RADIO_CORRUPT),
+            faults=key(Stream.LINK_FAULTS),
+            flips=key(Stream.LINK_FLIPS),
+        )
+
+    @classmethod
+    def for_link(cls, seed: int, owner: Stream, *identity: int) -> LinkStreams:
+        """The keys of a link named by its owner stream and integers (e.g. ``Stream.DOOR_LINK``,
+        train, dwell, direction): those of :meth:`for_run` for a "run" folded from them, with its
+        top bit set, so that no link shares a campaign run's numbers (runs are below 2^63)."""
+        h = py_mix64((int(owner) + 1) * 0x9E3779B97F4A7C15 & 0xFFFFFFFFFFFFFFFF)
+        for x in identity:
+            h = py_mix64((h ^ (int(x) & 0xFFFFFFFFFFFFFFFF)) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF)
+        return cls.for_run(seed, h | (1 << 63))
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ChannelStats:
     """Counts of a :class:`SimChannel` so far.
 
     ``sent``: send() calls; ``sent_in_burst``: of those, sent in the bad state;
-    ``lost``: frames that never arrive; ``duplicated``: extra copies made;
-    ``reordered``: frames held back; ``corrupted``: copies with at least one
-    flipped bit; ``delivered``: copies returned by receive().
+    ``lost``: frames that never arrive (``lost_in_outage`` of them in an
+    outage); ``duplicated``: extra copies made; ``reordered``: frames held
+    back; ``corrupted``: copies with at least one flipped bit; ``delivered``:
+    copies returned by receive().
     """
 
     sent: int = 0
     sent_in_burst: int = 0
     lost: int = 0
+    lost_in_outage: int = 0
     duplicated: int = 0
     reordered: int = 0
     corrupted: int = 0
     delivered: int = 0
 
 
+def _outages(outages: object) -> tuple[tuple[float, float], ...]:
+    try:
+        spans = tuple((float(a), float(b)) for a, b in outages)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):
+        raise LinkError(f"outages: (start_s, end_s) pairs (got {outages!r})") from None
+    for a, b in spans:
+        if not (math.isfinite(a) and not math.isnan(b) and a <= b):
+            raise LinkError(f"outage: needs a finite start_s <= end_s (inf: for good) (got {(a, b)!r})")
+    return spans
+
+
 class SimChannel:
     """One direction of a simulated medium: ``send(frame, now_s)``, ``receive(now_s)``.
 
     Pure unit (DESIGN rule 2): no clock, no socket; time is an argument and
-    randomness comes from the given generator (draw order: module docstring).
-    Send times must not decrease. ``slot_phase_s``: the poll-cycle slots are at
-    ``slot_phase_s + k · cycle_s``.
+    randomness comes from the link's counter-based streams (:class:`LinkStreams`;
+    which draw is which: module docstring). Send times must not decrease.
+    ``slot_phase_s``: the poll-cycle slots are at ``slot_phase_s + k · cycle_s``.
+    ``outages``: (start_s, end_s) spans in which every frame sent is lost.
     """
 
-    def __init__(self, params: ChannelParams, rng: np.random.Generator, *, slot_phase_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        params: ChannelParams,
+        streams: LinkStreams,
+        *,
+        slot_phase_s: float = 0.0,
+        outages: object = (),
+    ) -> None:
         if not isinstance(params, ChannelParams):
             raise LinkError(f"params must be ChannelParams (got {type(params).__name__})")
-        if not isinstance(rng, np.random.Generator):
-            raise LinkError(f"rng must be a numpy.random.Generator (got {type(rng).__name__})")
+        if not isinstance(streams, LinkStreams):
+            raise LinkError(f"streams must be LinkStreams (got {type(streams).__name__})")
         if not math.isfinite(slot_phase_s):
             raise LinkError(f"slot_phase_s must be finite (got {slot_phase_s!r})")
         self.params = params
-        self._rng = rng
+        self.streams = streams
+        self.outages = _outages(outages)
         self._phase_s = float(slot_phase_s)
+        self._frames = 0  # the counter of the next frame sent
         self._bad = False  # Gilbert–Elliott state; starts good
         self._last_send_s = -math.inf
         self._medium_free_s = -math.inf  # end of the last transmission
@@ -265,6 +370,10 @@ class SimChannel:
         self._queue: list[tuple[float, int, bytes]] = []  # (arrival_s, insertion no., frame)
         self._seq = 0
         self._counts = dict.fromkeys(ChannelStats.__dataclass_fields__, 0)
+        p = params
+        ber = p.bit_error_rate
+        self._log_keep = math.log1p(-ber) if 0.0 < ber < 1.0 else 0.0  # log(1 − BER) per bit
+        self._p_any: dict[int, float] = {}
 
     @property
     def stats(self) -> ChannelStats:
@@ -283,27 +392,56 @@ class SimChannel:
         self._last_slot = k
         return self._phase_s + k * cycle
 
-    def _corrupt(self, frame: bytes) -> bytes:
+    def _flips(self, nbits: int, c: int, copy: int) -> list[int]:
+        """The flipped bit positions of frame ``c``'s copy ``copy`` (none, mostly): every bit
+        flips independently with the bit error rate (module docstring: the draws)."""
         ber = self.params.bit_error_rate
-        nbits = 8 * len(frame)
         if ber == 0.0 or nbits == 0:
+            return []
+        if ber >= 1.0:
+            return list(range(nbits))
+        p_any = self._p_any.get(nbits)
+        if p_any is None:  # P(at least one flip) of a frame this long, once per length
+            p_any = self._p_any[nbits] = float(corruption_probability(self.params, nbits // 8))
+        sub = py_stream_key(self.streams.flips, 2 * c + copy)  # the copy's own key: further flips
+        if copy == 0:  # the stop model's draws: corrupted? and where the first flip is
+            if not py_key_uniform(self.streams.corrupt, 2 * c) < p_any:
+                return []
+            u_first = py_key_uniform(self.streams.corrupt, 2 * c + 1)
+        else:
+            if not py_key_uniform(sub, 0) < p_any:
+                return []
+            u_first = py_key_uniform(sub, 1)
+        # Given a flip, P(first flip <= j) = (1 − (1 − BER)^(j+1)) / p_any: inverted.
+        first = math.ceil(math.log1p(-u_first * p_any) / self._log_keep) - 1
+        pos = [min(max(first, 0), nbits - 1)]
+        j = 2
+        while True:  # geometric gaps: the next bit that flips after the last one
+            u = py_key_uniform(sub, j)
+            j += 1
+            gap = max(1, math.ceil(math.log1p(-u) / self._log_keep)) if u > 0.0 else 1
+            nxt = pos[-1] + gap
+            if nxt >= nbits:
+                return pos
+            pos.append(nxt)
+
+    def _corrupt(self, frame: bytes, c: int, copy: int) -> bytes:
+        pos = self._flips(8 * len(frame), c, copy)
+        if not pos:
             return frame
-        k = int(self._rng.binomial(nbits, ber))
-        if k == 0:
-            return frame
-        # k flips at distinct positions: the same law as every bit flipping independently.
-        pos = self._rng.choice(nbits, size=k, replace=False)
-        buf = np.frombuffer(frame, dtype=np.uint8).copy()
-        np.bitwise_xor.at(buf, pos // 8, (1 << (7 - pos % 8)).astype(np.uint8))
+        buf = bytearray(frame)
+        for b in pos:
+            buf[b >> 3] ^= 0x80 >> (b & 7)
         self._counts["corrupted"] += 1
-        return buf.tobytes()
+        return bytes(buf)
 
     def _push(self, arrival_s: float, frame: bytes) -> None:
         heapq.heappush(self._queue, (arrival_s, self._seq, frame))
         self._seq += 1
 
-    def send(self, frame: bytes, now_s: float) -> None:
-        """Hand a frame to the medium at ``now_s`` (seconds; not earlier than the previous send)."""
+    def send(self, frame: bytes, now_s: float) -> float | None:
+        """Hand a frame to the medium at ``now_s`` (seconds; not earlier than the previous send):
+        when it will arrive (its first copy), None when it is lost."""
         if not isinstance(frame, bytes | bytearray | memoryview):
             raise LinkError(f"frame must be bytes (got {type(frame).__name__})")
         frame = bytes(frame)
@@ -313,33 +451,44 @@ class SimChannel:
         if now_s < self._last_send_s:
             raise LinkError(f"now_s went backwards: {now_s!r} after a send at {self._last_send_s!r}")
         self._last_send_s = now_s
-        p = self.params
-
-        # Fixed draws per send (module docstring), whatever the outcome.
-        u_state, u_burst, u_loss, u_dup, u_reorder = self._rng.random(5)
-        z = float(self._rng.standard_normal())
+        p, ks = self.params, self.streams
+        c = self._frames  # this frame's counter in every stream
+        self._frames = c + 1
+        self._counts["sent"] += 1
+        if any(a <= now_s < b for a, b in self.outages):
+            self._counts["lost"] += 1  # the radio is dead: nothing goes out
+            self._counts["lost_in_outage"] += 1
+            return None
 
         # Gilbert–Elliott: advance the chain once per frame, then judge this frame.
+        u_state = py_key_uniform(ks.faults, 4 * c)
         self._bad = (
             (u_state >= p.burst_exit_probability) if self._bad else (u_state < p.burst_enter_probability)
         )
-        self._counts["sent"] += 1
         self._counts["sent_in_burst"] += int(self._bad)
 
         depart_s = self._departure_s(now_s)
         air_s = float(airtime_s(p, len(frame)))
-        duplicated = u_dup < p.duplicate_probability
+        duplicated = (
+            p.duplicate_probability > 0.0 and py_key_uniform(ks.faults, 4 * c + 2) < p.duplicate_probability
+        )
         # The medium is busy during the transmission (twice for a duplicate), lost or not.
         self._medium_free_s = depart_s + air_s * (2 if duplicated else 1)
 
-        lost = (self._bad and u_burst < p.burst_loss_probability) or u_loss < p.loss_probability
+        lost = py_key_uniform(ks.loss, c) < p.loss_probability or (
+            self._bad and py_key_uniform(ks.faults, 4 * c + 1) < p.burst_loss_probability
+        )
         if lost:
             self._counts["lost"] += 1
-            return
+            return None
 
-        reordered = u_reorder < p.reorder_probability
-        # Same model as delivery_delay_s(): airtime + propagation (+ hold-back).
-        arrival_s = depart_s + air_s + float(propagation_delay_s(p, z))
+        reordered = (
+            p.reorder_probability > 0.0 and py_key_uniform(ks.faults, 4 * c + 3) < p.reorder_probability
+        )
+        # Same model as delivery_delay_s() (and the stop model's attempt): airtime + propagation
+        # (+ hold-back).
+        z = py_key_normal(ks.latency, c) if p.jitter_s > 0.0 else 0.0
+        arrival_s = depart_s + (air_s + float(propagation_delay_s(p, z)))
         if reordered:
             arrival_s += p.reorder_delay_s
             self._counts["reordered"] += 1
@@ -347,12 +496,13 @@ class SimChannel:
             # FIFO: jitter never lets a frame overtake an earlier one.
             arrival_s = max(arrival_s, self._in_order_s)
             self._in_order_s = arrival_s
-        self._push(arrival_s, self._corrupt(frame))
+        self._push(arrival_s, self._corrupt(frame, c, 0))
         if duplicated:
             self._counts["duplicated"] += 1
-            self._push(arrival_s + air_s, self._corrupt(frame))
+            self._push(arrival_s + air_s, self._corrupt(frame, c, 1))
             if not reordered:
                 self._in_order_s = arrival_s + air_s  # later frames do not overtake the copy
+        return arrival_s
 
     def receive(self, now_s: float) -> list[bytes]:
         """Frames that have arrived by ``now_s``, in arrival order; each is returned once."""
@@ -383,6 +533,7 @@ def media_preset(name: str, path: str | Path | None = None) -> ChannelParams:
 __all__ = [
     "ChannelStats",
     "LinkError",
+    "LinkStreams",
     "SimChannel",
     "airtime_s",
     "corruption_probability",

@@ -13,9 +13,10 @@ a frame refused by either is dropped and counted by its reason, never
 delivered.
 
 Pure (DESIGN rule 2): time is an argument, randomness comes from the
-generator given, nothing is read from a clock. ``outage`` is fault injection:
-every frame sent inside ``[start_s, end_s)`` is lost, both ways (a dead
-transponder, a cut loop cable).
+counter-based streams of (seed, train, dwell, direction)
+(:meth:`~railstop.link.channel.LinkStreams.for_link`), nothing is read from a
+clock. ``outage`` is fault injection: every frame sent inside ``[start_s,
+end_s)`` is lost, both ways (a dead transponder, a cut loop cable).
 """
 
 from __future__ import annotations
@@ -24,14 +25,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from railstop.config.media import ChannelParams
 from railstop.control.doors import LOCKED_STATES, DoorSignals, DoorState, door_mask
-from railstop.link.channel import LinkError, SimChannel
+from railstop.link.channel import LinkError, LinkStreams, SimChannel
 from railstop.link.codec import DoorCommand, PsdStatus, Telegram
 from railstop.link.endpoint import Endpoint
 from railstop.link.safety import demo_master_key, sum_counts
+from railstop.streams import Stream
 
 __all__ = ["DoorLink", "DoorLinkCounts", "Received", "command_signals", "door_command", "psd_status"]
 
@@ -137,6 +137,8 @@ class DoorLink:
     :class:`~railstop.link.endpoint.Endpoint` (the ends the live door link runs too) and one
     :class:`~railstop.link.channel.SimChannel` per direction between them.
 
+    ``seed``, ``dwell``: the link's random streams are those of (seed, ``Stream.DOOR_LINK``, train,
+    dwell, direction) (DESIGN rule 7; ``dwell`` numbers one train's dwells).
     ``max_age_s``: the receivers refuse frames older than this (EN 50159 delay); ``start_s``:
     the link comes up then (no frame is sent before it); ``outage``: every frame sent inside
     ``[start_s, end_s)`` is lost, both ways (fault injection). ``timeout_s`` is the door data's
@@ -144,8 +146,9 @@ class DoorLink:
     """
 
     params: ChannelParams
-    rng: np.random.Generator
     train_id: int
+    seed: int = 0
+    dwell: int = 0
     category: int = 1
     max_age_s: float = 0.3
     timeout_s: float = 0.5
@@ -157,7 +160,6 @@ class DoorLink:
     up: SimChannel = field(init=False)  # train -> platform
     down: SimChannel = field(init=False)  # platform -> train
     sent: dict[str, int] = field(init=False)  # telegrams handed to the link, per direction
-    outage_lost: int = 0
 
     def __post_init__(self) -> None:
         start, end = self.outage if self.outage is not None else (0.0, 0.0)
@@ -169,8 +171,15 @@ class DoorLink:
         key = _DEMO_MASTER if self.category == 3 else None
         self.train_end = self._end(self.train_addr, PLATFORM_ID, key, PsdStatus)
         self.platform_end = self._end(PLATFORM_ID, self.train_addr, key, DoorCommand)
-        self.up = SimChannel(self.params, self.rng)
-        self.down = SimChannel(self.params, self.rng)
+        spans = () if self.outage is None else (self.outage,)
+        self.up, self.down = (
+            SimChannel(
+                self.params,
+                LinkStreams.for_link(self.seed, Stream.DOOR_LINK, self.train_id, self.dwell, way),
+                outages=spans,
+            )
+            for way in (0, 1)
+        )
         self.sent = {"up": 0, "down": 0}
 
     def _end(self, own: int, peer: int, key: bytes | None, takes: type[Telegram]) -> Endpoint:
@@ -191,10 +200,7 @@ class DoorLink:
         frame = end.frame(msg, peer, now_s)
         if frame is None:
             return  # a value the telegram cannot carry: nothing sent (counted by the end)
-        if self.outage is not None and self.outage[0] <= now_s < self.outage[1]:
-            self.outage_lost += 1  # fault injection: nothing gets through
-            return
-        medium.send(frame, now_s)
+        medium.send(frame, now_s)  # in an outage (fault injection) the medium loses it
 
     def send_command(self, msg: DoorCommand, now_s: float) -> None:
         """Train -> platform."""
@@ -230,6 +236,6 @@ class DoorLink:
             commands_delivered=self.platform_end.delivered,
             status_sent=self.sent["down"],
             status_delivered=self.train_end.delivered,
-            lost=self.up.stats.lost + self.down.stats.lost + self.outage_lost,
+            lost=self.up.stats.lost + self.down.stats.lost,
             rejected=rejected,
         )

@@ -321,14 +321,15 @@ class PlatformDoors:
 
 
 def dwell_entropy(seed: int, train_id: int, counter: int) -> list[int]:
-    """The entropy of one dwell's generators (DESIGN rule 7): (seed, stream, train, dwell)."""
+    """The entropy of one dwell's generator (DESIGN rule 7): (seed, stream, train, dwell)."""
     return [int(seed_u64(seed)), int(Stream.DOOR_LINK), int(train_id), int(counter)]
 
 
 def creep_rng(seed: int = 0, *, train_id: int = 1, counter: int = 0) -> np.random.Generator:
-    """Where a dwell's correction creeps land (SPEC §5): a generator of (seed, train, dwell) only,
-    apart from the door link's of the same dwell (its entropy and a 1); the same in the dwell
-    simulation, the line and the live trains process."""
+    """Where a dwell's correction creeps land (SPEC §5): a generator of (seed, train, dwell) only
+    (the dwell's entropy and a 1; the door link of the same dwell draws from its counter-based
+    streams, ``link.channel.LinkStreams``); the same in the dwell simulation, the line and the live
+    trains process."""
     return np.random.default_rng(np.random.SeedSequence([*dwell_entropy(seed, train_id, counter), 1]))
 
 

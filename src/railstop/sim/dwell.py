@@ -41,7 +41,7 @@ from railstop.errors import ConfigError, SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLink, DoorLinkCounts
 from railstop.nodes.doors import DoorModel
-from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, creep_rng, dwell_ends, dwell_entropy, model_for
+from railstop.nodes.dwell import DWELL_STEP_S, DwellRun, creep_rng, dwell_ends, model_for
 from railstop.onboard import cpcs
 from railstop.onboard.stop_confirm import StopPhase
 from railstop.wayside.wpcs import answers_psc
@@ -151,7 +151,7 @@ def make_door_link(
 ) -> DoorLink:
     """The door link of the door data's ``[link]`` section for one dwell.
 
-    Its random generator is a function of (seed, stream, train, counter) only
+    Its random streams are a function of (seed, stream, train, counter, direction) only
     (DESIGN rule 7): ``counter`` numbers the dwells of one train.
     ``loss_probability`` overrides the medium's per-frame loss (both ways);
     ``outage`` = (start_s, end_s) loses every frame sent in between (fault injection);
@@ -164,11 +164,11 @@ def make_door_link(
         raise ConfigError(doors.source, "link.medium", exc.message, cfg.medium) from None
     if loss_probability is not None:
         params = params.replace(loss_probability=loss_probability)
-    entropy = dwell_entropy(seed, train_id, counter)
     return DoorLink(
         params=params,
-        rng=np.random.default_rng(np.random.SeedSequence(entropy)),
         train_id=train_id,
+        seed=seed,
+        dwell=counter,
         category=cfg.category,
         max_age_s=cfg.max_age_s,
         timeout_s=cfg.supervision_timeout_s,
