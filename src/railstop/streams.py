@@ -277,15 +277,28 @@ def py_stream_key(seed_stream_key: int, run: int) -> int:
     return py_mix64(seed_stream_key ^ (((run & _P_MASK) * _P_GOLDEN) & _P_MASK))
 
 
+def py_fold(first: int, *more: int) -> int:
+    """Integers folded into one well-mixed 64-bit number (e.g. a link's owner stream and identity,
+    ``link.channel.LinkStreams.for_link``)."""
+    h = py_mix64((first + 1) * _P_GOLDEN & _P_MASK)
+    for x in more:
+        h = py_mix64((h ^ (x & _P_MASK)) * _P_M1 & _P_MASK)
+    return h
+
+
+def py_key_bits(key: int, counter: int) -> int:
+    """:func:`key_bits`: the 64 bits of draw ``counter``."""
+    return py_mix64((key + (counter + 1) * _P_GOLDEN) & _P_MASK)
+
+
 def py_key_uniform(key: int, counter: int) -> float:
     """:func:`key_uniform`: uniform in [0, 1)."""
-    bits = py_mix64((key + (counter + 1) * _P_GOLDEN) & _P_MASK)
-    return (bits >> 11) * (1.0 / 9007199254740992.0)
+    return (py_key_bits(key, counter) >> 11) * (1.0 / 9007199254740992.0)
 
 
 def py_key_normal(key: int, counter: int) -> float:
     """:func:`key_normal`: standard normal (Box–Muller on the two halves of one draw)."""
-    bits = py_mix64((key + (counter + 1) * _P_GOLDEN) & _P_MASK)
+    bits = py_key_bits(key, counter)
     u1 = ((bits >> 32) + 0.5) * (1.0 / 4294967296.0)
     u2 = (bits & 0xFFFFFFFF) * (1.0 / 4294967296.0)
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)

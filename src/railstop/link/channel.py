@@ -104,9 +104,9 @@ from railstop.config.media import MEDIA_FILE, ChannelParams, load_media
 from railstop.errors import ConfigError, RailstopError
 from railstop.streams import (
     Stream,
+    py_fold,
     py_key_normal,
     py_key_uniform,
-    py_mix64,
     py_seed_key,
     py_stream_key,
 )
@@ -295,10 +295,7 @@ class LinkStreams:
         """The keys of a link named by its owner stream and integers (e.g. ``Stream.DOOR_LINK``,
         train, dwell, direction): those of :meth:`for_run` for a "run" folded from them, with its
         top bit set, so that no link shares a campaign run's numbers (runs are below 2^63)."""
-        h = py_mix64((int(owner) + 1) * 0x9E3779B97F4A7C15 & 0xFFFFFFFFFFFFFFFF)
-        for x in identity:
-            h = py_mix64((h ^ (int(x) & 0xFFFFFFFFFFFFFFFF)) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF)
-        return cls.for_run(seed, h | (1 << 63))
+        return cls.for_run(seed, py_fold(int(owner), *(int(x) for x in identity)) | (1 << 63))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -370,8 +367,7 @@ class SimChannel:
         self._queue: list[tuple[float, int, bytes]] = []  # (arrival_s, insertion no., frame)
         self._seq = 0
         self._counts = dict.fromkeys(ChannelStats.__dataclass_fields__, 0)
-        p = params
-        ber = p.bit_error_rate
+        ber = params.bit_error_rate
         self._log_keep = math.log1p(-ber) if 0.0 < ber < 1.0 else 0.0  # log(1 − BER) per bit
         self._p_any: dict[int, float] = {}
 
@@ -403,12 +399,12 @@ class SimChannel:
         p_any = self._p_any.get(nbits)
         if p_any is None:  # P(at least one flip) of a frame this long, once per length
             p_any = self._p_any[nbits] = float(corruption_probability(self.params, nbits // 8))
-        sub = py_stream_key(self.streams.flips, 2 * c + copy)  # the copy's own key: further flips
         if copy == 0:  # the stop model's draws: corrupted? and where the first flip is
             if not py_key_uniform(self.streams.corrupt, 2 * c) < p_any:
                 return []
             u_first = py_key_uniform(self.streams.corrupt, 2 * c + 1)
-        else:
+        sub = py_stream_key(self.streams.flips, 2 * c + copy)  # the copy's own key: further flips
+        if copy != 0:
             if not py_key_uniform(sub, 0) < p_any:
                 return []
             u_first = py_key_uniform(sub, 1)
