@@ -17,7 +17,6 @@ import argparse
 import time
 
 from railstop.config import default_line, default_vehicle
-from railstop.config.schema import Line
 from railstop.controllers import TASC_CONTROLLERS
 from railstop.sim.single import run_stop
 from railstop.wayside.tasc_unit import FORM_NAMES, SignalForm
@@ -30,13 +29,6 @@ def _forms(text: str) -> list[int]:
     return list(range(int(lo), int(hi or lo) + 1))
 
 
-def _without_doppler(line: Line) -> Line:
-    stations = [
-        st.model_copy(update={"tasc": st.tasc.model_copy(update={"doppler": None})}) for st in line.stations
-    ]
-    return line.model_copy(update={"stations": stations})
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -47,7 +39,7 @@ def main() -> None:
     args = parser.parse_args()
     line, vehicle = default_line(), default_vehicle()
     if args.detectors_only:
-        line = _without_doppler(line)
+        line = line.model_copy(update={"stations": [st.detectors_only() for st in line.stations]})
     variant = "detectors only (no Doppler)" if args.detectors_only else "detectors + Doppler"
     print(f"{line.line.name}, {variant}: nominal within ±0.10 m, crush + brake 0.85 within ±0.35 m")
     print(f"{'form':<44} {'controller':<22} {'worst nominal':>13} {'worst crush':>11} {'met':>5}")

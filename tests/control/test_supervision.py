@@ -35,10 +35,12 @@ from railstop.controllers import TASC_CONTROLLERS, TASC_PWM
 from railstop.messages import TEL_EMERGENCY
 from railstop.onboard.tasc_receiver import (
     RX_EB,
+    RX_ODO_SCALE,
     RX_SIZE,
     receiver_alive_1,
     receiver_fix_1,
     receiver_init_1,
+    receiver_observe_1,
     receiver_params,
     receiver_supervise_1,
 )
@@ -133,7 +135,7 @@ def test_onboard_timeout_fires_after_the_supervision_time() -> None:
     """DESIGN rule 10: inside the zone, braking telegrams stop -> emergency brake, 1 s later."""
     unit = _Onboard()
     first = RIVERSIDE.ato_transponders_m()[0]
-    receiver_fix_1(unit.rx, unit.rp, first)
+    receiver_fix_1(unit.rx, unit.rp, first, unit.t)
     assert not unit.run(2.0, 2.0, telegram_every_s=0.1)  # life signs every 0.1 s: no alarm
     # The last life sign came at most 0.1 s before: silent for at most 0.95 s, still no alarm.
     assert not unit.run(0.85, 2.0, telegram_every_s=None)
@@ -147,11 +149,39 @@ def test_onboard_first_telegram_deadline() -> None:
     """No telegram at all: the clock starts once the train is surely past the second detector."""
     unit = _Onboard()
     first = RIVERSIDE.detector_positions_m()[0]
-    receiver_fix_1(unit.rx, unit.rp, first)
+    receiver_fix_1(unit.rx, unit.rp, first, unit.t)
     # 2 m/s from the first detector: 100 m to the second, plus the odometer's possible error.
     assert not unit.run(45.0, 2.0, telegram_every_s=None)
     assert unit.run(8.0, 2.0, telegram_every_s=None)
     assert unit.rx[RX_EB] == EB_TIMEOUT
+
+
+def _odometer_scale(slide_at_m: float | None) -> float:
+    """The odometer's scale the onboard unit takes between its two transponders at Riverside,
+    the odometer reading 2 % long over the stretch; ``slide_at_m``: the wheel-slide protection
+    acts for one step this far past the first transponder (None: never)."""
+    unit = _Onboard()
+    first, second = RIVERSIDE.ato_transponders_m()[:2]
+    receiver_fix_1(unit.rx, unit.rp, first, unit.t)
+    speed, travelled = 10.0, 0.0
+    tach = np.zeros(8)
+    while travelled < second - first - 1e-9:
+        unit.t += DT
+        step = min(speed * DT, second - first - travelled)
+        wsp = slide_at_m is not None and travelled <= slide_at_m < travelled + step
+        receiver_observe_1(unit.rx, unit.rp, tach, speed * 1.02, wsp, unit.t)
+        receiver_supervise_1(unit.rx, unit.rp, unit.t, step * 1.02, speed * 1.02)
+        travelled += step
+    receiver_fix_1(unit.rx, unit.rp, second, unit.t + DT)
+    return float(unit.rx[RX_ODO_SCALE])
+
+
+def test_the_odometer_scale_is_not_taken_over_a_slide() -> None:
+    """Stop model 12: between two transponders the unit measures its odometer's scale (degraded
+    mode finishes a stop at it), but not over a stretch in which the wheel-slide protection acted:
+    the sliding wheel counts short, and the next stretch would not slide alike."""
+    assert _odometer_scale(None) == pytest.approx(1.0 / 1.02, rel=1e-9)
+    assert _odometer_scale(150.0) == 1.0  # the scale it had (none measured yet)
 
 
 def test_onboard_overrun_guard_fires_on_its_own_odometry() -> None:
@@ -159,12 +189,12 @@ def test_onboard_overrun_guard_fires_on_its_own_odometry() -> None:
     unit = _Onboard()
     # Fixed 25 m before the stop (the precise-stop transponder), at 16 m/s: cannot stop by the
     # platform end (5 m beyond) with full service.
-    receiver_fix_1(unit.rx, unit.rp, RIVERSIDE.ato_transponders_m()[1])
+    receiver_fix_1(unit.rx, unit.rp, RIVERSIDE.ato_transponders_m()[1], unit.t)
     assert unit.run(0.05, 16.0, telegram_every_s=0.1)
     assert unit.rx[RX_EB] == EB_ONBOARD_GUARD
     # The same train at 3 m/s is no danger.
     slow = _Onboard()
-    receiver_fix_1(slow.rx, slow.rp, RIVERSIDE.ato_transponders_m()[1])
+    receiver_fix_1(slow.rx, slow.rp, RIVERSIDE.ato_transponders_m()[1], slow.t)
     assert not slow.run(1.0, 3.0, telegram_every_s=0.1)
 
 

@@ -116,8 +116,8 @@ def test_drives_and_states_cross_the_wire_unchanged() -> None:
     assert isinstance(got[6][1], Drive) and got[6][1].emergency and not got[0][1].emergency  # type: ignore[union-attr]
     states = [
         TrainState(0, 100.0, 12.0),
-        TrainState(1, 200.0, 3.0, Sense(7, 2.9, 0.029, 5510.0, False), 1.23),
-        TrainState(2, 300.0, 0.0, Sense(8, 0.0, 0.0, math.nan, True), 1.24, True, 0.61, 38.4, True),
+        TrainState(1, 200.0, 3.0, Sense(7, 2.9, 0.029, 5510.0, False, True), 1.23),
+        TrainState(2, 300.0, 0.0, Sense(8, 0.0, 0.0, math.nan, True, False), 1.24, True, 0.61, 38.4, True),
     ]
     back = [s for p in pack_states(states * 10) for s in unpack_states(p)][:3]
     assert all(len(p) <= 255 for p in pack_states(states * 10))

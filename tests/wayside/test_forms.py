@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 
 from railstop.config import default_line, default_vehicle
-from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_CONTROLLERS, TASC_STEP
+from railstop.config.disturbances import load_disturbances
+from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_CONTROLLERS, TASC_PWM, TASC_STEP
 from railstop.link.codec import TASC_FORM_TYPES
 from railstop.sim.engine import BatchResult
 from railstop.sim.single import StopResult, run_stop
@@ -22,6 +23,7 @@ from railstop.wayside.tasc_unit import SignalForm
 LINE = default_line()
 VEHICLE = default_vehicle()
 STATION = LINE.station("Riverside")  # the line's first, the CLI's default
+STANDARD = load_disturbances("standard")
 FORMS = list(SignalForm)
 # (load factor, brake gain, band): the single-stop targets of the ground-TASC issue.
 CASES = {"nominal": (0.0, 1.0, 0.10), "crush": (1.0, 0.85, 0.35)}
@@ -137,3 +139,36 @@ def test_form_8_one_notch_step_per_telegram_spaced(controller: str, case: str) -
     times = [c["t_s"] for c in telegrams]
     for earlier, later in zip(times, times[1:], strict=False):
         assert later - earlier >= hold - 1e-9, (earlier, later)
+
+
+# Stop model 12 (issue 36): the onboard unit of forms 1-5 calibrates its tachometer only over
+# stretches in which its wheel-slide protection did not act. Standard run 840 slides on a
+# low-adhesion patch between the first two detectors: on model 11 the interval's tachometer
+# distance, short by the slide, set the scale a half too high and forms 1 and 5 ended 143 m
+# short, form 4 (its loop gain updated over the slide) 7.2 m short.
+@pytest.mark.parametrize(
+    "form", [SignalForm.POSITION, SignalForm.SPEED, SignalForm.DECELERATION], ids=lambda f: f"form{int(f)}"
+)
+def test_a_slide_does_not_calibrate_the_tachometer(form: SignalForm) -> None:
+    result, batch = run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_PWM, seed=1, form=form,
+        disturbances=STANDARD, run=840,
+    )  # fmt: skip
+    assert bool(batch.slid[0]), "run 840 no longer slides: pick another run"
+    assert result.emergency_brake is None
+    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+
+
+# Form 4 calibrates its tachometer from the wayside's distances (stop model 12). These standard
+# runs approach uphill at 17-20 per mille with the odometer's wheel diameter 0.9-1.4 % below the
+# actual: the brake gives a third of the deceleration, and the uncalibrated tachometer's
+# deceleration biased the loop gain so that on model 11 they ended 0.42, 0.43 and 0.42 m short,
+# silently.
+@pytest.mark.parametrize("run", [2131, 6781, 9429])
+def test_form_4_calibrates_its_tachometer_from_the_wayside_distances(run: int) -> None:
+    result, batch = run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_PWM, seed=1, form=SignalForm.SPEED,
+        disturbances=STANDARD, run=run,
+    )  # fmt: skip
+    assert not bool(batch.slid[0])
+    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"

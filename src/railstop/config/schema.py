@@ -200,6 +200,10 @@ class Station(_Model):
     def platform_end(self) -> float:
         return self.stop_point_m + 5.0 if self.platform_end_m is None else self.platform_end_m
 
+    def detectors_only(self) -> Station:
+        """This station without its Doppler radar (SPEC §1 claim 6, the detectors-only variant)."""
+        return self.model_copy(update={"tasc": self.tasc.model_copy(update={"doppler": None})})
+
     @property
     def platform_start(self) -> float:
         return self.platform_end - self.platform_length_m

@@ -99,7 +99,7 @@ _ATO, _BEGIN, _BRAKE, _PLACE = 0, 1, 2, 3
 _STATE = struct.Struct(">H B d d")
 _SENSE = struct.Struct(">I d d d d")
 _END = struct.Struct(">d d")
-_F_TASC, _F_ENDED, _F_EB, _F_STOPPED, _F_FRESH = 1, 2, 4, 8, 16
+_F_TASC, _F_ENDED, _F_EB, _F_STOPPED, _F_FRESH, _F_WSP = 1, 2, 4, 8, 16, 32
 _HEAD = struct.Struct(">B H")
 
 
@@ -429,6 +429,8 @@ def pack_states(states: list[TrainState]) -> list[bytes]:
         flags |= _F_FRESH if s.fresh else 0
         if se is not None and se.stopped:
             flags |= _F_STOPPED
+        if se is not None and se.wsp:
+            flags |= _F_WSP
         row = _STATE.pack(s.train, flags, s.x_m, s.v_mps)
         if se is not None:
             row += _SENSE.pack(se.k, s.sense_t_s, se.tach_mps, se.odo_step_m, se.transponder_m)
@@ -450,7 +452,7 @@ def unpack_states(payload: bytes) -> list[TrainState]:
             if flags & _F_TASC:
                 k, t_s, tach, odo, transp = _SENSE.unpack_from(payload, at)
                 at += _SENSE.size
-                sense = Sense(k, tach, odo, transp, bool(flags & _F_STOPPED))
+                sense = Sense(k, tach, odo, transp, bool(flags & _F_STOPPED), bool(flags & _F_WSP))
             if flags & _F_ENDED:
                 jerk, stop_t = _END.unpack_from(payload, at)
                 at += _END.size

@@ -384,13 +384,15 @@ async def run_stations(
 class Sense:
     """What the train's own sensors tell its onboard TASC unit before step ``k`` (the plant's side
     of the train's wiring): the tachometer's speed, the odometer's last step, the transponder its
-    antenna passed in the step before (NaN: none), and whether the train stands."""
+    antenna passed in the step before (NaN: none), whether the train stands, and whether its
+    wheel-slide protection acts (the tachometer then reads the sliding wheel)."""
 
     k: int
     tach_mps: float
     odo_step_m: float
     transponder_m: float
     stopped: bool
+    wsp: bool
 
 
 @dataclass(frozen=True, slots=True)
@@ -459,8 +461,8 @@ class TascOnboard:
             self.commands += 1
         self.inbox.clear()
         demand, braking, eb = self.part.cycle(
-            sense.k, t_s, sense.tach_mps, sense.odo_step_m, sense.transponder_m, sense.stopped, new,
-            copy and not new,
+            sense.k, t_s, sense.tach_mps, sense.odo_step_m, sense.transponder_m, sense.stopped, sense.wsp,
+            new, copy and not new,
         )  # fmt: skip
         self.eb = eb
         return BrakeDrive(sense.k, demand, braking, eb)
@@ -505,8 +507,8 @@ class TascPlant:
 
     def sense(self) -> Sense:
         """What the train's sensors tell its onboard unit before the next step."""
-        tach, odo, transponder, stands = self.part.sense()
-        return Sense(self.k, tach, odo, transponder, stands)
+        tach, odo, transponder, stands, wsp = self.part.sense()
+        return Sense(self.k, tach, odo, transponder, stands, wsp)
 
     def step(self, t_s: float, drive: BrakeDrive) -> None:
         """One 10 ms step at ``t_s`` under ``drive``: the station's sensors read the train (queued in

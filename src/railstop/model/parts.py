@@ -60,17 +60,18 @@ def plant_part(
 
 
 @njit_step
-def plant_sense(run: RunParams, s: StopState) -> tuple[float, float, float, bool]:
+def plant_sense(run: RunParams, s: StopState) -> tuple[float, float, float, bool, bool]:
     """What the train's own sensors tell its onboard unit before the next step: (the tachometer's
-    speed, the odometer's last step, a transponder passed in it (NaN: none), standing)."""
+    speed, the odometer's last step, a transponder passed in it (NaN: none), standing, the
+    wheel-slide protection acting)."""
     tr = s.train[0]
-    return tach_speed_1(run, s), tr.odometer_step_m, s.sense[0].transponder_m, tr.stopped
+    return tach_speed_1(run, s), tr.odometer_step_m, s.sense[0].transponder_m, tr.stopped, tr.sliding
 
 
 @njit_step
 def onboard_part(
     p: StopParams, run: RunParams, s: StopState, k: int, t: float, tach_v: float, odometer_step_m: float,
-    transponder_m: float, stopped: bool, new: bool, copy: bool,
+    transponder_m: float, stopped: bool, wsp: bool, new: bool, copy: bool,
 ) -> tuple[float, bool, bool]:  # fmt: skip
     """Step ``k`` of the train's onboard unit at ``t`` on its sensing (``plant_sense``) and the
     telegram (``new``: a new one in ``s.pending``; ``copy``: a copy of the one it has): (the ECU's
@@ -78,6 +79,7 @@ def onboard_part(
     tr, se = s.train[0], s.sense[0]
     tr.odometer_step_m = odometer_step_m
     tr.stopped = stopped
+    tr.sliding = wsp
     se.transponder_m = transponder_m
     notch, duty, braking, eb = tasc_onboard_1(p, run, s, k, t, tach_v, new, copy)
     if external_eb_1(s, t):
@@ -121,10 +123,10 @@ class PlantPart:
         stands, doppler, passed, det, pass_s = got
         return bool(stands), float(doppler), bool(passed), int(det), float(pass_s)
 
-    def sense(self) -> tuple[float, float, float, bool]:
+    def sense(self) -> tuple[float, float, float, bool, bool]:
         """:func:`plant_sense`."""
-        tach, odo, transponder, stands = self._sense(self.records.run, self.records.state)
-        return float(tach), float(odo), float(transponder), bool(stands)
+        tach, odo, transponder, stands, wsp = self._sense(self.records.run, self.records.state)
+        return float(tach), float(odo), float(transponder), bool(stands), bool(wsp)
 
     @property
     def tally(self) -> Any:
@@ -153,7 +155,7 @@ class OnboardPart(_UnitPart):
         super().__init__(model, scenario)
         r = self.records
         self._cycle = compiled_for(
-            onboard_part, (r.p, r.run, r.state, 0, 0.0, 0.0, 0.0, math.nan, False, False, False)
+            onboard_part, (r.p, r.run, r.state, 0, 0.0, 0.0, 0.0, math.nan, False, False, False, False)
         )
 
     @property
@@ -163,12 +165,12 @@ class OnboardPart(_UnitPart):
 
     def cycle(
         self, k: int, t_s: float, tach_mps: float, odometer_step_m: float, transponder_m: float, stands: bool,
-        new: bool, copy: bool,
+        wsp: bool, new: bool, copy: bool,
     ) -> tuple[float, bool, bool]:  # fmt: skip
         """Step ``k`` at ``t_s`` (:func:`onboard_part`): (demand, braking, emergency brake)."""
         r = self.records
         demand, braking, eb = self._cycle(
-            r.p, r.run, r.state, k, t_s, tach_mps, odometer_step_m, transponder_m, stands, new, copy
+            r.p, r.run, r.state, k, t_s, tach_mps, odometer_step_m, transponder_m, stands, wsp, new, copy
         )
         return float(demand), bool(braking), bool(eb)
 

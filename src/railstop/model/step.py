@@ -667,7 +667,7 @@ def tasc_onboard_1(
     process run this same step."""
     ob, d, se = s.onboard[0], run.derived[0], s.sense[0]
     if se.transponder_m == se.transponder_m:  # not NaN: the train's own ATP saw a transponder
-        receiver_fix_1(s.rx, p.rp, se.transponder_m)
+        receiver_fix_1(s.rx, p.rp, se.transponder_m, t)
         ob.own_notch = int(p.kp[KP_INITIAL_NOTCH])
         se.transponder_m = np.nan
     if s.rx[RX_ACTIVE] > 0.0:
@@ -685,7 +685,7 @@ def tasc_onboard_1(
     notch, duty, eb, switch_pos = receiver_cycle_1(
         s.rx, p.rp, s.mod, s.tach, s.rh_v, s.rh_e, s.taus, BrakeCurves(p.table, p.pwm_duty, p.pwm_decel),
         Approach(p.det_to_stop, p.ext, run.grad), s.pending, t, k, new, copy, tach_v,
-        s.train[0].odometer_step_m, own_notch, ob.own_duty,
+        s.train[0].sliding, s.train[0].odometer_step_m, own_notch, ob.own_duty,
     )  # fmt: skip
     ob.eb = eb
     ob.switch_pos = switch_pos

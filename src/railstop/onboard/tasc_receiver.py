@@ -153,17 +153,23 @@ RX_TACH_DECEL = 21  # the tachometer's deceleration, smoothed over GUARD_DECEL_T
 RX_SWITCH = 22  # config 2: the changeover switches' position (SWITCH_*)
 RX_SWITCH_LEFT = 23  # ... steps of the transfer still to go
 RX_PREV_V = 24  # form 4: the speed the last used telegram gave (NaN: none yet)
-RX_PREV_REF = 25  # forms 4, 5: its distance to the stopping point
+RX_PREV_REF = 25  # form 4: its distance to the stopping point
 RX_PREV_DET = 26  # forms 1-3: the detector of the last passage the unit took (-1: none)
 RX_COMB_DECEL = 27  # form 4: the deceleration the combination gave (NaN: none yet)
 RX_ODO = 28  # forms 1-5: the tachometer's distance since the start (m)
-RX_PREV_ODO = 29  # ... at the last passage (forms 1-3) or measurement (form 5) taken (NaN: none)
+RX_PREV_ODO = 29  # forms 1-3: ... at the last passage taken (NaN: none)
 RX_SCALE = 30  # forms 1-3, 5: true over tachometer distance, from the wayside's measurements
 RX_WIN_START = 31  # forms 1-5: the start of the measurement interval (the last command's effect)
 RX_SUMS = 32  # ... the running line fit of the tachometer's speed over it (control.tasc)
 RX_DEGRADED = RX_SUMS + FIT_SUMS  # 1: the telegrams stopped after a command; the unit finishes the stop
 RX_ODO_SCALE = RX_DEGRADED + 1  # true over odometer distance between the last two transponders (1: none)
-RX_SIZE = RX_ODO_SCALE + 1
+RX_WSP_T = RX_ODO_SCALE + 1  # the last step in which the wheel-slide protection acted (-inf: never)
+RX_PREV_T = RX_WSP_T + 1  # forms 1-3, 5: when the calibration's last reference was taken (NaN: none)
+RX_FIX_T = RX_PREV_T + 1  # when the train passed its last transponder (NaN: none)
+RX_CAL_ODO = RX_FIX_T + 1  # forms 4, 5: the tachometer's distance at the calibration's reference (NaN: none)
+RX_CAL_REF = RX_CAL_ODO + 1  # ... and the wayside's distance to the stopping point there
+RX_PULSES = RX_CAL_REF + 1  # forms 4, 5: the odometer's count since the start (m, its own scale)
+RX_SIZE = RX_PULSES + 1
 
 _SCALE_MIN_M = 50.0  # the odometer's scale is taken only over at least this between transponders
 GUARD_DECEL_TAU_S = 0.3  # smoothing of the onboard guard's deceleration from the tachometer
@@ -228,6 +234,11 @@ def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e:
     rx[RX_PREV_ODO] = np.nan
     rx[RX_SCALE] = 1.0
     rx[RX_WIN_START] = np.inf
+    rx[RX_WSP_T] = -np.inf
+    rx[RX_PREV_T] = np.nan
+    rx[RX_FIX_T] = np.nan
+    rx[RX_CAL_ODO] = np.nan
+    rx[RX_CAL_REF] = np.nan
     modulator_init_1(mod)
     hist_v[:] = 0.0
     hist_e[:] = np.inf
@@ -235,9 +246,12 @@ def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e:
 
 @njit_inline
 def receiver_observe_1(
-    rx: FloatArray, rp: FloatArray, tach: FloatArray, speed_mps: float, now_s: float
+    rx: FloatArray, rp: FloatArray, tach: FloatArray, speed_mps: float, wsp: bool, now_s: float
 ) -> None:
-    """Onboard speed from the tachometer (only the forms 1-5 planner uses it)."""
+    """Onboard speed from the tachometer (only the forms 1-5 planner uses it); ``wsp``: the
+    wheel-slide protection acts (the tachometer reads the sliding wheel, not the train)."""
+    if wsp:
+        rx[RX_WSP_T] = now_s
     if rp[RP_FORM] > 5:
         return
     if now_s >= rx[RX_WIN_START]:
@@ -322,13 +336,21 @@ def _receiver_plan_1(
        time) against the tachometer's mean over the same interval calibrates the tachometer;
        the speed and deceleration now are the tachometer's, so calibrated;
     2. form 4, the speed and the distance: the deceleration from two successive (speed,
-       distance) pairs, (v1² - v2²) / 2 (d1 - d2);
+       distance) pairs, (v1² - v2²) / 2 (d1 - d2); two successive distances against the
+       odometer's count calibrate the tachometer, as in form 5, whose deceleration closes the
+       loop gain (stop model 12: uncalibrated, an odometer's wheel diameter 1.5 % below the
+       actual biased the gain by a tenth on a steep uphill approach, where the brake gives a
+       third of the deceleration, and such stops ended 0.3-0.4 m short);
     3. form 5, the deceleration and the distance: two successive distances against the
-       tachometer's distance over the same time calibrate it, which gives the speed; the
+       odometer's count over the same time calibrate the tachometer, which gives the speed; the
        wayside's deceleration only where the tachometer has none yet.
 
     The distance always comes from the wayside, advanced to now. What a combination does not
-    give (anything before a second telegram) comes from the tachometer as it is.
+    give (anything before a second telegram) comes from the tachometer as it is. No
+    calibration and no gain update is taken over a stretch in which the wheel-slide protection
+    acted (stop model 12, **[interpretation]**: the sliding wheel's tachometer reads the slide,
+    not the wheel's diameter; taken, one slide on a low-adhesion patch set the scale a half too
+    high and stopped the train up to 143 m short).
     [interpretation] Para 92 says the train computes speed and deceleration from these, not how;
     a mean speed over an interval of several seconds is no speed at the end of it while the
     braking changes, so the interval calibrates the tachometer instead, which removes the wheel
@@ -342,26 +364,35 @@ def _receiver_plan_1(
     det = int(tele[TEL_DETECTOR])
     lag = now_s - tele[TEL_MEASURED]
     a_tach = tach_a if math.isfinite(tach_a) else 0.0
-    if form <= 3 and det != int(rx[RX_PREV_DET]):
-        # A new passage: the tachometer's distance at it (back from now at the present speed).
-        odo_pass = rx[RX_ODO] - tach_v * (now_s - tele[TEL_PASSAGE])
-        interval = tele[TEL_INTERVAL]
-        prev = int(rx[RX_PREV_DET])
-        if prev == det - 1 and math.isfinite(interval) and interval > 0.0 and math.isfinite(rx[RX_PREV_ODO]):
-            tach_mean = (odo_pass - rx[RX_PREV_ODO]) / interval
-            true_mean = (det_to_stop[prev] - det_to_stop[det]) / interval
-            if tach_mean > 0.5:
-                rx[RX_SCALE] = true_mean / tach_mean
-        rx[RX_PREV_ODO] = odo_pass
-        rx[RX_PREV_DET] = det
-    elif form == 5:
-        odo_meas = rx[RX_ODO] - tach_v * lag
+    if form <= 3:
+        if det != int(rx[RX_PREV_DET]):
+            # A new passage: the tachometer's distance at it (back from now at the present speed).
+            odo_pass = rx[RX_ODO] - tach_v * (now_s - tele[TEL_PASSAGE])
+            interval = tele[TEL_INTERVAL]
+            prev = int(rx[RX_PREV_DET])
+            known = math.isfinite(interval) and interval > 0.0 and math.isfinite(rx[RX_PREV_ODO])
+            if prev == det - 1 and known:
+                tach_mean = (odo_pass - rx[RX_PREV_ODO]) / interval
+                true_mean = (det_to_stop[prev] - det_to_stop[det]) / interval
+                if tach_mean > 0.5 and rx[RX_WSP_T] < rx[RX_PREV_T]:
+                    rx[RX_SCALE] = true_mean / tach_mean
+            rx[RX_PREV_ODO] = odo_pass
+            rx[RX_PREV_DET] = det
+            rx[RX_PREV_T] = tele[TEL_PASSAGE]
+    else:
+        # Forms 4, 5: two successive distances against the odometer's count between the same
+        # instants calibrate the tachometer (the wheel's scale error is the odometer's). The
+        # count, not the tachometer's speed summed per step: that sum is off by a · dt / 2v, a
+        # few hundredths of a per cent near standstill, which moved nominal stops by centimetres.
+        odo_meas = rx[RX_PULSES] - tach_v * lag
         d_m = tele[TEL_DISTANCE]
-        if math.isfinite(rx[RX_PREV_ODO]) and odo_meas - rx[RX_PREV_ODO] > 5.0:
-            rx[RX_SCALE] = (rx[RX_PREV_REF] - d_m) / (odo_meas - rx[RX_PREV_ODO])
-        if not math.isfinite(rx[RX_PREV_ODO]) or odo_meas - rx[RX_PREV_ODO] > 5.0:
-            rx[RX_PREV_ODO] = odo_meas
-            rx[RX_PREV_REF] = d_m
+        calm = rx[RX_WSP_T] < rx[RX_PREV_T]  # no slide since the reference
+        if math.isfinite(rx[RX_CAL_ODO]) and odo_meas - rx[RX_CAL_ODO] > 5.0 and calm:
+            rx[RX_SCALE] = (rx[RX_CAL_REF] - d_m) / (odo_meas - rx[RX_CAL_ODO])
+        if not math.isfinite(rx[RX_CAL_ODO]) or odo_meas - rx[RX_CAL_ODO] > 5.0:
+            rx[RX_CAL_ODO] = odo_meas
+            rx[RX_CAL_REF] = d_m
+            rx[RX_PREV_T] = tele[TEL_MEASURED]
     scale = rx[RX_SCALE]
     speed = tach_v * scale
     a_est = a_tach * scale
@@ -406,7 +437,11 @@ def _receiver_plan_1(
         a_est,
         now_s,
     )
-    num, den = gain_update_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN], measured, cmd_mean, ext_mean)
+    num, den = rx[RX_GAIN_NUM], rx[RX_GAIN_DEN]
+    if rx[RX_WSP_T] < now_s - window * dt:
+        # A window in which the wheel-slide protection acted measures the sliding wheel, not the
+        # brake: the gain keeps what the calm windows gave.
+        num, den = gain_update_1(num, den, measured, cmd_mean, ext_mean)
     rx[RX_GAIN_NUM] = num
     rx[RX_GAIN_DEN] = den
     command, _, effect = plan_command_1(
@@ -507,15 +542,18 @@ def receiver_alive_1(rx: FloatArray, now_s: float) -> None:
 
 
 @njit_inline
-def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float) -> None:
-    """The train's own ATP reset its odometer at a transponder at ``position_m``. At the first
-    one (the zone's start, SPEC §1: the first detector) it knows it is in the TASC zone and the
-    telegram supervision starts."""
-    if math.isfinite(rx[RX_FIX_POS]) and rx[RX_SINCE_FIX] > _SCALE_MIN_M:
+def receiver_fix_1(rx: FloatArray, rp: FloatArray, position_m: float, now_s: float) -> None:
+    """The train's own ATP reset its odometer at a transponder at ``position_m`` (passed in the
+    step before ``now_s``). At the first one (the zone's start, SPEC §1: the first detector) it
+    knows it is in the TASC zone and the telegram supervision starts."""
+    if math.isfinite(rx[RX_FIX_POS]) and rx[RX_SINCE_FIX] > _SCALE_MIN_M and rx[RX_WSP_T] < rx[RX_FIX_T]:
         # Two transponders at known chainages: the odometer's scale over the stretch between
-        # them (SPEC §2: the wheel's diameter is what the odometer gets wrong), for degraded mode.
+        # them (SPEC §2: the wheel's diameter is what the odometer gets wrong), for degraded mode;
+        # not over a stretch in which the wheel-slide protection acted (SPEC §2: a slide is the
+        # other thing it gets wrong, and it would not recur).
         rx[RX_ODO_SCALE] = (position_m - rx[RX_FIX_POS]) / rx[RX_SINCE_FIX]
     rx[RX_FIX_POS] = position_m
+    rx[RX_FIX_T] = now_s - rp[RP_DT]
     rx[RX_SINCE_FIX] = 0.0
     if position_m >= rp[RP_ZONE_START] - 1e-9:
         rx[RX_IN_ZONE] = 1.0
@@ -610,16 +648,19 @@ def receiver_cycle_1(
     new: bool,
     copy: bool,
     speed_mps: float,
+    wsp: bool,
     odometer_m: float,
     own_notch: int,
     own_duty: float,
 ) -> tuple[int, float, bool, int]:
     """One step of the onboard unit (SPEC §1 configurations): a new telegram (``new``, in
     ``telegram``) or a copy of the one it has (``copy``, a life sign), the tachometer's speed and
-    the odometer's last step in; (notch, duty, emergency brake, switch position) out for the
+    whether the wheel-slide protection acts (``wsp``) and the odometer's last step in; (notch,
+    duty, emergency brake, switch position) out for the
     brake ECU. Notch -1: a PWM train (the duty holds the command); duty NaN: a step train; switch
     -1: no switching unit. The train's own command (``own_notch``, ``own_duty``) passes as its
     configuration says. The stop model and the live train run this same step."""
+    rx[RX_PULSES] += odometer_m
     if copy:
         receiver_alive_1(rx, now_s)
     elif new:
@@ -627,7 +668,7 @@ def receiver_cycle_1(
         receiver_receive_1(
             rx, rp, mod, tach, hist_v, hist_e, taus, brake, approach, telegram, now_s,
         )  # fmt: skip
-    receiver_observe_1(rx, rp, tach, speed_mps, now_s)
+    receiver_observe_1(rx, rp, tach, speed_mps, wsp, now_s)
     # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
     eb = receiver_supervise_1(rx, rp, now_s, odometer_m, speed_mps)
     if rx[RX_DEGRADED] > 0.0 and not eb:

@@ -112,7 +112,11 @@ DISK_BYTES_PER_VALUE = 8
 # long window's slope, no longer a line fitted through the short window alone (a quarter of its
 # variance): every run of a controller that measures with the Doppler changes. Form 8's modulator
 # moves one notch per hold along the ramp its plan assumed (control.notch, ramp_mps3).
-MODEL_VERSION = 11
+# 12: the onboard unit knows when the wheel-slide protection acts (the plant's sensing carries
+# it, as it carries the tachometer): it calibrates its tachometer (forms 1-3, 5) and its odometer
+# between transponders (degraded mode) and updates the forms 1-5 loop gain only over stretches
+# in which the wheels did not slide. Runs without a slide are unchanged.
+MODEL_VERSION = 12
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
