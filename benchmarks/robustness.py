@@ -91,6 +91,10 @@ NOT_SWEPT: dict[str, str] = {
     "radio_bit_error_rate": "0 in the standard set: k x 0 is still 0",
     "radio_outage_start_s": "a fault, not a service disturbance (no outage in the standard set)",
     "radio_outage_duration_s": "a fault, not a service disturbance (no outage in the standard set)",
+    "radio_burst_enter_probability": "0 in the standard set: k x 0 is still 0",
+    "radio_burst_exit_probability": "no bursts in the standard set (their entry is 0)",
+    "radio_burst_loss_probability": "0 in the standard set: k x 0 is still 0",
+    "radio_reorder_probability": "0 in the standard set: k x 0 is still 0",
 }
 STANDARD_ROW = "standard set"
 NO_ADHESION_ROW = "standard without low-adhesion patches"

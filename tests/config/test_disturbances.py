@@ -38,13 +38,17 @@ from railstop.config.disturbances import (
     counter_base,
     draw_scenario,
     load_disturbances,
+    probability,
 )
 from railstop.config.gradient import GradientProfile
 from railstop.config.scenario import Scenario, station_gradient
 from railstop.config.schema import Station
 from railstop.errors import ConfigError
+from railstop.link.channel import media_preset
 from railstop.quantities import MPS_PER_KMH
 from railstop.streams import RunStreams
+
+ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 FAST = settings(max_examples=40, deadline=None)
 N_STAT = 20_000
@@ -134,6 +138,11 @@ def test_standard_matches_the_issue_table(standard: DisturbanceSet) -> None:
         # Added with the supervision: a fault, none in service.
         "radio_outage_start_s": {"fixed": 0.0},
         "radio_outage_duration_s": {"fixed": 0.0},
+        # Added with the medium's bursts and reordering (stop model 13): none in the standard set.
+        "radio_burst_enter_probability": 0.0,
+        "radio_burst_exit_probability": 1.0,
+        "radio_burst_loss_probability": 0.0,
+        "radio_reorder_probability": 0.0,
     }
     d = standard.to_dict()
     assert d.pop("description") == standard.description
@@ -694,3 +703,21 @@ def test_standard_draws_are_pairwise_uncorrelated() -> None:
     off = np.abs(corr - np.eye(len(names)))
     worst = np.unravel_index(off.argmax(), off.shape)
     assert off.max() < 0.03, (names[worst[0]], names[worst[1]], off.max())
+
+
+def test_the_bursty_radio_example_is_the_standard_set_on_bursts(standard: DisturbanceSet) -> None:
+    """``examples/disturbances/bursty-radio.toml`` (docs/campaigns.md): the standard set with the
+    radio medium preset's bursts and reordering, nothing else changed."""
+    example = load_disturbances(ROOT / "examples" / "disturbances" / "bursty-radio.toml")
+    differ = {k for k in PARAMETERS if example.params.get(k) != standard.params.get(k)}
+    assert differ == {
+        "radio_burst_enter_probability",
+        "radio_burst_exit_probability",
+        "radio_burst_loss_probability",
+        "radio_reorder_probability",
+    }
+    radio = media_preset("radio")
+    assert probability(example, "radio_burst_enter_probability") == radio.burst_enter_probability
+    assert probability(example, "radio_burst_exit_probability") == radio.burst_exit_probability
+    assert probability(example, "radio_burst_loss_probability") == radio.burst_loss_probability
+    assert probability(example, "radio_reorder_probability") == radio.reorder_probability

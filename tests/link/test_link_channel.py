@@ -670,8 +670,9 @@ def test_bit_flips_are_exact_for_a_high_error_rate() -> None:
 
 def test_the_stop_models_attempts_meet_the_same_fate_on_this_medium() -> None:
     """One medium (issue: one link): the stop kernel's telegram attempts of a campaign run and this
-    medium's frames of the same run's streams (``LinkStreams.for_run``) are lost, corrupted and
-    delayed alike, attempt by attempt, on a radio with loss, jitter and bit errors."""
+    medium's frames of the same run's streams (``LinkStreams.for_run``) are lost, corrupted,
+    delayed and held back alike, attempt by attempt, on a radio with loss, jitter, bit errors,
+    bursts (stop model 13) and reordering."""
     from railstop.config import default_line, default_vehicle
     from railstop.config.disturbances import DisturbanceSet, draw_scenario
     from railstop.model.build import KernelModel
@@ -684,9 +685,13 @@ def test_the_stop_models_attempts_meet_the_same_fate_on_this_medium() -> None:
         LA_LOST,
         LA_STEP,
         SC_BER,
+        SC_BURST_ENTER,
+        SC_BURST_EXIT,
+        SC_BURST_LOSS,
         SC_JITTER,
         SC_LATENCY,
         SC_LOSS,
+        SC_REORDER,
     )
     from railstop.model.run import model_draws, run_kernel
     from railstop.streams import RunStreams
@@ -700,13 +705,17 @@ def test_the_stop_models_attempts_meet_the_same_fate_on_this_medium() -> None:
             "radio_loss_probability": 0.2,
             "radio_jitter_ms": {"fixed": 30.0},
             "radio_bit_error_rate": {"fixed": 0.002},
+            "radio_burst_enter_probability": 0.05,
+            "radio_burst_exit_probability": 0.3,
+            "radio_burst_loss_probability": 0.8,
+            "radio_reorder_probability": 0.1,
         },
         name="bad-radio",
     )
     model = KernelModel.create(
         station=station, vehicle=vehicle, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
     )
-    checked = {"lost": 0, "corrupt": 0, "held": 0, "frames": 0}
+    checked = {"lost": 0, "corrupt": 0, "held": 0, "frames": 0, "in_burst": 0, "reordered": 0}
     for seed, run in ((3, 0), (3, 17), (11, 2**40 + 5)):
         scenario, _ = draw_scenario(bad_radio, station, vehicle, RunStreams.for_runs(seed, run, 1))
         _, _, rec = run_kernel(model, scenario, seed=seed, first_run=run, record=True)
@@ -717,25 +726,33 @@ def test_the_stop_models_attempts_meet_the_same_fate_on_this_medium() -> None:
             jitter_s=float(sc[SC_JITTER]),
             loss_probability=float(sc[SC_LOSS]),
             bit_error_rate=float(sc[SC_BER]),
-            burst_enter_probability=0.0,
-            duplicate_probability=0.0,
-            reorder_probability=0.0,
+            burst_enter_probability=float(sc[SC_BURST_ENTER]),
+            burst_exit_probability=float(sc[SC_BURST_EXIT]),
+            burst_loss_probability=float(sc[SC_BURST_LOSS]),
+            reorder_probability=float(sc[SC_REORDER]),
+            duplicate_probability=0.0,  # not in the stop model: the receiver drops a copy anyway
         )
+        assert params.reorder_delay_s > 0.0
         n_bytes = int(model.kp[KP_FRAME_BITS]) // 8
         assert float(airtime_s(params, n_bytes)) == model.kp[KP_AIRTIME]
         ch = SimChannel(params, LinkStreams.for_run(seed, run))
         floor = -math.inf  # the medium keeps frames in order; the kernel's receiver drops overtaken ones
         for a in rec.attempts:
-            corrupted = ch.stats.corrupted
+            before = ch.stats
             arrival = ch.send(bytes(n_bytes), a[LA_STEP] * model.kp[KP_DT])
+            checked["in_burst"] += ch.stats.sent_in_burst > before.sent_in_burst
             assert (arrival is None) == bool(a[LA_LOST])
             if arrival is None:
                 checked["lost"] += 1
                 continue
-            assert (ch.stats.corrupted > corrupted) == bool(a[LA_CORRUPT])
+            assert (ch.stats.corrupted > before.corrupted) == bool(a[LA_CORRUPT])
             checked["corrupt"] += bool(a[LA_CORRUPT])
-            assert arrival == max(a[LA_ARRIVAL], floor)
-            checked["held"] += arrival > a[LA_ARRIVAL]
-            floor = arrival
+            if ch.stats.reordered > before.reordered:  # held back alike, out of the medium's order
+                assert arrival == a[LA_ARRIVAL]
+                checked["reordered"] += 1
+            else:
+                assert arrival == max(a[LA_ARRIVAL], floor)
+                checked["held"] += arrival > a[LA_ARRIVAL]
+                floor = arrival
             checked["frames"] += 1
     assert min(checked.values()) > 0, checked  # every path compared

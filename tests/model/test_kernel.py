@@ -38,7 +38,11 @@ from railstop.errors import SimulationError
 from railstop.jit import JIT_MODULES
 from railstop.model.build import KernelModel, compiled_law, stop_params
 from railstop.model.records import (
+    KP_AIRTIME,
+    KP_DT,
+    LA_ARRIVAL,
     LA_LOST,
+    LA_STEP,
     RES_EB,
     RES_EB_T,
     RES_ERROR,
@@ -481,3 +485,47 @@ def test_worker_killed_mid_campaign_loses_no_finished_chunk(tmp_path: Path, clus
     assert pq.read_table(tmp_path / "local" / "runs.parquet").equals(
         pq.read_table(tmp_path / "dask" / "runs.parquet")
     )
+
+
+def test_radio_bursts_lose_frames_in_runs_the_chain_gives() -> None:
+    """Stop model 13: with bursts only (no independent loss, every frame of a burst lost), the
+    share of attempts lost is the chain's stationary bad fraction enter / (enter + exit), and the
+    lost attempts come in runs of mean length 1 / exit; reordered frames are held back by the
+    medium's reorder delay. A set naming neither draws nothing new."""
+    station = LINE.station("Riverside")
+    model = KernelModel.create(
+        station=station, vehicle=VEHICLE, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
+    enter, leave = 0.05, 0.25
+    bursts = DisturbanceSet.from_dict(
+        {
+            "radio_latency_ms": {"fixed": 30.0},
+            "radio_burst_enter_probability": enter,
+            "radio_burst_exit_probability": leave,
+            "radio_burst_loss_probability": 1.0,
+            "radio_reorder_probability": 0.2,
+        },
+        name="bursts",
+    )
+    lost: list[bool] = []
+    held = 0
+    for run in range(12):
+        scenario, _ = draw_scenario(bursts, station, VEHICLE, RunStreams.for_runs(4, run, 1))
+        _, _, rec = run_kernel(model, scenario, seed=4, first_run=run, record=True)
+        assert rec is not None
+        att = rec.attempts
+        lost.extend(bool(x) for x in att[:, LA_LOST])
+        sent = att[:, LA_STEP] * model.kp[KP_DT]
+        delay = att[:, LA_ARRIVAL] - sent
+        kept = ~att[:, LA_LOST].astype(bool)
+        # 30 ms of latency plus the airtime, or that plus the 30 ms reorder delay.
+        held += int(np.sum(delay[kept] > 0.03 + model.kp[KP_AIRTIME] + 0.015))
+    share = np.mean(lost)
+    assert share == pytest.approx(enter / (enter + leave), rel=0.25), share
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, np.asarray(lost, dtype=int), 0])))[::2]
+    assert np.mean(runs) == pytest.approx(1.0 / leave, rel=0.3), np.mean(runs)
+    assert held > 0
+    # Neither named: the standard set's runs draw no burst and hold nothing back.
+    scenario, _ = draw_scenario(STANDARD, station, VEHICLE, RunStreams.for_runs(4, 0, 1))
+    assert float(scenario.radio_burst_enter_probability[0]) == 0.0
+    assert float(scenario.radio_reorder_probability[0]) == 0.0

@@ -266,6 +266,35 @@ _SPECS: dict[str, _Spec] = {
         22,
         meaning="How long the outage lasts: every braking frame sent in it is lost (0: no outage).",
     ),
+    # The medium's bursts and reordering (link.channel's model, on the braking frames): a
+    # Gilbert-Elliott chain advanced once per frame, good -> bad and bad -> good, a frame sent in
+    # the bad state lost with the burst's loss probability; a frame held back by the medium's
+    # reorder delay (station.tasc.medium) arrives after later ones, which the receiver then
+    # drops as out of order.
+    "radio_burst_enter_probability": _Spec(
+        "per braking frame",
+        _PROB,
+        23,
+        meaning="The chance that the radio falls into a burst (the bad state) at a frame (0: no bursts).",
+    ),
+    "radio_burst_exit_probability": _Spec(
+        "per braking frame",
+        _PROB,
+        24,
+        meaning="The chance that a burst ends at a frame (1 when not given: a burst lasts one frame).",
+    ),
+    "radio_burst_loss_probability": _Spec(
+        "per braking frame in a burst",
+        _PROB,
+        25,
+        meaning="The chance that a braking frame sent in a burst is lost.",
+    ),
+    "radio_reorder_probability": _Spec(
+        "per braking frame",
+        _PROB,
+        26,
+        meaning="The chance that a braking frame is held back by the medium's reorder delay.",
+    ),
 }
 
 #: Every supported parameter name, in a fixed order (the Parquet column order).
@@ -610,6 +639,10 @@ def nominal_values(station: Station, vehicle: Vehicle, n: int) -> dict[str, Floa
         "radio_bit_error_rate": 0.0,
         "radio_outage_start_s": 0.0,
         "radio_outage_duration_s": 0.0,
+        "radio_burst_enter_probability": 0.0,
+        "radio_burst_exit_probability": 1.0,
+        "radio_burst_loss_probability": 0.0,
+        "radio_reorder_probability": 0.0,
     }
     return {k: np.full(n, float(v)) for k, v in nominal.items()}
 
@@ -649,6 +682,10 @@ _TO_SCENARIO: dict[str, tuple[str, float]] = {
     "radio_bit_error_rate": ("radio_bit_error_rate", 1.0),
     "radio_outage_start_s": ("radio_outage_start_s", 1.0),
     "radio_outage_duration_s": ("radio_outage_duration_s", 1.0),
+    "radio_burst_enter_probability": ("radio_burst_enter_probability", 1.0),
+    "radio_burst_exit_probability": ("radio_burst_exit_probability", 1.0),
+    "radio_burst_loss_probability": ("radio_burst_loss_probability", 1.0),
+    "radio_reorder_probability": ("radio_reorder_probability", 1.0),
 }
 
 

@@ -44,6 +44,11 @@ class Scenario:
     doppler_noise_frac: FloatArray
     radio_outage_start_s: FloatArray  # after the first telegram the train received
     radio_outage_duration_s: FloatArray  # 0: no outage
+    # The medium's bursts (Gilbert-Elliott: enter, exit, loss in a burst) and reordering, per frame.
+    radio_burst_enter_probability: FloatArray  # 0: no bursts
+    radio_burst_exit_probability: FloatArray
+    radio_burst_loss_probability: FloatArray
+    radio_reorder_probability: FloatArray
 
     @property
     def n(self) -> int:
@@ -87,6 +92,10 @@ class Scenario:
             doppler_noise_frac=full(0.0),
             radio_outage_start_s=full(0.0),
             radio_outage_duration_s=full(0.0),
+            radio_burst_enter_probability=full(0.0),
+            radio_burst_exit_probability=full(1.0),
+            radio_burst_loss_probability=full(0.0),
+            radio_reorder_probability=full(0.0),
         )
 
     def with_values(self, **changes: object) -> Scenario:

@@ -94,6 +94,7 @@ from railstop.model.records import (
     KP_MAX_AGE,
     KP_PASS,
     KP_QUANT_AGE,
+    KP_REORDER_DELAY,
     KP_REPEAT,
     KP_ROTATING,
     KP_S1,
@@ -257,6 +258,7 @@ class KernelModel:
         kp[KP_REPEAT] = tasc.repeat_period_s
         kp[KP_CYCLE] = medium.cycle_s
         kp[KP_AIRTIME] = float(airtime_s(medium, n_bytes))
+        kp[KP_REORDER_DELAY] = medium.reorder_delay_s
         kp[KP_FRAME_BITS] = 8.0 * n_bytes
         kp[KP_MAX_AGE] = tasc.max_telegram_age_s
         # A frame older than the maximum age is refused, so no more than this many are in the air.

@@ -114,7 +114,12 @@ SC_MISS = 17
 SC_DOPPLER_NOISE = 18
 SC_OUTAGE_START = 19  # radio outage: from this long after the first telegram delivered ...
 SC_OUTAGE_LEN = 20  # ... for this long every frame is lost (0: no outage)
-SC_SIZE = 21
+# The medium's bursts (Gilbert-Elliott, link.channel) and reordering, per braking frame:
+SC_BURST_ENTER = 21  # good -> bad (0: no bursts)
+SC_BURST_EXIT = 22  # bad -> good
+SC_BURST_LOSS = 23  # a frame sent in the bad state is lost
+SC_REORDER = 24  # a frame is held back by the medium's reorder delay (KP_REORDER_DELAY)
+SC_SIZE = 25
 SCENARIO_FIELDS = (
     "entry_speed_mps",
     "load_factor",
@@ -137,6 +142,10 @@ SCENARIO_FIELDS = (
     "doppler_noise_frac",
     "radio_outage_start_s",
     "radio_outage_duration_s",
+    "radio_burst_enter_probability",
+    "radio_burst_exit_probability",
+    "radio_burst_loss_probability",
+    "radio_reorder_probability",
 )
 
 # Kernel parameters (station, vehicle, controller).
@@ -177,7 +186,8 @@ KP_S1 = 32
 KP_SENSOR_NOISE = 33  # ... and their noise
 KP_START_BEFORE_HOME = 34  # a driver's run starts at least this far before the home signal
 KP_PASS = 35  # SPEC §3 signal-open switch: the run ends when the front passes here (0: a stop)
-KP_SIZE = 36
+KP_REORDER_DELAY = 36  # the medium's hold-back of a reordered frame (station.tasc.medium)
+KP_SIZE = 37
 
 # Results per run.
 RES_ERROR = 0  # front at rest minus stopping point (+ = overrun)
@@ -258,6 +268,7 @@ STREAMS = np.array(
         Stream.TC_DELAY,
         Stream.DRIVER,
         Stream.STOP_SENSORS,
+        Stream.LINK_FAULTS,
     ],
     dtype=np.int64,
 )
@@ -273,6 +284,7 @@ STREAMS = np.array(
     K_TC_DELAY,
     K_DRIVER,
     K_STOP_SENSORS,
+    K_FAULTS,
 ) = range(STREAMS.size)
 
 # SPEC §2 positioning parameters of ``ato-corrected`` (FixesLine as a vector).
@@ -342,6 +354,7 @@ RUN_DTYPE = np.dtype(
         ("k_latency", np.uint64),
         ("k_cycle", np.uint64),
         ("k_corrupt", np.uint64),
+        ("k_faults", np.uint64),  # the medium's bursts and reordering (link.channel LinkStreams.faults)
         ("k_driver", np.uint64),
         ("k_stop_sensors", np.uint64),
         # The controller's kind.
@@ -427,6 +440,7 @@ LINK_DTYPE = np.dtype(
         ("first_rx_s", np.float64),  # the first telegram delivered (inf: none yet)
         ("attempts", np.int64),  # transmission attempts (the streams' counter)
         ("losses", np.int64),  # ... lost to the loss probability
+        ("bad", np.bool_),  # the medium's Gilbert-Elliott state (True: in a burst)
     ],
     align=True,
 )

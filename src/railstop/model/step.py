@@ -64,6 +64,7 @@ from railstop.model.records import (
     K_CYCLE,
     K_DOPPLER,
     K_DRIVER,
+    K_FAULTS,
     K_JITTER,
     K_LATENCY,
     K_LOSS,
@@ -96,6 +97,7 @@ from railstop.model.records import (
     KP_MAX_AGE,
     KP_PASS,
     KP_QUANT_AGE,
+    KP_REORDER_DELAY,
     KP_REPEAT,
     KP_ROTATING,
     KP_S1,
@@ -140,6 +142,9 @@ from railstop.model.records import (
     RES_STOPPED,
     SC_BER,
     SC_BRAKE_GAIN,
+    SC_BURST_ENTER,
+    SC_BURST_EXIT,
+    SC_BURST_LOSS,
     SC_DEAD_TIME,
     SC_DOPPLER_NOISE,
     SC_ENTRY_SPEED,
@@ -155,6 +160,7 @@ from railstop.model.records import (
     SC_ODO_ERROR,
     SC_OUTAGE_LEN,
     SC_OUTAGE_START,
+    SC_REORDER,
     SC_SENSOR_JITTER,
     SC_TAU,
     SC_WEIGHING_ERROR,
@@ -396,6 +402,7 @@ def _derive_run(p: StopParams, run: RunParams, seed_keys: UintArray, run_index: 
     d.k_latency = stream_key(seed_keys[K_LATENCY], run_index)
     d.k_cycle = stream_key(seed_keys[K_CYCLE], run_index)
     d.k_corrupt = stream_key(seed_keys[K_CORRUPT], run_index)
+    d.k_faults = stream_key(seed_keys[K_FAULTS], run_index)
     d.k_driver = stream_key(seed_keys[K_DRIVER], run_index)
     d.k_stop_sensors = stream_key(seed_keys[K_STOP_SENSORS], run_index)
     # Masses: actual static and effective mass, and the effective mass the ECU believes (load weighing).
@@ -455,6 +462,7 @@ def _reset_state(p: StopParams, s: StopState, start_m: float, entry_mps: float) 
     ln.first_rx_s = np.inf
     ln.attempts = 0
     ln.losses = 0
+    ln.bad = False  # the medium starts in the good state
     se.passed = False
     se.det_idx = 0
     se.pass_s = 0.0
@@ -599,7 +607,17 @@ def _transmit_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k
     # A radio outage (a fault of the data: SC_OUTAGE_*) loses every frame sent in it.
     rel = t - ln.first_rx_s - sc[SC_OUTAGE_START]
     outage_len = sc[SC_OUTAGE_LEN]
-    lost = lost or (outage_len > 0.0 and rel >= -1e-9 and rel < outage_len)
+    in_outage = outage_len > 0.0 and rel >= -1e-9 and rel < outage_len
+    reordered = False
+    if not in_outage and (sc[SC_BURST_ENTER] > 0.0 or ln.bad):
+        # The medium's bursts (link.channel.SimChannel, the same draws at the same counters): the
+        # Gilbert-Elliott chain advances once per frame sent outside an outage, then judges it.
+        u_state = key_uniform(d.k_faults, 4 * c)
+        ln.bad = u_state >= sc[SC_BURST_EXIT] if ln.bad else u_state < sc[SC_BURST_ENTER]
+        lost = lost or (ln.bad and key_uniform(d.k_faults, 4 * c + 1) < sc[SC_BURST_LOSS])
+    if not (in_outage or lost) and sc[SC_REORDER] > 0.0:
+        reordered = key_uniform(d.k_faults, 4 * c + 3) < sc[SC_REORDER]
+    lost = lost or in_outage
     corrupt = False
     if sc[SC_BER] > 0.0 and not lost:
         corrupt = key_uniform(d.k_corrupt, 2 * c) < d.corrupt_p
@@ -608,6 +626,8 @@ def _transmit_1(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, k
     u = key_uniform(d.k_cycle, c) if cycle > 0.0 else 0.0
     z = key_normal(d.k_latency, c) if jitter > 0.0 else 0.0
     arrival = t + (u * cycle + kp[KP_AIRTIME] + max(0.0, sc[SC_LATENCY] + jitter * z))
+    if reordered:  # held back: later frames overtake it, and the receiver drops it then
+        arrival += kp[KP_REORDER_DELAY]
     # The step that receives the frame, and the safety layer's age check there (ms).
     dt = kp[KP_DT]
     receive_s = ceil_1((arrival - 1e-9) / dt) * dt

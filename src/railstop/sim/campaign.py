@@ -116,7 +116,10 @@ DISK_BYTES_PER_VALUE = 8
 # it, as it carries the tachometer): it calibrates its tachometer (forms 1-3, 5) and its odometer
 # between transponders (degraded mode) and updates the forms 1-5 loop gain only over stretches
 # in which the wheels did not slide. Runs without a slide are unchanged.
-MODEL_VERSION = 12
+# 13: the braking telegrams' medium has bursts (Gilbert-Elliott) and reordering, drawn as
+# link.channel.SimChannel draws them (radio_burst_*_probability, radio_reorder_probability;
+# the run's LINK_FAULTS stream). A set that names neither draws nothing new: its runs are unchanged.
+MODEL_VERSION = 13
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
