@@ -95,7 +95,7 @@ def test_open_loop_would_miss_with_weak_brakes() -> None:
 def test_detectors_only_variant_within_psd_tolerance(controller: str) -> None:
     """SPEC §1 variant 2: no Doppler, speed and deceleration from passage times."""
     st = LINE.station("Harbour")
-    variant = st.model_copy(update={"tasc": st.tasc.model_copy(update={"doppler": None})})
+    variant = st.detectors_only()
     for load, gain in ((0.0, 1.0), (1.0, 0.85)):
         sc = Scenario.nominal(variant, VEHICLE, load_factor=load, brake_gain=gain)
         r = run_batch(

@@ -43,10 +43,6 @@ def _with_initial(station: Station, notch: int) -> Station:
     return station.model_copy(update={"tasc": station.tasc.model_copy(update={"initial_brake_notch": notch})})
 
 
-def _detectors_only(station: Station) -> Station:
-    return station.model_copy(update={"tasc": station.tasc.model_copy(update={"doppler": None})})
-
-
 def _line_with(station: Station) -> Line:
     stations = [station if s.name == station.name else s for s in LINE.stations]
     return LINE.model_copy(update={"stations": stations})
@@ -134,7 +130,7 @@ def test_waveform_inputs_are_checked() -> None:
 @pytest.mark.parametrize("controller", [TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_SWITCHED_PWM, TASC_PWM])
 def test_initial_brake_acts_from_the_zone_until_tasc_speaks(controller: str) -> None:
     # Detectors only: the first telegram comes at the second detector, 100 m into the zone.
-    station = _with_initial(_detectors_only(LINE.station("Riverside")), 2)
+    station = _with_initial(LINE.station("Riverside").detectors_only(), 2)
     _, batch, tr = _stop(controller, station)
     first = batch.detector_passages_s[0, 0]
     target = tr.target_decel_mps2[:, 0]
@@ -169,7 +165,7 @@ def test_detectors_only_with_the_initial_brake_stops_at_every_station(station: s
     initial brake a train at line speed then needs about full service and the overrun guard stops
     it (Hillcrest, Museum); with it, modelled by the wayside, every default station stops the
     train within the PSD tolerance."""
-    result, _, _ = _stop(TASC_STEP, _with_initial(_detectors_only(LINE.station(station)), 2))
+    result, _, _ = _stop(TASC_STEP, _with_initial(LINE.station(station).detectors_only(), 2))
     assert result.stopped and result.emergency_brake is None
     assert abs(result.stop_error_m) <= LINE.station(station).psd_tolerance_m
 

@@ -185,7 +185,7 @@ def test_station_row_written_once_and_updated_on_change(tmp_path: Path, monkeypa
 
 
 def test_a_station_without_radar_has_no_doppler_position(tmp_path: Path) -> None:
-    no_radar = RIVERSIDE.model_copy(update={"tasc": RIVERSIDE.tasc.model_copy(update={"doppler": None})})
+    no_radar = RIVERSIDE.detectors_only()
     st = station_record(LINE, no_radar)
     assert st.doppler_position_m is None
     record, _ = _stop()
