@@ -232,7 +232,8 @@ TEL_NOTCH = 9
 TEL_DUTY = 10
 TEL_DELTA = 11
 TEL_EMERGENCY = 12  # 1: an emergency-stop telegram (the wayside's overrun guard), every form
-TEL_SIZE = 13
+TEL_STEP = 13  # form 8: the step's number (1, 2, ... modulo 256): a train learns of a step it missed
+TEL_SIZE = 14
 #: Telegram vector index -> TascTelegrams field (the array form of the same telegram).
 TEL_FIELDS: tuple[str, ...] = (
     "detector",
@@ -248,4 +249,5 @@ TEL_FIELDS: tuple[str, ...] = (
     "duty",
     "delta",
     "emergency",
+    "step",
 )

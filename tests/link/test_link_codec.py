@@ -175,8 +175,8 @@ REFERENCES = [
         ),
         "93 0102 03 09c4 0001879a 0012d687 ffffff06 00018a88 723e",
     ),
-    # type 18 | train 9 | detector 4 | decrease = -1 = ff | CRC
-    (TascIncreaseDecrease(train_id=9, detector=4, delta=-1), "18 0009 04 ff 5bde"),
+    # type 18 | train 9 | detector 4 | decrease = -1 = ff | step 7 | CRC
+    (TascIncreaseDecrease(train_id=9, detector=4, delta=-1, step=7), "18 0009 04 ff 07 4579"),
     # type a3 (P = 1: even parity) | train 0012 | operator 0007 | CRC
     (ZoneRelease(train_id=0x12, operator_id=7), "a3 0012 0007 885e"),
     # type c3 (group 4 number 3 = 100 0011, P = 1: even parity) | station 0002
@@ -460,6 +460,7 @@ def test_unknown_type_bytes() -> None:
         ),
         (TrackCircuitOccupancy(circuit_id=2**32, gnss_time_s=0.0), "circuit_id"),
         (TrackCircuitOccupancy(circuit_id=1, gnss_time_s=1e300), "gnss_time_s"),
+        (TascIncreaseDecrease(train_id=1, detector=0, delta=1, step=256), "step"),  # the wayside wraps it
     ],
 )
 def test_encode_out_of_range_names_field_and_value(msg: Telegram, field: str) -> None:
@@ -471,9 +472,9 @@ def test_encode_out_of_range_names_field_and_value(msg: Telegram, field: str) ->
 @pytest.mark.parametrize(
     ("msg", "field"),
     [
-        (TascIncreaseDecrease(train_id=1, detector=0, delta=2), "delta"),
-        (TascIncreaseDecrease(train_id=1, detector=0, delta=True), "delta"),  # a bool is not -1/0/+1
-        (TascIncreaseDecrease(train_id=1, detector=0, delta=1.0), "delta"),  # type: ignore[arg-type]
+        (TascIncreaseDecrease(train_id=1, detector=0, delta=2, step=1), "delta"),
+        (TascIncreaseDecrease(train_id=1, detector=0, delta=True, step=1), "delta"),  # a bool is not -1/0/+1
+        (TascIncreaseDecrease(train_id=1, detector=0, delta=1.0, step=1), "delta"),  # type: ignore[arg-type]
         (CbtcReport(train_id=1, position_m=0.0, speed_mps=0.0, direction="X", time_s=0.0), "direction"),
         (TascRequiredDecel(train_id=1, detector=0, required_mps2=None), "required_mps2"),  # type: ignore[arg-type]
         (
@@ -527,8 +528,8 @@ def test_encode_unknown_class() -> None:
         ("14 0001 00 8000 00000000 00000000 0000", "out_of_range", "speed_mps"),  # -32.768 m/s
         ("12 0001 00 05f5e101 00000000 ffff 00000000 00000000", "out_of_range", "distance_m"),  # 100.001 km
         ("22 0001 00000000 03e9 0000 00000000 0000", "out_of_range", "gradient_permille"),  # 100.1 ‰
-        ("18 0001 00 02", "bad_value", "delta"),
-        ("18 0001 00 80", "bad_value", "delta"),
+        ("18 0001 00 02 01", "bad_value", "delta"),
+        ("18 0001 00 80 01", "bad_value", "delta"),
         ("21 0001 00000000 0000 02 00000000 00000000", "bad_value", "direction"),
         ("42 0001 20 00000000", "bad_value", "status"),  # bit 5 undefined
         ("42 0001 00 01000000", "out_of_range", "psd_open"),  # a 25th unit
@@ -640,8 +641,9 @@ def test_describe_lists_every_field_with_units() -> None:
     assert rows["decel_mps2"] == "absent"
     assert rows["distance_m"] == "-0.250 m"
     assert list(rows) == ["train_id", "detector", "decel_mps2", "distance_m", "passage_s", "measured_s"]
-    rows = dict(describe(TascIncreaseDecrease(train_id=1, detector=0, delta=1)))
+    rows = dict(describe(TascIncreaseDecrease(train_id=1, detector=0, delta=1, step=3)))
     assert rows["delta"] == "+1 (increase)"
+    assert rows["step"] == "3"
     door = sample(LAYOUTS[DoorCommand])
     assert [name for name, _ in describe(door)] == [
         "train_id",
@@ -706,7 +708,7 @@ def test_from_fields_parses_what_it_is_given(layout: Layout, data: st.DataObject
         ),
         (
             "tasc-increase-decrease",
-            {"train_id": "1", "detector": "0", "delta": "up"},
+            {"train_id": "1", "detector": "0", "delta": "up", "step": "1"},
             "bad_value",
             "delta='up'",
         ),

@@ -48,6 +48,7 @@ def _random_telegrams(form: SignalForm, n: int, rng: np.random.Generator) -> Tas
         duty=np.where(rng.random(n) < 0.3, np.nan, rng.uniform(0.0, 1.0, n)),
         delta=rng.integers(-1, 2, n),
         emergency=(rng.random(n) < 0.1).astype(np.int64),  # the wayside's emergency stop
+        step=rng.integers(0, 256, n),
     )
 
 

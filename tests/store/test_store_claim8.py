@@ -36,6 +36,7 @@ from railstop.messages import (
     TEL_MEASURED,
     TEL_NOTCH,
     TEL_SIZE,
+    TEL_STEP,
 )
 from railstop.sim.single import run_stop, station_record, stop_record
 from railstop.store import SCHEMA_VERSION, SENT_FIELDS, STATION_FIELDS, StopRecord, open_store
@@ -291,17 +292,22 @@ def test_commands_map_the_emergency_flag_and_the_telegram() -> None:
     rows[:, CR_DETECTOR] = [0, 1]
     rows[1, CR_EMERGENCY] = 1.0
     # Every telegram field finite and in range, so the test holds whatever form 2 carries besides
-    # its distance; the notch and delta are 0 and the emergency-stop row carries its flag only,
+    # its distance; the notch, delta and step are 0 and the emergency-stop row carries its flag only,
     # as the kernel records them.
     sends = np.full((2, TEL_SIZE), 1.0)
     sends[:, TEL_DETECTOR] = [0, 1]
     sends[:, TEL_EMERGENCY] = [0.0, 1.0]
-    sends[:, [TEL_NOTCH, TEL_DELTA]] = 0.0
+    sends[:, [TEL_NOTCH, TEL_DELTA, TEL_STEP]] = 0.0
     sends[0, TEL_DISTANCE] = 123.4567
     sends[0, TEL_MEASURED] = 2.0
-    sends[1, [j for j in range(TEL_SIZE) if j not in (TEL_DETECTOR, TEL_EMERGENCY, TEL_NOTCH, TEL_DELTA)]] = (
-        np.nan
-    )
+    sends[
+        1,
+        [
+            j
+            for j in range(TEL_SIZE)
+            if j not in (TEL_DETECTOR, TEL_EMERGENCY, TEL_NOTCH, TEL_DELTA, TEL_STEP)
+        ],
+    ] = np.nan
     out = command_records(rows, SignalForm.DISTANCE, sends)
     assert [c["emergency"] for c in out] == [False, True]
     assert [c["telegram_type"] for c in out] == ["tasc-distance", "tasc-emergency-stop"]

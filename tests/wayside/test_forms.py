@@ -10,6 +10,7 @@ from __future__ import annotations
 from functools import cache
 from typing import Any
 
+import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
@@ -172,3 +173,30 @@ def test_form_4_calibrates_its_tachometer_from_the_wayside_distances(run: int) -
     )  # fmt: skip
     assert not bool(batch.slid[0])
     assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+
+
+# Stop model 14 (HZ-TASC-06): standard runs in which every transmission of one form-8 step was
+# lost (the attempts at 32.53, 32.63 and 32.73 s of run 8450; at 32.16, 32.26 and 32.36 s of run
+# 1172). On model 13 the train then braked a notch off the wayside's belief for the rest of the
+# stop: run 8450 (tasc-pwm) ended 2.06 m past the stopping point, run 1172 (tasc-step) 31.09 m
+# short, both silently.
+@pytest.mark.parametrize(("controller", "run"), [(TASC_PWM, 8450), (TASC_STEP, 1172)])
+def test_a_lost_form_8_step_hands_the_stop_to_degraded_mode(controller: str, run: int) -> None:
+    result, batch = run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=controller, seed=1,
+        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
+    )  # fmt: skip
+    assert result.stopped and not bool(batch.slid[0])
+    # It took no more steps and aimed at a deceleration of its own (degraded mode): a form-8 train
+    # otherwise only ever aims at one of its eight notches.
+    assert batch.trace is not None
+    targets = batch.trace.target_decel_mps2[:, 0]
+    assert np.unique(targets[np.isfinite(targets)]).size > 8
+    assert result.stop_error_m <= STATION.platform_end - STATION.stop_point_m  # never past the end
+    # Degraded mode stops it at the platform or, failing that, the guard brakes it: no silent miss.
+    assert abs(result.stop_error_m) <= STATION.psd_tolerance_m or result.emergency_brake is not None, (
+        f"{result.stop_error_m:+.3f} m"
+    )
+    # The step numbers on the air: 1, 2, ... one per telegram (none skipped by the wayside).
+    steps = [c["telegram"]["step"] for c in batch.commands if not c["emergency"]]
+    assert steps == [(i + 1) % 256 for i in range(len(steps))]

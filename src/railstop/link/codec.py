@@ -344,6 +344,7 @@ class TascIncreaseDecrease(Telegram):
     train_id: int
     detector: int
     delta: int
+    step: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -697,6 +698,15 @@ LAYOUTS: dict[type[Telegram], Layout] = {
                     max=1,
                     choices={-1: (-1, "decrease"), 0: (0, "hold"), 1: (1, "increase")},
                     description="one notch step down / none / up",
+                ),
+                Field(
+                    name="step",
+                    code="B",
+                    kind="int",
+                    min=0,
+                    max=255,
+                    description="the step's number (1, 2, ... modulo 256): a train that sees one "
+                    "skipped knows it missed a step (not in SPEC §1; stop model 14)",
                 ),
             ),
         ),

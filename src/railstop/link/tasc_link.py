@@ -87,11 +87,11 @@ CARRIED: dict[SignalForm, tuple[str, ...]] = {
     SignalForm.DECELERATION: ("decel_mps2", "distance_m", "passage_s", "measured_s"),
     SignalForm.REQUIRED_DECELERATION: ("required_mps2",),
     SignalForm.BRAKE_COMMAND: ("notch", "duty"),
-    SignalForm.INCREASE_DECREASE: ("delta",),
+    SignalForm.INCREASE_DECREASE: ("delta", "step"),
 }
 # The telegram's float fields (the others are integers: the detector, the notch, the step, the
 # emergency flag), in the telegram vector's order.
-_INT_FIELDS = ("detector", "notch", "delta", "emergency")
+_INT_FIELDS = ("detector", "notch", "delta", "emergency", "step")
 _FLOAT_FIELDS = tuple(f for f in TEL_FIELDS if f not in _INT_FIELDS)
 
 
@@ -113,7 +113,7 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     for name in _FLOAT_FIELDS:
         if name not in carried:
             changes[name] = np.full(tele.mask.shape, np.nan)
-    for name in ("notch", "delta"):
+    for name in ("notch", "delta", "step"):
         if name not in carried:
             changes[name] = np.zeros(tele.mask.shape, dtype=np.int64)
     if form == SignalForm.SPEED:
@@ -133,7 +133,7 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     eb = np.asarray(tele.emergency) != 0
     if eb.any():  # an emergency-stop telegram carries the detector only
         blank: dict[str, object] = {n: np.where(eb, np.nan, getattr(out, n)) for n in _FLOAT_FIELDS}
-        for name in ("notch", "delta"):
+        for name in ("notch", "delta", "step"):
             blank[name] = np.where(eb, 0, getattr(out, name))
         out = replace(out, **blank)  # type: ignore[arg-type]
     return out
@@ -187,7 +187,9 @@ def to_message(tele: TascTelegrams, row: int, train_id: int = TRAIN_ID) -> Teleg
         return TascBrakeCommand(
             train_id=train_id, detector=det, notch=int(tele.notch[row]), duty=finite_or_none(tele.duty[row])
         )
-    return TascIncreaseDecrease(train_id=train_id, detector=det, delta=int(tele.delta[row]))
+    return TascIncreaseDecrease(
+        train_id=train_id, detector=det, delta=int(tele.delta[row]), step=int(tele.step[row])
+    )
 
 
 def from_message(msg: Telegram, form: SignalForm) -> TascTelegrams:
@@ -218,6 +220,7 @@ def from_message(msg: Telegram, form: SignalForm) -> TascTelegrams:
         duty=val("duty") if form == SignalForm.BRAKE_COMMAND else nan,
         delta=np.full(1, int(getattr(msg, "delta", 0)), dtype=np.int64),
         emergency=np.full(1, int(emergency), dtype=np.int64),
+        step=np.full(1, int(getattr(msg, "step", 0)), dtype=np.int64),
     )
 
 
@@ -379,7 +382,7 @@ def telegram_of(row: FloatArray, form: SignalForm) -> TascTelegrams:
     """One kernel telegram vector as a one-run telegram array (the codec's input)."""
     values: dict[str, Any] = {}
     for j, name in enumerate(TEL_FIELDS):
-        if name in ("detector", "notch", "delta", "emergency"):
+        if name in _INT_FIELDS:
             values[name] = np.full(1, int(row[j]), dtype=np.int64)
         else:
             values[name] = np.full(1, row[j])

@@ -45,6 +45,7 @@ from railstop.messages import (
     TEL_PASSAGE,
     TEL_SIZE,
     TEL_SPEED,
+    TEL_STEP,
 )
 from railstop.model.fixes import FixesData, FixesRun, fixes_init_run, fixes_step_run
 from railstop.model.records import (
@@ -267,6 +268,7 @@ def quantize_telegram_1(
         out[TEL_DETECTOR] = tele[TEL_DETECTOR]
         out[TEL_NOTCH] = 0.0
         out[TEL_DELTA] = 0.0
+        out[TEL_STEP] = 0.0
         out[TEL_EMERGENCY] = 1.0
         return
     for j in range(TEL_SIZE):
@@ -274,7 +276,7 @@ def quantize_telegram_1(
             out[j] = tele[j]
         elif j == TEL_EMERGENCY:
             out[j] = 0.0
-        elif j in (TEL_NOTCH, TEL_DELTA):
+        elif j in (TEL_NOTCH, TEL_DELTA, TEL_STEP):
             out[j] = tele[j] if carried[j] > 0 else 0.0
         elif carried[j] == 0:
             out[j] = np.nan

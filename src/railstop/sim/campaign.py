@@ -119,7 +119,10 @@ DISK_BYTES_PER_VALUE = 8
 # 13: the braking telegrams' medium has bursts (Gilbert-Elliott) and reordering, drawn as
 # link.channel.SimChannel draws them (radio_burst_*_probability, radio_reorder_probability;
 # the run's LINK_FAULTS stream). A set that names neither draws nothing new: its runs are unchanged.
-MODEL_VERSION = 13
+# 14: a form-8 telegram carries its step's number; a train that sees one skipped (a step whose
+# every transmission was lost) finishes the stop in degraded mode instead of braking a notch off
+# the wayside's belief. Every form-8 run changes (its frame is a byte longer); the others do not.
+MODEL_VERSION = 14
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -61,6 +61,7 @@ from railstop.messages import (
     TEL_POSITION,
     TEL_REQUIRED,
     TEL_SPEED,
+    TEL_STEP,
 )
 from railstop.physics.brake import decel_to_pwm_1
 
@@ -117,6 +118,7 @@ class TascTelegrams:
     duty: FloatArray
     delta: IntArray
     emergency: IntArray  # 1: the wayside's overrun guard fired (the emergency-stop telegram)
+    step: IntArray  # form 8: the step's number modulo 256 (0 for the other forms)
 
 
 def finite_or_none(x: float) -> float | None:
@@ -182,7 +184,8 @@ WS_ID_AT = 25  # when the brake response is to be identified (inf: not due)
 WS_ID_GAIN = 26  # the loop gain the identification found (NaN: not identified)
 WS_FILLED = 27  # detector passages filled in from the Doppler (wayside_passage_1)
 WS_ID_DONE = 28  # 1 once the identification ran (whatever it found)
-WS_MOD = 29  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
+WS_STEPS = 29  # form 8: the steps sent so far (the last one's number)
+WS_MOD = 30  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
 WS_SIZE = WS_MOD + MOD_SIZE
 
 # Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
@@ -532,6 +535,7 @@ def _modulated_notch_1(ws: FloatArray, wp: FloatArray, notch: int, now_s: float)
         notch = sent + delta
         if delta != 0:
             ws[WS_LAST_STEP] = now_s
+            ws[WS_STEPS] += 1.0
     ws[WS_MOD_SENT] = notch
     return notch, delta
 
@@ -562,6 +566,7 @@ def wayside_modulate_1(
     tele[TEL_MEASURED] = now_s
     tele[TEL_NOTCH] = notch
     tele[TEL_DELTA] = delta
+    tele[TEL_STEP] = ws[WS_STEPS] % 256.0
     record[CR_T] = now_s
     record[CR_NOTCH] = notch
     record[CR_DELTA] = delta
@@ -697,6 +702,7 @@ def wayside_command_1(
     tele[TEL_NOTCH] = notch
     tele[TEL_DUTY] = decel_to_pwm_1(command, pwm_duty, pwm_decel)
     tele[TEL_DELTA] = delta
+    tele[TEL_STEP] = ws[WS_STEPS] % 256.0
     tele[TEL_EMERGENCY] = ws[WS_EMERGENCY]
     if form <= 5:  # forms 1-5 carry measurements only, in para 92's combinations (SPEC §1)
         for m in range(_MEASUREMENTS.size):
