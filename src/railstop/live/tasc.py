@@ -447,7 +447,8 @@ class TascOnboard:
             if payload == self.last_payload:
                 # A cyclic repeat of the telegram it has: a life sign. [interpretation] The codec
                 # telegram carries no command number; a new command equal to the last one on the
-                # wire tells the unit nothing new, so it is taken as a repeat too.
+                # wire tells the unit nothing new, so it is taken as a repeat too (a form-8 step
+                # carries its step's number, so no two steps are equal on the wire).
                 copy = True
                 continue
             try:
