@@ -77,13 +77,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.runs < 1:
         parser.error("--runs must be at least 1")
     line, vehicle = default_line(), default_vehicle()
-    if args.detectors_only:
-        line = line.model_copy(update={"stations": [st.detectors_only() for st in line.stations]})
     names = [st.name for st in line.stations]
     if args.station is not None and args.station not in names:
         print(f"error: --station: no station {args.station!r} (one of {', '.join(names)})", file=sys.stderr)
         raise SystemExit(2)
     station = line.stations[names.index(args.station) if args.station else 0]
+    if args.detectors_only:
+        station = station.detectors_only()
     dist = load_disturbances("standard")
     tol = station.psd_tolerance_m
     variant = "detectors only" if args.detectors_only else "detectors + Doppler"

@@ -92,6 +92,8 @@ CARRIED: dict[SignalForm, tuple[str, ...]] = {
 # The telegram's float fields (the others are integers: the detector, the notch, the step, the
 # emergency flag), in the telegram vector's order.
 _INT_FIELDS = ("detector", "notch", "delta", "emergency", "step")
+# ... of which a form carries these or not (0 where it does not; an emergency stop carries none).
+_FORM_INT_FIELDS = ("notch", "delta", "step")
 _FLOAT_FIELDS = tuple(f for f in TEL_FIELDS if f not in _INT_FIELDS)
 
 
@@ -113,7 +115,7 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     for name in _FLOAT_FIELDS:
         if name not in carried:
             changes[name] = np.full(tele.mask.shape, np.nan)
-    for name in ("notch", "delta", "step"):
+    for name in _FORM_INT_FIELDS:
         if name not in carried:
             changes[name] = np.zeros(tele.mask.shape, dtype=np.int64)
     if form == SignalForm.SPEED:
@@ -133,7 +135,7 @@ def quantize_telegrams(tele: TascTelegrams) -> TascTelegrams:
     eb = np.asarray(tele.emergency) != 0
     if eb.any():  # an emergency-stop telegram carries the detector only
         blank: dict[str, object] = {n: np.where(eb, np.nan, getattr(out, n)) for n in _FLOAT_FIELDS}
-        for name in ("notch", "delta", "step"):
+        for name in _FORM_INT_FIELDS:
             blank[name] = np.where(eb, 0, getattr(out, name))
         out = replace(out, **blank)  # type: ignore[arg-type]
     return out
