@@ -19,8 +19,9 @@ cell meets the same draws):
 * misses on a patch, by cause: the wheels slid on it (the wheel-slide
   protection acted), an emergency brake (its cause named), or neither.
 
-``--detectors-only`` removes every station's Doppler radar (SPEC §1 claim 6,
-the detectors-only variant).
+``--detectors-only`` runs the station's detectors-only variant (SPEC §1 claim 6:
+no Doppler radar, the zone's ``detectors_only_before_stop_m``), whose target is
+99.5 % within ±0.30 m.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from railstop.controllers import TASC_CONTROLLERS
 from railstop.sim.campaign import simulate_runs
 
 TARGET = 0.999  # issue 36: within ±0.30 m, every form x every TASC controller
+TARGET_DETECTORS_ONLY = 0.995  # issue 36: the detectors-only variant at every default station
 BAND_M = 0.30
 BLOCK = 5_000  # runs per call of the kernel
 
@@ -87,9 +89,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     dist = load_disturbances("standard")
     tol = station.psd_tolerance_m
     variant = "detectors only" if args.detectors_only else "detectors + Doppler"
+    target = TARGET_DETECTORS_ONLY if args.detectors_only else TARGET
     print(
         f"{station.name} ({variant}), standard set, {args.runs:,} runs per cell, seed {args.seed}; "
-        f"target >= {TARGET:.1%} within ±{BAND_M:.2f} m, 0 silent misses off the patches"
+        f"target >= {target:.1%} within ±{BAND_M:.2f} m, 0 silent misses off the patches"
     )
     print(
         f"{'form':>4} {'controller':<22} {'±0.30 m':>8} {f'±{tol:.2f} m':>8} "
@@ -128,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                 f"{int((off & (eb == 0)).sum()):>16} {int((off & (eb > 0)).sum()):>12}  {on_text}",
                 flush=True,
             )
-            if within < TARGET or (off & (eb == 0)).any():
+            if within < target or (off & (eb == 0)).any():
                 below.append(f"form {form} {controller}")
     print(f"below the target: {', '.join(below) if below else 'none'}")
     print(f"wall time {time.perf_counter() - t0:.1f} s")

@@ -173,3 +173,17 @@ def test_check_lists_every_problem_and_stop_refuses_in_one_line(tmp_path: Path) 
         assert "detectors_before_stop_m[0]: puts the detector at -100 m" in lines[0]
         assert lines[0].endswith("2 more: `railstop check` lists them")
     assert not (tmp_path / "c").exists()
+
+
+def test_the_detectors_only_layout_is_checked_on_the_line(tmp_path: Path) -> None:
+    """SPEC §1 claim 6: a zone's variant layout is placed on the line like its own detectors."""
+    data = line_data()
+    data["stations"][1]["tasc"]["detectors_only_before_stop_m"] = [1600.0, 320.0, 4.0]
+    path = write_line(tmp_path, data)
+    p = run("check", "--line", str(path), cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert "Traceback" not in p.stderr
+    assert len(lines) == 1, p.stderr
+    assert "stations[1].tasc.detectors_only_before_stop_m[0]: puts the detector at 1050 m" in lines[0]
+    assert "'Riverside'" in lines[0]

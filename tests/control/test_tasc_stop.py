@@ -105,14 +105,11 @@ def test_detectors_only_variant_within_psd_tolerance(controller: str) -> None:
             controller=controller,
             streams=RunStreams.for_runs(1, 0, 1),
         )
-        # Four commands: the first needs two passages.
-        assert r.commands_received[0] == 4
-        # Known limit: configuration 1 (the train's own notch controller, 0.3 s
-        # hold) with only four passage-time commands lands within the ±0.50 m
-        # door tolerance of SPEC §3 but not always the ±0.35 m PSD one (+0.37 m
-        # at crush with 85 % brakes since telegrams take one 10 ms step to arrive).
-        limit = 0.50 if controller == "tasc-brake-controller" else 0.35
-        assert abs(r.stop_error_m[0]) <= limit
+        # One command per passage but the first: a speed needs two passages.
+        assert variant.tasc.detectors_before_stop_m == st.tasc.detectors_only_before_stop_m
+        assert r.commands_received[0] == len(variant.tasc.detectors_before_stop_m) - 1
+        assert r.emergency_brake[0] == 0
+        assert abs(r.stop_error_m[0]) <= st.psd_tolerance_m
 
 
 def test_same_seed_same_json() -> None:

@@ -129,7 +129,7 @@ def test_waveform_inputs_are_checked() -> None:
 
 @pytest.mark.parametrize("controller", [TASC_BRAKE_CONTROLLER, TASC_STEP, TASC_SWITCHED_PWM, TASC_PWM])
 def test_initial_brake_acts_from_the_zone_until_tasc_speaks(controller: str) -> None:
-    # Detectors only: the first telegram comes at the second detector, 100 m into the zone.
+    # Detectors only: the first telegram comes at the second detector, 80 m into the zone.
     station = _with_initial(LINE.station("Riverside").detectors_only(), 2)
     _, batch, tr = _stop(controller, station)
     first = batch.detector_passages_s[0, 0]
@@ -161,10 +161,9 @@ def test_tasc_takes_over_from_the_initial_brake(controller: str, station: str) -
 
 @pytest.mark.parametrize("station", [s.name for s in LINE.stations])
 def test_detectors_only_with_the_initial_brake_stops_at_every_station(station: str) -> None:
-    """Detectors only, the first command comes at the second detector; without the train's own
-    initial brake a train at line speed then needs about full service and the overrun guard stops
-    it (Hillcrest, Museum); with it, modelled by the wayside, every default station stops the
-    train within the PSD tolerance."""
+    """Detectors only, the first command comes at the second detector; with the train's own
+    initial brake from the first, modelled by the wayside, every default station stops the train
+    within the PSD tolerance."""
     result, _, _ = _stop(TASC_STEP, _with_initial(LINE.station(station).detectors_only(), 2))
     assert result.stopped and result.emergency_brake is None
     assert abs(result.stop_error_m) <= LINE.station(station).psd_tolerance_m

@@ -86,8 +86,12 @@ def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[Con
                 )
             )
         previous_stop = line.stations[i - 1].stop_point_m if i > 0 else None
-        for j, (d, x) in enumerate(zip(zone.detectors_before_stop_m, st.detector_positions_m(), strict=True)):
-            field = f"{where}.detectors_before_stop_m[{j}]"
+        layouts = {"detectors_before_stop_m": zone.detectors_before_stop_m}
+        if zone.detectors_only_before_stop_m is not None:  # SPEC §1 claim 6: the variant's too
+            layouts["detectors_only_before_stop_m"] = zone.detectors_only_before_stop_m
+        placed = [(name, j, d, st.stop_point_m - d) for name, ds in layouts.items() for j, d in enumerate(ds)]
+        for name, j, d, x in placed:
+            field = f"{where}.{name}[{j}]"
             if x < 0.0 or (end is not None and x > end):
                 problems.append(
                     ConfigError(source, field, f"puts the detector at {x:g} m, off the line ({on_line})", d)

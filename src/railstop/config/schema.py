@@ -67,6 +67,13 @@ class TascZone(_Model):
     # SPEC §1: the train detectors' distances before the stopping point, farthest first, strictly
     # decreasing: at least 2 with a Doppler radar, at least 3 without one (variant 2).
     detectors_before_stop_m: list[PositiveFloat]
+    # SPEC §1 claim 6, the detectors-only variant of this zone: the detectors it would have without
+    # its Doppler radar (Station.detectors_only; None: the same detectors). Laid out as data
+    # because the variant needs its own layout: its first command needs two passages, so the
+    # first two detectors must lie before the braking point at the entry speed, and after its
+    # last detector the stop is open loop, so the last ones must lie close to the stopping point
+    # (docs/tasc.md, the detectors-only variant). At least 3, farthest first, strictly decreasing.
+    detectors_only_before_stop_m: list[PositiveFloat] | None = None
     # SPEC §1: the kind of train detector; checked against the list, not read by the simulation
     # (every kind gives the same passage times).
     detector_kind: Literal["wheel-sensor", "ultrasonic", "optical", "magnetic", "proximity"] = "wheel-sensor"
@@ -126,8 +133,7 @@ class TascZone(_Model):
     # initial brake, the train holds its speed until its first braking telegram (the
     # supervision brakes it if none comes). [interpretation] SPEC §1 names the train's own
     # control but not its law; an initial brake step before the automatic stop is common
-    # practice. The wayside's law does not model it yet: with the detectors-only variant the
-    # first command, at the second detector, then over-estimates the speed.
+    # practice. The wayside's model of the train brakes with it from the first detector on.
     initial_brake_notch: Annotated[int, Field(ge=0, le=7)] = 0
 
     @field_validator("detectors_before_stop_m")
@@ -136,6 +142,18 @@ class TascZone(_Model):
         # SPEC §1: at least two detectors at set intervals approaching the platform.
         if len(v) < 2:
             raise ValueError("at least 2 detectors are needed (SPEC §1)")
+        if any(b >= a for a, b in zip(v, v[1:], strict=False)):
+            raise ValueError("detectors must be listed farthest first, strictly decreasing")
+        return v
+
+    @field_validator("detectors_only_before_stop_m")
+    @classmethod
+    def _variant_detectors(cls, v: list[float] | None) -> list[float] | None:
+        # SPEC §1 variant 2: at least 3 detectors (speed and deceleration from passage times).
+        if v is None:
+            return v
+        if len(v) < 3:
+            raise ValueError("the detectors-only variant needs at least 3 detectors (SPEC §1 variant 2)")
         if any(b >= a for a, b in zip(v, v[1:], strict=False)):
             raise ValueError("detectors must be listed farthest first, strictly decreasing")
         return v
@@ -201,8 +219,17 @@ class Station(_Model):
         return self.stop_point_m + 5.0 if self.platform_end_m is None else self.platform_end_m
 
     def detectors_only(self) -> Station:
-        """This station without its Doppler radar (SPEC §1 claim 6, the detectors-only variant)."""
-        return self.model_copy(update={"tasc": self.tasc.model_copy(update={"doppler": None})})
+        """This station without its Doppler radar (SPEC §1 claim 6, the detectors-only variant), its
+        detectors those of ``tasc.detectors_only_before_stop_m`` where the zone gives them.
+
+        Validated as a station file is: a zone of fewer than 3 detectors and no variant layout
+        raises :class:`~railstop.errors.FieldProblem` (``pydantic.ValidationError``)."""
+        tasc = self.tasc.model_dump()
+        tasc["doppler"] = None
+        tasc["update"] = "detectors"
+        if self.tasc.detectors_only_before_stop_m is not None:
+            tasc["detectors_before_stop_m"] = list(self.tasc.detectors_only_before_stop_m)
+        return Station.model_validate({**self.model_dump(), "tasc": tasc})
 
     @property
     def platform_start(self) -> float:

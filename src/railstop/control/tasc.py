@@ -58,6 +58,7 @@ class Approach(NamedTuple):
 GAIN_MIN = 0.5
 GAIN_MAX = 2.0
 HISTORY = 8
+MIN_WINDOW_CMD = 0.05  # m/s²: a window whose modelled command is smaller does not count in the gain
 SAMPLES = 24  # points per window for model-weighted means
 
 # --------------------------------------------------------------------------
@@ -380,7 +381,7 @@ def gain_update_1(
     onboard planner of forms 1-5 both close the loop with this, then plan with
     :func:`plan_command_1`.
     """
-    if expected_brake_mps2 >= 0.05 and math.isfinite(measured_decel_mps2):
+    if expected_brake_mps2 >= MIN_WINDOW_CMD and math.isfinite(measured_decel_mps2):
         num += expected_brake_mps2 * (measured_decel_mps2 - external_mps2)
         den += expected_brake_mps2 * expected_brake_mps2
     return num, den

@@ -122,7 +122,11 @@ DISK_BYTES_PER_VALUE = 8
 # 14: a form-8 telegram carries its step's number; a train that sees one skipped (a step whose
 # every transmission was lost) finishes the stop in degraded mode instead of braking a notch off
 # the wayside's belief. Every form-8 run changes (its frame is a byte longer); the others do not.
-MODEL_VERSION = 14
+# 15: without a Doppler radar (SPEC §1 variant 2) the wayside takes the speed at a passage from
+# the last three passages with the deceleration its model misses (wayside.tasc_unit.
+# _passages_fit_1), and its loop gain from the newest window alone. Runs with a radar are
+# unchanged.
+MODEL_VERSION = 15
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -28,6 +28,7 @@ from railstop.control.notch import (
 )
 from railstop.control.supervision import overrun_guard_1
 from railstop.control.tasc import (
+    MIN_WINDOW_CMD,
     REG_WEIGHTS,
     Approach,
     BrakeCurves,
@@ -38,6 +39,7 @@ from railstop.control.tasc import (
     gain_value_1,
     hat_weights_1,
     history_push_1,
+    history_response_at_1,
     history_value_at_1,
     interval_fit_add_1,
     interval_fit_decel_1,
@@ -411,6 +413,66 @@ def wayside_identify_1(
 
 
 @njit_step
+def _passages_fit_1(
+    pass_t: FloatArray,
+    pass_x: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    lag_s: float,
+    gain: float,
+    braking_from_s: float,
+    stop_m: float,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+) -> tuple[float, float]:
+    """SPEC §1 variant 2, three passages: (speed at the newest, deceleration the model misses).
+
+    The train's deceleration over the last three passages is modelled as the brake's modelled
+    response to the commands (times the loop gain) plus gradient and resistance where the
+    database puts them, plus one unknown constant ``delta`` (an unsurveyed gradient, a brake
+    that is not the model's). The two intervals give two equations in the speed at the newest
+    passage and ``delta``:  x2 - xi = v2 (t2 - ti) + ∫_{ti}^{t2} (τ - ti) a(τ) dτ  (i = 0, 1).
+    Correcting one interval's mean speed with the model alone (the speed estimate before)
+    carries the model's error times half the interval into the speed: at 1 m/s over a 14 s
+    interval, 0.04 m/s² of unknown gradient is 0.28 m/s, a stop metres short.
+    [interpretation] SPEC §1 gives speed and deceleration from passage times and leaves the
+    estimator open; this one is exact for any constant error of the model.
+    """
+    t0, t1, t2 = pass_t[0], pass_t[1], pass_t[2]
+    # Where the train was between the passages: the parabola through them.
+    v_q, a_q = fit_passages_1(pass_t, pass_x, 3)
+    n = _PASSAGE_FRAC.size
+    i1 = 0.0  # ∫_{t1}^{t2} (τ - t1) a dτ
+    s_b = 0.0  # ∫_{t1}^{t2} a dτ
+    a01 = 0.0  # ∫_{t0}^{t1} (τ - t0) a dτ
+    for seg in range(2):
+        lo = t0 if seg == 0 else t1
+        width = (t1 - t0) if seg == 0 else (t2 - t1)
+        for j in range(n):
+            tau = lo + width * _PASSAGE_FRAC[j]
+            a_model = gain * history_response_at_1(hist_v, hist_e, tau, lag_s)
+            if tau >= braking_from_s:
+                back = t2 - tau
+                x_then = pass_x[2] - v_q * back - 0.5 * a_q * back * back
+                a_model += external_decel_1(ext, grad, stop_m - x_then, v_q + a_q * back)
+            w = width / n
+            if seg == 0:
+                a01 += (tau - t0) * a_model * w
+            else:
+                i1 += (tau - t1) * a_model * w
+                s_b += a_model * w
+    i0 = a01 + i1 + (t1 - t0) * s_b
+    d0 = t2 - t0
+    d1 = t2 - t1
+    r0 = pass_x[2] - pass_x[0] - i0
+    r1 = pass_x[2] - pass_x[1] - i1
+    det = 0.5 * d0 * d1 * (d1 - d0)
+    v2 = (0.5 * r0 * d1 * d1 - 0.5 * r1 * d0 * d0) / det
+    delta = (d0 * r1 - d1 * r0) / det
+    return v2, delta
+
+
+@njit_step
 def _wayside_measure_1(
     ws: FloatArray,
     wp: FloatArray,
@@ -486,6 +548,12 @@ def _wayside_measure_1(
     ext_mean = 0.0
     count = int(ws[WS_PASS_COUNT])
     if count >= 3:
+        v_p, delta = _passages_fit_1(
+            pass_t, pass_x, hist_v, hist_e, ws[WS_LAG], gain, first, wp[WP_STOP], ext, grad
+        )
+        a_now += delta
+        speed = v_p - a_now * since
+        distance = det_to_stop[last_det] - (v_p * since - 0.5 * a_now * since**2)
         _, decel = fit_passages_1(pass_t, pass_x, count)
         hat_weights_1(pass_t[0], t1, t2, taus, weights)
         cmd_mean, ext_mean = modelled_means_1(
@@ -633,7 +701,14 @@ def wayside_command_1(
     ):
         ws[WS_EMERGENCY] = 1.0  # DESIGN rule 10: the overrun guard at a command (both variants)
     # Loop closure (SPEC §1 claims 2, 19) and the next command.
-    num, den = gain_update_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN], decel, cmd_mean, ext_mean)
+    num, den = ws[WS_GAIN_NUM], ws[WS_GAIN_DEN]
+    if wp[WP_HAS_DOPPLER] == 0.0 and cmd_mean >= MIN_WINDOW_CMD:
+        # SPEC §1 variant 2: a window is a whole span of three passages, measured to a few
+        # mm/s² (passage times to the ms), and the train's braking after the last passage is
+        # the newest window's, not the average since the zone's entry (whose gradient the
+        # platform does not share): the gain is the newest window's. [interpretation]
+        num, den = 0.0, 0.0
+    num, den = gain_update_1(num, den, decel, cmd_mean, ext_mean)
     ws[WS_GAIN_NUM] = num
     ws[WS_GAIN_DEN] = den
     gain = gain_value_1(num, den)
@@ -666,7 +741,13 @@ def wayside_command_1(
         modulator_restart_1(ws[WS_MOD : WS_MOD + MOD_SIZE])
         ws[WS_MOD_NEXT] = now_s + wp[WP_MOD_CYCLE]
         notch, delta = _modulated_notch_1(ws, wp, _modulator_cycle_1(ws, wp, table, speed), now_s)
-    if form >= 6:  # forms 1-5: the train computes its own command from the measurements
+    if form >= 6 or wp[WP_HAS_DOPPLER] == 0.0:
+        # Forms 1-5: the train computes its own command from the measurements. Without a radar
+        # the wayside's speed at a passage rests on its model of the braking since the passage
+        # before last (_passages_fit_1), so it models the train as braking by the command the
+        # same law gives on the same measurements (the onboard unit's differs by its own loop
+        # gain, which the fit's constant term takes up). [interpretation] With a radar it
+        # measures the speed and models nothing.
         history_push_1(hist_v, hist_e, command, effect)
     # Form 8 says only "more" or "less": a command that changes no notch is not sent (the cyclic
     # repeat of the last telegram keeps the train's supervision alive).
