@@ -548,12 +548,13 @@ def _wayside_measure_1(
     ext_mean = 0.0
     count = int(ws[WS_PASS_COUNT])
     if count >= 3:
-        v_p, delta = _passages_fit_1(
+        v_fit, delta = _passages_fit_1(
             pass_t, pass_x, hist_v, hist_e, ws[WS_LAG], gain, first, wp[WP_STOP], ext, grad
         )
-        a_now += delta
-        speed = v_p - a_now * since
-        distance = det_to_stop[last_det] - (v_p * since - 0.5 * a_now * since**2)
+        if math.isfinite(v_fit) and math.isfinite(delta):  # else the one-interval estimate above
+            a_now += delta
+            speed = v_fit - a_now * since
+            distance = det_to_stop[last_det] - (v_fit * since - 0.5 * a_now * since**2)
         _, decel = fit_passages_1(pass_t, pass_x, count)
         hat_weights_1(pass_t[0], t1, t2, taus, weights)
         cmd_mean, ext_mean = modelled_means_1(
