@@ -71,6 +71,7 @@ class Stream(IntEnum):
     PLATFORM_DWELL = 19  # SPEC §3 a manual line's dwell: a generator per (seed, dwell); sensors, camera
     LINK_FAULTS = 20  # SPEC §5 medium, frame c: 4c burst chain, 4c+1 burst loss, 4c+2 dup, 4c+3 reorder
     LINK_FLIPS = 21  # SPEC §5 bit errors of frame c's copy j: a key per 2c + j, counter 0.. (link.channel)
+    OCCUPANCY_LINK = 22  # SPEC §2 occupancy telegrams: a radio per (seed, train) (nodes.occupancy_chain)
 
 
 def _mix(z: NDArray[np.uint64]) -> NDArray[np.uint64]:

@@ -25,10 +25,12 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.media import ChannelParams
 from railstop.config.operation import load_operation
 from railstop.config.schema import GnssClocks, Line, Positioning, TrackCircuit, TrackCircuitDetection
 from railstop.errors import SimulationError
-from railstop.nodes.occupancy_chain import ChainSettings
+from railstop.link.channel import media_preset
+from railstop.nodes.occupancy_chain import ChainSettings, OccupancyChain
 from railstop.onboard.positioning import FixOutcome, PositioningUnit
 from railstop.sensors.gnss_clock import GnssClock, in_shadow
 from railstop.sim.line import PositionSettings
@@ -366,16 +368,53 @@ def test_timestamp_unit_telegram_on_occupancy_only() -> None:
         )
 
 
-def test_telegram_round_trip_through_the_codec() -> None:
-    from railstop.nodes.occupancy_chain import _codec_round_trip
-    from railstop.wayside.tc_timestamp import OccupancyTelegrams
-
-    sent = OccupancyTelegrams(
-        run=np.array([0, 0]), circuit_id=np.array([101, 65535]), gnss_time_s=np.array([12.3456, 86399.999])
+def _drive_chain(medium: ChannelParams) -> tuple[OccupancyChain, list[tuple[int, int, float, float]]]:
+    """Three trains 500 m apart at 15 m/s over 4 km of the default line, their occupancy telegrams
+    on ``medium``: the chain and what reached the trains (train, circuit, GNSS time, step end)."""
+    chain = OccupancyChain(
+        LINE,
+        train_streams=RunStreams.for_runs(1, 0, 3),
+        wayside_streams=RunStreams.for_runs(1, 99, 1),
+        start_position_m=np.array([1000.0, 500.0, 0.0]),
+        settings=ChainSettings(medium=medium),
     )
-    got = _codec_round_trip(sent)
-    assert got.circuit_id.tolist() == sent.circuit_id.tolist()
-    assert np.allclose(got.gnss_time_s, sent.gnss_time_s, atol=1e-3)
+    x = np.array([1000.0, 500.0, 0.0]) + 0.5
+    v, dt = np.full(3, 15.0), 0.1
+    got: list[tuple[int, int, float, float]] = []
+    for k in range(2700):
+        x1 = x + v * dt
+        chain.advance(t0_s=k * dt, dt_s=dt, x0_m=x, v0_mps=v, accel_mps2=np.zeros(3), x1_m=x1)
+        a = chain.arrivals((k + 1) * dt)
+        rows = zip(a.run, a.circuit_id, a.gnss_time_s, strict=True)
+        got += [(int(r), int(c), float(g), (k + 1) * dt) for r, c, g in rows]
+        x = x1
+    return chain, got
+
+
+def test_the_chain_sends_by_the_one_link_model() -> None:
+    """SPEC §2 S20-S30 over the train radio (issue 35: one medium model for every link): the
+    telegrams go through the codec onto a SimChannel per train; what the medium loses never
+    arrives, a duplicate copy gives no second fix, a frame whose bits flipped is refused by the
+    CRC, and the wayside's stamps do not depend on the radio."""
+    clean = media_preset("cbtc-radio").replace(loss_probability=0.0, jitter_s=0.0)
+    ideal, every = _drive_chain(clean)
+    assert ideal.counts.sent == len(every) == ideal.counts.delivered > 50
+    assert ideal.counts.lost == ideal.counts.rejected == ideal.counts.duplicates == 0
+    # One telegram per circuit a train entered, none before the radio's latency after its front
+    # entered the circuit (the trains run at 15 m/s from 0.5 m past their starts).
+    assert len({(r, c) for r, c, _, _ in every}) == len(every)
+    start = {c.id: c.start_m for c in LINE.track_circuits}
+    entered = {(r, cid): (start[cid] - (1000.5 - 500.0 * r)) / 15.0 for r, cid, _, _ in every}
+    assert all(step_end >= entered[(r, cid)] + clean.latency_s for r, cid, _, step_end in every)
+    bad = clean.replace(loss_probability=0.2, duplicate_probability=0.3, bit_error_rate=2e-3)
+    chain, got = _drive_chain(bad)
+    c = chain.counts
+    assert c.sent == ideal.counts.sent
+    assert c.lost > 0 and c.duplicates > 0 and c.rejected > 0
+    assert c.delivered == len(got) < c.sent
+    stamped = {(r, cid): g for r, cid, g, _ in every}
+    assert len({(r, cid) for r, cid, _, _ in got}) == len(got)  # each telegram taken once
+    assert all(stamped[(r, cid)] == g for r, cid, g, _ in got)  # the same stamps, the wire's resolution
 
 
 # --------------------------------------------------------------------------

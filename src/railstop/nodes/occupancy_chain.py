@@ -4,8 +4,11 @@ For n trains (a "run" of the arrays is one train's passage):
 
     track-circuit devices (electrical boundary, detection delay: drawn per train and circuit)
         ─> wayside time-stamping unit (its GNSS clock per circuit; free-running in a shadow)
-            ─> telegram (circuit ID, GNSS time) ─> radio (latency) ─> codec (the wire's resolution)
-                ─> the train, with its own GNSS clock (``onboard_time_s``)
+            ─> telegram (circuit ID, GNSS time) ─> codec (the wire's resolution, a CRC)
+                ─> the train radio (``ChainSettings.medium``: one ``link.channel.SimChannel`` per
+                   train: latency, jitter, loss, bursts, duplicates, reordering, bit errors)
+                    ─> the train, with its own GNSS clock (``onboard_time_s``), which takes each
+                       telegram once (a duplicate is dropped) and refuses what the CRC refuses
 
 A driver calls, every step, :meth:`OccupancyChain.advance` with the trains' motion over the
 step (the clocks advance, the devices detect, the unit stamps what its devices declared by the
@@ -26,18 +29,20 @@ the unit sends then.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from railstop.config.media import ChannelParams
 from railstop.config.schema import Line
 from railstop.errors import SimulationError
-from railstop.link.codec import TrackCircuitOccupancy, decode, encode
+from railstop.link.channel import LinkStreams, SimChannel, media_preset
+from railstop.link.codec import TelegramError, TrackCircuitOccupancy, decode, encode
 from railstop.onboard.positioning import FixOutcome, FixReport, PositioningUnit
 from railstop.sensors.gnss_clock import PPM, GnssClock, in_shadow
 from railstop.sensors.track_circuit import TrackCircuitDetector
-from railstop.streams import RunStreams
+from railstop.streams import RunStreams, Stream
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
 
 FloatArray = NDArray[np.float64]
@@ -45,15 +50,38 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 
+#: The medium of the occupancy telegrams by default: the train radio of a CBTC line
+#: (``railstop/data/media.toml``). [interpretation] SPEC §2 sends them "by radio" and names no
+#: medium; the trains' data radio is the one a line has.
+OCCUPANCY_MEDIUM = "cbtc-radio"
+
+
+def occupancy_medium() -> ChannelParams:
+    """The default medium of the occupancy telegrams (:data:`OCCUPANCY_MEDIUM`)."""
+    return media_preset(OCCUPANCY_MEDIUM)
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ChainSettings:
     """What a run varies in the chain: GNSS time at all, the repeaters of the line data, the age
-    of a clock with no time source (None: the line data's), the radio's latency."""
+    of a clock with no time source (None: the line data's), the radio the telegrams go by."""
 
     gnss: bool = True  # SPEC §2 GNSS time (False: every clock free-runs)
     repeaters: bool = True  # SPEC §2 satellite-signal repeaters where the line data has them
     holdover_s: float | None = None
-    latency_s: float = 0.05  # SPEC typical values: radio latency tens of ms
+    # The telegrams' medium (SPEC §2 "by radio"): the one link model of every simulated link.
+    medium: ChannelParams = field(default_factory=occupancy_medium)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ChainCounts:
+    """What the occupancy telegrams' radio did, over every train."""
+
+    sent: int
+    delivered: int  # taken by a train (each telegram once)
+    lost: int  # by the medium
+    rejected: int  # refused by the codec (its CRC: bits the medium flipped)
+    duplicates: int  # copies of a telegram a train already had, dropped
 
 
 #: The service a line's clocks must hold their time over: a day (a line run lasts at most that).
@@ -75,25 +103,6 @@ class Arrivals:
     @property
     def size(self) -> int:
         return int(self.run.size)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class _InFlight:
-    """Telegrams on their way to the trains, with their arrival times and the stamping clocks' errors."""
-
-    telegrams: OccupancyTelegrams
-    arrival_s: FloatArray
-    wayside_error_s: FloatArray
-
-    def subset(self, rows: BoolArray) -> _InFlight:
-        t = self.telegrams
-        return _InFlight(
-            telegrams=OccupancyTelegrams(
-                run=t.run[rows], circuit_id=t.circuit_id[rows], gnss_time_s=t.gnss_time_s[rows]
-            ),
-            arrival_s=self.arrival_s[rows],
-            wayside_error_s=self.wayside_error_s[rows],
-        )
 
 
 class OccupancyChain:
@@ -151,7 +160,21 @@ class OccupancyChain:
             self.stamper.occupy_initial(np.full(occupied.size, r), occupied)
         self._pending: list[tuple[IntArray, IntArray, FloatArray]] = []
         self._wayside_due_s = 0.0  # simulated time the wayside clocks have not yet been advanced by
-        self._in_flight: list[_InFlight] = []
+        # The train radio: one direction (wayside -> train) per train, its draws the counter-based
+        # streams of (seed, OCCUPANCY_LINK, the train's run index) (DESIGN rule 7).
+        self._links = [
+            SimChannel(cfg.medium, LinkStreams.for_link(train_streams.seed, Stream.OCCUPANCY_LINK, int(r)))
+            for r in train_streams.run_index
+        ]
+        self._last_send_s = np.full(n, -np.inf)
+        self._next_arrival_s = np.inf  # the earliest frame in flight on any train's radio
+        # The stamping clock's error of each frame sent (the records' truth, not on the wire).
+        self._stamp_error: list[dict[bytes, float]] = [{} for _ in range(n)]
+        self._taken: list[dict[int, float]] = [{} for _ in range(n)]  # circuit -> GNSS time taken
+        self._sent = 0
+        self._delivered = 0
+        self._rejected = 0
+        self._duplicates = 0
         self.used_codec = False
 
     def _row(self, run: IntArray) -> IntArray:
@@ -202,14 +225,7 @@ class OccupancyChain:
                     run=r, circuit_index=c, indication=Indication.OCCUPIED, clock_time_s=tt + error
                 )
                 if tel.size and tel.source is not None:
-                    # The telegram reaches the train a radio latency after the occupancy instant.
-                    self._in_flight.append(
-                        _InFlight(
-                            telegrams=tel,
-                            arrival_s=tt[tel.source] + self.cfg.latency_s,
-                            wayside_error_s=error[tel.source],
-                        )
-                    )
+                    self._send(tel, tt[tel.source], error[tel.source])
             if (~due).any():
                 keep.append((run[~due], idx[~due], t_occ[~due]))
         self._pending = keep
@@ -236,55 +252,92 @@ class OccupancyChain:
         """Every train's GNSS clock reading at true time ``t_s`` (n,)."""
         return self.onboard_clock.read(t_s)[:, 0]
 
+    def _send(self, telegrams: OccupancyTelegrams, sent_s: FloatArray, stamp_error_s: FloatArray) -> None:
+        """Each telegram as bytes (``railstop.link.codec``, type ``tc-occupancy``) onto its train's
+        radio at the occupancy instant (SPEC §2 S20: the unit sends as it stamps)."""
+        for j in range(telegrams.size):
+            r = int(telegrams.run[j])
+            frame = encode(
+                TrackCircuitOccupancy(
+                    circuit_id=int(telegrams.circuit_id[j]), gnss_time_s=float(telegrams.gnss_time_s[j])
+                )
+            )
+            # A radio takes its frames in order: one declared a hair before the last one sent
+            # (the devices' delays differ) leaves with it.
+            now = max(float(sent_s[j]), self._last_send_s[r])
+            self._last_send_s[r] = now
+            self._stamp_error[r][frame] = float(stamp_error_s[j])
+            self._sent += 1
+            arrival = self._links[r].send(frame, now)
+            if arrival is not None:
+                self._next_arrival_s = min(self._next_arrival_s, arrival)
+
     def arrivals(self, t1_s: float) -> Arrivals:
-        """The telegrams that have reached their trains by ``t1_s``, through the codec."""
-        runs, ids, times, offsets = [], [], [], []
-        still: list[_InFlight] = []
-        for fl in self._in_flight:
-            due = fl.arrival_s <= t1_s + 1e-12
-            if due.any():
-                got = _codec_round_trip(fl.subset(due).telegrams)
-                self.used_codec = True
-                runs.append(got.run)
-                ids.append(got.circuit_id)
-                times.append(got.gnss_time_s)
-                offsets.append(fl.wayside_error_s[due] - self.onboard_clock.error_s[got.run, 0])
-            if (~due).any():
-                still.append(fl.subset(~due))
-        self._in_flight = still
-        if not runs:
-            empty = np.zeros(0)
-            return Arrivals(
-                run=np.zeros(0, dtype=np.int64),
-                circuit_id=np.zeros(0, dtype=np.int64),
-                gnss_time_s=empty,
-                clock_offset_s=empty,
-            )
+        """The telegrams that have reached their trains by ``t1_s``, decoded from the wire: each
+        train takes a telegram once (a duplicate copy is dropped) and what the codec refuses (a
+        CRC the medium's bit errors broke) is counted, not taken."""
+        runs: list[int] = []
+        ids: list[int] = []
+        times: list[float] = []
+        offsets: list[float] = []
+        if self._next_arrival_s <= t1_s:
+            self._next_arrival_s = np.inf
+            for r, link in enumerate(self._links):
+                nxt = link.next_arrival_s()
+                if nxt is None:
+                    continue
+                if nxt <= t1_s:
+                    self._take(r, link.receive(t1_s), runs, ids, times, offsets)
+                    nxt = link.next_arrival_s()
+                if nxt is not None:
+                    self._next_arrival_s = min(self._next_arrival_s, nxt)
         return Arrivals(
-            run=np.concatenate(runs),
-            circuit_id=np.concatenate(ids),
-            gnss_time_s=np.concatenate(times),
-            clock_offset_s=np.concatenate(offsets),
+            run=np.asarray(runs, dtype=np.int64),
+            circuit_id=np.asarray(ids, dtype=np.int64),
+            gnss_time_s=np.asarray(times, dtype=np.float64),
+            clock_offset_s=np.asarray(offsets, dtype=np.float64),
         )
 
+    def _take(
+        self,
+        r: int,
+        frames: list[bytes],
+        runs: list[int],
+        ids: list[int],
+        times: list[float],
+        offsets: list[float],
+    ) -> None:
+        for frame in frames:
+            try:
+                msg = decode(frame)
+            except TelegramError:
+                self._rejected += 1  # bits the medium flipped: the CRC refuses the frame
+                continue
+            if not isinstance(msg, TrackCircuitOccupancy):  # a flipped type byte with a good CRC
+                self._rejected += 1
+                continue
+            self.used_codec = True
+            if self._taken[r].get(msg.circuit_id) == msg.gnss_time_s:
+                self._duplicates += 1  # the same occupancy again: no second fix from one telegram
+                continue
+            self._taken[r][msg.circuit_id] = msg.gnss_time_s
+            self._delivered += 1
+            runs.append(r)
+            ids.append(msg.circuit_id)
+            times.append(msg.gnss_time_s)
+            offsets.append(self._stamp_error[r].pop(frame, np.nan) - float(self.onboard_clock.error_s[r, 0]))
 
-def _codec_round_trip(telegrams: OccupancyTelegrams) -> OccupancyTelegrams:
-    """Each telegram as bytes and back (``railstop.link.codec``, type ``tc-occupancy``): the train
-    sees the wire's resolution (0.1 ms of GNSS time). Losses and corruption are not modelled here."""
-    ids = np.empty(telegrams.size, dtype=np.int64)
-    times = np.empty(telegrams.size)
-    for j in range(telegrams.size):
-        frame = encode(
-            TrackCircuitOccupancy(
-                circuit_id=int(telegrams.circuit_id[j]), gnss_time_s=float(telegrams.gnss_time_s[j])
-            )
+    @property
+    def counts(self) -> ChainCounts:
+        """The occupancy telegrams' radio so far, over every train."""
+        lost = sum(link.stats.lost for link in self._links)
+        return ChainCounts(
+            sent=self._sent,
+            delivered=self._delivered,
+            lost=lost,
+            rejected=self._rejected,
+            duplicates=self._duplicates,
         )
-        msg = decode(frame)
-        if not isinstance(msg, TrackCircuitOccupancy):  # the codec's own round trip guarantees it
-            raise SimulationError(f"tc-occupancy telegram decoded as {type(msg).__name__}")
-        ids[j] = msg.circuit_id
-        times[j] = msg.gnss_time_s
-    return OccupancyTelegrams(run=telegrams.run.copy(), circuit_id=ids, gnss_time_s=times)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -116,13 +116,14 @@ from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
 
-#: The line's model version, in a line campaign's identity: 5 since the door link and the CBTC
-#: radio draw from counter-based streams (``link.channel.LinkStreams``; 4: a CBTC train whose
+#: The line's model version, in a line campaign's identity: 6 since the occupancy telegrams of
+#: SPEC §2 go over the train radio, a ``link.channel.SimChannel`` per train (5: the door link and
+#: the CBTC radio draw from counter-based streams, ``link.channel.LinkStreams``; 4: a CBTC train whose
 #: radio is dead is moved by its driver in restricted mode; 3: each CBTC train reports its positioning
 #: unit's own location uncertainty and the unit weighs each fix by the time error of the clocks
 #: that stamped it; 2: the line steps the stop model on its clock; 1 replayed the stop's recorded
 #: trajectory).
-LINE_MODEL_VERSION = 5
+LINE_MODEL_VERSION = 6
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.

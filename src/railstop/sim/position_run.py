@@ -33,7 +33,7 @@ from railstop.config.disturbances import DisturbanceSet, draw_scenario
 from railstop.config.operation import Operation, load_operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import SimulationError
-from railstop.nodes.occupancy_chain import ChainSettings, FixRecord
+from railstop.nodes.occupancy_chain import ChainSettings, FixRecord, occupancy_medium
 from railstop.onboard.positioning import FixOutcome
 from railstop.sim.line import LineSettings, LineSimulation, PositionSettings
 from railstop.streams import RUN_LIMIT as STREAM_LIMIT
@@ -152,7 +152,7 @@ class PositionRunSettings:
     learn: bool = True  # the onboard learner (beyond SPEC §2)
     accelerometer: bool = True  # the slide compensation's accelerometer (beyond SPEC §2)
     holdover_s: float | None = None  # age of a clock with no time source; None = the line's data
-    telegram_latency_s: float = 0.05  # SPEC typical values: radio latency tens of ms
+    telegram_latency_s: float = 0.05  # the telegrams' radio's mean latency (SPEC: tens of ms)
     # Also run every chain of SAME_PATH_CHAINS on this run's own path (they never drive the train).
     same_path: bool = False
 
@@ -418,10 +418,10 @@ def run_position(
 
 def line_settings(cfg: PositionRunSettings) -> LineSettings:
     """The line's settings of a position run: one train starting cold, its positioning recorded."""
+    # The telegrams' radio: the chain's default medium at this run's latency.
+    medium = occupancy_medium().replace(latency_s=cfg.telegram_latency_s)
     same_path = (
-        tuple(
-            ChainSettings(latency_s=cfg.telegram_latency_s, **change) for change in SAME_PATH_CHAINS.values()
-        )
+        tuple(ChainSettings(medium=medium, **change) for change in SAME_PATH_CHAINS.values())
         if cfg.same_path
         else ()
     )
@@ -440,7 +440,7 @@ def line_settings(cfg: PositionRunSettings) -> LineSettings:
                 gnss=cfg.gnss,
                 repeaters=cfg.repeaters,
                 holdover_s=cfg.holdover_s,
-                latency_s=cfg.telegram_latency_s,
+                medium=medium,
             ),
             learn=cfg.learn,
             accelerometer=cfg.accelerometer,
