@@ -157,7 +157,7 @@ RX_PREV_V = 24  # form 4: the speed the last used telegram gave (NaN: none yet)
 RX_PREV_REF = 25  # form 4: its distance to the stopping point
 RX_PREV_DET = 26  # forms 1-3: the detector of the last passage the unit took (-1: none)
 RX_COMB_DECEL = 27  # form 4: the deceleration the combination gave (NaN: none yet)
-RX_ODO = 28  # forms 1-5: the tachometer's distance since the start (m)
+RX_PULSES = 28  # the odometer's count since the start (m, its own scale; forms 1-5 calibrate on it)
 RX_PREV_ODO = 29  # forms 1-3: ... at the last passage taken (NaN: none)
 RX_SCALE = 30  # forms 1-5: true over tachometer distance, from the wayside's measurements
 RX_WIN_START = 31  # forms 1-5: the start of the measurement interval (the last command's effect)
@@ -169,8 +169,7 @@ RX_PREV_T = RX_WSP_T + 1  # forms 1-5: when the calibration's last reference was
 RX_FIX_T = RX_PREV_T + 1  # when the train passed its last transponder (NaN: none)
 RX_CAL_ODO = RX_FIX_T + 1  # forms 4, 5: the odometer's count at the calibration's reference (NaN: none)
 RX_CAL_REF = RX_CAL_ODO + 1  # ... and the wayside's distance to the stopping point there
-RX_PULSES = RX_CAL_REF + 1  # forms 4, 5: the odometer's count since the start (m, its own scale)
-RX_STEP = RX_PULSES + 1  # form 8: the number of the last step taken (0: none yet)
+RX_STEP = RX_CAL_REF + 1  # form 8: the number of the last step taken (0: none yet)
 RX_STEP_LOST = RX_STEP + 1  # form 8: 1 once a step was missed (latched: degraded mode for good)
 RX_SIZE = RX_STEP_LOST + 1
 
@@ -263,7 +262,6 @@ def receiver_observe_1(
     rx[RX_TCOL] = col
     tach[col] = speed_mps
     rx[RX_TCOUNT] = min(rx[RX_TCOUNT] + 1.0, float(tach.size))
-    rx[RX_ODO] += speed_mps * rp[RP_DT]
 
 
 @njit_step
@@ -384,8 +382,10 @@ def _receiver_plan_1(
     a_tach = tach_a if math.isfinite(tach_a) else 0.0
     if form <= 3:
         if det != int(rx[RX_PREV_DET]):
-            # A new passage: the tachometer's distance at it (back from now at the present speed).
-            odo_pass = rx[RX_ODO] - tach_v * (now_s - tele[TEL_PASSAGE])
+            # A new passage: the odometer's count at it (back from now at the present speed), as
+            # forms 4 and 5 take theirs (stop model 16: the tachometer's speed summed per step is
+            # off by a·dt/2v, the count is the odometer's own).
+            odo_pass = rx[RX_PULSES] - tach_v * (now_s - tele[TEL_PASSAGE])
             interval = tele[TEL_INTERVAL]
             prev = int(rx[RX_PREV_DET])
             known = math.isfinite(interval) and interval > 0.0 and math.isfinite(rx[RX_PREV_ODO])

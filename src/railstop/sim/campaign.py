@@ -126,7 +126,10 @@ DISK_BYTES_PER_VALUE = 8
 # the last three passages with the deceleration its model misses (wayside.tasc_unit.
 # _passages_fit_1), and its loop gain from the newest window alone. Runs with a radar are
 # unchanged.
-MODEL_VERSION = 15
+# 16: forms 1-3 calibrate the tachometer on the odometer's count, as forms 4 and 5 do, not on the
+# tachometer's speed summed per step (one odometer distance in the onboard unit). Every run of
+# forms 1-3 changes; the others do not.
+MODEL_VERSION = 16
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
