@@ -423,3 +423,38 @@ def test_no_help_text_cuts_a_word_at_80_columns(monkeypatch: pytest.MonkeyPatch)
             for name in CONTROLLERS:
                 assert name in joined, (path, name)
     assert seen_controllers
+
+
+def test_the_detectors_only_variant_from_the_command_line(tmp_path: Path) -> None:
+    """SPEC §1 claim 6 on `stop` and `campaign`: --detectors-only runs the station without its
+    Doppler radar on its zone's variant layout, and the database keeps the station as run."""
+    db = tmp_path / "runs.db"
+    p = run("stop", "--detectors-only", "--station", "Museum", "--json", "--db", str(db), cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    # One command per passage but the first (a speed needs two), within the PSD tolerance.
+    assert data["commands"] == 7 - 1
+    assert data["within_tolerance"] and data["emergency_brake"] is None
+    with sqlite3.connect(db) as con:
+        query = "select detector_positions_m_json, tasc_json, doppler_position_m from stations"
+        (positions, tasc, radar) = con.execute(query).fetchone()
+    assert json.loads(tasc)["doppler"] is None and radar is None
+    assert len(json.loads(positions)) == 7
+    args = ("campaign", "--detectors-only", "--runs", "40", "--out", "c", "--json", "--db", str(db))
+    c = run(*args, cwd=tmp_path)
+    assert c.returncode == 0, c.stderr
+    assert json.loads(c.stdout)["within_0_30"] >= 0.95
+
+
+def test_a_zone_without_a_variant_layout_is_refused_in_one_line(tmp_path: Path) -> None:
+    text = (Path(__file__).parents[2] / "src/railstop/data/line.toml").read_text(encoding="utf-8")
+    text = text.replace("[330.0, 230.0, 140.0, 60.0, 6.0]", "[330.0, 230.0]", 1)
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("detectors_only_before_stop_m"))
+    (tmp_path / "line.toml").write_text(text, encoding="utf-8")
+    for args in (("stop", "--no-db"), ("campaign", "--runs", "10", "--out", "c")):
+        p = run(*args, "--detectors-only", "--line", "line.toml", cwd=tmp_path)
+        assert p.returncode == 2, p.stderr
+        lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and "Traceback" not in p.stderr
+        assert "'Riverside': no detectors-only variant: tasc.detectors_before_stop_m" in lines[0]
+    assert not (tmp_path / "c").exists()

@@ -30,7 +30,14 @@ from railstop.cli.common import (
     with_option_groups,
 )
 from railstop.cli.progress import Reporter, on_interrupt
-from railstop.cli.stop import FormOpt, ToleranceOpt, checked_controller, checked_form, checked_tolerance
+from railstop.cli.stop import (
+    DetectorsOnlyOpt,
+    FormOpt,
+    ToleranceOpt,
+    checked_controller,
+    checked_form,
+    checked_tolerance,
+)
 
 # The --controller help lists the engine's controllers.
 from railstop.controllers import CONTROLLERS, DRIVER_CONTROLLERS, known_controllers
@@ -303,6 +310,7 @@ def campaign(
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the summary).")] = Path("railstop.db"),
     tolerance_m: ToleranceOpt = None,
     form: FormOpt = None,
+    detectors_only: DetectorsOnlyOpt = False,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     driver: DriverOpt = None,
@@ -317,6 +325,9 @@ def campaign(
         office_to = office_target(office)  # before the work: a bad --office fails at once
         checked_device(execution.device, (controller,))
         ln, veh = load_checked(line, vehicle)
+        if detectors_only:
+            # The campaign's line carries the variant, so its identity (and a --resume) does too.
+            ln = ln.with_detectors_only(station)
         drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
         target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())

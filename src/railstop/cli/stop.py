@@ -69,6 +69,14 @@ FormOpt = Annotated[
     int | None,
     typer.Option(min=1, max=8, help="Signal form of claim 3 (default: the station's)."),
 ]
+DetectorsOnlyOpt = Annotated[
+    bool,
+    typer.Option(
+        "--detectors-only",
+        help="The station without its Doppler radar (SPEC §1 claim 6): speed and deceleration from "
+        "the detectors' passage times, on its zone's detectors_only_before_stop_m.",
+    ),
+]
 ToleranceOpt = Annotated[
     float | None,
     typer.Option(
@@ -126,6 +134,7 @@ def stop(
         float, typer.Option(min=0.5, max=1.5, help="Actual / nominal braking deceleration.")
     ] = 1.0,
     form: FormOpt = None,
+    detectors_only: DetectorsOnlyOpt = False,
     disturbances: Annotated[
         str | None,
         typer.Option(
@@ -169,6 +178,8 @@ def stop(
     try:
         target = office_target(office)  # before the work: a bad --office fails at once
         ln, veh = load_checked(line, vehicle)
+        if detectors_only:
+            ln = ln.with_detectors_only(station)
         st = ln.station(station)
         dist = None if disturbances is None else load_disturbances(disturbances)
         drv, plat = load_manual_data(manual.driver, manual.platform, [controller])

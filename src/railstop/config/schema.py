@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from railstop.config.base import FieldProblem, FiniteFloat, Fraction, NonNegFloat, PositiveFloat, Stretch
 from railstop.config.base import Model as _Model
@@ -442,6 +442,27 @@ class Line(_Model):
         raise SimulationError(
             f"unknown station {name!r}; this line has: {', '.join(s.name for s in self.stations)}"
         )
+
+    def with_detectors_only(self, name: str | None) -> Line:
+        """This line with station ``name`` (None: the first) in its detectors-only variant (SPEC §1
+        claim 6, :meth:`Station.detectors_only`); a zone that cannot have it (fewer than 3
+        detectors and no variant layout) raises :class:`SimulationError` naming the field."""
+        st = self.station(name)
+        try:
+            variant = st.detectors_only()
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            loc = [str(p) for p in err["loc"]]
+            problem = err.get("ctx", {}).get("error")
+            if isinstance(problem, FieldProblem):
+                loc.append(problem.field)
+            msg = str(err["msg"]).removeprefix("Value error, ")
+            raise SimulationError(
+                f"station {st.name!r}: no detectors-only variant: {'.'.join(loc)}: {msg} "
+                "(give the zone a detectors_only_before_stop_m)"
+            ) from None
+        stations = [variant if s is st else s for s in self.stations]
+        return self.model_copy(update={"stations": stations})
 
 
 # Physical bounds of a train on steel rail ([interpretation]: the data must describe a train, not
