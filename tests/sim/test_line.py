@@ -200,6 +200,12 @@ def test_twelve_trains_stop_at_every_station_within_the_tolerance(default_run: d
     # The dwell runs the door units: doors open 30 s (40 at Hillcrest) plus the sequence around.
     assert isinstance(s["mean_dwell_s"], float) and 32.5 < s["mean_dwell_s"] < 60.0
     assert isinstance(s["trains_per_hour"], float) and abs(s["trains_per_hour"] - 30.0) < 0.5
+    # SPEC §2's occupancy telegrams on the train radio, counted: every frame sent is taken by its
+    # train or lost (the default radio flips no bits and makes no copies); one per circuit a
+    # train's front entered, tens per train over the line.
+    occ = s["occupancy_link"]
+    assert isinstance(occ, dict) and occ["frames"] > 12 * 20
+    assert occ["frames"] == occ["delivered"] + occ["lost"] and occ["rejected"] == occ["duplicates"] == 0
 
 
 def test_a_headway_too_short_for_the_blocks_queues_trains_without_collision() -> None:

@@ -210,6 +210,7 @@ def run_cmd(
         f"the PSD tolerance, p99 |error| {summary['stop_error_p99_m']} m, {summary['emergency_brakes']} "
         f"emergency brakes; mean dwell {summary['mean_dwell_s']} s, {summary['dwell_faults']} dwell faults; "
         f"door link {_link_text(summary['door_link'])}; "
+        f"occupancy telegrams {_link_text(summary['occupancy_link'])}; "
         f"onboard position p99 |error| {summary['position_error_p99_m']} m "
         f"({summary['position_calibration']} calibration, {summary['slide_events']} slides); "
         f"simulated {summary['sim_to_wall']}x faster than real time",
@@ -338,6 +339,7 @@ def campaign_cmd(
         f"{_per_hour(summary['trains_per_hour_mean'])} (mean over runs), mean delay "
         f"{_figure(summary['mean_delay_s_mean'], 's', 'none: no train left the line')}, "
         f"{summary['dwell_faults']} dwell faults, door link {_link_text(summary['door_link'])}, "
+        f"occupancy telegrams {_link_text(summary['occupancy_link'])}, "
         f"{summary['skipped_stops']} skipped stops, least separation "
         f"{_figure(summary['min_separation_m'], 'm', 'none: never two trains on the line')}, "
         f"onboard position p99 {summary['position_error_p99_m_mean']} m "

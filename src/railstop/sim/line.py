@@ -101,7 +101,14 @@ from railstop.model.build import DRIVER_MODES, KernelModel
 from railstop.model.records import RES_EB, RES_ERROR, RES_RESTOPS, RES_STOPPED, TR_T, TR_V, TR_X
 from railstop.model.run import SteppedStop
 from railstop.nodes.dwell import creep_rng
-from railstop.nodes.occupancy_chain import Arrivals, ChainSettings, FixRecord, OccupancyChain, fix_records
+from railstop.nodes.occupancy_chain import (
+    Arrivals,
+    ChainCounts,
+    ChainSettings,
+    FixRecord,
+    OccupancyChain,
+    fix_records,
+)
 from railstop.onboard.cbtc import approach_within_authority
 from railstop.onboard.positioning import FixReport, PositioningUnit
 from railstop.onboard.restricted_mode import SIGHT_M, RestrictedDrive
@@ -310,6 +317,18 @@ class LineSettings:
         }
 
 
+def _occupancy_link_totals(counts: ChainCounts) -> dict[str, int]:
+    """The occupancy telegrams' radio in the summary's words (``door_link``'s: frames, lost,
+    rejected), with the telegrams taken and the duplicate copies dropped."""
+    return {
+        "frames": counts.sent,
+        "delivered": counts.delivered,
+        "lost": counts.lost,
+        "rejected": counts.rejected,
+        "duplicates": counts.duplicates,
+    }
+
+
 def _door_link_totals(dwells: list[DwellRecord]) -> dict[str, int]:
     """The door links of every dwell: frames sent, lost by the medium, refused by the receivers."""
     links = [d.link for d in dwells if d.link is not None]
@@ -459,6 +478,8 @@ class LineResult:
     signalling: str = "fixed-block"
     cbtc: dict[str, Any] | None = None  # the CBTC summary (SPEC §4), with signalling cbtc*
     zones: list[ZoneRecord] = field(default_factory=list)
+    # SPEC §2's occupancy telegrams on the train radio: frames sent, delivered, lost, refused, copies.
+    occupancy_link: dict[str, int] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """The JSON of ``railstop line run``."""
@@ -486,6 +507,7 @@ class LineResult:
             "dwell_faults": int(sum(d.outcome != "start-enable" for d in self.dwells)),
             "psc_retries": int(sum(max(d.psc_attempts - 1, 0) for d in self.dwells)),
             "door_link": _door_link_totals(self.dwells),
+            "occupancy_link": dict(self.occupancy_link),
             # Counted, not assumed: the least gap between a train's front and the rear ahead.
             "min_separation_m": round(self.min_separation_m, 2)
             if np.isfinite(self.min_separation_m)
@@ -1389,4 +1411,5 @@ class LineSimulation:
             signalling=self.settings.signalling,
             cbtc=self.cbtc.summary() if self.cbtc is not None else None,
             zones=list(self.cbtc.zones) if self.cbtc is not None else [],
+            occupancy_link=_occupancy_link_totals(self.chain.counts),
         )

@@ -205,6 +205,10 @@ def summarise(spec: LineCampaignSpec, rows: list[dict[str, Any]]) -> dict[str, A
             k: int(sum(r["summary"].get("door_link", {}).get(k, 0) for r in rows))
             for k in ("frames", "lost", "rejected")
         },
+        "occupancy_link": {
+            k: int(sum(r["summary"].get("occupancy_link", {}).get(k, 0) for r in rows))
+            for k in ("frames", "delivered", "lost", "rejected", "duplicates")
+        },
         "skipped_stops": int(sum(values("skipped_stops"))),
         "signals_passed_at_danger": int(sum(values("signals_passed_at_danger"))),
         "min_separation_m": round(min(separation), 2) if separation else None,
