@@ -444,6 +444,11 @@ def test_the_detectors_only_variant_from_the_command_line(tmp_path: Path) -> Non
     c = run(*args, cwd=tmp_path)
     assert c.returncode == 0, c.stderr
     assert json.loads(c.stdout)["within_0_30"] >= 0.95
+    cmp = run(
+        "compare", "--detectors-only", "--controllers", "tasc-pwm", "--runs", "40", "--out", "k", cwd=tmp_path
+    )
+    assert cmp.returncode == 0, cmp.stderr
+    assert "tasc-pwm" in cmp.stdout
 
 
 def test_a_zone_without_a_variant_layout_is_refused_in_one_line(tmp_path: Path) -> None:
@@ -451,7 +456,7 @@ def test_a_zone_without_a_variant_layout_is_refused_in_one_line(tmp_path: Path) 
     text = text.replace("[330.0, 230.0, 140.0, 60.0, 6.0]", "[330.0, 230.0]", 1)
     text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("detectors_only_before_stop_m"))
     (tmp_path / "line.toml").write_text(text, encoding="utf-8")
-    for args in (("stop", "--no-db"), ("campaign", "--runs", "10", "--out", "c")):
+    for args in (("stop", "--no-db"), ("campaign", "--runs", "10", "--out", "c"), ("compare", "--out", "c")):
         p = run(*args, "--detectors-only", "--line", "line.toml", cwd=tmp_path)
         assert p.returncode == 2, p.stderr
         lines = [ln for ln in p.stderr.splitlines() if ln.strip()]

@@ -485,6 +485,7 @@ def compare(
     ),
     tolerance_m: ToleranceOpt = None,
     form: FormOpt = None,
+    detectors_only: DetectorsOnlyOpt = False,
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
     driver: DriverOpt = None,
@@ -505,6 +506,8 @@ def compare(
     try:
         checked_device(execution.device, names)
         ln, veh = load_checked(line, vehicle)
+        if detectors_only:
+            ln = ln.with_detectors_only(station)  # SPEC §1 claim 6, as campaign --detectors-only
         drv, plat = load_manual_data(driver, platform, names)
         st = ln.station(station)
         target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())
