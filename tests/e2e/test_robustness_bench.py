@@ -43,6 +43,18 @@ def test_json_has_every_setting_and_shares_between_0_and_1(capsys: pytest.Captur
     assert out["wall_s"]["total"] > 0.0
 
 
+def test_the_detectors_only_variant_is_swept_too(capsys: pytest.CaptureFixture[str]) -> None:
+    """--detectors-only sweeps the station without its radar: its sensor-jitter row then moves the
+    passage times the speed comes from, and the runs differ from the radar's."""
+    assert bench.main([*ARGS, "--json", "--detectors-only"]) == 0
+    variant = json.loads(capsys.readouterr().out)
+    assert bench.main([*ARGS, "--json"]) == 0
+    radar = json.loads(capsys.readouterr().out)
+    assert variant["detectors_only"] is True and radar["detectors_only"] is False
+    assert variant["station"] == radar["station"]
+    assert variant["results"] != radar["results"]
+
+
 def test_tables_print_every_row_and_the_summary(capsys: pytest.CaptureFixture[str]) -> None:
     assert bench.main(ARGS) == 0
     text = capsys.readouterr().out
