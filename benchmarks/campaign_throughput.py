@@ -149,11 +149,13 @@ def main() -> None:
         "--numpy-engine-commit", default=NUMPY_ENGINE_COMMIT, help="git commit holding the numpy engine"
     )
     parser.add_argument("--controllers", default=",".join(CONTROLLERS))
-    parser.add_argument("--single", type=int, default=20, help="detailed stops to time")
+    parser.add_argument("--single", type=int, default=20, help="detailed stops to time (0: none)")
     parser.add_argument(
         "--step-runs", type=int, default=200, help="runs whose steps are counted for the ns per run-step"
     )
     args = parser.parse_args()
+    if args.single < 0 or args.runs < 1 or args.step_runs < 1:
+        parser.error("--single must be at least 0, --runs and --step-runs at least 1")
 
     info = warm_up()
     line, vehicle = default_line(), default_vehicle()
@@ -218,11 +220,12 @@ def main() -> None:
             run=run,
         )
         sims.append(time.perf_counter() - t0)
-    print(
-        "detailed stop (tasc-pwm, recording and byte-level link check): "
-        f"median {1e3 * statistics.median(sims):.1f} ms "
-        f"over {args.single} stops (target: simulation <= 5 ms)"
-    )
+    if sims:
+        print(
+            "detailed stop (tasc-pwm, recording and byte-level link check): "
+            f"median {1e3 * statistics.median(sims):.1f} ms "
+            f"over {args.single} stops (target: simulation <= 5 ms)"
+        )
     exe = Path(sys.executable).parent / "railstop"
     if exe.exists():
         walls = []

@@ -131,7 +131,17 @@ class RunStreams:
         bits = self._bits(stream, counter)
         u1 = ((bits >> np.uint64(32)).astype(np.float64) + 0.5) * (1.0 / 4294967296.0)  # (0, 1)
         u2 = (bits & np.uint64(0xFFFFFFFF)).astype(np.float64) * (1.0 / 4294967296.0)
-        return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+        # The C library's log and cos, as the interpreter's draws (py_key_normal: link.channel) and
+        # the compiled model's take them: numpy's vectorised loops may round the last bit otherwise
+        # (seed 4542, run 4542, DOOR_LINK, counter 25439: -0.07626570307426442 against ...443).
+        two_pi = 2.0 * math.pi
+        pairs = zip(u1.ravel().tolist(), u2.ravel().tolist(), strict=True)
+        out = np.fromiter(
+            (math.sqrt(-2.0 * math.log(a)) * math.cos(two_pi * b) for a, b in pairs),
+            dtype=np.float64,
+            count=u1.size,
+        )
+        return out.reshape(u1.shape)
 
 
 # --------------------------------------------------------------------------

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from railstop.streams import RunStreams, Stream
@@ -215,6 +215,9 @@ def test_ziggurat_normal_has_the_normal_distribution() -> None:
 @given(
     st.integers(-(2**70), 2**70), st.integers(0, 2**40), st.sampled_from(list(Stream)), st.integers(0, 2**40)
 )
+# Found by this test: numpy's vectorised log and cos gave -0.07626570307426442, the C library's
+# (the interpreter's and the compiled model's) ...443; the array draws now take the C library's.
+@example(seed=4542, run=4542, stream=Stream.DOOR_LINK, counter=25439)
 @FAST
 def test_python_integer_draws_equal_the_array_draws(
     seed: int, run: int, stream: Stream, counter: int

@@ -47,7 +47,6 @@ from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, Timest
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 
 #: The medium of the occupancy telegrams by default: the train radio of a CBTC line
