@@ -51,6 +51,7 @@ import numpy as np
 from railstop.config import default_line, default_vehicle
 from railstop.config import disturbances as dist_module
 from railstop.config.disturbances import Distribution, DisturbanceSet, load_disturbances
+from railstop.config.loader import with_detectors_only
 from railstop.controllers import known_controllers
 from railstop.sim.campaign import simulate_runs
 from railstop.stats.summary import summary_stats
@@ -346,7 +347,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.perf_counter()
     line, vehicle = default_line(), default_vehicle()
     if args.detectors_only:
-        line = line.with_detectors_only(args.station)
+        line = with_detectors_only(line, args.station)
     station = line.station(args.station)
     standard = load_disturbances("standard")
     tol = station.psd_tolerance_m

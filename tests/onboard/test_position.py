@@ -398,7 +398,7 @@ def test_the_chain_sends_by_the_one_link_model() -> None:
     CRC, and the wayside's stamps do not depend on the radio."""
     clean = media_preset("cbtc-radio").replace(loss_probability=0.0, jitter_s=0.0)
     ideal, every = _drive_chain(clean)
-    assert ideal.counts.sent == len(every) == ideal.counts.delivered > 50
+    assert ideal.counts.frames == len(every) == ideal.counts.delivered > 50
     assert ideal.counts.lost == ideal.counts.rejected == ideal.counts.duplicates == 0
     # One telegram per circuit a train entered, none before the radio's latency after its front
     # entered the circuit (the trains run at 15 m/s from 0.5 m past their starts).
@@ -409,9 +409,9 @@ def test_the_chain_sends_by_the_one_link_model() -> None:
     bad = clean.replace(loss_probability=0.2, duplicate_probability=0.3, bit_error_rate=2e-3)
     chain, got = _drive_chain(bad)
     c = chain.counts
-    assert c.sent == ideal.counts.sent
+    assert c.frames == ideal.counts.frames
     assert c.lost > 0 and c.duplicates > 0 and c.rejected > 0
-    assert c.delivered == len(got) < c.sent
+    assert c.delivered == len(got) < c.frames
     stamped = {(r, cid): g for r, cid, g, _ in every}
     assert len({(r, cid) for r, cid, _, _ in got}) == len(got)  # each telegram taken once
     assert all(stamped[(r, cid)] == g for r, cid, g, _ in got)  # the same stamps, the wire's resolution

@@ -318,6 +318,7 @@ def campaign(
     office: OfficeOpt = None,
 ) -> None:
     """Monte Carlo campaign: many stops of one controller under a disturbance set."""
+    from railstop.config.loader import with_detectors_only
     from railstop.config.plausibility import load_checked
 
     law_file = load_law(law)
@@ -327,7 +328,7 @@ def campaign(
         ln, veh = load_checked(line, vehicle)
         if detectors_only:
             # The campaign's line carries the variant, so its identity (and a --resume) does too.
-            ln = ln.with_detectors_only(station)
+            ln = with_detectors_only(ln, station)
         drv, plat = load_manual_data(driver, platform, [controller])
         st = ln.station(station)
         target = out_dir or Path(f"campaign-{st.name}-{controller}-s{seed}".lower())
@@ -499,6 +500,7 @@ def compare(
     law: LawOpt = None,
 ) -> None:
     """Run every controller (or --controllers) on identical disturbance draws and print one table."""
+    from railstop.config.loader import with_detectors_only
     from railstop.config.plausibility import load_checked
 
     law_file = load_law(law)
@@ -507,7 +509,7 @@ def compare(
         checked_device(execution.device, names)
         ln, veh = load_checked(line, vehicle)
         if detectors_only:
-            ln = ln.with_detectors_only(station)  # SPEC §1 claim 6, as campaign --detectors-only
+            ln = with_detectors_only(ln, station)  # SPEC §1 claim 6, as campaign --detectors-only
         drv, plat = load_manual_data(driver, platform, names)
         st = ln.station(station)
         target = out_dir or Path(f"compare-{st.name}-s{seed}".lower())

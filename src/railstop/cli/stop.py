@@ -157,6 +157,7 @@ def stop(
 ) -> None:
     """Run one detailed stop: nominal (with --load-factor/--brake-gain) or run --run of a campaign."""
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.loader import with_detectors_only
     from railstop.config.plausibility import load_checked
     from railstop.sim.single import run_stop, stop_record
     from railstop.streams import RUN_LIMIT, SEED_RANGE, seed_in_range
@@ -179,7 +180,7 @@ def stop(
         target = office_target(office)  # before the work: a bad --office fails at once
         ln, veh = load_checked(line, vehicle)
         if detectors_only:
-            ln = ln.with_detectors_only(station)
+            ln = with_detectors_only(ln, station)
         st = ln.station(station)
         dist = None if disturbances is None else load_disturbances(disturbances)
         drv, plat = load_manual_data(manual.driver, manual.platform, [controller])

@@ -11,7 +11,7 @@ from typing import Any, TypeVar
 from pydantic import BaseModel, ValidationError
 
 from railstop.config.files import read_text_file
-from railstop.config.schema import FieldProblem, Line, Vehicle, VehicleFile
+from railstop.config.schema import FieldProblem, Line, Station, Vehicle, VehicleFile
 from railstop.errors import ConfigError
 
 M = TypeVar("M", bound=BaseModel)
@@ -67,6 +67,15 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
             value = _lookup(data, loc) if not isinstance(_lookup(data, loc), dict) else None
         msg = str(err["msg"]).removeprefix("Value error, ")
         raise ConfigError(source, format_loc(loc), msg, value) from None
+
+
+def with_detectors_only(line: Line, name: str | None) -> Line:
+    """``line`` with station ``name`` (None: the first) in its detectors-only variant (SPEC §1
+    claim 6, :meth:`Station.detectors_only`); a zone that cannot have it (fewer than 3 detectors
+    and no variant layout) is a :class:`ConfigError` naming the field and its value."""
+    st = line.station(name)
+    variant = validate(Station, st.detectors_only_data(), f"station {st.name!r}: no detectors-only variant")
+    return line.model_copy(update={"stations": [variant if s is st else s for s in line.stations]})
 
 
 def read_toml(path: Path) -> dict[str, Any]:

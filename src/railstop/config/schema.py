@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from railstop.config.base import FieldProblem, FiniteFloat, Fraction, NonNegFloat, PositiveFloat, Stretch
 from railstop.config.base import Model as _Model
@@ -52,6 +52,15 @@ class DopplerRadar(_Model):
     # The speed "now" is the mean of the samples of this shorter window, carried forward to the
     # newest sample with the deceleration's slope.
     speed_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 0.3
+
+
+def _detector_list(v: list[float], least: int, too_few: str) -> list[float]:
+    """A detector layout: at least ``least`` distances, farthest first, strictly decreasing."""
+    if len(v) < least:
+        raise ValueError(too_few)
+    if any(b >= a for a, b in zip(v, v[1:], strict=False)):
+        raise ValueError("detectors must be listed farthest first, strictly decreasing")
+    return v
 
 
 class TascZone(_Model):
@@ -140,11 +149,7 @@ class TascZone(_Model):
     @classmethod
     def _detectors(cls, v: list[float]) -> list[float]:
         # SPEC §1: at least two detectors at set intervals approaching the platform.
-        if len(v) < 2:
-            raise ValueError("at least 2 detectors are needed (SPEC §1)")
-        if any(b >= a for a, b in zip(v, v[1:], strict=False)):
-            raise ValueError("detectors must be listed farthest first, strictly decreasing")
-        return v
+        return _detector_list(v, 2, "at least 2 detectors are needed (SPEC §1)")
 
     @field_validator("detectors_only_before_stop_m")
     @classmethod
@@ -152,11 +157,9 @@ class TascZone(_Model):
         # SPEC §1 variant 2: at least 3 detectors (speed and deceleration from passage times).
         if v is None:
             return v
-        if len(v) < 3:
-            raise ValueError("the detectors-only variant needs at least 3 detectors (SPEC §1 variant 2)")
-        if any(b >= a for a, b in zip(v, v[1:], strict=False)):
-            raise ValueError("detectors must be listed farthest first, strictly decreasing")
-        return v
+        return _detector_list(
+            v, 3, "the detectors-only variant needs at least 3 detectors (SPEC §1 variant 2)"
+        )
 
     @model_validator(mode="after")
     def _variant(self) -> TascZone:
@@ -165,7 +168,8 @@ class TascZone(_Model):
         if self.doppler is None and len(self.detectors_before_stop_m) < 3:
             raise FieldProblem(
                 "detectors_before_stop_m",
-                "without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2)",
+                "without a doppler radar at least 3 detectors are needed (SPEC §1 variant 2; a zone "
+                "gives its detectors-only layout as detectors_only_before_stop_m)",
             )
         if self.update == "continuous" and self.doppler is None:
             raise FieldProblem("update", "update = 'continuous' needs a doppler radar")
@@ -223,13 +227,18 @@ class Station(_Model):
         detectors those of ``tasc.detectors_only_before_stop_m`` where the zone gives them.
 
         Validated as a station file is: a zone of fewer than 3 detectors and no variant layout
-        raises :class:`~railstop.errors.FieldProblem` (``pydantic.ValidationError``)."""
+        raises :class:`~railstop.errors.FieldProblem` (``pydantic.ValidationError``;
+        ``config.loader.with_detectors_only`` reports it as a file's problem)."""
+        return Station.model_validate(self.detectors_only_data())
+
+    def detectors_only_data(self) -> dict[str, object]:
+        """The data of :meth:`detectors_only`, not yet validated."""
         tasc = self.tasc.model_dump()
         tasc["doppler"] = None
         tasc["update"] = "detectors"
         if self.tasc.detectors_only_before_stop_m is not None:
             tasc["detectors_before_stop_m"] = list(self.tasc.detectors_only_before_stop_m)
-        return Station.model_validate({**self.model_dump(), "tasc": tasc})
+        return {**self.model_dump(), "tasc": tasc}
 
     @property
     def platform_start(self) -> float:
@@ -442,27 +451,6 @@ class Line(_Model):
         raise SimulationError(
             f"unknown station {name!r}; this line has: {', '.join(s.name for s in self.stations)}"
         )
-
-    def with_detectors_only(self, name: str | None) -> Line:
-        """This line with station ``name`` (None: the first) in its detectors-only variant (SPEC §1
-        claim 6, :meth:`Station.detectors_only`); a zone that cannot have it (fewer than 3
-        detectors and no variant layout) raises :class:`SimulationError` naming the field."""
-        st = self.station(name)
-        try:
-            variant = st.detectors_only()
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            loc = [str(p) for p in err["loc"]]
-            problem = err.get("ctx", {}).get("error")
-            if isinstance(problem, FieldProblem):
-                loc.append(problem.field)
-            msg = str(err["msg"]).removeprefix("Value error, ")
-            raise SimulationError(
-                f"station {st.name!r}: no detectors-only variant: {'.'.join(loc)}: {msg} "
-                "(give the zone a detectors_only_before_stop_m)"
-            ) from None
-        stations = [variant if s is st else s for s in self.stations]
-        return self.model_copy(update={"stations": stations})
 
 
 # Physical bounds of a train on steel rail ([interpretation]: the data must describe a train, not

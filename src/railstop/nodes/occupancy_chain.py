@@ -74,9 +74,10 @@ class ChainSettings:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ChainCounts:
-    """What the occupancy telegrams' radio did, over every train."""
+    """What the occupancy telegrams' radio did, over every train (the line summary's
+    ``occupancy_link``, in the door link's words: frames, lost, rejected)."""
 
-    sent: int
+    frames: int  # sent
     delivered: int  # taken by a train (each telegram once)
     lost: int  # by the medium
     rejected: int  # refused by the codec (its CRC: bits the medium flipped)
@@ -331,7 +332,7 @@ class OccupancyChain:
         """The occupancy telegrams' radio so far, over every train."""
         lost = sum(link.stats.lost for link in self._links)
         return ChainCounts(
-            sent=self._sent,
+            frames=self._sent,
             delivered=self._delivered,
             lost=lost,
             rejected=self._rejected,

@@ -63,7 +63,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -103,7 +103,6 @@ from railstop.model.run import SteppedStop
 from railstop.nodes.dwell import creep_rng
 from railstop.nodes.occupancy_chain import (
     Arrivals,
-    ChainCounts,
     ChainSettings,
     FixRecord,
     OccupancyChain,
@@ -315,18 +314,6 @@ class LineSettings:
             **({} if self.position == PositionSettings() else {"position": repr(self.position)}),
             **({} if self.handover == "platform-clear" else {"handover": self.handover}),
         }
-
-
-def _occupancy_link_totals(counts: ChainCounts) -> dict[str, int]:
-    """The occupancy telegrams' radio in the summary's words (``door_link``'s: frames, lost,
-    rejected), with the telegrams taken and the duplicate copies dropped."""
-    return {
-        "frames": counts.sent,
-        "delivered": counts.delivered,
-        "lost": counts.lost,
-        "rejected": counts.rejected,
-        "duplicates": counts.duplicates,
-    }
 
 
 def _door_link_totals(dwells: list[DwellRecord]) -> dict[str, int]:
@@ -1411,5 +1398,5 @@ class LineSimulation:
             signalling=self.settings.signalling,
             cbtc=self.cbtc.summary() if self.cbtc is not None else None,
             zones=list(self.cbtc.zones) if self.cbtc is not None else [],
-            occupancy_link=_occupancy_link_totals(self.chain.counts),
+            occupancy_link=asdict(self.chain.counts),
         )
