@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from railstop.config.schema import Track, Vehicle
 from railstop.errors import SimulationError
-from railstop.jit import njit, njit_step, rint_1
+from railstop.jit import njit, njit_inline, njit_step, rint_1
 from railstop.link.codec import TrackCircuitOccupancy, layout_of
 from railstop.onboard.positioning import (
     LOG_ROWS,
@@ -255,7 +255,7 @@ def fixes_init_run(
     return belief
 
 
-@njit_step
+@njit_inline
 def fixes_step_run(
     run: FixesRun,
     data: FixesData,
@@ -275,6 +275,11 @@ def fixes_step_run(
     Returns (corrected now, calibrated position): the position with the
     line's nominal detection delay taken into account (and whatever the unit
     learned of scale and delay since), chainage, at the end of the step.
+
+    Inlined into the stop step, which calls it every step (issue 37): out of line, the call
+    made the compiler keep the caller's state in memory around it and passed nine arrays
+    through the stack; inlined, ``ato-corrected`` ran 568.2 -> 350.3 µs of thread CPU time per
+    run (1,000 standard runs at Riverside, every result the same bit).
     """
     state, istate, log, boundary_m, delay_s = run.state, run.istate, run.log, run.boundary_m, run.delay_s
     tc_ids, db_ids, db_starts_m, db_sd_m = data.tc_ids, data.db_ids, data.db_starts_m, data.db_sd_m
