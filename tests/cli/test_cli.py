@@ -322,6 +322,28 @@ def test_psd_tolerance_is_station_data_and_an_option(tmp_path: Path) -> None:
         _one_line_error(run("stop", "--no-db", "--tolerance-m", bad, cwd=tmp_path), "--tolerance-m", bad)
 
 
+def test_a_campaign_beyond_the_zones_layout_says_so(tmp_path: Path) -> None:
+    """The standard set's entries (to 65 km/h) on its approach gradients (to -20 permille) need a
+    longer zone than Harbour's: the campaign and the comparison say so beside their figures (text
+    and JSON), and a campaign within the zone's envelope (Riverside) says nothing."""
+    harbour = ("--station", "Harbour", "--runs", "6", "--db", "c.db")
+    p = run("campaign", *harbour, "--out", "h", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "note: the zone of 'Harbour' is short for the 'standard' set" in " ".join(p.stdout.split())
+    p = run("campaign", *harbour, "--out", "h2", "--json", cwd=tmp_path)
+    assert "the first detector is 250 m out" in json.loads(p.stdout)["zone_note"]
+    p = run("campaign", "--runs", "6", "--out", "r", "--db", "c.db", "--json", cwd=tmp_path)
+    assert json.loads(p.stdout)["zone_note"] is None
+    p = run("campaign", "--runs", "6", "--out", "r2", "--db", "c.db", cwd=tmp_path)
+    assert "note:" not in p.stdout
+    p = run(
+        "compare", "--station", "Harbour", "--runs", "3", "--controllers", "tasc-pwm,ato", "--out", "cmp",
+        "--db", "c.db", cwd=tmp_path,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert " ".join(p.stdout.split()).count("note: the zone of 'Harbour'") == 1
+
+
 def test_campaign_and_compare_take_a_signal_form(tmp_path: Path) -> None:
     """--form on campaign and compare: the manifest and the rows say which form ran, and a run
     of the form-3 campaign replays as the detailed stop with --form 3."""

@@ -10,8 +10,14 @@ from typing import Any
 import pytest
 
 from railstop.config import load_line, load_vehicle
+from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.config.loader import validate
-from railstop.config.plausibility import BRAKE_MARGIN, plausibility_problems, stopping_distance_m
+from railstop.config.plausibility import (
+    BRAKE_MARGIN,
+    envelope_note,
+    plausibility_problems,
+    stopping_distance_m,
+)
 from railstop.config.schema import Line
 from railstop.sim.single import run_stop
 from zygote import run_cli
@@ -187,3 +193,44 @@ def test_the_detectors_only_layout_is_checked_on_the_line(tmp_path: Path) -> Non
     assert len(lines) == 1, p.stderr
     assert "stations[1].tasc.detectors_only_before_stop_m[0]: puts the detector at 1050 m" in lines[0]
     assert "'Riverside'" in lines[0]
+
+
+def _set(**params: object) -> DisturbanceSet:
+    return DisturbanceSet.from_dict(params, name="test", source="test")
+
+
+def test_the_envelope_note_is_the_layout_rule_at_the_sets_fastest_entry_and_steepest_downhill() -> None:
+    """The standard set draws entries to 65 km/h on approaches to -20 permille at every station: the
+    rule (v·response + v²/(2·(0.8·full service - g·grade))) needs 284 m, which Riverside's 330 m zone
+    has and the three others' 250-265 m zones have not; the nominal set (each station's own entry
+    speed and gradient) is within every zone, as `railstop check` found."""
+    line, vehicle = load_line(None), load_vehicle(None)
+    standard = load_disturbances("standard")
+    brake = vehicle.brake
+    v = 65.0 / 3.6
+    need = v * (brake.dead_time_s + brake.time_constant_s) + v * v / (
+        2.0 * (BRAKE_MARGIN * brake.full_service_mps2 - 9.80665 * 20.0 / 1000.0)
+    )
+    for st in line.stations:
+        first = st.tasc.detectors_before_stop_m[0]
+        note = envelope_note(st, vehicle, standard)
+        assert (note is not None) == (need > first), st.name
+        if note is not None:
+            assert f"entries up to 65 km/h (the station's entry speed is {st.tasc.entry_speed_kmh:g})" in note
+            assert f"on downhills to -20 ‰ need {need:.0f} m" in note
+            assert f"the first detector is {first:g} m out" in note
+        assert envelope_note(st, vehicle, load_disturbances("nominal")) is None
+    flagged = [envelope_note(st, vehicle, standard) is not None for st in line.stations]
+    assert flagged == [False, True, True, True]
+    # The set's steepest downhill is the steeper of its approach and platform draws, its fastest
+    # entry the top of any distribution (here a clipped normal), never below the station's own.
+    harbour = line.station("Harbour")
+    assert envelope_note(harbour, vehicle, _set(platform_gradient_permille={"uniform": [-3.0, 3.0]})) is None
+    steep = _set(platform_gradient_permille={"uniform": [-40.0, 0.0]})
+    assert "on downhills to -40 ‰" in str(envelope_note(harbour, vehicle, steep))
+    fast = _set(entry_speed_kmh={"normal": [55.0, 5.0], "clip": [45.0, 70.0]})
+    assert "entries up to 70 km/h" in str(envelope_note(harbour, vehicle, fast))
+    # Harbour with its first detector where the rule wants it: no note.
+    data = line_data()
+    data["stations"][3]["tasc"]["detectors_before_stop_m"] = [330.0, 230.0, 140.0, 60.0, 6.0]
+    assert envelope_note(as_line(data).stations[3], vehicle, standard) is None

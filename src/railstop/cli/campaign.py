@@ -135,6 +135,7 @@ def _run_one_campaign(
     device: str = "cpu",
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
+    from railstop.config.plausibility import envelope_note
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
     from railstop.store import open_store
 
@@ -188,7 +189,15 @@ def _run_one_campaign(
         **summary,
         "runs_simulated": outcome.runs_simulated,
         "elapsed_s": round(outcome.elapsed_s, 3),
+        # Beside the figures, not in the stored summary: the set beyond the zone's layout.
+        "zone_note": envelope_note(ln.station(station), veh, spec.disturbances),
     }
+
+
+def print_zone_note(rows: list[dict[str, object]]) -> None:
+    """The campaigns' note that the disturbance set reaches beyond the zone's layout, once."""
+    for note in dict.fromkeys(str(r["zone_note"]) for r in rows if r.get("zone_note")):
+        out.print(f"note: {note} (the layout rule of `railstop check`; docs/tasc.md)", highlight=False)
 
 
 def _fmt(key: str, value: object) -> str:
@@ -377,6 +386,7 @@ def campaign(
             [row],
         )
     )
+    print_zone_note([row])
     out.print(f"per-run rows: {target}/runs.parquet; summary also in {db}", highlight=False)
     if office is not None:
         out.print(f"summary sent to the office at {office} (acknowledged)", highlight=False)
@@ -557,6 +567,7 @@ def compare(
             rows,
         )
     )
+    print_zone_note(rows)
     out.print(f"campaigns in {target}/; `railstop report {target}` writes the HTML report", highlight=False)
 
 

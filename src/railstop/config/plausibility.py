@@ -16,13 +16,19 @@ file, the field and its value:
   before the stopping point from the first detector, braking at
   ``BRAKE_MARGIN`` of full service after the brake's dead time and build-up,
   on the steepest downhill of the zone.
+
+A disturbance set may draw entries faster than the station's entry speed and
+approach gradients steeper than its own: :func:`envelope_note` applies the
+same rule at the set's fastest entry and steepest downhill, for the campaign
+to say so beside its figures (a note, not an error: studying a station beyond
+its design is a use of the tool).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from railstop.config.disturbances import APPROACH_BEFORE_FIRST_DETECTOR_M
+from railstop.config.disturbances import APPROACH_BEFORE_FIRST_DETECTOR_M, Distribution, DisturbanceSet
 from railstop.config.loader import line_source, load_line, load_vehicle
 from railstop.config.media import MEDIA_FILE, load_media
 from railstop.config.schema import Line, Station, Vehicle
@@ -51,17 +57,63 @@ def _worst_permille(station: Station, start_m: float, end_m: float) -> float:
     return worst
 
 
-def stopping_distance_m(station: Station, vehicle: Vehicle, speed_kmh: float) -> float:
+def stopping_distance_m(
+    station: Station, vehicle: Vehicle, speed_kmh: float, grade_permille: float | None = None
+) -> float:
     """From the first detector at ``speed_kmh``: dead time and build-up at speed, then braking at
-    ``BRAKE_MARGIN`` of full service less the zone's steepest downhill (inf if that cannot stop)."""
+    ``BRAKE_MARGIN`` of full service less the zone's steepest downhill (``grade_permille``: this
+    one instead) (inf if that cannot stop)."""
     v = kmh_to_mps(speed_kmh)
     brake = vehicle.brake
     first = station.detector_positions_m()[0]
-    grade = _worst_permille(station, first, station.stop_point_m)
+    own = _worst_permille(station, first, station.stop_point_m)
+    grade = own if grade_permille is None else grade_permille
     decel = BRAKE_MARGIN * brake.full_service_mps2 + G_MPS2 * grade / 1000.0
     if decel <= 0.0:
         return float("inf")
     return v * (brake.dead_time_s + brake.time_constant_s) + v * v / (2.0 * decel)
+
+
+def _extreme(d: Distribution, highest: bool) -> float:
+    """The highest (lowest) value ``d`` can draw."""
+    if d.fixed is not None:
+        return d.fixed
+    if d.uniform is not None:
+        return d.uniform[1] if highest else d.uniform[0]
+    if d.clip is not None:
+        return d.clip[1] if highest else d.clip[0]
+    if d.choice:
+        return max(d.choice) if highest else min(d.choice)
+    raise ValueError("a distribution with nothing to draw")
+
+
+def envelope_note(station: Station, vehicle: Vehicle, dist: DisturbanceSet) -> str | None:
+    """The zone-length rule of :func:`plausibility_problems` at ``dist``'s fastest entry and
+    steepest downhill in the zone (approach or platform; the station's own where the set draws
+    neither): None where the zone is long enough for them, else a one-line note of why stops
+    beyond it may end by an overrun guard's emergency brake or outside the tolerance.
+
+    [interpretation] The set's draws are absolute (``entry_speed_kmh = {uniform = [45, 65]}`` at
+    every station), while a station's zone is laid out for its own entry speed; a campaign
+    beyond that envelope measures the layout as much as the controller, and says so.
+    """
+    p = dist.params
+    own = station.tasc.entry_speed_kmh
+    speed = max(_extreme(p["entry_speed_kmh"], True), own) if "entry_speed_kmh" in p else own
+    grades = ("approach_gradient_permille", "platform_gradient_permille")
+    drawn = [_extreme(p[k], False) for k in grades if k in p]
+    first_m = station.detector_positions_m()[0]
+    grade = min(min(drawn), 0.0) if drawn else _worst_permille(station, first_m, station.stop_point_m)
+    need = stopping_distance_m(station, vehicle, speed, grade)
+    first = station.stop_point_m - first_m
+    if need <= first:
+        return None
+    return (
+        f"the zone of {station.name!r} is short for the {dist.name!r} set: entries up to {speed:g} km/h "
+        f"(the station's entry speed is {own:g}) on downhills to {grade:g} ‰ need {need:.0f} m "
+        f"at {BRAKE_MARGIN:.0%} of full service, the first detector is {first:g} m out; stops beyond "
+        "the zone's envelope may end by an overrun guard's emergency brake or outside the tolerance"
+    )
 
 
 def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[ConfigError]:
