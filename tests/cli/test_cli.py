@@ -29,6 +29,21 @@ def test_check_default_line(tmp_path: Path) -> None:
     assert "4 stations" in p.stdout
 
 
+def test_check_says_which_zones_a_disturbance_set_reaches_beyond(tmp_path: Path) -> None:
+    """`railstop check --disturbances SET`: the zones too short for the set's fastest entry on its
+    steepest approach, a note each (the standard set: Hillcrest, Museum, Harbour); none for the
+    nominal set; a set that is no file, one line and exit 2."""
+    p = run("check", "--disturbances", "standard", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    notes = [line for line in p.stdout.splitlines() if line.startswith("note: ")]
+    assert [n.split("'")[1] for n in notes] == ["Hillcrest", "Museum", "Harbour"]
+    p = run("check", "--disturbances", "nominal", cwd=tmp_path)
+    assert "every zone is laid out for the 'nominal' set" in p.stdout
+    assert "note:" not in p.stdout
+    assert "note:" not in run("check", cwd=tmp_path).stdout
+    _one_line_error(run("check", "--disturbances", "nope.toml", cwd=tmp_path), "nope.toml")
+
+
 def test_check_bad_file_one_line_exit_2(tmp_path: Path) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(

@@ -2,16 +2,33 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
+import typer
+
 from railstop.cli.common import LineOpt, OperationOpt, VehicleOpt, fail, out, print_error
 from railstop.errors import RailstopError
 
 
-def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: OperationOpt = None) -> None:
+def check(
+    line: LineOpt = None,
+    vehicle: VehicleOpt = None,
+    operation: OperationOpt = None,
+    disturbances: Annotated[
+        str | None,
+        typer.Option(
+            help="Also say which stations' zones a campaign under this disturbance set (standard, "
+            "wide, ... or a TOML file) reaches beyond: faster entries or steeper approaches than "
+            "the zone is laid out for."
+        ),
+    ] = None,
+) -> None:
     """Validate a line file (and optionally a vehicle and an operation file)."""
     from railstop.config import load_line, load_vehicle
+    from railstop.config.disturbances import load_disturbances
     from railstop.config.loader import line_source
     from railstop.config.operation import load_operation
-    from railstop.config.plausibility import plausibility_problems
+    from railstop.config.plausibility import envelope_note, plausibility_problems
 
     try:
         ln = load_line(line)
@@ -19,6 +36,7 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: Operation
         # The embedded operation names the embedded line's stations: a line of one's own is
         # judged on its own unless an operation file for it is given too.
         op = load_operation(operation, ln) if operation is not None or line is None else None
+        dist = load_disturbances(disturbances) if disturbances is not None else None
     except RailstopError as exc:
         fail(str(exc))
     problems = plausibility_problems(ln, veh, line_source(line))
@@ -44,3 +62,9 @@ def check(line: LineOpt = None, vehicle: VehicleOpt = None, operation: Operation
         highlight=False,
         soft_wrap=True,
     )
+    if dist is not None:
+        notes = [n for st in ln.stations if (n := envelope_note(st, veh, dist)) is not None]
+        for note in notes:
+            out.print(f"note: {note}", highlight=False, soft_wrap=True)
+        if not notes:
+            out.print(f"every zone is laid out for the {dist.name!r} set", highlight=False, soft_wrap=True)
