@@ -36,6 +36,7 @@ import numpy as np
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
+from railstop.config.plausibility import envelope_note
 from railstop.control.supervision import eb_cause_name
 from railstop.controllers import TASC_CONTROLLERS
 from railstop.sim.campaign import simulate_runs
@@ -94,6 +95,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"{station.name} ({variant}), standard set, {args.runs:,} runs per cell, seed {args.seed}; "
         f"target >= {target:.1%} within ±{BAND_M:.2f} m, 0 silent misses off the patches"
     )
+    note = envelope_note(station, vehicle, dist)
+    if note is not None:  # the set reaches beyond the zone's layout (docs/tasc.md)
+        print(f"note: {note}")
     print(
         f"{'form':>4} {'controller':<22} {'±0.30 m':>8} {f'±{tol:.2f} m':>8} "
         f"{'off-patch silent':>16} {'off-patch EB':>12}  misses on a patch (cause: count)"

@@ -52,6 +52,7 @@ from railstop.config import default_line, default_vehicle
 from railstop.config import disturbances as dist_module
 from railstop.config.disturbances import Distribution, DisturbanceSet, load_disturbances
 from railstop.config.loader import with_detectors_only
+from railstop.config.plausibility import envelope_note
 from railstop.controllers import known_controllers
 from railstop.sim.campaign import simulate_runs
 from railstop.stats.summary import summary_stats
@@ -361,6 +362,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"k x its standard range (k = {', '.join(f'{k:g}' for k in args.scales)}), every other one "
             f"standard; PSD tolerance ±{tol:g} m"
         )
+        note = envelope_note(station, vehicle, standard)
+        if note is not None:  # the standard set already reaches beyond the zone's layout
+            print(f"note: {note}")
         print("settings (* = clipped to the parameter's physical range):")
         for row in rows:
             print(f"  {row.name} [{row.group}]")

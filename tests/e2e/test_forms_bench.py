@@ -73,3 +73,17 @@ def test_bad_arguments_are_refused_in_one_line(args: list[str], capsys: pytest.C
     err = capsys.readouterr().err.strip().splitlines()
     # argparse: its usage, then one error line naming the argument
     assert [line for line in err if "error:" in line] == [err[-1]], err
+
+
+def test_a_station_whose_zone_the_set_outruns_is_noted(capsys: pytest.CaptureFixture[str]) -> None:
+    """Harbour's zone (250 m) is laid out for 55 km/h: the standard set's entries to 65 km/h on
+    approaches to -20 permille need 284 m, and the table says so under its title; Riverside's and
+    the detectors-only variant's zones (330 m, 400 m) need no note."""
+    args = ["--runs", "4", "--forms", "6", "--controllers", "tasc-pwm"]
+    bench.main([*args, "--station", "Harbour"])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("note: the zone of 'Harbour' is short for the 'standard' set")
+    assert "the first detector is 250 m out" in lines[1]
+    for extra in ([], ["--station", "Harbour", "--detectors-only"]):
+        bench.main([*args, *extra])
+        assert "note:" not in capsys.readouterr().out
