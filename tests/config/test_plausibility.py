@@ -226,6 +226,10 @@ def test_the_envelope_note_is_the_layout_rule_at_the_sets_fastest_entry_and_stee
     # entry the top of any distribution (here a clipped normal), never below the station's own.
     harbour = line.station("Harbour")
     assert envelope_note(harbour, vehicle, _set(platform_gradient_permille={"uniform": [-3.0, 3.0]})) is None
+    # A set that draws the platform's gradient only keeps the approach's own (Hillcrest: -15).
+    hill = line.station("Hillcrest")
+    fast_on_own = _set(entry_speed_kmh={"fixed": 70.0}, platform_gradient_permille={"uniform": [-3.0, 3.0]})
+    assert "on downhills to -15 ‰" in str(envelope_note(hill, vehicle, fast_on_own))
     steep = _set(platform_gradient_permille={"uniform": [-40.0, 0.0]})
     assert "on downhills to -40 ‰" in str(envelope_note(harbour, vehicle, steep))
     fast = _set(entry_speed_kmh={"normal": [55.0, 5.0], "clip": [45.0, 70.0]})

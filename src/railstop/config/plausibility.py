@@ -103,7 +103,10 @@ def envelope_note(station: Station, vehicle: Vehicle, dist: DisturbanceSet) -> s
     grades = ("approach_gradient_permille", "platform_gradient_permille")
     drawn = [_extreme(p[k], False) for k in grades if k in p]
     first_m = station.detector_positions_m()[0]
-    grade = min(min(drawn), 0.0) if drawn else _worst_permille(station, first_m, station.stop_point_m)
+    if len(drawn) < len(grades):
+        # The zone part the set does not draw keeps the station's own gradient (draw_scenario).
+        drawn.append(_worst_permille(station, first_m, station.stop_point_m))
+    grade = min(*drawn, 0.0)
     need = stopping_distance_m(station, vehicle, speed, grade)
     first = station.stop_point_m - first_m
     if need <= first:
