@@ -347,6 +347,30 @@ def test_a_campaign_beyond_the_zones_layout_says_so(tmp_path: Path) -> None:
     assert "note: the zone of 'Harbour' is short for the 'standard' set" in " ".join(p.stdout.split())
     p = run("campaign", *harbour, "--out", "h2", "--json", cwd=tmp_path)
     assert "the first detector is 250 m out" in json.loads(p.stdout)["zone_note"]
+    # Run by run: the runs whose own entry and gradients the rule finds beyond the zone, counted
+    # from the campaign's own rows, and the shares within the tolerance on either side.
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from railstop.config import default_line, default_vehicle
+    from railstop.config.plausibility import beyond_envelope
+
+    many = ("--station", "Harbour", "--runs", "300", "--db", "c.db")
+    p = run("campaign", *many, "--out", "h3", "--json", cwd=tmp_path)
+    row = json.loads(p.stdout)
+    t = pq.read_table(tmp_path / "h3" / "runs.parquet").to_pydict()
+    col = {k: np.array(v, dtype=float) for k, v in t.items() if k != "emergency_brake"}
+    beyond = beyond_envelope(
+        default_line().station("Harbour"), default_vehicle(), col["entry_speed_kmh"],
+        col["approach_gradient_permille"], col["platform_gradient_permille"],
+    )  # fmt: skip
+    assert 0 < row["runs_beyond_zone"] == int(beyond.sum()) < 300
+    within = np.abs(col["stop_error_m"]) <= row["tolerance_m"]
+    assert row["within_tolerance_beyond_zone"] == pytest.approx(within[beyond].mean(), abs=1e-6)
+    assert row["within_tolerance_inside_zone"] == pytest.approx(within[~beyond].mean(), abs=1e-6)
+    text = run("campaign", *many, "--out", "h4", cwd=tmp_path).stdout
+    line = f"tasc-pwm: {row['runs_beyond_zone']} of the 300 runs drew beyond the zone's envelope"
+    assert line in text
     p = run("campaign", "--runs", "6", "--out", "r", "--db", "c.db", "--json", cwd=tmp_path)
     assert json.loads(p.stdout)["zone_note"] is None
     p = run("campaign", "--runs", "6", "--out", "r2", "--db", "c.db", cwd=tmp_path)

@@ -7,6 +7,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from railstop.config import load_line, load_vehicle
@@ -14,6 +15,7 @@ from railstop.config.disturbances import DisturbanceSet, load_disturbances
 from railstop.config.loader import validate
 from railstop.config.plausibility import (
     BRAKE_MARGIN,
+    beyond_envelope,
     envelope_note,
     plausibility_problems,
     stopping_distance_m,
@@ -238,3 +240,21 @@ def test_the_envelope_note_is_the_layout_rule_at_the_sets_fastest_entry_and_stee
     data = line_data()
     data["stations"][3]["tasc"]["detectors_before_stop_m"] = [330.0, 230.0, 140.0, 60.0, 6.0]
     assert envelope_note(as_line(data).stations[3], vehicle, standard) is None
+
+
+def test_beyond_envelope_is_the_note_run_by_run() -> None:
+    """A run at its station's own entry speed and gradient is inside every default zone (the line
+    passes `railstop check`); one at the standard set's extremes (65 km/h, -20 permille) is beyond
+    exactly the zones the note names; an uphill draw does not count as a downhill."""
+    line, vehicle = load_line(None), load_vehicle(None)
+    standard = load_disturbances("standard")
+    for st in line.stations:
+        own = np.array([st.tasc.entry_speed_kmh])
+        flat = np.zeros(1)
+        assert not beyond_envelope(st, vehicle, own, flat, flat)[0]
+        extreme = beyond_envelope(st, vehicle, np.array([65.0]), np.array([-20.0]), np.array([3.0]))
+        assert bool(extreme[0]) == (envelope_note(st, vehicle, standard) is not None), st.name
+        uphill = beyond_envelope(st, vehicle, np.array([65.0]), np.array([20.0]), np.array([3.0]))
+        assert bool(uphill[0]) == (
+            stopping_distance_m(st, vehicle, 65.0, 0.0) > st.tasc.detectors_before_stop_m[0]
+        )

@@ -46,9 +46,10 @@ from railstop.errors import RailstopError
 if TYPE_CHECKING:
     from rich.console import RenderableType
 
+    from railstop.config.disturbances import DisturbanceSet
     from railstop.config.driver import DriverFile
     from railstop.config.platform import PlatformFile
-    from railstop.config.schema import Line, Vehicle
+    from railstop.config.schema import Line, Station, Vehicle
     from railstop.control.law import LawFile
 
 
@@ -135,7 +136,6 @@ def _run_one_campaign(
     device: str = "cpu",
 ) -> dict[str, object]:
     from railstop.config.disturbances import load_disturbances
-    from railstop.config.plausibility import envelope_note
     from railstop.sim.campaign import RUNS_FILE, CampaignSpec, finished_chunks, run_campaign
     from railstop.store import open_store
 
@@ -190,14 +190,58 @@ def _run_one_campaign(
         "runs_simulated": outcome.runs_simulated,
         "elapsed_s": round(outcome.elapsed_s, 3),
         # Beside the figures, not in the stored summary: the set beyond the zone's layout.
-        "zone_note": envelope_note(ln.station(station), veh, spec.disturbances),
+        **_zone_envelope(ln.station(station), veh, spec.disturbances, out_dir / RUNS_FILE, summary),
+    }
+
+
+def _zone_envelope(
+    st: Station, veh: Vehicle, dist: DisturbanceSet, runs_file: Path, summary: dict[str, Any]
+) -> dict[str, object]:
+    """``zone_note`` (:func:`~railstop.config.plausibility.envelope_note`) and, when there is one,
+    how many of the campaign's runs drew beyond the zone's envelope and the share within the
+    tolerance of those runs and of the others."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from railstop.config.plausibility import beyond_envelope, envelope_note
+
+    note = envelope_note(st, veh, dist)
+    if note is None:
+        return {"zone_note": None}
+    cols = ["stop_error_m", "entry_speed_kmh", "approach_gradient_permille", "platform_gradient_permille"]
+    t = pq.read_table(runs_file, columns=cols)
+    c = {name: t.column(name).to_numpy(zero_copy_only=False).astype(np.float64) for name in cols}
+    beyond = beyond_envelope(
+        st, veh, c["entry_speed_kmh"], c["approach_gradient_permille"], c["platform_gradient_permille"]
+    )
+    within = np.abs(c["stop_error_m"]) <= float(summary["tolerance_m"])  # NaN (never stood): not
+
+    def share(mask: Any) -> float | None:
+        return round(float(within[mask].mean()), 6) if mask.any() else None
+
+    return {
+        "zone_note": note,
+        "runs_beyond_zone": int(beyond.sum()),
+        "within_tolerance_beyond_zone": share(beyond),
+        "within_tolerance_inside_zone": share(~beyond),
     }
 
 
 def print_zone_note(rows: list[dict[str, object]]) -> None:
-    """The campaigns' note that the disturbance set reaches beyond the zone's layout, once."""
-    for note in dict.fromkeys(str(r["zone_note"]) for r in rows if r.get("zone_note")):
+    """The campaigns' note that the disturbance set reaches beyond the zone's layout (once), and
+    per controller the runs beyond it and the shares within the tolerance."""
+    noted = [r for r in rows if r.get("zone_note")]
+    for note in dict.fromkeys(str(r["zone_note"]) for r in noted):
         out.print(f"note: {note} (the layout rule of `railstop check`; docs/tasc.md)", highlight=False)
+    for r in noted:
+        n, tol = int(r["runs_beyond_zone"]), r["tolerance_m"]  # type: ignore[call-overload]
+        if n:
+            out.print(
+                f"  {r['controller']}: {n:,} of the {r['runs']:,} runs drew beyond the zone's envelope: "
+                f"{_fmt('within', r['within_tolerance_beyond_zone'])} of them within ±{tol:g} m, "
+                f"{_fmt('within', r['within_tolerance_inside_zone'])} of the others",
+                highlight=False,
+            )
 
 
 def _fmt(key: str, value: object) -> str:

@@ -28,12 +28,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import NDArray
+
 from railstop.config.disturbances import APPROACH_BEFORE_FIRST_DETECTOR_M, Distribution, DisturbanceSet
 from railstop.config.loader import line_source, load_line, load_vehicle
 from railstop.config.media import MEDIA_FILE, load_media
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.errors import ConfigError, RailstopError
-from railstop.quantities import kmh_to_mps
+from railstop.quantities import KMH_PER_MPS
 
 G_MPS2 = 9.80665
 # [interpretation] SPEC §1 has the wayside compute the braking the train needs from the first
@@ -63,15 +66,22 @@ def stopping_distance_m(
     """From the first detector at ``speed_kmh``: dead time and build-up at speed, then braking at
     ``BRAKE_MARGIN`` of full service less the zone's steepest downhill (``grade_permille``: this
     one instead) (inf if that cannot stop)."""
-    v = kmh_to_mps(speed_kmh)
-    brake = vehicle.brake
     first = station.detector_positions_m()[0]
     own = _worst_permille(station, first, station.stop_point_m)
     grade = own if grade_permille is None else grade_permille
-    decel = BRAKE_MARGIN * brake.full_service_mps2 + G_MPS2 * grade / 1000.0
-    if decel <= 0.0:
-        return float("inf")
-    return v * (brake.dead_time_s + brake.time_constant_s) + v * v / (2.0 * decel)
+    return float(_needed_m(vehicle, np.array([speed_kmh]), np.array([grade]))[0])
+
+
+def _needed_m(
+    vehicle: Vehicle, speed_kmh: NDArray[np.float64], grade_permille: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The rule of :func:`stopping_distance_m`, element by element."""
+    v = np.asarray(speed_kmh, dtype=np.float64) / KMH_PER_MPS  # as quantities.kmh_to_mps
+    brake = vehicle.brake
+    decel = BRAKE_MARGIN * brake.full_service_mps2 + G_MPS2 * np.asarray(grade_permille) / 1000.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        need = v * (brake.dead_time_s + brake.time_constant_s) + v * v / (2.0 * decel)
+    return np.where(decel > 0.0, need, np.inf)
 
 
 def _extreme(d: Distribution, highest: bool) -> float:
@@ -117,6 +127,21 @@ def envelope_note(station: Station, vehicle: Vehicle, dist: DisturbanceSet) -> s
         f"at {BRAKE_MARGIN:.0%} of full service, the first detector is {first:g} m out; stops beyond "
         "the zone's envelope may end by an overrun guard's emergency brake or outside the tolerance"
     )
+
+
+def beyond_envelope(
+    station: Station,
+    vehicle: Vehicle,
+    entry_speed_kmh: NDArray[np.float64],
+    approach_permille: NDArray[np.float64],
+    platform_permille: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """Per run (its entry speed and gradients as a campaign's rows hold them: drawn, or the
+    station's own mean where the set draws none): whether the zone-length rule needs more than
+    the zone has at that run's entry on its steepest downhill (:func:`envelope_note` run by run)."""
+    grade = np.minimum(np.minimum(approach_permille, platform_permille), 0.0)
+    need = _needed_m(vehicle, entry_speed_kmh, grade)
+    return np.asarray(need > station.stop_point_m - station.detector_positions_m()[0])
 
 
 def plausibility_problems(line: Line, vehicle: Vehicle, source: str) -> list[ConfigError]:
