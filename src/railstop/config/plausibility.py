@@ -66,10 +66,9 @@ def stopping_distance_m(
     """From the first detector at ``speed_kmh``: dead time and build-up at speed, then braking at
     ``BRAKE_MARGIN`` of full service less the zone's steepest downhill (``grade_permille``: this
     one instead) (inf if that cannot stop)."""
-    first = station.detector_positions_m()[0]
-    own = _worst_permille(station, first, station.stop_point_m)
-    grade = own if grade_permille is None else grade_permille
-    return float(_needed_m(vehicle, np.array([speed_kmh]), np.array([grade]))[0])
+    if grade_permille is None:
+        grade_permille = _worst_permille(station, station.detector_positions_m()[0], station.stop_point_m)
+    return float(_needed_m(vehicle, np.array([speed_kmh]), np.array([grade_permille]))[0])
 
 
 def _needed_m(
