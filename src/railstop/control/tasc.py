@@ -60,6 +60,27 @@ GAIN_MAX = 2.0
 HISTORY = 8
 MIN_WINDOW_CMD = 0.05  # m/s²: a window whose modelled command is smaller does not count in the gain
 SAMPLES = 24  # points per window for model-weighted means
+# Stop model 17, the start of braking [interpretation] (SPEC §1 does not say at which detector
+# braking starts; it computes "the braking deceleration required" at each): a train that has not
+# been told to brake holds its speed, and the first braking command waits for a later detector
+# while the stop needs less than START_FLOOR of full service and holding the speed to the next
+# detector (and the command's response there) would need no more than START_LIMIT of it. A stop
+# begun on a small demand ends on a small deceleration wherever the path's own deceleration falls
+# away (a steep uphill approach, a level platform): there a centimetre of energy error is
+# decimetres of stop, the brakes can only add, and a notch train's smallest notch is already more
+# than the demand (issue 36). The floor is 0 (braking starts at the first command, as before model
+# 17) where the wayside models the train's own commands, forms 1-5 without a Doppler radar
+# (start_floor_mps2): a hold on one side and a brake on the other, near the floor, would leave
+# the wayside's speed at a passage resting on braking the train never made.
+START_FLOOR = 0.2
+START_LIMIT = 0.5
+
+
+def start_floor_mps2(full_service_mps2: float, form: int, has_doppler: bool) -> float:
+    """The command under which the first braking waits for the next detector (``START_FLOOR``
+    of full service; 0, no wait, for forms 1-5 without a Doppler radar)."""
+    return START_FLOOR * full_service_mps2 if form >= 6 or has_doppler else 0.0
+
 
 # --------------------------------------------------------------------------
 # Compiled scalar cores (railstop.jit): the one implementation of the law.
@@ -333,6 +354,8 @@ def plan_command_1(
     max_decel_mps2: float,
     ext: FloatArray,
     grad: tuple[FloatArray, FloatArray, FloatArray],
+    det_to_stop: FloatArray,
+    start_floor_mps2: float,
 ) -> tuple[float, float, float]:
     """The command to send now: (commanded decel, required brake decel, effect time).
 
@@ -343,7 +366,8 @@ def plan_command_1(
     must supply v²/2s (SPEC §1) less what gradient and resistance give over
     the remaining path; dividing by the loop gain turns it into the command.
     If the train is predicted to stop before a new command could act, the
-    brake is held (never released to roll on: DESIGN rule 10).
+    brake is held (never released to roll on: DESIGN rule 10). Before any
+    braking, a small command waits for the next detector (``START_FLOOR``).
     """
     current = history_value_at_1(values, effects, now_s)
     ext_now = external_decel_1(ext, grad, distance_m, speed_mps)
@@ -358,7 +382,48 @@ def plan_command_1(
         ramp = abs(clip_1(need / gain, 0.0, max_decel_mps2) - current) / (2.0 * jerk_limit_mps3)
         delay = base_delay_s + ramp
     command = current if v_t <= 0.0 else clip_1(need / gain, 0.0, max_decel_mps2)
+    if command > 0.0 and _start_later_1(
+        values, effects, command, distance_m, speed_mps, gain, base_delay_s, max_decel_mps2, start_floor_mps2,
+        det_to_stop, ext, grad,
+    ):  # fmt: skip
+        command = 0.0  # the train holds its speed to the next detector
     return command, need, now_s + delay
+
+
+@njit_step
+def _start_later_1(
+    values: FloatArray,
+    effects: FloatArray,
+    command: float,
+    distance_m: float,
+    speed_mps: float,
+    gain: float,
+    base_delay_s: float,
+    max_decel_mps2: float,
+    start_floor_mps2: float,
+    det_to_stop: FloatArray,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+) -> bool:
+    """Whether the first braking command waits for the next detector (``START_FLOOR``): no
+    braking commanded yet, ``command`` under ``start_floor_mps2``, and at the next detector
+    ahead, reached at the speed held and acted on ``base_delay_s`` later, a command within
+    ``START_LIMIT``."""
+    if command >= start_floor_mps2:
+        return False
+    for j in range(HISTORY):
+        if math.isfinite(effects[j]) and values[j] > 0.0:
+            return False  # braking has begun: the plan never releases to hold the speed again
+    ahead = -1.0
+    for d in det_to_stop:
+        if d < distance_m - 1.0 and d > ahead:
+            ahead = d
+    if ahead <= 0.0:
+        return False
+    acts_m = ahead - speed_mps * base_delay_s
+    if acts_m <= 0.0:
+        return False
+    return brake_need_1(ext, grad, acts_m, speed_mps) / gain <= START_LIMIT * max_decel_mps2
 
 
 @njit_step

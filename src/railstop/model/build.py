@@ -35,7 +35,7 @@ from railstop.config.schema import Station, Track, Vehicle
 from railstop.control.brake_ident import AFTER_S as ID_AFTER_S
 from railstop.control.brake_ident import BEFORE_S as ID_BEFORE_S
 from railstop.control.law import ControlLaw, law_params, loaded_law
-from railstop.control.tasc import external_params
+from railstop.control.tasc import external_params, start_floor_mps2
 from railstop.controllers import (
     CONTROLLERS,
     DRIVER_ATC1,
@@ -139,6 +139,7 @@ from railstop.wayside.tasc_unit import (
     WP_MODULATE,
     WP_SIZE,
     WP_SPEED_SAMPLES,
+    WP_START_FLOOR,
     WP_STEP_SPACING,
     WP_STOP,
     SignalForm,
@@ -320,6 +321,7 @@ def _wayside_params(
     wp[WP_BASE_DELAY] = tasc.assumed_link_latency_s + brake.dead_time_s + brake.time_constant_s
     wp[WP_JERK] = brake.jerk_limit_mps3
     wp[WP_MAX_DECEL] = brake.full_service_mps2
+    wp[WP_START_FLOOR] = start_floor_mps2(brake.full_service_mps2, int(form), radar is not None)
     wp[WP_LAG] = brake.time_constant_s
     # Issue 13 item 6 (beyond SPEC §1): identify the brake response from the radar, a little
     # less than the radar buffer's length after the first braking command.

@@ -56,6 +56,7 @@ from railstop.control.tasc import (
     modelled_means_1,
     plan_command_1,
     regression_taus_1,
+    start_floor_mps2,
 )
 from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_PWM, TASC_STEP, TASC_SWITCHED_PWM
 from railstop.jit import njit_inline, njit_step
@@ -127,7 +128,8 @@ RP_ZONE_START = 17  # the first transponder (chainage): the train knows it is in
 RP_FIRST_BY = 18  # the detector (chainage) by which the first telegram must have come
 RP_TRANSFER_STEPS = 19  # config 2: steps the changeover switches take (break before make)
 RP_DEAD = 20  # the brakes' dead time (the modulator's model: this, then the lag RP_LAG)
-RP_SIZE = 21
+RP_START_FLOOR = 21  # forms 1-5: the first braking waits while the command is under this
+RP_SIZE = 22
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -209,6 +211,7 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     detectors = station.detector_positions_m()
     rp[RP_FIRST_BY] = detectors[min(first, len(detectors) - 1)]
     rp[RP_TRANSFER_STEPS] = round(brake.switch_transfer_s / dt_s)
+    rp[RP_START_FLOOR] = start_floor_mps2(brake.full_service_mps2, form, station.tasc.doppler is not None)
     return rp
 
 
@@ -306,6 +309,8 @@ def receiver_receive_1(
             notch = min(max(max(rx[RX_FIXED_NOTCH], 0.0) + tele[TEL_DELTA], 0.0), float(table.size - 1))
             rx[RX_FIXED_NOTCH] = notch
             rx[RX_TARGET] = table[int(notch)]
+        elif rx[RX_STEP_LOST] == 0.0 and step == rx[RX_STEP] and tele[TEL_DELTA] == 0.0:
+            pass  # no step: the wayside's first telegram while the braking waits (a hold)
         elif rx[RX_STEP_LOST] == 0.0:
             # Stop model 14 [interpretation]: a step number skipped, so a step never reached the
             # train (all its transmissions lost), and every later "one more" / "one less" would
@@ -474,6 +479,8 @@ def _receiver_plan_1(
         rp[RP_MAX_DECEL],
         ext,
         grad,
+        det_to_stop,
+        rp[RP_START_FLOOR],
     )
     history_push_1(hist_v, hist_e, command, effect)
     rx[RX_TARGET] = command
@@ -629,7 +636,7 @@ def receiver_supervise_1(
 
 @njit_inline
 def receiver_degraded_1(
-    rx: FloatArray, rp: FloatArray, brake: BrakeCurves, approach: Approach, speed_mps: float
+    rx: FloatArray, rp: FloatArray, brake: BrakeCurves, approach: Approach, speed_mps: float, now_s: float
 ) -> None:
     """Degraded mode (the telegrams stopped after a command): the unit's own target by the
     wayside's law (SPEC §1: v² / 2s less what gradient and resistance give over the path) from
@@ -644,6 +651,10 @@ def receiver_degraded_1(
     else:
         target = rp[RP_MAX_DECEL] if v > 0.0 else 0.0
     rx[RX_TARGET] = target
+    if target > 0.0:
+        # A train whose only telegram said "hold" (its braking waited for a later detector,
+        # control.tasc.START_FLOOR) stops holding its speed once its own plan brakes.
+        rx[RX_FIRST_RX] = min(rx[RX_FIRST_RX], now_s)
     rx[RX_FIXED_NOTCH] = -1.0  # forms 7, 8: the unit's own target now, not the wayside's notch
     rx[RX_FIXED_DUTY] = np.nan
     rx[RX_ONBOARD_DUTY] = decel_to_pwm_1(target, brake.pwm_duty, brake.pwm_decel)
@@ -691,7 +702,7 @@ def receiver_cycle_1(
     # The onboard supervision (DESIGN rule 10): telegram time-out, overrun guard.
     eb = receiver_supervise_1(rx, rp, now_s, odometer_m, speed_mps)
     if rx[RX_DEGRADED] > 0.0 and not eb:
-        receiver_degraded_1(rx, rp, brake, approach, speed_mps)
+        receiver_degraded_1(rx, rp, brake, approach, speed_mps, now_s)
     config = int(rp[RP_CONFIG])
     switch_pos = receiver_switch_1(rx, rp) if config in (CFG_STEP, CFG_SWITCHED_PWM) else -1
     if config in (CFG_PWM, CFG_SWITCHED_PWM):

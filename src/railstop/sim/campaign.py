@@ -129,7 +129,13 @@ DISK_BYTES_PER_VALUE = 8
 # 16: forms 1-3 calibrate the tachometer on the odometer's count, as forms 4 and 5 do, not on the
 # tachometer's speed summed per step (one odometer distance in the onboard unit). Every run of
 # forms 1-3 changes; the others do not.
-MODEL_VERSION = 16
+# 17: a train not yet told to brake holds its speed to the next detector while the stop needs
+# less than a fifth of full service and the next detector would need no more than half of it
+# (control.tasc.START_FLOOR; not for forms 1-5 without a Doppler radar), form 8 sends its first
+# telegram even when it changes no notch, and degraded mode after a hold ends it when its own
+# plan brakes. The TASC runs whose first command was that small change (slow entries, uphill
+# approaches); the others, the ATO and the drivers do not.
+MODEL_VERSION = 17
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

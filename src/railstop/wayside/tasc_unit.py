@@ -159,7 +159,8 @@ WP_IDENTIFY = 19  # identify the brake response online from the Doppler samples 
 WP_ID_AFTER = 20  # ... this long after the first command that steps the braking enough
 WP_FIT_SAMPLES = 21  # Doppler samples of the deceleration fit (the radar buffer may hold more)
 WP_FILL = 22  # fill in a missed detector's passage from the Doppler-integrated travel
-WP_SIZE = 23
+WP_START_FLOOR = 23  # the first braking waits while the command is under this (control.tasc)
+WP_SIZE = 24
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -725,6 +726,8 @@ def wayside_command_1(
         wp[WP_MAX_DECEL],
         ext,
         grad,
+        det_to_stop,
+        wp[WP_START_FLOOR],
     )
     form = int(wp[WP_FORM])
     notch = nearest_notch_1(command, table)
@@ -751,8 +754,10 @@ def wayside_command_1(
         # measures the speed and models nothing.
         history_push_1(hist_v, hist_e, command, effect)
     # Form 8 says only "more" or "less": a command that changes no notch is not sent (the cyclic
-    # repeat of the last telegram keeps the train's supervision alive).
-    send = form != 8 or delta != 0 or ws[WS_EMERGENCY] > 0.0
+    # repeat of the last telegram keeps the train's supervision alive), except the stop's first,
+    # which tells the train that the wayside has it when its braking waits for a later detector
+    # (control.tasc.START_FLOOR): without it the train's supervision would time out.
+    send = form != 8 or delta != 0 or ws[WS_EMERGENCY] > 0.0 or ws[WS_SENT] == 0.0
     if send:
         ws[WS_SENT] += 1.0
     if command > 0.0:  # the train holds its speed (its own traction control) until told to brake
