@@ -390,3 +390,48 @@ def test_a_watchdog_on_its_holders_cycle_counts_the_cycles_without_a_feed() -> N
     assert not w.end_cycle() and w.missed == 1
     assert w.end_cycle() and w.missed == 2
     assert w.end_cycle() and w.missed == 3  # still expired, counted on
+
+
+# ---------------------------------------------------------------- the guard's limit (model 18)
+
+
+def test_the_guard_limit_is_what_the_emergency_brake_keeps_here() -> None:
+    """HZ-TASC-08: nominal brakes on the level keep the configured limit; a weak brake or a
+    downhill lowers it to what the emergency brake gives; a strong brake never loosens it."""
+    from railstop.control.supervision import guard_limit_1
+
+    assert guard_limit_1(1.0, 1.3, 1.0, 0.02) == 1.0
+    assert guard_limit_1(1.0, 1.3, 0.6, -0.34) == pytest.approx(1.3 * 0.6 - 0.34)
+    assert guard_limit_1(1.0, 1.3, 1.0, -0.4) == pytest.approx(0.9)
+    assert guard_limit_1(1.0, 1.3, 1.8, -0.25) == 1.0
+    assert guard_limit_1(1.0, 1.3, 1.8, -0.5) == pytest.approx(1.3 - 0.5)  # not 1.8 x 1.3 - 0.5
+
+
+@pytest.mark.parametrize("controller", ["tasc-pwm", "tasc-brake-controller"])
+def test_weak_brakes_on_a_downhill_are_stopped_before_the_platform_end(controller: str) -> None:
+    """HZ-TASC-08: brakes at 65-80 % of nominal on 15-30 permille downhill approaches at 50-60
+    km/h (beyond the standard set: its brake gain is clipped at 0.8). Until stop model 17 the
+    overrun guards compared the deceleration needed with full service, taking the emergency
+    brake's margin for granted, and fired when the weak emergency brake on the downhill could no
+    longer stop the train before the platform end: 2 of these 300 runs (tasc-pwm) and 4
+    (tasc-brake-controller) ended up to 3.6 m beyond it. Now none does."""
+    from railstop.config.disturbances import DisturbanceSet
+    from railstop.sim.campaign import simulate_runs
+
+    weak = DisturbanceSet.from_dict(
+        {
+            "entry_speed_kmh": {"uniform": [50.0, 60.0]},
+            "brake_gain": {"uniform": [0.65, 0.8]},
+            "approach_gradient_permille": {"uniform": [-30.0, -15.0]},
+            "load_factor": {"uniform": [0.0, 1.0]},
+        },
+        name="weak-downhill",
+    )
+    station = RIVERSIDE
+    res, _ = simulate_runs(
+        station=station, vehicle=VEHICLE, controller=controller, disturbances=weak, seed=1,
+        first_run=0, n=300, track=LINE.track,
+    )  # fmt: skip
+    assert np.all(res.stopped)
+    assert np.any(res.emergency_brake != 0)  # the guards did act
+    assert np.max(res.stop_error_m) < station.platform_end - station.stop_point_m

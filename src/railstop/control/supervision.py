@@ -88,6 +88,22 @@ def eb_cause_name(code: int) -> str | None:
 
 
 @njit_inline
+def guard_limit_1(limit_mps2: float, emergency_mps2: float, gain: float, external_mps2: float) -> float:
+    """The overrun guard's limit as this train can keep it here (stop model 18, DESIGN rule 10).
+
+    The guard (:func:`overrun_guard_1`) brakes by emergency brake when stopping before the
+    platform end needs more than ``limit_mps2``, on the premise that the emergency brake has margin
+    over that. **[interpretation]** The premise holds only for the emergency brake this train's
+    brakes give on this path: its nominal deceleration (``emergency_mps2``) times the brake gain
+    the loop has measured (``gain``, never above 1: a strong brake does not loosen the guard),
+    plus what gradient and resistance give (``external_mps2``, negative downhill: the steepest
+    the train meets before the platform end). A weak brake on a downhill lowers the limit, so the
+    guard fires while the emergency brake can still stop the train before the end.
+    """
+    return min(limit_mps2, emergency_mps2 * min(gain, 1.0) + external_mps2)
+
+
+@njit_inline
 def overrun_guard_1(
     speed_mps: float, decel_mps2: float, distance_to_end_m: float, response_s: float, limit_mps2: float
 ) -> bool:

@@ -121,6 +121,7 @@ from railstop.wayside.tasc_unit import (
     WP_CONTINUOUS,
     WP_CONTINUOUS_PERIOD,
     WP_DT,
+    WP_EMERGENCY,
     WP_END_MARGIN,
     WP_FILL,
     WP_FIT_SAMPLES,
@@ -322,6 +323,7 @@ def _wayside_params(
     wp[WP_JERK] = brake.jerk_limit_mps3
     wp[WP_MAX_DECEL] = brake.full_service_mps2
     wp[WP_START_FLOOR] = start_floor_mps2(brake.full_service_mps2, int(form), radar is not None)
+    wp[WP_EMERGENCY] = brake.emergency_decel_mps2
     wp[WP_LAG] = brake.time_constant_s
     # Issue 13 item 6 (beyond SPEC §1): identify the brake response from the radar, a little
     # less than the radar buffer's length after the first braking command.

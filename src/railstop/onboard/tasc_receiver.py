@@ -38,7 +38,13 @@ from railstop.control.notch import (
     modulator_restart_1,
     modulator_update_1,
 )
-from railstop.control.supervision import EB_ONBOARD_GUARD, EB_TIMEOUT, EB_WAYSIDE_GUARD, overrun_guard_1
+from railstop.control.supervision import (
+    EB_ONBOARD_GUARD,
+    EB_TIMEOUT,
+    EB_WAYSIDE_GUARD,
+    guard_limit_1,
+    overrun_guard_1,
+)
 from railstop.control.tasc import (
     FIT_SUMS,
     REG_WEIGHTS,
@@ -46,6 +52,7 @@ from railstop.control.tasc import (
     BrakeCurves,
     brake_need_1,
     clip_1,
+    external_decel_1,
     fit_ring_1,
     gain_update_1,
     gain_value_1,
@@ -129,7 +136,8 @@ RP_FIRST_BY = 18  # the detector (chainage) by which the first telegram must hav
 RP_TRANSFER_STEPS = 19  # config 2: steps the changeover switches take (break before make)
 RP_DEAD = 20  # the brakes' dead time (the modulator's model: this, then the lag RP_LAG)
 RP_START_FLOOR = 21  # forms 1-5: the first braking waits while the command is under this
-RP_SIZE = 22
+RP_EMERGENCY = 22  # the train's nominal emergency deceleration (its guard's limit, guard_limit_1)
+RP_SIZE = 23
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -173,7 +181,8 @@ RX_CAL_ODO = RX_FIX_T + 1  # forms 4, 5: the odometer's count at the calibration
 RX_CAL_REF = RX_CAL_ODO + 1  # ... and the wayside's distance to the stopping point there
 RX_STEP = RX_CAL_REF + 1  # form 8: the number of the last step taken (0: none yet)
 RX_STEP_LOST = RX_STEP + 1  # form 8: 1 once a step was missed (latched: degraded mode for good)
-RX_SIZE = RX_STEP_LOST + 1
+RX_GUARD_LIMIT = RX_STEP_LOST + 1  # the overrun guard's limit on the path left (guard_limit_1)
+RX_SIZE = RX_GUARD_LIMIT + 1
 
 _SCALE_MIN_M = 50.0  # the odometer's scale is taken only over at least this between transponders
 GUARD_DECEL_TAU_S = 0.3  # smoothing of the onboard guard's deceleration from the tachometer
@@ -212,6 +221,7 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     rp[RP_FIRST_BY] = detectors[min(first, len(detectors) - 1)]
     rp[RP_TRANSFER_STEPS] = round(brake.switch_transfer_s / dt_s)
     rp[RP_START_FLOOR] = start_floor_mps2(brake.full_service_mps2, form, station.tasc.doppler is not None)
+    rp[RP_EMERGENCY] = brake.emergency_decel_mps2
     return rp
 
 
@@ -236,6 +246,7 @@ def receiver_init_1(rx: FloatArray, mod: FloatArray, hist_v: FloatArray, hist_e:
     rx[RX_PREV_DET] = -1.0
     rx[RX_ODO_SCALE] = 1.0
     rx[RX_COMB_DECEL] = np.nan
+    rx[RX_GUARD_LIMIT] = np.inf  # the configured limit until the first telegram
     rx[RX_PREV_ODO] = np.nan
     rx[RX_SCALE] = 1.0
     rx[RX_WIN_START] = np.inf
@@ -292,6 +303,17 @@ def receiver_receive_1(
         return
     rx[RX_ACTIVE] = 1.0
     rx[RX_RECEIVED] += 1.0
+    # Stop model 18: the overrun guard's limit as this train's emergency brake keeps it on the
+    # path left (control.supervision.guard_limit_1): the lesser of what gradient and resistance
+    # give where its odometry puts it and at the platform end; the forms 1-5 loop gain (1 for
+    # forms 6-8, which measure none onboard).
+    ext_min = external_decel_1(ext, grad, rp[RP_STOP] - rp[RP_END], 0.0)
+    if math.isfinite(rx[RX_FIX_POS]):
+        left = rp[RP_STOP] - rx[RX_FIX_POS] - rx[RX_SINCE_FIX]
+        ext_min = min(ext_min, external_decel_1(ext, grad, left, 0.0))
+    rx[RX_GUARD_LIMIT] = guard_limit_1(
+        rp[RP_GUARD_LIMIT], rp[RP_EMERGENCY], gain_value_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN]), ext_min
+    )
     modulator_restart_1(mod)
     form = int(rp[RP_FORM])
     if form == 6:
@@ -627,7 +649,7 @@ def receiver_supervise_1(
             rx[RX_TACH_DECEL] * (1.0 - rp[RP_ODO_UNC]),
             rp[RP_END] - position,
             rp[RP_RESPONSE],
-            rp[RP_GUARD_LIMIT],
+            min(rp[RP_GUARD_LIMIT], rx[RX_GUARD_LIMIT]),
         ):
             _apply_eb_1(rx, EB_ONBOARD_GUARD, now_s)
             return True

@@ -135,7 +135,11 @@ DISK_BYTES_PER_VALUE = 8
 # telegram even when it changes no notch, and degraded mode after a hold ends it when its own
 # plan brakes. The TASC runs whose first command was that small change (slow entries, uphill
 # approaches); the others, the ATO and the drivers do not.
-MODEL_VERSION = 17
+# 18: the overrun guards' limit is what this train's emergency brake keeps on the path left
+# (control.supervision.guard_limit_1): the nominal emergency deceleration times the loop gain
+# measured so far (at most 1), plus the steepest gradient and least resistance ahead. Runs whose
+# guard would have fired later change; the ATO and the drivers do not.
+MODEL_VERSION = 18
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -26,7 +26,7 @@ from railstop.control.notch import (
     modulator_update_1,
     nearest_notch_1,
 )
-from railstop.control.supervision import overrun_guard_1
+from railstop.control.supervision import guard_limit_1, overrun_guard_1
 from railstop.control.tasc import (
     MIN_WINDOW_CMD,
     REG_WEIGHTS,
@@ -160,7 +160,8 @@ WP_ID_AFTER = 20  # ... this long after the first command that steps the braking
 WP_FIT_SAMPLES = 21  # Doppler samples of the deceleration fit (the radar buffer may hold more)
 WP_FILL = 22  # fill in a missed detector's passage from the Doppler-integrated travel
 WP_START_FLOOR = 23  # the first braking waits while the command is under this (control.tasc)
-WP_SIZE = 24
+WP_EMERGENCY = 24  # the train's nominal emergency deceleration (the database's braking data)
+WP_SIZE = 25
 
 WS_COL = 0  # newest Doppler slot
 WS_DCOUNT = 1  # Doppler samples held (<= window)
@@ -188,7 +189,8 @@ WS_ID_GAIN = 26  # the loop gain the identification found (NaN: not identified)
 WS_FILLED = 27  # detector passages filled in from the Doppler (wayside_passage_1)
 WS_ID_DONE = 28  # 1 once the identification ran (whatever it found)
 WS_STEPS = 29  # form 8: the steps sent so far (the last one's number)
-WS_MOD = 30  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
+WS_GUARD_LIMIT = 30  # the overrun guard's limit for this train on this path (guard_limit_1)
+WS_MOD = 31  # forms 7, 8: the wayside's notch modulator (control.notch MOD_* state)
 WS_SIZE = WS_MOD + MOD_SIZE
 
 # Command record columns (SPEC §1 claims 8, 20: every command and its inputs).
@@ -246,6 +248,7 @@ def wayside_init_1(
     ws[WS_TARGET] = np.nan
     ws[WS_MOD_NEXT] = np.inf
     ws[WS_LAST_STEP] = -np.inf
+    ws[WS_GUARD_LIMIT] = wp[WP_GUARD_LIMIT]
     modulator_init_1(ws[WS_MOD : WS_MOD + MOD_SIZE])
     hist_v[:] = 0.0
     hist_e[:] = np.inf
@@ -333,7 +336,7 @@ def wayside_observe_1(
             ws[WS_DECEL],
             wp[WP_STOP] + wp[WP_END_MARGIN] - pass_x[2] - ws[WS_TRAVEL],
             max(wp[WP_BASE_DELAY], ws[WS_DELAY]),
-            wp[WP_GUARD_LIMIT],
+            ws[WS_GUARD_LIMIT],
         )
     ):
         # DESIGN rule 10, the wayside's overrun guard on every Doppler sample: an emergency-stop
@@ -694,12 +697,21 @@ def wayside_command_1(
     )
     interval = pass_t[2] - pass_t[1]
     ws[WS_DECEL] = decel if math.isfinite(decel) else 0.0
+    # Stop model 18: the guard's limit as this train's emergency brake keeps it on the path left
+    # (control.supervision.guard_limit_1): the loop gain so far; the lesser of what gradient and
+    # resistance give with the train where it is now and at the platform end (resistance at rest).
+    ext_min = external_decel_1(ext, grad, -wp[WP_END_MARGIN], 0.0)
+    if math.isfinite(distance):
+        ext_min = min(ext_min, external_decel_1(ext, grad, distance, 0.0))
+    ws[WS_GUARD_LIMIT] = guard_limit_1(
+        wp[WP_GUARD_LIMIT], wp[WP_EMERGENCY], gain_value_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN]), ext_min
+    )
     if ws[WS_EMERGENCY] == 0.0 and overrun_guard_1(
         speed,
         ws[WS_DECEL],
         distance + wp[WP_END_MARGIN],
         max(wp[WP_BASE_DELAY], ws[WS_DELAY]),
-        wp[WP_GUARD_LIMIT],
+        ws[WS_GUARD_LIMIT],
     ):
         ws[WS_EMERGENCY] = 1.0  # DESIGN rule 10: the overrun guard at a command (both variants)
     # Loop closure (SPEC §1 claims 2, 19) and the next command.
