@@ -20,6 +20,7 @@ from railstop.wayside.tasc_unit import _passages_fit_1
 LINE = default_line()
 VEHICLE = default_vehicle()
 STATION = LINE.station("Museum")  # gradients in the database: 10 then 2 per mille
+STANDARD = load_disturbances("standard")
 
 
 def _history(commands: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
@@ -106,6 +107,40 @@ def test_the_variant_has_its_own_layout() -> None:
     short = {**STATION.tasc.model_dump(), "detectors_only_before_stop_m": [50.0, 5.0]}
     with pytest.raises(ValueError, match="at least 3 detectors"):
         Station.model_validate({**STATION.model_dump(), "tasc": short})
+
+
+def test_the_variant_has_its_own_transponders() -> None:
+    """tasc.detectors_only_transponders_before_stop_m: the variant's ATO transponders (a third one
+    halfway, 110 m out, on the default line); the Doppler variant keeps the station's own."""
+    variant = STATION.detectors_only()
+    stop = STATION.stop_point_m
+    assert variant.ato_transponders_m() == [stop - 400.0, stop - 110.0, stop - 25.0]
+    assert STATION.ato_transponders_m() == [stop - STATION.tasc.detectors_before_stop_m[0], stop - 25.0]
+    plain = {**STATION.tasc.model_dump(), "detectors_only_transponders_before_stop_m": None}
+    kept = Station.model_validate({**STATION.model_dump(), "tasc": plain}).detectors_only()
+    assert kept.ato_transponders_m() == [stop - 400.0, stop - 25.0]  # the first detector's and 25 m
+
+
+def test_the_variants_transponder_keeps_the_onboard_guard_from_braking_trains_on_their_plan() -> None:
+    """With the station's two transponders the onboard overrun guard counted its odometer's
+    declared 1.5 % over the 375 m from the first detector and braked 12-14 runs per 10,000 off
+    the low-adhesion patches by emergency brake (benchmarks/forms_standard.py --detectors-only,
+    stop model 18); with the variant's third, none. Here the runs among the first 3,000 that it
+    braked with two transponders."""
+    two = {**STATION.tasc.model_dump(), "detectors_only_transponders_before_stop_m": None}
+    stations = {
+        "two": Station.model_validate({**STATION.model_dump(), "tasc": two}).detectors_only(),
+        "three": STATION.detectors_only(),
+    }
+    braked = {}
+    for name, variant in stations.items():
+        res, drawn = simulate_runs(
+            station=variant, vehicle=VEHICLE, controller="tasc-pwm", disturbances=STANDARD,
+            seed=1, first_run=0, n=3000,
+        )  # fmt: skip
+        off_patch = ~np.asarray(drawn["low_adhesion"], dtype=bool)
+        braked[name] = int(np.count_nonzero(off_patch & (res.emergency_brake != 0)))
+    assert braked["two"] > 0 and braked["three"] == 0, braked
 
 
 @pytest.mark.parametrize("station", [s.name for s in LINE.stations])

@@ -83,6 +83,12 @@ class TascZone(_Model):
     # last detector the stop is open loop, so the last ones must lie close to the stopping point
     # (docs/tasc.md, the detectors-only variant). At least 3, farthest first, strictly decreasing.
     detectors_only_before_stop_m: list[PositiveFloat] | None = None
+    # The detectors-only variant's transponders (the station's ato_transponders_before_stop_m in
+    # Station.detectors_only; None: the station's own). [interpretation] Without a radar the
+    # onboard overrun guard counts its odometer's declared error from the last transponder, over
+    # the variant's longer zone (400 m): a transponder halfway keeps that error from braking
+    # trains that are on their plan (docs/tasc.md, the detectors-only variant).
+    detectors_only_transponders_before_stop_m: list[PositiveFloat] | None = None
     # SPEC §1: the kind of train detector; checked against the list, not read by the simulation
     # (every kind gives the same passage times).
     detector_kind: Literal["wheel-sensor", "ultrasonic", "optical", "magnetic", "proximity"] = "wheel-sensor"
@@ -238,7 +244,10 @@ class Station(_Model):
         tasc["update"] = "detectors"
         if self.tasc.detectors_only_before_stop_m is not None:
             tasc["detectors_before_stop_m"] = list(self.tasc.detectors_only_before_stop_m)
-        return {**self.model_dump(), "tasc": tasc}
+        data = {**self.model_dump(), "tasc": tasc}
+        if self.tasc.detectors_only_transponders_before_stop_m is not None:
+            data["ato_transponders_before_stop_m"] = list(self.tasc.detectors_only_transponders_before_stop_m)
+        return data
 
     @property
     def platform_start(self) -> float:
