@@ -221,3 +221,19 @@ def test_a_form_8_stop_whose_braking_waits_sends_a_hold_first(run: int) -> None:
     assert [c["telegram"]["step"] for c in batch.commands[1:3]] == [1, 2]  # then the steps
     assert result.emergency_brake is None
     assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+
+
+# Stop model 19: form 7's wayside identifies the brake response, as form 6's does, and its notch
+# modulator times the notches by it. These standard runs of tasc-brake-controller have slow
+# brakes (dead time 0.47 s, lag 0.58 s; 0.45 s, 0.60 s); on model 18, timed by the nominal
+# response, they ended 0.406 m and 0.343 m short with no emergency brake.
+@pytest.mark.parametrize("run", [6373, 8719])
+def test_form_7_times_its_notches_by_the_identified_brake_response(run: int) -> None:
+    result, _ = run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_BRAKE_CONTROLLER, seed=1,
+        form=SignalForm.BRAKE_COMMAND, disturbances=STANDARD, run=run,
+    )  # fmt: skip
+    assert result.brake_delay_identified_s is not None and result.brake_lag_identified_s is not None
+    assert result.brake_delay_identified_s > 0.9  # slower than the nominal 0.80 s equivalent delay
+    assert result.emergency_brake is None
+    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"

@@ -139,7 +139,9 @@ DISK_BYTES_PER_VALUE = 8
 # (control.supervision.guard_limit_1): the nominal emergency deceleration times the loop gain
 # measured so far (at most 1), plus the steepest gradient and least resistance ahead. Runs whose
 # guard would have fired later change; the ATO and the drivers do not.
-MODEL_VERSION = 18
+# 19: the wayside identifies the brake response with form 7 too (it did with form 6 only), and
+# its notch modulator times the notches by the identified dead time and lag. Form-7 runs change.
+MODEL_VERSION = 19
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
