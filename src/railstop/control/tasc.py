@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import Vehicle
+from railstop.control.supervision import guard_limit_1
 from railstop.jit import njit_inline, njit_step
 from railstop.physics.train import G_MPS2, mean_gradient_1
 
@@ -167,6 +168,27 @@ def external_decel_1(
     grade = G_MPS2 * ext[EXT_MASS_RATIO] * mean_gradient_1(x, ext[EXT_LENGTH], grad[0], grad[1], grad[2])
     v = max(speed_mps, 0.0)
     return grade + ext[EXT_DAVIS_A] + ext[EXT_DAVIS_B] * v + ext[EXT_DAVIS_C] * v * v
+
+
+@njit_step
+def guard_limit_on_path_1(
+    limit_mps2: float,
+    emergency_mps2: float,
+    gain: float,
+    ext: FloatArray,
+    grad: tuple[FloatArray, FloatArray, FloatArray],
+    distance_m: float,
+    end_margin_m: float,
+) -> float:
+    """The overrun guard's limit on the path left (stop model 18,
+    :func:`~railstop.control.supervision.guard_limit_1`): with the lesser of what gradient and
+    resistance (at rest) give at the platform end, ``end_margin_m`` beyond the stopping point, and
+    with the train ``distance_m`` before it (NaN: not known, the end alone). The wayside and the
+    onboard unit both set their guard's limit by this."""
+    ext_min = external_decel_1(ext, grad, -end_margin_m, 0.0)
+    if math.isfinite(distance_m):
+        ext_min = min(ext_min, external_decel_1(ext, grad, distance_m, 0.0))
+    return guard_limit_1(limit_mps2, emergency_mps2, gain, ext_min)
 
 
 @njit_step

@@ -42,7 +42,6 @@ from railstop.control.supervision import (
     EB_ONBOARD_GUARD,
     EB_TIMEOUT,
     EB_WAYSIDE_GUARD,
-    guard_limit_1,
     overrun_guard_1,
 )
 from railstop.control.tasc import (
@@ -52,10 +51,10 @@ from railstop.control.tasc import (
     BrakeCurves,
     brake_need_1,
     clip_1,
-    external_decel_1,
     fit_ring_1,
     gain_update_1,
     gain_value_1,
+    guard_limit_on_path_1,
     history_push_1,
     interval_fit_add_1,
     interval_fit_decel_1,
@@ -304,16 +303,12 @@ def receiver_receive_1(
     rx[RX_ACTIVE] = 1.0
     rx[RX_RECEIVED] += 1.0
     # Stop model 18: the overrun guard's limit as this train's emergency brake keeps it on the
-    # path left (control.supervision.guard_limit_1): the lesser of what gradient and resistance
-    # give where its odometry puts it and at the platform end; the forms 1-5 loop gain (1 for
-    # forms 6-8, which measure none onboard).
-    ext_min = external_decel_1(ext, grad, rp[RP_STOP] - rp[RP_END], 0.0)
-    if math.isfinite(rx[RX_FIX_POS]):
-        left = rp[RP_STOP] - rx[RX_FIX_POS] - rx[RX_SINCE_FIX]
-        ext_min = min(ext_min, external_decel_1(ext, grad, left, 0.0))
-    rx[RX_GUARD_LIMIT] = guard_limit_1(
-        rp[RP_GUARD_LIMIT], rp[RP_EMERGENCY], gain_value_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN]), ext_min
-    )
+    # path left, the train where its odometry puts it (NaN before a transponder fix), with the
+    # forms 1-5 loop gain (1 for forms 6-8, which measure none onboard).
+    rx[RX_GUARD_LIMIT] = guard_limit_on_path_1(
+        rp[RP_GUARD_LIMIT], rp[RP_EMERGENCY], gain_value_1(rx[RX_GAIN_NUM], rx[RX_GAIN_DEN]), ext, grad,
+        rp[RP_STOP] - rx[RX_FIX_POS] - rx[RX_SINCE_FIX], rp[RP_END] - rp[RP_STOP],
+    )  # fmt: skip
     modulator_restart_1(mod)
     form = int(rp[RP_FORM])
     if form == 6:

@@ -26,7 +26,7 @@ from railstop.control.notch import (
     modulator_update_1,
     nearest_notch_1,
 )
-from railstop.control.supervision import guard_limit_1, overrun_guard_1
+from railstop.control.supervision import overrun_guard_1
 from railstop.control.tasc import (
     MIN_WINDOW_CMD,
     REG_WEIGHTS,
@@ -37,6 +37,7 @@ from railstop.control.tasc import (
     fit_ring_1,
     gain_update_1,
     gain_value_1,
+    guard_limit_on_path_1,
     hat_weights_1,
     history_push_1,
     history_response_at_1,
@@ -697,15 +698,12 @@ def wayside_command_1(
     )
     interval = pass_t[2] - pass_t[1]
     ws[WS_DECEL] = decel if math.isfinite(decel) else 0.0
-    # Stop model 18: the guard's limit as this train's emergency brake keeps it on the path left
-    # (control.supervision.guard_limit_1): the loop gain so far; the lesser of what gradient and
-    # resistance give with the train where it is now and at the platform end (resistance at rest).
-    ext_min = external_decel_1(ext, grad, -wp[WP_END_MARGIN], 0.0)
-    if math.isfinite(distance):
-        ext_min = min(ext_min, external_decel_1(ext, grad, distance, 0.0))
-    ws[WS_GUARD_LIMIT] = guard_limit_1(
-        wp[WP_GUARD_LIMIT], wp[WP_EMERGENCY], gain_value_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN]), ext_min
-    )
+    # Stop model 18: the guard's limit as this train's emergency brake keeps it on the path left,
+    # with the loop gain so far.
+    ws[WS_GUARD_LIMIT] = guard_limit_on_path_1(
+        wp[WP_GUARD_LIMIT], wp[WP_EMERGENCY], gain_value_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN]), ext, grad,
+        distance, wp[WP_END_MARGIN],
+    )  # fmt: skip
     if ws[WS_EMERGENCY] == 0.0 and overrun_guard_1(
         speed,
         ws[WS_DECEL],
