@@ -16,6 +16,7 @@ from railstop.control.notch import (
     MOD_E1,
     MOD_E2,
     MOD_HELD,
+    MOD_NOTCH,
     MOD_NOW,
     MOD_RING_SIZE,
     MOD_SIZE,
@@ -145,6 +146,29 @@ def test_speed_now_has_the_short_window_means_variance() -> None:
     assert sigma / np.sqrt(m) * 0.9 < std < sigma / np.sqrt(m) * 1.2
     assert std < 0.6 * float(np.std(line_errors))
     assert abs(float(np.mean(errors))) < 3.0 * std / np.sqrt(4000)  # unbiased
+
+
+def test_form_8_end_phase_may_step_below_the_targets_lower_notch() -> None:
+    """Stop model 20: with one notch per hold (form 8, ramp > 0) the end phase chooses among the
+    notches one step from the current one, so a train on the target's lower notch that would stop
+    short (behind the target's trajectory: e2 < 0) steps below it; one ahead steps up."""
+    table = np.array([0.0, 0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0])
+    hold, dead, lag, ramp = 0.3, 0.35, 0.45, 0.143 / 0.3
+    target = 0.5  # between notches 3 and 4
+    chosen = {}
+    for e2 in (-0.3, 0.3):
+        mod = np.empty(MOD_SIZE)
+        modulator_init_1(mod)
+        for _ in range(50):  # settle on the target far from the stop
+            modulator_update_1(mod, table, hold, dead, lag, target, True, 0.1, 0.0, False, ramp)
+        for _ in range(10):  # then on notch 3, the target's lower notch
+            modulator_update_1(mod, table, hold, dead, lag, 0.43, True, 0.1, 0.0, False, ramp)
+        assert mod[MOD_NOTCH] == 3
+        mod[MOD_HELD] = 10.0
+        mod[MOD_E2] = e2
+        chosen[e2] = modulator_update_1(mod, table, hold, dead, lag, target, True, 0.1, 0.6, True, ramp)
+    assert chosen[-0.3] == 2  # below the lower notch: the train would stop short
+    assert chosen[0.3] == 4
 
 
 def test_end_phase_picks_the_notch_that_stops_nearest() -> None:

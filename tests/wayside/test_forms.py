@@ -237,3 +237,32 @@ def test_form_7_times_its_notches_by_the_identified_brake_response(run: int) -> 
     assert result.brake_delay_identified_s > 0.9  # slower than the nominal 0.80 s equivalent delay
     assert result.emergency_brake is None
     assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+
+
+# Stop model 20, form 8. The end phase of the wayside's notch modulator chose only between the two
+# notches either side of the target, so a train whose notch came down a step at a time from above
+# the target (the braking of the higher notches still building up) could not brake less than the
+# lower one however short it was going to stop. These standard runs of tasc-step ended 0.319 m
+# and 0.372 m short with no emergency brake on model 19.
+@pytest.mark.parametrize("run", [8573, 9478])
+def test_form_8_end_phase_may_step_below_the_targets_lower_notch(run: int) -> None:
+    result, _ = run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_STEP, seed=1,
+        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
+    )  # fmt: skip
+    assert result.emergency_brake is None
+    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+
+
+# Stop model 20, form 8: a tasc-brake-controller train takes each step at its brake controller's
+# next cycle, on average half a cycle after it arrives, and the wayside now allows for that wait.
+# These standard runs have slow brakes (dead time 0.46 s, lag 0.59 s in run 8775); on model 19
+# they ended 0.488 m, 0.351 m and 0.395 m short with no emergency brake.
+@pytest.mark.parametrize("run", [8775, 1408, 8702])
+def test_form_8_allows_for_the_brake_controllers_cycle(run: int) -> None:
+    result, _ = run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_BRAKE_CONTROLLER, seed=1,
+        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
+    )  # fmt: skip
+    assert result.emergency_brake is None
+    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"

@@ -192,11 +192,15 @@ def _end_choice_1(
     target: float,
     lo: int,
     hi: int,
+    first_lo: int,
+    first_hi: int,
 ) -> int:
-    """The first move of the best two-move plan (this notch for the minimum hold, then either
-    notch until standstill), judged by the predicted stop against where the target stops the
-    train. Both are judged one dead time from now, where the notch chosen now starts to act:
-    the train's speed there follows from the notches already commanded."""
+    """The first move of the best two-move plan (a notch of ``first_lo`` .. ``first_hi`` for the
+    minimum hold, then lo or hi until standstill), judged by the predicted stop against where
+    the target stops the train. Both are judged one dead time from now, where the notch chosen
+    now starts to act: the train's speed there follows from the notches already commanded.
+    The first move's notches are lo and hi where the notch may jump, the notches one step
+    from the current one where it moves one notch per hold (form 8)."""
     tau = state[MOD_TAU]
     applied = state[MOD_APPLIED]
     v_dead = modulator_pipeline_1(state, speed_mps, 0.0, 0)[0]
@@ -208,7 +212,7 @@ def _end_choice_1(
     )
     best = np.inf
     choice = lo
-    for first in (lo, hi):
+    for first in range(first_lo, first_hi + 1):
         v1, x1, a1 = motion_under_lag_1(v_dead, applied, table[first], tau, min_hold_s)
         for second in (lo, hi):
             if v1 > 0.0:
@@ -313,7 +317,16 @@ def modulator_update_1(
     # End phase: within two look-ahead horizons of standstill.
     end_phase = target > 0.0 and speed_mps / max(target, 0.05) <= 2.0 * (min_hold_s + dead + lag_s)
     if use_speed and can_change and active and end_phase:
-        want = _end_choice_1(state, table, min_hold_s, speed_mps, target, lo, hi)
+        first_lo, first_hi = lo, hi
+        if ramp_mps3 > 0.0:
+            # SPEC §1 form 8 moves one notch per hold: the first move is one of the notches one
+            # step from this one, below lo too. Judged among lo and hi only, a train whose notch
+            # came down from above the target (the braking of the last notches still building
+            # up) could not brake less than lo however short it was going to stop (measured,
+            # forms_standard --forms 8: most silent misses short by 0.3-0.5 m with slow brakes).
+            # [interpretation] the brake controller's own logic is railstop's model.
+            first_lo, first_hi = max(notch - 1, 0), min(notch + 1, table.size - 1)
+        want = _end_choice_1(state, table, min_hold_s, speed_mps, target, lo, hi, first_lo, first_hi)
     if table[lo] == target:
         want = lo
     if ramp_mps3 > 0.0:

@@ -42,6 +42,7 @@ from railstop.controllers import (
     DRIVER_ATC2,
     DRIVER_ATS,
     DRIVER_UNAIDED,
+    TASC_BRAKE_CONTROLLER,
     is_corrected,
     known_controllers,
 )
@@ -269,7 +270,7 @@ class KernelModel:
         kp[KP_QUANT_AGE] = quant_age
         kp[KP_INITIAL_NOTCH] = tasc.initial_brake_notch
         det_to_stop = np.asarray(tasc.detectors_before_stop_m, dtype=np.float64)
-        wp, window = _wayside_params(station, vehicle, form, dt_s)
+        wp, window = _wayside_params(station, vehicle, form, dt_s, controller)
         rcfg = controller if controller in CONFIG_CODES else "tasc-brake-controller"
         fp, positioning = _positioning(controller, track, vehicle, dt_s)
         if signal_open and controller not in DRIVER_MODES:
@@ -306,9 +307,10 @@ class KernelModel:
 
 
 def _wayside_params(
-    station: Station, vehicle: Vehicle, form: SignalForm, dt_s: float
+    station: Station, vehicle: Vehicle, form: SignalForm, dt_s: float, controller: str
 ) -> tuple[FloatArray, int]:
-    """The wayside unit's parameters (tasc_unit WP_*) and its radar buffer's length in samples."""
+    """The wayside unit's parameters (tasc_unit WP_*) and its radar buffer's length in samples;
+    ``controller``: the train's (its onboard configuration is in the wayside's database)."""
     tasc, radar, brake = station.tasc, station.tasc.doppler, vehicle.brake
     wp = np.zeros(WP_SIZE)
     wp[WP_FORM] = int(form)
@@ -356,6 +358,16 @@ def _wayside_params(
         # deceleration per step spacing, which the plan treats as a jerk limit.
         notch_step = brake.full_service_mps2 / len(brake.notch_decel_mps2)
         wp[WP_JERK] = min(brake.jerk_limit_mps3, notch_step / wp[WP_STEP_SPACING])
+        if controller == TASC_BRAKE_CONTROLLER:
+            # Stop model 20: configuration 1 passes each step to the train's brake controller,
+            # which takes it at its next cycle (tasc_receiver.receiver_step_output_1), on average
+            # half a cycle after it arrives; configuration 2's switching unit takes it at once.
+            # The wayside's modulator and plan time the steps by the delay until a step acts, so
+            # they allow for that wait ([interpretation]: the wayside knows the train's brake
+            # data and configuration, SPEC §1 claim 8, not the phase of its cycle, so the mean).
+            # Measured, forms_standard --forms 8: tasc-brake-controller's stop errors spread
+            # like tasc-step's with it (sd 0.061 m), more without (0.068 m).
+            wp[WP_BASE_DELAY] += 0.5 * brake.controller_cycle_s
     # The radar buffer holds the deceleration fit's samples, and those of the identification.
     window = int(wp[WP_FIT_SAMPLES])
     if wp[WP_IDENTIFY] > 0.0:

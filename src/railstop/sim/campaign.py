@@ -141,7 +141,11 @@ DISK_BYTES_PER_VALUE = 8
 # guard would have fired later change; the ATO and the drivers do not.
 # 19: the wayside identifies the brake response with form 7 too (it did with form 6 only), and
 # its notch modulator times the notches by the identified dead time and lag. Form-7 runs change.
-MODEL_VERSION = 19
+# 20: form 8: the notch modulator's end phase may move to any notch one step from the current one
+# (below the target's lower notch too), not only to the two either side of the target, and with
+# tasc-brake-controller the wayside allows half the brake controller's cycle more delay until a
+# step acts. Form-8 runs change; the other forms do not.
+MODEL_VERSION = 20
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
