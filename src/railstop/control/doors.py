@@ -114,7 +114,11 @@ _TABLE_CLOSED: frozenset[DoorState] = frozenset({DS.CLOSED_LOCKED, DS.CLOSED})
 
 def door_mask(units: Sequence[DoorState], states: frozenset[DoorState]) -> int:
     """The door link's mask of ``units`` (bit i: unit i + 1, front first) that are in ``states``."""
-    return sum(1 << i for i, u in enumerate(units) if u in states)
+    mask = 0
+    for i, u in enumerate(units):
+        if u in states:
+            mask |= 1 << i
+    return mask
 
 
 def all_open(units: Iterable[DoorState]) -> bool:

@@ -451,17 +451,19 @@ class SimChannel:
         c = self._frames  # this frame's counter in every stream
         self._frames = c + 1
         self._counts["sent"] += 1
-        if any(a <= now_s < b for a, b in self.outages):
+        if self.outages and any(a <= now_s < b for a, b in self.outages):
             self._counts["lost"] += 1  # the radio is dead: nothing goes out
             self._counts["lost_in_outage"] += 1
             return None
 
-        # Gilbert–Elliott: advance the chain once per frame, then judge this frame.
-        u_state = py_key_uniform(ks.faults, 4 * c)
-        self._bad = (
-            (u_state >= p.burst_exit_probability) if self._bad else (u_state < p.burst_enter_probability)
-        )
-        self._counts["sent_in_burst"] += int(self._bad)
+        # Gilbert–Elliott: advance the chain once per frame, then judge this frame. (A good chain
+        # that cannot enter the bad state stays good: its draw, counter-based, is not needed.)
+        if self._bad or p.burst_enter_probability > 0.0:
+            u_state = py_key_uniform(ks.faults, 4 * c)
+            self._bad = (
+                (u_state >= p.burst_exit_probability) if self._bad else (u_state < p.burst_enter_probability)
+            )
+            self._counts["sent_in_burst"] += int(self._bad)
 
         depart_s = self._departure_s(now_s)
         air_s = float(airtime_s(p, len(frame)))

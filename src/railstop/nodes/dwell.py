@@ -112,6 +112,8 @@ class DoorMotion:
 
     def due(self, now_s: float) -> list[tuple[Hashable, DoorInput]]:
         """The events that have happened by ``now_s`` (in the order they happened)."""
+        if not self._pending:
+            return []
         done = sorted((p for p in self._pending if p[0] <= now_s + _EPS_S), key=lambda p: (p[0], p[1]))
         if not done:
             return []
@@ -396,7 +398,8 @@ class TrainDoors:
         self.driver: list[tuple[float, dict[str, bool]]] = []  # the driver's actions to come
         self.settle_end_s = math.inf
         self._settled: tuple[Any, ...] | None = None  # the last scan's inputs, when it changed nothing
-        self._psd_of: tuple[PsdStatus, PsdReport] | None = None  # the last status frame's PSD report
+        # The PSD report of the last status frame, by what of it the report is made of (``_psd``).
+        self._psd_of: tuple[tuple[int, int, bool, bool], PsdReport] | None = None
 
     # -- inputs -------------------------------------------------------------------------
     def receive(self, status: PsdStatus, now_s: float) -> None:
@@ -512,14 +515,16 @@ class TrainDoors:
         st = self.status
         if self.stop.phase != StopPhase.CONFIRMED or st is None:
             return None
-        if self._psd_of is not None and self._psd_of[0] is st:
-            return self._psd_of[1]
         n = len(self.cpcs.side(self.side))
+        # The report is made of these bits of the frame alone (and the doors per side, fixed).
+        bits = (n, st.psd_open, st.psd_closed_locked, st.fault)
+        if self._psd_of is not None and self._psd_of[0] == bits:
+            return self._psd_of[1]
         units = units_from_link(
             n, open_mask=st.psd_open, locked_mask=(1 << n) - 1 if st.psd_closed_locked else 0
         )
         report = PsdReport(side=self.side, units=units, fault=st.fault)
-        self._psd_of = (st, report)
+        self._psd_of = (bits, report)
         return report
 
     def _scan(self, now_s: float) -> None:

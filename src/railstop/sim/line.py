@@ -757,25 +757,42 @@ class LineSimulation:
         later through the codec), the units' logs and fixes. ``before``: every train's (phase,
         front, speed) at the step's start."""
         pos = self.settings.position
-        on_line = np.array([t.phase in ON_LINE for t in self.trains])
-        sliding = np.array([t.sliding for t in self.trains]) & on_line
-        slipping = np.array([t.slipping for t in self.trains]) & on_line
+        # One pass over the trains for every per-train input of the step (the arrays below).
+        on: list[bool] = []
+        sliding_l: list[bool] = []
+        slipping_l: list[bool] = []
+        x0_l: list[float] = []
+        x1_l: list[float] = []
+        v1_l: list[float] = []
+        creeping = False  # any train sliding or slipping (its distance run so counted)
+        for t, (p, x, _) in zip(self.trains, before, strict=True):
+            o = t.phase in ON_LINE
+            # A train that entered in this step moved nothing yet; one not on the line enters nothing.
+            xn = t.x_m if o else -np.inf
+            on.append(o)
+            sliding_l.append(o and t.sliding)
+            slipping_l.append(o and t.slipping)
+            x1_l.append(xn)
+            x0_l.append(x if p in ON_LINE else xn)
+            v1_l.append(t.v_mps)
+            creeping = creeping or t.sliding or t.slipping
+        on_line = np.array(on)
+        sliding = np.array(sliding_l)
+        slipping = np.array(slipping_l)
         creep = creep_factor(
             sliding,
             slipping,
             slide_slip_ratio=self.vehicle.slide_slip_ratio,
             traction_slip_ratio=self.traction.slip_ratio,
         )
-        x1 = np.array([t.x_m if t.phase in ON_LINE else -np.inf for t in self.trains])
-        # A train that entered in this step moved nothing yet; one not on the line enters nothing.
-        x0 = np.array(
-            [x if p in ON_LINE else xn for (p, x, _), xn in zip(before, x1, strict=True)], dtype=np.float64
-        )
+        x1 = np.array(x1_l)
+        x0 = np.array(x0_l, dtype=np.float64)
         moved = np.subtract(x1, x0, out=np.zeros(x1.size), where=on_line)
         self.tacho.advance(moved, creep)
-        for t in self.trains:
-            t.slide_m += float(moved[t.index]) if t.sliding else 0.0
-            t.slip_m += float(moved[t.index]) if t.slipping else 0.0
+        if creeping:
+            for t in self.trains:
+                t.slide_m += float(moved[t.index]) if t.sliding else 0.0
+                t.slip_m += float(moved[t.index]) if t.slipping else 0.0
         v0 = np.array([v for _, _, v in before])
         motion = {
             "t0_s": now_s - dt,
@@ -790,7 +807,7 @@ class LineSimulation:
         }
         log = {
             "odometer_m": self.tacho.odometer_m(),
-            "speed_mps": self.tacho.speed_mps(np.array([t.v_mps for t in self.trains]), creep),
+            "speed_mps": self.tacho.speed_mps(np.array(v1_l), creep),
             "wsp_active": sliding | slipping,
             # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
             # It belongs to the calibration: without the learner the calibrated position is the
@@ -803,10 +820,11 @@ class LineSimulation:
         for chain, unit in self.same_path:
             _feed_chain(chain, unit, now_s, motion, log)
         est = self.positioning.calibrated_m()
-        for t in self.trains:
-            t.x_onboard_m = float(est[t.index])
-            if t.phase in ON_LINE:
-                self.position_errors.append(t.x_onboard_m - t.x_m)
+        errors = self.position_errors
+        for t, x_onboard, o in zip(self.trains, est.tolist(), on, strict=True):
+            t.x_onboard_m = x_onboard
+            if o:
+                errors.append(x_onboard - t.x_m)
         if pos.record:
             raw = self.operation.entry_m + self.tacho.odometer_m()
             cor = self.positioning.corrected_m()
