@@ -23,6 +23,7 @@ to catch up, and ``SIGNAL_MARGIN_M`` is far more than what it runs on.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -110,7 +111,7 @@ def ceiling_mps(
     to_go = authority_m - ahead
     if to_go <= 0.0:
         return 0.0
-    return min(static_mps, float(np.sqrt(2.0 * decel_mps2 * to_go)))
+    return min(static_mps, math.sqrt(2.0 * decel_mps2 * to_go))
 
 
 def demand_mps2(speed_mps: float, ceiling: float, traction_mps2: float, brake_mps2: float) -> float:

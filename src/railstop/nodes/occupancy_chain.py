@@ -195,7 +195,9 @@ class OccupancyChain:
         ``t0_s + dt_s`` (fronts at ``x1_m``): clocks, detection (S10), time-stamping (S20)."""
         t1 = t0_s + dt_s
         # SPEC §2 clocks: disciplined unless in a GNSS shadow without a repeater.
-        onboard_disc = np.full(self.n, self.cfg.gnss) & ~in_shadow(x1_m, self._sh_start, self._sh_end)
+        onboard_disc = (
+            ~in_shadow(x1_m, self._sh_start, self._sh_end) if self.cfg.gnss else np.zeros(self.n, dtype=bool)
+        )
         self.onboard_clock.advance(dt_s, onboard_disc[:, None])
         # The wayside clocks' state never changes (a unit stays where it is): they are advanced
         # only when a unit stamps (``_declare``), by the time since, the same error.

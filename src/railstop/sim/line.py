@@ -749,9 +749,7 @@ class LineSimulation:
                         start = stations[z - s_count].stop_point_m + 5.0 + 120.0 * u[z][1]
                         t.patches.append((start, start + length, z))
 
-    def _position_step(
-        self, now_s: float, dt: float, before: list[tuple[str, float, float]], accel: list[float]
-    ) -> None:
+    def _position_step(self, now_s: float, dt: float, before: list[tuple[str, float, float]]) -> None:
         """Odometers, the SPEC §2 chain (the devices detect the fronts entering circuits, the
         wayside stamps the occupancy in GNSS time, the telegram reaches the train a radio latency
         later through the codec), the units' logs and fixes. ``before``: every train's (phase,
@@ -779,11 +777,15 @@ class LineSimulation:
         on_line = np.array(on)
         sliding = np.array(sliding_l)
         slipping = np.array(slipping_l)
-        creep = creep_factor(
-            sliding,
-            slipping,
-            slide_slip_ratio=self.vehicle.slide_slip_ratio,
-            traction_slip_ratio=self.traction.slip_ratio,
+        creep = (
+            creep_factor(
+                sliding,
+                slipping,
+                slide_slip_ratio=self.vehicle.slide_slip_ratio,
+                traction_slip_ratio=self.traction.slip_ratio,
+            )
+            if creeping
+            else np.ones(on_line.size)  # every wheel rolls
         )
         x1 = np.array(x1_l)
         x0 = np.array(x0_l, dtype=np.float64)
@@ -794,6 +796,7 @@ class LineSimulation:
                 t.slide_m += float(moved[t.index]) if t.sliding else 0.0
                 t.slip_m += float(moved[t.index]) if t.slipping else 0.0
         v0 = np.array([v for _, _, v in before])
+        v1 = np.array(v1_l)
         motion = {
             "t0_s": now_s - dt,
             "dt_s": dt,
@@ -807,12 +810,13 @@ class LineSimulation:
         }
         log = {
             "odometer_m": self.tacho.odometer_m(),
-            "speed_mps": self.tacho.speed_mps(np.array(v1_l), creep),
+            "speed_mps": self.tacho.speed_mps(v1, creep),
             "wsp_active": sliding | slipping,
             # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
             # It belongs to the calibration: without the learner the calibrated position is the
             # document's (no bridge either).
-            "accel_mps2": np.asarray(accel) + self.accel_bias if pos.accelerometer and pos.learn else None,
+            # The train's acceleration over the step, true speeds.
+            "accel_mps2": (v1 - v0) / dt + self.accel_bias if pos.accelerometer and pos.learn else None,
         }
         rep, got = _feed_chain(self.chain, self.positioning, now_s, motion, log)
         if rep is not None and pos.record:
@@ -990,15 +994,14 @@ class LineSimulation:
                 train.plant = None  # the stop model's plant takes the train
                 self._stop(train, st_next, now_s - dt + frac * dt)
                 return
-        for pos, ok in zip(self.signal_m, proceed, strict=True):
-            if self.cbtc is not None:
-                break  # moving block: the fixed signals are not used
-            if train.x_m < pos <= x_new and not ok:
-                # A signal passed at danger: counted (it must not happen) and the train stopped by
-                # its emergency brake there (DESIGN rule 10).
-                self.signals_passed_at_danger += 1
-                v_new = plant.v_mps = 0.0
-                plant.stopped = True
+        if self.cbtc is None:  # (moving block: the fixed signals are not used)
+            for pos, ok in zip(self.signal_m, proceed, strict=True):
+                if train.x_m < pos <= x_new and not ok:
+                    # A signal passed at danger: counted (it must not happen) and the train stopped
+                    # by its emergency brake there (DESIGN rule 10).
+                    self.signals_passed_at_danger += 1
+                    v_new = plant.v_mps = 0.0
+                    plant.stopped = True
         train.x_m, train.v_mps = x_new, v_new
         if st_next is not None and train.x_m > st_next.platform_end:
             # Past a platform without its stop: counted, never silent (it must not happen).
@@ -1280,9 +1283,7 @@ class LineSimulation:
             if train.phase in ON_LINE:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
-        self._position_step(
-            now_s, dt, before, [(t.v_mps - v) / dt for t, (_, _, v) in zip(self.trains, before, strict=True)]
-        )
+        self._position_step(now_s, dt, before)
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
