@@ -98,7 +98,13 @@ def stop_signal_m(front_m: float, signal_m: Sequence[float], proceed: Sequence[b
 
 def authority_end_m(front_m: float, signal_m: Sequence[float], proceed: Sequence[bool]) -> float:
     """``SIGNAL_MARGIN_M`` before the first signal ahead of ``front_m`` that shows stop (inf: none)."""
-    return stop_signal_m(front_m, signal_m, proceed) - SIGNAL_MARGIN_M
+    return authority_before_m(stop_signal_m(front_m, signal_m, proceed))
+
+
+def authority_before_m(stop_signal_at_m: float) -> float:
+    """The authority's end before a signal at stop at ``stop_signal_at_m`` (``SIGNAL_MARGIN_M``
+    short of it; inf: none): :func:`authority_end_m` of a signal already found."""
+    return stop_signal_at_m - SIGNAL_MARGIN_M
 
 
 def ceiling_mps(

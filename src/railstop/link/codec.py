@@ -993,7 +993,7 @@ def _to_raw(layout: Layout, f: Field, msg: Telegram) -> int:
         raw = 0
         for i, attr in enumerate(f.bits):
             bit = getattr(msg, attr)
-            if not isinstance(bit, _BOOLS):
+            if type(bit) is not bool and not isinstance(bit, _BOOLS):
                 raise TelegramError("bad_value", f"{layout.name}.{attr}={bit!r}: not a bool")
             raw |= int(bit) << i
         return raw
@@ -1092,14 +1092,16 @@ def layout_of(kind: str | type[Telegram] | Telegram) -> Layout:
 
 def encode(msg: Telegram) -> bytes:
     """The frame of ``msg``: type | payload | CRC-16. Raises TelegramError (out_of_range, bad_value)."""
-    layout = layout_of(msg)
-    body = bytes((layout.code,)) + layout.packer.pack(*(_to_raw(layout, f, msg) for f in layout.fields))
+    layout = LAYOUTS.get(type(msg)) or layout_of(msg)  # (a message's own class: its layout at once)
+    body = bytes((layout.code,)) + layout.packer.pack(*[_to_raw(layout, f, msg) for f in layout.fields])
     return body + crc16(body).to_bytes(CRC_BYTES, "big")
 
 
 def decode(data: bytes | bytearray | memoryview) -> Telegram:
     """The message in a frame; raises TelegramError with the reason of the first failed check."""
-    if isinstance(data, memoryview):
+    if type(data) is bytes:
+        pass  # the common case: nothing to convert
+    elif isinstance(data, memoryview):
         try:
             data = data.tobytes()
         except (ValueError, TypeError) as exc:  # a released or unreadable view

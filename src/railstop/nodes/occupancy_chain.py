@@ -90,6 +90,16 @@ SERVICE_DAY_S = 86400.0
 SHADOW_STAY_S = 3600.0
 
 
+def _no_arrivals() -> Arrivals:
+    """No telegram (new, empty arrays)."""
+    return Arrivals(
+        run=np.empty(0, dtype=np.int64),
+        circuit_id=np.empty(0, dtype=np.int64),
+        gnss_time_s=np.empty(0, dtype=np.float64),
+        clock_offset_s=np.empty(0, dtype=np.float64),
+    )
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Arrivals:
     """Telegrams that reached the trains (k rows), as decoded from the wire."""
@@ -278,21 +288,22 @@ class OccupancyChain:
         """The telegrams that have reached their trains by ``t1_s``, decoded from the wire: each
         train takes a telegram once (a duplicate copy is dropped) and what the codec refuses (a
         CRC the medium's bit errors broke) is counted, not taken."""
+        if self._next_arrival_s > t1_s:
+            return _no_arrivals()  # nothing in flight has arrived yet (most steps)
         runs: list[int] = []
         ids: list[int] = []
         times: list[float] = []
         offsets: list[float] = []
-        if self._next_arrival_s <= t1_s:
-            self._next_arrival_s = np.inf
-            for r, link in enumerate(self._links):
+        self._next_arrival_s = np.inf
+        for r, link in enumerate(self._links):
+            nxt = link.next_arrival_s()
+            if nxt is None:
+                continue
+            if nxt <= t1_s:
+                self._take(r, link.receive(t1_s), runs, ids, times, offsets)
                 nxt = link.next_arrival_s()
-                if nxt is None:
-                    continue
-                if nxt <= t1_s:
-                    self._take(r, link.receive(t1_s), runs, ids, times, offsets)
-                    nxt = link.next_arrival_s()
-                if nxt is not None:
-                    self._next_arrival_s = min(self._next_arrival_s, nxt)
+            if nxt is not None:
+                self._next_arrival_s = min(self._next_arrival_s, nxt)
         return Arrivals(
             run=np.asarray(runs, dtype=np.int64),
             circuit_id=np.asarray(ids, dtype=np.int64),

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import math
 import time
+from bisect import bisect_left, bisect_right
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
@@ -85,7 +86,7 @@ from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
     HOLD_BACK_M,
     LOOKAHEAD_S,
-    authority_end_m,
+    authority_before_m,
     ceiling_mps,
     demand_mps2,
     handover_m,
@@ -600,6 +601,10 @@ class LineSimulation:
         # The signal protecting the block the trains enter into.
         self.entry_signal = max(i for i, s in enumerate(self.signal_m) if s <= operation.entry_m)
         self.circuits = [(c.id, c.start_m, c.end_m) for c in line.track.circuits]
+        # The circuits are in running order and contiguous (the line data's check): their starts
+        # and their ends ascend, so those under a train are found by bisection.
+        self._circuit_starts = [c.start_m for c in line.track.circuits]
+        self._circuit_ends = [c.end_m for c in line.track.circuits]
         self.trains = [Train(index=k, request_s=t) for k, t in enumerate(operation.entry_times_s())]
         self.receivers = [TrainAspects(f"train-{t.index}", len(self.signal_m)) for t in self.trains]
         for r in self.receivers:
@@ -849,9 +854,9 @@ class LineSimulation:
             if t.phase in ("waiting", "gone"):
                 continue
             lo, hi = t.x_m - length, t.x_m
-            for cid, a, b in self.circuits:
-                if a < hi and b > lo:
-                    occ.add(cid)
+            # The circuits that start before its front and end beyond its rear.
+            for k in range(bisect_right(self._circuit_ends, lo), bisect_left(self._circuit_starts, hi)):
+                occ.add(self.circuits[k][0])
         out = [
             Output(to="interlocking", message=CircuitOccupancy(circuit_id=c, occupied=c in occ))
             for c in sorted(occ ^ self._occupied)
@@ -903,11 +908,10 @@ class LineSimulation:
             self.line.stations[train.next_station] if train.next_station < len(self.line.stations) else None
         )
         if self.cbtc is None:
-            auth = authority_end_m(here, self.signal_m, proceed)
+            stop_at = stop_signal_m(here, self.signal_m, proceed)
+            auth = authority_before_m(stop_at)
             # The station can take the train when no signal at stop stands before its stopping point.
-            platform_clear = (
-                st_next is not None and stop_signal_m(here, self.signal_m, proceed) > st_next.stop_point_m
-            )
+            platform_clear = st_next is not None and stop_at > st_next.stop_point_m
         else:
             # SPEC §4: the movement authority of the zone controller's last command.
             auth = self.cbtc.authority_end_m(train.index)
@@ -995,13 +999,17 @@ class LineSimulation:
                 self._stop(train, st_next, now_s - dt + frac * dt)
                 return
         if self.cbtc is None:  # (moving block: the fixed signals are not used)
-            for pos, ok in zip(self.signal_m, proceed, strict=True):
-                if train.x_m < pos <= x_new and not ok:
+            # The signals passed in the step: train.x_m < signal <= x_new (their chainages ascend,
+            # the blocks being in running order).
+            k = bisect_right(self.signal_m, train.x_m)
+            while k < len(self.signal_m) and self.signal_m[k] <= x_new:
+                if not proceed[k]:
                     # A signal passed at danger: counted (it must not happen) and the train stopped
                     # by its emergency brake there (DESIGN rule 10).
                     self.signals_passed_at_danger += 1
                     v_new = plant.v_mps = 0.0
                     plant.stopped = True
+                k += 1
         train.x_m, train.v_mps = x_new, v_new
         if st_next is not None and train.x_m > st_next.platform_end:
             # Past a platform without its stop: counted, never silent (it must not happen).
