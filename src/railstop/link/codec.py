@@ -1064,12 +1064,14 @@ def _from_raw(layout: Layout, f: Field, raw: int) -> Any:
     return raw if f.kind == "int" else raw / f.counts_per_unit
 
 
-def _flags_from_raw(layout: Layout, f: Field, raw: int) -> dict[str, bool]:
+def _flags_from_raw(layout: Layout, f: Field, raw: int, into: dict[str, Any]) -> None:
+    """The flags of a flag field, each put into ``into`` under its attribute."""
     if raw & ~f.raw_max:
         raise TelegramError(
             "bad_value", f"{_where(layout, f)}=0x{raw:02x}: undefined bits 0x{raw & ~f.raw_max:02x} set"
         )
-    return {attr: bool(raw >> i & 1) for i, attr in enumerate(f.bits)}
+    for i, attr in enumerate(f.bits):
+        into[attr] = bool(raw >> i & 1)
 
 
 # --------------------------------------------------------------------------
@@ -1125,7 +1127,7 @@ def decode(data: bytes | bytearray | memoryview) -> Telegram:
     kwargs: dict[str, Any] = {}
     for f, raw in zip(layout.fields, layout.packer.unpack_from(data, 1), strict=True):
         if f.kind == "flags":
-            kwargs.update(_flags_from_raw(layout, f, raw))
+            _flags_from_raw(layout, f, raw, kwargs)
         else:
             kwargs[f.name] = _from_raw(layout, f, raw)
     return layout.cls(**kwargs)

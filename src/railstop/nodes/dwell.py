@@ -150,6 +150,7 @@ class PlatformDoors:
         self.jam_next: set[int] = set()  # fault injection: these PSD units jam on their next closing
         self.interlock_error: str | None = None  # the first input the WPCS did not allow
         self._settled: tuple[Any, ...] | None = None  # the last scan's inputs, when it changed nothing
+        self._last_status: tuple[tuple[Any, ...], PsdStatus] | None = None  # (its inputs, the telegram)
         self.counts = {"psc_answered": 0, "psc_refused": 0, "links_lost": 0, "commands": 0, "other_train": 0}
 
     # -- inputs ---------------------------------------------------------------------
@@ -229,14 +230,21 @@ class PlatformDoors:
 
     # -- the unit -------------------------------------------------------------------
     def status(self) -> PsdStatus:
-        return psd_status(
+        """The ``psd-status`` of the platform now: the last one again when nothing it is made of
+        has changed (a telegram is a value)."""
+        inputs = (
             self.train if self.train is not None else 0,
             self.state.units,
-            fault=self.state.fault,
-            psc=self.train is not None,
-            manual=self.wcc_manual,
-            locked=self.model.interlocks.locked,
+            self.state.fault,
+            self.train is not None,
+            self.wcc_manual,
+            self.model.interlocks.locked,
         )
+        if self._last_status is None or self._last_status[0] != inputs:
+            train, units, fault, psc, manual, locked = inputs
+            status = psd_status(train, units, fault=fault, psc=psc, manual=manual, locked=locked)
+            self._last_status = (inputs, status)
+        return self._last_status[1]
 
     def _scan(self, now_s: float) -> None:
         cmd = self.last_cmd
@@ -398,6 +406,7 @@ class TrainDoors:
         self.driver: list[tuple[float, dict[str, bool]]] = []  # the driver's actions to come
         self.settle_end_s = math.inf
         self._settled: tuple[Any, ...] | None = None  # the last scan's inputs, when it changed nothing
+        self._last_command: tuple[tuple[Any, ...], DoorCommand] | None = None  # (its inputs, the telegram)
         # The PSD report of the last status frame, by what of it the report is made of (``_psd``).
         self._psd_of: tuple[tuple[int, int, bool, bool], PsdReport] | None = None
 
@@ -500,14 +509,21 @@ class TrainDoors:
         return moved
 
     def command(self, *, psc: bool | None = None) -> DoorCommand:
-        return door_command(
+        """The ``door-command`` of the train now: the last one again when nothing it is made of has
+        changed (a telegram is a value)."""
+        inputs = (
             self.train,
             self.signals,
-            psc=self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) if psc is None else psc,
-            automatic=not self.manual,
-            doors=self.cpcs.side(self.side),
-            locked=self.model.interlocks.locked,
+            self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) if psc is None else psc,
+            not self.manual,
+            self.cpcs.side(self.side),
+            self.model.interlocks.locked,
         )
+        if self._last_command is None or self._last_command[0] != inputs:
+            train, signals, request, automatic, doors, locked = inputs
+            cmd = door_command(train, signals, psc=request, automatic=automatic, doors=doors, locked=locked)
+            self._last_command = (inputs, cmd)
+        return self._last_command[1]
 
     # -- inside -------------------------------------------------------------------------
     def _psd(self, now_s: float) -> PsdReport | None:
