@@ -242,6 +242,11 @@ class OccupancyChain:
                 keep.append((run[~due], idx[~due], t_occ[~due]))
         self._pending = keep
 
+    @property
+    def idle(self) -> bool:
+        """Nothing under way: no occupancy waiting for its device's delay, no telegram in flight."""
+        return not self._pending and all(link.in_flight() == 0 for link in self._links)
+
     def clock_sd_s(self, horizon_s: float = SERVICE_DAY_S) -> FloatArray:
         """Per circuit (line order), the standard deviation of the time error a fix of it carries:
         the stamping unit's clock against the train's, as the line data's clocks say (SPEC §2: a

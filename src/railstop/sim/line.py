@@ -845,6 +845,15 @@ class LineSimulation:
                     if other:
                         t.same_path_trace.append(tuple(float(a[i]) for pair in other for a in pair))
 
+    def _emptied(self) -> bool:
+        """Every train has left the line and nothing of the SPEC §2 chain is under way (no
+        occupancy to declare, no telegram in flight): no device can detect a train any more and no
+        fix can reach one. The trains' odometers and positioning units are then no longer stepped
+        (a train that has left is positioned no more; nothing of the run reads them)."""
+        return all(t.phase == "gone" for t in self.trains) and all(
+            chain.idle for chain in (self.chain, *(c for c, _ in self.same_path))
+        )
+
     # ------------------------------------------------------------------ the plant
 
     def _occupancy(self) -> list[Output]:
@@ -1291,7 +1300,8 @@ class LineSimulation:
             if train.phase in ON_LINE:
                 train.samples_t.append(now_s)
                 train.samples_x.append(train.x_m)
-        self._position_step(now_s, dt, before)
+        if not self._emptied():
+            self._position_step(now_s, dt, before)
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
         for follower, leader in zip(on_line, on_line[1:], strict=False):
             self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
