@@ -218,6 +218,9 @@ class DoorLink:
             ("platform", self.up, self.platform_end),
             ("train", self.down, self.train_end),
         ):
+            arrival = medium.next_arrival_s()
+            if arrival is None or arrival > now_s:
+                continue  # nothing has arrived this way
             for frame in medium.receive(now_s):
                 got = end.receive(frame, now_s)
                 if got is not None:

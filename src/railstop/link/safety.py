@@ -429,6 +429,10 @@ class SafeReceiver:
             frame = bytes(frame)
         else:
             return self._reject("malformed")
+        return self._check(frame, now)
+
+    def _check(self, frame: bytes, now: float) -> Delivered | Rejected:
+        """:meth:`accept` of a frame already made bytes, at a time already checked."""
         n = len(frame)
         if n < HEADER_BYTES + self._code_len:
             return self._reject("malformed")
@@ -658,14 +662,14 @@ class SafePeers:
                 future_tolerance_s=self.future_tolerance_s,
                 not_before_s=self.started_s,
             )
-            got = rx.accept(data, now_s)
+            got = rx._check(data, now_s)
             if not isinstance(got, Delivered):
                 # Authentic but refused (stale, old session...): nothing kept for a frame not delivered.
                 self.reject(got.reason)
                 return None
             self._rx[src] = rx
         else:
-            got = rx.accept(data, now_s)
+            got = rx._check(data, now_s)  # (``accept`` has checked the time, the frame is bytes)
             if not isinstance(got, Delivered):
                 self.reject(got.reason)
                 return None

@@ -93,6 +93,7 @@ class DoorMotion:
         self.psd = psd
         self._gen: dict[Hashable, int] = {}
         self._pending: list[tuple[float, int, Hashable, int, DoorInput]] = []
+        self._first_s = math.inf  # the earliest time in ``_pending``
         self._seq = 0
 
     def follow(self, key: Hashable, before: DoorState | None, after: DoorState, now_s: float) -> None:
@@ -109,15 +110,15 @@ class DoorMotion:
         """``inp`` happens to ``key`` at ``at_s`` unless the unit moves on before."""
         self._seq += 1
         self._pending.append((at_s, self._seq, key, self._gen.get(key, 0), inp))
+        self._first_s = min(self._first_s, at_s)
 
     def due(self, now_s: float) -> list[tuple[Hashable, DoorInput]]:
         """The events that have happened by ``now_s`` (in the order they happened)."""
-        if not self._pending:
-            return []
+        if self._first_s > now_s + _EPS_S:
+            return []  # none yet (or none at all)
         done = sorted((p for p in self._pending if p[0] <= now_s + _EPS_S), key=lambda p: (p[0], p[1]))
-        if not done:
-            return []
         self._pending = [p for p in self._pending if p[0] > now_s + _EPS_S]
+        self._first_s = min((p[0] for p in self._pending), default=math.inf)
         return [(key, inp) for _, _, key, gen, inp in done if self._gen.get(key, 0) == gen]
 
 
