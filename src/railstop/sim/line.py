@@ -48,6 +48,8 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   every step. The station stop is taken over where the train physically is
   (the wayside's detectors see it). ``railstop position-run`` is this line
   with one train, its positioning recorded (``PositionSettings.record``).
+  Once every train has left the line and the chain has nothing under way, the
+  odometers and positioning units are no longer stepped (nothing reads them).
 
 The slides of a station stop (the stop model's state says when its wheels
 slide) reach the train's odometer and its positioning unit's WSP input as the
