@@ -438,9 +438,10 @@ class SimChannel:
     def send(self, frame: bytes, now_s: float) -> float | None:
         """Hand a frame to the medium at ``now_s`` (seconds; not earlier than the previous send):
         when it will arrive (its first copy), None when it is lost."""
-        if not isinstance(frame, bytes | bytearray | memoryview):
-            raise LinkError(f"frame must be bytes (got {type(frame).__name__})")
-        frame = bytes(frame)
+        if type(frame) is not bytes:  # (a bytes object is taken as it is)
+            if not isinstance(frame, bytes | bytearray | memoryview):
+                raise LinkError(f"frame must be bytes (got {type(frame).__name__})")
+            frame = bytes(frame)
         now_s = float(now_s)
         if not math.isfinite(now_s):
             raise LinkError(f"now_s must be finite (got {now_s!r})")

@@ -995,7 +995,8 @@ def _to_raw(layout: Layout, f: Field, msg: Telegram) -> int:
             bit = getattr(msg, attr)
             if type(bit) is not bool and not isinstance(bit, _BOOLS):
                 raise TelegramError("bad_value", f"{layout.name}.{attr}={bit!r}: not a bool")
-            raw |= int(bit) << i
+            if bit:
+                raw |= 1 << i
         return raw
     value = getattr(msg, f.name)
     kind = f.kind

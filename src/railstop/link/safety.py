@@ -339,9 +339,12 @@ class SafeSender:
 
     def wrap(self, payload: bytes, now_s: float) -> bytes:
         """The safety frame of ``payload`` sent at sender time ``now_s``; the sequence number advances."""
-        if not isinstance(payload, bytes | bytearray | memoryview):
+        if type(payload) is bytes:
+            data = payload  # (a bytes object is taken as it is)
+        elif isinstance(payload, bytes | bytearray | memoryview):
+            data = bytes(payload)
+        else:
             raise LinkConfigError(f"payload: bytes are needed (got {type(payload).__name__})")
-        data = bytes(payload)
         if len(data) > MAX_PAYLOAD_BYTES:
             raise LinkConfigError(f"payload: at most {MAX_PAYLOAD_BYTES} bytes (got {len(data)})")
         t = _check_time("now_s", now_s)
@@ -616,7 +619,9 @@ class SafePeers:
             return None
 
     def _accept(self, frame: object, now_s: float) -> tuple[int, Delivered] | None:
-        if isinstance(frame, bytes | bytearray | memoryview):
+        if type(frame) is bytes:
+            data = frame  # (a bytes object is taken as it is)
+        elif isinstance(frame, bytes | bytearray | memoryview):
             data = bytes(frame)
         else:
             self.reject("malformed")
