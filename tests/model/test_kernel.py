@@ -48,7 +48,16 @@ from railstop.model.records import (
     RES_ERROR,
     RES_STOPPED,
 )
-from railstop.model.run import SteppedStop, _buffers, compiled_for, run_kernel, run_stepped, simulate_block
+from railstop.model.run import (
+    _ENTRY_POINTS,
+    SteppedStop,
+    _buffers,
+    compiled_for,
+    run_kernel,
+    run_stepped,
+    simulate_block,
+    stop_steps,
+)
 from railstop.sim.campaign import CampaignSpec, run_campaign, simulate_runs
 from railstop.sim.engine import check_byte_link, run_batch
 from railstop.sim.single import run_stop
@@ -283,6 +292,74 @@ def test_a_callable_numba_does_not_shape_as_a_dispatcher_is_called_as_it_is() ->
     jitted = numba.njit(plain)
     entry = compiled_for(jitted, (1, 2))  # compiled for (int64, int64): its entry point
     assert entry is not jitted and entry(1, 2) == 3
+
+
+def test_compiled_for_keeps_the_entry_point_numba_picks_for_the_arguments_types() -> None:
+    """``compiled_for`` keeps an entry point by what decides the arguments' numba types: for each
+    set of arguments it gives the entry point of the overload numba types them to, found again for
+    arguments of the same types and not for arguments that differ in dtype, dimensions, layout,
+    writability, a tuple's class or an int's width."""
+
+    @numba.njit
+    def first(a: Any, b: Any, k: int) -> Any:
+        return a[0][0] + k
+
+    base = np.zeros((3, 2))
+    cases = [
+        ((base, 1.0), base, 1),
+        ((np.zeros((3, 2)), 2.0), np.zeros((5, 2)), 5),  # the same types: the same entry point
+        ((np.zeros((3, 2), dtype=np.float32), 1.0), base, 1),  # dtype
+        ((base.T, 1.0), base, 1),  # layout F
+        ((base[::2], 1.0), base, 1),  # layout A
+        ((np.zeros((3, 2, 1)), 1.0), base, 1),  # dimensions
+        ((np.zeros((3, 2)), 1), base, 1),  # a tuple item's type
+        ([np.zeros((3, 2))], base, 1),  # not a tuple
+        ((base, 1.0), base, 2**63),  # an int beyond int64
+    ]
+    readonly = np.zeros((3, 2))
+    readonly.flags.writeable = False
+    cases.append(((readonly, 1.0), base, 1))
+    found = []
+    for args in cases:
+        entry = compiled_for(first, args)
+        sig = tuple(first.typeof_pyval(a) for a in args)
+        assert entry is first.overloads[sig].entry_point
+        assert compiled_for(first, args) is entry  # found again
+        found.append(entry)
+    assert found[1] is found[0]
+    assert len({id(e) for e in found}) == len(cases) - 1
+
+
+def test_two_stops_through_the_kept_entry_point_equal_their_own_runs() -> None:
+    """Stops of other stations and controllers step through the one entry point kept for the
+    model's types (``compiled_for``), the one numba's own typing picks for each: every stop gives
+    the block's run bit for bit, whether the entry point was kept from an earlier stop or not."""
+    stops = [("Riverside", "tasc-pwm"), ("Hillcrest", "ato"), ("Riverside", "driver-ats")]
+    results: list[list[np.ndarray]] = []
+    for clear_between in (True, False):
+        got = []
+        for station, controller in stops:
+            if clear_between:
+                _ENTRY_POINTS.clear()
+            st = LINE.station(station)
+            model = KernelModel.create(
+                station=st, vehicle=VEHICLE, controller=controller, form=None, dt_s=0.01, max_time_s=150.0
+            )
+            scenario, _ = draw_scenario(HARSH, st, VEHICLE, RunStreams.for_runs(7, 0, 2))
+            res_block, passages_block, _ = run_kernel(model, scenario, seed=7, first_run=0)
+            stop = SteppedStop(model, _row(scenario, 1), seed=7, run=1)
+            r = stop.records
+            sig = tuple(stop_steps.typeof_pyval(a) for a in (r.p, r.run, r.state, r.out, 0, 0, r.law))
+            assert stop._steps_fn is stop_steps.overloads[sig].entry_point
+            while not stop.done:
+                stop.advance(9)
+            res, passages, _ = stop.finish()
+            np.testing.assert_array_equal(res[0], res_block[1])
+            np.testing.assert_array_equal(passages[0], passages_block[1])
+            got += [res[0], passages[0]]
+        results.append(got)
+    for a, b in zip(*results, strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def _row(scenario: Scenario, i: int) -> Scenario:

@@ -345,15 +345,56 @@ def stop_steps(
     return k, k >= steps, slid
 
 
+def _type_key(fn: Any, a: Any) -> Any:
+    """What numba's ``typeof`` reads of the argument ``a`` of ``fn`` to type it (numba 0.68's
+    ``numba.core.typing.typeof``), in a form much cheaper to make and to compare than the type:
+    equal keys, equal numba types.
+
+    An array's type is its dtype as numba's (``from_dtype``: a record's fields, offsets, size and
+    alignment), its dimensions, its layout (C, F or neither by its flags) and whether it is
+    read-only; a tuple's the types of its items and its class (a named tuple's too); an int's its
+    bit length (intp, int64 or uint64); a bool is a boolean. Anything else (the control law, a C
+    callback) is keyed by the numba type itself.
+    """
+    t = type(a)
+    if t is np.ndarray:
+        d = a.dtype
+        f = a.flags
+        return (t, d, d.isalignedstruct, a.ndim, f.c_contiguous, f.f_contiguous, f.writeable)
+    if isinstance(a, tuple):
+        return (t, *[_type_key(fn, e) for e in a])
+    if t is int:  # numba's classes of an int (intp, int64, uint64); beyond them, the value
+        n = a.bit_length()
+        return (t, "intp" if n < 32 else "int64" if n < 64 else "uint64" if n == 64 and a >= 0 else a)
+    if t is bool:
+        return t
+    return fn.typeof_pyval(a)
+
+
+#: The entry points :func:`compiled_for` found: (the dispatcher, :func:`_type_key` of the
+#: arguments) -> the entry point of the overload numba chose for their types.
+_ENTRY_POINTS: dict[tuple[Any, Any], Any] = {}
+
+
 def compiled_for(fn: Any, args: tuple[Any, ...]) -> Any:
     """The compiled entry point of ``fn`` for the types of ``args`` (compiled, or loaded from the
     cache, if need be), to call again and again with arguments of those types.
 
     Why: numba's dispatcher works out the types of a call's arguments every call, and for the stop's
-    records (tuples of some 60 arrays) that costs more than the steps a line tick runs. Measured on
+    records (tuples of some 80 arrays) that costs more than the steps a line tick runs. Measured on
     this project's machine: 32 us a call through the dispatcher, 4.8 us through the entry point.
+
+    Working out the types once (and looking their tuple up among ``fn``'s overloads) still costs
+    about 1.7 ms, at every station stop of a line; so the entry point is kept, keyed by
+    :func:`_type_key` of the arguments, which decides their numba types: arguments of the same
+    types (every stop of the same model) find it again for about 0.06 ms, and arguments of other
+    types (another dtype, layout, law) make another key and are typed afresh.
     """
     try:
+        key = (fn, _type_key(fn, args))
+        found = _ENTRY_POINTS.get(key)
+        if found is not None:
+            return found
         sig = tuple(fn.typeof_pyval(a) for a in args)
         overloads = fn.overloads
     except AttributeError:
@@ -363,7 +404,9 @@ def compiled_for(fn: Any, args: tuple[Any, ...]) -> Any:
         return fn
     if sig not in overloads:
         fn.compile(sig)
-    return overloads[sig].entry_point
+    entry = overloads[sig].entry_point
+    _ENTRY_POINTS[key] = entry
+    return entry
 
 
 class StopRecords:
