@@ -672,6 +672,7 @@ class LineSimulation:
         self.same_path = [self._chain_and_unit(c) for c in pos.same_path]
         self.position_errors: list[float] = []
         self.fixes: list[FixRecord] = []
+        self._empty = False  # every train has left and the chains are idle (_emptied): for good
 
     def _chain_and_unit(self, settings: ChainSettings) -> tuple[OccupancyChain, PositioningUnit]:
         """The SPEC §2 chain of ``settings`` and the trains' positioning units it feeds."""
@@ -764,36 +765,35 @@ class LineSimulation:
         pos = self.settings.position
         # One pass over the trains for every per-train input of the step (the arrays below).
         on: list[bool] = []
-        sliding_l: list[bool] = []
-        slipping_l: list[bool] = []
         x0_l: list[float] = []
         x1_l: list[float] = []
+        v0_l: list[float] = []
         v1_l: list[float] = []
         creeping = False  # any train sliding or slipping (its distance run so counted)
-        for t, (p, x, _) in zip(self.trains, before, strict=True):
+        for t, (p, x, v) in zip(self.trains, before, strict=True):
             o = t.phase in ON_LINE
             # A train that entered in this step moved nothing yet; one not on the line enters nothing.
             xn = t.x_m if o else -np.inf
             on.append(o)
-            sliding_l.append(o and t.sliding)
-            slipping_l.append(o and t.slipping)
             x1_l.append(xn)
             x0_l.append(x if p in ON_LINE else xn)
+            v0_l.append(v)
             v1_l.append(t.v_mps)
             creeping = creeping or t.sliding or t.slipping
         on_line = np.array(on)
-        sliding = np.array(sliding_l)
-        slipping = np.array(slipping_l)
-        creep = (
-            creep_factor(
+        if creeping:
+            sliding = np.array([o and t.sliding for t, o in zip(self.trains, on, strict=True)])
+            slipping = np.array([o and t.slipping for t, o in zip(self.trains, on, strict=True)])
+            creep = creep_factor(
                 sliding,
                 slipping,
                 slide_slip_ratio=self.vehicle.slide_slip_ratio,
                 traction_slip_ratio=self.traction.slip_ratio,
             )
-            if creeping
-            else np.ones(on_line.size)  # every wheel rolls
-        )
+            wsp_active = sliding | slipping
+        else:  # every wheel rolls
+            creep = np.ones(on_line.size)
+            wsp_active = np.zeros(on_line.size, dtype=bool)
         x1 = np.array(x1_l)
         x0 = np.array(x0_l, dtype=np.float64)
         moved = np.subtract(x1, x0, out=np.zeros(x1.size), where=on_line)
@@ -802,7 +802,7 @@ class LineSimulation:
             for t in self.trains:
                 t.slide_m += float(moved[t.index]) if t.sliding else 0.0
                 t.slip_m += float(moved[t.index]) if t.slipping else 0.0
-        v0 = np.array([v for _, _, v in before])
+        v0 = np.array(v0_l)
         v1 = np.array(v1_l)
         motion = {
             "t0_s": now_s - dt,
@@ -818,7 +818,7 @@ class LineSimulation:
         log = {
             "odometer_m": self.tacho.odometer_m(),
             "speed_mps": self.tacho.speed_mps(v1, creep),
-            "wsp_active": sliding | slipping,
+            "wsp_active": wsp_active,
             # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
             # It belongs to the calibration: without the learner the calibrated position is the
             # document's (no bridge either).
@@ -851,10 +851,16 @@ class LineSimulation:
         """Every train has left the line and nothing of the SPEC §2 chain is under way (no
         occupancy to declare, no telegram in flight): no device can detect a train any more and no
         fix can reach one. The trains' odometers and positioning units are then no longer stepped
-        (a train that has left is positioned no more; nothing of the run reads them)."""
-        return all(t.phase == "gone" for t in self.trains) and all(
-            chain.idle for chain in (self.chain, *(c for c, _ in self.same_path))
-        )
+        (a train that has left is positioned no more; nothing of the run reads them).
+
+        Once true it stays true: a train that has left never comes back, and a chain that is no
+        longer stepped takes nothing new on. The trains are looked at last first (they leave in
+        the order they entered, so the last is the one most likely still on the line)."""
+        if not self._empty:
+            self._empty = all(t.phase == "gone" for t in reversed(self.trains)) and all(
+                chain.idle for chain in (self.chain, *(c for c, _ in self.same_path))
+            )
+        return self._empty
 
     # ------------------------------------------------------------------ the plant
 
@@ -1279,6 +1285,12 @@ class LineSimulation:
         return cfg
 
     def plant(self, now_s: float, dt: float) -> list[Output]:
+        if self._empty and self.cbtc is None:
+            # Every train has left and the chains are idle (_emptied, for good): no train moves,
+            # enters or is positioned any more; what is left of a step is its circuits (free).
+            for train in self.trains:
+                train.sliding = train.slipping = False
+            return self._occupancy()
         entry_proceed = self.interlocking.aspects[self.entry_signal]
         entry_free = True  # CBTC: one train may still enter this step
         before = [(t.phase, t.x_m, t.v_mps) for t in self.trains]
