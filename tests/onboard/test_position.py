@@ -32,7 +32,7 @@ from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.nodes.occupancy_chain import ChainSettings, OccupancyChain
 from railstop.onboard.positioning import FixOutcome, PositioningUnit
-from railstop.sensors.gnss_clock import GnssClock, in_shadow
+from railstop.sensors.gnss_clock import GnssClock, in_sections, in_shadow
 from railstop.sim.line import PositionSettings
 from railstop.sim.position_run import PositionRunResult, PositionRunSettings, run_position
 from railstop.streams import RunStreams
@@ -338,6 +338,10 @@ def test_in_shadow() -> None:
         True,
     ]
     assert not in_shadow(np.array([1.0]), np.zeros(0), np.zeros(0)).any()
+    # The sections as (start, end) pairs, as the occupancy chain keeps them: the same answer.
+    x = np.array([50.0, 100.0, 199.9, 200.0, 550.0, 600.0, -np.inf])
+    assert in_sections(x, [(100.0, 200.0), (500.0, 600.0)]).tolist() == in_shadow(x, starts, ends).tolist()
+    assert not in_sections(x, []).any()
 
 
 def test_timestamp_unit_telegram_on_occupancy_only() -> None:

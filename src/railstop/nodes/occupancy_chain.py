@@ -40,7 +40,7 @@ from railstop.errors import SimulationError
 from railstop.link.channel import LinkStreams, SimChannel, media_preset
 from railstop.link.codec import TelegramError, TrackCircuitOccupancy, decode, encode
 from railstop.onboard.positioning import FixOutcome, FixReport, PositioningUnit
-from railstop.sensors.gnss_clock import PPM, GnssClock, in_shadow
+from railstop.sensors.gnss_clock import PPM, GnssClock, in_sections, in_shadow
 from railstop.sensors.track_circuit import TrackCircuitDetector
 from railstop.streams import RunStreams, Stream
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
@@ -148,6 +148,7 @@ class OccupancyChain:
         shadow = [t for t in track.tunnels if not (t.repeater and cfg.repeaters)]
         self._sh_start = np.array([t.start_m for t in shadow])
         self._sh_end = np.array([t.end_m for t in shadow])
+        self._shadows = list(zip(self._sh_start.tolist(), self._sh_end.tolist(), strict=True))  # (start, end)
         onboard_disc = np.full(n, cfg.gnss) & ~in_shadow(start, self._sh_start, self._sh_end)
         self.onboard_clock = GnssClock.create(
             clocks, train_streams, clock_index=np.array([0]), disciplined=onboard_disc[:, None]
@@ -206,7 +207,9 @@ class OccupancyChain:
         t1 = t0_s + dt_s
         # SPEC §2 clocks: disciplined unless in a GNSS shadow without a repeater.
         onboard_disc = (
-            ~in_shadow(x1_m, self._sh_start, self._sh_end) if self.cfg.gnss else np.zeros(self.n, dtype=bool)
+            ~in_sections(np.asarray(x1_m, dtype=np.float64), self._shadows)
+            if self.cfg.gnss
+            else np.zeros(self.n, dtype=bool)
         )
         self.onboard_clock.advance(dt_s, onboard_disc[:, None])
         # The wayside clocks' state never changes (a unit stays where it is): they are advanced

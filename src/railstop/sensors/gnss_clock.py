@@ -92,8 +92,14 @@ class GnssClock:
 
 def in_shadow(position_m: FloatArray, starts_m: FloatArray, ends_m: FloatArray) -> BoolArray:
     """Which positions lie in one of the sections [start, end) (e.g. tunnels without repeaters)."""
-    x = np.asarray(position_m, dtype=np.float64)
-    out = np.zeros(x.shape, dtype=bool)
-    for start, end in zip(np.ravel(starts_m).tolist(), np.ravel(ends_m).tolist(), strict=True):
-        out |= (x >= start) & (x < end)  # a line has a few tunnels: one pass each
+    sections = list(zip(np.ravel(starts_m).tolist(), np.ravel(ends_m).tolist(), strict=True))
+    return in_sections(np.asarray(position_m, dtype=np.float64), sections)
+
+
+def in_sections(x_m: FloatArray, sections: list[tuple[float, float]]) -> BoolArray:
+    """:func:`in_shadow` of the positions ``x_m`` (float64) with the sections given as their
+    (start, end) pairs (for a caller that asks every step about the same sections)."""
+    out = np.zeros(x_m.shape, dtype=bool)
+    for start, end in sections:
+        out |= (x_m >= start) & (x_m < end)  # a line has a few tunnels: one pass each
     return out

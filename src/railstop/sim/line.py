@@ -1317,8 +1317,12 @@ class LineSimulation:
         if not self._emptied():
             self._position_step(now_s, dt, before)
         on_line = sorted(t.x_m for t in self.trains if t.phase in ON_LINE)
-        for follower, leader in zip(on_line, on_line[1:], strict=False):
-            self.min_separation_m = min(self.min_separation_m, leader - self.vehicle.length_m - follower)
+        if len(on_line) > 1:
+            length = self.vehicle.length_m
+            gap = min(
+                leader - length - follower for follower, leader in zip(on_line, on_line[1:], strict=False)
+            )
+            self.min_separation_m = min(self.min_separation_m, gap)
         out = self._occupancy()
         if self.cbtc is not None:
             out += self._cbtc_observe(now_s)
