@@ -1296,6 +1296,8 @@ class LineSimulation:
         before = [(t.phase, t.x_m, t.v_mps) for t in self.trains]
         for train in self.trains:
             train.sliding = train.slipping = False  # set by the running train's brakes below
+            if train.phase == "gone":
+                continue  # it has left the line for good
             if train.phase == "waiting":
                 if self.cbtc is not None:
                     entry_free = self._cbtc_entry(train, now_s, entry_free)
