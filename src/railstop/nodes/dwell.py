@@ -285,9 +285,9 @@ class PlatformDoors:
     def _follow(self, before: WpcsState, now_s: float) -> None:
         t = self.doors.timing
         for i, (u0, u1) in enumerate(zip(before.units, self.state.units, strict=True)):
-            self.motion.follow(i, u0, u1, now_s)
             if u1 == u0:
-                continue
+                continue  # (a unit that did not change: nothing for its motion to follow)
+            self.motion.follow(i, u0, u1, now_s)
             if u1 == DoorState.CLOSING and i in self.jam_next:
                 self.jam_next.discard(i)
                 self.motion.schedule(i, now_s + t.psd_jam_at_s, DoorInput.JAM)
@@ -564,8 +564,10 @@ class TrainDoors:
         t = self.t
         for side in (Side.L, Side.R):
             for i, (u0, u1) in enumerate(zip(before.side(side), self.cpcs.side(side), strict=True)):
+                if u0 == u1:
+                    continue  # (a door that did not change: nothing for its motion to follow)
                 self.motion.follow((side, i), u0, u1, now_s)
-                if u0 == u1 or side != self.side:
+                if side != self.side:
                     continue
                 # Fault injection: an obstacle in the closing door (once); the door reopens and holds
                 # until it is cleared (the door data's times), withholding start enable meanwhile.
