@@ -294,6 +294,8 @@ def test_a_callable_numba_does_not_shape_as_a_dispatcher_is_called_as_it_is() ->
     assert entry is not jitted and entry(1, 2) == 3
 
 
+# A list argument is one case: numba types it as a reflected list, a type it plans to deprecate.
+@pytest.mark.filterwarnings("ignore::numba.core.errors.NumbaPendingDeprecationWarning")
 def test_compiled_for_keeps_the_entry_point_numba_picks_for_the_arguments_types() -> None:
     """``compiled_for`` keeps an entry point by what decides the arguments' numba types: for each
     set of arguments it gives the entry point of the overload numba types them to, found again for
