@@ -32,7 +32,7 @@ from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.nodes.occupancy_chain import ChainSettings, OccupancyChain
 from railstop.onboard.positioning import FixOutcome, PositioningUnit
-from railstop.sensors.gnss_clock import GnssClock, in_sections, in_shadow
+from railstop.sensors.gnss_clock import GnssClock, in_sections
 from railstop.sim.line import PositionSettings
 from railstop.sim.position_run import PositionRunResult, PositionRunSettings, run_position
 from railstop.streams import RunStreams
@@ -328,19 +328,11 @@ def test_gnss_clock_disciplined_free_running_and_holdover() -> None:
     assert np.allclose(clock.read(10.0), 10.0 + clock.residual_s)
 
 
-def test_in_shadow() -> None:
-    starts, ends = np.array([100.0, 500.0]), np.array([200.0, 600.0])
-    assert in_shadow(np.array([50.0, 100.0, 199.9, 200.0, 550.0]), starts, ends).tolist() == [
-        False,
-        True,
-        True,
-        False,
-        True,
-    ]
-    assert not in_shadow(np.array([1.0]), np.zeros(0), np.zeros(0)).any()
-    # The sections as (start, end) pairs, as the occupancy chain keeps them: the same answer.
+def test_in_sections() -> None:
+    sections = [(100.0, 200.0), (500.0, 600.0)]  # [start, end) each
     x = np.array([50.0, 100.0, 199.9, 200.0, 550.0, 600.0, -np.inf])
-    assert in_sections(x, [(100.0, 200.0), (500.0, 600.0)]).tolist() == in_shadow(x, starts, ends).tolist()
+    assert in_sections(x, sections).tolist() == [False, True, True, False, True, False, False]
+    assert not in_sections(np.array([1.0]), []).any()
     assert not in_sections(x, []).any()
 
 

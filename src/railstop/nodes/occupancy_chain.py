@@ -40,7 +40,7 @@ from railstop.errors import SimulationError
 from railstop.link.channel import LinkStreams, SimChannel, media_preset
 from railstop.link.codec import TelegramError, TrackCircuitOccupancy, decode, encode
 from railstop.onboard.positioning import FixOutcome, FixReport, PositioningUnit
-from railstop.sensors.gnss_clock import PPM, GnssClock, in_sections, in_shadow
+from railstop.sensors.gnss_clock import PPM, GnssClock, in_sections
 from railstop.sensors.track_circuit import TrackCircuitDetector
 from railstop.streams import RunStreams, Stream
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
@@ -146,18 +146,14 @@ class OccupancyChain:
             clocks = clocks.model_copy(update={"holdover_s": cfg.holdover_s})
         # SPEC §2: a shadow is a tunnel without a repeater (any tunnel when repeaters are off).
         shadow = [t for t in track.tunnels if not (t.repeater and cfg.repeaters)]
-        self._sh_start = np.array([t.start_m for t in shadow])
-        self._sh_end = np.array([t.end_m for t in shadow])
-        self._shadows = list(zip(self._sh_start.tolist(), self._sh_end.tolist(), strict=True))  # (start, end)
-        onboard_disc = np.full(n, cfg.gnss) & ~in_shadow(start, self._sh_start, self._sh_end)
+        self._shadows = [(t.start_m, t.end_m) for t in shadow]
+        onboard_disc = np.full(n, cfg.gnss) & ~in_sections(start, self._shadows)
         self.onboard_clock = GnssClock.create(
             clocks, train_streams, clock_index=np.array([0]), disciplined=onboard_disc[:, None]
         )
         c_starts = np.array([c.start_m for c in circuits])
         # The time-stamping unit of a circuit sits at its start: in a shadow it has no GNSS.
-        self._wayside_disc = np.full(len(circuits), cfg.gnss) & ~in_shadow(
-            c_starts, self._sh_start, self._sh_end
-        )
+        self._wayside_disc = np.full(len(circuits), cfg.gnss) & ~in_sections(c_starts, self._shadows)
         self._clocks = clocks
         self.wayside_clock = GnssClock.create(
             clocks, wayside_streams, clock_index=1 + np.arange(len(circuits)), disciplined=self._wayside_disc
@@ -264,7 +260,7 @@ class OccupancyChain:
         wayside = np.where(self._wayside_disc, c.disciplined_error_s, free)
         # The train's clock free-runs only in a shadow (for the minutes it takes to pass it: an
         # hour bounds it, a train held there included) or without GNSS at all.
-        in_shadow_s = min(horizon_s, SHADOW_STAY_S) if self._sh_start.size else 0.0
+        in_shadow_s = min(horizon_s, SHADOW_STAY_S) if self._shadows else 0.0
         onboard = c.disciplined_error_s + c.free_run_drift_ppm * PPM * in_shadow_s if self.cfg.gnss else free
         return np.sqrt(wayside * wayside + onboard * onboard)
 

@@ -90,15 +90,9 @@ class GnssClock:
         return np.asarray(true_time_s, dtype=np.float64) + self.error_s
 
 
-def in_shadow(position_m: FloatArray, starts_m: FloatArray, ends_m: FloatArray) -> BoolArray:
-    """Which positions lie in one of the sections [start, end) (e.g. tunnels without repeaters)."""
-    sections = list(zip(np.ravel(starts_m).tolist(), np.ravel(ends_m).tolist(), strict=True))
-    return in_sections(np.asarray(position_m, dtype=np.float64), sections)
-
-
 def in_sections(x_m: FloatArray, sections: list[tuple[float, float]]) -> BoolArray:
-    """:func:`in_shadow` of the positions ``x_m`` (float64) with the sections given as their
-    (start, end) pairs (for a caller that asks every step about the same sections)."""
+    """Which positions ``x_m`` (float64) lie in one of the ``sections``, each a (start, end) pair
+    of [start, end) (e.g. tunnels without repeaters: the GNSS shadows)."""
     out = np.zeros(x_m.shape, dtype=bool)
     for start, end in sections:
         out |= (x_m >= start) & (x_m < end)  # a line has a few tunnels: one pass each
