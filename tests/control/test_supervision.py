@@ -28,6 +28,7 @@ from railstop.control.supervision import (
     Watchdog,
     WatchdogLimits,
     eb_cause_name,
+    guard_limit_1,
     overrun_guard_1,
 )
 from railstop.control.tasc import HISTORY
@@ -398,7 +399,6 @@ def test_a_watchdog_on_its_holders_cycle_counts_the_cycles_without_a_feed() -> N
 def test_the_guard_limit_is_what_the_emergency_brake_keeps_here() -> None:
     """HZ-TASC-08: nominal brakes on the level keep the configured limit; a weak brake or a
     downhill lowers it to what the emergency brake gives; a strong brake never loosens it."""
-    from railstop.control.supervision import guard_limit_1
 
     assert guard_limit_1(1.0, 1.3, 1.0, 0.02) == 1.0
     assert guard_limit_1(1.0, 1.3, 0.6, -0.34) == pytest.approx(1.3 * 0.6 - 0.34)
@@ -415,8 +415,6 @@ def test_weak_brakes_on_a_downhill_are_stopped_before_the_platform_end(controlle
     brake's margin for granted, and fired when the weak emergency brake on the downhill could no
     longer stop the train before the platform end: 2 of these 300 runs (tasc-pwm) and 4
     (tasc-brake-controller) ended up to 3.6 m beyond it. Now none does."""
-    from railstop.config.disturbances import DisturbanceSet
-    from railstop.sim.campaign import simulate_runs
 
     weak = DisturbanceSet.from_dict(
         {

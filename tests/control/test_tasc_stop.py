@@ -8,8 +8,22 @@ import numpy as np
 import pytest
 
 from railstop.config import default_line, default_vehicle
+from railstop.config.disturbances import DisturbanceSet
 from railstop.config.scenario import Scenario
-from railstop.control.tasc import fit_passages_1, fit_ring_1, propagate_1, required_decel_1
+from railstop.control.tasc import (
+    HISTORY,
+    START_FLOOR,
+    START_LIMIT,
+    external_params,
+    fit_passages_1,
+    fit_ring_1,
+    history_push_1,
+    plan_command_1,
+    propagate_1,
+    required_decel_1,
+    start_floor_mps2,
+)
+from railstop.sim.campaign import simulate_runs
 from railstop.sim.engine import TASC_CONTROLLERS, run_batch
 from railstop.sim.single import run_stop
 from railstop.streams import RunStreams
@@ -231,14 +245,6 @@ def test_ato_baseline_suffers_from_odometry_where_tasc_does_not() -> None:
 
 
 def _plan(distance: float, speed: float, grade_permille: float, det: np.ndarray, braking: bool = False):
-    from railstop.control.tasc import (
-        HISTORY,
-        START_FLOOR,
-        external_params,
-        history_push_1,
-        plan_command_1,
-    )
-
     values, effects = np.zeros(HISTORY), np.full(HISTORY, np.inf)
     if braking:
         history_push_1(values, effects, 0.05, -1.0)
@@ -256,7 +262,6 @@ def test_braking_waits_for_a_later_detector_while_the_stop_needs_little() -> Non
     the first detector needs under a fifth of full service, so the train holds its speed to the
     next detector; on the level the same entry brakes at once; once braking has begun the plan
     never returns to holding; and it never waits when the next detector would need too much."""
-    from railstop.control.tasc import START_FLOOR, START_LIMIT
 
     full = VEHICLE.brake.full_service_mps2
     det = np.array([330.0, 230.0, 140.0, 60.0, 6.0])
@@ -276,7 +281,6 @@ def test_no_wait_where_the_wayside_models_the_trains_own_commands() -> None:
     the train's own commands, and a hold on one side with a brake on the other (inputs near the
     floor) would break it (stop model 17's first try: form 4 of the detectors-only variant, 13
     runs of 10,000 ended 1.3-2.4 m off with no emergency brake). There the floor is 0."""
-    from railstop.control.tasc import START_FLOOR, start_floor_mps2
 
     full = VEHICLE.brake.full_service_mps2
     for form in range(1, 9):
@@ -291,8 +295,6 @@ def test_a_slow_train_on_a_steep_uphill_approach_stops_at_the_platform() -> None
     level platform the brakes could not give back what it lost: robustness.py's 2x cell had 32 of
     2,000 runs outside ±0.35 m with no emergency brake, up to 8.2 m short. Now braking starts
     where the stop needs a fifth of full service."""
-    from railstop.config.disturbances import DisturbanceSet
-    from railstop.sim.campaign import simulate_runs
 
     steep = DisturbanceSet.from_dict(
         {
@@ -324,8 +326,6 @@ def test_a_held_train_with_detectors_missed_and_telegrams_lost_stops_before_the_
     detector would need at most half of full service, the wayside fills in a missed passage from
     its radar, and both overrun guards watch a holding train: every train stands, none past the
     platform end."""
-    from railstop.config.disturbances import DisturbanceSet
-    from railstop.sim.campaign import simulate_runs
 
     harsh = DisturbanceSet.from_dict(
         {

@@ -58,6 +58,21 @@ def _stop(form: SignalForm, controller: str, case: str) -> tuple[StopResult, Bat
     )
 
 
+def _standard_run(controller: str, form: SignalForm, run: int) -> tuple[StopResult, BatchResult]:
+    """Run ``run`` of the standard set (seed 1) at the station, as ``railstop stop --disturbances
+    standard --run N`` replays it."""
+    return run_stop(
+        line=LINE, station=STATION, vehicle=VEHICLE, controller=controller, seed=1, form=form,
+        disturbances=STANDARD, run=run,
+    )  # fmt: skip
+
+
+def _assert_served(result: StopResult) -> None:
+    """No emergency brake, and the stop within ±0.30 m."""
+    assert result.emergency_brake is None
+    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+
+
 def _telegrams(form: SignalForm, controller: str, case: str) -> list[dict[str, Any]]:
     """The command records of the stop; every one went on the air as a telegram of the form."""
     commands = _stop(form, controller, case)[1].commands
@@ -151,13 +166,9 @@ def test_form_8_one_notch_step_per_telegram_spaced(controller: str, case: str) -
     "form", [SignalForm.POSITION, SignalForm.SPEED, SignalForm.DECELERATION], ids=lambda f: f"form{int(f)}"
 )
 def test_a_slide_does_not_calibrate_the_tachometer(form: SignalForm) -> None:
-    result, batch = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_PWM, seed=1, form=form,
-        disturbances=STANDARD, run=840,
-    )  # fmt: skip
+    result, batch = _standard_run(TASC_PWM, form, 840)
     assert bool(batch.slid[0]), "run 840 no longer slides: pick another run"
-    assert result.emergency_brake is None
-    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+    _assert_served(result)
 
 
 # Form 4 calibrates its tachometer from the wayside's distances (stop model 12). These standard
@@ -167,10 +178,7 @@ def test_a_slide_does_not_calibrate_the_tachometer(form: SignalForm) -> None:
 # silently.
 @pytest.mark.parametrize("run", [2131, 6781, 9429])
 def test_form_4_calibrates_its_tachometer_from_the_wayside_distances(run: int) -> None:
-    result, batch = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_PWM, seed=1, form=SignalForm.SPEED,
-        disturbances=STANDARD, run=run,
-    )  # fmt: skip
+    result, batch = _standard_run(TASC_PWM, SignalForm.SPEED, run)
     assert not bool(batch.slid[0])
     assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
 
@@ -184,10 +192,7 @@ def test_form_4_calibrates_its_tachometer_from_the_wayside_distances(run: int) -
 # that loses one now (the only one of 10,000 that did not slide).
 @pytest.mark.parametrize(("controller", "run"), [(TASC_PWM, 8450), (TASC_STEP, 6007)])
 def test_a_lost_form_8_step_hands_the_stop_to_degraded_mode(controller: str, run: int) -> None:
-    result, batch = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=controller, seed=1,
-        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
-    )  # fmt: skip
+    result, batch = _standard_run(controller, SignalForm.INCREASE_DECREASE, run)
     assert result.stopped and not bool(batch.slid[0])
     # It took no more steps and aimed at a deceleration of its own (degraded mode): a form-8 train
     # otherwise only ever aims at one of its eight notches.
@@ -212,15 +217,11 @@ def test_a_lost_form_8_step_hands_the_stop_to_degraded_mode(controller: str, run
 # onboard supervision braked them by emergency brake 147-159 m short (telegram time-out).
 @pytest.mark.parametrize("run", [1436, 8139])
 def test_a_form_8_stop_whose_braking_waits_sends_a_hold_first(run: int) -> None:
-    result, batch = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_PWM, seed=1,
-        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
-    )  # fmt: skip
+    result, batch = _standard_run(TASC_PWM, SignalForm.INCREASE_DECREASE, run)
     first = batch.commands[0]
     assert first["telegram"]["step"] == 0 and first["telegram"]["delta"] == 0  # a hold
     assert [c["telegram"]["step"] for c in batch.commands[1:3]] == [1, 2]  # then the steps
-    assert result.emergency_brake is None
-    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+    _assert_served(result)
 
 
 # Stop model 19: form 7's wayside identifies the brake response, as form 6's does, and its notch
@@ -229,14 +230,10 @@ def test_a_form_8_stop_whose_braking_waits_sends_a_hold_first(run: int) -> None:
 # response, they ended 0.406 m and 0.343 m short with no emergency brake.
 @pytest.mark.parametrize("run", [6373, 8719])
 def test_form_7_times_its_notches_by_the_identified_brake_response(run: int) -> None:
-    result, _ = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_BRAKE_CONTROLLER, seed=1,
-        form=SignalForm.BRAKE_COMMAND, disturbances=STANDARD, run=run,
-    )  # fmt: skip
+    result, _ = _standard_run(TASC_BRAKE_CONTROLLER, SignalForm.BRAKE_COMMAND, run)
     assert result.brake_delay_identified_s is not None and result.brake_lag_identified_s is not None
     assert result.brake_delay_identified_s > 0.9  # slower than the nominal 0.80 s equivalent delay
-    assert result.emergency_brake is None
-    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+    _assert_served(result)
 
 
 # Stop model 20, form 8. The end phase of the wayside's notch modulator chose only between the two
@@ -246,12 +243,8 @@ def test_form_7_times_its_notches_by_the_identified_brake_response(run: int) -> 
 # and 0.372 m short with no emergency brake on model 19.
 @pytest.mark.parametrize("run", [8573, 9478])
 def test_form_8_end_phase_may_step_below_the_targets_lower_notch(run: int) -> None:
-    result, _ = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_STEP, seed=1,
-        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
-    )  # fmt: skip
-    assert result.emergency_brake is None
-    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+    result, _ = _standard_run(TASC_STEP, SignalForm.INCREASE_DECREASE, run)
+    _assert_served(result)
 
 
 # Stop model 20, form 8: a tasc-brake-controller train takes each step at its brake controller's
@@ -260,9 +253,5 @@ def test_form_8_end_phase_may_step_below_the_targets_lower_notch(run: int) -> No
 # they ended 0.488 m, 0.351 m and 0.395 m short with no emergency brake.
 @pytest.mark.parametrize("run", [8775, 1408, 8702])
 def test_form_8_allows_for_the_brake_controllers_cycle(run: int) -> None:
-    result, _ = run_stop(
-        line=LINE, station=STATION, vehicle=VEHICLE, controller=TASC_BRAKE_CONTROLLER, seed=1,
-        form=SignalForm.INCREASE_DECREASE, disturbances=STANDARD, run=run,
-    )  # fmt: skip
-    assert result.emergency_brake is None
-    assert abs(result.stop_error_m) <= 0.30, f"{result.stop_error_m:+.3f} m"
+    result, _ = _standard_run(TASC_BRAKE_CONTROLLER, SignalForm.INCREASE_DECREASE, run)
+    _assert_served(result)
