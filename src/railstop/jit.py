@@ -46,9 +46,12 @@ JIT_MODULES: tuple[str, ...] = (
     "physics/brake.py",
     "physics/train.py",
     "sensors/wayside.py",
+    "sensors/odometer.py",
+    "sensors/gnss_clock.py",
     "sensors/track_circuit.py",
     "onboard/positioning.py",
     "model/fixes.py",
+    "nodes/chain_step.py",
     "control/law.py",
     "control/notch.py",
     "control/tasc.py",
@@ -161,8 +164,8 @@ def njit_inline(fn: F) -> F:
 # Scalar maths that both targets compile (issue: one source for the CPU and the GPU).
 # The compiled model does its scalar maths through ``math`` (which numba compiles for the CPU and
 # numba-cuda for the GPU, to the same LLVM intrinsics on the CPU as numpy's scalar functions);
-# numpy's ``rint`` and ``ceil`` have no ``math`` counterpart that keeps a float (``math.ceil``
-# returns an int, undefined for NaN), hence these two.
+# numpy's ``rint``, ``ceil`` and ``floor`` have no ``math`` counterpart that keeps a float
+# (``math.ceil`` returns an int, undefined for NaN), hence these three.
 
 _TWO52 = 4503599627370496.0  # 2**52: from here on every float64 is an integer
 
@@ -192,6 +195,13 @@ def ceil_1(x: float) -> float:
     if r == 0.0:
         return math.copysign(0.0, x)
     return r
+
+
+@njit_inline
+def floor_1(x: float) -> float:
+    """``numpy.floor`` of a scalar (a float; NaN and inf unchanged, ``floor(-0.0)`` is -0.0):
+    ``-ceil(-x)``, exact for every float64."""
+    return -ceil_1(-x)
 
 
 # --------------------------------------------------------------------------

@@ -1,4 +1,5 @@
-"""railstop.jit's scalar maths that both targets compile: rint_1 and ceil_1 equal numpy's, bit for bit."""
+"""railstop.jit's scalar maths that both targets compile: rint_1, ceil_1 and floor_1 equal
+numpy's, bit for bit."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from railstop.jit import ceil_1, rint_1
+from railstop.jit import ceil_1, floor_1, rint_1
 
 SPECIAL = [
     0.0,
@@ -41,17 +42,19 @@ def _same(a: float, b: float) -> bool:
     return np.float64(a).tobytes() == np.float64(b).tobytes() or (math.isnan(a) and math.isnan(b))
 
 
-def test_rint_and_ceil_equal_numpy_on_the_edges() -> None:
+def test_rint_ceil_and_floor_equal_numpy_on_the_edges() -> None:
     for x in SPECIAL:
         assert _same(rint_1(x), float(np.rint(x))), x
         assert _same(ceil_1(x), float(np.ceil(x))), x
+        assert _same(floor_1(x), float(np.floor(x))), x
 
 
 @settings(max_examples=3000, deadline=None)
 @given(st.floats(allow_nan=True, allow_infinity=True, width=64))
-def test_rint_and_ceil_equal_numpy(x: float) -> None:
+def test_rint_ceil_and_floor_equal_numpy(x: float) -> None:
     assert _same(rint_1(x), float(np.rint(x)))
     assert _same(ceil_1(x), float(np.ceil(x)))
+    assert _same(floor_1(x), float(np.floor(x)))
 
 
 @settings(max_examples=2000, deadline=None)
@@ -60,3 +63,4 @@ def test_halves_and_quarters(n: int, frac: float) -> None:
     for x in (n + frac, n - frac):
         assert _same(rint_1(x), float(np.rint(x)))
         assert _same(ceil_1(x), float(np.ceil(x)))
+        assert _same(floor_1(x), float(np.floor(x)))

@@ -429,16 +429,18 @@ def write_plot(path: Path, result: StopResult, batch: BatchResult, station: Stat
 def compile_model(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Compile the stop model (and the live TASC units' steps) once into the on-disk cache, so that later
-    commands start at once."""
+    """Compile the stop model (and the live TASC units' and the line's steps) once into the on-disk cache,
+    so that later commands start at once."""
     import time
 
     from railstop.live.tasc import warm_up as warm_up_live
     from railstop.model.run import warm_up
+    from railstop.sim.line import warm_up as warm_up_line
 
     t0 = time.perf_counter()
     info = warm_up()
     warm_up_live()  # the live TASC units' steps (the same compiled functions, other signatures)
+    warm_up_line()  # the line's position step and positioning units
     info["seconds"] = round(time.perf_counter() - t0, 2)
     if as_json:
         print(json.dumps(info))

@@ -40,8 +40,8 @@ from railstop.errors import SimulationError
 from railstop.link.channel import LinkStreams, SimChannel, media_preset
 from railstop.link.codec import TelegramError, TrackCircuitOccupancy, decode, encode
 from railstop.onboard.positioning import FixOutcome, FixReport, PositioningUnit
-from railstop.sensors.gnss_clock import PPM, GnssClock, in_sections
-from railstop.sensors.track_circuit import TrackCircuitDetector
+from railstop.sensors.gnss_clock import PPM, GnssClock, in_sections, sections_array
+from railstop.sensors.track_circuit import OccupancyEvents, TrackCircuitDetector
 from railstop.streams import RunStreams, Stream
 from railstop.wayside.tc_timestamp import Indication, OccupancyTelegrams, TimestampUnit
 
@@ -147,6 +147,7 @@ class OccupancyChain:
         # SPEC §2: a shadow is a tunnel without a repeater (any tunnel when repeaters are off).
         shadow = [t for t in track.tunnels if not (t.repeater and cfg.repeaters)]
         self._shadows = [(t.start_m, t.end_m) for t in shadow]
+        self.shadow_array = sections_array(self._shadows)  # the same, for the compiled step
         onboard_disc = np.full(n, cfg.gnss) & ~in_sections(start, self._shadows)
         self.onboard_clock = GnssClock.create(
             clocks, train_streams, clock_index=np.array([0]), disciplined=onboard_disc[:, None]
@@ -200,7 +201,6 @@ class OccupancyChain:
     ) -> None:
         """The step from ``t0_s`` (fronts at ``x0_m``, speeds ``v0_mps``, uniform ``accel_mps2``) to
         ``t0_s + dt_s`` (fronts at ``x1_m``): clocks, detection (S10), time-stamping (S20)."""
-        t1 = t0_s + dt_s
         # SPEC §2 clocks: disciplined unless in a GNSS shadow without a repeater.
         onboard_disc = (
             ~in_sections(np.asarray(x1_m, dtype=np.float64), self._shadows)
@@ -208,14 +208,19 @@ class OccupancyChain:
             else np.zeros(self.n, dtype=bool)
         )
         self.onboard_clock.advance(dt_s, onboard_disc[:, None])
+        # SPEC §2 S10: circuits entered; the device declares them after its delay.
+        ev = self.detector.detect(x0_m=x0_m, v0_mps=v0_mps, accel_mps2=accel_mps2, x1_m=x1_m, t0_s=t0_s)
+        self.detected(ev, t0_s=t0_s, dt_s=dt_s)
+
+    def detected(self, ev: OccupancyEvents, *, t0_s: float, dt_s: float) -> None:
+        """The wayside's part of the step from ``t0_s``: the devices have detected ``ev`` and the
+        onboard clocks have moved on (in :meth:`advance`, or compiled in ``nodes.chain_step``)."""
         # The wayside clocks' state never changes (a unit stays where it is): they are advanced
         # only when a unit stamps (``_declare``), by the time since, the same error.
         self._wayside_due_s += dt_s
-        # SPEC §2 S10: circuits entered; the device declares them after its delay.
-        ev = self.detector.detect(x0_m=x0_m, v0_mps=v0_mps, accel_mps2=accel_mps2, x1_m=x1_m, t0_s=t0_s)
         if ev.size:
             self._pending.append((ev.run, ev.circuit_index, ev.occupied_time_s))
-        self._declare(t1)
+        self._declare(t0_s + dt_s)
 
     def _declare(self, t1: float) -> None:
         """Hand the occupancies declared by ``t1`` to the time-stamping unit (SPEC §2 S20); keep the rest."""

@@ -22,6 +22,11 @@ Every array may have any shape: (n,) for the onboard clock of n runs, (n, C)
 for the wayside clocks of C track circuits. Randomness comes from
 ``RunStreams`` (DESIGN rule 7): ``Stream.CLOCK`` counter ``2 k`` gives clock
 k's drift, ``2 k + 1`` its disciplined residual.
+
+One implementation (DESIGN rule 1, ``railstop.jit``): a clock's step and the shadow test are
+compiled scalar cores (``clock_error_1``, ``in_sections_1``); :class:`GnssClock` and
+:func:`in_sections` run them over their arrays, the line's position step (``nodes.chain_step``)
+inside its own loop.
 """
 
 from __future__ import annotations
@@ -32,12 +37,51 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railstop.config.schema import GnssClocks
+from railstop.jit import njit, njit_inline
 from railstop.streams import RunStreams, Stream
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 PPM = 1e-6
+
+
+@njit_inline
+def clock_error_1(error_s: float, residual_s: float, drift: float, disciplined: bool, dt_s: float) -> float:
+    """One clock's error after ``dt_s``: its residual while disciplined, else it drifts on."""
+    if disciplined:
+        return residual_s
+    return error_s + drift * dt_s  # SPEC §2: in a shadow without a repeater the clock free-runs
+
+
+@njit_inline
+def in_sections_1(x_m: float, sections: FloatArray) -> bool:
+    """Whether ``x_m`` lies in one of the ``sections`` ((k, 2): [start, end) rows)."""
+    for j in range(sections.shape[0]):  # noqa: SIM110 (numba compiles no generator)
+        if x_m >= sections[j, 0] and x_m < sections[j, 1]:
+            return True
+    return False
+
+
+@njit
+def _advance_clocks(
+    error_s: FloatArray, residual_s: FloatArray, drift: FloatArray, disciplined: BoolArray, dt_s: float
+) -> None:
+    for i in range(error_s.size):
+        error_s[i] = clock_error_1(error_s[i], residual_s[i], drift[i], disciplined[i], dt_s)
+
+
+@njit
+def _in_sections_runs(x_m: FloatArray, sections: FloatArray) -> BoolArray:
+    out = np.empty(x_m.size, dtype=np.bool_)
+    for i in range(x_m.size):
+        out[i] = in_sections_1(x_m[i], sections)
+    return out
+
+
+def sections_array(sections: list[tuple[float, float]]) -> FloatArray:
+    """(start, end) pairs as the (k, 2) array the compiled cores take."""
+    return np.array(sections, dtype=np.float64).reshape(-1, 2)
 
 
 @dataclass(slots=True, kw_only=True)
@@ -73,16 +117,19 @@ class GnssClock:
             resid[:, j] = data.disciplined_error_s * streams.normal(Stream.CLOCK, 2 * int(c) + 1)
         disc = np.broadcast_to(np.asarray(disciplined, dtype=bool), (n, k)).copy()
         # SPEC §2: without a time source the clock free-runs; it was last set holdover_s ago.
-        error = np.where(disc, resid, drift * (data.holdover_s + t0_s))
+        error = np.ascontiguousarray(np.where(disc, resid, drift * (data.holdover_s + t0_s)))
         return cls(residual_s=resid, drift=drift, error_s=error, disciplined=disc)
 
     def advance(self, dt_s: float, disciplined: BoolArray) -> None:
         """Move on by ``dt_s``; ``disciplined`` says which clocks have GNSS time during the step."""
-        disc = np.asarray(disciplined, dtype=bool)
-        if disc.shape != self.error_s.shape:
-            disc = np.broadcast_to(disc, self.error_s.shape)
-        # SPEC §2: in a shadow without a repeater the clock free-runs and drifts.
-        self.error_s = np.where(disc, self.residual_s, self.error_s + self.drift * dt_s)
+        disc = np.ascontiguousarray(np.broadcast_to(np.asarray(disciplined, dtype=bool), self.error_s.shape))
+        _advance_clocks(
+            self.error_s.reshape(-1),
+            self.residual_s.reshape(-1),
+            self.drift.reshape(-1),
+            disc.reshape(-1),
+            float(dt_s),
+        )
         self.disciplined = np.array(disc)
 
     def read(self, true_time_s: float | FloatArray) -> FloatArray:
@@ -93,7 +140,5 @@ class GnssClock:
 def in_sections(x_m: FloatArray, sections: list[tuple[float, float]]) -> BoolArray:
     """Which positions ``x_m`` (float64) lie in one of the ``sections``, each a (start, end) pair
     of [start, end) (e.g. tunnels without repeaters: the GNSS shadows)."""
-    out = np.zeros(x_m.shape, dtype=bool)
-    for start, end in sections:
-        out |= (x_m >= start) & (x_m < end)  # a line has a few tunnels: one pass each
-    return out
+    x = np.ascontiguousarray(x_m, dtype=np.float64)
+    return _in_sections_runs(x.reshape(-1), sections_array(sections)).reshape(x.shape)

@@ -145,7 +145,7 @@ def _draw_runs(
 
 
 @njit
-def _detect_runs(
+def detect_runs(
     boundary_m: FloatArray,
     delay_s: FloatArray,
     next_index: IntArray,
@@ -275,7 +275,7 @@ class TrackCircuitDetector:
         def f(a: FloatArray) -> FloatArray:
             return np.ascontiguousarray(a, dtype=np.float64)
 
-        run, idx, entry, occupied, pas = _detect_runs(
+        run, idx, entry, occupied, pas = detect_runs(
             self.boundary_m,
             self.delay_s,
             self.next_index,
@@ -285,7 +285,14 @@ class TrackCircuitDetector:
             f(x1_m),
             float(t0_s),
         )
-        if pas.size and pas.max() > 0:
-            order = np.argsort(pas, kind="stable")
-            run, idx, entry, occupied = run[order], idx[order], entry[order], occupied[order]
-        return OccupancyEvents(run=run, circuit_index=idx, entry_time_s=entry, occupied_time_s=occupied)
+        return events_of(run, idx, entry, occupied, pas)
+
+
+def events_of(
+    run: IntArray, idx: IntArray, entry: FloatArray, occupied: FloatArray, pas: IntArray
+) -> OccupancyEvents:
+    """The events of one step as the compiled detection found them (run by run), pass by pass."""
+    if pas.size and pas.max() > 0:
+        order = np.argsort(pas, kind="stable")
+        run, idx, entry, occupied = run[order], idx[order], entry[order], occupied[order]
+    return OccupancyEvents(run=run, circuit_index=idx, entry_time_s=entry, occupied_time_s=occupied)

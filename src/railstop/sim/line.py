@@ -82,8 +82,9 @@ from railstop.config.disturbances import (
 )
 from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.faults import RandomOutages
+from railstop.config.loader import default_line, default_vehicle
 from railstop.config.media import ChannelParams
-from railstop.config.operation import Operation
+from railstop.config.operation import Operation, load_operation
 from railstop.config.schema import Line, Station, Vehicle
 from railstop.control.line_ato import (
     HOLD_BACK_M,
@@ -103,6 +104,7 @@ from railstop.messages import CircuitOccupancy, ControllerRestart, Message, Outp
 from railstop.model.build import DRIVER_MODES, KernelModel
 from railstop.model.records import RES_EB, RES_ERROR, RES_RESTOPS, RES_STOPPED, TR_T, TR_V, TR_X
 from railstop.model.run import SteppedStop
+from railstop.nodes.chain_step import CompiledChainStep
 from railstop.nodes.dwell import creep_rng
 from railstop.nodes.occupancy_chain import (
     Arrivals,
@@ -116,7 +118,7 @@ from railstop.onboard.positioning import FixReport, PositioningUnit
 from railstop.onboard.restricted_mode import SIGHT_M, RestrictedDrive
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
-from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2, creep_factor
+from railstop.sensors.odometer import Tachometer, accelerometer_bias_mps2
 from railstop.sim.dwell import make_door_link, run_dwell
 from railstop.sim.engine import DT_S, MAX_TIME_S
 from railstop.sim.line_cbtc import SIGNALLING_MODES, CbtcSignalling, ZoneRecord, outage_windows
@@ -555,6 +557,12 @@ def _feed_chain(
     then the telegrams that reached the trains by ``now_s`` (the fixes' report, None if none)."""
     chain.advance(**motion)
     unit.log(clock_time_s=chain.onboard_time_s(now_s), **log)
+    return _fixes(chain, unit, now_s)
+
+
+def _fixes(chain: OccupancyChain, unit: PositioningUnit, now_s: float) -> tuple[FixReport | None, Arrivals]:
+    """The telegrams of ``chain`` that reached the trains by ``now_s``, handed to ``unit`` (its
+    report, None if none)."""
     got = chain.arrivals(now_s)
     if not got.size:
         return None, got
@@ -670,6 +678,16 @@ class LineSimulation:
         self.chain, self.positioning = self._chain_and_unit(pos.chain)
         # The other chains on the same path (never driving): the same streams, so the same draws.
         self.same_path = [self._chain_and_unit(c) for c in pos.same_path]
+        self._chain_step = CompiledChainStep(
+            self.chain,
+            self.positioning,
+            self.tacho,
+            slide_slip_ratio=veh.slide_slip_ratio,
+            traction_slip_ratio=self.traction.slip_ratio,
+            # It belongs to the calibration: without the learner the calibrated position is the
+            # document's (no bridge either).
+            accel_bias_mps2=self.accel_bias if pos.accelerometer and pos.learn else None,
+        )
         self.position_errors: list[float] = []
         self.fixes: list[FixRecord] = []
         self._empty = False  # every train has left and the chains are idle (_emptied): for good
@@ -769,6 +787,8 @@ class LineSimulation:
         x1_l: list[float] = []
         v0_l: list[float] = []
         v1_l: list[float] = []
+        sliding_l: list[bool] = []
+        slipping_l: list[bool] = []
         creeping = False  # any train sliding or slipping (its distance run so counted)
         for t, (p, x, v) in zip(self.trains, before, strict=True):
             o = t.phase in ON_LINE
@@ -779,58 +799,54 @@ class LineSimulation:
             x0_l.append(x if p in ON_LINE else xn)
             v0_l.append(v)
             v1_l.append(t.v_mps)
+            sliding_l.append(t.sliding)
+            slipping_l.append(t.slipping)
             creeping = creeping or t.sliding or t.slipping
         on_line = np.array(on)
-        if creeping:
-            sliding = np.array([o and t.sliding for t, o in zip(self.trains, on, strict=True)])
-            slipping = np.array([o and t.slipping for t, o in zip(self.trains, on, strict=True)])
-            creep = creep_factor(
-                sliding,
-                slipping,
-                slide_slip_ratio=self.vehicle.slide_slip_ratio,
-                traction_slip_ratio=self.traction.slip_ratio,
-            )
-            wsp_active = sliding | slipping
-        else:  # every wheel rolls
-            creep = np.ones(on_line.size)
-            wsp_active = np.zeros(on_line.size, dtype=bool)
-        x1 = np.array(x1_l)
         x0 = np.array(x0_l, dtype=np.float64)
-        moved = np.subtract(x1, x0, out=np.zeros(x1.size), where=on_line)
-        self.tacho.advance(moved, creep)
+        x1 = np.array(x1_l, dtype=np.float64)
+        v0 = np.array(v0_l, dtype=np.float64)
+        # The odometers, the onboard clocks, the devices' detection and the units' logs in one
+        # compiled loop (nodes.chain_step); the wayside takes the detections.
+        got_step = self._chain_step.step(
+            now_s=now_s,
+            dt_s=dt,
+            on_line=on_line,
+            x0_m=x0,
+            x1_m=x1,
+            v0_mps=v0,
+            v1_mps=np.array(v1_l, dtype=np.float64),
+            sliding=np.array(sliding_l),
+            slipping=np.array(slipping_l),
+        )
         if creeping:
+            moved = got_step.moved_m
             for t in self.trains:
                 t.slide_m += float(moved[t.index]) if t.sliding else 0.0
                 t.slip_m += float(moved[t.index]) if t.slipping else 0.0
-        v0 = np.array(v0_l)
-        v1 = np.array(v1_l)
-        motion = {
-            "t0_s": now_s - dt,
-            "dt_s": dt,
-            "x0_m": x0,
-            "v0_mps": v0,
-            # The uniform acceleration that carries the front from x0 at v0 to x1 in the step: the
-            # ATO's own step, and for a stop played back from its trajectory the motion that
-            # meets both ends (the devices see the front cross where it is).
-            "accel_mps2": np.where(on_line, 2.0 * (moved - v0 * dt) / (dt * dt), 0.0),
-            "x1_m": x1,
-        }
-        log = {
-            "odometer_m": self.tacho.odometer_m(),
-            "speed_mps": self.tacho.speed_mps(v1, creep),
-            "wsp_active": wsp_active,
-            # Beyond SPEC §2: the accelerometer that bridges a slide (its bias drawn per train).
-            # It belongs to the calibration: without the learner the calibrated position is the
-            # document's (no bridge either).
-            # The train's acceleration over the step, true speeds.
-            "accel_mps2": (v1 - v0) / dt + self.accel_bias if pos.accelerometer and pos.learn else None,
-        }
-        rep, got = _feed_chain(self.chain, self.positioning, now_s, motion, log)
+        rep, got = _fixes(self.chain, self.positioning, now_s)
         if rep is not None and pos.record:
             self.fixes += fix_records(rep, got, self.positioning, now_s)
-        for chain, unit in self.same_path:
-            _feed_chain(chain, unit, now_s, motion, log)
-        est = self.positioning.calibrated_m()
+        if self.same_path:
+            # The other chains on the same path (recorded runs only): the same motion and samples.
+            motion = {
+                "t0_s": now_s - dt,
+                "dt_s": dt,
+                "x0_m": x0,
+                "v0_mps": v0,
+                "accel_mps2": got_step.accel_mps2.copy(),
+                "x1_m": x1,
+            }
+            log = {
+                "odometer_m": got_step.odometer_m.copy(),
+                "speed_mps": got_step.speed_mps.copy(),
+                "wsp_active": got_step.wsp_active.copy(),
+                "accel_mps2": got_step.log_accel_mps2.copy() if self._chain_step.accelerometer else None,
+            }
+            for chain, unit in self.same_path:
+                _feed_chain(chain, unit, now_s, motion, log)
+        # The calibrated positions: the step's, or again after a fix.
+        est = self.positioning.calibrated_m() if got.size else got_step.calibrated_m
         errors = self.position_errors
         for t, x_onboard, o in zip(self.trains, est.tolist(), on, strict=True):
             t.x_onboard_m = x_onboard
@@ -1457,3 +1473,13 @@ class LineSimulation:
             zones=list(self.cbtc.zones) if self.cbtc is not None else [],
             occupancy_link=asdict(self.chain.counts),
         )
+
+
+def warm_up() -> None:
+    """Load the line's own compiled steps from the on-disk cache, compiling them first if they are
+    not there (``railstop compile``): the position step (``nodes.chain_step``) and the positioning
+    units' fixes, by running the default line's first train over its first circuits."""
+    line, vehicle = default_line(), default_vehicle()
+    operation = load_operation(None, line)
+    operation = operation.model_validate({**operation.model_dump(), "trains": 1})
+    LineSimulation(line=line, vehicle=vehicle, operation=operation).run(300.0)
