@@ -108,6 +108,42 @@ def test_guard_is_monotone(v: float, a: float, d: float, extra: float) -> None:
         assert overrun_guard_1(v, max(a - extra, 0.0), d, 0.8, 1.0)
 
 
+def _guard_exact(v: float, a_in: float, d: float, response: float, limit: float) -> bool:
+    """The guard's exact test alone (no bound first), as it read before the bound was added."""
+    if v <= 0.0:
+        return d < 0.0
+    a = max(a_in, 0.0) if a_in == a_in else 0.0
+    t = min(response, v / a) if a > 0.0 else response
+    vr = v - a * t
+    avail = d - (v * t - 0.5 * a * t * t)
+    if avail <= 0.0:
+        return True
+    return vr * vr / (2.0 * avail) > limit
+
+
+@given(
+    v=st.floats(0.0, 40.0),
+    a=st.one_of(st.floats(-1.0, 2.0), st.just(np.nan)),
+    d=st.floats(-10.0, 600.0),
+    response=st.floats(0.0, 3.0),
+    limit=st.floats(0.05, 2.0),
+    nudge=st.integers(-3, 3),
+)
+def test_the_guards_bound_never_changes_its_answer(
+    v: float, a: float, d: float, response: float, limit: float, nudge: int
+) -> None:
+    """The division-free bound taken first (issue 37) answers only where the exact test says no
+    with room to spare: the guard's answer is the exact test's everywhere, and on the edge of
+    firing too (the distance put within a few ulps of where the bound's own test flips)."""
+    assert overrun_guard_1(v, a, d, response, limit) == _guard_exact(v, a, d, response, limit)
+    if v > 0.0:
+        edge = v * v / (2.0 * limit) + v * response  # where the bound's comparison flips
+        d_edge = float(np.nextafter(edge, np.inf if nudge > 0 else -np.inf)) if nudge else edge
+        for _ in range(abs(nudge) - 1):
+            d_edge = float(np.nextafter(d_edge, np.inf if nudge > 0 else -np.inf))
+        assert overrun_guard_1(v, a, d_edge, response, limit) == _guard_exact(v, a, d_edge, response, limit)
+
+
 # ---------------------------------------------------------------- the onboard unit alone
 
 

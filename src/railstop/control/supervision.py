@@ -103,6 +103,10 @@ def guard_limit_1(limit_mps2: float, emergency_mps2: float, gain: float, externa
     return min(limit_mps2, emergency_mps2 * min(gain, 1.0) + external_mps2)
 
 
+# The overrun guard's bound is taken only this far (relative) inside its limit.
+_BOUND_MARGIN = 1e-9
+
+
 @njit_inline
 def overrun_guard_1(
     speed_mps: float, decel_mps2: float, distance_to_end_m: float, response_s: float, limit_mps2: float
@@ -119,6 +123,15 @@ def overrun_guard_1(
     """
     if speed_mps <= 0.0:
         return distance_to_end_m < 0.0
+    # A bound first, without a division (the test below runs every step of every stop): the
+    # speed after the response is at most the present one, the distance run meanwhile at most
+    # speed x response. When even so stopping needs less than the limit, with a margin far above
+    # the rounding of either computation, the exact test below would say no: it is not taken.
+    # (A NaN anywhere makes the comparison false: the exact test decides.)
+    if speed_mps * speed_mps * (1.0 + _BOUND_MARGIN) < 2.0 * limit_mps2 * (
+        distance_to_end_m - speed_mps * response_s
+    ):
+        return False
     a = max(decel_mps2, 0.0) if decel_mps2 == decel_mps2 else 0.0  # NaN: not known, assume none
     t = min(response_s, speed_mps / a) if a > 0.0 else response_s
     v = speed_mps - a * t

@@ -474,6 +474,13 @@ def gain_update_1(
     return num, den
 
 
+@njit_inline
+def _ring_at(i: int, size: int) -> int:
+    """``i % size`` for ``-size <= i < size`` (a ring's index counted back from its newest), with
+    no integer division: the fits below take it for every sample of a window."""
+    return i + size if i < 0 else i
+
+
 @njit_step
 def line_fit_1(ring: FloatArray, newest: int, count: int, dt_s: float) -> tuple[float, float]:
     """Least-squares line through the newest ``count`` samples of a ring buffer: (value now, slope).
@@ -484,12 +491,13 @@ def line_fit_1(ring: FloatArray, newest: int, count: int, dt_s: float) -> tuple[
     if count < 2:
         return ring[newest], np.nan
     size = ring.size
+    count = min(count, size)  # a ring holds no more (the callers' counts never exceed it)
     m = float(count)
     st = 0.0
     sv = 0.0
     for a in range(count):
         st += -a * dt_s
-        sv += ring[(newest - a) % size]
+        sv += ring[_ring_at(newest - a, size)]
     t_mean = st / m
     v_mean = sv / m
     sxx = 0.0
@@ -497,7 +505,7 @@ def line_fit_1(ring: FloatArray, newest: int, count: int, dt_s: float) -> tuple[
     for a in range(count):
         d = -a * dt_s - t_mean
         sxx += d * d
-        sxy += d * (ring[(newest - a) % size] - v_mean)
+        sxy += d * (ring[_ring_at(newest - a, size)] - v_mean)
     slope = sxy / sxx
     return v_mean - slope * t_mean, slope
 
@@ -526,7 +534,7 @@ def fit_ring_1(
         size = ring.size
         sv = 0.0
         for a in range(m):
-            sv += ring[(newest - a) % size]
+            sv += ring[_ring_at(newest - a, size)]
         v_now = sv / m + slope * (m - 1) * dt_s / 2.0
     return v_now, -slope
 

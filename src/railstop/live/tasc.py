@@ -500,7 +500,7 @@ class TascPlant:
 
     @property
     def max_jerk(self) -> float:
-        return float(self.part.tally["max_jerk_mps3"])
+        return self.part.max_jerk_mps3
 
     @property
     def stop_time_s(self) -> float:

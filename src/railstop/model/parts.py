@@ -24,7 +24,7 @@ import numpy as np
 from railstop.config.scenario import Scenario
 from railstop.jit import njit_step
 from railstop.model.build import KernelModel
-from railstop.model.records import RunParams, StopOutputs, StopParams, StopState
+from railstop.model.records import KP_DT, RunParams, StopOutputs, StopParams, StopState
 from railstop.model.run import StopRecords, compiled_for
 from railstop.model.step import (
     actuator_1,
@@ -130,8 +130,14 @@ class PlantPart:
 
     @property
     def tally(self) -> Any:
-        """The stop's tallies (``TALLY_DTYPE``: ``max_jerk_mps3``, ...)."""
+        """The stop's tallies (``TALLY_DTYPE``: ``max_accel_change_mps2``, ...)."""
         return self.records.state.tally[0]
+
+    @property
+    def max_jerk_mps3(self) -> float:
+        """The largest jerk under braking so far, as the stop's result gives it (``stop_finish``:
+        the largest change of the acceleration between two steps, over the step)."""
+        return float(self.tally["max_accel_change_mps2"]) / float(self.records.p.kp[KP_DT])
 
 
 class _UnitPart:

@@ -370,6 +370,7 @@ RUN_DTYPE = np.dtype(
         ("static_kg", np.float64),
         ("effective_kg", np.float64),
         ("believed_kg", np.float64),
+        ("brake_effect", np.float64),  # brakes' deceleration per ECU demand: gain x believed / effective
         # Wheels and odometer: actual and assumed diameter, tachometer scale, slide creep.
         ("wheel_m", np.float64),
         ("assumed_m", np.float64),
@@ -464,7 +465,9 @@ SENSE_DTYPE = np.dtype(
 # What the results count, and the recording's rows.
 TALLY_DTYPE = np.dtype(
     [
-        ("max_jerk_mps3", np.float64),
+        # the largest change of the acceleration from one counted step to the next (the jerk times
+        # the step: the result divides by the step once, at the end)
+        ("max_accel_change_mps2", np.float64),
         ("slid", np.bool_),
         ("prev_accel_mps2", np.float64),
         ("prev_counted", np.bool_),  # the last step's jerk counted (braking, moving)

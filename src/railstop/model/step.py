@@ -413,6 +413,7 @@ def _derive_run(p: StopParams, run: RunParams, seed_keys: UintArray, run_index: 
     d.static_kg = static
     d.effective_kg = static + rotating
     d.believed_kg = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
+    d.brake_effect = sc[SC_BRAKE_GAIN] * d.believed_kg / d.effective_kg
     # The odometer assumes the actual diameter with its error (assumed = actual x (1 + error)).
     d.wheel_m = sc[SC_WHEEL_D]
     d.assumed_m = d.wheel_m * (1.0 + sc[SC_ODO_ERROR])
@@ -474,7 +475,7 @@ def _reset_state(p: StopParams, s: StopState, start_m: float, entry_mps: float) 
     se.transponder_m = np.nan
     se.miss_trials = 0
     se.misses = 0
-    ta.max_jerk_mps3 = 0.0
+    ta.max_accel_change_mps2 = 0.0
     ta.slid = False
     ta.prev_accel_mps2 = 0.0
     ta.prev_counted = False
@@ -799,7 +800,7 @@ def actuator_1(p: StopParams, run: RunParams, s: StopState, k: int, demand: floa
         s.ring, k, d.delay_steps, demand, tr.limited_mps2, tr.output_mps2, d.lag_alpha, d.jerk_step_mps2,
         kp[KP_EMERGENCY],
     )  # fmt: skip
-    return tr.output_mps2 * run.sc[SC_BRAKE_GAIN] * d.believed_kg / d.effective_kg
+    return tr.output_mps2 * d.brake_effect
 
 
 @njit_inline
@@ -844,9 +845,12 @@ def move_1(
         ta.slid = True
     # Jerk while moving under braking (not across the traction cut-off or the standstill step).
     counted = not hold and traction <= 0.0 and not now_stopped
-    jerk = abs(accel - ta.prev_accel_mps2) / dt
+    # The largest |change| of the acceleration; the jerk is that over the step, divided once at the
+    # end of the run (stop_finish: dividing by the same positive step rounds monotonically, so the
+    # maximum of the quotients is the quotient of the maximum, to the bit).
+    change = abs(accel - ta.prev_accel_mps2)
     if counted and ta.prev_counted:
-        ta.max_jerk_mps3 = max(ta.max_jerk_mps3, jerk)
+        ta.max_accel_change_mps2 = max(ta.max_accel_change_mps2, change)
     ta.prev_accel_mps2 = accel
     ta.prev_counted = counted
     return x, accel, sliding, now_stopped
@@ -864,9 +868,9 @@ def sensors_1(
     if passage_1(p.det_pos, se.truth_next, x0, x):
         out.passages[se.truth_next] = t + crossing_time_1(x0, v0, accel, p.det_pos[se.truth_next])
         se.truth_next += 1
-    # Odometer: wheel revolutions x pi x assumed diameter (SPEC §2).
-    revs = (x - x0) * creep_1(sliding, d.slide_slip) / (np.pi * d.wheel_m)
-    odometer = revs * np.pi * d.assumed_m
+    # Odometer: wheel revolutions x pi x assumed diameter (SPEC §2), i.e. the distance x creep x
+    # D_assumed / D_actual (the tachometer's scale, one factor per run: stop model 21).
+    odometer = (x - x0) * creep_1(sliding, d.slide_slip) * d.tach_scale
     tr.odometer_step_m = odometer
     if d.is_ato:
         ato_odometer_1(s.at, odometer)
@@ -1073,7 +1077,7 @@ def stop_finish(p: StopParams, run: RunParams, s: StopState, out: StopOutputs, r
     onboard_only = d.onboard_only
     res[RES_ERROR] = tr.position_m - stop_point
     res[RES_STOP_TIME] = tr.stop_time_s - passages[0] if tr.stopped else np.nan
-    res[RES_MAX_JERK] = ta.max_jerk_mps3
+    res[RES_MAX_JERK] = ta.max_accel_change_mps2 / p.kp[KP_DT]
     res[RES_NOTCH_CHANGES] = ta.notch_changes
     res[RES_SENT] = 0.0 if onboard_only else s.ws[WS_SENT]
     res[RES_RECEIVED] = 0.0 if onboard_only else s.rx[RX_RECEIVED]

@@ -136,7 +136,8 @@ RP_TRANSFER_STEPS = 19  # config 2: steps the changeover switches take (break be
 RP_DEAD = 20  # the brakes' dead time (the modulator's model: this, then the lag RP_LAG)
 RP_START_FLOOR = 21  # forms 1-5: the first braking waits while the command is under this
 RP_EMERGENCY = 22  # the train's nominal emergency deceleration (its guard's limit, guard_limit_1)
-RP_SIZE = 23
+RP_GUARD_ALPHA = 23  # the guard's deceleration filter: dt / (GUARD_DECEL_TAU_S + dt)
+RP_SIZE = 24
 
 RX_ACTIVE = 0
 RX_TARGET = 1
@@ -221,6 +222,7 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     rp[RP_TRANSFER_STEPS] = round(brake.switch_transfer_s / dt_s)
     rp[RP_START_FLOOR] = start_floor_mps2(brake.full_service_mps2, form, station.tasc.doppler is not None)
     rp[RP_EMERGENCY] = brake.emergency_decel_mps2
+    rp[RP_GUARD_ALPHA] = dt_s / (GUARD_DECEL_TAU_S + dt_s)
     return rp
 
 
@@ -613,9 +615,8 @@ def receiver_supervise_1(
     if math.isfinite(rx[RX_FIX_POS]):
         rx[RX_SINCE_FIX] += odometer_m
     if math.isfinite(rx[RX_TACH_PREV]):
-        dt = rp[RP_DT]
-        alpha = dt / (GUARD_DECEL_TAU_S + dt)
-        rx[RX_TACH_DECEL] += alpha * ((rx[RX_TACH_PREV] - speed_mps) / dt - rx[RX_TACH_DECEL])
+        decel = (rx[RX_TACH_PREV] - speed_mps) / rp[RP_DT]
+        rx[RX_TACH_DECEL] += rp[RP_GUARD_ALPHA] * (decel - rx[RX_TACH_DECEL])
     rx[RX_TACH_PREV] = speed_mps
     if rx[RX_EB] > 0.0:
         return True
