@@ -37,7 +37,7 @@ from railstop.physics.plant import (
     traction_adhesion_mps2,
     traction_mps2,
 )
-from railstop.physics.train import G_MPS2, mean_gradient_1, motion_step_1
+from railstop.physics.train import G_MPS2, adhesion_limit_1, mean_gradient_1, motion_step_1
 
 VEHICLE = default_vehicle()
 # No running resistance: the closed forms hold exactly.
@@ -203,8 +203,9 @@ def test_the_plant_moves_the_train_as_the_stop_model_does_for_the_same_braking()
         grade = mean_gradient_1(
             x, VEHICLE.length_m, gradient.breakpoints_m, gradient.values_permille[0], gradient._elev_at_bp[0]
         )
+        limit = adhesion_limit_1(VEHICLE.adhesion_mu, params.static_kg, params.effective_kg)
         x, v, _, stopped, _, _ = motion_step_1(
-            x, v, stopped, output, grade, VEHICLE.adhesion_mu, False, params.static_kg, params.effective_kg,
+            x, v, stopped, output, grade, limit, False, params.static_kg, params.effective_kg,
             VEHICLE.davis_a_n, VEHICLE.davis_b_n_per_mps, VEHICLE.davis_c_n_per_mps2, t, params.dt_s,
         )  # fmt: skip
         assert state.output_mps2 == output

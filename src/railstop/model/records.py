@@ -371,6 +371,9 @@ RUN_DTYPE = np.dtype(
         ("effective_kg", np.float64),
         ("believed_kg", np.float64),
         ("brake_effect", np.float64),  # brakes' deceleration per ECU demand: gain x believed / effective
+        # The adhesion's braking limits (physics.train.adhesion_limit_1): dry rail, the patch.
+        ("adhesion_limit_mps2", np.float64),
+        ("patch_limit_mps2", np.float64),
         # Wheels and odometer: actual and assumed diameter, tachometer scale, slide creep.
         ("wheel_m", np.float64),
         ("assumed_m", np.float64),

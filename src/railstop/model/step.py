@@ -414,6 +414,8 @@ def _derive_run(p: StopParams, run: RunParams, seed_keys: UintArray, run_index: 
     d.effective_kg = static + rotating
     d.believed_kg = static * (1.0 + sc[SC_WEIGHING_ERROR]) + rotating
     d.brake_effect = sc[SC_BRAKE_GAIN] * d.believed_kg / d.effective_kg
+    d.adhesion_limit_mps2 = adhesion_limit_1(sc[SC_MU], d.static_kg, d.effective_kg)
+    d.patch_limit_mps2 = adhesion_limit_1(sc[SC_LOW_MU], d.static_kg, d.effective_kg)
     # The odometer assumes the actual diameter with its error (assumed = actual x (1 + error)).
     d.wheel_m = sc[SC_WHEEL_D]
     d.assumed_m = d.wheel_m * (1.0 + sc[SC_ODO_ERROR])
@@ -821,17 +823,18 @@ def move_1(
     kp, sc, d, tr, ta = p.kp, run.sc, run.derived[0], s.train[0], s.tally[0]
     dt = kp[KP_DT]
     in_patch = x >= sc[SC_LOW_START] and x < sc[SC_LOW_END]
-    mu = sc[SC_LOW_MU] if in_patch else sc[SC_MU]
+    # The adhesion's limit here (the run's two, derived once: _derive_run).
+    limit = d.patch_limit_mps2 if in_patch else d.adhesion_limit_mps2
     bp, gv, ge = run.grad
     stopped = tr.stopped
     if traction > 0.0:
         # [interpretation] the traction a driver takes is far below the adhesion on dry rail; on a
         # low-adhesion patch it is held to it (the anti-slip control), and it releases the brakes.
-        traction = min(traction, adhesion_limit_1(mu, d.static_kg, d.effective_kg))
+        traction = min(traction, limit)
         brake_decel -= traction
         stopped = stopped and brake_decel >= 0.0
     x, v, accel, now_stopped, st, sliding = motion_step_1(
-        x, v, stopped, brake_decel, mean_gradient_1(x, kp[KP_LENGTH], bp, gv, ge), mu, hold,
+        x, v, stopped, brake_decel, mean_gradient_1(x, kp[KP_LENGTH], bp, gv, ge), limit, hold,
         d.static_kg, d.effective_kg, kp[KP_DAVIS_A], kp[KP_DAVIS_B], kp[KP_DAVIS_C], t, dt,
     )  # fmt: skip
     tr.position_m = x

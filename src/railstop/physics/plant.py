@@ -44,7 +44,7 @@ from railstop.config.gradient import GradientProfile
 from railstop.config.schema import GradientSegment, Line, Vehicle
 from railstop.errors import SimulationError
 from railstop.physics.brake import actuator_step_1
-from railstop.physics.train import G_MPS2, mean_gradient_1, motion_step_1
+from railstop.physics.train import G_MPS2, adhesion_limit_1, mean_gradient_1, motion_step_1
 from railstop.quantities import kmh_to_mps
 
 FloatArray = NDArray[np.float64]
@@ -259,7 +259,7 @@ def plant_step(
         state.stopped,
         output - traction,
         d * params.mean_gradient(state.x_m),
-        mu,
+        adhesion_limit_1(mu, params.static_kg, params.effective_kg),
         speed_hold and output < RELEASED_MPS2,
         params.static_kg,
         params.effective_kg,

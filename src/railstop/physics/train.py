@@ -165,7 +165,7 @@ def motion_step_1(
     stopped: bool,
     brake_decel_mps2: float,
     mean_gradient: float,
-    adhesion_mu: float,
+    adhesion_limit_mps2: float,
     speed_hold: bool,
     static_kg: float,
     effective_kg: float,
@@ -182,15 +182,20 @@ def motion_step_1(
     exactly within the step; a stopped train is held by its brake. With
     ``speed_hold`` the train keeps its speed (traction holds the approach
     speed until the TASC first brakes). The braking deceleration is limited
-    by adhesion, mu g m / m_eff (all axles braked): above it the wheels slide.
+    by adhesion, mu g m / m_eff (all axles braked, ``adhesion_limit_mps2``:
+    :func:`adhesion_limit_1` of the rail here, which the callers keep per run): above it the
+    wheels slide.
     """
-    limit = adhesion_limit_1(adhesion_mu, static_kg, effective_kg)
+    limit = adhesion_limit_mps2
     sliding = brake_decel_mps2 > limit
-    brake = min(brake_decel_mps2, limit)
-    v_abs = abs(speed_mps)
-    resist = (davis_a_n + davis_b_n_per_mps * v_abs + davis_c_n_per_mps2 * v_abs * v_abs) / effective_kg
-    grade = G_MPS2 * mean_gradient * static_kg / effective_kg
-    decel = 0.0 if speed_hold else brake + resist + grade
+    if speed_hold:
+        decel = 0.0  # (resistance and gradient are not computed: the traction holds the speed)
+    else:
+        brake = min(brake_decel_mps2, limit)
+        v_abs = abs(speed_mps)
+        resist = (davis_a_n + davis_b_n_per_mps * v_abs + davis_c_n_per_mps2 * v_abs * v_abs) / effective_kg
+        grade = G_MPS2 * mean_gradient * static_kg / effective_kg
+        decel = brake + resist + grade
     if stopped:
         return position_m, speed_mps, 0.0, True, np.nan, sliding
     v_new = speed_mps - decel * dt_s
