@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -76,6 +76,28 @@ SENSED_FRESH_S = 1.0
 DWELL_STEP_S = 0.05
 #: A time due within this of a step's is due at that step (the steps' sums are not exact in binary).
 _EPS_S = 1e-9
+
+
+_V = TypeVar("_V")
+
+
+class _Remade(Generic[_V]):
+    """A value made by ``make`` from some inputs, made again only when the inputs differ from the
+    last call's (a telegram or a report is a value: the units make one again only when what it
+    carries has changed)."""
+
+    __slots__ = ("_inputs", "_make", "_value")
+
+    def __init__(self, make: Callable[..., _V]) -> None:
+        self._make = make
+        self._inputs: tuple[Any, ...] | None = None
+        self._value: _V | None = None
+
+    def __call__(self, *inputs: Any) -> _V:
+        if self._value is None or self._inputs != inputs:
+            self._value = self._make(*inputs)
+            self._inputs = inputs
+        return self._value
 
 
 def model_for(doors: DoorsConfig) -> DoorModel:
@@ -151,7 +173,11 @@ class PlatformDoors:
         self.jam_next: set[int] = set()  # fault injection: these PSD units jam on their next closing
         self.interlock_error: str | None = None  # the first input the WPCS did not allow
         self._settled: tuple[Any, ...] | None = None  # the last scan's inputs, when it changed nothing
-        self._last_status: tuple[tuple[Any, ...], PsdStatus] | None = None  # (its inputs, the telegram)
+        self._status = _Remade(
+            lambda train, units, fault, psc, manual, locked: psd_status(
+                train, units, fault=fault, psc=psc, manual=manual, locked=locked
+            )
+        )
         self.counts = {"psc_answered": 0, "psc_refused": 0, "links_lost": 0, "commands": 0, "other_train": 0}
 
     # -- inputs ---------------------------------------------------------------------
@@ -233,7 +259,7 @@ class PlatformDoors:
     def status(self) -> PsdStatus:
         """The ``psd-status`` of the platform now: the last one again when nothing it is made of
         has changed (a telegram is a value)."""
-        inputs = (
+        return self._status(
             self.train if self.train is not None else 0,
             self.state.units,
             self.state.fault,
@@ -241,11 +267,6 @@ class PlatformDoors:
             self.wcc_manual,
             self.model.interlocks.locked,
         )
-        if self._last_status is None or self._last_status[0] != inputs:
-            train, units, fault, psc, manual, locked = inputs
-            status = psd_status(train, units, fault=fault, psc=psc, manual=manual, locked=locked)
-            self._last_status = (inputs, status)
-        return self._last_status[1]
 
     def _scan(self, now_s: float) -> None:
         cmd = self.last_cmd
@@ -407,9 +428,13 @@ class TrainDoors:
         self.driver: list[tuple[float, dict[str, bool]]] = []  # the driver's actions to come
         self.settle_end_s = math.inf
         self._settled: tuple[Any, ...] | None = None  # the last scan's inputs, when it changed nothing
-        self._last_command: tuple[tuple[Any, ...], DoorCommand] | None = None  # (its inputs, the telegram)
-        # The PSD report of the last status frame, by what of it the report is made of (``_psd``).
-        self._psd_of: tuple[tuple[int, int, bool, bool], PsdReport] | None = None
+        self._command = _Remade(
+            lambda train, signals, psc, automatic, doors, locked: door_command(
+                train, signals, psc=psc, automatic=automatic, doors=doors, locked=locked
+            )
+        )
+        # The PSD report of a status frame, made of these bits of it alone (``_psd``).
+        self._psd_report = _Remade(self._make_psd_report)
 
     # -- inputs -------------------------------------------------------------------------
     def receive(self, status: PsdStatus, now_s: float) -> None:
@@ -512,7 +537,7 @@ class TrainDoors:
     def command(self, *, psc: bool | None = None) -> DoorCommand:
         """The ``door-command`` of the train now: the last one again when nothing it is made of has
         changed (a telegram is a value)."""
-        inputs = (
+        return self._command(
             self.train,
             self.signals,
             self.stop.phase in (StopPhase.PSC_WAIT, StopPhase.CONFIRMED) if psc is None else psc,
@@ -520,11 +545,6 @@ class TrainDoors:
             self.cpcs.side(self.side),
             self.model.interlocks.locked,
         )
-        if self._last_command is None or self._last_command[0] != inputs:
-            train, signals, request, automatic, doors, locked = inputs
-            cmd = door_command(train, signals, psc=request, automatic=automatic, doors=doors, locked=locked)
-            self._last_command = (inputs, cmd)
-        return self._last_command[1]
 
     # -- inside -------------------------------------------------------------------------
     def _psd(self, now_s: float) -> PsdReport | None:
@@ -532,17 +552,13 @@ class TrainDoors:
         st = self.status
         if self.stop.phase != StopPhase.CONFIRMED or st is None:
             return None
-        n = len(self.cpcs.side(self.side))
         # The report is made of these bits of the frame alone (and the doors per side, fixed).
-        bits = (n, st.psd_open, st.psd_closed_locked, st.fault)
-        if self._psd_of is not None and self._psd_of[0] == bits:
-            return self._psd_of[1]
-        units = units_from_link(
-            n, open_mask=st.psd_open, locked_mask=(1 << n) - 1 if st.psd_closed_locked else 0
-        )
-        report = PsdReport(side=self.side, units=units, fault=st.fault)
-        self._psd_of = (bits, report)
-        return report
+        return self._psd_report(len(self.cpcs.side(self.side)), st.psd_open, st.psd_closed_locked, st.fault)
+
+    def _make_psd_report(self, n: int, psd_open: int, closed_locked: bool, fault: bool) -> PsdReport:
+        locked_mask = (1 << n) - 1 if closed_locked else 0
+        units = units_from_link(n, open_mask=psd_open, locked_mask=locked_mask)
+        return PsdReport(side=self.side, units=units, fault=fault)
 
     def _scan(self, now_s: float) -> None:
         psd = self._psd(now_s)
