@@ -183,3 +183,16 @@ def test_the_real_tree_has_the_cli_on_top() -> None:
         if imp.kind != "typing" and imp.imported.split(".")[:2] == ["railstop", "cli"]
     ]
     assert below == []
+
+
+def test_the_real_tree_keeps_the_layout_targets() -> None:
+    """Issue 35's layout targets on the real tree, so that a change breaking one fails here: no
+    upward import and no cycle (module level or inside functions), no function of 150 lines or
+    more, none over 20 parameters, ``sim/`` under 15 % of the code."""
+    fig = arch.figures(arch.scan(arch.ROOT))
+    assert fig["upward_imports"] == [] and fig["upward_function_imports"] == []
+    assert fig["cycles"]["count"] == 0 and fig["cycles_with_function_imports"]["count"] == 0
+    longest = fig["longest_functions"][0]
+    assert longest["lines"] < 150, longest
+    assert fig["functions_over_20_params"] == []
+    assert fig["sim_share"]["code"] < 0.15

@@ -354,6 +354,53 @@ def receiver_receive_1(
         )
 
 
+@njit_inline
+def _calibrate_tachometer_1(
+    rx: FloatArray,
+    tele: FloatArray,
+    det_to_stop: FloatArray,
+    form: int,
+    tach_v: float,
+    now_s: float,
+    lag: float,
+) -> None:
+    """Forms 1-5: the tachometer's scale (true over tachometer distance, RX_SCALE) from the
+    telegram's measurements (:func:`_receiver_plan_1`, items 1-3), never over a stretch in which
+    the wheel-slide protection acted."""
+    det = int(tele[TEL_DETECTOR])
+    if form <= 3:
+        if det != int(rx[RX_PREV_DET]):
+            # A new passage: the odometer's count at it (back from now at the present speed), as
+            # forms 4 and 5 take theirs (stop model 16: the tachometer's speed summed per step is
+            # off by a·dt/2v, the count is the odometer's own).
+            odo_pass = rx[RX_PULSES] - tach_v * (now_s - tele[TEL_PASSAGE])
+            interval = tele[TEL_INTERVAL]
+            prev = int(rx[RX_PREV_DET])
+            known = math.isfinite(interval) and interval > 0.0 and math.isfinite(rx[RX_PREV_ODO])
+            if prev == det - 1 and known:
+                tach_mean = (odo_pass - rx[RX_PREV_ODO]) / interval
+                true_mean = (det_to_stop[prev] - det_to_stop[det]) / interval
+                if tach_mean > 0.5 and rx[RX_WSP_T] < rx[RX_PREV_T]:
+                    rx[RX_SCALE] = true_mean / tach_mean
+            rx[RX_PREV_ODO] = odo_pass
+            rx[RX_PREV_DET] = det
+            rx[RX_PREV_T] = tele[TEL_PASSAGE]
+    else:
+        # Forms 4, 5: two successive distances against the odometer's count between the same
+        # instants calibrate the tachometer (the wheel's scale error is the odometer's). The
+        # count, not the tachometer's speed summed per step: that sum is off by a · dt / 2v, a
+        # few hundredths of a per cent near standstill, which moved nominal stops by centimetres.
+        odo_meas = rx[RX_PULSES] - tach_v * lag
+        d_m = tele[TEL_DISTANCE]
+        calm = rx[RX_WSP_T] < rx[RX_PREV_T]  # no slide since the reference
+        if math.isfinite(rx[RX_CAL_ODO]) and odo_meas - rx[RX_CAL_ODO] > 5.0 and calm:
+            rx[RX_SCALE] = (rx[RX_CAL_REF] - d_m) / (odo_meas - rx[RX_CAL_ODO])
+        if not math.isfinite(rx[RX_CAL_ODO]) or odo_meas - rx[RX_CAL_ODO] > 5.0:
+            rx[RX_CAL_ODO] = odo_meas
+            rx[RX_CAL_REF] = d_m
+            rx[RX_PREV_T] = tele[TEL_MEASURED]
+
+
 @njit_step
 def _receiver_plan_1(
     rx: FloatArray,
@@ -401,40 +448,9 @@ def _receiver_plan_1(
     count = int(rx[RX_TCOUNT])
     tach_v, tach_a = fit_ring_1(tach, int(rx[RX_TCOL]), count, dt, int(rp[RP_SPEED_SAMPLES]))
     form = int(rp[RP_FORM])
-    det = int(tele[TEL_DETECTOR])
     lag = now_s - tele[TEL_MEASURED]
     a_tach = tach_a if math.isfinite(tach_a) else 0.0
-    if form <= 3:
-        if det != int(rx[RX_PREV_DET]):
-            # A new passage: the odometer's count at it (back from now at the present speed), as
-            # forms 4 and 5 take theirs (stop model 16: the tachometer's speed summed per step is
-            # off by a·dt/2v, the count is the odometer's own).
-            odo_pass = rx[RX_PULSES] - tach_v * (now_s - tele[TEL_PASSAGE])
-            interval = tele[TEL_INTERVAL]
-            prev = int(rx[RX_PREV_DET])
-            known = math.isfinite(interval) and interval > 0.0 and math.isfinite(rx[RX_PREV_ODO])
-            if prev == det - 1 and known:
-                tach_mean = (odo_pass - rx[RX_PREV_ODO]) / interval
-                true_mean = (det_to_stop[prev] - det_to_stop[det]) / interval
-                if tach_mean > 0.5 and rx[RX_WSP_T] < rx[RX_PREV_T]:
-                    rx[RX_SCALE] = true_mean / tach_mean
-            rx[RX_PREV_ODO] = odo_pass
-            rx[RX_PREV_DET] = det
-            rx[RX_PREV_T] = tele[TEL_PASSAGE]
-    else:
-        # Forms 4, 5: two successive distances against the odometer's count between the same
-        # instants calibrate the tachometer (the wheel's scale error is the odometer's). The
-        # count, not the tachometer's speed summed per step: that sum is off by a · dt / 2v, a
-        # few hundredths of a per cent near standstill, which moved nominal stops by centimetres.
-        odo_meas = rx[RX_PULSES] - tach_v * lag
-        d_m = tele[TEL_DISTANCE]
-        calm = rx[RX_WSP_T] < rx[RX_PREV_T]  # no slide since the reference
-        if math.isfinite(rx[RX_CAL_ODO]) and odo_meas - rx[RX_CAL_ODO] > 5.0 and calm:
-            rx[RX_SCALE] = (rx[RX_CAL_REF] - d_m) / (odo_meas - rx[RX_CAL_ODO])
-        if not math.isfinite(rx[RX_CAL_ODO]) or odo_meas - rx[RX_CAL_ODO] > 5.0:
-            rx[RX_CAL_ODO] = odo_meas
-            rx[RX_CAL_REF] = d_m
-            rx[RX_PREV_T] = tele[TEL_MEASURED]
+    _calibrate_tachometer_1(rx, tele, det_to_stop, form, tach_v, now_s, lag)
     scale = rx[RX_SCALE]
     speed = tach_v * scale
     a_est = a_tach * scale

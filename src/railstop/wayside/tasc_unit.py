@@ -647,6 +647,85 @@ def wayside_modulate_1(
     return True
 
 
+@njit_inline
+def _initial_brake_step_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    pass_t: FloatArray,
+    pass_x: FloatArray,
+    hist_v: FloatArray,
+    hist_e: FloatArray,
+    det_to_stop: FloatArray,
+) -> None:
+    """The train's own initial brake step from the zone's first transponder, at the first
+    detector (tasc.initial_brake_notch): the wayside's database knows it, so its model of the
+    train brakes from that passage on instead of holding the speed. [interpretation] Configs 1
+    and 2 replace it with the first command, as the model's history does. Once, into the empty
+    history (a form-8 command that changes no notch is planned, not sent)."""
+    if wp[WP_INITIAL_DECEL] > 0.0 and not math.isfinite(hist_e[0]):
+        first_x = wp[WP_STOP] - det_to_stop[0]
+        for j in range(3):
+            if pass_x[j] == first_x and math.isfinite(pass_t[j]):
+                history_push_1(hist_v, hist_e, wp[WP_INITIAL_DECEL], pass_t[j] + wp[WP_INITIAL_DELAY])
+                ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], pass_t[j])
+
+
+@njit_inline
+def _telegram_and_record_1(
+    ws: FloatArray,
+    wp: FloatArray,
+    brake: BrakeCurves,
+    tele: FloatArray,
+    record: FloatArray,
+    now_s: float,
+    distance: float,
+    interval: float,
+    speed: float,
+    decel: float,
+    gain: float,
+    a_true: float,
+    command: float,
+    notch: int,
+    delta: int,
+    effect: float,
+) -> None:
+    """The command's telegram (TEL_*: in form 1-5 only what the form's combination carries, SPEC §1
+    para 92) into ``tele`` and its record (CR_*: SPEC §1 claims 8, 20) into ``record``."""
+    form = int(wp[WP_FORM])
+    last_det = ws[WS_LAST_DET]
+    tele[TEL_DETECTOR] = last_det
+    tele[TEL_PASSAGE] = ws[WS_LAST_PASS]
+    tele[TEL_MEASURED] = now_s
+    tele[TEL_POSITION] = wp[WP_STOP] - distance
+    tele[TEL_DISTANCE] = distance
+    tele[TEL_INTERVAL] = interval
+    tele[TEL_SPEED] = speed
+    tele[TEL_DECEL] = decel
+    tele[TEL_REQUIRED] = command
+    tele[TEL_NOTCH] = notch
+    tele[TEL_DUTY] = decel_to_pwm_1(command, brake.pwm_duty, brake.pwm_decel)
+    tele[TEL_DELTA] = delta
+    tele[TEL_STEP] = ws[WS_STEPS] % 256.0
+    tele[TEL_EMERGENCY] = ws[WS_EMERGENCY]
+    if form <= 5:  # forms 1-5 carry measurements only, in para 92's combinations (SPEC §1)
+        for m in range(_MEASUREMENTS.size):
+            if _COMBINATION_OF_FORM[form, m] == 0:
+                tele[_MEASUREMENTS[m]] = np.nan
+    record[CR_T] = now_s
+    record[CR_DETECTOR] = last_det
+    record[CR_PASSAGE] = ws[WS_LAST_PASS]
+    record[CR_DISTANCE] = distance
+    record[CR_SPEED] = speed
+    record[CR_DECEL] = decel
+    record[CR_GAIN] = gain
+    record[CR_REQUIRED] = a_true
+    record[CR_COMMAND] = command
+    record[CR_NOTCH] = notch
+    record[CR_DELTA] = delta
+    record[CR_EFFECT] = effect
+    record[CR_EMERGENCY] = ws[WS_EMERGENCY]
+
+
 @njit_step
 def wayside_command_1(
     ws: FloatArray,
@@ -667,19 +746,9 @@ def wayside_command_1(
 ) -> bool:
     """The command due now: measure, close the loop, plan; the telegram into ``tele``, its
     record (CR_*: SPEC §1 claims 8, 20) into ``record``; True when the telegram is to be sent."""
-    table, pwm_duty, pwm_decel = brake.table, brake.pwm_duty, brake.pwm_decel
+    table = brake.table
     det_to_stop, ext, grad = approach.det_to_stop, approach.ext, approach.grad
-    if wp[WP_INITIAL_DECEL] > 0.0 and not math.isfinite(hist_e[0]):
-        # The train's own initial brake step from the zone's first transponder, at the first
-        # detector (tasc.initial_brake_notch): the wayside's database knows it, so its model of
-        # the train brakes from that passage on instead of holding the speed. [interpretation]
-        # Configs 1 and 2 replace it with the first command, as the model's history does. Once,
-        # into the empty history (a form-8 command that changes no notch is planned, not sent).
-        first_x = wp[WP_STOP] - det_to_stop[0]
-        for j in range(3):
-            if pass_x[j] == first_x and math.isfinite(pass_t[j]):
-                history_push_1(hist_v, hist_e, wp[WP_INITIAL_DECEL], pass_t[j] + wp[WP_INITIAL_DELAY])
-                ws[WS_FIRST_SENT] = min(ws[WS_FIRST_SENT], pass_t[j])
+    _initial_brake_step_1(ws, wp, pass_t, pass_x, hist_v, hist_e, det_to_stop)
     speed, decel, distance, cmd_mean, ext_mean = _wayside_measure_1(
         ws,
         wp,
@@ -786,38 +855,10 @@ def wayside_command_1(
     interval_fit_reset_1(ws, WS_SUMS)
     if wp[WP_CONTINUOUS] > 0.0:
         ws[WS_NEXT_UPDATE] = now_s + wp[WP_CONTINUOUS_PERIOD]
-    last_det = ws[WS_LAST_DET]
-    tele[TEL_DETECTOR] = last_det
-    tele[TEL_PASSAGE] = ws[WS_LAST_PASS]
-    tele[TEL_MEASURED] = now_s
-    tele[TEL_POSITION] = wp[WP_STOP] - distance
-    tele[TEL_DISTANCE] = distance
-    tele[TEL_INTERVAL] = interval
-    tele[TEL_SPEED] = speed
-    tele[TEL_DECEL] = decel
-    tele[TEL_REQUIRED] = command
-    tele[TEL_NOTCH] = notch
-    tele[TEL_DUTY] = decel_to_pwm_1(command, pwm_duty, pwm_decel)
-    tele[TEL_DELTA] = delta
-    tele[TEL_STEP] = ws[WS_STEPS] % 256.0
-    tele[TEL_EMERGENCY] = ws[WS_EMERGENCY]
-    if form <= 5:  # forms 1-5 carry measurements only, in para 92's combinations (SPEC §1)
-        for m in range(_MEASUREMENTS.size):
-            if _COMBINATION_OF_FORM[form, m] == 0:
-                tele[_MEASUREMENTS[m]] = np.nan
-    record[CR_T] = now_s
-    record[CR_DETECTOR] = last_det
-    record[CR_PASSAGE] = ws[WS_LAST_PASS]
-    record[CR_DISTANCE] = distance
-    record[CR_SPEED] = speed
-    record[CR_DECEL] = decel
-    record[CR_GAIN] = gain
-    record[CR_REQUIRED] = a_true
-    record[CR_COMMAND] = command
-    record[CR_NOTCH] = notch
-    record[CR_DELTA] = delta
-    record[CR_EFFECT] = effect
-    record[CR_EMERGENCY] = ws[WS_EMERGENCY]
+    _telegram_and_record_1(
+        ws, wp, brake, tele, record, now_s, distance, interval, speed, decel, gain, a_true, command,
+        notch, delta, effect,
+    )  # fmt: skip
     return send
 
 
