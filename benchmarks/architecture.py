@@ -50,6 +50,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
             "units",
             "quantities",
             "streams",
+            "stream_cores",
             "jit",
             "clock",
             "provenance",

@@ -42,7 +42,7 @@ _PACKAGE = Path(__file__).resolve().parent
 #: checks that every module using :func:`njit` is listed.
 JIT_MODULES: tuple[str, ...] = (
     "jit.py",
-    "streams.py",
+    "stream_cores.py",
     "physics/brake.py",
     "physics/train.py",
     "sensors/wayside.py",

@@ -13,8 +13,10 @@ uniforms take the top 53 bits, normals use Box–Muller on the two 32-bit
 halves of one draw.
 
 The compiled model draws the same numbers one at a time with the scalar
-functions at the end of this module (:func:`stream_key`, :func:`key_uniform`,
-:func:`key_normal`): bit-identical to the array methods (a test proves it).
+functions of :mod:`railstop.stream_cores` (``stream_key``, ``key_uniform``,
+``key_normal``): bit-identical to the array methods (a test proves it). They
+live apart so that what only reads data (``railstop check``, the disturbance
+sets, the simulated media) imports no compiler.
 """
 
 from __future__ import annotations
@@ -25,8 +27,6 @@ from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
-
-from railstop.jit import njit_inline
 
 #: Run numbers (and seeds) are signed 64-bit integers in the streams and the Parquet rows.
 RUN_LIMIT = 2**63
@@ -145,122 +145,6 @@ class RunStreams:
 
 
 # --------------------------------------------------------------------------
-# The same numbers, one at a time, for the compiled model (railstop.jit).
-
-_U_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_U_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_U_M2 = np.uint64(0x94D049BB133111EB)
-_U_MASK = np.uint64(0xFFFFFFFFFFFFFFFF)
-_U_LOW32 = np.uint64(0xFFFFFFFF)
-
-
-@njit_inline
-def mix64(z: np.uint64) -> np.uint64:
-    """The SplitMix64 finaliser (:func:`_mix` on one number)."""
-    z = (z ^ (z >> np.uint64(30))) * _U_M1
-    z = (z ^ (z >> np.uint64(27))) * _U_M2
-    return z ^ (z >> np.uint64(31))
-
-
-@njit_inline
-def seed_key(seed: np.uint64, stream: int | np.integer) -> np.uint64:
-    """The key of (seed, stream), common to every run; ``seed`` already reduced to 64 bits."""
-    return mix64(seed * _U_GOLDEN + np.uint64(stream))
-
-
-@njit_inline
-def stream_key(seed_stream_key: np.uint64, run: int | np.integer) -> np.uint64:
-    """Run ``run``'s key of a stream (``RunStreams._key``)."""
-    return mix64(seed_stream_key ^ (np.uint64(run) * _U_GOLDEN))
-
-
-@njit_inline
-def key_bits(key: np.uint64, counter: int | np.integer) -> np.uint64:
-    return mix64(key + (np.uint64(counter) + np.uint64(1)) * _U_GOLDEN)
-
-
-@njit_inline
-def key_uniform(key: np.uint64, counter: int | np.integer) -> float:
-    """Uniform in [0, 1): ``RunStreams.uniform`` of one run."""
-    return float(key_bits(key, counter) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-
-
-@njit_inline
-def key_normal(key: np.uint64, counter: int | np.integer) -> float:
-    """Standard normal: ``RunStreams.normal`` of one run (Box–Muller on the two halves)."""
-    bits = key_bits(key, counter)
-    u1 = (float(bits >> np.uint64(32)) + 0.5) * (1.0 / 4294967296.0)
-    u2 = float(bits & _U_LOW32) * (1.0 / 4294967296.0)
-    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
-
-
-# The ziggurat of the standard normal (Marsaglia & Tsang 2000, "The ziggurat method for generating
-# random variables", J. Stat. Softw. 5(8)), 256 layers of equal area V under f(x) = exp(-x²/2):
-# layer 0 is the base strip [0, R] x [0, f(R)] plus the tail beyond R, drawn as a rectangle of
-# width V/f(R); layer i >= 1 spans [0, X[i]] x [f(X[i]), f(X[i+1])], X[1] = R, X[256] = 0.
-ZIGGURAT_LAYERS = 256
-ZIGGURAT_R = 3.6541528853610088
-ZIGGURAT_V = 4.92867323399e-3
-
-
-def _ziggurat_tables() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    x = np.empty(ZIGGURAT_LAYERS + 1)
-    x[0] = ZIGGURAT_V / math.exp(-0.5 * ZIGGURAT_R * ZIGGURAT_R)
-    x[1] = ZIGGURAT_R
-    for i in range(1, ZIGGURAT_LAYERS - 1):
-        # f(X[i+1]) = V/X[i] + f(X[i]): the next layer has the same area.
-        y = ZIGGURAT_V / x[i] + math.exp(-0.5 * x[i] * x[i])
-        x[i + 1] = math.sqrt(-2.0 * math.log(y))
-    x[ZIGGURAT_LAYERS] = 0.0
-    return x, np.exp(-0.5 * x * x)
-
-
-_ZIG_X, _ZIG_F = _ziggurat_tables()
-
-
-@njit_inline
-def _next_bits(bits: np.uint64) -> np.uint64:
-    """The next 64 bits of a draw that needs more than one (a keyed SplitMix64 step)."""
-    return mix64(bits + _U_GOLDEN)
-
-
-@njit_inline
-def key_normal_zig(key: np.uint64, counter: int | np.integer) -> float:
-    """Standard normal by the ziggurat (about 99 % of draws: one 64-bit word, a multiply and a
-    compare; no log or cos). Stream definition of kernel model version 3 (Doppler noise).
-
-    Bits of a word: 0-7 the layer, 8 the sign, 11-63 the uniform in [0, 1). A draw that leaves
-    the layer's inner rectangle continues with further words of the same keyed sequence.
-    """
-    bits = key_bits(key, counter)
-    while True:
-        layer = int(bits & np.uint64(0xFF))
-        sign = 1.0 if (bits >> np.uint64(8)) & np.uint64(1) else -1.0
-        u = float(bits >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-        x = u * _ZIG_X[layer]
-        if x < _ZIG_X[layer + 1]:
-            return sign * x
-        bits = _next_bits(bits)
-        if layer == 0:
-            # The tail beyond R (Marsaglia 1964): x = -ln(u1)/R, y = -ln(u2), accept if 2y > x².
-            while True:
-                u1 = (float(bits >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
-                bits = _next_bits(bits)
-                u2 = (float(bits >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
-                bits = _next_bits(bits)
-                t = -math.log(u1) / ZIGGURAT_R
-                if -2.0 * math.log(u2) > t * t:
-                    return sign * (ZIGGURAT_R + t)
-        # The wedge between the layer's inner rectangle and the curve.
-        y = _ZIG_F[layer] + float(bits >> np.uint64(11)) * (1.0 / 9007199254740992.0) * (
-            _ZIG_F[layer + 1] - _ZIG_F[layer]
-        )
-        if y < math.exp(-0.5 * x * x):
-            return sign * x
-        bits = _next_bits(bits)
-
-
-# --------------------------------------------------------------------------
 # The same numbers once more, as plain Python integers, for the units that run in the interpreter
 # (the simulated media of link.channel): a numba function called from Python costs microseconds
 # and a compilation, an integer mix a few hundred nanoseconds. Bit-identical to the above (a test).
@@ -272,19 +156,21 @@ _P_M2 = 0x94D049BB133111EB
 
 
 def py_mix64(z: int) -> int:
-    """:func:`mix64` on a Python integer in [0, 2^64)."""
+    """:func:`~railstop.stream_cores.mix64` on a Python integer in [0, 2^64)."""
     z = ((z ^ (z >> 30)) * _P_M1) & _P_MASK
     z = ((z ^ (z >> 27)) * _P_M2) & _P_MASK
     return z ^ (z >> 31)
 
 
 def py_seed_key(seed: int, stream: int) -> int:
-    """:func:`seed_key` of ``seed`` (any int, reduced to 64 bits as :func:`seed_u64`)."""
+    """:func:`~railstop.stream_cores.seed_key` of ``seed`` (any int, reduced to 64 bits as
+    :func:`seed_u64`)."""
     return py_mix64(((seed & _P_MASK) * _P_GOLDEN + stream) & _P_MASK)
 
 
 def py_stream_key(seed_stream_key: int, run: int) -> int:
-    """:func:`stream_key`: run ``run``'s key of a stream (``run`` any int, taken mod 2^64)."""
+    """:func:`~railstop.stream_cores.stream_key`: run ``run``'s key of a stream (``run`` any int,
+    taken mod 2^64)."""
     return py_mix64(seed_stream_key ^ (((run & _P_MASK) * _P_GOLDEN) & _P_MASK))
 
 
@@ -298,17 +184,18 @@ def py_fold(first: int, *more: int) -> int:
 
 
 def py_key_bits(key: int, counter: int) -> int:
-    """:func:`key_bits`: the 64 bits of draw ``counter``."""
+    """:func:`~railstop.stream_cores.key_bits`: the 64 bits of draw ``counter``."""
     return py_mix64((key + (counter + 1) * _P_GOLDEN) & _P_MASK)
 
 
 def py_key_uniform(key: int, counter: int) -> float:
-    """:func:`key_uniform`: uniform in [0, 1)."""
+    """:func:`~railstop.stream_cores.key_uniform`: uniform in [0, 1)."""
     return (py_key_bits(key, counter) >> 11) * (1.0 / 9007199254740992.0)
 
 
 def py_key_normal(key: int, counter: int) -> float:
-    """:func:`key_normal`: standard normal (Box–Muller on the two halves of one draw)."""
+    """:func:`~railstop.stream_cores.key_normal`: standard normal (Box–Muller on the two halves of
+    one draw)."""
     bits = py_key_bits(key, counter)
     u1 = ((bits >> 32) + 0.5) * (1.0 / 4294967296.0)
     u2 = (bits & 0xFFFFFFFF) * (1.0 / 4294967296.0)

@@ -170,3 +170,19 @@ def test_the_telegram_help_names_the_codecs_types() -> None:
     from railstop.link.codec import TYPES
 
     assert tuple(TYPES) == TYPE_NAMES
+
+
+def test_reading_data_loads_no_compiler(tmp_path: Path) -> None:
+    """``check`` (with a disturbance set too), the reference of the files and a dwell read data and
+    run Python units only: numba (about 0.2 s to import) stays out; the random streams' compiled
+    cores live apart (``railstop.stream_cores``)."""
+    for args in (
+        ("check", "--disturbances", "standard"),
+        ("formats",),
+        ("dwell", "--stop-error-m", "0.8"),
+        ("telegram", "decode", "9600070202de3ec9"),
+    ):
+        code, out, imported, err = probe(*args, cwd=tmp_path, watched=("numba", "railstop.stream_cores"))
+        assert code == 0, (args, err)
+        assert out, args
+        assert imported == [], f"railstop {' '.join(args)} imported {imported}"

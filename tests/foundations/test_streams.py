@@ -162,19 +162,20 @@ def _draws(fn_name: str, n: int, seed: int = 5) -> np.ndarray:
     """n draws of a compiled keyed normal: runs 0.. of one stream, counters 0..99 each."""
     import numba
 
+    import railstop.stream_cores as cores
     import railstop.streams as streams
 
-    fn = getattr(streams, fn_name)
+    fn = getattr(cores, fn_name)
 
     @numba.njit(cache=False)
     def fill(out: np.ndarray, key0: np.uint64) -> None:  # pragma: no cover - compiled
         per = 100
         for i in range(out.size):
-            key = streams.stream_key(key0, i // per)
+            key = cores.stream_key(key0, i // per)
             out[i] = fn(key, i % per)
 
     out = np.empty(n)
-    fill(out, np.uint64(streams.seed_key(streams.seed_u64(seed), int(Stream.DOPPLER))))
+    fill(out, np.uint64(cores.seed_key(streams.seed_u64(seed), int(Stream.DOPPLER))))
     return out
 
 
@@ -184,7 +185,7 @@ def test_ziggurat_normal_has_the_normal_distribution() -> None:
     beyond the ziggurat's base R = 3.654, drawn by its own path; every layer's wedge)."""
     from scipy import stats
 
-    from railstop.streams import _ZIG_X, ZIGGURAT_R
+    from railstop.stream_cores import _ZIG_X, ZIGGURAT_R
 
     n = 1_000_000
     z = _draws("key_normal_zig", n)
@@ -236,19 +237,20 @@ def test_python_integer_draws_equal_the_compiled_draws() -> None:
     """... and equal the compiled model's scalar draws (its stop runs' radio keys)."""
     import numba
 
+    import railstop.stream_cores as cores
     import railstop.streams as streams
 
     @numba.njit(cache=False)
     def draws(key0: np.uint64, run: int, n: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
-        key = streams.stream_key(key0, run)
+        key = cores.stream_key(key0, run)
         u, z = np.empty(n), np.empty(n)
         for c in range(n):
-            u[c], z[c] = streams.key_uniform(key, c), streams.key_normal(key, c)
+            u[c], z[c] = cores.key_uniform(key, c), cores.key_normal(key, c)
         return u, z
 
     for seed, run in ((1, 0), (-3, 2**62 + 7), (2**64 - 1, 12345)):
         # (a key handed back to Python is an int: typed uint64 again, as the kernel holds it)
-        key0 = np.uint64(streams.seed_key(streams.seed_u64(seed), int(Stream.RADIO_LOSS)))
+        key0 = np.uint64(cores.seed_key(streams.seed_u64(seed), int(Stream.RADIO_LOSS)))
         u, z = draws(key0, run, 200)
         key = streams.py_stream_key(streams.py_seed_key(seed, int(Stream.RADIO_LOSS)), run)
         assert int(key0) == streams.py_seed_key(seed, int(Stream.RADIO_LOSS))

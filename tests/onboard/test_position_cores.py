@@ -41,7 +41,8 @@ from railstop.onboard.positioning import (
     unit_state_arrays,
 )
 from railstop.sensors.track_circuit import TrackCircuitDetector, tc_draw_run, tc_first_index, tc_next_entry
-from railstop.streams import RunStreams, Stream, seed_key, seed_u64, stream_key
+from railstop.stream_cores import seed_key, stream_key
+from railstop.streams import RunStreams, Stream, seed_u64
 
 LINE = default_line()
 VEHICLE = default_vehicle()

@@ -65,7 +65,8 @@ from railstop.sensors.track_circuit import (
     tc_first_index,
     tc_next_entry,
 )
-from railstop.streams import RunStreams, Stream, seed_key, seed_u64, stream_key
+from railstop.stream_cores import seed_key, stream_key
+from railstop.streams import RunStreams, Stream, seed_u64
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -94,7 +94,8 @@ from railstop.model.run import (
     simulate_block,
     state_sizes,
 )
-from railstop.streams import seed_key, seed_u64
+from railstop.stream_cores import seed_key
+from railstop.streams import seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE
 
 #: Threads per block. Measured for tasc-pwm on one H200 (stop model 9, 1,000,000 runs as drawn,

@@ -82,7 +82,8 @@ from railstop.model.records import (
     state_array,
 )
 from railstop.model.step import stop_finish, stop_init, stop_step
-from railstop.streams import seed_key, seed_u64
+from railstop.stream_cores import seed_key
+from railstop.streams import seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE
 
 

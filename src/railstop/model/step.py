@@ -240,7 +240,7 @@ from railstop.onboard.tasc_receiver import (
 from railstop.physics.brake import actuator_step_1, decel_to_pwm_1, line_notch, pwm_to_decel_1
 from railstop.physics.train import adhesion_limit_1, creep_1, mean_gradient_1, motion_step_1
 from railstop.sensors.wayside import crossing_time_1, passage_1
-from railstop.streams import key_normal, key_normal_zig, key_uniform, stream_key
+from railstop.stream_cores import key_normal, key_normal_zig, key_uniform, stream_key
 from railstop.wayside.tasc_unit import (
     CR_SIZE,
     WP_FORM,

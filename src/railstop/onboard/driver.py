@@ -52,7 +52,7 @@ import numpy as np
 from railstop.config.driver import LV_CUMULATIVE, LV_PARAMS, LV_WIDTH
 from railstop.jit import njit_inline, njit_step
 from railstop.quantities import KMH_PER_MPS
-from railstop.streams import key_normal, key_uniform
+from railstop.stream_cores import key_normal, key_uniform
 
 # The run's driver (drawn once): the level's row, then its parameters in config.driver LEVEL_PARAMETERS order.
 DR_LEVEL = 0

@@ -35,7 +35,8 @@ from numpy.typing import NDArray
 from railstop.config.schema import TrackCircuit, TrackCircuitDetection
 from railstop.jit import njit, njit_inline, njit_step
 from railstop.sensors.wayside import crossing_time_1
-from railstop.streams import RunStreams, Stream, key_normal, seed_key, seed_u64, stream_key
+from railstop.stream_cores import key_normal, seed_key, stream_key
+from railstop.streams import RunStreams, Stream, seed_u64
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

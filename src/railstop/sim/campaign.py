@@ -83,7 +83,7 @@ DISK_BYTES_PER_VALUE = 8
 # made it. 2: the compiled kernel, each run ending at its own stop (the lockstep array engine,
 # version 1, went on stepping stopped runs, so in continuous update its command counts
 # depended on the other runs of the chunk). 3: the Doppler noise drawn by the ziggurat
-# (streams.key_normal_zig) instead of Box–Muller: same distribution, other numbers.
+# (stream_cores.key_normal_zig) instead of Box–Muller: same distribution, other numbers.
 # 4: the supervision (emergency brake, overrun guards) and the cyclic repeat of the latest
 # braking telegram (more link draws per run).
 # 5: the onboard ATO's law (bve-autopilot's pattern rejoin), the train's own brake command
