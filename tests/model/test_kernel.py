@@ -281,6 +281,51 @@ def test_an_emergency_brake_from_outside_stops_a_stepped_stop_short_with_its_cau
     assert res[0, RES_ERROR] < -0.2 * speed**2 / (2.0 * emergency)
 
 
+def test_a_stop_its_driver_positions_takes_the_drivers_fixes_and_no_others() -> None:
+    """SPEC §2, one chain per train (issue 35 item 4): an ``ato-corrected`` model for a driver
+    that positions the train (the line) runs no chain of its own. It refuses to step before its
+    first fix (its ATO would not brake) and refuses a position that is not one; its ATO stops by
+    the driver's fixes: the same fix sequence off by 0.5 m stops the train 0.5 m off the other
+    way, to the bit of the rounding. Another controller's model takes no fixes."""
+    st = LINE.station("Riverside")
+    base = KernelModel.create(
+        station=st, vehicle=VEHICLE, controller="ato-corrected", form=None, dt_s=0.01,
+        max_time_s=150.0, track=LINE.track,
+    )  # fmt: skip
+    model = base.with_driver_fixes()
+    assert base.fp.tolist() != model.fp.tolist() and base.with_driver_fixes().fp.tolist() == model.fp.tolist()
+    nominal = Scenario.nominal(st, VEHICLE)
+    stop = SteppedStop(model, nominal, seed=2, run=0)
+    with pytest.raises(SimulationError, match="needs a fix before its first step"):
+        stop.advance(1)
+    with pytest.raises(SimulationError, match="not a position"):
+        stop.fix(float("nan"))
+    start = stop.position_m
+    exact, _, _ = run_stepped(model, nominal, seed=2, run=0, fixes=[(0, start)])
+    assert abs(exact[0, RES_ERROR]) < 0.1  # the nominal train, exactly positioned (its notches)
+    behind, _, _ = run_stepped(model, nominal, seed=2, run=0, fixes=[(0, start - 0.5)])
+    assert behind[0, RES_ERROR] == pytest.approx(exact[0, RES_ERROR] + 0.5, abs=0.02)
+    # A later fix replaces the belief (a new reference): corrected half-way, the error goes.
+    late = SteppedStop(model, nominal, seed=2, run=0)
+    late.fix(start - 0.5)
+    late.advance(300)
+    late.fix(late.position_m)
+    while not late.done:
+        late.advance(100)
+    corrected, _, _ = late.finish()
+    assert late.fixes == [(0, start - 0.5), (300, late.fixes[1][1])]
+    assert abs(corrected[0, RES_ERROR] - exact[0, RES_ERROR]) < 0.1 < abs(behind[0, RES_ERROR])
+    # Its own chain (the campaign's run) is another stop: it positions itself.
+    own, _, _ = run_stepped(base, nominal, seed=2, run=0)
+    assert own[0, RES_ERROR] != exact[0, RES_ERROR]
+    pwm = KernelModel.create(
+        station=st, vehicle=VEHICLE, controller="tasc-pwm", form=None, dt_s=0.01, max_time_s=150.0
+    )
+    assert pwm.with_driver_fixes() is pwm
+    with pytest.raises(SimulationError, match="runs its own position chain"):
+        SteppedStop(pwm, nominal, seed=2, run=0).fix(start)
+
+
 def test_a_callable_numba_does_not_shape_as_a_dispatcher_is_called_as_it_is() -> None:
     """``compiled_for`` reaches past numba's dispatch with attributes numba does not document; a
     function without them (another numba's dispatcher, a plain function) is called as it is."""

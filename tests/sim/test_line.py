@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,8 +27,11 @@ from railstop.control.line_ato import (
 from railstop.control.supervision import eb_cause_name
 from railstop.errors import InterlockError, SimulationError
 from railstop.messages import BROADCAST, CircuitOccupancy, Message, Output, SignalAspects
+from railstop.model.build import KernelModel
+from railstop.model.records import RES_EB, RES_ERROR
+from railstop.model.run import run_stepped
 from railstop.sim.campaign import MODEL_VERSION
-from railstop.sim.engine import run_batch
+from railstop.sim.engine import DT_S, MAX_TIME_S, run_batch
 from railstop.sim.line import LineSimulation, PositionSettings
 from railstop.streams import RunStreams
 from railstop.wayside.interlocking import FixedBlockInterlocking
@@ -579,6 +583,20 @@ def test_a_line_campaign_with_no_scheduler_there_fails_cleanly(tmp_path: Path) -
     assert len(p.stderr.strip().splitlines()) == 1 and "127.0.0.1:9" in p.stderr
 
 
+def _stop_draw(sim: LineSimulation, dist: DisturbanceSet, rec: Any, streams: RunStreams) -> Any:
+    """The draw of train 0's stop ``rec`` made again from its streams, as a campaign draws it: the
+    train's speed at the hand-over, the station's gradients, and the train's own wheel for its
+    whole trip (the line's tachometer), not the stop's draw."""
+    st = LINE.station(rec.station)
+    scenario, _ = draw_scenario(dist, st, VEHICLE, streams)
+    return scenario.with_values(
+        entry_speed_mps=np.array([rec.entry_speed_mps]),
+        gradient=station_gradient(st, 1),
+        wheel_diameter_m=sim.tacho.actual_diameter_m[:1].copy(),
+        odometer_diameter_error=sim.odometer_error[:1].copy(),
+    )
+
+
 def test_a_stop_on_the_line_is_the_campaigns_stop_of_its_draw() -> None:
     """DESIGN rule 1, parity (issue 35 item 8): the line steps the stop model on its own 0.1 s
     clock from a hand-over between two of its ticks; each of its stops (error, emergency brake,
@@ -592,10 +610,7 @@ def test_a_stop_on_the_line_is_the_campaigns_stop_of_its_draw() -> None:
     for rec in result.stops:
         st = LINE.station(rec.station)
         streams = RunStreams.for_runs(11, rec.run, 1)
-        scenario, _ = draw_scenario(dist, st, VEHICLE, streams)
-        scenario = scenario.with_values(
-            entry_speed_mps=np.array([rec.entry_speed_mps]), gradient=station_gradient(st, 1)
-        )
+        scenario = _stop_draw(sim, dist, rec, streams)
         batch = run_batch(
             station=st, vehicle=VEHICLE, scenario=scenario, controller="tasc-pwm", streams=streams,
             track=LINE.track,
@@ -603,3 +618,63 @@ def test_a_stop_on_the_line_is_the_campaigns_stop_of_its_draw() -> None:
         assert rec.error_m == round(float(batch.stop_error_m[0]), 4), rec
         assert rec.emergency_brake == eb_cause_name(int(batch.emergency_brake[0]))
         assert rec.within_tolerance == (bool(batch.stopped[0]) and abs(rec.error_m) <= st.psd_tolerance_m)
+
+
+def test_a_trains_stops_count_with_its_own_wheel_for_the_whole_trip() -> None:
+    """One wheel per train (issue 35 item 4, line model 7): the odometer of each of a train's
+    station stops is the line's tachometer of that train (its diameter error), not one drawn for
+    the stop. Two trains of different wheels: each stop's draw carries its own train's."""
+    dist = load_disturbances("standard")
+    sim = LineSimulation(
+        line=LINE, vehicle=VEHICLE, operation=Operation(trains=2, headway_s=120.0), disturbances=dist, seed=11
+    )
+    assert sim.odometer_error[0] != sim.odometer_error[1]  # the set draws each train's wheel
+    seen: dict[int, set[float]] = {0: set(), 1: set()}
+    original = sim._stop
+
+    def stop_and_look(train: Any, st: Any, t0_s: float) -> None:
+        original(train, st, t0_s)
+        seen[train.index].add(float(train.stop.records.tach_scale))
+
+    sim._stop = stop_and_look  # type: ignore[method-assign]
+    sim.run(900.0)
+    for i in (0, 1):
+        assert seen[i] == {float(sim.tacho.scale[i])}, (i, seen[i])
+
+
+def test_an_ato_corrected_stop_is_positioned_by_the_lines_own_chain() -> None:
+    """SPEC §2, one position chain per train (issue 35 item 4): an ``ato-corrected`` train's
+    station stop runs no chain of its own. Its ATO takes the line positioning unit's calibrated
+    position when the stop takes the train and after each fix that unit accepts during the stop;
+    the stop is then the stop model driven by exactly those fixes (``run_stepped`` given them
+    alone gives the line's result, bit for bit)."""
+    dist = load_disturbances("standard")
+    op = Operation(trains=1, headway_s=120.0, controller="ato-corrected")
+    sim = LineSimulation(
+        line=LINE, vehicle=VEHICLE, operation=op, disturbances=dist, seed=11,
+        position=PositionSettings(record=True),
+    )  # fmt: skip
+    result = sim.run(900.0)
+    assert len(result.stops) == len(LINE.stations) == len(sim.stop_fixes)
+    train = sim.trains[0]
+    trace = np.array(train.trace)  # (t, true, speed, raw, corrected, calibrated) every tick
+    for rec, (index, run, t0, fixes) in zip(result.stops, sim.stop_fixes, strict=True):
+        assert (index, run) == (0, rec.run)
+        # The first fix when the stop takes the train, one more per fix the line's unit accepts.
+        accepted = [f for f in sim.fixes if f.outcome == "accepted" and t0 < f.t_s <= rec.arrive_s]
+        assert fixes[0][0] == 0
+        assert len(fixes) == 1 + len(accepted)
+        # Each is the line unit's calibrated position at the tick it was given.
+        for steps, position in fixes:
+            tick = np.flatnonzero(trace[:, 0] >= t0 + steps * DT_S - 1e-9)[0]
+            assert position == trace[tick, 5], (steps, position, trace[tick])
+        # The stop model driven by those fixes alone is the line's stop.
+        st = LINE.station(rec.station)
+        scenario = _stop_draw(sim, dist, rec, RunStreams.for_runs(11, run, 1))
+        model = KernelModel.create(
+            station=st, vehicle=VEHICLE, controller="ato-corrected", form=None, dt_s=DT_S,
+            max_time_s=MAX_TIME_S, track=LINE.track,
+        ).with_driver_fixes()  # fmt: skip
+        res, _, _ = run_stepped(model, scenario, seed=11, run=run, fixes=fixes)
+        assert rec.error_m == round(float(res[0, RES_ERROR]), 4), rec
+        assert rec.emergency_brake == eb_cause_name(int(res[0, RES_EB]))

@@ -740,15 +740,30 @@ def track_stop_run(train: int, visit: int) -> int:
 
 
 def draw_track_stop(
-    dist: DisturbanceSet, station: Station, vehicle: Vehicle, *, seed: int, run: int, entry_speed_mps: float
+    dist: DisturbanceSet,
+    station: Station,
+    vehicle: Vehicle,
+    *,
+    seed: int,
+    run: int,
+    entry_speed_mps: float,
+    wheel: tuple[float, float] | None = None,
 ) -> Scenario:
     """Run ``run`` of ``seed`` drawn for a train that arrives on the line: its own speed at the
     hand-over (``entry_speed_mps``) and the station's own gradients (on a line the gradient is the
     track's, not a draw: a campaign draws it to try the station on other tracks). The line
-    simulation and live operation draw their stops so."""
+    simulation and live operation draw their stops so.
+
+    ``wheel``: the train's own wheel, (actual diameter in m, its odometer's diameter error as a
+    fraction: assumed = actual x (1 + error)), where its driver has one for the whole trip (the
+    line's tachometer): the stop's odometer is then that wheel's, not a draw of its own."""
     scenario, _ = draw_scenario(dist, station, vehicle, RunStreams.for_runs(seed, run, 1))
+    changes: dict[str, Any] = {}
+    if wheel is not None:
+        changes["wheel_diameter_m"] = np.array([wheel[0]], dtype=np.float64)
+        changes["odometer_diameter_error"] = np.array([wheel[1]], dtype=np.float64)
     return scenario.with_values(
-        entry_speed_mps=np.array([entry_speed_mps]), gradient=station_gradient(station, 1)
+        entry_speed_mps=np.array([entry_speed_mps]), gradient=station_gradient(station, 1), **changes
     )
 
 

@@ -9,7 +9,7 @@ the runs' draws (``SC_*`` columns) and gradients.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -62,6 +62,7 @@ from railstop.model.records import (
     FP_DELAY_MEAN,
     FP_DELAY_PRIOR_VAR,
     FP_DELAY_SPREAD,
+    FP_DRIVER_FIXES,
     FP_FIX_VAR,
     FP_GATE_SIGMA2,
     FP_GNSS_COUNTS,
@@ -304,6 +305,17 @@ class KernelModel:
             fp=fp,
             **positioning,
         )
+
+    def with_driver_fixes(self) -> KernelModel:
+        """This model for a run whose driver positions the train (the line, SPEC §2): an
+        ``ato-corrected`` run then takes its fixes from the driver's chain (``SteppedStop.fix``)
+        instead of running its own (``model.fixes``); one position chain per train (issue 35).
+        Another controller's model is returned as it is (its stop takes no fixes)."""
+        if not is_corrected(self.controller):
+            return self
+        fp = self.fp.copy()
+        fp[FP_DRIVER_FIXES] = 1.0
+        return replace(self, fp=fp)
 
 
 def _wayside_params(

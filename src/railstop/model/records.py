@@ -297,7 +297,10 @@ FP_DELAY_PRIOR_VAR = 5
 FP_MAX_EXTRAPOLATION = 6
 FP_GATE_SIGMA2 = 7
 FP_GNSS_COUNTS = 8
-FP_SIZE = 9
+# 1: the run's driver is the line, whose SPEC §2 chain positions the train and hands the stop its
+# fixes (``model.run.SteppedStop.fix``); the stop then runs no chain of its own (0: it does).
+FP_DRIVER_FIXES = 9
+FP_SIZE = 10
 
 
 # --------------------------------------------------------------------------
@@ -362,6 +365,7 @@ RUN_DTYPE = np.dtype(
         ("is_driver", np.bool_),
         ("onboard_only", np.bool_),  # no wayside unit, no link
         ("corrected", np.bool_),  # ato-corrected: SPEC §2 track-circuit corrections
+        ("own_fixes", np.bool_),  # ... from its own chain (model.fixes), not its driver's
         ("pwm_train", np.bool_),  # config 2 / 3 on a PWM train
         ("atc", np.bool_),  # the driver's supervision: ATC (else ATS)
         ("incapacitated", np.bool_),  # the driver never brakes

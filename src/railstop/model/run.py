@@ -37,6 +37,7 @@ registers.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,9 +54,11 @@ from railstop.jit import as_python, cache_dir, njit, njit_inline, njit_step, sta
 from railstop.messages import TEL_SIZE
 from railstop.model.build import DRIVER_MODES, KernelModel, compiled_law, scenario_arrays, stop_params
 from railstop.model.records import (
+    FP_DRIVER_FIXES,
     KP_DT,
     KP_IN_FLIGHT,
     KP_STEPS,
+    KP_STOP,
     LA_SIZE,
     RC_ATTEMPTS,
     RC_COMMANDS,
@@ -82,6 +85,7 @@ from railstop.model.records import (
     state_array,
 )
 from railstop.model.step import stop_finish, stop_init, stop_step
+from railstop.onboard.ato import ato_fix_1
 from railstop.stream_cores import seed_key
 from railstop.streams import seed_u64
 from railstop.wayside.tasc_unit import CR_SIZE
@@ -443,6 +447,22 @@ class StopRecords:
         """The run's speed at the start of its approach (its draw's)."""
         return float(self.buffers.sc[0, SC_ENTRY_SPEED])
 
+    @property
+    def tach_scale(self) -> float:
+        """The run's odometer: metres counted per metre rolled (D_assumed / D_actual, SPEC §2)."""
+        return float(self.run.derived[0]["tach_scale"])
+
+    def fix(self, position_m: float) -> None:
+        """A position fix from the driver's SPEC §2 chain (the line's positioning unit): the
+        ``ato-corrected`` train's ATO now believes its front at ``position_m`` (its distance to
+        go, a new reference for its law), as a fix of the run's own chain does (``ato_fix_1``).
+        Only for a model whose driver positions the train (``KernelModel.with_driver_fixes``)."""
+        if self.p.fp[FP_DRIVER_FIXES] == 0.0:
+            raise SimulationError("fix: this stop runs its own position chain (or takes no fixes)")
+        if not math.isfinite(position_m):
+            raise SimulationError(f"fix: position_m = {position_m} is not a position")
+        ato_fix_1(self.state.at, float(self.p.kp[KP_STOP]) - position_m)
+
     def emergency_brake(self, t_s: float) -> None:
         """Apply the emergency brake from outside the stop's units (a CBTC onboard unit) from the
         step at ``t_s`` (the run's clock) on, to the stand; the result's cause is ``EbCause.CBTC``
@@ -473,6 +493,10 @@ class SteppedStop:
         self.done = False  # the train stands at its end, or the run's time is up
         self._finished = False
         self._steps_fn = compiled_for(stop_steps, (r.p, r.run, r.state, r.out, 0, 0, r.law))
+        # A stop its driver positions (``KernelModel.with_driver_fixes``): the fixes given, as
+        # (the steps done when given, the position), in order; it may not step before the first.
+        self.driver_fixes = bool(r.p.fp[FP_DRIVER_FIXES] != 0.0)
+        self.fixes: list[tuple[int, float]] = []
 
     @property
     def entry_speed_mps(self) -> float:
@@ -499,9 +523,18 @@ class SteppedStop:
         while the train still moved."""
         if self.done or n <= 0:
             return False
+        if self.driver_fixes and not self.fixes:
+            # Never a step without a position: its ATO would not brake (the most restrictive
+            # thing is to refuse to run it; the line gives the first fix at the hand-over).
+            raise SimulationError("a stop its driver positions needs a fix before its first step")
         r = self.records
         self.steps, self.done, slid = self._steps_fn(r.p, r.run, r.state, r.out, self.steps, n, r.law)
         return bool(slid)
+
+    def fix(self, position_m: float) -> None:
+        """A fix of the driver's SPEC §2 chain (:meth:`StopRecords.fix`), acting from the next step."""
+        self.records.fix(position_m)
+        self.fixes.append((self.steps, position_m))
 
     def emergency_brake(self) -> None:
         """Apply the emergency brake from outside the stop's units (the line's CBTC onboard unit)
@@ -522,13 +555,26 @@ class SteppedStop:
 
 
 def run_stepped(
-    model: KernelModel, scenario: Scenario, *, seed: int, run: int, record: bool = False
+    model: KernelModel,
+    scenario: Scenario,
+    *,
+    seed: int,
+    run: int,
+    record: bool = False,
+    fixes: Sequence[tuple[int, float]] = (),
 ) -> tuple[FloatArray, FloatArray, KernelRecord | None]:
     """Run ``run`` (``scenario`` holds its draw alone) driven from Python one step at a time, as a
     driver on a clock of its own may drive it (DESIGN rule 2). The same results as
-    :func:`run_kernel`, bit for bit."""
+    :func:`run_kernel`, bit for bit.
+
+    ``fixes``: for a model whose driver positions the train (``KernelModel.with_driver_fixes``),
+    the driver's fixes as :attr:`SteppedStop.fixes` lists them, (steps done, position): each is
+    given once that many steps are done (a line's stop again, from its fixes alone)."""
     stop = SteppedStop(model, scenario, seed=seed, run=run, record=record)
+    pending = list(fixes)
     while not stop.done:
+        while pending and pending[0][0] <= stop.steps:
+            stop.fix(pending.pop(0)[1])
         stop.advance(1)
     return stop.finish()
 

@@ -55,6 +55,7 @@ from railstop.model.records import (
     FP_DELAY_MEAN,
     FP_DELAY_PRIOR_VAR,
     FP_DELAY_SPREAD,
+    FP_DRIVER_FIXES,
     FP_FIX_VAR,
     FP_GATE_SIGMA2,
     FP_GNSS_COUNTS,
@@ -392,6 +393,9 @@ def _derive_run(p: StopParams, run: RunParams, seed_keys: UintArray, run_index: 
     d.is_ato = controller >= CTRL_ATO and not d.is_driver
     d.onboard_only = d.is_ato or d.is_driver  # no wayside unit, no link
     d.corrected = controller == CTRL_ATO_CORRECTED
+    # SPEC §2: a campaign's run positions itself (model.fixes); a run the line drives takes the
+    # fixes of the line's own chain, one chain per train (issue 35; ``SteppedStop.fix``).
+    d.own_fixes = d.corrected and p.fp[FP_DRIVER_FIXES] == 0.0
     config = int(p.rp[RP_CONFIG])
     d.pwm_train = config in (CFG_PWM, CFG_SWITCHED_PWM)
     d.atc = kp[KP_ATC] > 0.0
@@ -519,9 +523,10 @@ def stop_init(
         # The wayside unit and the receiver (both own the one modulator state).
         wayside_init_1(s.ws, p.wp, s.wh_v, s.wh_e, s.pass_t, s.pass_x)
         receiver_init_1(s.rx, s.mod, s.rh_v, s.rh_e)
-    if d.corrected:
+    if d.own_fixes:
         # SPEC §2: no transponders; the position comes from track-circuit corrections. Before the
-        # simulated approach the train was corrected at the last circuit boundary behind it.
+        # simulated approach the train was corrected at the last circuit boundary behind it. (A
+        # run the line drives gets its first fix, the line chain's position, before its first step.)
         fp = p.fp
         belief = fixes_init_run(
             s.fx, s.fxi, s.flog, s.fbound, s.fdelay, p.tc_starts, p.tc_sd, fp[FP_DELAY_MEAN],
@@ -877,7 +882,7 @@ def sensors_1(
     tr.odometer_step_m = odometer
     if d.is_ato:
         ato_odometer_1(s.at, odometer)
-        if d.corrected:
+        if d.own_fixes:  # (driven by the line: its chain's fixes come through SteppedStop.fix)
             fp = p.fp
             data = FixesData(
                 p.tc_ids,
@@ -897,7 +902,7 @@ def sensors_1(
             )  # fmt: skip
             if corrected:
                 ato_fix_1(s.at, kp[KP_STOP] - calibrated)
-        elif passage_1(p.transponders, se.transponder_next, x0, x):
+        elif not d.corrected and passage_1(p.transponders, se.transponder_next, x0, x):
             ato_fix_1(s.at, kp[KP_STOP] - p.transponders[se.transponder_next])
             se.transponder_next += 1
     elif not d.is_driver:  # a driver judges by eye (driver_look_1); his speedometer is the tachometer

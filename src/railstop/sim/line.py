@@ -24,7 +24,10 @@ the plant every ``step_s`` and delivers the units' messages. What runs:
   motion) on its clock, the 10 ms steps due by each tick of it, and the
   train is where the stop model's state puts it, so the circuits it clears
   free the blocks behind it at the right time. Its result equals the
-  campaign's for the same draw, bit for bit;
+  campaign's for the same draw, bit for bit (the draw's wheel being the
+  train's own: one wheel and one tachometer per train for its whole trip).
+  An ``ato-corrected`` stop runs no SPEC §2 chain of its own: the line's
+  chain positions it (``_fix_stops``);
 - **the dwell** by the door units of SPEC §5 (``sim.dwell.run_dwell``: stop
   confirmation and PSC, the correction creep of an out-of-tolerance stop,
   CPCS/WPCS, train doors and PSD, start enable), the doors standing open
@@ -97,6 +100,7 @@ from railstop.control.line_ato import (
     stop_signal_m,
 )
 from railstop.control.supervision import EbCause, eb_cause_name
+from railstop.controllers import is_corrected
 from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.link.door_link import DoorLinkCounts
@@ -127,14 +131,17 @@ from railstop.units import Unit
 from railstop.wayside.interlocking import FixedBlockInterlocking
 from railstop.wayside.zone_controller import ZoneMode
 
-#: The line's model version, in a line campaign's identity: 6 since the occupancy telegrams of
-#: SPEC §2 go over the train radio, a ``link.channel.SimChannel`` per train (5: the door link and
+#: The line's model version, in a line campaign's identity: 7 since a train has one wheel and one
+#: SPEC §2 position chain for its whole trip: its station stops count with the line's tachometer
+#: (not a wheel drawn per stop) and an ``ato-corrected`` stop takes the fixes of the line's chain
+#: (not a chain of its own). (6: the occupancy telegrams of
+#: SPEC §2 go over the train radio, a ``link.channel.SimChannel`` per train; 5: the door link and
 #: the CBTC radio draw from counter-based streams, ``link.channel.LinkStreams``; 4: a CBTC train whose
 #: radio is dead is moved by its driver in restricted mode; 3: each CBTC train reports its positioning
 #: unit's own location uncertainty and the unit weighs each fix by the time error of the clocks
 #: that stamped it; 2: the line steps the stop model on its clock; 1 replayed the stop's recorded
 #: trajectory).
-LINE_MODEL_VERSION = 6
+LINE_MODEL_VERSION = 7
 #: The train's own ATO plans its braking curves at this share of full service.
 PLANNING_SHARE = 0.7
 #: CBTC entry: the authority must reach this far beyond the braking distance from the entry speed.
@@ -367,6 +374,8 @@ class Train:
     # stopping: the station stop's model, stepped on the line's clock from t0 (the hand-over) ...
     stop: SteppedStop | None = None
     stop_t0_s: float = np.nan
+    # An ato-corrected stop is positioned by the line's SPEC §2 chain: it has had its first fix.
+    stop_positioned: bool = False
     # ... or a move on the line's clock (times, positions, speeds): a driver's corrections at the
     # stand (SPEC §3), a recovery onto the platform on sight.
     play_t: Any = None
@@ -641,6 +650,10 @@ class LineSimulation:
         self.doors.check_vehicle(self.vehicle, "the vehicle file")  # its doors, the train's
         self._doors_for: dict[tuple[float, str], DoorsConfig] = {}
         self._stop_models: dict[int, KernelModel] = {}
+        # ato-corrected: the line's SPEC §2 chain positions the trains' station stops (_fix_stops).
+        self._driver_fixes = is_corrected(operation.controller)
+        # ... and what they gave each stop: (train, run, hand-over time, SteppedStop.fixes).
+        self.stop_fixes: list[tuple[int, int, float, tuple[tuple[int, float], ...]]] = []
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
         self.skipped_stops = 0
         self.signals_passed_at_danger = 0
@@ -664,6 +677,8 @@ class LineSimulation:
         # SPEC §2 tachometer: whole pulses of the wheel, read with the assumed diameter.
         pos = self.settings.position
         actual = np.full(n, veh.wheel_diameter_m if pos.wheel_diameter_m is None else pos.wheel_diameter_m)
+        # One wheel per train for its whole trip: its station stops' odometer is this one too.
+        self.odometer_error = err
         self.tacho = Tachometer.create(
             actual_diameter_m=actual,
             assumed_diameter_m=actual * (1.0 + err),
@@ -852,6 +867,8 @@ class LineSimulation:
             t.x_onboard_m = x_onboard
             if o:
                 errors.append(x_onboard - t.x_m)
+        if self._driver_fixes:
+            self._fix_stops(rep)
         if pos.record:
             raw = self.operation.entry_m + self.tacho.odometer_m()
             cor = self.positioning.corrected_m()
@@ -862,6 +879,21 @@ class LineSimulation:
                     t.trace.append((now_s, t.x_m, t.v_mps, float(raw[i]), float(cor[i]), float(est[i])))
                     if other:
                         t.same_path_trace.append(tuple(float(a[i]) for pair in other for a in pair))
+
+    def _fix_stops(self, rep: FixReport | None) -> None:
+        """SPEC §2, one position chain per train (issue 35): an ``ato-corrected`` train's station
+        stop is positioned by the line's chain, which has positioned it all along. Its ATO takes the
+        line unit's calibrated position when the stop takes the train (before the stop's first step)
+        and again after each fix the unit accepts during the stop; between them it counts its
+        odometer (the same wheel). The stop runs no chain of its own (``with_driver_fixes``)."""
+        fixed = set(rep.run[rep.accepted].tolist()) if rep is not None else set()
+        for t in self.trains:
+            stop = t.stop
+            if stop is None or stop.done:
+                continue
+            if not t.stop_positioned or t.index in fixed:
+                stop.fix(t.x_onboard_m)
+                t.stop_positioned = True
 
     def _emptied(self) -> bool:
         """Every train has left the line and nothing of the SPEC §2 chain is under way (no
@@ -1100,7 +1132,7 @@ class LineSimulation:
                 dt_s=DT_S,
                 max_time_s=MAX_TIME_S,
                 track=self.line.track,
-            )
+            ).with_driver_fixes()  # ato-corrected: positioned by the line's chain (_fix_stops)
             self._stop_models[station_index] = model
         return model
 
@@ -1109,8 +1141,10 @@ class LineSimulation:
         model ready to be stepped on the line's clock from ``t0_s``."""
         station_index = self.line.stations.index(st)
         run = track_stop_run(train.index, station_index)
+        # The train's own wheel (the line's tachometer), not one drawn for the stop (line model 7).
+        wheel = (float(self.tacho.actual_diameter_m[train.index]), float(self.odometer_error[train.index]))
         scenario = draw_track_stop(
-            self.dist, st, self.vehicle, seed=self.seed, run=run, entry_speed_mps=train.v_mps
+            self.dist, st, self.vehicle, seed=self.seed, run=run, entry_speed_mps=train.v_mps, wheel=wheel
         )
         train.load_factor = float(scenario.load_factor[0])
         model = self._stop_model(station_index)
@@ -1120,6 +1154,7 @@ class LineSimulation:
             model, scenario, seed=self.seed, run=run, record=model.controller in DRIVER_MODES
         )
         train.stop_t0_s = t0_s
+        train.stop_positioned = False
         train.phase = "stopping"
 
     def _stopped_by_ato(self, train: Train, st: Station, now_s: float) -> None:
@@ -1186,6 +1221,8 @@ class LineSimulation:
         """The stop's end: its record; a driver's corrections at the stand to be played."""
         res, _, rec = stop.finish()
         t0, stand_s = train.stop_t0_s, stop.elapsed_s
+        if stop.driver_fixes:
+            self.stop_fixes.append((train.index, stop.run, t0, tuple(stop.fixes)))
         st = self.line.stations[train.next_station]
         arrive = t0 + stand_s
         if rec is not None and res[0, RES_RESTOPS] > 0.0:
