@@ -388,9 +388,13 @@ add(
     "0.1",
     files={
         "v.toml": edit(
-            edit(edit(VEHICLE, "cars = 6", "cars = 2"), "length_m = 120.0", "length_m = 40.0"),
-            "tare_mass_kg = 200000.0",
-            "tare_mass_kg = 66000.0",
+            edit(
+                edit(edit(VEHICLE, "cars = 6", "cars = 2"), "length_m = 120.0", "length_m = 40.0"),
+                "tare_mass_kg = 200000.0",
+                "tare_mass_kg = 66000.0",
+            ),
+            "crush_payload_kg = 110000.0",
+            "crush_payload_kg = 36000.0",
         )
     },
     needles=("train.doors_per_side", "v.toml", "24"),

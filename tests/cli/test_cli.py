@@ -524,3 +524,62 @@ def test_a_zone_without_a_variant_layout_is_refused_in_one_line(tmp_path: Path) 
         assert len(lines) == 1 and "Traceback" not in p.stderr
         assert "'Riverside': no detectors-only variant: tasc.detectors_before_stop_m" in lines[0]
     assert not (tmp_path / "c").exists()
+
+
+def _printed_report_command(stdout: str) -> list[str]:
+    """The ``railstop report ...`` command a run printed as its hint, as argv (without railstop)."""
+    import shlex
+
+    found = re.search(r"`(railstop report [^`]+)` writes the HTML report", " ".join(stdout.split()))
+    assert found, stdout
+    argv = shlex.split(found.group(1))
+    assert argv[:2] == ["railstop", "report"]
+    return argv[1:]
+
+
+def test_the_printed_report_command_works_on_ones_own_data(tmp_path: Path) -> None:
+    """compare on one's own line and vehicle (and --detectors-only) prints the `railstop report`
+    command with the data options it ran on: run as printed, it writes the report (the report
+    replays the worst runs on the same data; without them it would refuse)."""
+    data = Path(__file__).parents[2] / "src/railstop/data"
+    text = (data / "line.toml").read_text(encoding="utf-8")
+    (tmp_path / "my line.toml").write_text(text.replace('"Riverside"', '"Quayside"'), encoding="utf-8")
+    vehicle = (data / "vehicle.toml").read_text(encoding="utf-8")
+    assert 'name = "6-car metro EMU (4M2T)"' in vehicle
+    (tmp_path / "veh.toml").write_text(vehicle.replace("(4M2T)", "(4M2T), ours"), encoding="utf-8")
+    own = ("--line", "my line.toml", "--vehicle", "veh.toml", "--db", "c.db")
+    for extra, out in (((), "cmp a"), (("--detectors-only",), "cmp b")):
+        p = run(
+            "compare", "--controllers", "tasc-pwm", "--runs", "3", "--out", out, *own, *extra, cwd=tmp_path
+        )
+        assert p.returncode == 0, p.stderr
+        argv = _printed_report_command(p.stdout)
+        assert argv[1] == out and "--line" in argv and "--vehicle" in argv
+        assert ("--detectors-only" in argv) == bool(extra)
+        r = run(*argv, cwd=tmp_path)
+        assert r.returncode == 0, (argv, r.stderr)
+        assert (tmp_path / out / "report.html").is_file()
+    # The command as printed before (the folder alone, or without the vehicle) is refused on these
+    # campaigns: the hint needs the options.
+    for argv in (("report", "cmp a"), ("report", "cmp a", "--line", "my line.toml")):
+        _one_line_error(run(*argv, cwd=tmp_path), "other line or vehicle data than given")
+
+
+def test_the_report_command_names_every_data_option_given() -> None:
+    """The hint of compare and demo: the data options given, quoted for the shell."""
+    from railstop.cli.campaign import report_command
+
+    assert report_command(Path("cmp")) == "railstop report cmp"
+    command = report_command(
+        Path("out dir/compare"),
+        line=Path("l.toml"),
+        vehicle=Path("v.toml"),
+        driver=Path("d.toml"),
+        platform=Path("p.toml"),
+        law=Path("law.py"),
+        detectors_only=True,
+    )
+    assert command == (
+        "railstop report 'out dir/compare' --line l.toml --vehicle v.toml --driver d.toml "
+        "--platform p.toml --law law.py --detectors-only"
+    )

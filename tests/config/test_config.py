@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import subprocess
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -411,3 +414,205 @@ def test_nan_value_is_quoted(tmp_path: Path) -> None:
         load_vehicle(path)
     assert isinstance(info.value.value, float)
     assert math.isnan(info.value.value)
+
+
+# --------------------------------------------------------------------------
+# Physically impossible or inconsistent data (the embedded files with one edit): refused at load,
+# and by `railstop check`, with one line naming the file, the field and the value, exit code 2.
+
+EMBEDDED_LINE = (Path(__file__).resolve().parents[2] / "src" / "railstop" / "data" / "line.toml").read_text(
+    encoding="utf-8"
+)
+EMBEDDED_VEHICLE = (
+    Path(__file__).resolve().parents[2] / "src" / "railstop" / "data" / "vehicle.toml"
+).read_text(encoding="utf-8")
+RIVERSIDE_DOPPLER = "doppler = { beyond_stop_m = 10.0, sample_period_s = 0.01 }"  # the first station's
+
+# (old, new, field, value, words): one rule each.
+PHYSICAL_LINE_CASES = [
+    pytest.param(
+        # Riverside stops at 1200 m; a platform 1270 .. 1400 m leaves the stop before its start.
+        "stop_point_m = 1200.0\n",
+        "stop_point_m = 1200.0\nplatform_end_m = 1400.0\n",
+        "stations[0].stop_point_m",
+        "1200.0",
+        "before the platform's start at 1270 m",
+        id="stop-before-platform-start",
+    ),
+    pytest.param(
+        # A platform ending at the stopping point: a stop within the tolerance passes its end.
+        "stop_point_m = 1200.0\n",
+        "stop_point_m = 1200.0\nplatform_end_m = 1200.0\n",
+        "stations[0].platform_end_m",
+        "1200.0",
+        "at least psd_tolerance_m (0.35 m)",
+        id="platform-end-at-stop",
+    ),
+    pytest.param(
+        "stop_point_m = 1200.0\n",
+        "stop_point_m = 1200.0\nplatform_end_m = 1200.2\n",
+        "stations[0].platform_end_m",
+        "1200.2",
+        "at least psd_tolerance_m (0.35 m)",
+        id="platform-end-within-tolerance",
+    ),
+    pytest.param(
+        # Riverside's first detector is 330 m before the stop, the radar 10 m past it: 340 m.
+        RIVERSIDE_DOPPLER,
+        "doppler = { beyond_stop_m = 10.0, sample_period_s = 0.01, range_m = 300.0 }",
+        "stations[0].tasc.doppler.range_m",
+        "300.0",
+        "range_m must be at least 340 m",
+        id="doppler-range-short-of-first-detector",
+    ),
+    pytest.param(
+        RIVERSIDE_DOPPLER,
+        "doppler = { beyond_stop_m = 10.0, sample_period_s = 0.02 }",
+        "stations[0].tasc.doppler.sample_period_s",
+        "0.02",
+        "must equal the simulation step 0.01 s",
+        id="doppler-sample-period-not-the-step",
+    ),
+    pytest.param(
+        # Riverside's last segment reaching to 2200 m overlaps Hillcrest's 2150 .. 2525 m.
+        "{ start_m = 1075.0, end_m = 1260.0, permille = 0.0 }",
+        "{ start_m = 1075.0, end_m = 2200.0, permille = 0.0 }",
+        "stations[1].gradient[0].start_m",
+        "2150.0",
+        "2150 .. 2525 m of station 'Hillcrest' overlaps the segment 1075 .. 2200 m of station "
+        "'Riverside' over 2150 .. 2200 m",
+        id="gradients-of-two-stations-overlap",
+    ),
+]
+
+PHYSICAL_VEHICLE_CASES = [
+    pytest.param(
+        "adhesion_mu = 0.20",
+        "adhesion_mu = 0.02",
+        "vehicle.adhesion_mu",
+        "0.02",
+        "greater than or equal to 0.1",
+        id="adhesion-below-wet-rail",
+    ),
+    pytest.param(
+        # Davis A is 2900 N: 2000 N of tractive effort never starts the train.
+        "max_force_n = 320000.0",
+        "max_force_n = 2000.0",
+        "vehicle.traction.max_force_n",
+        "2000.0",
+        "davis_a_n (2900 N): the train could never start",
+        id="traction-below-standstill-resistance",
+    ),
+    pytest.param(
+        "jerk_limit_mps3 = 1.0",
+        "jerk_limit_mps3 = 0.05",
+        "vehicle.brake.jerk_limit_mps3",
+        "0.05",
+        "greater than or equal to 0.1",
+        id="jerk-limit-below-0.1",
+    ),
+    pytest.param(
+        "crush_payload_kg = 110000.0",
+        "crush_payload_kg = 300000.0",
+        "vehicle.crush_payload_kg",
+        "300000.0",
+        "50 t per car for 6 cars: a crush-loaded car carries at most 40 t",
+        id="crush-payload-above-40-t-a-car",
+    ),
+]
+
+
+def _railstop(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [str(Path(sys.executable).with_name("railstop")), *args], capture_output=True, text=True, check=False
+    )
+
+
+def test_embedded_data_meet_the_physical_rules() -> None:
+    # Each rule below, on the embedded data: they pass, and `railstop check` says ok.
+    line, veh = default_line(), default_vehicle()
+    for st in line.stations:
+        assert st.platform_start <= st.stop_point_m <= st.platform_end, st.name
+        assert st.platform_end - st.stop_point_m >= st.psd_tolerance_m, st.name
+        radar = st.tasc.doppler
+        assert radar is not None, st.name
+        assert radar.beyond_stop_m + st.tasc.detectors_before_stop_m[0] <= radar.range_m, st.name
+        assert radar.sample_period_s == 0.01, st.name
+    segs = sorted((g.start_m, g.end_m) for st in line.stations for g in st.gradient)
+    assert all(a[1] <= b[0] for a, b in itertools.pairwise(segs))
+    assert veh.adhesion_mu >= 0.1
+    assert veh.traction is not None and veh.traction.max_force_n > veh.davis_a_n
+    assert veh.brake.jerk_limit_mps3 >= 0.1
+    assert veh.crush_payload_kg / veh.cars <= 40_000.0
+    ok = _railstop("check")
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert ok.stdout.startswith("ok: embedded default line")
+
+
+@pytest.mark.parametrize(
+    ("kind", "old", "new", "field", "value", "words"),
+    [
+        pytest.param(kind, *case.values, id=case.id)
+        for kind, cases in (("line", PHYSICAL_LINE_CASES), ("vehicle", PHYSICAL_VEHICLE_CASES))
+        for case in cases
+    ],
+)
+def test_physically_impossible_data_is_refused(
+    tmp_path: Path, kind: str, old: str, new: str, field: str, value: str, words: str
+) -> None:
+    """A line whose data contradict each other, a vehicle that is no train: one line naming the
+    file, the field and the value."""
+    embedded, load = {"line": (EMBEDDED_LINE, load_line), "vehicle": (EMBEDDED_VEHICLE, load_vehicle)}[kind]
+    path = _write(tmp_path, _edit(embedded, old, new), f"{kind}.toml")
+    with pytest.raises(ConfigError) as info:
+        load(path)
+    text = _assert_one_line(info.value, path, field)
+    assert words in text and f"(got {value})" in text, text
+
+
+@pytest.mark.parametrize(
+    ("option", "base", "case"),
+    [("--line", EMBEDDED_LINE, c) for c in PHYSICAL_LINE_CASES]
+    + [("--vehicle", EMBEDDED_VEHICLE, c) for c in PHYSICAL_VEHICLE_CASES],
+    ids=[str(c.id) for c in PHYSICAL_LINE_CASES + PHYSICAL_VEHICLE_CASES],
+)
+def test_check_refuses_physically_bad_data_in_one_line(
+    tmp_path: Path, option: str, base: str, case: Any
+) -> None:
+    # The promise: exit code 2 and one line naming the file, the field and the value, no traceback.
+    old, new, field, value, words = case.values
+    path = _write(tmp_path, _edit(base, old, new), "bad.toml")
+    p = _railstop("check", option, str(path))
+    assert p.returncode == 2, p.stdout + p.stderr
+    lines = (p.stdout + p.stderr).strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in p.stderr, lines
+    assert f"{path}: {field}: " in lines[0] and f"(got {value})" in lines[0] and words in lines[0], lines[0]
+
+
+@pytest.mark.parametrize(
+    ("base", "old", "new"),
+    [
+        # At each bound the data are accepted: a platform ending psd_tolerance_m past the stop, the
+        # stop at the platform's start, a radar whose range just reaches the first detector, two
+        # stations' segments that meet, wet-rail adhesion, the least jerk limit, 40 t a car, and a
+        # traction just above the standstill resistance.
+        (EMBEDDED_LINE, "stop_point_m = 1200.0\n", "stop_point_m = 1200.0\nplatform_end_m = 1200.35\n"),
+        (EMBEDDED_LINE, "stop_point_m = 1200.0\n", "stop_point_m = 1200.0\nplatform_end_m = 1330.0\n"),
+        (EMBEDDED_LINE, RIVERSIDE_DOPPLER, "doppler = { beyond_stop_m = 10.0, range_m = 340.0 }"),
+        (
+            EMBEDDED_LINE,
+            "{ start_m = 1075.0, end_m = 1260.0, permille = 0.0 }",
+            "{ start_m = 1075.0, end_m = 2150.0, permille = 0.0 }",
+        ),
+        (EMBEDDED_VEHICLE, "adhesion_mu = 0.20", "adhesion_mu = 0.1"),
+        (EMBEDDED_VEHICLE, "jerk_limit_mps3 = 1.0", "jerk_limit_mps3 = 0.1"),
+        (EMBEDDED_VEHICLE, "crush_payload_kg = 110000.0", "crush_payload_kg = 240000.0"),
+        (EMBEDDED_VEHICLE, "max_force_n = 320000.0", "max_force_n = 2901.0"),
+    ],
+)
+def test_physical_rules_accept_their_bounds(tmp_path: Path, base: str, old: str, new: str) -> None:
+    path = _write(tmp_path, _edit(base, old, new), "ok.toml")
+    if base is EMBEDDED_LINE:
+        load_line(path)
+    else:
+        load_vehicle(path)

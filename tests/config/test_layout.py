@@ -214,9 +214,16 @@ def test_a_timetable_replaces_the_headway(tmp_path: Path) -> None:
         ),
         (
             'stations = [{ name = "Museum", dwell_s = 20.0 }, { name = "Museum", dwell_s = 25.0 }]\n',
-            "stations",
+            "stations[1].name",
             "twice",
-            None,
+            "Museum",
+        ),
+        (
+            # Station names match in any case: the second dwell would be silently ignored.
+            'stations = [{ name = "Museum", dwell_s = 20.0 }, { name = "museum", dwell_s = 25.0 }]\n',
+            "stations[1].name",
+            "given twice: also stations[0] 'Museum' (names match in any case)",
+            "museum",
         ),
         ("headway_s = 10\n", "headway_s", "greater than or equal to 30", 10),
         ("trainz = 3\n", "trainz", "unknown key", None),

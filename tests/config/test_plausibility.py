@@ -32,7 +32,12 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 
 
 def line_data() -> dict[str, Any]:
-    return tomllib.loads(LINE_TOML.read_text(encoding="utf-8"))
+    """The embedded line's data, every radar's range long enough for the zones these tests move
+    (a radar must see its whole zone, ``TascZone``: the rule is not the one tested here)."""
+    data = tomllib.loads(LINE_TOML.read_text(encoding="utf-8"))
+    for st in data["stations"]:
+        st["tasc"]["doppler"]["range_m"] = 2000.0
+    return data
 
 
 def write_line(tmp_path: Path, data: dict[str, Any]) -> Path:

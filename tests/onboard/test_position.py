@@ -646,3 +646,28 @@ def test_cli_position_run_bad_line_file_names_field(tmp_path: Path) -> None:
     assert p.returncode == 2
     assert len([ln for ln in p.stderr.splitlines() if ln.strip()]) == 1, p.stderr
     assert "track.circuits[4].start_m" in p.stderr and "875.0" in p.stderr
+
+
+def test_cli_position_run_takes_the_operation_of_a_line_of_ones_own(tmp_path: Path) -> None:
+    """A line whose stations are not the embedded line's: the embedded operation names other
+    stations, so position-run takes the line's own with --operation (as ``line run``)."""
+    text = (Path(__file__).parents[2] / "src/railstop/data/line.toml").read_text(encoding="utf-8")
+    own = tmp_path / "line.toml"
+    own.write_text(
+        text.replace('"Hillcrest"', '"Hilltop"').replace('"Museum"', '"Gallery"'), encoding="utf-8"
+    )
+    refused = _cli("position-run", "--line", str(own), "--json", cwd=tmp_path)
+    assert refused.returncode == 2 and "give --operation FILE" in refused.stderr, refused.stderr
+    op = tmp_path / "op.toml"
+    op.write_text('stations = [{ name = "Hilltop", dwell_s = 40.0 }]\n', encoding="utf-8")
+    args = ("--line", str(own), "--operation", str(op), "--slides", "0", "--slips", "0", "--json")
+    p = _cli("position-run", *args, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["corrections"] > 0
+    # A bad operation file is one line naming the option, the file, the field and the value.
+    op.write_text('stations = [{ name = "Hillcrest", dwell_s = 40.0 }]\n', encoding="utf-8")
+    bad = _cli("position-run", *args, cwd=tmp_path)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert len([ln for ln in bad.stderr.splitlines() if ln.strip()]) == 1, bad.stderr
+    assert f"--operation: {op}: stations[0].name: no such station" in bad.stderr
+    assert "'Hillcrest'" in bad.stderr

@@ -781,3 +781,27 @@ def test_nominal_set_is_the_nominal_stop(
     errors = table.column("stop_error_m").to_numpy()
     for i, e in enumerate(errors):
         assert e == pytest.approx(expected, abs=1e-9), f"run {i}"
+
+
+def test_data_the_model_refuses_leaves_no_campaign_behind(tmp_path: Path) -> None:
+    """A station the stop model cannot run (here a radar sampling at 20 ms, the model's step being
+    10 ms, put in without the loader's checks) is refused by the campaign's first run before the
+    campaign folder is written: the error names the station and the field, and the corrected
+    command then runs into the same folder (before, the folder's manifest and lock were left and
+    blocked it: "a campaign is already there", and --resume "differs in: data_sha256")."""
+    line, vehicle = load_line(None), load_vehicle(None)
+    st = line.stations[0]
+    assert st.tasc.doppler is not None
+    radar = st.tasc.doppler.model_copy(update={"sample_period_s": 0.02})
+    bad_st = st.model_copy(update={"tasc": st.tasc.model_copy(update={"doppler": radar})})
+    bad_line = line.model_copy(update={"stations": [bad_st, *line.stations[1:]]})
+    out = tmp_path / "c"
+    spec = CampaignSpec(
+        line=bad_line, vehicle=vehicle, station=st.name, controller="tasc-pwm", runs=5, seed=1,
+        disturbances=load_disturbances("standard"),
+    )  # fmt: skip
+    with pytest.raises(RailstopError, match=r"sample_period_s = 0.02 must equal the simulation step"):
+        run_campaign(spec, out)
+    assert not out.exists()
+    done = run_campaign(replace(spec, line=line), out)
+    assert done.runs_simulated == 5

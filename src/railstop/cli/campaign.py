@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -512,6 +513,34 @@ def compare_controllers(
     ]
 
 
+def report_command(
+    directory: Path,
+    *,
+    line: Path | None = None,
+    vehicle: Path | None = None,
+    driver: Path | None = None,
+    platform: Path | None = None,
+    law: Path | None = None,
+    detectors_only: bool = False,
+) -> str:
+    """The ``railstop report`` command line for the campaigns in ``directory``, with the data
+    options they ran on (the report replays their worst runs on the same data), so that it works
+    as printed."""
+    argv = ["railstop", "report", str(directory)]
+    for option, value in (
+        ("--line", line),
+        ("--vehicle", vehicle),
+        ("--driver", driver),
+        ("--platform", platform),
+        ("--law", law),
+    ):
+        if value is not None:
+            argv += [option, str(value)]
+    if detectors_only:
+        argv.append("--detectors-only")
+    return shlex.join(argv)
+
+
 def checked_controllers(text: str | None) -> tuple[str, ...]:
     """``--controllers a,b,...`` (default: every built-in controller, then the laws of ``--law``)."""
     if text is None:
@@ -612,7 +641,16 @@ def compare(
         )
     )
     print_zone_note(rows)
-    out.print(f"campaigns in {target}/; `railstop report {target}` writes the HTML report", highlight=False)
+    command = report_command(
+        target,
+        line=line,
+        vehicle=vehicle,
+        driver=driver,
+        platform=platform,
+        law=law,
+        detectors_only=detectors_only,
+    )
+    out.print(f"campaigns in {target}/; `{command}` writes the HTML report", highlight=False)
 
 
 def certify(
@@ -821,6 +859,14 @@ def report(
     driver: DriverOpt = None,
     platform: PlatformOpt = None,
     law: LawOpt = None,
+    detectors_only: Annotated[
+        bool,
+        typer.Option(
+            "--detectors-only",
+            help="The campaigns were run with --detectors-only (their station without its Doppler "
+            "radar, SPEC §1 claim 6): replay their worst runs on that variant of the line.",
+        ),
+    ] = False,
     csv: Annotated[
         bool, typer.Option("--csv", help="Also write each campaign's runs as runs.csv beside runs.parquet.")
     ] = False,
@@ -833,6 +879,7 @@ def report(
 ) -> None:
     """Write a self-contained HTML report (histograms, CDF, what drives the misses, worst runs)."""
     from railstop.config import load_line, load_vehicle
+    from railstop.config.loader import with_detectors_only
     from railstop.report.campaign_report import export_csv, find_campaigns, write_report
     from railstop.sim.campaign import MANIFEST, law_of_manifest, read_manifest, replay_profile
 
@@ -853,10 +900,12 @@ def report(
         def replay(campaign_dir: Path, run: int) -> tuple[object, object]:
             manifest = read_manifest(campaign_dir)
             manual = manifest.get("manual_data_sha256") is not None
+            # As campaign / compare --detectors-only: the line with the campaign's station's variant.
+            line_run = with_detectors_only(ln, str(manifest.get("station"))) if detectors_only else ln
             return replay_profile(
                 campaign_dir,
                 run,
-                ln,
+                line_run,
                 veh,
                 driver=drv if manual else None,
                 platform=plat if manual else None,

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from railstop.cli.campaign import compare_controllers, summary_table
+from railstop.cli.campaign import compare_controllers, report_command, summary_table
 from railstop.cli.common import LineOpt, VehicleOpt, fail, out, styled
 from railstop.cli.progress import Reporter, on_interrupt
 from railstop.cli.stop import save_stop, write_plot
@@ -121,6 +121,6 @@ def demo(
     )
     out.print(
         f"plots, campaigns and database written to {out_dir}/ (database: {db}); "
-        f"`railstop report {compare_dir}` writes the HTML report",
+        f"`{report_command(compare_dir, line=line, vehicle=vehicle)}` writes the HTML report",
         highlight=False,
     )

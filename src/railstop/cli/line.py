@@ -212,7 +212,8 @@ def run_cmd(
         f"door link {_link_text(summary['door_link'])}; "
         f"occupancy telegrams {_link_text(summary['occupancy_link'])}; "
         f"onboard position p99 |error| {summary['position_error_p99_m']} m "
-        f"({summary['position_calibration']} calibration, {summary['slide_events']} slides); "
+        f"({summary['position_calibration']} calibration, {summary['slide_events']} slides, "
+        f"{summary['slip_events']} slips); "
         f"simulated {summary['sim_to_wall']}x faster than real time",
         highlight=False,
         soft_wrap=True,

@@ -11,9 +11,10 @@ from typing import Annotated, Any, NoReturn, TypeVar
 
 import typer
 
-from railstop.cli.common import LineOpt, VehicleOpt, fail, out
+from railstop.cli.common import LineOpt, OperationOpt, VehicleOpt, fail, out
 from railstop.config import load_line, load_vehicle
 from railstop.config.disturbances import DisturbanceSet, load_disturbances
+from railstop.config.operation import Operation, load_operation
 from railstop.config.schema import Line, Vehicle
 from railstop.errors import RailstopError
 from railstop.sim.position_run import (
@@ -109,6 +110,7 @@ def _default(value: object) -> str:
 def position_run(
     line: LineOpt = None,
     vehicle: VehicleOpt = None,
+    operation: OperationOpt = None,
     seed: Annotated[str, typer.Option(metavar="<int>", help="Random seed.")] = "1",
     run: Annotated[
         str,
@@ -219,6 +221,9 @@ def position_run(
         check_streams(seed_n, run_n)
         ln = _load("--line", line, load_line)
         veh = _load("--vehicle", vehicle, load_vehicle)
+        # The train's entry and dwells (its first train); the embedded one names the embedded
+        # line's stations, so a line of one's own needs its own.
+        op = _load("--operation", operation, lambda path: load_operation(path, ln))
         dist = None  # the station stops draw from the set given (default: the line's nominal)
         if disturbances is not None:
             dist = _load("--disturbances", disturbances, load_disturbances)
@@ -232,15 +237,12 @@ def position_run(
             same_path=same_path,
             **values,
         )
-        result = run_position(
-            ln,
-            veh,
-            settings,
-            disturbances=dist,
-        )
+        result = run_position(ln, veh, settings, operation=op, disturbances=dist)
         summary = result.summary()
         if plot is not None:
-            plot = _write_plot(result, plot, ln, veh, settings, disturbances)
+            plot = _write_plot(
+                result, plot, ln, veh, op if operation is not None else None, settings, disturbances
+            )
     except SettingError as exc:
         _fail_setting(exc, given, drawn, disturbances)
     except RailstopError as exc:
@@ -293,16 +295,21 @@ def _write_plot(
     plot: Path,
     ln: Line,
     veh: Vehicle,
+    operation: Operation | None,
     settings: PositionRunSettings,
     disturbances: str | None,
 ) -> Path:
-    """The run's PNG with its provenance footer (the inputs' hash, seed, run, disturbance set)."""
+    """The run's PNG with its provenance footer (the inputs' hash, seed, run, disturbance set);
+    ``operation``: the file given with --operation (None: the embedded one, as before)."""
     from dataclasses import asdict
 
     from railstop.provenance import footer, inputs_sha256, stamp
     from railstop.report.position_plot import plot_position_run
 
-    inputs = inputs_sha256(ln.model_dump(mode="json"), veh.model_dump(mode="json"), asdict(settings))
+    parts: list[object] = [ln.model_dump(mode="json"), veh.model_dump(mode="json"), asdict(settings)]
+    if operation is not None:
+        parts.append(operation.model_dump(mode="json"))
+    inputs = inputs_sha256(*parts)
     note = footer(stamp(inputs), seed=settings.seed, run=settings.run, disturbances=disturbances)
     try:
         return plot_position_run(result, plot, footer=note)

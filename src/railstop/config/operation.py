@@ -77,10 +77,17 @@ class Operation(Model):
                 )
             if any(b <= a for a, b in zip(self.entries_s, self.entries_s[1:], strict=False)):
                 raise FieldProblem("entries_s", "entry times must increase")
-        names = [s.name for s in self.stations]
-        dup = sorted({n for n in names if names.count(n) > 1})
-        if dup:
-            raise FieldProblem("stations", f"a station's dwell is given twice: {dup}")
+        # Names match the line's stations in any case (dwell_at_s, load_operation): "Bravo" and
+        # "bravo" are the same station, whose second dwell would be silently ignored.
+        first: dict[str, int] = {}
+        for i, s in enumerate(self.stations):
+            j = first.setdefault(s.name.lower(), i)
+            if j != i:
+                same = "" if self.stations[j].name == s.name else " (names match in any case)"
+                raise FieldProblem(
+                    f"stations[{i}].name",
+                    f"a station's dwell is given twice: also stations[{j}] {self.stations[j].name!r}{same}",
+                )
         return self
 
     def entry_times_s(self) -> list[float]:

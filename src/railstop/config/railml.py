@@ -43,7 +43,7 @@ from typing import Any
 
 from railstop.config.files import read_file_bytes
 from railstop.config.plausibility import BRAKE_MARGIN, G_MPS2
-from railstop.config.schema import Vehicle
+from railstop.config.schema import DopplerRadar, Vehicle
 from railstop.errors import ConfigError
 from railstop.quantities import kmh_to_mps
 
@@ -55,6 +55,8 @@ SIGNAL_TO_BORDER_M = 50.0
 DEFAULT_STOP_BEFORE_EDGE_END_M = 5.0
 #: Wheel detectors this far before a stopping point (and after the previous one) are its TASC zone.
 TASC_ZONE_MAX_M = 600.0
+#: The Doppler radar's range an imported station gets (the schema's default), unless its zone needs more.
+RADAR_RANGE_M = float(DopplerRadar.model_fields["range_m"].default)
 #: The last TASC detector of a laid-out zone (metres before the stop) and the others as fractions
 #: of the first: the spacing of the embedded line's zones (e.g. 330, 230, 140, 60, 6 m).
 LAST_DETECTOR_M = 6.0
@@ -792,7 +794,12 @@ def _stations(
         st["tasc"] = {
             "entry_speed_kmh": speed,
             "detectors_before_stop_m": detectors,
-            "doppler": {"beyond_stop_m": 10.0, "sample_period_s": 0.01},
+            # The radar 10 m beyond the stop must see the whole zone (TascZone's rule).
+            "doppler": {
+                "beyond_stop_m": 10.0,
+                "sample_period_s": 0.01,
+                "range_m": max(RADAR_RANGE_M, math.ceil(10.0 + detectors[0])),
+            },
         }
         report.append(
             f"station {st['name']!r}: stop at {stop:.1f} m ({where}), "

@@ -27,6 +27,10 @@ from railstop.quantities import KMH_PER_MPS
 
 __all__ = ["FieldProblem", "FiniteFloat", "Fraction", "NonNegFloat", "PositiveFloat"]
 
+# The stop model's simulation step (sim.engine.DT_S and live.tasc.TASC_DT_S are this one): the
+# Doppler radar samples once a step, so its sample_period_s must be this (model.build refuses another).
+SIM_STEP_S = 0.01
+
 
 class GradientSegment(Stretch):
     """A constant gradient between two chainages; + is uphill in the R direction."""
@@ -42,9 +46,11 @@ class DopplerRadar(_Model):
     # Where the radar stands: this far beyond the stopping point (the platform end), looking back
     # at the approaching train; its range is counted from there.
     beyond_stop_m: NonNegFloat = 10.0
-    # The radar's sampling period; it must equal the simulation step (the model refuses another).
+    # The radar's sampling period: one sample a simulation step, so it must equal that step, 0.01 s
+    # (another is refused at load).
     sample_period_s: Annotated[float, Field(gt=0.0, le=0.1)] = 0.01
-    # The radar sees a train only within this distance of itself; outside it the sample reads 0.
+    # The radar sees a train only within this distance of itself; outside it the sample reads 0. It
+    # must see the whole zone: at least beyond_stop_m + the first detector's distance.
     range_m: PositiveFloat = 400.0
     # The wayside fits the deceleration (the slope of a line through the speed samples) over the
     # radar samples of this window.
@@ -52,6 +58,15 @@ class DopplerRadar(_Model):
     # The speed "now" is the mean of the samples of this shorter window, carried forward to the
     # newest sample with the deceleration's slope.
     speed_window_s: Annotated[float, Field(gt=0.0, le=3.0)] = 0.3
+
+    @field_validator("sample_period_s")
+    @classmethod
+    def _one_sample_a_step(cls, v: float) -> float:
+        # The stop model samples the radar once per simulation step (model.build refuses another
+        # period when a stop is run): refuse it here, naming the file, not at the first stop.
+        if abs(v - SIM_STEP_S) > 1e-12:
+            raise ValueError(f"must equal the simulation step {SIM_STEP_S} s (the radar samples once a step)")
+        return v
 
 
 def _detector_list(v: list[float], least: int, too_few: str) -> list[float]:
@@ -179,6 +194,19 @@ class TascZone(_Model):
             )
         if self.update == "continuous" and self.doppler is None:
             raise FieldProblem("update", "update = 'continuous' needs a doppler radar")
+        radar = self.doppler
+        if radar is not None:
+            # The radar reads 0 for a train farther than range_m from it (model.step: in range while
+            # radar position - front <= range_m, the radar beyond_stop_m past the stopping point):
+            # it must see the train over the whole zone, from the first detector on.
+            reach = radar.beyond_stop_m + self.detectors_before_stop_m[0]
+            if reach > radar.range_m:
+                raise FieldProblem(
+                    "doppler.range_m",
+                    f"the radar ({radar.beyond_stop_m:g} m past the stop) must see the first detector "
+                    f"({self.detectors_before_stop_m[0]:g} m before the stop), {reach:g} m away: "
+                    f"range_m must be at least {reach:g} m",
+                )
         return self
 
 
@@ -217,6 +245,26 @@ class Station(_Model):
         if end < self.stop_point_m:
             raise FieldProblem(
                 "platform_end_m", f"platform_end_m must not be before stop_point_m ({self.stop_point_m})"
+            )
+        # A stop within the PSD tolerance is a good stop: the farthest one (stop_point_m +
+        # psd_tolerance_m) must not pass the platform's end, where the overrun guards stop the
+        # train (a platform end at the stopping point makes a nominal stop an emergency brake).
+        # Only a given platform_end_m can be too near (the default is 5 m past the stop).
+        # (1e-9 m: the chainages' rounding, so 1200.35 is 0.35 m past 1200.)
+        if self.platform_end_m is not None and end - self.stop_point_m < self.psd_tolerance_m - 1e-9:
+            raise FieldProblem(
+                "platform_end_m",
+                f"{end - self.stop_point_m:g} m past stop_point_m ({self.stop_point_m:g} m): the platform "
+                f"must end at least psd_tolerance_m ({self.psd_tolerance_m:g} m) past the stopping point",
+            )
+        # The stopping point lies on the platform: a train stopped before its start (platform_end
+        # - platform_length_m) has its doors at no platform.
+        if self.stop_point_m < self.platform_start:
+            raise FieldProblem(
+                "stop_point_m",
+                f"before the platform's start at {self.platform_start:g} m (its end {end:g} m less "
+                f"platform_length_m {self.platform_length_m:g} m): the stopping point must be on the "
+                "platform",
             )
         segs = sorted(self.gradient, key=lambda s: s.start_m)
         for a, b in zip(segs, segs[1:], strict=False):
@@ -402,6 +450,29 @@ class Line(_Model):
         return self
 
     @model_validator(mode="after")
+    def _gradients_apart(self) -> Line:
+        # One track has one gradient at each chainage: the stations' segments together make the
+        # line's profile (physics.plant.track_gradient, a line run), so the segments of two
+        # stations must not overlap either (each station's own are checked in Station).
+        segs = sorted(
+            (
+                (seg.start_m, i, k, seg)
+                for i, st in enumerate(self.stations)
+                for k, seg in enumerate(st.gradient)
+            ),
+            key=lambda it: it[0],
+        )
+        for (_, i, _, a), (_, j, k, b) in zip(segs, segs[1:], strict=False):
+            if b.start_m < a.end_m:
+                raise FieldProblem(
+                    f"stations[{j}].gradient[{k}].start_m",
+                    f"the gradient segment {b.start_m:g} .. {b.end_m:g} m of station "
+                    f"{self.stations[j].name!r} overlaps the segment {a.start_m:g} .. {a.end_m:g} m of "
+                    f"station {self.stations[i].name!r} over {b.start_m:g} .. {min(a.end_m, b.end_m):g} m",
+                )
+        return self
+
+    @model_validator(mode="after")
     def _track_covers_line(self) -> Line:
         # SPEC §2: every position on the line lies in exactly one track circuit
         # (contiguity is checked in Track); here: the circuits reach the line's
@@ -470,6 +541,8 @@ BrakeRate = Annotated[float, Field(gt=0.0, le=MAX_BRAKE_MPS2, allow_inf_nan=Fals
 # A car is 5 to 40 m long and weighs (empty) 5 to 100 t: a vehicle outside is not a train.
 CAR_LENGTH_M = (5.0, 40.0)
 CAR_TARE_KG = (5_000.0, 100_000.0)
+# [interpretation] A crush-loaded metro car carries 15-25 t: 40 t a car is the most a car's payload is.
+CAR_PAYLOAD_KG = 40_000.0
 
 
 class BrakeModel(_Model):
@@ -494,8 +567,10 @@ class BrakeModel(_Model):
     # The first-order lag of the brake's build-up (the disturbance sets' nominal
     # brake_time_constant_s).
     time_constant_s: Annotated[float, Field(gt=0.0, le=3.0)]
-    # The ECU's jerk limiter: the deceleration demand changes at most this fast.
-    jerk_limit_mps3: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)]
+    # The ECU's jerk limiter: the deceleration demand changes at most this fast. [interpretation]
+    # At least 0.1 m/s³: slower, full service takes 10 s and more to build up (metros limit jerk
+    # for comfort to about 0.5-1.5 m/s³); a smaller value is a typing error.
+    jerk_limit_mps3: Annotated[float, Field(ge=0.1, le=20.0, allow_inf_nan=False)]
     # The train's own brake controller (config 1, the ATO, the wayside's notch modulation of forms 7
     # and 8): it updates its notch once per this cycle.
     controller_cycle_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
@@ -656,7 +731,9 @@ class Vehicle(_Model):
     wheel_diameter_m: Annotated[float, Field(gt=0.5, lt=1.2)]
     # The dry rail's adhesion coefficient: it limits braking and traction; a demand above what it
     # gives slides or slips the wheels (the disturbance sets' nominal low_adhesion_mu).
-    adhesion_mu: Annotated[float, Field(gt=0.0, le=0.5)]
+    # [interpretation] At least 0.1: wet rail gives about 0.1, dry rail 0.2-0.4; a lower value is
+    # no dry rail (low-adhesion patches are the disturbance set's low_adhesion_mu).
+    adhesion_mu: Annotated[float, Field(ge=0.1, le=0.5)]
     # While the wheels slide under braking, the wheel-slide protection holds them this fraction
     # slower than the train (the tachometer under-reads by it).
     slide_slip_ratio: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.15
@@ -684,6 +761,23 @@ class Vehicle(_Model):
                     f"{car:g} {unit} per car for {self.cars} cars: "
                     f"a car is {lo / per:g} to {hi / per:g} {unit}",
                 )
+        # [interpretation] A crush-loaded metro car carries 15-25 t: more than CAR_PAYLOAD_KG (40 t)
+        # a car is no passenger load but a typing error.
+        payload_t = self.crush_payload_kg / self.cars / 1000.0
+        if payload_t > CAR_PAYLOAD_KG / 1000.0:
+            raise FieldProblem(
+                "crush_payload_kg",
+                f"{payload_t:g} t per car for {self.cars} cars: "
+                f"a crush-loaded car carries at most {CAR_PAYLOAD_KG / 1000.0:g} t",
+            )
+        # The train must be able to start: at standstill the tractive effort (max_force_n) must
+        # exceed the running resistance's constant term (davis_a_n), else no train ever leaves.
+        if self.traction is not None and self.traction.max_force_n <= self.davis_a_n:
+            raise FieldProblem(
+                "traction.max_force_n",
+                f"not above the running resistance at standstill davis_a_n ({self.davis_a_n:g} N): "
+                "the train could never start",
+            )
         return self
 
 

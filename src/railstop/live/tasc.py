@@ -61,7 +61,7 @@ from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import DisturbanceSet, draw_track_stop, track_stop_run
 from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.scenario import Scenario
-from railstop.config.schema import Line, Station, Vehicle
+from railstop.config.schema import SIM_STEP_S, Line, Station, Vehicle
 from railstop.control.line_ato import handover_m
 from railstop.control.supervision import EbCause, eb_cause_name
 from railstop.link.codec import TelegramError, decode, encode
@@ -90,7 +90,7 @@ FloatArray = NDArray[np.float64]
 STATION_BASE = 0x0100  # station i's wayside TASC unit: STATION_BASE + i (as tasc_link's WAYSIDE_ID)
 TRAIN_TASC_BASE = 0x4000  # train k's onboard TASC unit: TRAIN_TASC_BASE + k
 #: The stop model's step (the radar's sample period, SPEC §1: 10 ms).
-TASC_DT_S = 0.01
+TASC_DT_S = SIM_STEP_S
 #: A train's radio announces itself to the station of its stop this often (association).
 HELLO_PERIOD_S = 0.25
 #: One reading on the sensor wire: time, radar speed (NaN: none), detector passed, detector index,

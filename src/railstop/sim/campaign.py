@@ -34,7 +34,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -503,6 +503,13 @@ def _check_spec(spec: CampaignSpec) -> None:
     check_device(spec.device, law_loaded=spec.law is not None)
 
 
+def _preflight(spec: CampaignSpec) -> None:
+    """Run the campaign's first run on the CPU before anything is written: data the stop model
+    refuses (a station it cannot run, an approach ``ato-corrected`` cannot position) is then one
+    clear error and no campaign folder is left behind to block the corrected command."""
+    simulate_block(replace(spec, device="cpu", runs=1), (0, 0, 1))
+
+
 def check_device(device: str, *, law_loaded: bool = False) -> None:
     """Refuse a device the stop model cannot run on here, before any work (``--device``)."""
     if device not in DEVICES:
@@ -629,6 +636,7 @@ def run_campaign(
     out = Path(out)
     _check_spec(spec)
     check_capacity(spec, out)
+    _preflight(spec)
     if scheduler is not None:
         describe(scheduler=scheduler)  # an address that does not answer: refused before the folder
     with campaign_lock(out):

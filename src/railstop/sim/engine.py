@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from railstop.config.driver import DriverFile
 from railstop.config.platform import PlatformFile
 from railstop.config.scenario import Scenario
-from railstop.config.schema import Station, Track, Vehicle
+from railstop.config.schema import SIM_STEP_S, Station, Track, Vehicle
 from railstop.controllers import (
     ATO_CONTROLLERS,
     CONTROLLERS,
@@ -102,7 +102,7 @@ __all__ = [
     "run_batch",
 ]
 
-DT_S = 0.01
+DT_S = SIM_STEP_S  # the stop model's step (config.schema: the radar samples once a step)
 MAX_TIME_S = 150.0
 
 

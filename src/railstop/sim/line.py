@@ -398,6 +398,8 @@ class Train:
     same_path_trace: list[tuple[float, ...]] = field(default_factory=list)
     slides: int = 0  # slide events: slides that started
     last_slide_s: float = -np.inf  # the last step it slid
+    slips: int = 0  # slip events: wheel slips (traction beyond the adhesion) that started
+    last_slip_s: float = -np.inf  # the last step it slipped
     x_onboard_m: float = 0.0  # where the train believes its front is (SPEC §2 positioning)
     samples_t: list[float] = field(default_factory=list)
     samples_x: list[float] = field(default_factory=list)
@@ -475,6 +477,7 @@ class LineResult:
     skipped_stops: int
     signals_passed_at_danger: int
     slide_events: int = 0  # slides (the WSP acting on low adhesion), between stations and in stops
+    slip_events: int = 0  # wheel slips (the anti-slip control acting), between stations
     calibration: str = "carried"
     signalling: str = "fixed-block"
     cbtc: dict[str, Any] | None = None  # the CBTC summary (SPEC §4), with signalling cbtc*
@@ -521,6 +524,7 @@ class LineResult:
             else None,
             "position_calibration": self.calibration,
             "slide_events": self.slide_events,
+            "slip_events": self.slip_events,
             "signalling": self.signalling,
             "cbtc": self._cbtc_summary(delays),
             "duration_s": self.duration_s,
@@ -1039,6 +1043,12 @@ class LineSimulation:
             if now_s - train.last_slide_s > SLIDE_GAP_S:  # a new slide, not the WSP's next cycle
                 train.slides += 1
             train.last_slide_s = now_s
+        if plant.slipping:
+            # Counted as the slides are: the odometer over-reads while the wheels slip (SPEC §2
+            # slip/slide), so a run whose trains slip says so in its summary.
+            if now_s - train.last_slip_s > SLIDE_GAP_S:
+                train.slips += 1
+            train.last_slip_s = now_s
         x_new, v_new = plant.x_m, plant.v_mps
         if (
             st_next is not None
@@ -1504,6 +1514,7 @@ class LineSimulation:
             skipped_stops=self.skipped_stops,
             signals_passed_at_danger=self.signals_passed_at_danger,
             slide_events=sum(t.slides for t in self.trains),
+            slip_events=sum(t.slips for t in self.trains),
             calibration=self.settings.calibration,
             signalling=self.settings.signalling,
             cbtc=self.cbtc.summary() if self.cbtc is not None else None,
