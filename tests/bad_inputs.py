@@ -263,7 +263,7 @@ LINE_CASES: list[tuple[str, str | bytes, tuple[str, ...]]] = [
     (
         "stop-point-huge",
         edit(LINE, "stop_point_m = 5600.0", f"stop_point_m = {HUGE}"),
-        ("track.circuits", "Harbour"),
+        ("stations[3].stop_point_m", "Harbour"),
     ),
     ("platform-side", edit(LINE, 'platform_side = "R"', 'platform_side = "X"'), ("platform_side", "'X'")),
     (

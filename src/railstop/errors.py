@@ -18,8 +18,21 @@ class ConfigError(RailstopError, ValueError):
         self.field = field
         self.message = message
         self.value = value
-        got = "" if value is None else f" (got {value!r})"
+        got = "" if value is None else f" (got {_shown(value)})"
         super().__init__(f"{source}: {field}: {message}{got}")
+
+
+# The longest value a message quotes whole: a longer one (a whole list of track circuits, a table)
+# is cut, with its size, so that the message stays one readable line.
+SHOWN_VALUE_CHARS = 160
+
+
+def _shown(value: object) -> str:
+    text = repr(value)
+    if len(text) <= SHOWN_VALUE_CHARS:
+        return text
+    size = f", {len(value)} items in all" if isinstance(value, (list, tuple, dict)) else ""
+    return f"{text[: SHOWN_VALUE_CHARS - 40]}... ({len(text)} characters{size})"
 
 
 class TelegramError(RailstopError):

@@ -130,6 +130,13 @@ def test_config_error_message_format() -> None:
     assert str(ConfigError("f", "g", "m")) == "f: g: m"
 
 
+def test_config_error_caps_a_long_value() -> None:
+    # A whole list (of track circuits, say) is never quoted whole: the line stays readable.
+    circuits = [{"id": i, "start_m": 100.0 * i, "end_m": 100.0 * (i + 1)} for i in range(60)]
+    text = str(ConfigError("line.toml", "track.circuits", "bad", circuits))
+    assert len(text) < 250 and "60 items in all" in text and "\n" not in text
+
+
 def test_format_loc_matches_toml_paths() -> None:
     # The path printed must be the one the engineer navigates in the file.
     assert format_loc(("stations", 1, "tasc", "x")) == "stations[1].tasc.x"
@@ -431,6 +438,41 @@ RIVERSIDE_DOPPLER = "doppler = { beyond_stop_m = 10.0, sample_period_s = 0.01 }"
 # (old, new, field, value, words): one rule each.
 PHYSICAL_LINE_CASES = [
     pytest.param(
+        # Hillcrest (the second station) moved before Riverside's stop at 1200 m.
+        "stop_point_m = 2650.0\n",
+        "stop_point_m = 1150.0\n",
+        "stations[1].stop_point_m",
+        "1150.0",
+        "before the previous station 'Riverside' (stations[0].stop_point_m = 1200 m)",
+        id="stations-out-of-order",
+    ),
+    pytest.param(
+        # A platform length typed in mm: refused on the station's field, not on the track circuits.
+        "stop_point_m = 1200.0\nplatform_length_m = 130.0",
+        "stop_point_m = 1200.0\nplatform_length_m = 140000.0",
+        "stations[0].platform_length_m",
+        "140000.0",
+        "less than or equal to 1000",
+        id="platform-length-in-mm",
+    ),
+    pytest.param(
+        "stop_point_m = 1200.0\n",
+        "stop_point_m = -50.0\n",
+        "stations[0].stop_point_m",
+        "-50.0",
+        "the stopping point of station 'Riverside' is off the line",
+        id="stop-point-before-line-start",
+    ),
+    pytest.param(
+        # A platform that fits its bound but reaches back past the line's start.
+        "stop_point_m = 1200.0\nplatform_length_m = 130.0",
+        "stop_point_m = 100.0\nplatform_length_m = 300.0",
+        "stations[0].platform_length_m",
+        "300.0",
+        "platform -195 .. 105 m starts before the line's start",
+        id="platform-before-line-start",
+    ),
+    pytest.param(
         # Riverside stops at 1200 m; a platform 1270 .. 1400 m leaves the stop before its start.
         "stop_point_m = 1200.0\n",
         "stop_point_m = 1200.0\nplatform_end_m = 1400.0\n",
@@ -486,6 +528,15 @@ PHYSICAL_LINE_CASES = [
 ]
 
 PHYSICAL_VEHICLE_CASES = [
+    pytest.param(
+        # A PWM map that never brakes harder than 0.2 m/s² while B7 gives 1.0 m/s².
+        "pwm_decel_mps2 = [0.0, 0.0, 1.0, 1.0]",
+        "pwm_decel_mps2 = [0, 0, 0.2, 0.2]",
+        "vehicle.brake.pwm_decel_mps2",
+        "[0, 0, 0.2, 0.2]",
+        "largest deceleration 0.2 m/s² falls short of full service (notch_decel_mps2 B7 = 1 m/s²)",
+        id="pwm-map-short-of-full-service",
+    ),
     pytest.param(
         "adhesion_mu = 0.20",
         "adhesion_mu = 0.02",
@@ -598,6 +649,11 @@ def test_check_refuses_physically_bad_data_in_one_line(
         # traction just above the standstill resistance.
         (EMBEDDED_LINE, "stop_point_m = 1200.0\n", "stop_point_m = 1200.0\nplatform_end_m = 1200.35\n"),
         (EMBEDDED_LINE, "stop_point_m = 1200.0\n", "stop_point_m = 1200.0\nplatform_end_m = 1330.0\n"),
+        (
+            EMBEDDED_VEHICLE,
+            "pwm_decel_mps2 = [0.0, 0.0, 1.0, 1.0]",
+            "pwm_decel_mps2 = [0.0, 0.0, 0.98, 0.98]",
+        ),
         (EMBEDDED_LINE, RIVERSIDE_DOPPLER, "doppler = { beyond_stop_m = 10.0, range_m = 340.0 }"),
         (
             EMBEDDED_LINE,

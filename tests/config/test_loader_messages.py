@@ -97,6 +97,21 @@ def test_the_vehicle_and_operation_files_say_it_too(tmp_path: Path) -> None:
     assert str(info.value) == f"{op}: stations[0].dwel_s: unknown key (did you mean 'dwell_s'?)"
 
 
+@pytest.mark.parametrize("text", ["", "# only a comment\n\n"])
+def test_an_empty_operation_file_is_refused(tmp_path: Path, text: str) -> None:
+    # Not silently the embedded 12 trains every 120 s.
+    op = tmp_path / "op.toml"
+    op.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_operation(op, load_line(None))
+    assert str(info.value) == f"{op}: (file): the file is empty: give at least trains or headway_s"
+    p = run_cli("check", "--operation", str(op), cwd=tmp_path)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    assert (p.stdout + p.stderr).strip().splitlines() == [
+        f"error: {op}: (file): the file is empty: give at least trains or headway_s"
+    ]
+
+
 def test_known_keys_follow_the_location() -> None:
     assert "platform_length_m" in known_keys(Line, ("stations", 0))
     assert "beyond_stop_m" in known_keys(Line, ("stations", 3, "tasc", "doppler"))

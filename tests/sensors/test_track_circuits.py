@@ -88,7 +88,7 @@ def test_base_file_is_valid(tmp_path: Path) -> None:
             "1000.0",
         ),
         # not reaching the line's end
-        ("length_m = 1200.0", "length_m = 1300.0", "track.circuits", "1200.0"),
+        ("length_m = 1200.0", "length_m = 1300.0", "track.circuits[4].end_m", "1200.0"),
         # an ID that does not fit the telegram
         ("{ id = 5, start_m", "{ id = 70000, start_m", "track.circuits[4].id", "70000"),
         # an unknown kind

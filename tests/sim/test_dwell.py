@@ -296,6 +296,16 @@ def test_cli_dwell_text_manual_fault(tmp_path: Path) -> None:
     assert "Hillcrest" in p.stdout and (tmp_path / "railstop.db").exists()
 
 
+def test_cli_dwell_no_db_writes_no_database(tmp_path: Path) -> None:
+    p = run("dwell", "--stop-error-m", "0.8", "--no-db", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "start enable" in p.stdout and "timeline saved" not in p.stdout
+    assert list(tmp_path.iterdir()) == []
+    both = run("dwell", "--stop-error-m", "0.8", "--no-db", "--db", "x.db", cwd=tmp_path)
+    assert both.returncode == 2 and "--no-db" in both.stderr and "Traceback" not in both.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("args", "needle"),
     [

@@ -127,6 +127,7 @@ def verify_cmd(
 
 
 def dwell(
+    ctx: typer.Context,
     station: Annotated[str | None, typer.Option(help="Station name (default: the line's first).")] = None,
     stop_error_m: Annotated[
         str | None,
@@ -156,6 +157,9 @@ def dwell(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     plot: Annotated[Path | None, typer.Option(help="Write a PNG timeline of the dwell here.")] = None,
     db: Annotated[Path, typer.Option(help="SQLite database file (gets the timeline).")] = Path("railstop.db"),
+    no_db: Annotated[
+        bool, typer.Option("--no-db", help="Write no database (the timeline is only printed).")
+    ] = False,
     line: Annotated[
         Path | None, typer.Option("--line", help="Line TOML file (default: embedded line).")
     ] = None,
@@ -177,6 +181,9 @@ def dwell(
         fail(f"--mode: must be one of {', '.join(MODES)} (got {mode!r})")
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
+    db_source = ctx.get_parameter_source("db")
+    if no_db and db_source is not None and db_source.name == "COMMANDLINE":
+        fail("--db and --no-db exclude each other")
     error_m = stop_error_option(stop_error_m)
     try:
         ln = load_line(line)
@@ -219,10 +226,11 @@ def dwell(
             f"{ln.line.name}|{st.name}|{mode}|{error_m!r}|obstruct={obstruct_door}|psd_fail={psd_fail}"
             f"|seed={seed}|link_cut={link_cut_s}|doors={cfg.fingerprint()}"
         )
-        from railstop.store import open_store
+        if not no_db:
+            from railstop.store import open_store
 
-        with open_store(db) as store:
-            store.save_dwell(key=key, station=st.name, events=result.timeline)
+            with open_store(db) as store:
+                store.save_dwell(key=key, station=st.name, events=result.timeline)
         if plot is not None:
             from railstop.provenance import footer, inputs_sha256, stamp
             from railstop.report.dwell_plot import plot_dwell
@@ -250,7 +258,7 @@ def dwell(
     out.print(
         f"stop error {result.stop_error_m:+.3f} m ({source}; tolerance ±{result.tolerance_m:g} m, "
         f"{'in' if result.in_tolerance else 'out of'} tolerance): {result.psc_attempts} PSC attempt(s), "
-        f"{result.corrections} correction(s), {end}; timeline saved to {db}",
+        f"{result.corrections} correction(s), {end}" + ("" if no_db else f"; timeline saved to {db}"),
         highlight=False,
         soft_wrap=True,
     )

@@ -114,6 +114,10 @@ def load_operation(path: str | Path | None, line: Line) -> Operation:
         source, data = data_text(DEFAULT_OPERATION)
     else:
         source, data = str(path), read_toml(Path(path))
+        if not data:
+            # An empty file (or comments only) is not the embedded operation: a file given names
+            # what runs, and a silent 12 trains every 120 s is not what its author meant.
+            raise ConfigError(source, "(file)", "the file is empty: give at least trains or headway_s")
     op = validate(Operation, data, source)
     known = {s.name.lower() for s in line.stations}
     for i, s in enumerate(op.stations):

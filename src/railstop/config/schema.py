@@ -6,6 +6,7 @@ DESIGN rule 5). Unknown keys are rejected (DESIGN rule 6).
 
 from __future__ import annotations
 
+import itertools
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -210,6 +211,11 @@ class TascZone(_Model):
         return self
 
 
+# The longest platform a station may have (m): the longest metro platforms are ~ 300 m; a longer
+# value is a length typed in mm (140000.0 for 140 m).
+MAX_PLATFORM_M = 1000.0
+
+
 class Station(_Model):
     # The station's name, unique on the line (any case): --station and the operation file name it.
     name: Annotated[str, Field(min_length=1, max_length=64)]
@@ -217,7 +223,7 @@ class Station(_Model):
     # ATO transponders are placed before it, the stations listed in increasing stop_point_m.
     stop_point_m: FiniteFloat
     # The platform's length; the platform runs back this far from its end (platform_end_m).
-    platform_length_m: PositiveFloat
+    platform_length_m: Annotated[float, Field(gt=0.0, le=MAX_PLATFORM_M, allow_inf_nan=False)]
     # The side of the platform in the running direction, "L" or "R": the side whose doors and
     # platform screen doors open at the dwell.
     platform_side: Literal["L", "R"]
@@ -444,9 +450,14 @@ class Line(_Model):
         dup = {n for n in names if names.count(n) > 1}
         if dup:
             raise FieldProblem("stations", f"station names must be unique, repeated: {sorted(dup)}")
-        stops = [s.stop_point_m for s in self.stations]
-        if stops != sorted(stops):
-            raise ValueError("stations must be listed in increasing stop_point_m")
+        for i, (prev, st) in enumerate(itertools.pairwise(self.stations), start=1):
+            if st.stop_point_m < prev.stop_point_m:
+                raise FieldProblem(
+                    f"stations[{i}].stop_point_m",
+                    f"stations must be listed in increasing stop_point_m: station {st.name!r} stops at "
+                    f"{st.stop_point_m:g} m, before the previous station {prev.name!r} "
+                    f"(stations[{i - 1}].stop_point_m = {prev.stop_point_m:g} m)",
+                )
         return self
 
     @model_validator(mode="after")
@@ -482,15 +493,26 @@ class Line(_Model):
             return self
         if self.line.length_m is not None and end != self.line.length_m:
             raise FieldProblem(
-                "track.circuits",
-                f"the last track circuit must end at line.length_m ({self.line.length_m} m), got {end} m",
+                f"track.circuits[{len(self.track.circuits) - 1}].end_m",
+                f"the last track circuit must end at line.length_m ({self.line.length_m:g} m)",
             )
-        for s in self.stations:
-            if s.platform_start < 0.0 or s.platform_end > end:
+        # The station's own field is blamed (a stop point off the line, a platform typed in mm),
+        # never the whole list of circuits.
+        on_line = f"the line (its track circuits) runs 0 .. {end:g} m"
+        for i, s in enumerate(self.stations):
+            where = f"station {s.name!r}'s platform {s.platform_start:g} .. {s.platform_end:g} m"
+            if not 0.0 <= s.stop_point_m <= end:
                 raise FieldProblem(
-                    "track.circuits",
-                    f"the track circuits (0 .. {end} m) must cover station {s.name!r} "
-                    f"({s.platform_start} .. {s.platform_end} m)",
+                    f"stations[{i}].stop_point_m",
+                    f"the stopping point of station {s.name!r} is off the line: {on_line}",
+                )
+            if s.platform_end > end:
+                field = "platform_end_m" if s.platform_end_m is not None else "stop_point_m"
+                raise FieldProblem(f"stations[{i}].{field}", f"{where} ends past the line's end: {on_line}")
+            if s.platform_start < 0.0:
+                raise FieldProblem(
+                    f"stations[{i}].platform_length_m",
+                    f"{where} starts before the line's start: {on_line}",
                 )
         for i, t in enumerate(self.track.tunnels):
             if t.start_m < 0.0 or t.end_m > end:
@@ -543,6 +565,10 @@ CAR_LENGTH_M = (5.0, 40.0)
 CAR_TARE_KG = (5_000.0, 100_000.0)
 # [interpretation] A crush-loaded metro car carries 15-25 t: 40 t a car is the most a car's payload is.
 CAR_PAYLOAD_KG = 40_000.0
+
+
+# How far (a share of full service) the PWM map's largest deceleration may fall short of B7.
+PWM_REACH_TOLERANCE = 0.02
 
 
 class BrakeModel(_Model):
@@ -609,6 +635,17 @@ class BrakeModel(_Model):
         if self.emergency_decel_mps2 < self.notch_decel_mps2[-1]:
             raise FieldProblem(
                 "emergency_decel_mps2", "emergency_decel_mps2 must be at least the B7 deceleration"
+            )
+        # [interpretation] The PWM command reaches full service: a map whose largest deceleration
+        # falls short of B7 (by more than PWM_REACH_TOLERANCE of it) makes the PWM configurations
+        # brake weaker than the notch table says the train can, silently.
+        full, reach = self.notch_decel_mps2[-1], max(dec)
+        if reach < full * (1.0 - PWM_REACH_TOLERANCE):
+            raise FieldProblem(
+                "pwm_decel_mps2",
+                f"the PWM map's largest deceleration {reach:g} m/s² falls short of full service "
+                f"(notch_decel_mps2 B7 = {full:g} m/s²): the PWM command must reach it "
+                f"(within {PWM_REACH_TOLERANCE:.0%})",
             )
         return self
 
