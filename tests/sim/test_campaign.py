@@ -37,7 +37,7 @@ from railstop.config.disturbances import (
     nominal_values,
 )
 from railstop.config.schema import Line, Station, Vehicle
-from railstop.errors import RailstopError
+from railstop.errors import RailstopError, SimulationError
 from railstop.sim.campaign import (
     CHUNK_DIR,
     RESULT_COLUMNS,
@@ -805,3 +805,34 @@ def test_data_the_model_refuses_leaves_no_campaign_behind(tmp_path: Path) -> Non
     assert not out.exists()
     done = run_campaign(replace(spec, line=line), out)
     assert done.runs_simulated == 5
+
+
+def test_a_block_that_fails_is_named_by_its_runs_and_its_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A chunk whose runs fail after the first run (here a fault injected into the second chunk's
+    block: the stop model refusing its data) ends the campaign with one message naming the runs and
+    the error as its unit gave it, not the executor's internals ("block (1, 10, 20) failed:
+    SimulationError: ..."); the first chunk is kept for --resume."""
+    real = campaign_module.simulate_block
+
+    def second_chunk_fails(spec: CampaignSpec, block: tuple[int, int, int]) -> pa.Table:
+        if block[1] >= 10:
+            raise SimulationError("station Riverside: the stop model refuses run 10")
+        return real(spec, block)
+
+    monkeypatch.setattr(campaign_module, "simulate_block", second_chunk_fails)
+    line, vehicle = load_line(None), load_vehicle(None)
+    spec = CampaignSpec(
+        line=line, vehicle=vehicle, station=line.stations[0].name, controller="tasc-pwm", runs=20,
+        seed=1, disturbances=load_disturbances("standard"), chunk_size=10,
+    )  # fmt: skip
+    out = tmp_path / "c"
+    with pytest.raises(RailstopError) as info:
+        run_campaign(spec, out, workers=1)
+    text = str(info.value)
+    assert text == (
+        f"{out}: runs 10..19 failed: station Riverside: the stop model refuses run 10 "
+        "(the chunks finished are kept for --resume)"
+    ), text
+    assert [p.name for p in chunk_files(out)] == ["chunk-000000.parquet"]

@@ -496,6 +496,23 @@ def test_line_run_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
     assert len(lines) == 1 and f"{bad}: controller:" in lines[0] and "Traceback" not in p.stderr
 
 
+@pytest.mark.parametrize("command", ["run", "campaign"])
+def test_a_line_without_signalling_is_refused_naming_its_file(tmp_path: Path, command: str) -> None:
+    """A line file with stations but no [signalling] passes ``check`` (a station stop needs no
+    blocks) but cannot carry a line's trains: ``line run`` and ``line campaign`` refuse it in one
+    line naming the file and the table (before, the simulation's refusal named no file)."""
+    text = (Path(__file__).parents[2] / "src/railstop/data/line.toml").read_text(encoding="utf-8")
+    no_blocks = tmp_path / "line.toml"
+    no_blocks.write_text(text[: text.index("[signalling]")] + text[text.index("[cbtc]") :], encoding="utf-8")
+    assert run_cli("check", "--line", str(no_blocks)).returncode == 0
+    extra = ["--out", str(tmp_path / "c")] if command == "campaign" else []
+    p = run_cli("line", command, "--line", str(no_blocks), *extra)
+    assert p.returncode == 2
+    lines = (p.stdout + p.stderr).strip().splitlines()
+    assert len(lines) == 1 and f"{no_blocks}: signalling: the line has no [signalling]" in lines[0], lines
+    assert not (tmp_path / "c").exists()
+
+
 # ---------------------------------------------------------------- line campaigns
 
 

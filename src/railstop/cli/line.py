@@ -24,7 +24,7 @@ from railstop.cli.common import (
     with_option_groups,
 )
 from railstop.cli.common import out as console
-from railstop.errors import RailstopError
+from railstop.errors import ConfigError, RailstopError
 
 if TYPE_CHECKING:
     from railstop.config.operation import Operation
@@ -112,6 +112,21 @@ class LineOptions:
         )
 
 
+def _line_with_blocks(path: Path | None) -> Line:
+    """The line file, refused (naming the file) where it has no ``[signalling]``: the trains of a
+    line run need its blocks, the fixed signals' and (with CBTC) the zones' (its stations alone
+    suffice to ``check``, ``stop`` and ``campaign``)."""
+    from railstop.config import load_line
+    from railstop.config.loader import line_source
+
+    ln = load_line(path)
+    if ln.signalling is None:
+        raise ConfigError(
+            line_source(path), "signalling", "the line has no [signalling]: a line run needs its blocks"
+        )
+    return ln
+
+
 def _per_hour(tph: object) -> str:
     """The throughput as the text says it: none under an hour of simulated time (the summary's
     ``trains_per_hour`` is null then, rather than an hour's rate guessed from less)."""
@@ -155,7 +170,7 @@ def run_cmd(
     """Run the trains of the operation over the line: entries, running under the fixed-block
     signals, a station stop by ground TASC at every station, dwells; print the summary. With
     ``--law``, the operation file's ``controller`` may name one of the file's laws."""
-    from railstop.config import load_line, load_vehicle
+    from railstop.config import load_vehicle
     from railstop.config.disturbances import load_disturbances
     from railstop.provenance import footer, inputs_sha256, stamp
     from railstop.sim.line import LineSimulation
@@ -166,7 +181,7 @@ def run_cmd(
     load_law(law)
     try:
         target = office_target(office)  # before the work: a bad --office fails at once
-        ln = load_line(line)
+        ln = _line_with_blocks(line)
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
         dist = load_disturbances(disturbances)
@@ -291,7 +306,7 @@ def campaign_cmd(
     file's ``controller`` may name one of the file's laws."""
     from rich.table import Table
 
-    from railstop.config import load_line, load_vehicle
+    from railstop.config import load_vehicle
     from railstop.config.disturbances import load_disturbances
     from railstop.sim.line_campaign import LineCampaignSpec, run_line_campaign
     from railstop.streams import SEED_RANGE, seed_in_range
@@ -300,7 +315,7 @@ def campaign_cmd(
         fail(f"--seed: {SEED_RANGE} for every run's seed S + r (got S = {seed}, {runs} runs)")
     law_file = load_law(law)
     try:
-        ln = load_line(line)
+        ln = _line_with_blocks(line)
         veh = load_vehicle(vehicle)
         op = _operation(operation, ln, trains, headway_s)
         spec = LineCampaignSpec(

@@ -53,7 +53,7 @@ from railstop.model.gpu import DEVICES, gpu_unavailable
 from railstop.provenance import inputs_sha256, manifest_sha256, overrides_sha256, stamp
 from railstop.quantities import KMH_PER_MPS
 from railstop.sim.engine import BatchResult, run_batch
-from railstop.sim.executor import blocks, describe, execute
+from railstop.sim.executor import ItemFailedError, blocks, describe, execute
 from railstop.stats.summary import RESULT_COLUMNS, summary_stats
 from railstop.streams import RUN_LIMIT, SEED_RANGE, RunStreams, seed_in_range
 from railstop.wayside.tasc_unit import SignalForm
@@ -503,6 +503,16 @@ def _check_spec(spec: CampaignSpec) -> None:
     check_device(spec.device, law_loaded=spec.law is not None)
 
 
+def _failed_block(out: Path, exc: ItemFailedError) -> str:
+    """A block that failed, as the user reads it: its runs and its error (a railstop error by its
+    message alone), and what is kept."""
+    cause = exc.__cause__
+    why = str(cause) if isinstance(cause, RailstopError) else exc.cause
+    item = exc.item
+    runs = f"runs {item[1]}..{item[2] - 1}" if isinstance(item, tuple) and len(item) == 3 else "a block"
+    return f"{out}: {runs} failed: {why} (the chunks finished are kept for --resume)"
+
+
 def _preflight(spec: CampaignSpec) -> None:
     """Run the campaign's first run on the CPU before anything is written: data the stop model
     refuses (a station it cannot run, an approach ``ato-corrected`` cannot position) is then one
@@ -646,10 +656,13 @@ def run_campaign(
             progress(done_runs, spec.runs)
         t0 = time.perf_counter()
         simulated = 0
-        for n in _executed(spec, out, finished, workers, scheduler):
-            simulated += n
-            if progress:
-                progress(done_runs + simulated, spec.runs)
+        try:
+            for n in _executed(spec, out, finished, workers, scheduler):
+                simulated += n
+                if progress:
+                    progress(done_runs + simulated, spec.runs)
+        except ItemFailedError as exc:
+            raise RailstopError(_failed_block(out, exc)) from exc
         elapsed = time.perf_counter() - t0
         merge_chunks(spec, out)
         st = spec.line.station(spec.station)
