@@ -174,38 +174,30 @@ def main() -> None:
     old_tree = Path(tempfile.mkdtemp())
     src = export_numpy_engine(args.numpy_engine_commit, old_tree) if args.reference_runs else old_tree
     print(f"numpy engine: railstop/sim/reference.py at commit {args.numpy_engine_commit}")
+
     # The process's one-time costs of a campaign (see the module docstring), not timed.
-    first = args.controllers.split(",")[0]
-    with tempfile.TemporaryDirectory() as warm:
-        run_campaign(
-            CampaignSpec(
-                line=line,
-                vehicle=vehicle,
-                station=station.name,
-                controller=first,
-                runs=min(args.chunk_size, args.runs),
-                seed=1,
-                disturbances=dist,
-                chunk_size=args.chunk_size,
-            ),
-            Path(warm) / "c",
-            workers=args.workers,
-        )
-    print(
-        f"{'controller':<22} {'runs':>7} {'runs/s':>9} {'target':>8} {'steps/run':>9} "
-        f"{'ns/run-step':>11} {'numpy runs/s':>13} {'speed-up':>9}"
-    )
-    for controller in args.controllers.split(","):
-        spec = CampaignSpec(
+    def campaign_of(controller: str, runs: int) -> CampaignSpec:
+        return CampaignSpec(
             line=line,
             vehicle=vehicle,
             station=station.name,
             controller=controller,
-            runs=args.runs,
+            runs=runs,
             seed=1,
             disturbances=dist,
             chunk_size=args.chunk_size,
         )
+
+    controllers = args.controllers.split(",")
+    with tempfile.TemporaryDirectory() as warm:
+        first = campaign_of(controllers[0], min(args.chunk_size, args.runs))
+        run_campaign(first, Path(warm) / "c", workers=args.workers)
+    print(
+        f"{'controller':<22} {'runs':>7} {'runs/s':>9} {'target':>8} {'steps/run':>9} "
+        f"{'ns/run-step':>11} {'numpy runs/s':>13} {'speed-up':>9}"
+    )
+    for controller in controllers:
+        spec = campaign_of(controller, args.runs)
         tmp = tempfile.mkdtemp()
         try:
             t0 = time.perf_counter()

@@ -123,6 +123,13 @@ def fail(message: str) -> NoReturn:
     raise typer.Exit(2)
 
 
+def check_db_options(ctx: typer.Context, no_db: bool) -> None:
+    """``--no-db`` with a ``--db`` given on the command line: refused (they exclude each other)."""
+    source = ctx.get_parameter_source("db")
+    if no_db and source is not None and source.name == "COMMANDLINE":
+        fail("--db and --no-db exclude each other")
+
+
 # Options several commands share (one definition, one help text).
 LawOpt = Annotated[
     Path | None,

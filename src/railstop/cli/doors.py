@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from railstop.cli.common import (
+    check_db_options,
     command_group,
     fail,
     out,
@@ -181,9 +182,7 @@ def dwell(
         fail(f"--mode: must be one of {', '.join(MODES)} (got {mode!r})")
     if not seed_in_range(seed):
         fail(f"--seed: {SEED_RANGE} (got {seed})")
-    db_source = ctx.get_parameter_source("db")
-    if no_db and db_source is not None and db_source.name == "COMMANDLINE":
-        fail("--db and --no-db exclude each other")
+    check_db_options(ctx, no_db)
     error_m = stop_error_option(stop_error_m)
     try:
         ln = load_line(line)

@@ -20,6 +20,7 @@ from railstop.cli.common import (
     OfficeOpt,
     PlatformOpt,
     VehicleOpt,
+    check_db_options,
     fail,
     load_law,
     load_manual_data,
@@ -172,9 +173,7 @@ def stop(
         fail(f"--seed: {SEED_RANGE} (got {seed})")
     if run != 0 and disturbances is None:
         fail(f"--run {run} replays a campaign run: give the campaign's --disturbances (and --seed)")
-    source = ctx.get_parameter_source("db")
-    if no_db and source is not None and source.name == "COMMANDLINE":
-        fail("--db and --no-db exclude each other")
+    check_db_options(ctx, no_db)
     checked_form(form, controller)
     try:
         target = office_target(office)  # before the work: a bad --office fails at once

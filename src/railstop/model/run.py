@@ -452,12 +452,18 @@ class StopRecords:
         """The run's odometer: metres counted per metre rolled (D_assumed / D_actual, SPEC §2)."""
         return float(self.run.derived[0]["tach_scale"])
 
+    @property
+    def driver_fixes(self) -> bool:
+        """Whether the run's driver positions the train (``KernelModel.with_driver_fixes``): it takes
+        the driver's fixes and runs no chain of its own."""
+        return bool(self.p.fp[FP_DRIVER_FIXES] != 0.0)
+
     def fix(self, position_m: float) -> None:
         """A position fix from the driver's SPEC §2 chain (the line's positioning unit): the
         ``ato-corrected`` train's ATO now believes its front at ``position_m`` (its distance to
         go, a new reference for its law), as a fix of the run's own chain does (``ato_fix_1``).
         Only for a model whose driver positions the train (``KernelModel.with_driver_fixes``)."""
-        if self.p.fp[FP_DRIVER_FIXES] == 0.0:
+        if not self.driver_fixes:
             raise SimulationError("fix: this stop runs its own position chain (or takes no fixes)")
         if not math.isfinite(position_m):
             raise SimulationError(f"fix: position_m = {position_m} is not a position")
@@ -495,7 +501,7 @@ class SteppedStop:
         self._steps_fn = compiled_for(stop_steps, (r.p, r.run, r.state, r.out, 0, 0, r.law))
         # A stop its driver positions (``KernelModel.with_driver_fixes``): the fixes given, as
         # (the steps done when given, the position), in order; it may not step before the first.
-        self.driver_fixes = bool(r.p.fp[FP_DRIVER_FIXES] != 0.0)
+        self.driver_fixes = r.driver_fixes
         self.fixes: list[tuple[int, float]] = []
 
     @property

@@ -504,20 +504,18 @@ def _check_spec(spec: CampaignSpec) -> None:
 
 
 def _failed_block(out: Path, exc: ItemFailedError) -> str:
-    """A block that failed, as the user reads it: its runs and its error (a railstop error by its
-    message alone), and what is kept."""
-    cause = exc.__cause__
-    why = str(cause) if isinstance(cause, RailstopError) else exc.cause
+    """A block that failed, as the user reads it: its runs (the executor's item is the block
+    (chunk, first, end)), its error, and what is kept."""
     item = exc.item
     runs = f"runs {item[1]}..{item[2] - 1}" if isinstance(item, tuple) and len(item) == 3 else "a block"
-    return f"{out}: {runs} failed: {why} (the chunks finished are kept for --resume)"
+    return f"{out}: {runs} failed: {exc.cause} (the chunks finished are kept for --resume)"
 
 
 def _preflight(spec: CampaignSpec) -> None:
     """Run the campaign's first run on the CPU before anything is written: data the stop model
     refuses (a station it cannot run, an approach ``ato-corrected`` cannot position) is then one
     clear error and no campaign folder is left behind to block the corrected command."""
-    simulate_block(replace(spec, device="cpu", runs=1), (0, 0, 1))
+    simulate_block(replace(spec, device="cpu"), (0, 0, 1))
 
 
 def check_device(device: str, *, law_loaded: bool = False) -> None:

@@ -172,7 +172,10 @@ def _fn_failed(item: object, exc: BaseException) -> ItemFailedError:
         cause = "a worker process died abruptly (killed by a signal, or out of memory)"
     else:
         text = str(exc).strip().splitlines()
-        cause = f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+        if isinstance(exc, RailstopError) and text:
+            cause = text[0]  # a railstop error is its message, written for the user
+        else:
+            cause = f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
     error = ItemFailedError(item, cause)
     error.__cause__ = exc
     return error
