@@ -4,9 +4,11 @@
         [--handover platform-clear|predictive]
 
 First the analytic minimum headway of every platform (``railstop.sim.capacity``: the nominal
-dwell, the leader's clearing, the system's delays, the follower's approach from the hand-over),
-with each train's location uncertainty at the line data's declared bound; the line's is the
-largest. Then the line under moving-block CBTC (``railstop line run --signalling cbtc``, the
+dwell, the leader's clearing, the system's delays, the follower's run-in from its best release
+state on its braking curve to its waiting point, its approach from the hand-over), with each
+train's location uncertainty at the line data's declared bound, and beside it the bound of a
+clairvoyant follower (at the hand-over at the zone's entry speed when released); the line's is
+the largest. Then the line under moving-block CBTC (``railstop line run --signalling cbtc``, the
 nominal set) with ``--trains`` trains entering at each headway of ``--headways`` and at 90 s
 (entries faster than any platform serves: the queued line): per run, the median interval between
 consecutive arrivals at the busiest platform (over the trains after the first three, which meet
@@ -17,8 +19,8 @@ hands a follower to its station stop behind a leaving train (``LineSettings.hand
 its own analytic minimum; the EB column counts the onboard units' emergency brakes (a failed
 prediction), "unsafe" the authority overlaps and collisions. Last, per run, where the busiest
 platform's cycle goes beyond its dwell: the follower's mean time from the leader's departure to
-its own arrival, against the analytic clear + system + approach, for the followers still moving
-at that departure and for those standing, held for the platform.
+its own arrival, against the analytic clear + system + run-in + approach, for the followers still
+moving at that departure and for those standing, held for the platform.
 """
 
 from __future__ import annotations
@@ -67,13 +69,15 @@ def main() -> None:
         f"{line.cbtc.position_uncertainty_m:g} m):"
     )
     print(
-        f"{'platform':12s} {'dwell':>7s} {'clear':>7s} {'system':>7s} {'approach':>9s} "
-        + f"{'headway':>9s} {'trains/h':>9s}"
+        f"{'platform':12s} {'dwell':>7s} {'clear':>7s} {'system':>7s} {'run-in':>7s} {'approach':>9s} "
+        f"{'released at':>17s} {'headway':>9s} {'trains/h':>9s} {'clairvoyant':>12s}"
     )
     for h in rows:
+        where = f"{h.release_m:5.1f} m, {h.release_kmh:4.1f} km/h"
         print(
-            f"{h.station:12s} {h.dwell_s:6.2f}s {h.clear_s:6.2f}s {h.system_s:6.2f}s {h.approach_s:8.2f}s "
-            f"{h.headway_s:8.2f}s {h.trains_per_hour:9.2f}"
+            f"{h.station:12s} {h.dwell_s:6.2f}s {h.clear_s:6.2f}s {h.system_s:6.2f}s {h.run_in_s:6.2f}s "
+            f"{h.approach_s:8.2f}s {where:>17s} {h.headway_s:8.2f}s {h.trains_per_hour:9.2f} "
+            f"{h.ideal_headway_s:11.2f}s"
         )
     worst = max(rows, key=lambda h: h.headway_s)
     print(f"line: {worst.headway_s:.2f} s at {worst.station} ({worst.trains_per_hour:.2f} trains/h)")
@@ -124,7 +128,7 @@ def main() -> None:
     print()
     print(
         "the busiest platform's cycle split: the follower's time from the leader's departure to its "
-        "own arrival (the analytic clear + system + approach), for the followers still moving then "
+        "own arrival (the analytic clear + system + run-in + approach), for the followers still moving then "
         "and for those standing, held for the platform"
     )
     print(f"{'entry headway':>13s} {'busiest':>10s} {'analytic':>9s} {'moving':>15s} {'standing':>15s}")
@@ -134,7 +138,7 @@ def main() -> None:
             f"{len(v):3d} x {np.mean(v):6.1f}s" if v else f"{0:3d} x {'-':>6s} "
             for v in (split["moving"], split["standing"])
         ]
-        follow = h.clear_s + h.system_s + h.approach_s
+        follow = h.follow_s
         print(f"{headway:12.1f}s {name:>10s} {follow:8.1f}s {cells[0]:>15s} {cells[1]:>15s}")
     if kept_best is None:
         print("the line kept none of these entry headways")

@@ -5,6 +5,8 @@ and the predictive hand-over that lets a follower start its station stop behind 
   both trains' uncertainty (the zone controller's authority rule); the clearing time is no less
   than that distance at the traction's acceleration limit from a stand allows;
 - the dwell term is the line's own nominal dwell (the same door units) and adds one for one;
+- the follower's release state lies on its ATO's approach to its waiting point (it can still stop
+  there), and the bound is more than a clairvoyant follower's;
 - the minimum is a lower bound: trains entering faster than it are served no faster than it at
   the busiest platform.
 """
@@ -21,8 +23,10 @@ from hypothesis import strategies as st
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.operation import StationDwell, load_operation
+from railstop.control.line_ato import HOLD_BACK_M, ceiling_mps, handover_m, static_profile
 from railstop.errors import SimulationError
 from railstop.onboard.cbtc import approach_within_authority
+from railstop.quantities import MPS_PER_KMH
 from railstop.sim import line as line_module
 from railstop.sim.capacity import PlatformHeadway, minimum_headways
 from railstop.sim.line import LineSettings, LineSimulation
@@ -50,11 +54,39 @@ def test_terms_follow_the_data(headways: list[PlatformHeadway]) -> None:
         assert h.clear_s >= math.sqrt(2.0 * h.clear_m / VEHICLE.traction.max_accel_mps2)
         assert h.clear_s < 2.0 * math.sqrt(2.0 * h.clear_m / VEHICLE.traction.max_accel_mps2)
         assert h.system_s == pytest.approx(cbtc.report_period_s + cbtc.processing_delay_s + 0.05 + 0.1)
-        assert h.headway_s == pytest.approx(h.dwell_s + h.clear_s + h.system_s + h.approach_s)
+        assert h.headway_s == pytest.approx(h.dwell_s + h.clear_s + h.system_s + h.run_in_s + h.approach_s)
+        assert h.follow_s == pytest.approx(h.headway_s - h.dwell_s)
         assert h.trains_per_hour == pytest.approx(3600.0 / h.headway_s)
     # A smaller uncertainty clears sooner.
     small = minimum_headways(LINE, VEHICLE, OPERATION, uncertainty_m=1.0)
     assert all(a.clear_s < b.clear_s for a, b in zip(small, headways, strict=True))
+
+
+def test_the_follower_is_released_where_it_can_still_stop_at_its_waiting_point(
+    headways: list[PlatformHeadway],
+) -> None:
+    """Until its authority reaches the stopping point a follower must be able to stop at its
+    waiting point (HOLD_BACK_M before the hand-over): the release state the bound takes is on the
+    ATO's approach to it, within its braking curve (the plant a little above it while the brakes
+    build up) and short of the waiting point, and the bound is the clairvoyant one (at the
+    hand-over at the entry speed when released) plus what that braking costs."""
+    plan = line_module.PLANNING_SHARE * VEHICLE.brake.full_service_mps2
+    profile = static_profile(LINE, LINE.end_m, plan)
+    for h, station in zip(headways, LINE.stations, strict=True):
+        first = station.detector_positions_m()[0]
+        entry = station.tasc.entry_speed_kmh * MPS_PER_KMH
+        wait = handover_m(first, entry) - HOLD_BACK_M
+        x = handover_m(first, h.entry_speed_kmh * MPS_PER_KMH) - h.release_m
+        v = h.release_kmh * MPS_PER_KMH
+        assert x <= wait and v >= 0.0
+        # It can still stop at the waiting point braking at full service.
+        assert v * v <= 2.0 * VEHICLE.brake.full_service_mps2 * (wait - x)
+        assert v <= ceiling_mps(profile, x, v, wait, plan) + 0.5
+        # The follower cannot stop at its waiting point and be at the hand-over at the entry
+        # speed when released: the bound is the clairvoyant one and more.
+        assert h.run_in_s > 0.0 and h.headway_s > h.ideal_headway_s + 5.0
+        # Running in from its release it reaches the hand-over at about the zone's entry speed.
+        assert h.entry_speed_kmh == pytest.approx(station.tasc.entry_speed_kmh, abs=2.0)
 
 
 def test_dwell_is_the_lines_nominal_dwell_and_adds_one_for_one(headways: list[PlatformHeadway]) -> None:
@@ -146,7 +178,7 @@ def test_a_predictive_line_serves_trains_closer_than_the_platform_clear_rule_can
     clear_min = max(h.headway_s for h in minimum_headways(LINE, VEHICLE, OPERATION))
     predictive = minimum_headways(LINE, VEHICLE, OPERATION, handover="predictive")
     assert max(h.headway_s for h in predictive) < clear_min - 5.0
-    sim, s = _predictive_line(100.0)  # below the platform-clear minimum (102.3 s), above the predictive
+    sim, s = _predictive_line(100.0)  # below the platform-clear minimum (111.4 s), above the predictive
     c = s["cbtc"]
     assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and c["onboard_emergency_brakes"] == 0
     assert s["stops"] == s["stops_within_tolerance"] == 28 and s["skipped_stops"] == 0

@@ -15,22 +15,36 @@ authority reaches the stopping point, so one platform serves one train per cycle
    keeps ahead of the follower's whole approach (``handover="predictive"``, HZ-CBTC-19);
 3. **system**: the follower hears of it: the leader's next report (a report period at worst),
    the zone controller's processing and the radio's latency, and the line's step;
-4. **approach**: the follower, at the hand-over point at the station's TASC entry speed at
-   that instant, to its standstill at the stopping point (the station's nominal stop, the stop
-   model's own braking from the hand-over).
+4. **run-in**: the follower, released, from where it is to the hand-over point. Until its
+   authority reaches the stopping point it must be able to stop at its waiting point
+   (``HOLD_BACK_M`` before the hand-over): at best it is on its ATO's approach to that point (the
+   line's law, ``control.line_ato``: the braking curve at the planning deceleration read ahead,
+   on the plant with its brakes' lag), anywhere from where that curve starts to bind down to a
+   stand at the waiting point; from there its ATO runs it up to the hand-over on the plant;
+5. **approach**: the follower from the hand-over point, at the speed it reaches it, to its
+   standstill at the stopping point (the station's nominal stop from that entry speed, the stop
+   model's own braking).
 
-The minimum headway of a platform is the sum; the line's is the largest over its stations.
-It is a lower bound: it assumes a follower that reaches the hand-over at full speed exactly when
-its authority reaches the stopping point. A real follower cannot know when that will be: its
-ATO brakes towards its hold-back point before the hand-over while the platform is not clear,
-and a follower queued there starts again from a stand. [interpretation] SPEC §4 gives no
-headway; the terms are those of a moving-block station headway (IEEE 1474.1's safe separation
-behind the train ahead, plus the time the platform is occupied), taken from this line's data.
+The follower's release state is the one on that approach with the least clear + run-in +
+approach (under the predictive rule the release depends on where the follower is). The minimum headway of a
+platform is the sum; the line's is the largest over its stations. It is the least cycle of the
+line's rule for its declared data: a follower of the line's law that came in slower is slower
+still where it is, and the run-in starts with the brakes released; but it takes each train's
+location uncertainty at its declared bound (the line's trains report their positioning unit's,
+smaller, so their authorities reach the stopping point a little sooner), the wait for the
+leader's next report at its worst, and half the payload (``docs/cbtc.md`` gives how close the
+simulated line comes). The bound of a clairvoyant follower, at the hand-over
+at the zone's entry speed exactly when its authority reaches the stopping point, is kept beside
+it (``ideal_headway_s``): the braking distance to the waiting point is the difference, the term
+every headway formula carries (the follower's braking distance behind the train ahead).
+[interpretation] SPEC §4 gives no headway; the terms are those of a moving-block station
+headway (IEEE 1474.1's safe separation behind the train ahead, plus the time the platform is
+occupied and the follower's braking to its waiting point), taken from this line's data.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,16 +52,25 @@ from numpy.typing import NDArray
 
 from railstop.config.doors import DoorsConfig, load_doors
 from railstop.config.operation import Operation
-from railstop.config.schema import Line, Station, Vehicle
-from railstop.control.line_ato import handover_m, profile_at, static_profile
+from railstop.config.scenario import Scenario
+from railstop.config.schema import Line, Station, Track, Vehicle
+from railstop.control.line_ato import (
+    HOLD_BACK_M,
+    ceiling_mps,
+    demand_mps2,
+    handover_m,
+    profile_at,
+    static_profile,
+)
 from railstop.errors import SimulationError
 from railstop.link.channel import media_preset
 from railstop.onboard.cbtc import approach_within_authority
 from railstop.physics.plant import PlantParams, PlantState, plant_step, track_gradient, traction_mps2
 from railstop.quantities import MPS_PER_KMH
 from railstop.sim.dwell import run_dwell
-from railstop.sim.line import ENTRY_MARGIN_M, HANDOVERS
-from railstop.sim.single import run_stop
+from railstop.sim.engine import run_batch
+from railstop.sim.line import ENTRY_MARGIN_M, HANDOVERS, PLANNING_SHARE
+from railstop.streams import RunStreams
 
 FloatArray = NDArray[np.float64]
 
@@ -56,23 +79,40 @@ LOAD_FACTOR = 0.5
 #: The clearing's integration step (s) and the longest it may take before it is an error.
 CLEAR_STEP_S = 0.01
 CLEAR_LIMIT_S = 600.0
+#: The follower's candidate release states: every this far along its braking curve to its waiting
+#: point, at most this far back (m).
+RELEASE_DX_M = 5.0
+RELEASE_SPAN_M = 1500.0
+#: The follower's approach to its waiting point starts this far before its ATO's curve binds;
+#: it stands there once this slow within a metre of it (the ATO creeps the last centimetres).
+RELEASE_LEAD_M = 50.0
+STAND_MPS = 0.05
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PlatformHeadway:
-    """One platform's minimum headway and its four terms (s), with the distances behind them."""
+    """One platform's minimum headway and its five terms (s), with the distances behind them."""
 
     station: str
     dwell_s: float
     clear_s: float
     system_s: float
-    approach_s: float
+    run_in_s: float  # the follower, released, to the hand-over point
+    approach_s: float  # the follower from the hand-over point to standstill
     clear_m: float  # how far the leader's front runs before the follower's authority reaches the stop
-    entry_speed_kmh: float  # the follower's speed at the hand-over
+    release_m: float  # where the follower is at its release: this far before the hand-over point
+    release_kmh: float  # its speed there
+    entry_speed_kmh: float  # its speed at the hand-over
+    ideal_headway_s: float  # a clairvoyant follower's: at the hand-over at the zone's entry speed
 
     @property
     def headway_s(self) -> float:
-        return self.dwell_s + self.clear_s + self.system_s + self.approach_s
+        return self.dwell_s + self.clear_s + self.system_s + self.run_in_s + self.approach_s
+
+    @property
+    def follow_s(self) -> float:
+        """The follower's least time from the leader's start to its own standstill."""
+        return self.clear_s + self.system_s + self.run_in_s + self.approach_s
 
     @property
     def trains_per_hour(self) -> float:
@@ -86,10 +126,25 @@ class PlatformHeadway:
             "dwell_s": round(self.dwell_s, 2),
             "clear_s": round(self.clear_s, 2),
             "system_s": round(self.system_s, 3),
+            "run_in_s": round(self.run_in_s, 2),
             "approach_s": round(self.approach_s, 2),
             "clear_m": round(self.clear_m, 2),
+            "release_m": round(self.release_m, 1),
+            "release_kmh": round(self.release_kmh, 1),
             "entry_speed_kmh": round(self.entry_speed_kmh, 2),
+            "ideal_headway_s": round(self.ideal_headway_s, 2),
         }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Release:
+    """A follower's state at its release (on its braking curve to the waiting point) and its least
+    time from there to the hand-over, the speed it reaches it at."""
+
+    x_m: float
+    v_mps: float
+    run_in_s: float
+    entry_mps: float
 
 
 def minimum_headways(
@@ -107,7 +162,7 @@ def minimum_headways(
     ``handover``: the line's rule (``LineSettings.handover``): "platform-clear" (the clearing
     ends when the follower's authority reaches the stopping point) or "predictive" (it ends when
     the authority, advancing at the leader's speed, keeps ahead of the follower's whole approach
-    from the hand-over point: ``onboard.cbtc.approach_within_authority``, at the leader's exact
+    from where the follower is: ``onboard.cbtc.approach_within_authority``, at the leader's exact
     speed where the line estimates it over the last two seconds, so still a lower bound).
 
     ``uncertainty_m``: the location uncertainty each train reports (None: the line data's declared
@@ -127,6 +182,8 @@ def minimum_headways(
     system_s = cbtc.report_period_s + cbtc.processing_delay_s + radio.latency_s + step_s
     door_data = doors if doors is not None else load_doors(None)
     profile = static_profile(line, line.end_m, vehicle.brake.full_service_mps2)
+    plan_mps2 = PLANNING_SHARE * vehicle.brake.full_service_mps2
+    ato_profile = static_profile(line, line.end_m, plan_mps2)  # the line's trains' ceiling
     gradient = track_gradient(line)
     params = PlantParams.create(vehicle, load_factor=LOAD_FACTOR, dt_s=CLEAR_STEP_S, gradient=gradient)
     if handover not in HANDOVERS:
@@ -136,34 +193,58 @@ def minimum_headways(
         dwell_doors = door_data.with_dwell(operation.dwell_at_s(st.name)).at_station(st, "the line file")
         v_entry = st.tasc.entry_speed_kmh * MPS_PER_KMH
         first = st.detector_positions_m()[0]
+        leader = _leader_start(params, profile, st.stop_point_m, clear_m)
 
-        def released(
-            run_m: float, leader_mps: float, st: Station = st, v: float = v_entry, d1: float = first
-        ) -> bool:
-            if run_m >= clear_m:
-                return True
-            if handover == "platform-clear":
-                return False
-            return approach_within_authority(
-                front_m=handover_m(d1, v),
-                speed_mps=v,
-                hold_to_m=d1,
-                stop_m=st.stop_point_m,
-                authority_m=st.stop_point_m + run_m - clear_m,
-                advance_mps=leader_mps,
-                params=cbtc,
-                margin_m=ENTRY_MARGIN_M,
+        def clear_from(
+            front_m: float,
+            speed_mps: float,
+            st: Station = st,
+            d1: float = first,
+            leader: list[tuple[float, float, float]] = leader,
+        ) -> float:
+            """The leader's time from its start until the follower at (front, speed) is released."""
+            for t, run_m, leader_mps in leader:
+                if run_m >= clear_m:
+                    return t
+                if handover == "predictive" and approach_within_authority(
+                    front_m=front_m,
+                    speed_mps=speed_mps,
+                    hold_to_m=d1,
+                    stop_m=st.stop_point_m,
+                    authority_m=st.stop_point_m + run_m - clear_m,
+                    advance_mps=leader_mps,
+                    params=cbtc,
+                    margin_m=ENTRY_MARGIN_M,
+                ):
+                    return t
+            raise SimulationError(  # pragma: no cover - _leader_start runs until clear_m
+                f"station {st.name!r}: the follower is not released within {CLEAR_LIMIT_S:.0f} s"
             )
 
+        releases = _releases(params, ato_profile, plan_mps2, first, v_entry)
+        approach = _approach_s(
+            st, vehicle, operation.controller, [r.entry_mps for r in releases] + [v_entry], line.track
+        )
+        best = min(
+            range(len(releases)),
+            key=lambda k: clear_from(releases[k].x_m, releases[k].v_mps) + releases[k].run_in_s + approach[k],
+        )
+        r = releases[best]
+        dwell_s = _dwell_s(dwell_doors, st)
+        ideal = dwell_s + clear_from(handover_m(first, v_entry), v_entry) + system_s + approach[-1]
         out.append(
             PlatformHeadway(
                 station=st.name,
-                dwell_s=_dwell_s(dwell_doors, st),
-                clear_s=_clear_s(params, profile, st.stop_point_m, released),
+                dwell_s=dwell_s,
+                clear_s=clear_from(r.x_m, r.v_mps),
                 system_s=system_s,
-                approach_s=_approach_s(line, st, vehicle, operation.controller),
+                run_in_s=r.run_in_s,
+                approach_s=approach[best],
                 clear_m=clear_m,
-                entry_speed_kmh=st.tasc.entry_speed_kmh,
+                release_m=handover_m(first, r.entry_mps) - r.x_m,
+                release_kmh=r.v_mps / MPS_PER_KMH,
+                entry_speed_kmh=r.entry_mps / MPS_PER_KMH,
+                ideal_headway_s=ideal,
             )
         )
     return out
@@ -177,14 +258,15 @@ def _dwell_s(doors: DoorsConfig, station: Station) -> float:
     return res.start_enable_s
 
 
-def _clear_s(
-    params: PlantParams, profile: FloatArray, stop_m: float, released: Callable[[float, float], bool]
-) -> float:
+def _leader_start(
+    params: PlantParams, profile: FloatArray, stop_m: float, clear_m: float
+) -> list[tuple[float, float, float]]:
     """The leader from a stand at ``stop_m`` at full traction (under the static speed limits) until
-    ``released(distance its front has run, its speed)`` (the follower may be handed over)."""
+    its front has run ``clear_m``: (time, distance run, speed) every step."""
     plant = PlantState.create(params, x_m=stop_m)
     t = 0.0
-    while not released(plant.x_m - stop_m, plant.v_mps):
+    out = [(t, 0.0, 0.0)]
+    while plant.x_m - stop_m < clear_m:
         if t > CLEAR_LIMIT_S:
             raise SimulationError(
                 f"the follower is not released within {CLEAR_LIMIT_S:.0f} s of the leader's start"
@@ -193,17 +275,96 @@ def _clear_s(
         demand = traction_mps2(params, plant.v_mps) if plant.v_mps < limit else 0.0
         plant_step(plant, params, demand_mps2=demand, t_s=t)
         t += params.dt_s
-    return t
+        out.append((t, plant.x_m - stop_m, plant.v_mps))
+    return out
 
 
-def _approach_s(line: Line, station: Station, vehicle: Vehicle, controller: str) -> float:
-    """The follower from the hand-over point to standstill: the run from the hand-over to the first
-    detector at the entry speed, then the station's nominal stop (from that detector)."""
-    res, _ = run_stop(
-        line=line, station=station, vehicle=vehicle, controller=controller, seed=1, load_factor=LOAD_FACTOR
+def _releases(
+    params: PlantParams, profile: FloatArray, plan_mps2: float, first_m: float, v_entry: float
+) -> list[_Release]:
+    """The follower's candidate states at its release: its ATO's approach to its waiting point (the
+    line's law on the plant, from its static profile well before the curve to that point binds to
+    a stand there), every ``RELEASE_DX_M`` run and the stand, each with its ATO's run from there to
+    the hand-over point once released. Any follower of the line's law is at best this fast where
+    it is: one that came in slower is slower still."""
+    wait_m = handover_m(first_m, v_entry) - HOLD_BACK_M
+    # Back along the curve to where it no longer binds (the ATO's ceiling is the static profile).
+    x = wait_m
+    while x > wait_m - RELEASE_SPAN_M:
+        free = profile_at(profile, x)
+        if ceiling_mps(profile, x, free, wait_m, plan_mps2) >= ceiling_mps(
+            profile, x, free, math.inf, plan_mps2
+        ):
+            break
+        x -= RELEASE_DX_M
+    x0 = max(x - RELEASE_LEAD_M, 0.0)
+    plant = PlantState.create(params, x_m=x0, v_mps=profile_at(profile, x0))
+    out = []
+    t = 0.0
+    next_m = x0
+    while True:
+        x, v = plant.x_m, plant.v_mps
+        standing = plant.stopped or (v < STAND_MPS and wait_m - x < 1.0)
+        if x >= next_m or standing:
+            out.append(_run_in(params, profile, plan_mps2, first_m, x, 0.0 if standing else v))
+            next_m = x + RELEASE_DX_M
+            if standing:
+                return out
+        v_ceiling = ceiling_mps(profile, x, v, wait_m, plan_mps2)
+        demand = demand_mps2(v, v_ceiling, traction_mps2(params, v), params.full_service_mps2)
+        plant_step(plant, params, demand_mps2=demand, t_s=t)
+        t += params.dt_s
+        if t > CLEAR_LIMIT_S:  # pragma: no cover - the ATO stops at its waiting point
+            raise SimulationError(
+                f"the follower does not stop at its waiting point within {CLEAR_LIMIT_S:.0f} s"
+            )
+
+
+def _run_in(
+    params: PlantParams, profile: FloatArray, plan_mps2: float, first_m: float, x_m: float, v_mps: float
+) -> _Release:
+    """The follower released at ``x_m`` running at ``v_mps``: its ATO (authority no longer short)
+    runs it on the plant to the hand-over point (1.5 s before the first detector at the speed it
+    has there, ``handover_m``)."""
+    plant = PlantState.create(params, x_m=x_m, v_mps=v_mps)
+    t = 0.0
+    while True:
+        x0, v0 = plant.x_m, plant.v_mps
+        v_ceiling = ceiling_mps(profile, x0, v0, math.inf, plan_mps2)
+        demand = demand_mps2(v0, v_ceiling, traction_mps2(params, v0), params.full_service_mps2)
+        plant_step(plant, params, demand_mps2=demand, t_s=t)
+        h = handover_m(first_m, plant.v_mps)
+        if plant.x_m >= h:
+            frac = min(max((h - x0) / max(plant.x_m - x0, 1e-9), 0.0), 1.0)
+            return _Release(
+                x_m=x_m,
+                v_mps=v_mps,
+                run_in_s=t + frac * params.dt_s,
+                entry_mps=v0 + (plant.v_mps - v0) * frac,
+            )
+        t += params.dt_s
+        if t > CLEAR_LIMIT_S:  # pragma: no cover - the ATO runs towards a free hand-over
+            raise SimulationError(f"the follower does not reach the hand-over within {CLEAR_LIMIT_S:.0f} s")
+
+
+def _approach_s(
+    station: Station, vehicle: Vehicle, controller: str, entries_mps: list[float], track: Track | None
+) -> list[float]:
+    """The follower from the hand-over point to standstill at each entry speed: the run from the
+    hand-over to the first detector at that speed, then the station's nominal stop from that
+    detector (the stop model, one batch)."""
+    v = np.asarray(entries_mps, dtype=float)
+    scenario = Scenario.nominal(station, vehicle, n=v.size, load_factor=LOAD_FACTOR)
+    res = run_batch(
+        station=station,
+        vehicle=vehicle,
+        scenario=scenario.with_values(entry_speed_mps=v),
+        controller=controller,
+        streams=RunStreams.for_runs(1, 0, v.size),
+        track=track,
     )
-    if res.stop_time_s is None:  # pragma: no cover - a nominal stop of valid data stands
-        raise SimulationError(f"station {station.name!r}: the nominal stop does not stand")
-    v = station.tasc.entry_speed_kmh * MPS_PER_KMH
+    if not np.all(res.stopped):  # pragma: no cover - a nominal stop of valid data stands
+        raise SimulationError(f"station {station.name!r}: a nominal stop from the hand-over does not stand")
     first = station.detector_positions_m()[0]
-    return float(res.stop_time_s) + (first - handover_m(first, v)) / v
+    lead = np.array([(first - handover_m(first, float(e))) / max(float(e), 1e-9) for e in v])
+    return [float(a) for a in res.stop_time_s + lead]
