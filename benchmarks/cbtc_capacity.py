@@ -1,26 +1,33 @@
 """A CBTC line's capacity: its minimum headway from its data, and what the simulated line sustains.
 
     python benchmarks/cbtc_capacity.py [--trains 20] [--headways 100 105 110 115 120] [--dwell-s 25]
-        [--handover platform-clear|predictive]
+        [--handover platform-clear|predictive] [--regulation] [--seed 1]
 
 First the analytic minimum headway of every platform (``railstop.sim.capacity``: the nominal
 dwell, the leader's clearing, the system's delays, the follower's run-in from its best release
-state on its braking curve to its waiting point, its approach from the hand-over), with each
-train's location uncertainty at the line data's declared bound, and beside it the bound of a
-clairvoyant follower (at the hand-over at the zone's entry speed when released); the line's is
-the largest. Then the line under moving-block CBTC (``railstop line run --signalling cbtc``, the
-nominal set) with ``--trains`` trains entering at each headway of ``--headways`` and at 90 s
-(entries faster than any platform serves: the queued line): per run, the median interval between
-consecutive arrivals at the busiest platform (over the trains after the first three, which meet
-an empty line), whether the line kept the entry headway (that median within 2 % of it), the
-trains per hour and the mean delay. ``--dwell-s`` sets every station's dwell (the operation's
-own otherwise: 30 s, 40 s at Hillcrest). ``--handover predictive``: the line's opt-in rule that
-hands a follower to its station stop behind a leaving train (``LineSettings.handover``), with
-its own analytic minimum; the EB column counts the onboard units' emergency brakes (a failed
-prediction), "unsafe" the authority overlaps and collisions. Last, per run, where the busiest
-platform's cycle goes beyond its dwell: the follower's mean time from the leader's departure to
-its own arrival, against the analytic clear + system + run-in + approach, for the followers still
-moving at that departure and for those standing, held for the platform.
+state on its approach to its waiting point, its approach from the hand-over), with each train's
+location uncertainty at the line data's declared bound, and beside it the bound of a clairvoyant
+follower (at the hand-over at the zone's entry speed when released); the line's is the largest.
+
+Then the line under moving-block CBTC (``railstop line run --signalling cbtc``, the nominal set)
+with ``--trains`` trains entering at each headway of ``--headways`` and at 90 s (entries faster
+than any platform serves: the queued line, whose busiest platform's interval is the line's
+capacity). Per run: the median interval between consecutive arrivals at the busiest platform
+(over the trains after the first three, which meet an empty line), whether the line kept the
+entry headway (that median within 2 % of it), the trains per hour and the mean delay, the onboard
+units' emergency brakes (EB: a failed prediction, a lost command) and the authority overlaps and
+collisions ("unsafe").
+
+``--dwell-s`` sets every station's dwell (the operation's own otherwise: 30 s, 40 s at
+Hillcrest). ``--handover predictive``: the line's opt-in rule that hands a follower to its
+station stop behind a leaving train (``LineSettings.handover``), with its own analytic minimum.
+``--regulation``: the ATS holds trains at their platforms rather than let them stand before the
+next (``LineSettings.regulation``).
+
+Last, per run, where the busiest platform's cycle goes beyond its dwell: the follower's mean time
+from the leader's departure to its own arrival, against the analytic clear + system + run-in +
+approach, for the followers still moving at that departure and for those standing, held for the
+platform; and the queued line's interval against the analytic minimum.
 """
 
 from __future__ import annotations
@@ -50,6 +57,11 @@ def main() -> None:
         "--handover",
         default="platform-clear",
         help="platform-clear (the line's rule) or predictive (LineSettings.handover)",
+    )
+    ap.add_argument(
+        "--regulation",
+        action="store_true",
+        help="the ATS holds trains at their platforms rather than before the next (LineSettings.regulation)",
     )
     args = ap.parse_args()
     line, vehicle = load_line(None), load_vehicle(None)
@@ -83,7 +95,8 @@ def main() -> None:
     print(f"line: {worst.headway_s:.2f} s at {worst.station} ({worst.trains_per_hour:.2f} trains/h)")
     print()
     print(
-        f"simulated line, {args.trains} trains, cbtc, hand-over {args.handover}, nominal set, "
+        f"simulated line, {args.trains} trains, cbtc, hand-over {args.handover}"
+        f"{', regulated' if args.regulation else ''}, nominal set, "
         f"seed {args.seed}: "
         "the busiest platform's median arrival interval"
     )
@@ -93,6 +106,7 @@ def main() -> None:
     )
     kept_best = None
     splits: list[tuple[float, str, dict[str, list[float]]]] = []
+    served: list[tuple[float, float]] = []  # (entry headway, the busiest platform's interval)
     for headway in [*args.headways, 90.0]:
         t0 = time.perf_counter()
         op = operation.model_copy(update={"trains": args.trains, "headway_s": headway})
@@ -101,7 +115,7 @@ def main() -> None:
             vehicle=vehicle,
             operation=op,
             seed=args.seed,
-            settings=LineSettings(signalling="cbtc", handover=args.handover),
+            settings=LineSettings(signalling="cbtc", handover=args.handover, regulation=args.regulation),
         )
         summary = sim.run(max(3600.0, headway * args.trains + 900.0)).summary()
         intervals = {}
@@ -113,6 +127,7 @@ def main() -> None:
         busiest = max(intervals, key=lambda k: intervals[k])
         interval = intervals[busiest]
         splits.append((headway, busiest, _follow_split(sim, line, busiest)))
+        served.append((headway, interval))
         kept = interval <= KEPT * headway
         if kept and (kept_best is None or headway < kept_best):
             kept_best = headway
@@ -140,6 +155,11 @@ def main() -> None:
         ]
         follow = h.follow_s
         print(f"{headway:12.1f}s {name:>10s} {follow:8.1f}s {cells[0]:>15s} {cells[1]:>15s}")
+    queued = next(interval for headway, interval in served if headway == 90.0)
+    print(
+        f"fed every 90 s (faster than it serves), the busiest platform serves one train every "
+        f"{queued:.1f} s, {queued / worst.headway_s - 1.0:+.1%} over the analytic {worst.headway_s:.2f} s"
+    )
     if kept_best is None:
         print("the line kept none of these entry headways")
     else:

@@ -439,6 +439,23 @@ def test_line_run_under_an_hour_says_so_instead_of_none(tmp_path: Path) -> None:
     assert "None" not in p.stdout and "the run is under an hour" in p.stdout
 
 
+def test_line_run_regulation_holds_trains_and_needs_cbtc(tmp_path: Path) -> None:
+    """``--regulation``: the ATS holds trains at their platforms (the summary counts the holds, the
+    text says so); without CBTC it is refused in one line."""
+    p = run("line", "run", "--trains", "5", "--headway-s", "60", "--duration-s", "900", "--signalling",
+            "cbtc", "--regulation", "--json", cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    cbtc = json.loads(p.stdout)["cbtc"]
+    assert cbtc["regulation_holds"] >= 1 and cbtc["regulation_hold_s"] > 0.0
+    assert cbtc["authority_overlaps"] == 0 and cbtc["collisions"] == 0
+    p = run("line", "run", "--trains", "5", "--headway-s", "60", "--duration-s", "900", "--signalling",
+            "cbtc", "--regulation", cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "the ATS held trains" in p.stdout
+    p = run("line", "run", "--trains", "1", "--duration-s", "100", "--regulation", cwd=tmp_path)
+    _one_line_error(p, "regulation", "CBTC", "fixed-block")
+
+
 def _all_help_paths() -> list[tuple[str, ...]]:
     """Every command and group of ``railstop``, as argv before ``--help``."""
     import typer

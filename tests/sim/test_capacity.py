@@ -261,3 +261,66 @@ def test_the_predictive_hand_over_needs_cbtc() -> None:
         LineSettings(handover="predictive")
     with pytest.raises(SimulationError, match="handover"):
         LineSettings(signalling="cbtc", handover="soon")
+
+
+# --------------------------------------------------------------------------
+# The ATS's train regulation (LineSettings.regulation)
+
+
+def _stands_between_platforms(sim: LineSimulation) -> int:
+    """How many times a train stood for 2 s or more away from every stopping point (5 m): held
+    before a platform (the trains waiting at the entry are not on the line)."""
+    stops = [st.stop_point_m for st in LINE.stations]
+    count = 0
+    for train in sim.trains:
+        t, x = np.asarray(train.samples_t), np.asarray(train.samples_x)
+        still = np.flatnonzero(np.abs(np.diff(x)) < 1e-9)
+        if not still.size:
+            continue
+        # Runs of consecutive standing steps.
+        breaks = np.flatnonzero(np.diff(still) > 1) + 1
+        for run in np.split(still, breaks):
+            if t[run[-1] + 1] - t[run[0]] >= 2.0 and min(abs(x[run[0]] - s) for s in stops) > 5.0:
+                count += 1
+    return count
+
+
+def _queued_line(regulation: bool, least: float) -> tuple[LineSimulation, dict[str, Any], float]:
+    op = OPERATION.model_copy(update={"trains": 7, "headway_s": 0.8 * least})
+    settings = LineSettings(signalling="cbtc", regulation=regulation)
+    sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, seed=1, settings=settings)
+    s = sim.run(1500.0).summary()
+    busiest = 0.0
+    for station in LINE.stations:
+        arrivals = sorted(r.arrive_s for r in sim.stops if r.station == station.name)
+        if len(arrivals) >= 4:
+            busiest = max(busiest, float(np.median(np.diff(arrivals))))
+    return sim, s, busiest
+
+
+def test_a_regulated_line_holds_its_trains_at_platforms_and_serves_at_its_minimum(
+    headways: list[PlatformHeadway],
+) -> None:
+    """Fed faster than it can serve, the line's followers stand before the platforms and restart
+    from a stand: its busiest platform serves one train per standing cycle, well over the
+    minimum. With the regulation the ATS holds each at the platform (or the entry) before, to
+    reach its best release state as the platform clears: no train stands between platforms, and
+    the busiest platform serves at the minimum; never an overlap or a collision."""
+    least = max(h.headway_s for h in headways)
+    plain, s_plain, busiest_plain = _queued_line(False, least)
+    regulated, s_reg, busiest_reg = _queued_line(True, least)
+    assert _stands_between_platforms(plain) >= 3 and busiest_plain > 1.05 * least
+    assert "regulation_holds" not in s_plain["cbtc"]
+    assert _stands_between_platforms(regulated) == 0
+    assert s_reg["cbtc"]["regulation_holds"] >= 5 and s_reg["cbtc"]["regulation_hold_s"] > 60.0
+    assert 0.99 * least <= busiest_reg <= 1.02 * least
+    for s in (s_plain, s_reg):
+        assert s["cbtc"]["authority_overlaps"] == 0 and s["cbtc"]["collisions"] == 0
+        assert s["stops"] == s["stops_within_tolerance"] and s["skipped_stops"] == 0
+
+
+def test_the_regulation_needs_cbtc_and_is_part_of_a_campaigns_identity() -> None:
+    with pytest.raises(SimulationError, match="regulation"):
+        LineSettings(regulation=True)
+    assert LineSettings(signalling="cbtc", regulation=True).identity()["regulation"] is True
+    assert "regulation" not in LineSettings(signalling="cbtc").identity()

@@ -75,6 +75,13 @@ FaultsOpt = Annotated[
         help="Faults TOML: [[radio_outage]] train, start_s, duration_s; [random_outages]; [[zc_restart]] at_s"
     ),
 ]
+RegulationOpt = Annotated[
+    bool,
+    typer.Option(
+        help="With cbtc: the ATS holds a train at its platform (or the entry) rather than let it stand "
+        "before the next platform while that is occupied (beyond SPEC §4)."
+    ),
+]
 HeadwayOpt = Annotated[
     float | None,
     typer.Option(min=30.0, max=3600.0, help="Seconds between entries (default: the operation's)."),
@@ -92,6 +99,7 @@ class LineOptions:
     calibration: CalibrationOpt = "carried"
     signalling: SignallingOpt = "fixed-block"
     faults: FaultsOpt = None
+    regulation: RegulationOpt = False
 
     def line_settings(self) -> LineSettings:
         """These options and the faults file as the run's settings."""
@@ -109,6 +117,7 @@ class LineOptions:
             random_outages=fault_data.random_outages,
             zc_restarts=tuple(fault_data.restarts()),
             radio_changes=fault_data.radio.changes(),
+            regulation=self.regulation,
         )
 
 
@@ -136,6 +145,13 @@ def _per_hour(tph: object) -> str:
 def _figure(value: object, unit: str, none: str) -> str:
     """A figure of the summary with its unit, or what its absence means (the JSON's null)."""
     return none if value is None else f"{value} {unit}"
+
+
+def _regulation_text(cbtc: dict[str, object] | None) -> str:
+    """The regulation's holds, where it is on (``--regulation``)."""
+    if not cbtc or "regulation_holds" not in cbtc:
+        return ""
+    return f"the ATS held trains {cbtc['regulation_holds']} times, {cbtc['regulation_hold_s']} s in all; "
 
 
 def _link_text(link: dict[str, int]) -> str:
@@ -229,7 +245,8 @@ def run_cmd(
         f"onboard position p99 |error| {summary['position_error_p99_m']} m "
         f"({summary['position_calibration']} calibration, {summary['slide_events']} slides, "
         f"{summary['slip_events']} slips); "
-        f"simulated {summary['sim_to_wall']}x faster than real time",
+        + _regulation_text(summary["cbtc"])
+        + f"simulated {summary['sim_to_wall']}x faster than real time",
         highlight=False,
         soft_wrap=True,
     )

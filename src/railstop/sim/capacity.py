@@ -101,6 +101,7 @@ class PlatformHeadway:
     approach_s: float  # the follower from the hand-over point to standstill
     clear_m: float  # how far the leader's front runs before the follower's authority reaches the stop
     release_m: float  # where the follower is at its release: this far before the hand-over point
+    release_at_m: float  # the same, as a chainage
     release_kmh: float  # its speed there
     entry_speed_kmh: float  # its speed at the hand-over
     ideal_headway_s: float  # a clairvoyant follower's: at the hand-over at the zone's entry speed
@@ -242,6 +243,7 @@ def minimum_headways(
                 approach_s=approach[best],
                 clear_m=clear_m,
                 release_m=handover_m(first, r.entry_mps) - r.x_m,
+                release_at_m=r.x_m,
                 release_kmh=r.v_mps / MPS_PER_KMH,
                 entry_speed_kmh=r.entry_mps / MPS_PER_KMH,
                 ideal_headway_s=ideal,
@@ -310,14 +312,27 @@ def _releases(
             next_m = x + RELEASE_DX_M
             if standing:
                 return out
-        v_ceiling = ceiling_mps(profile, x, v, wait_m, plan_mps2)
-        demand = demand_mps2(v, v_ceiling, traction_mps2(params, v), params.full_service_mps2)
-        plant_step(plant, params, demand_mps2=demand, t_s=t)
+        _ato_step(plant, params, profile, plan_mps2, wait_m, t)
         t += params.dt_s
         if t > CLEAR_LIMIT_S:  # pragma: no cover - the ATO stops at its waiting point
             raise SimulationError(
                 f"the follower does not stop at its waiting point within {CLEAR_LIMIT_S:.0f} s"
             )
+
+
+def _ato_step(
+    plant: PlantState, params: PlantParams, profile: FloatArray, plan_mps2: float, target_m: float, t_s: float
+) -> None:
+    """One step of the line's ATO law (``control.line_ato``: its ceiling under the static profile and
+    the braking curve to ``target_m``, its speed-error demand) on the plant, as the line runs it."""
+    v = plant.v_mps
+    ceiling = ceiling_mps(profile, plant.x_m, v, target_m, plan_mps2)
+    plant_step(
+        plant,
+        params,
+        demand_mps2=demand_mps2(v, ceiling, traction_mps2(params, v), params.full_service_mps2),
+        t_s=t_s,
+    )
 
 
 def _run_in(
@@ -330,9 +345,7 @@ def _run_in(
     t = 0.0
     while True:
         x0, v0 = plant.x_m, plant.v_mps
-        v_ceiling = ceiling_mps(profile, x0, v0, math.inf, plan_mps2)
-        demand = demand_mps2(v0, v_ceiling, traction_mps2(params, v0), params.full_service_mps2)
-        plant_step(plant, params, demand_mps2=demand, t_s=t)
+        _ato_step(plant, params, profile, plan_mps2, math.inf, t)
         h = handover_m(first_m, plant.v_mps)
         if plant.x_m >= h:
             frac = min(max((h - x0) / max(plant.x_m - x0, 1e-9), 0.0), 1.0)
@@ -368,3 +381,72 @@ def _approach_s(
     first = station.detector_positions_m()[0]
     lead = np.array([(first - handover_m(first, float(e))) / max(float(e), 1e-9) for e in v])
     return [float(a) for a in res.stop_time_s + lead]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RegulationTimes:
+    """What the line's opt-in regulation (``LineSettings.regulation``) plans with at one station:
+    the follower should reach its best release state (``PlatformHeadway``) as its authority
+    reaches the stopping point, so it is held at the station before for the difference."""
+
+    station: str
+    start_enable_s: float  # the nominal dwell: standstill to start enable
+    release_after_s: float  # the leader's start enable to the follower's release (clear + system)
+    approach_s: float  # the nominal stop: the hand-over at the zone's entry speed to standstill
+    run_to_release_s: float  # from a stand at the station before to the best release state here
+
+
+def regulation_times(
+    line: Line,
+    vehicle: Vehicle,
+    operation: Operation,
+    *,
+    handover: str = "platform-clear",
+    step_s: float = 0.1,
+    doors: DoorsConfig | None = None,
+) -> list[RegulationTimes | None]:
+    """Per station: the nominal dwell, the release after the leader's start and a follower's run
+    from a stand at the station before (from the line's entry at the operation's entry speed, for
+    the first) to its best release state there on its ATO's approach to its waiting point (the
+    line's law on the plant), and the nominal stop from the hand-over at the zone's entry speed;
+    None where that state lies behind the start. [interpretation] Beyond SPEC §4: the train
+    regulation of an ATS, which holds a train at its platform rather than let it stand before the
+    next one."""
+    heads = minimum_headways(line, vehicle, operation, step_s=step_s, doors=doors, handover=handover)
+    plan_mps2 = PLANNING_SHARE * vehicle.brake.full_service_mps2
+    profile = static_profile(line, line.end_m, plan_mps2)
+    params = PlantParams.create(
+        vehicle, load_factor=LOAD_FACTOR, dt_s=CLEAR_STEP_S, gradient=track_gradient(line)
+    )
+    out: list[RegulationTimes | None] = []
+    for k, (st, h) in enumerate(zip(line.stations, heads, strict=True)):
+        first = st.detector_positions_m()[0]
+        wait_m = handover_m(first, st.tasc.entry_speed_kmh * MPS_PER_KMH) - HOLD_BACK_M
+        if k == 0:  # from the line's entry, at the operation's entry speed
+            x0, v0, came_from = operation.entry_m, operation.entry_speed_kmh * MPS_PER_KMH, "the entry"
+        else:  # from a stand at the station before
+            x0, v0, came_from = line.stations[k - 1].stop_point_m, 0.0, repr(line.stations[k - 1].name)
+        if h.release_at_m <= x0:
+            out.append(None)  # released before it could be held: nothing to plan
+            continue
+        plant = PlantState.create(params, x_m=x0, v_mps=v0)
+        t = 0.0
+        while plant.x_m < h.release_at_m:
+            _ato_step(plant, params, profile, plan_mps2, wait_m, t)
+            t += params.dt_s
+            if t > CLEAR_LIMIT_S or (plant.stopped and t > 1.0):  # pragma: no cover - valid data
+                raise SimulationError(
+                    f"station {st.name!r}: a train from {came_from} does not reach its release"
+                )
+        out.append(
+            RegulationTimes(
+                station=st.name,
+                start_enable_s=h.dwell_s,
+                release_after_s=h.clear_s + h.system_s,
+                approach_s=_approach_s(
+                    st, vehicle, operation.controller, [st.tasc.entry_speed_kmh * MPS_PER_KMH], line.track
+                )[0],
+                run_to_release_s=t,
+            )
+        )
+    return out

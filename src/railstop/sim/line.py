@@ -185,6 +185,10 @@ CALIBRATIONS = ("carried", "cold")
 #: ahead is leaving; ``onboard.cbtc.approach_within_authority``).
 HANDOVERS = ("platform-clear", "predictive")
 AUTH_RATE_WINDOW_S = 2.0
+#: The line's opt-in train regulation (``LineSettings.regulation``): a hold shorter than this is
+#: not made, and none is longer than REGULATION_MAX_S (the plan is looked at again when it ends).
+REGULATION_MIN_S = 0.5
+REGULATION_MAX_S = 120.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -255,6 +259,9 @@ class LineSettings:
     ``radio_medium`` / ``radio_changes``: the CBTC radio's medium and its values changed (loss,
     bursts; a fault). ``handover``: when a CBTC train is handed to the station stop
     (:data:`HANDOVERS`; "predictive" is a capacity option beyond SPEC §4, HZ-CBTC-19).
+    ``regulation``: the ATS holds a train at its platform (or at the entry) rather than let it
+    stand before the next platform while that is occupied (CBTC only; beyond SPEC §4,
+    ``LineSimulation._regulation_hold``).
     """
 
     odometer_error_pct: float | None = None
@@ -269,6 +276,7 @@ class LineSettings:
     radio_changes: Mapping[str, float] = field(default_factory=dict)
     position: PositionSettings = field(default_factory=PositionSettings)
     handover: str = "platform-clear"
+    regulation: bool = False
 
     def __post_init__(self) -> None:
         # Sequences given as lists are kept as tuples (the settings are a value).
@@ -303,6 +311,8 @@ class LineSettings:
         if self.handover != "platform-clear" and not self.signalling.startswith("cbtc"):
             got = f"{self.handover!r} with {self.signalling!r}"
             raise SimulationError(f"handover: predictive needs CBTC signalling (got {got})")
+        if self.regulation and not self.signalling.startswith("cbtc"):
+            raise SimulationError(f"regulation: needs CBTC signalling (got {self.signalling!r})")
         self.radio_params()  # an unknown medium or a bad change is refused now, not in a worker
 
     def radio_params(self) -> ChannelParams:
@@ -325,6 +335,7 @@ class LineSettings:
             # Only when changed: a campaign's identity stays that of the line's own positioning.
             **({} if self.position == PositionSettings() else {"position": repr(self.position)}),
             **({} if self.handover == "platform-clear" else {"handover": self.handover}),
+            **({"regulation": True} if self.regulation else {}),
         }
 
 
@@ -371,6 +382,7 @@ class Train:
     entered_s: float = np.nan
     exited_s: float = np.nan
     until_s: float = np.nan  # dwelling: when the doors have closed
+    plan_depart_s: float = np.nan  # the regulation's plan of its start from the platform it is at
     # stopping: the station stop's model, stepped on the line's clock from t0 (the hand-over) ...
     stop: SteppedStop | None = None
     stop_t0_s: float = np.nan
@@ -661,6 +673,15 @@ class LineSimulation:
         self.min_separation_m = np.inf  # the least gap between a train's front and the rear ahead
         self.skipped_stops = 0
         self.signals_passed_at_danger = 0
+        self.regulation_holds = 0
+        self.regulation_hold_s = 0.0
+        self._regulation = None
+        if cfg.regulation:
+            from railstop.sim.capacity import regulation_times  # (it imports this module)
+
+            self._regulation = regulation_times(
+                line, vehicle, operation, handover=cfg.handover, step_s=step_s, doors=self.doors
+            )
         self._init_positioning(cfg.odometer_error_pct)
 
     # ------------------------------------------------------------------ onboard position (SPEC §2)
@@ -1301,6 +1322,9 @@ class LineSimulation:
         train.dwells_here = 0
         train.phase = "dwelling"
         train.until_s = arrive + dwell.start_enable_s
+        reg = None if self._regulation is None else self._regulation[train.next_station - 1]
+        if reg is not None:
+            train.plan_depart_s = arrive + reg.start_enable_s  # the ATS plans the nominal dwell
 
     def _recover(self, train: Train, now_s: float) -> None:
         """After a dwell fault and the staff's reset ([interpretation], ``FAULT_HOLD_S``): a train
@@ -1363,6 +1387,9 @@ class LineSimulation:
                 continue  # it has left the line for good
             if train.phase == "waiting":
                 if self.cbtc is not None:
+                    if train.until_s > now_s or self._regulation_hold(train, now_s, 0):
+                        entry_free = False  # the head of the queue is held: none enters behind it
+                        continue
                     entry_free = self._cbtc_entry(train, now_s, entry_free)
                 elif now_s >= train.request_s and entry_proceed and self._entry_clear():
                     self._enter(train, now_s)
@@ -1371,7 +1398,11 @@ class LineSimulation:
                 self._run(train, now_s, dt)
             elif train.phase == "stopping":
                 self._stopping(train, now_s)
-            elif train.phase == "dwelling" and now_s >= train.until_s:
+            elif (
+                train.phase == "dwelling"
+                and now_s >= train.until_s
+                and not self._regulation_hold(train, now_s, train.next_station)
+            ):
                 train.phase = "running"
                 self._start_plant(train, 0.0)  # it departs from a stand
             elif train.phase == "held" and now_s >= train.until_s:
@@ -1442,6 +1473,64 @@ class LineSimulation:
                 out.append((k, start, spec.min_s + (spec.max_s - spec.min_s) * float(u[2][k])))
         self.drawn_outages = out
         return out
+
+    def _regulation_summary(self) -> dict[str, Any]:
+        """The regulation's holds, only when it is on (a run without it reads as before)."""
+        if self._regulation is None:
+            return {}
+        return {
+            "regulation_holds": self.regulation_holds,
+            "regulation_hold_s": round(self.regulation_hold_s, 1),
+        }
+
+    def _regulation_hold(self, train: Train, now_s: float, station: int) -> bool:
+        """The line's opt-in train regulation (``LineSettings.regulation``): whether the ATS holds
+        ``train`` (ready to leave its platform, or the head of the entry queue) a while longer,
+        because leaving now it would reach the platform of ``station`` before that platform's
+        train has left and have to stand before it. The hold ends where, running on, the train
+        reaches its best release state (``sim.capacity``: the run from here, measured once) as
+        the train ahead's planned start enable plus the clearing and the system's delays release
+        it. The train ahead's start is its plan (the nominal dwell from its arrival, or the hold
+        the ATS gave it; not before now); one still braking into the platform arrives when its
+        nominal stop from the hand-over ends (not before now), one not yet there as if it were at
+        the hand-over now (the least hold; looked at again when it ends). [interpretation] Beyond
+        SPEC §4: an ATS function; the train stands at a platform instead of before one, and a
+        train held there holds up the trains behind it by the same rule. It moves no train and
+        grants no authority: a plan that proves early leaves the train to stand before the
+        platform as without it."""
+        if self._regulation is None or station >= len(self.line.stations):
+            return False
+        reg = self._regulation[station]
+        if reg is None:
+            return False
+        if train.phase == "waiting" and (
+            now_s < train.request_s
+            or any(t.phase == "waiting" and t.index < train.index for t in self.trains)
+        ):
+            return False  # not asking yet, or not the head of the queue
+        here = self.operation.entry_m if train.phase == "waiting" else train.x_m
+        ahead = [t for t in self.trains if t.phase in ON_LINE and t.x_m > here]
+        if not ahead:
+            return False
+        leader = min(ahead, key=lambda t: t.x_m)
+        if leader.phase == "dwelling" and leader.next_station == station + 1:
+            start = max(leader.plan_depart_s, now_s)  # (a dwell past its plan: not before now)
+        elif leader.phase == "stopping" and leader.next_station == station:
+            # Braking in: it arrives when its nominal stop from the hand-over ends, now at the earliest.
+            start = max(leader.stop_t0_s + reg.approach_s, now_s) + reg.start_enable_s
+        elif leader.phase == "running" and leader.next_station == station:
+            start = now_s + reg.approach_s + reg.start_enable_s  # not there yet: at the earliest
+        else:
+            return False  # gone from the platform, held by a fault, or beyond
+        hold = start + reg.release_after_s - (now_s + reg.run_to_release_s)
+        if not hold >= REGULATION_MIN_S:  # (NaN: no plan, no hold)
+            return False
+        hold = min(hold, REGULATION_MAX_S)
+        train.until_s = now_s + hold
+        train.plan_depart_s = train.until_s
+        self.regulation_holds += 1
+        self.regulation_hold_s += hold
+        return True
 
     def _enter(self, train: Train, now_s: float) -> None:
         train.phase = "running"
@@ -1517,7 +1606,7 @@ class LineSimulation:
             slip_events=sum(t.slips for t in self.trains),
             calibration=self.settings.calibration,
             signalling=self.settings.signalling,
-            cbtc=self.cbtc.summary() if self.cbtc is not None else None,
+            cbtc=None if self.cbtc is None else {**self.cbtc.summary(), **self._regulation_summary()},
             zones=list(self.cbtc.zones) if self.cbtc is not None else [],
             occupancy_link=asdict(self.chain.counts),
         )
