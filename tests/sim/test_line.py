@@ -697,3 +697,18 @@ def test_an_ato_corrected_stop_is_positioned_by_the_lines_own_chain() -> None:
         res, _, _ = run_stepped(model, scenario, seed=11, run=run, fixes=fixes)
         assert rec.error_m == round(float(res[0, RES_ERROR]), 4), rec
         assert rec.emergency_brake == eb_cause_name(int(res[0, RES_EB]))
+
+
+def test_a_line_campaign_sums_the_regulations_holds_only_where_it_regulated() -> None:
+    from railstop.sim.line_campaign import _cbtc_totals
+
+    def row(**cbtc: float) -> dict[str, Any]:
+        return {"summary": {"cbtc": {"lost_trains": 0, "mean_delay_other_trains_s": 1.0, **cbtc}}}
+
+    plain = _cbtc_totals([row(), row()])
+    assert plain is not None and "regulation_holds" not in plain
+    regulated = _cbtc_totals(
+        [row(regulation_holds=3, regulation_hold_s=40.5), row(regulation_holds=2, regulation_hold_s=9.5)]
+    )
+    assert regulated is not None
+    assert regulated["regulation_holds"] == 5 and regulated["regulation_hold_s"] == 50.0

@@ -245,4 +245,7 @@ def _cbtc_totals(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     for key in ("mean_delay_lost_trains_s", "mean_delay_other_trains_s"):
         got = [float(p[key]) for p in cbtc if p.get(key) is not None]
         totals[f"{key}_mean"] = round(float(np.mean(got)), 2) if got else None
+    if any("regulation_holds" in p for p in cbtc):  # (only when the ATS regulated the runs)
+        for key in ("regulation_holds", "regulation_hold_s"):
+            totals[key] = round(sum(float(p.get(key, 0)) for p in cbtc), 1)
     return totals
