@@ -242,6 +242,9 @@ class ByteLink:
     receiver: SafeReceiver = field(init=False)
     in_flight: list[tuple[float, bytes, bool]] = field(default_factory=list)  # (arrival, frame, genuine)
     frames_sent: int = 0
+    # The codec's decoding of each payload delivered so far: the cyclic repeats carry the same
+    # payload in new safety frames, and decoding is a pure function of the bytes.
+    decoded: dict[bytes, Telegram] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         # Category 3: the key of the wayside -> train direction, known to both ends.
@@ -282,7 +285,10 @@ class ByteLink:
                 continue
             verdict = self.receiver.accept(frame, now_s)
             if isinstance(verdict, Delivered):
-                got.append(decode(verdict.payload))
+                msg = self.decoded.get(verdict.payload)
+                if msg is None:
+                    msg = self.decoded[verdict.payload] = decode(verdict.payload)
+                got.append(msg)
         self.in_flight = keep
         return got
 
