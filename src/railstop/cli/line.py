@@ -221,6 +221,7 @@ def run_cmd(
                 + (f" ({tph} trains/h)" if tph is not None else "")
                 + f", {summary['stops']} stops by {op.controller} ({disturbances}), "
                 f"{summary['dwell_faults']} dwell faults, {settings.signalling}"
+                + (", regulated" if settings.regulation else "")
                 + (f", {summary['cbtc']['lost_trains']} lost trains" if summary["cbtc"] else "")
             )
             plot = plot_line(result, plot, title=title, footer=footer(prov, seed=seed))
