@@ -12,11 +12,13 @@ tolerance (±0.35 m by default) and within ±0.30 m, and the count of emergency
 brakes, so that a reader sees where a controller has a cliff (issue 36's target,
 measured here and not asserted: no setting below 99 % within ±0.35 m up to
 twice the standard noise). Each setting below the target at k=2 is split into
-the runs that drew inside the zone's envelope and beyond it (``railstop
-check``'s zone-length rule at the run's own entry speed and steepest downhill),
-with their emergency brakes and silent misses off the low-adhesion patches,
-and the runs past the platform end. ``--detectors-only`` runs the station's detectors-only
-variant (SPEC §1 claim 6: no Doppler radar, its zone's ``detectors_only_before_stop_m``).
+the runs that drew beyond the zone's envelope (``railstop check``'s zone-length
+rule at the run's own entry speed and steepest downhill), those inside it whose
+odometer errs by more than the vehicle declares (``vehicle.atp``, the error the
+onboard overrun guard counts), and the others, with their emergency brakes and
+silent misses off the low-adhesion patches, and the runs past the platform end.
+``--detectors-only`` runs the station's detectors-only variant (SPEC §1 claim 6: no Doppler
+radar, its zone's ``detectors_only_before_stop_m``).
 
 How a distribution is taken to k x its range:
 
@@ -259,7 +261,19 @@ def measure(
     """Runs 0 .. runs - 1 of ``dset``: the shares within the tolerance and ±0.30 m, emergency brakes."""
     parts: dict[str, list[np.ndarray]] = {
         k: []
-        for k in ("error", "jerk", "time", "stopped", "slid", "eb", "patch", "speed", "approach", "platform")
+        for k in (
+            "error",
+            "jerk",
+            "time",
+            "stopped",
+            "slid",
+            "eb",
+            "patch",
+            "speed",
+            "approach",
+            "platform",
+            "odometer",
+        )
     }
     for first in range(0, runs, BLOCK):
         n = min(BLOCK, runs - first)
@@ -283,6 +297,7 @@ def measure(
         parts["speed"].append(drawn["entry_speed_kmh"])
         parts["approach"].append(drawn["approach_gradient_permille"])
         parts["platform"].append(drawn["platform_gradient_permille"])
+        parts["odometer"].append(drawn["odometer_diameter_error_pct"])
     col = {k: np.concatenate(v) for k, v in parts.items()}
     s = summary_stats(
         col["error"],
@@ -319,10 +334,13 @@ def measure(
 
 def envelope_split(station: Any, vehicle: Any, col: dict[str, np.ndarray]) -> dict[str, Any]:
     """The runs that drew beyond the zone's envelope (``railstop check``'s zone-length rule at the
-    run's own entry speed and steepest downhill: ``config.plausibility.beyond_envelope``) and, for
-    those and for the others, the share within the tolerance, the emergency brakes and the runs
-    outside the tolerance with no emergency brake (silent misses), the latter off the patches."""
+    run's own entry speed and steepest downhill: ``config.plausibility.beyond_envelope``), those
+    inside it whose odometer errs by more than the vehicle declares (``vehicle.atp``'s
+    ``odometer_uncertainty_pct``, which the onboard overrun guard counts), and the others: for
+    each, the share within the tolerance, the emergency brakes and the runs outside the tolerance
+    with no emergency brake (silent misses), the latter off the patches."""
     beyond = beyond_envelope(station, vehicle, col["speed"], col["approach"], col["platform"])
+    odometer = ~beyond & (np.abs(col["odometer"]) > vehicle.atp.odometer_uncertainty_pct)
     within = np.abs(col["error"]) <= station.psd_tolerance_m  # NaN (never stood): not within
     eb = col["eb"] != 0
     silent_off_patch = ~within & ~eb & ~col["patch"].astype(bool)
@@ -336,7 +354,11 @@ def envelope_split(station: Any, vehicle: Any, col: dict[str, np.ndarray]) -> di
             "silent_misses_off_patches": int(silent_off_patch[mask].sum()),
         }
 
-    return {"inside_zone": part(~beyond), "beyond_zone": part(beyond)}
+    return {
+        "inside_envelope": part(~beyond & ~odometer),
+        "beyond_odometer": part(odometer),
+        "beyond_zone": part(beyond),
+    }
 
 
 def _scales(text: str) -> list[float]:
@@ -503,8 +525,9 @@ def _split_text(r: dict[str, Any], tol: float) -> str:
         )
 
     return (
-        f"{one(r['inside_zone'], 'inside the envelope')}; {one(r['beyond_zone'], 'beyond it')}; "
-        f"{r['past_platform_end']} past the platform end"
+        f"{one(r['inside_envelope'], 'inside the envelope')}; "
+        f"{one(r['beyond_odometer'], 'inside the zone with an odometer beyond its declared accuracy')}; "
+        f"{one(r['beyond_zone'], 'beyond the zone')}; {r['past_platform_end']} past the platform end"
     )
 
 

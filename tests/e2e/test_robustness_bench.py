@@ -6,9 +6,11 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
 import pytest
 
 from bench_loader import load_benchmark
+from railstop.config import default_line, default_vehicle
 
 bench = load_benchmark("robustness")
 
@@ -88,3 +90,29 @@ def test_scaling_rules_and_clipping() -> None:
     for row in bench.settings(standard, [2.0, 3.0]):
         for k in row.cells:
             assert row.build(k).params
+
+
+def test_a_cell_is_split_by_the_zone_and_by_the_odometers_declared_accuracy() -> None:
+    """The envelope has two parts: the zone's (its length rule at the run's entry and downhill) and
+    the vehicle's declared odometer accuracy, which the onboard overrun guard counts; a run beyond
+    the zone counts there, one inside it with an odometer beyond its declaration counts apart."""
+    line, vehicle = default_line(), default_vehicle()
+    station = line.stations[0]
+    declared = vehicle.atp.odometer_uncertainty_pct
+    n = 6
+    col = {
+        "speed": np.array([60.0, 60.0, 60.0, 60.0, 120.0, 120.0]),  # the last two beyond the zone
+        "approach": np.zeros(n),
+        "platform": np.array([0.0, 0.0, 0.0, 0.0, -40.0, -40.0]),
+        "odometer": np.array([0.0, declared, -(declared + 0.5), declared + 0.5, declared + 1.0, 0.0]),
+        "error": np.array([0.01, 0.02, -0.5, -2.0, 0.01, 3.0]),
+        "eb": np.array([0, 0, 0, 5, 0, 0]),
+        "patch": np.zeros(n),
+    }
+    split = bench.envelope_split(station, vehicle, col)
+    inside, odometer, zone = split["inside_envelope"], split["beyond_odometer"], split["beyond_zone"]
+    assert (inside["runs"], odometer["runs"], zone["runs"]) == (2, 2, 2)
+    assert inside["within_tolerance"] == 1.0 and inside["emergency_brakes"] == 0
+    assert odometer["within_tolerance"] == 0.0 and odometer["emergency_brakes"] == 1
+    assert odometer["silent_misses_off_patches"] == 1
+    assert zone["within_tolerance"] == 0.5 and zone["silent_misses_off_patches"] == 1
