@@ -42,6 +42,11 @@ def headways() -> list[PlatformHeadway]:
     return minimum_headways(LINE, VEHICLE, OPERATION)
 
 
+@pytest.fixture(scope="module")
+def predictive_headways() -> list[PlatformHeadway]:
+    return minimum_headways(LINE, VEHICLE, OPERATION, handover="predictive")
+
+
 def test_terms_follow_the_data(headways: list[PlatformHeadway]) -> None:
     cbtc = LINE.cbtc
     assert [h.station for h in headways] == [s.name for s in LINE.stations]
@@ -174,10 +179,11 @@ def _predictive_line(headway_s: float) -> tuple[LineSimulation, dict[str, Any]]:
     return sim, sim.run(1500.0).summary()
 
 
-def test_a_predictive_line_serves_trains_closer_than_the_platform_clear_rule_can() -> None:
-    clear_min = max(h.headway_s for h in minimum_headways(LINE, VEHICLE, OPERATION))
-    predictive = minimum_headways(LINE, VEHICLE, OPERATION, handover="predictive")
-    assert max(h.headway_s for h in predictive) < clear_min - 5.0
+def test_a_predictive_line_serves_trains_closer_than_the_platform_clear_rule_can(
+    headways: list[PlatformHeadway], predictive_headways: list[PlatformHeadway]
+) -> None:
+    clear_min = max(h.headway_s for h in headways)
+    assert max(h.headway_s for h in predictive_headways) < clear_min - 5.0
     sim, s = _predictive_line(100.0)  # below the platform-clear minimum (111.4 s), above the predictive
     c = s["cbtc"]
     assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and c["onboard_emergency_brakes"] == 0
@@ -189,12 +195,13 @@ def test_a_predictive_line_serves_trains_closer_than_the_platform_clear_rule_can
         assert float(np.max(np.diff(arrivals)[2:])) < clear_min
 
 
-def test_a_failed_prediction_is_braked_by_the_onboard_unit() -> None:
+def test_a_failed_prediction_is_braked_by_the_onboard_unit(
+    predictive_headways: list[PlatformHeadway],
+) -> None:
     """HZ-CBTC-19: fed faster than it can serve, the leaving trains are soon queued themselves, an
     authority stops advancing as predicted, and the onboard unit brakes the follower's stop: never
     an overlap or a collision, and every stop outside the tolerance ended by that brake."""
-    predictive = minimum_headways(LINE, VEHICLE, OPERATION, handover="predictive")
-    sim, s = _predictive_line(0.8 * max(h.headway_s for h in predictive))
+    sim, s = _predictive_line(0.8 * max(h.headway_s for h in predictive_headways))
     c = s["cbtc"]
     assert c["authority_overlaps"] == 0 and c["collisions"] == 0 and s["skipped_stops"] == 0
     missed = [r for r in sim.stops if not r.within_tolerance]
