@@ -452,6 +452,8 @@ def test_line_run_regulation_holds_trains_and_needs_cbtc(tmp_path: Path) -> None
             "cbtc", "--regulation", cwd=tmp_path)  # fmt: skip
     assert p.returncode == 0, p.stderr
     assert "the ATS held trains" in p.stdout
+    # Under CBTC the text gives its safety counts too.
+    assert "CBTC (minimal zones):" in p.stdout and " authority overlaps, 0 collisions" in p.stdout
     p = run("line", "run", "--trains", "1", "--duration-s", "100", "--regulation", cwd=tmp_path)
     _one_line_error(p, "regulation", "CBTC", "fixed-block")
 

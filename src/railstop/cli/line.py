@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -147,6 +147,19 @@ def _figure(value: object, unit: str, none: str) -> str:
     return none if value is None else f"{value} {unit}"
 
 
+def _cbtc_text(cbtc: dict[str, Any] | None) -> str:
+    """The CBTC run's safety counts (SPEC §4), where the line ran under CBTC."""
+    if not cbtc:
+        return ""
+    causes = cbtc.get("onboard_eb_causes") or {}
+    why = f" ({', '.join(f'{k} {v}' for k, v in sorted(causes.items()))})" if causes else ""
+    return (
+        f"CBTC ({cbtc['mode']} zones): {cbtc['lost_trains']} lost trains, {cbtc['zones']} protection zones, "
+        f"{cbtc['onboard_emergency_brakes']} onboard emergency brakes{why}, "
+        f"{cbtc['authority_overlaps']} authority overlaps, {cbtc['collisions']} collisions; "
+    )
+
+
 def _regulation_text(cbtc: dict[str, object] | None) -> str:
     """The regulation's holds, where it is on (``--regulation``)."""
     if not cbtc or "regulation_holds" not in cbtc:
@@ -246,6 +259,7 @@ def run_cmd(
         f"onboard position p99 |error| {summary['position_error_p99_m']} m "
         f"({summary['position_calibration']} calibration, {summary['slide_events']} slides, "
         f"{summary['slip_events']} slips); "
+        + _cbtc_text(summary["cbtc"])
         + _regulation_text(summary["cbtc"])
         + f"simulated {summary['sim_to_wall']}x faster than real time",
         highlight=False,
