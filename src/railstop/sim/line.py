@@ -65,6 +65,7 @@ signals, not for a radio.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from bisect import bisect_left, bisect_right
@@ -677,11 +678,8 @@ class LineSimulation:
         self.regulation_hold_s = 0.0
         self._regulation = None
         if cfg.regulation:
-            from railstop.sim.capacity import regulation_times  # (it imports this module)
-
-            self._regulation = regulation_times(
-                line, vehicle, operation, handover=cfg.handover, step_s=step_s, doors=self.doors
-            )
+            # (The line's door units run the embedded door data, self.doors; so does the plan.)
+            self._regulation = _regulation_plan(line, vehicle, operation, cfg.handover, step_s)
         self._init_positioning(cfg.odometer_error_pct)
 
     # ------------------------------------------------------------------ onboard position (SPEC §2)
@@ -1610,6 +1608,36 @@ class LineSimulation:
             zones=list(self.cbtc.zones) if self.cbtc is not None else [],
             occupancy_link=asdict(self.chain.counts),
         )
+
+
+#: The regulation's plans computed in this process, by their inputs (a line campaign's worker runs
+#: many lines of the same data; a plan takes a second or two to compute).
+_REGULATION_PLANS: dict[str, list[Any]] = {}
+
+
+def _regulation_plan(
+    line: Line, vehicle: Vehicle, operation: Operation, handover: str, step_s: float
+) -> list[Any]:
+    """``sim.capacity.regulation_times`` of these inputs (the embedded door data), computed once per
+    process."""
+    from railstop.sim.capacity import regulation_times  # (it imports this module)
+
+    key = json.dumps(
+        [
+            line.model_dump(mode="json"),
+            vehicle.model_dump(mode="json"),
+            operation.model_dump(mode="json"),
+            handover,
+            step_s,
+        ],
+        sort_keys=True,
+    )
+    plan = _REGULATION_PLANS.get(key)
+    if plan is None:
+        plan = _REGULATION_PLANS[key] = regulation_times(
+            line, vehicle, operation, handover=handover, step_s=step_s
+        )
+    return plan
 
 
 def warm_up() -> None:
