@@ -331,3 +331,50 @@ def test_the_regulation_needs_cbtc_and_is_part_of_a_campaigns_identity() -> None
         LineSettings(regulation=True)
     assert LineSettings(signalling="cbtc", regulation=True).identity()["regulation"] is True
     assert "regulation" not in LineSettings(signalling="cbtc").identity()
+
+
+def test_the_regulation_holds_a_train_at_its_platform_until_it_would_meet_the_release() -> None:
+    """The rule alone, at a platform (most holds of a queued line are at the entry): a train ready
+    to leave Riverside while the train ahead dwells at Hillcrest is held so that it reaches its
+    best release state as that train's planned start plus the clearing and the system's delays
+    release it; looked at again when the hold ends, it leaves. A train ahead still braking into
+    Hillcrest starts a nominal dwell after its nominal stop ends; one that has left, or is held
+    by a dwell fault, holds nobody."""
+    op = OPERATION.model_copy(update={"trains": 2})
+    settings = LineSettings(signalling="cbtc", regulation=True)
+    sim = LineSimulation(line=LINE, vehicle=VEHICLE, operation=op, seed=1, settings=settings)
+    reg = sim._regulation[1]
+    assert reg is not None and reg.station == "Hillcrest"
+    leader, follower = sim.trains[1], sim.trains[0]
+    riverside, hillcrest = (st.stop_point_m for st in LINE.stations[:2])
+    now = 500.0
+
+    def ready() -> None:
+        leader.phase, leader.x_m, leader.next_station = "dwelling", hillcrest, 2
+        leader.plan_depart_s = now + 60.0  # it leaves in 60 s by the plan
+        follower.phase, follower.x_m, follower.next_station = "dwelling", riverside, 1
+        follower.until_s = now
+
+    ready()
+    hold = 60.0 + reg.release_after_s - reg.run_to_release_s
+    assert hold > 1.0 and sim._regulation_hold(follower, now, 1)
+    assert follower.until_s == pytest.approx(now + hold) and follower.plan_depart_s == follower.until_s
+    assert sim.regulation_holds == 1 and sim.regulation_hold_s == pytest.approx(hold)
+    # Looked at again when the hold ends: no hold left, it leaves.
+    assert not sim._regulation_hold(follower, follower.until_s, 1)
+    # Still braking in, 10 s into its stop: it arrives when its nominal stop ends, then dwells.
+    ready()
+    leader.phase, leader.x_m, leader.next_station, leader.stop_t0_s = (
+        "stopping",
+        hillcrest - 100.0,
+        1,
+        now - 10.0,
+    )
+    assert sim._regulation_hold(follower, now, 1)
+    start = now - 10.0 + reg.approach_s + reg.start_enable_s
+    assert follower.until_s == pytest.approx(start + reg.release_after_s - reg.run_to_release_s)
+    # Gone from the platform, or held there by a dwell fault: no plan, no hold.
+    for phase, x in (("running", hillcrest + 50.0), ("held", hillcrest)):
+        ready()
+        leader.phase, leader.x_m = phase, x
+        assert not sim._regulation_hold(follower, now, 1)
