@@ -105,6 +105,7 @@ class PlatformHeadway:
     release_kmh: float  # its speed there
     entry_speed_kmh: float  # its speed at the hand-over
     ideal_headway_s: float  # a clairvoyant follower's: at the hand-over at the zone's entry speed
+    nominal_approach_s: float  # the approach from the hand-over at the zone's entry speed
 
     @property
     def headway_s(self) -> float:
@@ -247,6 +248,7 @@ def minimum_headways(
                 release_kmh=r.v_mps / MPS_PER_KMH,
                 entry_speed_kmh=r.entry_mps / MPS_PER_KMH,
                 ideal_headway_s=ideal,
+                nominal_approach_s=approach[-1],
             )
         )
     return out
@@ -443,9 +445,7 @@ def regulation_times(
                 station=st.name,
                 start_enable_s=h.dwell_s,
                 release_after_s=h.clear_s + h.system_s,
-                approach_s=_approach_s(
-                    st, vehicle, operation.controller, [st.tasc.entry_speed_kmh * MPS_PER_KMH], line.track
-                )[0],
+                approach_s=h.nominal_approach_s,
                 run_to_release_s=t,
             )
         )

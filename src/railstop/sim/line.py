@@ -1114,12 +1114,16 @@ class LineSimulation:
             train.exited_s = now_s
             train.plant = None
 
+    def _train_ahead(self, x_m: float) -> Train | None:
+        """The nearest train on the line whose true front is beyond ``x_m`` (None: none)."""
+        ahead = (t for t in self.trains if t.phase in ON_LINE and t.x_m > x_m)
+        return min(ahead, key=lambda t: t.x_m, default=None)
+
     def _rear_ahead_m(self, train: Train) -> float:
         """The true rear of the nearest train on the line ahead of ``train`` (inf: none), what a
         driver moving on sight sees."""
-        length = self.vehicle.length_m
-        on_line = (t for t in self.trains if t is not train and t.phase in ON_LINE)
-        return min((t.x_m - length for t in on_line if t.x_m > train.x_m), default=math.inf)
+        leader = self._train_ahead(train.x_m)
+        return math.inf if leader is None else leader.x_m - self.vehicle.length_m
 
     def _restricted(self, train: Train, now_s: float, dt: float) -> RestrictedDrive | None:
         """Restricted mode under CBTC (SPEC §4 lost trains; ``onboard.restricted_mode``, the rule
@@ -1506,11 +1510,9 @@ class LineSimulation:
             or any(t.phase == "waiting" and t.index < train.index for t in self.trains)
         ):
             return False  # not asking yet, or not the head of the queue
-        here = self.operation.entry_m if train.phase == "waiting" else train.x_m
-        ahead = [t for t in self.trains if t.phase in ON_LINE and t.x_m > here]
-        if not ahead:
+        leader = self._train_ahead(self.operation.entry_m if train.phase == "waiting" else train.x_m)
+        if leader is None:
             return False
-        leader = min(ahead, key=lambda t: t.x_m)
         if leader.phase == "dwelling" and leader.next_station == station + 1:
             start = max(leader.plan_depart_s, now_s)  # (a dwell past its plan: not before now)
         elif leader.phase == "stopping" and leader.next_station == station:
