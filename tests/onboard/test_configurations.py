@@ -33,6 +33,7 @@ from railstop.onboard.tasc_receiver import (
 )
 from railstop.physics.brake import decel_to_pwm_1
 from railstop.sim.single import run_stop
+from railstop.wayside.tasc_unit import SignalForm
 
 LINE = default_line()
 VEHICLE = default_vehicle()
@@ -290,3 +291,44 @@ def test_switched_pwm_drives_the_ecu_with_the_onboard_duty() -> None:
     assert np.mean(np.isclose(duty, expected, atol=1e-9)) > 0.9
     # Before the changeover the ECU had the train's own B3.
     assert tr.demand_decel_mps2[on[0] - 3, 0] == pytest.approx(brake.notch_decel_mps2[2], abs=0.01)
+
+
+# ---------------------------------------------------------------- config 2's own cycle (stop model 22)
+
+
+def _onboard_changes(controller: str, vehicle: Vehicle, form: SignalForm | None = None):  # type: ignore[no-untyped-def]
+    _, batch = run_stop(
+        line=LINE, station=LINE.station("Riverside"), vehicle=vehicle, controller=controller, seed=0,
+        form=form,
+    )  # fmt: skip
+    assert batch.trace is not None
+    tr = batch.trace
+    notch = tr.notch[:, 0]
+    changes = np.flatnonzero(np.diff(notch) != 0) + 1
+    return tr, changes[tr.switch[changes, 0] == SWITCH_ONBOARD]
+
+
+def test_config2_unit_chooses_its_notch_once_per_its_cycle() -> None:
+    """The onboard unit's own modulator (config 2, form 6) changes the notch only on its cycle,
+    tasc_cycle_s (5 steps of 10 ms); with a cycle of one step it changes between them too."""
+    _, changes = _onboard_changes(TASC_STEP, VEHICLE)
+    cycle = round(VEHICLE.brake.tasc_cycle_s / 0.01)
+    assert cycle == 5 and changes.size >= 10
+    assert set(((changes - changes[0]) % cycle).tolist()) == {0}
+    fast = VEHICLE.model_copy(update={"brake": VEHICLE.brake.model_copy(update={"tasc_cycle_s": 0.01})})
+    _, fast_changes = _onboard_changes(TASC_STEP, fast)
+    assert len(set(((fast_changes - fast_changes[0]) % cycle).tolist())) > 1
+
+
+@pytest.mark.parametrize("form", [SignalForm.BRAKE_COMMAND, SignalForm.INCREASE_DECREASE])
+def test_config2_relays_the_waysides_notch_in_the_step_it_has_it(form: SignalForm) -> None:
+    """Forms 7 and 8: the notch the wayside sends reaches the switching unit in the step the
+    telegram is taken (its target is that notch's deceleration), not at the unit's next cycle."""
+    tr, changes = _onboard_changes(TASC_STEP, VEHICLE, form)
+    table = np.concatenate([[0.0], VEHICLE.brake.notch_decel_mps2])
+    target = tr.target_decel_mps2[:, 0]
+    on = np.flatnonzero((tr.switch[:, 0] == SWITCH_ONBOARD) & np.isfinite(target))
+    assert changes.size >= 5
+    assert np.array_equal(table[tr.notch[on, 0]], target[on])
+    # Telegrams do not wait for the unit's cycle: the changes fall on several phases of it.
+    assert len(set(((changes - changes[0]) % 5).tolist())) > 1

@@ -605,6 +605,9 @@ class BrakeModel(_Model):
     # The onboard TASC unit's step output (config 2, tasc-step, through the switching unit) holds a
     # notch at least this long (config 1 holds controller_min_hold_s).
     tasc_min_hold_s: Annotated[float, Field(ge=0.0, le=3.0)] = 0.2
+    # The onboard TASC unit's own modulator (config 2, tasc-step) chooses its notch once per this
+    # cycle; a notch the wayside sends (forms 7, 8) is relayed at once.
+    tasc_cycle_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.05
     # Config 2's switching unit (SPEC §1 claims 12-14): the changeover switches' transfer time,
     # break before make: for this long the ECU input is open (000: no service brake).
     switch_transfer_s: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.02

@@ -160,12 +160,13 @@ def stopping_distance_under_lag_1(v0_mps: float, a0_mps2: float, c_mps2: float, 
     v0 = max(v0_mps, 0.0)
     t = v0 / max(0.5 * (a0 + c), 1e-3)
     for _ in range(8):
-        v, _x, a = motion_under_lag_1(v0, a0, c, tau_s, t)
+        v, x, a = motion_under_lag_1(v0, a0, c, tau_s, t)
         t_next = max(t + v / max(a, 1e-3), 0.0)
         if t_next == t:
             # Converged to the bit: every further iteration would return this t again (an exact
-            # fixed point of a deterministic step), so stopping here changes no result.
-            break
+            # fixed point of a deterministic step), so stopping here changes no result; x is the
+            # distance at this very t.
+            return x
         t = t_next
     return motion_under_lag_1(v0, a0, c, tau_s, t)[1]
 
@@ -212,13 +213,16 @@ def _end_choice_1(
     )
     best = np.inf
     choice = lo
+    hold_decay = math.exp(-min_hold_s / tau)
     for first in range(first_lo, first_hi + 1):
-        v1, x1, a1 = motion_under_lag_1(v_dead, applied, table[first], tau, min_hold_s)
+        v1, x1, a1 = _lag_segment_1(v_dead, 0.0, applied, table[first], min_hold_s, hold_decay, tau)
+        if v1 <= 0.0:  # stops inside the first hold: where the first notch alone stops it
+            alone = stopping_distance_under_lag_1(v_dead, applied, table[first], tau)
         for second in (lo, hi):
             if v1 > 0.0:
                 whole = x1 + stopping_distance_under_lag_1(max(v1, 0.0), a1, table[second], tau)
-            else:  # stops inside the first hold: where the first notch alone stops it
-                whole = stopping_distance_under_lag_1(v_dead, applied, table[first], tau)
+            else:
+                whole = alone
             miss = abs(whole - goal)
             if miss < best - 1e-12:
                 best = miss

@@ -115,7 +115,7 @@ SWITCH_ONBOARD = 2  # the ECU reads the onboard unit's output
 
 RP_CONFIG = 0  # CFG_*: 1 brake controller, 2 step (switching unit), 3 PWM superposition, 4 switched PWM
 RP_FORM = 1
-RP_CYCLE_STEPS = 2  # the brake controller's cycle (config 1), else 1
+RP_CYCLE_STEPS = 2  # the notch modulator's cycle: the brake controller's (config 1), the unit's (config 2)
 RP_PWM_STEPS = 3  # steps per PWM carrier period (config 3)
 RP_MIN_HOLD = 4
 RP_RESPONSE = 5  # dead time + lag: the brake response (forms 1-5 planner, overrun guard)
@@ -196,7 +196,11 @@ def receiver_params(config: str, form: int, vehicle: Vehicle, station: Station, 
     rp[RP_CONFIG] = CONFIG_CODES[config]
     rp[RP_FORM] = form
     cfg1 = config == OnboardConfig.BRAKE_CONTROLLER
-    rp[RP_CYCLE_STEPS] = max(1, round(brake.controller_cycle_s / dt_s)) if cfg1 else 1
+    # Stop model 22 [interpretation]: config 2's onboard unit chooses its notch on its own cycle
+    # (tasc_cycle_s), as the train's brake controller does on its (config 1); up to model 21 it
+    # chose one every simulation step (10 ms), which no onboard computer's output stage does and
+    # which cost 40 % of the stop kernel's time in the end phase's look-ahead.
+    rp[RP_CYCLE_STEPS] = max(1, round((brake.controller_cycle_s if cfg1 else brake.tasc_cycle_s) / dt_s))
     rp[RP_PWM_STEPS] = max(1, round(1.0 / (brake.pwm_carrier_hz * dt_s)))
     rp[RP_MIN_HOLD] = brake.controller_min_hold_s if cfg1 else brake.tasc_min_hold_s
     rp[RP_RESPONSE] = brake.dead_time_s + brake.time_constant_s
@@ -562,10 +566,15 @@ def receiver_switch_1(rx: FloatArray, rp: FloatArray) -> int:
 def receiver_step_output_1(
     rx: FloatArray, rp: FloatArray, mod: FloatArray, table: FloatArray, k: int, speed_mps: float
 ) -> int:
-    """Configs 1, 2: the notch of step ``k``. The brake controller (every controller cycle) or the
-    switching unit (every step) sets it; form 7 fixes it; wire e passes through from the train."""
+    """Configs 1, 2: the notch of step ``k``. The brake controller (config 1) or the onboard
+    unit's own modulator (config 2) sets it once per its cycle; forms 7 and 8 fix it (config 2
+    relays the wayside's notch to the switching unit in the step it has it); wire e passes
+    through from the train."""
     cycle = int(rp[RP_CYCLE_STEPS])
-    if k % cycle == 0:
+    if k % cycle != 0:
+        if rx[RX_FIXED_NOTCH] >= 0.0 and int(rp[RP_CONFIG]) == CFG_STEP:
+            rx[RX_NOTCH] = rx[RX_FIXED_NOTCH]
+    else:
         notch = modulator_update_1(
             mod,
             table,

@@ -152,7 +152,10 @@ DISK_BYTES_PER_VALUE = 8
 # quotient every step. Two divisions fewer per step; results move by rounding alone (at most
 # 6.8e-12 m in 360,000 standard runs of every controller and form, no discrete outcome
 # different: docs/architecture.md).
-MODEL_VERSION = 21
+# 22: config 2 (tasc-step): the onboard unit's own modulator chooses its notch once per its cycle
+# (the vehicle's tasc_cycle_s, 0.05 s) instead of every simulation step, and relays a notch the
+# wayside sends (forms 7, 8) in the step it has it. tasc-step runs change; the others do not.
+MODEL_VERSION = 22
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
