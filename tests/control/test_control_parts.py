@@ -21,6 +21,7 @@ from railstop.control.notch import (
     MOD_RING_SIZE,
     MOD_SIZE,
     MOD_TARGET,
+    modulator_aim_1,
     modulator_init_1,
     modulator_pipeline_1,
     modulator_restart_1,
@@ -304,3 +305,39 @@ def test_a_dead_time_beyond_the_ring_is_added_to_the_lag() -> None:
     dead = (MOD_RING_SIZE + 5) * 0.1
     notches = _drive(mod, TABLE, [0.5] * 400, dead, 0.4)
     assert abs(mod[MOD_NOW] - np.mean(TABLE[notches[-100:]])) < 0.1
+
+
+def _settled_ahead_of_the_target() -> np.ndarray:
+    """A modulator settled on a target of 0.5 m/s^2 (between notches 3 and 4), free to change, whose
+    train is 0.3 m ahead of the target trajectory (that judgement brakes more: notch 4)."""
+    table = np.array([0.0, 0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0])
+    mod = np.empty(MOD_SIZE)
+    modulator_init_1(mod)
+    for _ in range(50):
+        modulator_update_1(mod, table, 0.3, 0.35, 0.45, 0.5, True, 0.1, 0.0, False, 0.0)
+    mod[MOD_HELD] = 10.0
+    mod[MOD_E2] = 0.3
+    return mod
+
+
+def _end_choice(left_m: float, external_mps2: float = 0.0, gain: float = 1.0) -> int:
+    table = np.array([0.0, 0.143, 0.286, 0.429, 0.571, 0.714, 0.857, 1.0])
+    mod = _settled_ahead_of_the_target()
+    modulator_aim_1(mod, left_m, external_mps2, gain)
+    return int(modulator_update_1(mod, table, 0.3, 0.35, 0.45, 0.5, True, 0.1, 0.6, True, 0.0))
+
+
+def test_aimed_end_phase_judges_the_notches_against_the_measured_stopping_point() -> None:
+    """Stop model 23: told the distance to the stopping point (the wayside of forms 7 and 8 measures
+    it with its radar), the end phase picks the notch whose plan stops nearest that point, with
+    the braking as the caller knows it, whatever the target trajectory says; told none (NaN) it
+    judges against the target trajectory as before. At 0.6 m/s, between notches 3 and 4:"""
+    assert _end_choice(np.nan) == 4  # the target trajectory: ahead of it, brake more
+    assert _end_choice(1.0) == 3  # the point far: the lower notch, though ahead of the target
+    assert _end_choice(0.3) == 4  # the point near: the higher
+    assert _end_choice(0.3, external_mps2=0.3) == 3  # uphill helps: the lower reaches it
+    assert _end_choice(0.5) == 3
+    assert _end_choice(0.5, external_mps2=-0.2) == 4  # downhill: the higher
+    assert _end_choice(0.45) == 3
+    assert _end_choice(0.45, gain=0.7) == 4  # brakes 30 % weak: the higher
+    assert _end_choice(0.3, gain=1.3) == 3  # brakes 30 % strong: the lower

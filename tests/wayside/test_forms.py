@@ -15,7 +15,13 @@ import pytest
 
 from railstop.config import default_line, default_vehicle
 from railstop.config.disturbances import load_disturbances
-from railstop.controllers import TASC_BRAKE_CONTROLLER, TASC_CONTROLLERS, TASC_PWM, TASC_STEP
+from railstop.controllers import (
+    TASC_BRAKE_CONTROLLER,
+    TASC_CONTROLLERS,
+    TASC_PWM,
+    TASC_STEP,
+    TASC_SWITCHED_PWM,
+)
 from railstop.link.codec import TASC_FORM_TYPES
 from railstop.sim.engine import BatchResult
 from railstop.sim.single import StopResult, run_stop
@@ -254,4 +260,27 @@ def test_form_8_end_phase_may_step_below_the_targets_lower_notch(run: int) -> No
 @pytest.mark.parametrize("run", [8775, 1408, 8702])
 def test_form_8_allows_for_the_brake_controllers_cycle(run: int) -> None:
     result, _ = _standard_run(TASC_BRAKE_CONTROLLER, SignalForm.INCREASE_DECREASE, run)
+    _assert_served(result)
+
+
+# Stop model 23, forms 7 and 8: with a Doppler radar the wayside's end phase aims at the stopping
+# point its radar measures, not where the last command's target would stop the train. These
+# standard runs ended with no emergency brake 0.31-0.43 m short on model 22 (run 6358 with
+# tasc-brake-controller: slow brakes, 63 km/h on a 14 per mille downhill; stepped a notch up
+# 1.1 m before the stop, where 0.3 m/s^2 was needed, and stopped 0.36 m short).
+@pytest.mark.parametrize(
+    ("controller", "run"),
+    [
+        (TASC_BRAKE_CONTROLLER, 6358),
+        (TASC_BRAKE_CONTROLLER, 6373),
+        (TASC_BRAKE_CONTROLLER, 9049),
+        (TASC_BRAKE_CONTROLLER, 9649),
+        (TASC_STEP, 3201),
+        (TASC_STEP, 7748),
+        (TASC_SWITCHED_PWM, 3632),
+        (TASC_SWITCHED_PWM, 8719),
+    ],
+)
+def test_form_8_end_phase_aims_at_the_measured_stopping_point(controller: str, run: int) -> None:
+    result, _ = _standard_run(controller, SignalForm.INCREASE_DECREASE, run)
     _assert_served(result)

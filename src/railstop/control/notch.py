@@ -12,7 +12,11 @@ tenths of a metre. In that end phase the modulator knows the train's speed
 (every brake controller has it from the tachometer) and picks, among the two
 notches, the one whose predicted stop lies nearest to where the target would
 stop the train (a two-move look-ahead: this notch for the minimum hold, then
-either notch until standstill).
+either notch until standstill). A caller that measures the distance to the
+stopping point (the wayside of forms 7 and 8, with its Doppler radar: stop
+model 23) has the plans judged against that point, with the braking as it
+knows it, instead of against where the target would stop the train
+(modulator_aim_1).
 **[interpretation]** SPEC §1 leaves the brake controller's own logic open;
 this is railstop's model of a competent one.
 
@@ -74,7 +78,15 @@ MOD_DECAY_CYCLE = 16  # exp(-dt/τ)
 MOD_NOW = 17  # modelled brake response now (m/s²)
 MOD_HEAD = 18  # the ring's entry of the notch held over the last cycle
 MOD_RAMP = 19  # the target as the modulator follows it: ramped where the notches are rate-limited
-MOD_RING = 20  # the notches' decelerations, one entry per cycle, newest at MOD_HEAD
+# Stop model 23: where the caller measures the train's distance to the stopping point (the
+# wayside of forms 7 and 8: its last detector and its radar's travel since), the end phase aims
+# at that point (modulator_aim_1): the distance (NaN: not measured, the end phase aims where the
+# target would stop the train), the external deceleration there (gradient and resistance) and
+# the loop gain (the brakes' measured over nominal effect) it predicts with.
+MOD_LEFT = 20
+MOD_EXT = 21
+MOD_GAIN = 22
+MOD_RING = 23  # the notches' decelerations, one entry per cycle, newest at MOD_HEAD
 MOD_RING_SIZE = 64  # 6.2 s of dead time at the default 0.1 s cycle
 MOD_SIZE = MOD_RING + MOD_RING_SIZE
 
@@ -84,6 +96,18 @@ def modulator_init_1(state: FloatArray) -> None:
     state[:] = 0.0
     state[MOD_HELD] = np.inf
     state[MOD_ALPHA_TAU] = np.nan  # no constants yet (NaN equals no lag)
+    state[MOD_LEFT] = np.nan
+    state[MOD_GAIN] = 1.0
+
+
+@njit_step
+def modulator_aim_1(state: FloatArray, left_m: float, external_mps2: float, gain: float) -> None:
+    """The end phase aims at the stopping point ``left_m`` ahead (NaN: where the target would stop
+    the train), predicting with the external deceleration ``external_mps2`` (+ = helps braking)
+    and the brakes' effect ``gain`` times the nominal (stop model 23)."""
+    state[MOD_LEFT] = left_m
+    state[MOD_EXT] = external_mps2
+    state[MOD_GAIN] = gain
 
 
 @njit_inline
@@ -128,6 +152,23 @@ def modulator_pipeline_1(
     v_plan = speed_mps - assumed_mps2 * span
     x_plan = speed_mps * span - 0.5 * assumed_mps2 * span * span
     return v, v - v_plan, x - x_plan
+
+
+@njit_inline
+def _pipeline_aimed_1(state: FloatArray, speed_mps: float, gain: float, ext: float) -> tuple[float, float]:
+    """The train's speed one dead time from now and the distance it covers until then, under the
+    notches already commanded (the last cycle's own not yet in the ring), each giving ``gain``
+    times its nominal deceleration, plus ``ext``."""
+    tau = state[MOD_TAU]
+    dt = state[MOD_ALPHA_DT]
+    m = int(state[MOD_CYCLES])
+    v, x, a = _lag_segment_1(
+        speed_mps, 0.0, gain * state[MOD_NOW] + ext, gain * _held_1(state, m) + ext, state[MOD_FRAC],
+        state[MOD_DECAY_F], tau,
+    )  # fmt: skip
+    for ago in range(m - 1, -1, -1):
+        v, x, a = _lag_segment_1(v, x, a, gain * _held_1(state, ago) + ext, dt, state[MOD_DECAY_CYCLE], tau)
+    return v, x
 
 
 @njit_step
@@ -203,24 +244,45 @@ def _end_choice_1(
     The first move's notches are lo and hi where the notch may jump, the notches one step
     from the current one where it moves one notch per hold (form 8)."""
     tau = state[MOD_TAU]
-    applied = state[MOD_APPLIED]
-    v_dead = modulator_pipeline_1(state, speed_mps, 0.0, 0)[0]
-    if v_dead <= 0.0:  # the train stands before this choice acts
-        return int(state[MOD_NOTCH])
-    # The train is e2 ahead of the target trajectory and e1 faster (one dead time from now).
-    goal = (
-        stopping_distance_under_lag_1(v_dead - state[MOD_E1], state[MOD_TARGET], target, tau) - state[MOD_E2]
-    )
+    left = state[MOD_LEFT]
+    gain = 1.0
+    ext = 0.0
+    if left == left:
+        # Stop model 23 [interpretation]: the caller measures the distance to the stopping point,
+        # so the plans are judged against that point, with the braking as the caller knows it
+        # (gain x the notches' nominal deceleration, plus gradient and resistance): the target
+        # set at the last command, followed open-loop since, no longer decides where the train
+        # stops (measured on model 22: form 8 trains with slow brakes stepped a notch up 1.1 m
+        # before the stop, 0.3 m/s^2 needed, and stopped 0.36 m short).
+        gain = state[MOD_GAIN]
+        ext = state[MOD_EXT]
+        v_dead, x_dead = _pipeline_aimed_1(state, speed_mps, gain, ext)
+        if v_dead <= 0.0:  # the train stands before this choice acts
+            return int(state[MOD_NOTCH])
+        goal = left - x_dead
+        applied = gain * state[MOD_APPLIED] + ext
+    else:
+        applied = state[MOD_APPLIED]
+        v_dead = modulator_pipeline_1(state, speed_mps, 0.0, 0)[0]
+        if v_dead <= 0.0:  # the train stands before this choice acts
+            return int(state[MOD_NOTCH])
+        # The train is e2 ahead of the target trajectory and e1 faster (one dead time from now).
+        goal = (
+            stopping_distance_under_lag_1(v_dead - state[MOD_E1], state[MOD_TARGET], target, tau)
+            - state[MOD_E2]
+        )
     best = np.inf
     choice = lo
     hold_decay = math.exp(-min_hold_s / tau)
     for first in range(first_lo, first_hi + 1):
-        v1, x1, a1 = _lag_segment_1(v_dead, 0.0, applied, table[first], min_hold_s, hold_decay, tau)
+        c1 = gain * table[first] + ext if left == left else table[first]
+        v1, x1, a1 = _lag_segment_1(v_dead, 0.0, applied, c1, min_hold_s, hold_decay, tau)
         if v1 <= 0.0:  # stops inside the first hold: where the first notch alone stops it
-            alone = stopping_distance_under_lag_1(v_dead, applied, table[first], tau)
+            alone = stopping_distance_under_lag_1(v_dead, applied, c1, tau)
         for second in (lo, hi):
             if v1 > 0.0:
-                whole = x1 + stopping_distance_under_lag_1(max(v1, 0.0), a1, table[second], tau)
+                c2 = gain * table[second] + ext if left == left else table[second]
+                whole = x1 + stopping_distance_under_lag_1(max(v1, 0.0), a1, c2, tau)
             else:
                 whole = alone
             miss = abs(whole - goal)

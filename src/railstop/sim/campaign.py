@@ -155,7 +155,12 @@ DISK_BYTES_PER_VALUE = 8
 # 22: config 2 (tasc-step): the onboard unit's own modulator chooses its notch once per its cycle
 # (the vehicle's tasc_cycle_s, 0.05 s) instead of every simulation step, and relays a notch the
 # wayside sends (forms 7, 8) in the step it has it. tasc-step runs change; the others do not.
-MODEL_VERSION = 22
+# 23: forms 7, 8 with a Doppler radar: the wayside's notch modulator plans its end phase against
+# the stopping point as its radar measures the distance to it (the last detector's chainage less
+# the travel since), with the loop gain and the gradient and resistance there, instead of
+# against where the last command's target would stop the train (control.notch.modulator_aim_1).
+# Those runs change; forms 1-6 and the detectors-only variant do not.
+MODEL_VERSION = 23
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from railstop.control.brake_ident import MIN_STEP_MPS2, identify_response_1
 from railstop.control.notch import (
     MOD_SIZE,
+    modulator_aim_1,
     modulator_init_1,
     modulator_restart_1,
     modulator_update_1,
@@ -569,10 +570,21 @@ def _wayside_measure_1(
 
 
 @njit_inline
-def _modulator_cycle_1(ws: FloatArray, wp: FloatArray, table: FloatArray, speed_mps: float) -> int:
+def _modulator_cycle_1(
+    ws: FloatArray, wp: FloatArray, table: FloatArray, speed_mps: float, left_m: float, external_mps2: float
+) -> int:
     """Forms 7, 8: one cycle of the wayside's notch modulator on its target (``speed_mps`` NaN: no
-    speed, the end phase is not planned), timed as the train's brake controller would be."""
+    speed, the end phase is not planned), timed as the train's brake controller would be.
+    Stop model 23: with a Doppler radar the end phase aims at the stopping point, ``left_m``
+    ahead as the radar's travel since the last detector puts it, with the external deceleration
+    ``external_mps2`` there and the loop gain (control.notch.modulator_aim_1); without one, where
+    the target would stop the train (the passages alone give no distance between them)."""
     has_speed = math.isfinite(speed_mps)
+    mod = ws[WS_MOD : WS_MOD + MOD_SIZE]
+    if wp[WP_HAS_DOPPLER] > 0.0 and has_speed and math.isfinite(left_m):
+        modulator_aim_1(mod, left_m, external_mps2, gain_value_1(ws[WS_GAIN_NUM], ws[WS_GAIN_DEN]))
+    else:
+        modulator_aim_1(mod, np.nan, 0.0, 1.0)
     return modulator_update_1(
         ws[WS_MOD : WS_MOD + MOD_SIZE],
         table,
@@ -619,6 +631,8 @@ def wayside_modulate_1(
     ws: FloatArray,
     wp: FloatArray,
     table: FloatArray,
+    approach: Approach,
+    pass_x: FloatArray,
     now_s: float,
     doppler_mps: float,
     tele: FloatArray,
@@ -633,7 +647,14 @@ def wayside_modulate_1(
     if now_s + 1e-9 < ws[WS_MOD_NEXT]:
         return False
     ws[WS_MOD_NEXT] += wp[WP_MOD_CYCLE]
-    notch, delta = _modulated_notch_1(ws, wp, _modulator_cycle_1(ws, wp, table, doppler_mps), now_s)
+    left = np.nan
+    ext = 0.0
+    if ws[WS_LAST_DET] >= 0.0 and math.isfinite(doppler_mps):
+        # The stopping point from the last detector's chainage and the radar's travel since.
+        left = wp[WP_STOP] - pass_x[2] - ws[WS_TRAVEL]
+        ext = external_decel_1(approach.ext, approach.grad, left, doppler_mps)
+    cycle = _modulator_cycle_1(ws, wp, table, doppler_mps, left, ext)
+    notch, delta = _modulated_notch_1(ws, wp, cycle, now_s)
     if delta == 0 and (int(wp[WP_FORM]) == 8 or notch == int(tele[TEL_NOTCH])):
         return False
     ws[WS_SENT] += 1.0
@@ -823,7 +844,9 @@ def wayside_command_1(
         ws[WS_TARGET] = command
         modulator_restart_1(ws[WS_MOD : WS_MOD + MOD_SIZE])
         ws[WS_MOD_NEXT] = now_s + wp[WP_MOD_CYCLE]
-        notch, delta = _modulated_notch_1(ws, wp, _modulator_cycle_1(ws, wp, table, speed), now_s)
+        ext_now = external_decel_1(ext, grad, distance, speed)
+        cycle = _modulator_cycle_1(ws, wp, table, speed, distance, ext_now)
+        notch, delta = _modulated_notch_1(ws, wp, cycle, now_s)
     if form >= 6 or wp[WP_HAS_DOPPLER] == 0.0:
         # Forms 1-5: the train computes its own command from the measurements. Without a radar
         # the wayside's speed at a passage rests on its model of the braking since the passage
@@ -916,4 +939,4 @@ def wayside_step_1(
             record,
         )
     # Forms 7, 8: the wayside's own notch modulation between commands.
-    return wayside_modulate_1(ws, wp, brake.table, now_s, doppler_mps, tele, record)
+    return wayside_modulate_1(ws, wp, brake.table, approach, pass_x, now_s, doppler_mps, tele, record)
