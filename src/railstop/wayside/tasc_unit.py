@@ -575,10 +575,12 @@ def _modulator_cycle_1(
 ) -> int:
     """Forms 7, 8: one cycle of the wayside's notch modulator on its target (``speed_mps`` NaN: no
     speed, the end phase is not planned), timed as the train's brake controller would be.
-    Stop model 23: with a Doppler radar the end phase aims at the stopping point, ``left_m``
-    ahead as the radar's travel since the last detector puts it, with the external deceleration
-    ``external_mps2`` there and the loop gain (control.notch.modulator_aim_1); without one, where
-    the target would stop the train (the passages alone give no distance between them)."""
+    Stop model 23 (SPEC §1 claim 3, forms 7 and 8; **[interpretation]**: SPEC §1 leaves the
+    wayside's notch modulation to us): with a Doppler radar the end phase aims at the stopping
+    point, ``left_m`` ahead as the radar's travel since the last detector puts it, with the
+    external deceleration ``external_mps2`` there and the loop gain
+    (control.notch.modulator_aim_1); without one, where the target would stop the train (the
+    passages alone give no distance between them)."""
     has_speed = math.isfinite(speed_mps)
     mod = ws[WS_MOD : WS_MOD + MOD_SIZE]
     if wp[WP_HAS_DOPPLER] > 0.0 and has_speed and math.isfinite(left_m):
@@ -586,7 +588,7 @@ def _modulator_cycle_1(
     else:
         modulator_aim_1(mod, np.nan, 0.0, 1.0)
     return modulator_update_1(
-        ws[WS_MOD : WS_MOD + MOD_SIZE],
+        mod,
         table,
         wp[WP_MOD_HOLD],
         ws[WS_DELAY] - ws[WS_LAG],  # radio and dead time: the equivalent dead time less the lag
