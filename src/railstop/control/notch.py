@@ -139,35 +139,31 @@ def modulator_pipeline_1(
     after it, the train's speed at its end (from ``speed_mps``), and the speed and distance it
     gains against a deceleration of ``assumed_mps2`` held throughout (e1, e2 of that interval).
     ``pushed``: 1 once the last cycle's own notch is in the ring, 0 while it is being chosen."""
-    tau = state[MOD_TAU]
-    dt = state[MOD_ALPHA_DT]
-    m = int(state[MOD_CYCLES])
-    f = state[MOD_FRAC]
-    v, x, a = _lag_segment_1(
-        speed_mps, 0.0, state[MOD_NOW], _held_1(state, m + pushed), f, state[MOD_DECAY_F], tau
-    )
-    for ago in range(m - 1, -1, -1):
-        v, x, a = _lag_segment_1(v, x, a, _held_1(state, ago + pushed), dt, state[MOD_DECAY_CYCLE], tau)
-    span = m * dt + f
+    v, x = _in_flight_1(state, speed_mps, 1.0, 0.0, pushed)
+    span = int(state[MOD_CYCLES]) * state[MOD_ALPHA_DT] + state[MOD_FRAC]
     v_plan = speed_mps - assumed_mps2 * span
     x_plan = speed_mps * span - 0.5 * assumed_mps2 * span * span
     return v, v - v_plan, x - x_plan
 
 
 @njit_inline
-def _pipeline_aimed_1(state: FloatArray, speed_mps: float, gain: float, ext: float) -> tuple[float, float]:
-    """The train's speed one dead time from now and the distance it covers until then, under the
-    notches already commanded (the last cycle's own not yet in the ring), each giving ``gain``
-    times its nominal deceleration, plus ``ext``."""
+def _in_flight_1(
+    state: FloatArray, speed_mps: float, gain: float, ext: float, pushed: int
+) -> tuple[float, float]:
+    """The train's speed one dead time after the last cycle and the distance it covers until then,
+    from ``speed_mps``, under the notches already commanded, each giving ``gain`` times its
+    nominal deceleration, plus ``ext`` (1 and 0: the modulator's own model). ``pushed`` as in
+    :func:`modulator_pipeline_1`."""
     tau = state[MOD_TAU]
     dt = state[MOD_ALPHA_DT]
     m = int(state[MOD_CYCLES])
     v, x, a = _lag_segment_1(
-        speed_mps, 0.0, gain * state[MOD_NOW] + ext, gain * _held_1(state, m) + ext, state[MOD_FRAC],
-        state[MOD_DECAY_F], tau,
+        speed_mps, 0.0, gain * state[MOD_NOW] + ext, gain * _held_1(state, m + pushed) + ext,
+        state[MOD_FRAC], state[MOD_DECAY_F], tau,
     )  # fmt: skip
     for ago in range(m - 1, -1, -1):
-        v, x, a = _lag_segment_1(v, x, a, gain * _held_1(state, ago) + ext, dt, state[MOD_DECAY_CYCLE], tau)
+        decel = gain * _held_1(state, ago + pushed) + ext
+        v, x, a = _lag_segment_1(v, x, a, decel, dt, state[MOD_DECAY_CYCLE], tau)
     return v, x
 
 
@@ -245,44 +241,39 @@ def _end_choice_1(
     from the current one where it moves one notch per hold (form 8)."""
     tau = state[MOD_TAU]
     left = state[MOD_LEFT]
-    gain = 1.0
-    ext = 0.0
-    if left == left:
-        # Stop model 23 [interpretation]: the caller measures the distance to the stopping point,
-        # so the plans are judged against that point, with the braking as the caller knows it
-        # (gain x the notches' nominal deceleration, plus gradient and resistance): the target
-        # set at the last command, followed open-loop since, no longer decides where the train
-        # stops (measured on model 22: form 8 trains with slow brakes stepped a notch up 1.1 m
-        # before the stop, 0.3 m/s^2 needed, and stopped 0.36 m short).
-        gain = state[MOD_GAIN]
-        ext = state[MOD_EXT]
-        v_dead, x_dead = _pipeline_aimed_1(state, speed_mps, gain, ext)
-        if v_dead <= 0.0:  # the train stands before this choice acts
-            return int(state[MOD_NOTCH])
+    aimed = left == left
+    # Stop model 23 [interpretation]: a caller that measures the distance to the stopping point
+    # has the plans judged against that point, with the braking as it knows it (gain x the
+    # notches' nominal deceleration, plus gradient and resistance): the target set at the last
+    # command, followed open-loop since, no longer decides where the train stops (measured on
+    # model 22: form 8 trains with slow brakes stepped a notch up 1.1 m before the stop, 0.3 m/s^2
+    # needed, and stopped 0.36 m short). Otherwise gain 1 and no external deceleration, the
+    # modulator's own model (x 1 + 0 changes no deceleration: they are all >= 0).
+    gain = state[MOD_GAIN] if aimed else 1.0
+    ext = state[MOD_EXT] if aimed else 0.0
+    v_dead, x_dead = _in_flight_1(state, speed_mps, gain, ext, 0)
+    if v_dead <= 0.0:  # the train stands before this choice acts
+        return int(state[MOD_NOTCH])
+    if aimed:
         goal = left - x_dead
-        applied = gain * state[MOD_APPLIED] + ext
     else:
-        applied = state[MOD_APPLIED]
-        v_dead = modulator_pipeline_1(state, speed_mps, 0.0, 0)[0]
-        if v_dead <= 0.0:  # the train stands before this choice acts
-            return int(state[MOD_NOTCH])
         # The train is e2 ahead of the target trajectory and e1 faster (one dead time from now).
         goal = (
             stopping_distance_under_lag_1(v_dead - state[MOD_E1], state[MOD_TARGET], target, tau)
             - state[MOD_E2]
         )
+    applied = gain * state[MOD_APPLIED] + ext
     best = np.inf
     choice = lo
     hold_decay = math.exp(-min_hold_s / tau)
     for first in range(first_lo, first_hi + 1):
-        c1 = gain * table[first] + ext if left == left else table[first]
+        c1 = gain * table[first] + ext
         v1, x1, a1 = _lag_segment_1(v_dead, 0.0, applied, c1, min_hold_s, hold_decay, tau)
         if v1 <= 0.0:  # stops inside the first hold: where the first notch alone stops it
             alone = stopping_distance_under_lag_1(v_dead, applied, c1, tau)
         for second in (lo, hi):
             if v1 > 0.0:
-                c2 = gain * table[second] + ext if left == left else table[second]
-                whole = x1 + stopping_distance_under_lag_1(max(v1, 0.0), a1, c2, tau)
+                whole = x1 + stopping_distance_under_lag_1(max(v1, 0.0), a1, gain * table[second] + ext, tau)
             else:
                 whole = alone
             miss = abs(whole - goal)

@@ -184,10 +184,7 @@ def minimum_headways(
     system_s = cbtc.report_period_s + cbtc.processing_delay_s + radio.latency_s + step_s
     door_data = doors if doors is not None else load_doors(None)
     profile = static_profile(line, line.end_m, vehicle.brake.full_service_mps2)
-    plan_mps2 = PLANNING_SHARE * vehicle.brake.full_service_mps2
-    ato_profile = static_profile(line, line.end_m, plan_mps2)  # the line's trains' ceiling
-    gradient = track_gradient(line)
-    params = PlantParams.create(vehicle, load_factor=LOAD_FACTOR, dt_s=CLEAR_STEP_S, gradient=gradient)
+    params, ato_profile, plan_mps2 = _follower_model(line, vehicle)
     if handover not in HANDOVERS:
         raise SimulationError(f"handover: one of {', '.join(HANDOVERS)} (got {handover!r})")
     out = []
@@ -227,10 +224,8 @@ def minimum_headways(
         approach = _approach_s(
             st, vehicle, operation.controller, [r.entry_mps for r in releases] + [v_entry], line.track
         )
-        best = min(
-            range(len(releases)),
-            key=lambda k: clear_from(releases[k].x_m, releases[k].v_mps) + releases[k].run_in_s + approach[k],
-        )
+        clears = [clear_from(r.x_m, r.v_mps) for r in releases]
+        best = min(range(len(releases)), key=lambda k: clears[k] + releases[k].run_in_s + approach[k])
         r = releases[best]
         dwell_s = _dwell_s(dwell_doors, st)
         ideal = dwell_s + clear_from(handover_m(first, v_entry), v_entry) + system_s + approach[-1]
@@ -238,7 +233,7 @@ def minimum_headways(
             PlatformHeadway(
                 station=st.name,
                 dwell_s=dwell_s,
-                clear_s=clear_from(r.x_m, r.v_mps),
+                clear_s=clears[best],
                 system_s=system_s,
                 run_in_s=r.run_in_s,
                 approach_s=approach[best],
@@ -252,6 +247,23 @@ def minimum_headways(
             )
         )
     return out
+
+
+def _follower_model(line: Line, vehicle: Vehicle) -> tuple[PlantParams, FloatArray, float]:
+    """A follower of the line's law: the plant (half load, the line's gradients, the clearing's
+    step), its ATO's ceiling (the static profile at the planning deceleration) and that
+    deceleration."""
+    plan_mps2 = PLANNING_SHARE * vehicle.brake.full_service_mps2
+    params = PlantParams.create(
+        vehicle, load_factor=LOAD_FACTOR, dt_s=CLEAR_STEP_S, gradient=track_gradient(line)
+    )
+    return params, static_profile(line, line.end_m, plan_mps2), plan_mps2
+
+
+def _waiting_point_m(first_m: float, v_entry_mps: float) -> float:
+    """Where a follower waits while the platform is not clear: ``HOLD_BACK_M`` before the
+    hand-over point of a station whose first detector is at ``first_m``."""
+    return handover_m(first_m, v_entry_mps) - HOLD_BACK_M
 
 
 def _dwell_s(doors: DoorsConfig, station: Station) -> float:
@@ -291,7 +303,7 @@ def _releases(
     a stand there), every ``RELEASE_DX_M`` run and the stand, each with its ATO's run from there to
     the hand-over point once released. Any follower of the line's law is at best this fast where
     it is: one that came in slower is slower still."""
-    wait_m = handover_m(first_m, v_entry) - HOLD_BACK_M
+    wait_m = _waiting_point_m(first_m, v_entry)
     # Back along the curve to where it no longer binds (the ATO's ceiling is the static profile).
     x = wait_m
     while x > wait_m - RELEASE_SPAN_M:
@@ -415,15 +427,10 @@ def regulation_times(
     regulation of an ATS, which holds a train at its platform rather than let it stand before the
     next one."""
     heads = minimum_headways(line, vehicle, operation, step_s=step_s, doors=doors, handover=handover)
-    plan_mps2 = PLANNING_SHARE * vehicle.brake.full_service_mps2
-    profile = static_profile(line, line.end_m, plan_mps2)
-    params = PlantParams.create(
-        vehicle, load_factor=LOAD_FACTOR, dt_s=CLEAR_STEP_S, gradient=track_gradient(line)
-    )
+    params, profile, plan_mps2 = _follower_model(line, vehicle)
     out: list[RegulationTimes | None] = []
     for k, (st, h) in enumerate(zip(line.stations, heads, strict=True)):
-        first = st.detector_positions_m()[0]
-        wait_m = handover_m(first, st.tasc.entry_speed_kmh * MPS_PER_KMH) - HOLD_BACK_M
+        wait_m = _waiting_point_m(st.detector_positions_m()[0], st.tasc.entry_speed_kmh * MPS_PER_KMH)
         if k == 0:  # from the line's entry, at the operation's entry speed
             x0, v0, came_from = operation.entry_m, operation.entry_speed_kmh * MPS_PER_KMH, "the entry"
         else:  # from a stand at the station before
